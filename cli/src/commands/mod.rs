@@ -1,0 +1,3 @@
+//! One module per `blueshift` verb.
+
+pub mod spectrum;

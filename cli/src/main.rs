@@ -1,0 +1,42 @@
+//! The `blueshift` command-line tool.
+//!
+//! Each verb lives in its own module under `commands/`. Errors are printed as one line on
+//! stderr; the exit code is 0 on success, 1 for a user error (bad input, bad flags) and 2 for
+//! an internal error.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod commands;
+mod output;
+
+/// blueshift: physically based scientific volume rendering.
+#[derive(Debug, Parser)]
+#[command(name = "blueshift", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Build a spectrum (black body, emission lines, Doppler shift) and report its colour.
+    Spectrum(commands::spectrum::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Spectrum(args) => commands::spectrum::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            // One line: the chain of contexts joined by ": ".
+            eprintln!("blueshift: {err:#}");
+            let internal = err.downcast_ref::<output::InternalError>().is_some();
+            ExitCode::from(if internal { 2 } else { 1 })
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! blueshift-spectrum (being written).
