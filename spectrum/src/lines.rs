@@ -1,0 +1,179 @@
+//! Emission lines: built-in catalogues, user line lists and line profiles.
+
+use crate::error::{Error, Result, non_negative, positive};
+use crate::piecewise::PiecewiseLinear;
+
+/// An emission line: a centre wavelength (air, nm) and a strength, the line's integrated
+/// radiance (spectral radiance unit x nm; for catalogue lines, the relative intensity).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub struct EmissionLine {
+    /// Centre wavelength, nm.
+    pub centre_nm: f64,
+    /// Integrated strength (area under the profile), value unit x nm.
+    pub strength: f64,
+}
+
+/// The shape a line is given (a delta peak cannot be represented; nature broadens lines).
+/// Every profile keeps the line's strength as its area.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum LineProfile {
+    /// A box of full width `width_nm` (the paper's `delta lambda`, Fig. 9b).
+    Box {
+        /// Full width, nm.
+        width_nm: f64,
+    },
+    /// A symmetric triangle with full width at half maximum `fwhm_nm` (base 2 x FWHM).
+    Triangle {
+        /// Full width at half maximum, nm.
+        fwhm_nm: f64,
+    },
+}
+
+impl Default for LineProfile {
+    fn default() -> Self {
+        Self::Box { width_nm: 1.0 }
+    }
+}
+
+impl EmissionLine {
+    /// A line; refuses a non-positive centre or a negative strength.
+    pub fn new(centre_nm: f64, strength: f64) -> Result<Self> {
+        positive("line centre (nm)", centre_nm)?;
+        non_negative("line strength", strength)?;
+        Ok(Self {
+            centre_nm,
+            strength,
+        })
+    }
+
+    /// Adds the line, with `profile`, scaled by `weight` (>= 0), to a spectrum.
+    pub fn add_to(&self, spectrum: &mut PiecewiseLinear, profile: LineProfile, weight: f64) -> Result<()> {
+        non_negative("line weight", weight)?;
+        let area = self.strength * weight;
+        let c = self.centre_nm;
+        match profile {
+            LineProfile::Box { width_nm } => {
+                positive("line width (nm)", width_nm)?;
+                let h = width_nm / 2.0;
+                spectrum.add_box(c - h, c + h, area / width_nm)
+            }
+            LineProfile::Triangle { fwhm_nm } => {
+                positive("line FWHM (nm)", fwhm_nm)?;
+                let peak = area / fwhm_nm;
+                spectrum.add_trapezoid(c - fwhm_nm, c, 0.0, peak)?;
+                spectrum.add_trapezoid(c, c + fwhm_nm, peak, 0.0)
+            }
+        }
+    }
+
+    /// The line alone as a piecewise-linear spectrum.
+    pub fn to_piecewise(&self, profile: LineProfile) -> Result<PiecewiseLinear> {
+        let mut s = PiecewiseLinear::new();
+        self.add_to(&mut s, profile, 1.0)?;
+        Ok(s)
+    }
+}
+
+/// The built-in line catalogues (visible lines, air wavelengths, relative intensities with
+/// the strongest line = 1). Sources, all compiled from or matched to the NIST Atomic Spectra
+/// Database, are named in `data/lines_*.csv` and `data/make_line_catalogues.py`:
+/// - H I Balmer n = 3..12: Storey & Hummer 1995 Case B (T = 1e4 K, n_e = 100 cm^-3) via
+///   PyNeb 1.1.32, wavelengths from NIST ASD level energies;
+/// - He I: Porter et al. 2012/2013 recombination lines via PyNeb 1.1.32, NIST ASD wavelengths;
+/// - C I: the 12 strongest lines in 380-780 nm of an LTE gas at 1e4 K from NIST-compiled
+///   A-values (van Hoof's Atomic Line List v3.00b4 via PyEMILI 1.2.0).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum Catalogue {
+    /// Neutral hydrogen, Balmer series.
+    HydrogenBalmer,
+    /// Neutral helium.
+    HeliumI,
+    /// Neutral carbon.
+    CarbonI,
+}
+
+const H1: &str = include_str!("../data/lines_h1_balmer.csv");
+const HE1: &str = include_str!("../data/lines_he1.csv");
+const C1: &str = include_str!("../data/lines_c1.csv");
+
+impl Catalogue {
+    /// All built-in catalogues.
+    pub const ALL: [Catalogue; 3] = [Self::HydrogenBalmer, Self::HeliumI, Self::CarbonI];
+
+    /// Parses a name: `H`, `HI`, `H I`, `hydrogen`; `He`, `HeI`, `helium`; `C`, `CI`, `carbon`
+    /// (case-insensitive).
+    pub fn parse(name: &str) -> Result<Self> {
+        let n: String = name
+            .chars()
+            .filter(|c| !c.is_whitespace())
+            .collect::<String>()
+            .to_ascii_lowercase();
+        match n.as_str() {
+            "h" | "hi" | "h1" | "hydrogen" | "balmer" => Ok(Self::HydrogenBalmer),
+            "he" | "hei" | "he1" | "helium" => Ok(Self::HeliumI),
+            "c" | "ci" | "c1" | "carbon" => Ok(Self::CarbonI),
+            _ => Err(Error::UnknownName {
+                what: "line catalogue",
+                name: name.to_owned(),
+                known: "H, He, C",
+            }),
+        }
+    }
+
+    /// Short name (`H`, `He`, `C`).
+    #[must_use]
+    pub fn short_name(self) -> &'static str {
+        match self {
+            Self::HydrogenBalmer => "H",
+            Self::HeliumI => "He",
+            Self::CarbonI => "C",
+        }
+    }
+
+    /// The catalogue's lines (strength = relative intensity).
+    #[must_use]
+    pub fn lines(self) -> Vec<EmissionLine> {
+        let (text, name) = match self {
+            Self::HydrogenBalmer => (H1, "lines_h1_balmer.csv"),
+            Self::HeliumI => (HE1, "lines_he1.csv"),
+            Self::CarbonI => (C1, "lines_c1.csv"),
+        };
+        parse_line_list(text, name).expect("built-in line catalogue is well formed")
+    }
+}
+
+/// Parses a user line list: CSV with a header row, columns `wavelength_nm` and
+/// `relative_intensity` (further columns are ignored; lines starting with `#` are comments).
+/// Refuses a malformed row, naming `source_name` and the line number.
+pub fn parse_line_list(text: &str, source_name: &str) -> Result<Vec<EmissionLine>> {
+    let rows = crate::cie::parse_csv_rows(text, source_name, 2)?;
+    let mut lines = Vec::with_capacity(rows.len());
+    for (line_no, r) in &rows {
+        let line = EmissionLine::new(r[0], r[1]).map_err(|e| Error::Parse {
+            source_name: source_name.to_owned(),
+            line: *line_no,
+            message: e.to_string(),
+        })?;
+        lines.push(line);
+    }
+    if lines.is_empty() {
+        return Err(Error::Parse {
+            source_name: source_name.to_owned(),
+            line: 0,
+            message: "no lines".to_owned(),
+        });
+    }
+    Ok(lines)
+}
+
+/// Reads a user line list from a file (see [`parse_line_list`]).
+pub fn read_line_list(path: &std::path::Path) -> Result<Vec<EmissionLine>> {
+    let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    parse_line_list(&text, &path.display().to_string())
+}
