@@ -23,11 +23,7 @@ impl BandLayout {
             return Err(Error::param("band count", 0.0, "must be >= 1"));
         }
         if bands > 1 << 26 {
-            return Err(Error::param(
-                "band count",
-                bands as f64,
-                "must be <= 2^26",
-            ));
+            return Err(Error::param("band count", bands as f64, "must be <= 2^26"));
         }
         Ok(Self {
             min_nm,
@@ -79,7 +75,11 @@ impl BandLayout {
 
 impl std::fmt::Display for BandLayout {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} bands over [{}, {}) nm", self.bands, self.min_nm, self.max_nm)
+        write!(
+            f,
+            "{} bands over [{}, {}) nm",
+            self.bands, self.min_nm, self.max_nm
+        )
     }
 }
 
@@ -147,7 +147,7 @@ impl Banded {
         let (lo, hi) = l.range_nm();
         let a = p.start_nm.max(lo);
         let b = p.end_nm.min(hi);
-        if !(b > a) {
+        if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
             return;
         }
         let w = l.width_nm();
@@ -246,7 +246,10 @@ impl Banded {
     pub fn shift_nearest(&self, shift: WavelengthShift) -> Self {
         let mut out = Self::zero(self.layout);
         for (i, &v) in self.values.iter().enumerate() {
-            if let Some(j) = self.layout.band_of(self.layout.band_centre_nm(i) * shift.value()) {
+            if let Some(j) = self
+                .layout
+                .band_of(self.layout.band_centre_nm(i) * shift.value())
+            {
                 out.values[j] += v;
             }
         }

@@ -152,7 +152,12 @@ impl Blackbody {
 
     /// `count` equal-width linear pieces over `[min_nm, max_nm]` through exact values at their
     /// ends (the paper's scheme: 21 samples, Fig. 10).
-    pub fn to_piecewise_uniform(&self, min_nm: f64, max_nm: f64, count: usize) -> Result<PiecewiseLinear> {
+    pub fn to_piecewise_uniform(
+        &self,
+        min_nm: f64,
+        max_nm: f64,
+        count: usize,
+    ) -> Result<PiecewiseLinear> {
         let (lo, hi) = range("black-body range", min_nm, max_nm)?;
         if count == 0 {
             return Err(Error::param("piece count", 0.0, "must be >= 1"));
@@ -210,12 +215,13 @@ impl Blackbody {
         // Depth-first, right half pushed first so pieces come out in order.
         while let Some((a, b, depth)) = stack.pop() {
             let (va, vb) = (self.eval(a), self.eval(b));
-            let ok = depth >= 40 || (1..32).all(|i| {
-                let x = a + (b - a) * i as f64 / 32.0;
-                let exact = self.eval(x);
-                let approx = va + (vb - va) * i as f64 / 32.0;
-                exact <= 0.0 && approx <= 0.0 || (approx - exact).abs() <= target * exact
-            });
+            let ok = depth >= 40
+                || (1..32).all(|i| {
+                    let x = a + (b - a) * i as f64 / 32.0;
+                    let exact = self.eval(x);
+                    let approx = va + (vb - va) * i as f64 / 32.0;
+                    exact <= 0.0 && approx <= 0.0 || (approx - exact).abs() <= target * exact
+                });
             if ok {
                 pieces.push(Piece {
                     start_nm: a,

@@ -279,7 +279,12 @@ impl Cmf {
         Ok(Self::from_uniform(name, start_nm, step_nm, samples))
     }
 
-    fn from_uniform(name: &'static str, start_nm: f64, step_nm: f64, samples: Vec<[f64; 3]>) -> Self {
+    fn from_uniform(
+        name: &'static str,
+        start_nm: f64,
+        step_nm: f64,
+        samples: Vec<[f64; 3]>,
+    ) -> Self {
         let n = samples.len();
         let mut prefix0 = vec![[0.0; 3]; n];
         let mut prefix1 = vec![[0.0; 3]; n];
@@ -359,11 +364,17 @@ impl Cmf {
     /// partial table intervals at both ends in closed form, the intervals in between from the
     /// prefix integrals of the CMFs and their first moments.
     #[must_use]
-    pub fn trapezoid_xyz(&self, start_nm: f64, end_nm: f64, value_start: f64, value_end: f64) -> Xyz {
+    pub fn trapezoid_xyz(
+        &self,
+        start_nm: f64,
+        end_nm: f64,
+        value_start: f64,
+        value_end: f64,
+    ) -> Xyz {
         let (lo, hi) = self.range_nm();
         let a = start_nm.max(lo);
         let b = end_nm.min(hi);
-        if !(b > a) {
+        if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
             return Xyz::ZERO;
         }
         let line = |x: f64| crate::piecewise::lerp(start_nm, end_nm, value_start, value_end, x);
@@ -467,7 +478,11 @@ pub(crate) fn parse_csv_rows(
         }
         if !header_seen {
             header_seen = true;
-            if line.split(',').next().is_some_and(|f| f.trim().parse::<f64>().is_err()) {
+            if line
+                .split(',')
+                .next()
+                .is_some_and(|f| f.trim().parse::<f64>().is_err())
+            {
                 continue;
             }
         }
@@ -610,7 +625,11 @@ mod tests {
             .unwrap();
             for c in 0..3 {
                 let d = t.dot(&chans[c]);
-                assert!((xyz[c] - d).abs() <= 1e-11 * d.abs().max(1e-3), "{a}-{b} c{c}: {} vs {d}", xyz[c]);
+                assert!(
+                    (xyz[c] - d).abs() <= 1e-11 * d.abs().max(1e-3),
+                    "{a}-{b} c{c}: {} vs {d}",
+                    xyz[c]
+                );
             }
         }
     }
@@ -621,6 +640,9 @@ mod tests {
         let cmf = Cmf::cie1931_2deg();
         let xyz = cmf.xyz_by_summation(|w| if w <= 780.0 { d65().eval(w) } else { 0.0 });
         let [x, y] = xyz.chromaticity().unwrap();
-        assert!((x - 0.31271).abs() < 2e-4 && (y - 0.32902).abs() < 2e-4, "{x} {y}");
+        assert!(
+            (x - 0.31271).abs() < 2e-4 && (y - 0.32902).abs() < 2e-4,
+            "{x} {y}"
+        );
     }
 }

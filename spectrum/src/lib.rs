@@ -76,9 +76,7 @@ pub use doppler::{
     DopplerFactor, DopplerModel, RadiometricTransform, SPEED_OF_LIGHT_M_PER_S, WavelengthShift,
 };
 pub use error::{Error, Result};
-pub use lines::{
-    Catalogue, EmissionLine, LineProfile, parse_line_list, read_line_list,
-};
+pub use lines::{Catalogue, EmissionLine, LineProfile, parse_line_list, read_line_list};
 pub use piecewise::{Piece, PiecewiseLinear};
 
 /// The small interface shared by every spectrum type (CONVENTIONS C5): evaluate, bound, and

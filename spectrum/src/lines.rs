@@ -49,7 +49,12 @@ impl EmissionLine {
     }
 
     /// Adds the line, with `profile`, scaled by `weight` (>= 0), to a spectrum.
-    pub fn add_to(&self, spectrum: &mut PiecewiseLinear, profile: LineProfile, weight: f64) -> Result<()> {
+    pub fn add_to(
+        &self,
+        spectrum: &mut PiecewiseLinear,
+        profile: LineProfile,
+        weight: f64,
+    ) -> Result<()> {
         non_negative("line weight", weight)?;
         let area = self.strength * weight;
         let c = self.centre_nm;

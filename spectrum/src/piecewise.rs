@@ -621,7 +621,11 @@ mod tests {
     use super::*;
 
     fn close(a: f64, b: f64, tol: f64) {
-        assert!((a - b).abs() <= tol, "expected {b}, got {a}, diff {}", a - b);
+        assert!(
+            (a - b).abs() <= tol,
+            "expected {b}, got {a}, diff {}",
+            a - b
+        );
     }
 
     #[test]
@@ -647,7 +651,13 @@ mod tests {
             let mut s = PiecewiseLinear::new();
             s.add_trapezoid(10.0, 20.0, 1.0, 2.0).unwrap();
             s.add_trapezoid(y1, y2, 3.0, 0.5).unwrap();
-            let f = |x: f64| if (10.0..20.0).contains(&x) { 1.0 + (x - 10.0) / 10.0 } else { 0.0 };
+            let f = |x: f64| {
+                if (10.0..20.0).contains(&x) {
+                    1.0 + (x - 10.0) / 10.0
+                } else {
+                    0.0
+                }
+            };
             let g = |x: f64| {
                 if (y1..y2).contains(&x) {
                     3.0 + (0.5 - 3.0) * (x - y1) / (y2 - y1)

@@ -9,7 +9,8 @@ fn rel(a: f64, b: f64) -> f64 {
 }
 
 fn trapezoid() -> impl Strategy<Value = (f64, f64, f64, f64)> {
-    (300.0..900.0f64, 0.01..80.0f64, 0.0..10.0f64, 0.0..10.0f64).prop_map(|(a, w, va, vb)| (a, a + w, va, vb))
+    (300.0..900.0f64, 0.01..80.0f64, 0.0..10.0f64, 0.0..10.0f64)
+        .prop_map(|(a, w, va, vb)| (a, a + w, va, vb))
 }
 
 fn build(traps: &[(f64, f64, f64, f64)]) -> PiecewiseLinear {
@@ -22,7 +23,11 @@ fn build(traps: &[(f64, f64, f64, f64)]) -> PiecewiseLinear {
 
 fn eval_trap(t: &(f64, f64, f64, f64), x: f64) -> f64 {
     let (a, b, va, vb) = *t;
-    if x >= a && x < b { va + (vb - va) * (x - a) / (b - a) } else { 0.0 }
+    if x >= a && x < b {
+        va + (vb - va) * (x - a) / (b - a)
+    } else {
+        0.0
+    }
 }
 
 proptest! {
@@ -133,7 +138,10 @@ proptest! {
 
 #[test]
 fn scaling_the_axis_by_s_multiplies_the_integral_by_s_exactly() {
-    let mut s = Blackbody::new(5800.0).unwrap().to_piecewise(380.0, 780.0, 1e-3).unwrap();
+    let mut s = Blackbody::new(5800.0)
+        .unwrap()
+        .to_piecewise(380.0, 780.0, 1e-3)
+        .unwrap();
     EmissionLine::new(656.28, 1e4)
         .unwrap()
         .add_to(&mut s, LineProfile::Box { width_nm: 0.5 }, 1.0)
@@ -143,7 +151,10 @@ fn scaling_the_axis_by_s_multiplies_the_integral_by_s_exactly() {
         let none = s.shifted(shift, RadiometricTransform::None);
         assert!(rel(none.total(), sv * s.total()) < 1e-13, "s = {sv}");
         let inv = s.shifted(shift, RadiometricTransform::Invariant);
-        assert!(rel(inv.total(), sv.powi(-4) * s.total()) < 1e-13, "s = {sv}");
+        assert!(
+            rel(inv.total(), sv.powi(-4) * s.total()) < 1e-13,
+            "s = {sv}"
+        );
         assert_eq!(none.piece_count(), s.piece_count());
     }
 }
@@ -162,11 +173,16 @@ fn planck_matches_a_textbook_value_and_the_rayleigh_jeans_limit() {
     // B_lambda(500 nm, 5500 K) = 2.0472702e13 W sr^-1 m^-3 with CIE constants (colour-science
     // docstring); per nm that is 2.0472702e4.
     let b = Blackbody::with_constants(5500.0, RadiationConstants::Cie15).unwrap();
-    assert!(rel(b.eval(500.0), 2.047_270_19e4) < 1e-7, "{}", b.eval(500.0));
+    assert!(
+        rel(b.eval(500.0), 2.047_270_19e4) < 1e-7,
+        "{}",
+        b.eval(500.0)
+    );
     // Rayleigh-Jeans: B -> 2 c k T / lambda^4 for lambda T >> c2.
     let t = 1.0e7;
     let lambda_nm = 1.0e7; // 1 cm
-    let rj = 2.0 * SPEED_OF_LIGHT_M_PER_S * BOLTZMANN_J_PER_K * t / (lambda_nm * 1e-9f64).powi(4) * 1e-9;
+    let rj =
+        2.0 * SPEED_OF_LIGHT_M_PER_S * BOLTZMANN_J_PER_K * t / (lambda_nm * 1e-9f64).powi(4) * 1e-9;
     assert!(rel(planck(lambda_nm, t).unwrap(), rj) < 1e-5);
 }
 
@@ -179,7 +195,11 @@ fn blackbody_peak_obeys_wien_displacement() {
         for _ in 0..200 {
             let m1 = b - (b - a) / 1.618_033_988_75;
             let m2 = a + (b - a) / 1.618_033_988_75;
-            if bb.eval(m1) < bb.eval(m2) { a = m1 } else { b = m2 }
+            if bb.eval(m1) < bb.eval(m2) {
+                a = m1
+            } else {
+                b = m2
+            }
         }
         let peak = 0.5 * (a + b);
         assert!(rel(peak, wien_peak_nm(t).unwrap()) < 1e-6, "{t} K: {peak}");
@@ -200,11 +220,18 @@ fn blackbody_approximation_meets_its_requested_error_bound() {
                 }
                 worst = worst.max(rel(s.eval(x), bb.eval(x)));
             }
-            assert!(worst <= eps, "{t} K, eps {eps}: worst {worst} with {} pieces", s.piece_count());
+            assert!(
+                worst <= eps,
+                "{t} K, eps {eps}: worst {worst} with {} pieces",
+                s.piece_count()
+            );
         }
     }
     // The paper's 21 samples describe the curve well (Fig. 10): a few percent at most.
-    let s = Blackbody::new(6000.0).unwrap().to_piecewise_uniform(360.0, 830.0, 21).unwrap();
+    let s = Blackbody::new(6000.0)
+        .unwrap()
+        .to_piecewise_uniform(360.0, 830.0, 21)
+        .unwrap();
     assert_eq!(s.piece_count(), 21);
 }
 
@@ -225,7 +252,9 @@ fn shifted_blackbody_is_blackbody_at_t_over_s() {
     }
     // First-order (Eq. 7) agrees with the exact T / s to second order in v/c.
     let v = 3.0e6;
-    let exact = bb.shifted(WavelengthShift::classical(v).unwrap()).temperature_k();
+    let exact = bb
+        .shifted(WavelengthShift::classical(v).unwrap())
+        .temperature_k();
     let first = bb.shifted_first_order(v).unwrap().temperature_k();
     let b = v / SPEED_OF_LIGHT_M_PER_S;
     assert!((exact - first).abs() <= 6000.0 * b * b * 1.01);
@@ -246,10 +275,17 @@ fn doppler_factors_follow_the_sign_convention_and_special_relativity() {
     // Transverse: s = gamma.
     let g = 1.0 / (1.0 - b * b).sqrt();
     assert!(rel(WavelengthShift::relativistic(b, 0.0).unwrap().value(), g) < 1e-15);
-    let t = WavelengthShift::from_velocity(DopplerModel::Relativistic, [b * c, 0.0, 0.0], [0.0, 0.0, 1.0]).unwrap();
+    let t = WavelengthShift::from_velocity(
+        DopplerModel::Relativistic,
+        [b * c, 0.0, 0.0],
+        [0.0, 0.0, 1.0],
+    )
+    .unwrap();
     assert!(rel(t.value(), g) < 1e-15);
     // Classical ignores the transverse part.
-    let cl = WavelengthShift::from_velocity(DopplerModel::Classical, [b * c, 0.0, 0.0], [0.0, 0.0, 1.0]).unwrap();
+    let cl =
+        WavelengthShift::from_velocity(DopplerModel::Classical, [b * c, 0.0, 0.0], [0.0, 0.0, 1.0])
+            .unwrap();
     assert_eq!(cl.value(), 1.0);
     // D = 1 / s.
     assert!(rel(WavelengthShift::new(1.25).unwrap().recip().value(), 0.8) < 1e-15);
@@ -258,7 +294,10 @@ fn doppler_factors_follow_the_sign_convention_and_special_relativity() {
     assert!(WavelengthShift::relativistic(f64::NAN, 0.0).is_err());
     assert!(WavelengthShift::relativistic_radial(-c).is_err());
     assert!(WavelengthShift::classical(-2.0 * c).is_err());
-    assert!(WavelengthShift::from_velocity(DopplerModel::Relativistic, [c, 0.0, 0.0], [1.0, 0.0, 0.0]).is_err());
+    assert!(
+        WavelengthShift::from_velocity(DopplerModel::Relativistic, [c, 0.0, 0.0], [1.0, 0.0, 0.0])
+            .is_err()
+    );
 }
 
 /// Paper Fig. 7: a 6000 K black body in 21 bands over [100, 1000] nm. The nearest-band shift
@@ -283,18 +322,33 @@ fn nearest_band_shift_shows_apparent_lines_and_energy_conserving_does_not() {
             })
             .count()
     };
-    assert_eq!(lines(&bands, 3, 20), 0, "the unshifted black body is smooth");
+    assert_eq!(
+        lines(&bands, 3, 20),
+        0,
+        "the unshifted black body is smooth"
+    );
     for (sv, kind) in [(0.85, "emission"), (1.15, "absorption")] {
         let shift = WavelengthShift::new(sv).unwrap();
         let nearest = bands.shift_nearest(shift);
         let conserving = bands.shift_energy_conserving(shift, RadiometricTransform::None);
         // Compare only the bands the shifted range covers fully.
         let (lo, hi) = if sv < 1.0 { (3, 16) } else { (3, 20) };
-        assert!(lines(&nearest, lo, hi) >= 1, "nearest-band shift by {sv} should show apparent {kind} lines");
-        assert_eq!(lines(&conserving, lo, hi), 0, "energy-conserving shift by {sv} should be smooth");
+        assert!(
+            lines(&nearest, lo, hi) >= 1,
+            "nearest-band shift by {sv} should show apparent {kind} lines"
+        );
+        assert_eq!(
+            lines(&conserving, lo, hi),
+            0,
+            "energy-conserving shift by {sv} should be smooth"
+        );
         // Energy: the conserving shift keeps s x the energy of the in-range source.
         let in_range: f64 = conserving.total();
-        let expect = bands.to_piecewise().shifted(shift, RadiometricTransform::None).integrate(100.0, 1000.0).unwrap();
+        let expect = bands
+            .to_piecewise()
+            .shifted(shift, RadiometricTransform::None)
+            .integrate(100.0, 1000.0)
+            .unwrap();
         assert!(rel(in_range, expect) < 1e-12);
     }
 }
@@ -302,10 +356,14 @@ fn nearest_band_shift_shows_apparent_lines_and_energy_conserving_does_not() {
 /// Paper Fig. 13: banded XYZ converges to the piecewise-linear XYZ as N grows.
 #[test]
 fn banded_xyz_converges_to_piecewise_linear_xyz() {
-    let mut s = Blackbody::new(5000.0).unwrap().to_piecewise(360.0, 830.0, 1e-4).unwrap();
+    let mut s = Blackbody::new(5000.0)
+        .unwrap()
+        .to_piecewise(360.0, 830.0, 1e-4)
+        .unwrap();
     s.scale(1e-4).unwrap();
     for line in Catalogue::HydrogenBalmer.lines() {
-        line.add_to(&mut s, LineProfile::Box { width_nm: 0.4 }, 1.0).unwrap();
+        line.add_to(&mut s, LineProfile::Box { width_nm: 0.4 }, 1.0)
+            .unwrap();
     }
     let cmf = Cmf::cie1931_2deg();
     let exact = cmf.xyz_of(&s);
@@ -315,7 +373,10 @@ fn banded_xyz_converges_to_piecewise_linear_xyz() {
         let layout = BandLayout::new(360.0, 830.0, n).unwrap();
         let banded = Banded::sampled(layout, |w| s.eval(w)).unwrap();
         let xyz = banded.to_xyz_with(cmf);
-        let err = (0..3).map(|c| (xyz.to_array()[c] - exact.to_array()[c]).abs()).sum::<f64>() / exact.to_array().iter().sum::<f64>();
+        let err = (0..3)
+            .map(|c| (xyz.to_array()[c] - exact.to_array()[c]).abs())
+            .sum::<f64>()
+            / exact.to_array().iter().sum::<f64>();
         errors.push(err);
         // The exact band projection conserves the integral in range, so its XYZ error is small even at N = 40.
         let proj = Banded::projected(layout, &s);
@@ -331,20 +392,55 @@ fn bad_input_gets_typed_errors_naming_the_value() {
         let e = Blackbody::new(t).unwrap_err();
         assert!(e.to_string().contains("temperature"), "{e}");
     }
-    assert!(matches!(Blackbody::new(5000.0).unwrap().to_piecewise(800.0, 400.0, 1e-3), Err(Error::Range { .. })));
-    assert!(matches!(Blackbody::new(5000.0).unwrap().to_piecewise(400.0, 400.0, 1e-3), Err(Error::Range { .. })));
+    assert!(matches!(
+        Blackbody::new(5000.0)
+            .unwrap()
+            .to_piecewise(800.0, 400.0, 1e-3),
+        Err(Error::Range { .. })
+    ));
+    assert!(matches!(
+        Blackbody::new(5000.0)
+            .unwrap()
+            .to_piecewise(400.0, 400.0, 1e-3),
+        Err(Error::Range { .. })
+    ));
     assert!(BandLayout::new(360.0, 830.0, 0).is_err());
-    assert!(PiecewiseLinear::new().add_trapezoid(500.0, 501.0, -1.0, 1.0).is_err());
-    assert!(PiecewiseLinear::new().add_trapezoid(500.0, 501.0, f64::NAN, 1.0).is_err());
+    assert!(
+        PiecewiseLinear::new()
+            .add_trapezoid(500.0, 501.0, -1.0, 1.0)
+            .is_err()
+    );
+    assert!(
+        PiecewiseLinear::new()
+            .add_trapezoid(500.0, 501.0, f64::NAN, 1.0)
+            .is_err()
+    );
     assert!(PiecewiseLinear::new().scale(f64::NAN).is_err());
     let overlap = [
-        Piece { start_nm: 400.0, end_nm: 500.0, value_start: 1.0, value_end: 1.0 },
-        Piece { start_nm: 450.0, end_nm: 550.0, value_start: 1.0, value_end: 1.0 },
+        Piece {
+            start_nm: 400.0,
+            end_nm: 500.0,
+            value_start: 1.0,
+            value_end: 1.0,
+        },
+        Piece {
+            start_nm: 450.0,
+            end_nm: 550.0,
+            value_start: 1.0,
+            value_end: 1.0,
+        },
     ];
     assert!(PiecewiseLinear::from_pieces(overlap).is_err());
-    let err = parse_line_list("wavelength_nm,relative_intensity\n500,1\n510,abc\n", "my_lines.csv").unwrap_err();
+    let err = parse_line_list(
+        "wavelength_nm,relative_intensity\n500,1\n510,abc\n",
+        "my_lines.csv",
+    )
+    .unwrap_err();
     let msg = err.to_string();
-    assert!(msg.contains("my_lines.csv") && msg.contains("line 3"), "{msg}");
+    assert!(
+        msg.contains("my_lines.csv") && msg.contains("line 3"),
+        "{msg}"
+    );
     assert!(parse_line_list("wavelength_nm,relative_intensity\n-1,1\n", "x").is_err());
     assert!(Catalogue::parse("Fe").is_err());
     assert!(planck(500.0, -1.0).is_err());
@@ -354,12 +450,21 @@ fn bad_input_gets_typed_errors_naming_the_value() {
 #[test]
 fn catalogues_hold_the_well_known_lines() {
     let h = Catalogue::HydrogenBalmer.lines();
-    let ha = h.iter().find(|l| (l.centre_nm - 656.28).abs() < 0.01).expect("H-alpha");
-    let hb = h.iter().find(|l| (l.centre_nm - 486.13).abs() < 0.01).expect("H-beta");
+    let ha = h
+        .iter()
+        .find(|l| (l.centre_nm - 656.28).abs() < 0.01)
+        .expect("H-alpha");
+    let hb = h
+        .iter()
+        .find(|l| (l.centre_nm - 486.13).abs() < 0.01)
+        .expect("H-beta");
     // Case B at 1e4 K: H-alpha / H-beta = 2.86 (Osterbrock & Ferland).
     assert!((ha.strength / hb.strength - 2.86).abs() < 0.02);
     let he = Catalogue::HeliumI.lines();
-    assert!(he.iter().any(|l| (l.centre_nm - 587.56).abs() < 0.01), "He I D3 line");
+    assert!(
+        he.iter().any(|l| (l.centre_nm - 587.56).abs() < 0.01),
+        "He I D3 line"
+    );
     let c = Catalogue::CarbonI.lines();
     assert!(!c.is_empty() && c.iter().all(|l| (380.0..=780.0).contains(&l.centre_nm)));
     for name in ["H", "He", "C", "h i", "HeI"] {
@@ -370,14 +475,19 @@ fn catalogues_hold_the_well_known_lines() {
 #[test]
 fn line_profiles_keep_their_strength_as_area() {
     let l = EmissionLine::new(500.0, 3.5).unwrap();
-    for p in [LineProfile::Box { width_nm: 0.3 }, LineProfile::Triangle { fwhm_nm: 2.0 }] {
+    for p in [
+        LineProfile::Box { width_nm: 0.3 },
+        LineProfile::Triangle { fwhm_nm: 2.0 },
+    ] {
         assert!(rel(l.to_piecewise(p).unwrap().total(), 3.5) < 1e-12);
     }
 }
 
 #[test]
 fn temperature_tables_follow_fig4_scalings() {
-    let per_t = temperature_colour_table(1000.0, 26_000.0, 26, LuminanceScaling::PerTemperature, 1.0).unwrap();
+    let per_t =
+        temperature_colour_table(1000.0, 26_000.0, 26, LuminanceScaling::PerTemperature, 1.0)
+            .unwrap();
     // Each colour has luminance Y = 1: recover Y through the inverse matrix.
     let m = linear_srgb_to_xyz_matrix();
     for rgb in &per_t {
@@ -385,7 +495,19 @@ fn temperature_tables_follow_fig4_scalings() {
     }
     // Hot bodies are bluer: b/r grows with temperature.
     assert!(per_t[25][2] / per_t[25][0] > per_t[5][2] / per_t[5][0]);
-    let refd = temperature_colour_table(1000.0, 26_000.0, 26, LuminanceScaling::Reference { temperature_k: 1500.0 }, 0.5).unwrap();
+    let refd = temperature_colour_table(
+        1000.0,
+        26_000.0,
+        26,
+        LuminanceScaling::Reference {
+            temperature_k: 1500.0,
+        },
+        0.5,
+    )
+    .unwrap();
     let y: Vec<f64> = refd.iter().map(|c| mat_mul(&m, *c)[1]).collect();
-    assert!(y.windows(2).all(|w| w[1] > w[0]), "luminance grows with T under a fixed reference");
+    assert!(
+        y.windows(2).all(|w| w[1] > w[0]),
+        "luminance grows with T under a fixed reference"
+    );
 }

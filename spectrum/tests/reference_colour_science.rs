@@ -31,12 +31,22 @@ fn blackbody_xyz_agrees_with_colour_science_to_1e_4() {
         let xyz = bb.to_xyz_with(obs.cmf());
         for c in 0..3 {
             let r = (xyz.to_array()[c] - xyz_ref[c]).abs() / xyz_ref[c];
-            assert!(r < 1e-4, "{obs:?} {t} K channel {c}: {} vs {} (rel {r})", xyz.to_array()[c], xyz_ref[c]);
+            assert!(
+                r < 1e-4,
+                "{obs:?} {t} K channel {c}: {} vs {} (rel {r})",
+                xyz.to_array()[c],
+                xyz_ref[c]
+            );
         }
         let xy = xyz.chromaticity().unwrap();
         for c in 0..2 {
             let r = (xy[c] - xy_ref[c]).abs() / xy_ref[c];
-            assert!(r < 1e-4, "{obs:?} {t} K xy[{c}]: {} vs {}", xy[c], xy_ref[c]);
+            assert!(
+                r < 1e-4,
+                "{obs:?} {t} K xy[{c}]: {} vs {}",
+                xy[c],
+                xy_ref[c]
+            );
         }
     }
 }

@@ -1,0 +1,172 @@
+//! `blueshift spectrum` from the outside: JSON keys and values, files, errors.
+
+use std::process::Command;
+
+fn blueshift() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_blueshift"))
+}
+
+fn json(args: &[&str]) -> serde_json::Value {
+    let out = blueshift().args(args).arg("--json").output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn json_has_xyz_xy_and_linear_srgb_consistent_with_each_other() {
+    let v = json(&["spectrum", "--blackbody", "6500"]);
+    let xyz: Vec<f64> = v["xyz"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let xy: Vec<f64> = v["xy"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let rgb: Vec<f64> = v["srgb_linear"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert_eq!((xyz.len(), xy.len(), rgb.len()), (3, 2, 3));
+    let sum: f64 = xyz.iter().sum();
+    assert!((xy[0] - xyz[0] / sum).abs() < 1e-12 && (xy[1] - xyz[1] / sum).abs() < 1e-12);
+    // A 6500 K black body lies near the D65 white point (x 0.3135, y 0.3236; CIE 15 Planckian
+    // locus): far from any saturated colour.
+    assert!(
+        (xy[0] - 0.3135).abs() < 2e-3 && (xy[1] - 0.3236).abs() < 2e-3,
+        "{xy:?}"
+    );
+    // The library's exact XYZ of its 1e-4 approximation agrees with the 1 nm summation to 3e-4.
+    let bb = blueshift_spectrum::Blackbody::new(6500.0).unwrap().xyz();
+    for (a, b) in xyz.iter().zip(bb.to_array()) {
+        assert!((a - b).abs() / b < 3e-4, "{a} vs {b}");
+    }
+}
+
+#[test]
+fn radial_velocity_shift_moves_lines_by_v_over_c() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("s.csv");
+    let v = 1.0e7; // 10,000 km/s: H-alpha moves by 21.9 nm
+    let out = blueshift()
+        .args([
+            "spectrum",
+            "--lines",
+            "H",
+            "--radial-velocity",
+            &v.to_string(),
+            "--line-width",
+            "0.5",
+            "--csv",
+        ])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("wavelength_nm,value"));
+    // The strongest feature is H-alpha: find the plateau.
+    let pts: Vec<(f64, f64)> = lines
+        .map(|l| {
+            let (a, b) = l.split_once(',').unwrap();
+            (a.parse().unwrap(), b.parse().unwrap())
+        })
+        .collect();
+    let max = pts.iter().map(|p| p.1).fold(0.0, f64::max);
+    let on: Vec<f64> = pts.iter().filter(|p| p.1 == max).map(|p| p.0).collect();
+    let centre = 0.5 * (on[0] + on[on.len() - 1]);
+    let expect = 656.2816 * (1.0 + v / 299_792_458.0);
+    assert!((centre - expect).abs() < 1e-6, "{centre} vs {expect}");
+}
+
+#[test]
+fn plot_is_a_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let png = dir.path().join("s.png");
+    let out = blueshift()
+        .args([
+            "spectrum",
+            "--blackbody",
+            "3000",
+            "--lines",
+            "H,He,C",
+            "--line-strength",
+            "100",
+            "--shift",
+            "1.05",
+            "--plot",
+        ])
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = image::open(&png).unwrap();
+    assert_eq!((img.width(), img.height()), (1000, 600));
+}
+
+#[test]
+fn bad_input_is_a_one_line_error_and_exit_code_1() {
+    for args in [
+        vec!["spectrum", "--blackbody", "-5"],
+        vec!["spectrum", "--blackbody", "0"],
+        vec!["spectrum", "--blackbody", "NaN"],
+        vec!["spectrum", "--blackbody", "5000", "--range", "800:400"],
+        vec!["spectrum", "--lines", "Fe"],
+        vec![
+            "spectrum",
+            "--blackbody",
+            "5000",
+            "--radial-velocity",
+            "3e8",
+            "--doppler",
+            "relativistic",
+        ],
+        vec!["spectrum", "--blackbody", "5000", "--shift", "0"],
+        vec!["spectrum"],
+    ] {
+        let out = blueshift().args(&args).output().unwrap();
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.starts_with("blueshift:"), "{err}");
+    }
+}
+
+#[test]
+fn malformed_line_list_names_file_and_line_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let list = dir.path().join("lines.csv");
+    std::fs::write(&list, "wavelength_nm,relative_intensity\n500,1\n510,x\n").unwrap();
+    let csv = dir.path().join("out.csv");
+    let out = blueshift()
+        .arg("spectrum")
+        .arg("--line-list")
+        .arg(&list)
+        .arg("--csv")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("lines.csv") && err.contains("line 3"), "{err}");
+    assert!(!csv.exists());
+}
