@@ -170,3 +170,38 @@ fn malformed_line_list_names_file_and_line_and_writes_nothing() {
     assert!(err.contains("lines.csv") && err.contains("line 3"), "{err}");
     assert!(!csv.exists());
 }
+
+#[test]
+fn csv_round_trips_through_the_library_reader() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("s.csv");
+    let out = blueshift()
+        .args([
+            "spectrum",
+            "--blackbody",
+            "4000",
+            "--lines",
+            "He",
+            "--line-strength",
+            "500",
+            "--radial-velocity",
+            "-2e6",
+            "--json",
+            "--csv",
+        ])
+        .arg(&csv)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let s = blueshift_spectrum::PiecewiseLinear::read_csv(&csv).unwrap();
+    let xyz = blueshift_spectrum::Cmf::cie1931_2deg()
+        .xyz_of(&s)
+        .to_array();
+    for (c, x) in xyz.iter().enumerate() {
+        let want = v["xyz"][c].as_f64().unwrap();
+        assert!((x - want).abs() <= 1e-9 * want, "{x} vs {want}");
+    }
+    let integral = v["integral"].as_f64().unwrap();
+    assert!((s.total() - integral).abs() <= 1e-9 * integral);
+}

@@ -152,6 +152,47 @@ impl PiecewiseLinear {
         Ok(Self::from_sorted_unchecked(pieces))
     }
 
+    /// Parses blueshift's spectrum CSV (header `wavelength_nm,value`; `#` lines are
+    /// comments): consecutive rows are joined by straight lines and a repeated wavelength
+    /// marks a jump, which is how `blueshift spectrum --csv` writes spectra. Refuses
+    /// decreasing wavelengths, negative or non-finite values, naming the line.
+    pub fn parse_csv(text: &str, source_name: &str) -> Result<Self> {
+        let rows = crate::cie::parse_csv_rows(text, source_name, 2)?;
+        let mut pieces = Vec::with_capacity(rows.len());
+        for w in rows.windows(2) {
+            let ((_, a), (line, b)) = (&w[0], &w[1]);
+            let bad = |message: &str| Error::Parse {
+                source_name: source_name.to_owned(),
+                line: *line,
+                message: message.to_owned(),
+            };
+            if b[0] < a[0] {
+                return Err(bad("wavelengths must not decrease"));
+            }
+            if a[1] < 0.0 || b[1] < 0.0 {
+                return Err(bad("spectral values must be >= 0"));
+            }
+            if b[0] > a[0] {
+                pieces.push(Piece {
+                    start_nm: a[0],
+                    end_nm: b[0],
+                    value_start: a[1],
+                    value_end: b[1],
+                });
+            }
+        }
+        Ok(Self::from_sorted_unchecked(pieces))
+    }
+
+    /// Reads a spectrum CSV file (see [`parse_csv`](Self::parse_csv)).
+    pub fn read_csv(path: &std::path::Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::parse_csv(&text, &path.display().to_string())
+    }
+
     fn from_sorted_unchecked(pieces: Vec<Piece>) -> Self {
         let map = pieces
             .into_iter()
