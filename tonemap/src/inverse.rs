@@ -75,11 +75,21 @@ impl GlobalCurve {
                 scaled_max,
                 ..
             } => {
-                let mut hi = scaled_max * adaptation;
-                let mut n = 0;
-                while self.map_luminance(hi) < ld && n < 200 {
-                    hi *= 2.0;
-                    n += 1;
+                let limit = self.monotone_limit();
+                let mut hi = if limit.is_finite() {
+                    limit
+                } else {
+                    // Increasing everywhere searched: grow the bracket from the maximum.
+                    let mut hi = scaled_max * adaptation;
+                    let mut n = 0;
+                    while self.map_luminance(hi) < ld && n < 200 {
+                        hi *= 2.0;
+                        n += 1;
+                    }
+                    hi
+                };
+                if self.map_luminance(hi) <= ld {
+                    return hi;
                 }
                 let mut lo = 0.0;
                 for _ in 0..80 {
@@ -94,6 +104,48 @@ impl GlobalCurve {
             }
             GlobalCurve::Reinhard { scale, white, .. } => reinhard_curve_inverse(ld, white) / scale,
         }
+    }
+
+    /// The world luminance (image units) up to which the curve is strictly increasing, and
+    /// so invertible: infinite for linear and Reinhard. Drago's Eq. 4 rises to a peak and
+    /// then falls slightly when `L_w_max / L_wa` is large (about 1e4 and up at bias 0.85),
+    /// so display values above the peak have no unique inverse; this returns the peak,
+    /// found on a log grid (2,000 points from 1e-9 to 4 times the maximum) and refined by
+    /// bisection on the slope.
+    #[must_use]
+    pub fn monotone_limit(&self) -> f64 {
+        let GlobalCurve::Drago {
+            adaptation,
+            scaled_max,
+            ..
+        } = *self
+        else {
+            return f64::INFINITY;
+        };
+        let top = 4.0 * scaled_max * adaptation;
+        let bottom = top * 1e-9;
+        let n = 2000;
+        let at = |k: usize| bottom * (top / bottom).powf(k as f64 / n as f64);
+        let mut prev = self.map_luminance(at(0));
+        for k in 1..=n {
+            let cur = self.map_luminance(at(k));
+            if cur <= prev {
+                // The peak lies in [at(k-2), at(k)]: bisect on the sign of the slope.
+                let (mut lo, mut hi) = (at(k.saturating_sub(2)), at(k));
+                for _ in 0..80 {
+                    let mid = 0.5 * (lo + hi);
+                    let h = mid * 1e-7;
+                    if self.map_luminance(mid + h) > self.map_luminance(mid - h) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                return lo;
+            }
+            prev = cur;
+        }
+        f64::INFINITY
     }
 
     /// The saturation exponent used for colour.
