@@ -24,14 +24,14 @@ enum Command {
     /// Build a spectrum (black body, emission lines, Doppler shift) and report its colour.
     Spectrum(commands::spectrum::Args),
     /// Tone-map an HDR image (EXR, Radiance .hdr, PFM) for display; print its dynamic range.
-    Tonemap(commands::tonemap::Args),
+    Tonemap(Box<commands::tonemap::Args>),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
-        Command::Tonemap(args) => commands::tonemap::run(args),
+        Command::Tonemap(args) => commands::tonemap::run(*args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

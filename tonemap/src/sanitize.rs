@@ -44,16 +44,14 @@ impl SanitizeReport {
 pub fn sanitize(img: &Rgb32FImage) -> (Rgb32FImage, SanitizeReport) {
     let raw = img.as_raw();
     // Largest finite value per channel (max is order-independent, so deterministic).
-    let mut max_finite = [0.0f32; 3];
-    for c in 0..3 {
-        max_finite[c] = raw
-            .par_iter()
+    let max_finite: [f32; 3] = std::array::from_fn(|c| {
+        raw.par_iter()
             .skip(c)
             .step_by(3)
             .copied()
             .filter(|v| v.is_finite())
-            .reduce(|| 0.0, f32::max);
-    }
+            .reduce(|| 0.0, f32::max)
+    });
     let chunk = (img.width() as usize * 3).max(3);
     let mut out = raw.to_vec();
     let reports: Vec<SanitizeReport> = out

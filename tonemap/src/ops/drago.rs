@@ -83,5 +83,5 @@ impl DragoParams {
 pub fn drago_curve(lw: f64, lw_max: f64, bias: f64, ld_max: f64) -> f64 {
     let exponent = bias.ln() / 0.5f64.ln();
     let interp = (2.0 + 8.0 * (lw / lw_max).powf(exponent)).ln();
-    (ld_max * 0.01) / (lw_max + 1.0).log10() * (lw + 1.0).ln() / interp
+    (ld_max * 0.01) / (lw_max + 1.0).log10() * lw.ln_1p() / interp
 }

@@ -79,7 +79,7 @@ pub fn attenuation(h: &Plane, params: &FattalParams) -> Plane {
     let mut pyramid = vec![h.clone()];
     while pyramid
         .last()
-        .map_or(false, |p| p.width.min(p.height) / 2 >= COARSEST_SIDE)
+        .is_some_and(|p| p.width.min(p.height) / 2 >= COARSEST_SIDE)
     {
         let p = pyramid.last().expect("not empty");
         let blurred = p.gaussian_blur(1.0);
@@ -92,7 +92,7 @@ pub fn attenuation(h: &Plane, params: &FattalParams) -> Plane {
             let (xi, yi) = (x as isize, y as isize);
             let gx = (level.at_clamped(xi + 1, yi) - level.at_clamped(xi - 1, yi)) * scale;
             let gy = (level.at_clamped(xi, yi + 1) - level.at_clamped(xi, yi - 1)) * scale;
-            (gx * gx + gy * gy).sqrt()
+            gx.hypot(gy)
         });
         // Average gradient magnitude of this level (row sums in f64, summed in order).
         let row_sums: Vec<f64> = grad

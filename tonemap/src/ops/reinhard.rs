@@ -34,7 +34,7 @@ impl ReinhardParams {
     pub(crate) fn validate(&self) -> Result<()> {
         check_key(self.key)?;
         if let Some(w) = self.white
-            && !(w > 0.0)
+            && (w.is_nan() || w <= 0.0)
         {
             return Err(Error::parameter(format!(
                 "Reinhard white must be positive, got {w}"
