@@ -24,6 +24,8 @@ struct Cli {
 enum Command {
     /// Build a spectrum (black body, emission lines, Doppler shift) and report its colour.
     Spectrum(commands::spectrum::Args),
+    /// Tone-map an HDR image (EXR, Radiance .hdr, PFM) for display; print its dynamic range.
+    Tonemap(Box<commands::tonemap::Args>),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +40,7 @@ fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
+        Command::Tonemap(args) => commands::tonemap::run(*args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,296 @@
+//! `blueshift tonemap`: tone-map an HDR image, write an exposure series or a pseudocolour
+//! picture, and print the image's dynamic range.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use blueshift_tonemap::io::{self, ExrPrecision, PngDepth};
+use blueshift_tonemap::{
+    DragoParams, DurandParams, ExposureSeries, FattalParams, LinearParams, Operator,
+    PseudocolourParams, ReinhardLocalParams, ReinhardParams, Roi,
+};
+use image::Rgb32FImage;
+
+/// The operators of `--op`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Op {
+    /// Drago et al. 2003 adaptive logarithmic mapping (global).
+    Drago,
+    /// Reinhard et al. 2002 photographic, global.
+    Reinhard,
+    /// Reinhard et al. 2002 photographic, local dodging and burning.
+    ReinhardLocal,
+    /// Durand and Dorsey 2002 fast bilateral filtering.
+    Durand,
+    /// Fattal et al. 2002 gradient domain compression.
+    Fattal,
+    /// Linear with exposure.
+    Linear,
+}
+
+/// Arguments of `blueshift tonemap`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Input HDR image: OpenEXR, Radiance .hdr or PFM (detected from the content).
+    pub input: PathBuf,
+    /// Output file: .png (display, sRGB), .exr, .hdr or .pfm (display-linear floats).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Tone-mapping operator.
+    #[arg(long, value_enum, default_value = "drago")]
+    pub op: Op,
+    /// PNG bits per channel (8 or 16).
+    #[arg(long, default_value_t = 8, value_parser = parse_depth)]
+    pub depth: u8,
+    /// Exposure in stops (linear, drago).
+    #[arg(long)]
+    pub exposure: Option<f32>,
+    /// Drago bias b (0.85).
+    #[arg(long)]
+    pub bias: Option<f32>,
+    /// Drago maximum display luminance Ld_max in cd/m^2 (100).
+    #[arg(long)]
+    pub ld_max: Option<f32>,
+    /// Drago region of interest X,Y,R in pixels: adaptation from this circle.
+    #[arg(long, value_parser = parse_roi)]
+    pub roi: Option<Roi>,
+    /// Reinhard key a (0.18).
+    #[arg(long)]
+    pub key: Option<f32>,
+    /// Reinhard global L_white in scaled units (default: the largest scaled luminance);
+    /// linear: the luminance that maps to 1.
+    #[arg(long)]
+    pub white: Option<f32>,
+    /// Reinhard local sharpening phi (8).
+    #[arg(long)]
+    pub phi: Option<f32>,
+    /// Reinhard local threshold epsilon (0.05).
+    #[arg(long)]
+    pub epsilon: Option<f32>,
+    /// Reinhard local number of scales (8).
+    #[arg(long)]
+    pub scales: Option<usize>,
+    /// Durand spatial sigma in pixels (default 2 % of the image size).
+    #[arg(long)]
+    pub sigma_s: Option<f32>,
+    /// Durand range sigma in log10 units (0.4).
+    #[arg(long)]
+    pub sigma_r: Option<f32>,
+    /// Durand target base contrast (5).
+    #[arg(long)]
+    pub contrast: Option<f32>,
+    /// Fattal alpha as a fraction of the mean gradient (0.1).
+    #[arg(long)]
+    pub alpha: Option<f32>,
+    /// Fattal beta (0.85).
+    #[arg(long)]
+    pub beta: Option<f32>,
+    /// Colour saturation exponent s (1 for all but Fattal, 0.5 there).
+    #[arg(long)]
+    pub saturation: Option<f32>,
+    /// Write N linearly mapped images at increasing exposure (OUT-00.png, ...) instead.
+    #[arg(long)]
+    pub exposure_series: Option<usize>,
+    /// Exposure step between series images in stops (default: span the dynamic range).
+    #[arg(long)]
+    pub stops_step: Option<f32>,
+    /// Write a pseudocolour picture of log luminance with a colour bar instead.
+    #[arg(long, alias = "pseudocolour")]
+    pub pseudocolor: bool,
+    /// Print a JSON summary on stdout instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn parse_depth(s: &str) -> std::result::Result<u8, String> {
+    match s {
+        "8" => Ok(8),
+        "16" => Ok(16),
+        _ => Err(format!("--depth must be 8 or 16, got {s:?}")),
+    }
+}
+
+fn parse_roi(s: &str) -> std::result::Result<Roi, String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| format!("--roi expects X,Y,R numbers: {e}"))?;
+    match v[..] {
+        [x, y, r] if x.is_finite() && y.is_finite() && r > 0.0 => Ok(Roi {
+            x_px: x,
+            y_px: y,
+            radius_px: r,
+        }),
+        _ => Err(format!("--roi expects X,Y,R with R > 0, got {s:?}")),
+    }
+}
+
+/// Builds the operator from the flags.
+pub fn operator(args: &Args) -> Operator {
+    match args.op {
+        Op::Linear => Operator::Linear(LinearParams {
+            exposure_stops: args.exposure.unwrap_or(0.0),
+            white: args.white,
+        }),
+        Op::Drago => {
+            let d = DragoParams::default();
+            Operator::Drago(DragoParams {
+                bias: args.bias.unwrap_or(d.bias),
+                max_display_luminance: args.ld_max.unwrap_or(d.max_display_luminance),
+                exposure_stops: args.exposure.unwrap_or(0.0),
+                roi: args.roi,
+                saturation: args.saturation.unwrap_or(d.saturation),
+            })
+        }
+        Op::Reinhard => {
+            let d = ReinhardParams::default();
+            Operator::Reinhard(ReinhardParams {
+                key: args.key.unwrap_or(d.key),
+                white: args.white,
+                saturation: args.saturation.unwrap_or(d.saturation),
+            })
+        }
+        Op::ReinhardLocal => {
+            let d = ReinhardLocalParams::default();
+            Operator::ReinhardLocal(ReinhardLocalParams {
+                key: args.key.unwrap_or(d.key),
+                phi: args.phi.unwrap_or(d.phi),
+                epsilon: args.epsilon.unwrap_or(d.epsilon),
+                scales: args.scales.unwrap_or(d.scales),
+                saturation: args.saturation.unwrap_or(d.saturation),
+                ..d
+            })
+        }
+        Op::Durand => {
+            let d = DurandParams::default();
+            Operator::Durand(DurandParams {
+                sigma_spatial_px: args.sigma_s,
+                sigma_range: args.sigma_r.unwrap_or(d.sigma_range),
+                base_contrast: args.contrast.unwrap_or(d.base_contrast),
+                saturation: args.saturation.unwrap_or(d.saturation),
+            })
+        }
+        Op::Fattal => {
+            let d = FattalParams::default();
+            Operator::Fattal(FattalParams {
+                alpha_ratio: args.alpha.unwrap_or(d.alpha_ratio),
+                beta: args.beta.unwrap_or(d.beta),
+                saturation: args.saturation.unwrap_or(d.saturation),
+                ..d
+            })
+        }
+    }
+}
+
+fn extension(path: &Path) -> String {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default()
+}
+
+fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
+    let r = match extension(path).as_str() {
+        "png" => io::write_png(
+            path,
+            img,
+            if depth == 16 {
+                PngDepth::Sixteen
+            } else {
+                PngDepth::Eight
+            },
+        ),
+        "exr" => io::write_exr(path, img, ExrPrecision::Float),
+        "hdr" => io::write_radiance_hdr(path, img),
+        "pfm" => io::write_pfm(path, img),
+        other => bail!(
+            "unknown output extension {other:?} (use .png, .exr, .hdr or .pfm): {}",
+            path.display()
+        ),
+    };
+    Ok(r?)
+}
+
+/// Runs `blueshift tonemap`.
+pub fn run(args: Args) -> Result<()> {
+    let ext = extension(&args.out);
+    if !["png", "exr", "hdr", "pfm"].contains(&ext.as_str()) {
+        bail!(
+            "unknown output extension {ext:?} (use .png, .exr, .hdr or .pfm): {}",
+            args.out.display()
+        );
+    }
+    let t0 = Instant::now();
+    let hdr = io::read_hdr_image(&args.input)
+        .with_context(|| "cannot read the input image".to_string())?;
+    let read_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let (_, report) = blueshift_tonemap::sanitize(&hdr);
+    let dr = blueshift_tonemap::dynamic_range(&hdr);
+    let op = operator(&args);
+    let mut outputs = Vec::new();
+    let t1 = Instant::now();
+    let kind;
+    if args.pseudocolor {
+        kind = "pseudocolor";
+        if ext != "png" {
+            bail!("--pseudocolor writes a PNG: {}", args.out.display());
+        }
+        let pic = blueshift_tonemap::pseudocolour(&hdr, &PseudocolourParams::default())?;
+        io::write_rgb8_png(&args.out, &pic)?;
+        outputs.push(args.out.clone());
+    } else if let Some(n) = args.exposure_series {
+        kind = "exposure-series";
+        let mut series = ExposureSeries::spanning(&hdr, n);
+        if let Some(step) = args.stops_step {
+            series.step_stops = step;
+        }
+        let images = blueshift_tonemap::exposure_series(&hdr, &series)?;
+        let stem = args.out.with_extension("");
+        for (i, img) in images.iter().enumerate() {
+            let path = PathBuf::from(format!("{}-{i:02}.{ext}", stem.display()));
+            write_display(&path, img, args.depth)?;
+            outputs.push(path);
+        }
+    } else {
+        kind = op.name();
+        let display = op.apply(&hdr)?;
+        write_display(&args.out, &display, args.depth)?;
+        outputs.push(args.out.clone());
+    }
+    let op_ms = t1.elapsed().as_secs_f64() * 1e3;
+    let (w, h) = hdr.dimensions();
+    if args.json {
+        let summary = serde_json::json!({
+            "input": args.input,
+            "width": w,
+            "height": h,
+            "operator": kind,
+            "parameters": op,
+            "dynamic_range": dr,
+            "sanitized": report,
+            "outputs": outputs,
+            "read_ms": read_ms,
+            "tonemap_and_write_ms": op_ms,
+        });
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        match dr {
+            Some(d) => println!(
+                "dynamic range: {:.3e}:1 ({:.2} orders of magnitude; luminance {:.3e} .. {:.3e}, {} black pixels)",
+                d.ratio, d.orders_of_magnitude, d.min_positive, d.max, d.zero_pixels
+            ),
+            None => println!("dynamic range: undefined (no pixel has positive luminance)"),
+        }
+        if report.total() > 0 {
+            println!(
+                "dirty input: {} NaN, {} negative, {} +Inf channel values replaced",
+                report.nan, report.negative, report.positive_infinite
+            );
+        }
+        for o in &outputs {
+            println!("wrote {}", o.display());
+        }
+    }
+    Ok(())
+}

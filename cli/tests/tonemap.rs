@@ -1,0 +1,161 @@
+//! `blueshift tonemap` end to end.
+
+use std::process::Command;
+
+fn blueshift() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_blueshift"))
+}
+
+fn write_pfm(path: &std::path::Path, w: usize, h: usize, f: impl Fn(usize, usize) -> f32) {
+    let mut bytes = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
+    for y in (0..h).rev() {
+        for x in 0..w {
+            let v = f(x, y);
+            for c in [1.1f32, 1.0, 0.8] {
+                bytes.extend_from_slice(&(v * c).to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+#[test]
+fn every_operator_writes_a_png_and_prints_the_dynamic_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.pfm");
+    // Luminance 1e-2 .. 1e2: dynamic range 1e4.
+    write_pfm(&input, 64, 40, |x, _| {
+        10f32.powf(x as f32 / 63.0 * 4.0 - 2.0)
+    });
+    for op in [
+        "drago",
+        "reinhard",
+        "reinhard-local",
+        "durand",
+        "fattal",
+        "linear",
+    ] {
+        let out = dir.path().join(format!("{op}.png"));
+        let o = blueshift()
+            .args([
+                "tonemap",
+                input.to_str().unwrap(),
+                "--op",
+                op,
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{op}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(text.contains("4.00 orders of magnitude"), "{op}: {text}");
+        let img = image::open(&out).unwrap();
+        assert_eq!((img.width(), img.height()), (64, 40));
+    }
+}
+
+#[test]
+fn roi_exposure_series_pseudocolor_and_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.pfm");
+    write_pfm(&input, 32, 32, |x, y| 0.01 + (x * y) as f32);
+    let inp = input.to_str().unwrap();
+    let out = dir.path().join("roi.png");
+    let o = blueshift()
+        .args([
+            "tonemap",
+            inp,
+            "--op",
+            "drago",
+            "--roi",
+            "5,5,4",
+            "--depth",
+            "16",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(image::open(&out).unwrap().color(), image::ColorType::Rgb16);
+    let out = dir.path().join("series.png");
+    let o = blueshift()
+        .args([
+            "tonemap",
+            inp,
+            "--exposure-series",
+            "3",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    for i in 0..3 {
+        assert!(dir.path().join(format!("series-{i:02}.png")).exists());
+    }
+    let out = dir.path().join("pc.png");
+    let o = blueshift()
+        .args([
+            "tonemap",
+            inp,
+            "--pseudocolor",
+            "--json",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["operator"], "pseudocolor");
+    assert!(image::open(&out).unwrap().width() > 32);
+}
+
+#[test]
+fn bad_input_fails_with_one_line_and_leaves_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("bad.exr");
+    std::fs::write(&input, [0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0, b'x']).unwrap();
+    let out = dir.path().join("out.png");
+    let o = blueshift()
+        .args([
+            "tonemap",
+            input.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!out.exists());
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        1,
+        "a temporary file was left"
+    );
+    let good = dir.path().join("g.pfm");
+    write_pfm(&good, 4, 4, |_, _| 1.0);
+    let o = blueshift()
+        .args([
+            "tonemap",
+            good.to_str().unwrap(),
+            "--op",
+            "drago",
+            "--bias",
+            "2",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("bias"));
+}

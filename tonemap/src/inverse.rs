@@ -1,0 +1,208 @@
+//! Global curves and their inverses (HDR VolVis Sec. 4, last paragraph: "for global tone
+//! mapping methods, the operators are one-to-one mapping functions ... the pixel values in
+//! a tone mapped image can be mapped back to the original high dynamic range").
+
+use image::Rgb32FImage;
+use rayon::prelude::*;
+
+use crate::ops::drago::drago_curve;
+use crate::ops::reinhard::{reinhard_curve, reinhard_curve_inverse};
+use crate::plane::{Plane, luminance};
+
+/// A global operator resolved for one image: its parameters and the image statistics it
+/// uses. Keep it with a tone-mapped picture to recover HDR values later.
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum GlobalCurve {
+    /// `Ld = scale * Lw`, per channel.
+    Linear {
+        /// `2^stops / white`.
+        scale: f64,
+    },
+    /// Drago Eq. 4 on `Lw / adaptation`.
+    Drago {
+        /// World adaptation luminance `L_wa` divided by `2^exposure_stops`, image units.
+        adaptation: f64,
+        /// `L_w_max / adaptation`.
+        scaled_max: f64,
+        /// Bias `b`.
+        bias: f64,
+        /// `Ld_max` in cd/m^2.
+        max_display_luminance: f64,
+        /// Saturation exponent.
+        saturation: f32,
+    },
+    /// Reinhard Eq. 2 + 4.
+    Reinhard {
+        /// `a / L_w_avg`.
+        scale: f64,
+        /// `L_white` in scaled units (may be infinite).
+        white: f64,
+        /// Saturation exponent.
+        saturation: f32,
+    },
+}
+
+impl GlobalCurve {
+    /// Display luminance for world luminance `lw` (image units).
+    #[must_use]
+    pub fn map_luminance(&self, lw: f64) -> f64 {
+        match *self {
+            GlobalCurve::Linear { scale } => lw * scale,
+            GlobalCurve::Drago {
+                adaptation,
+                scaled_max,
+                bias,
+                max_display_luminance,
+                ..
+            } => drago_curve(lw / adaptation, scaled_max, bias, max_display_luminance),
+            GlobalCurve::Reinhard { scale, white, .. } => reinhard_curve(lw * scale, white),
+        }
+    }
+
+    /// World luminance for display luminance `ld`: the inverse of
+    /// [`GlobalCurve::map_luminance`] (closed form for linear and Reinhard, bisection to
+    /// double precision for Drago, whose curve has no closed-form inverse).
+    #[must_use]
+    pub fn unmap_luminance(&self, ld: f64) -> f64 {
+        if ld <= 0.0 {
+            return 0.0;
+        }
+        match *self {
+            GlobalCurve::Linear { scale } => ld / scale,
+            GlobalCurve::Drago {
+                adaptation,
+                scaled_max,
+                ..
+            } => {
+                let limit = self.monotone_limit();
+                let mut hi = if limit.is_finite() {
+                    limit
+                } else {
+                    // Increasing everywhere searched: grow the bracket from the maximum.
+                    let mut hi = scaled_max * adaptation;
+                    let mut n = 0;
+                    while self.map_luminance(hi) < ld && n < 200 {
+                        hi *= 2.0;
+                        n += 1;
+                    }
+                    hi
+                };
+                if self.map_luminance(hi) <= ld {
+                    return hi;
+                }
+                let mut lo = 0.0;
+                for _ in 0..80 {
+                    let mid = 0.5 * (lo + hi);
+                    if self.map_luminance(mid) < ld {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                0.5 * (lo + hi)
+            }
+            GlobalCurve::Reinhard { scale, white, .. } => reinhard_curve_inverse(ld, white) / scale,
+        }
+    }
+
+    /// The world luminance (image units) up to which the curve is strictly increasing, and
+    /// so invertible: infinite for linear and Reinhard. Drago's Eq. 4 rises to a peak and
+    /// then falls slightly when `L_w_max / L_wa` is large (about 1e4 and up at bias 0.85),
+    /// so display values above the peak have no unique inverse; this returns the peak,
+    /// found on a log grid (2,000 points from 1e-9 to 4 times the maximum) and refined by
+    /// bisection on the slope.
+    #[must_use]
+    pub fn monotone_limit(&self) -> f64 {
+        let GlobalCurve::Drago {
+            adaptation,
+            scaled_max,
+            ..
+        } = *self
+        else {
+            return f64::INFINITY;
+        };
+        let top = 4.0 * scaled_max * adaptation;
+        let bottom = top * 1e-9;
+        let n = 2000;
+        let at = |k: usize| bottom * (top / bottom).powf(k as f64 / n as f64);
+        let mut prev = self.map_luminance(at(0));
+        for k in 1..=n {
+            let cur = self.map_luminance(at(k));
+            if cur <= prev {
+                // The peak lies in [at(k-2), at(k)]: bisect on the sign of the slope.
+                let (mut lo, mut hi) = (at(k.saturating_sub(2)), at(k));
+                for _ in 0..80 {
+                    let mid = 0.5 * (lo + hi);
+                    let h = mid * 1e-7;
+                    if self.map_luminance(mid + h) > self.map_luminance(mid - h) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                return lo;
+            }
+            prev = cur;
+        }
+        f64::INFINITY
+    }
+
+    /// The saturation exponent used for colour.
+    #[must_use]
+    pub fn saturation(&self) -> f32 {
+        match *self {
+            GlobalCurve::Linear { .. } => 1.0,
+            GlobalCurve::Drago { saturation, .. } | GlobalCurve::Reinhard { saturation, .. } => {
+                saturation
+            }
+        }
+    }
+
+    /// Applies the curve to a sanitized image and its luminance.
+    pub(crate) fn apply_clean(&self, img: &Rgb32FImage, lum: &Plane) -> Rgb32FImage {
+        if let GlobalCurve::Linear { scale } = *self {
+            let s = scale as f32;
+            let data = img.as_raw().par_iter().map(|v| v * s).collect();
+            return Rgb32FImage::from_raw(img.width(), img.height(), data).expect("same size");
+        }
+        let out = lum.map(|l| self.map_luminance(f64::from(l)) as f32);
+        crate::plane::recolour(img, lum, &out, self.saturation())
+    }
+
+    /// Recovers HDR values from a display-linear image made by this curve.
+    ///
+    /// Colour is inverted exactly: with `C_d = (C/L)^s L_d`, the display luminance is
+    /// `L_d = Y(C_d^(1/s))^s` and `C = L (C_d / L_d)^(1/s)`. Precision is limited by what
+    /// the display image kept (clipping above 1, 8-bit quantisation). Non-finite or
+    /// negative display values are treated as 0.
+    #[must_use]
+    pub fn invert(&self, display: &Rgb32FImage) -> Rgb32FImage {
+        let (w, h) = (display.width(), display.height());
+        let inv_s = 1.0 / f64::from(self.saturation());
+        let data: Vec<f32> = display
+            .as_raw()
+            .par_chunks(3)
+            .flat_map_iter(|px| {
+                let c: [f64; 3] = std::array::from_fn(|i| {
+                    let v = f64::from(px[i]);
+                    if v.is_finite() && v > 0.0 { v } else { 0.0 }
+                });
+                let out: [f32; 3] = if let GlobalCurve::Linear { scale } = *self {
+                    std::array::from_fn(|i| (c[i] / scale) as f32)
+                } else {
+                    let lifted = c.map(|v| v.powf(inv_s) as f32);
+                    let ld = f64::from(luminance(lifted)).powf(1.0 / inv_s);
+                    if ld > 0.0 {
+                        let lw = self.unmap_luminance(ld);
+                        std::array::from_fn(|i| (lw * (c[i] / ld).powf(inv_s)) as f32)
+                    } else {
+                        [0.0; 3]
+                    }
+                };
+                out
+            })
+            .collect();
+        Rgb32FImage::from_raw(w, h, data).expect("same size")
+    }
+}

@@ -1,0 +1,573 @@
+//! HDR image input and output: OpenEXR (through `exr`), Radiance `.hdr` (through
+//! `image`), PFM, 8- and 16-bit PNG, and numbered EXR sequences for HDR video.
+//!
+//! Readers check the image size against [`Limits`] before allocating pixels and turn
+//! truncated or malformed files into [`Error::Invalid`]. Writers write to a temporary
+//! file in the destination folder and rename it, so a failure never leaves half a file.
+
+use std::fs::File;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use image::{ImageDecoder, Rgb32FImage, RgbImage};
+
+use crate::error::{Error, Result};
+
+/// Size limits checked before any pixel buffer is allocated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest accepted width x height (default 2^27 = 134 M pixels, 1.6 GB as RGB f32).
+    pub max_pixels: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            max_pixels: 1 << 27,
+        }
+    }
+}
+
+impl Limits {
+    fn check(&self, width: u64, height: u64) -> Result<()> {
+        match width.checked_mul(height) {
+            Some(n) if n <= self.max_pixels => Ok(()),
+            _ => Err(Error::Limits {
+                width,
+                height,
+                max_pixels: self.max_pixels,
+            }),
+        }
+    }
+}
+
+/// The HDR file formats this module reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HdrFormat {
+    /// OpenEXR.
+    Exr,
+    /// Radiance RGBE (`.hdr`, `.pic`).
+    Radiance,
+    /// Portable float map.
+    Pfm,
+}
+
+/// Detects the format from the first bytes of the file (not the extension).
+///
+/// # Errors
+/// [`Error::Io`] if the file cannot be read, [`Error::Unsupported`] for an unknown format.
+pub fn detect_format(path: &Path) -> Result<HdrFormat> {
+    let mut head = Vec::with_capacity(2048);
+    File::open(path)
+        .and_then(|f| f.take(2048).read_to_end(&mut head))
+        .map_err(|e| Error::io("cannot read", path, e))?;
+    if head.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        return Ok(HdrFormat::Exr);
+    }
+    if head.len() >= 3
+        && (head.starts_with(b"PF") || head.starts_with(b"Pf"))
+        && head[2].is_ascii_whitespace()
+    {
+        return Ok(HdrFormat::Pfm);
+    }
+    if find(&head, b"#?RADIANCE").is_some() || find(&head, b"#?RGBE").is_some() {
+        return Ok(HdrFormat::Radiance);
+    }
+    Err(Error::Unsupported {
+        format: "HDR image",
+        message: "not OpenEXR, Radiance HDR or PFM (unknown magic bytes)".into(),
+        path: path.into(),
+    })
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+/// Reads an HDR image (`.exr`, `.hdr` or `.pfm`, detected from its content) with the
+/// default [`Limits`]. Alpha is dropped; a luminance-only file becomes grey RGB.
+///
+/// # Errors
+/// See [`read_hdr_image_with`].
+pub fn read_hdr_image(path: impl AsRef<Path>) -> Result<Rgb32FImage> {
+    read_hdr_image_with(path, &Limits::default())
+}
+
+/// Reads an HDR image with explicit limits.
+///
+/// # Errors
+/// [`Error::Io`] (missing file, permissions), [`Error::Invalid`] (malformed or truncated),
+/// [`Error::Unsupported`], [`Error::Limits`] (too large).
+pub fn read_hdr_image_with(path: impl AsRef<Path>, limits: &Limits) -> Result<Rgb32FImage> {
+    let path = path.as_ref();
+    match detect_format(path)? {
+        HdrFormat::Exr => read_exr(path, limits),
+        HdrFormat::Radiance => read_radiance(path, limits),
+        HdrFormat::Pfm => read_pfm(path, limits),
+    }
+}
+
+fn exr_error(e: exr::error::Error, path: &Path) -> Error {
+    use exr::error::Error as E;
+    match e {
+        E::NotSupported(m) => Error::Unsupported {
+            format: "OpenEXR",
+            message: m.into_owned(),
+            path: path.into(),
+        },
+        E::Invalid(m) => Error::invalid("OpenEXR", m.into_owned(), path),
+        E::Aborted => Error::invalid("OpenEXR", "reading aborted", path),
+        E::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            Error::invalid("OpenEXR", "truncated file", path)
+        }
+        E::Io(io) => Error::io("cannot read", path, io),
+    }
+}
+
+/// Reads the first valid layer of an OpenEXR file: R, G, B (A ignored) or Y alone, in
+/// half, float or uint samples. Channel names may carry a layer prefix (`diffuse.R`).
+///
+/// # Errors
+/// As [`read_hdr_image_with`]; [`Error::Unsupported`] for deep data or files without
+/// R, G, B or Y channels.
+pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
+    use exr::prelude::{FlatSamples, ReadChannels, ReadLayers, read};
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(e, path))?;
+    for header in meta.headers.iter() {
+        let size = header.layer_size;
+        limits.check(size.width() as u64, size.height() as u64)?;
+    }
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| exr_error(e, path))?;
+    let layer = image.layer_data;
+    let (w, h) = (layer.size.width(), layer.size.height());
+    let n = w * h;
+    let find_channel = |name: &str| {
+        layer.channel_data.list.iter().find(|c| {
+            let full = c.name.to_string();
+            full.rsplit('.').next() == Some(name)
+        })
+    };
+    let values = |c: &exr::image::AnyChannel<FlatSamples>| -> Vec<f32> {
+        c.sample_data.values_as_f32().collect()
+    };
+    let (r, g, b) = match (find_channel("R"), find_channel("G"), find_channel("B")) {
+        (Some(r), Some(g), Some(b)) => (values(r), values(g), values(b)),
+        _ => match find_channel("Y") {
+            Some(y) => {
+                let y = values(y);
+                (y.clone(), y.clone(), y)
+            }
+            None => {
+                return Err(Error::Unsupported {
+                    format: "OpenEXR",
+                    message: "no R, G, B or Y channel in the first layer".into(),
+                    path: path.into(),
+                });
+            }
+        },
+    };
+    if r.len() != n || g.len() != n || b.len() != n {
+        return Err(Error::Unsupported {
+            format: "OpenEXR",
+            message: "sub-sampled channels are not supported".into(),
+            path: path.into(),
+        });
+    }
+    let mut data = Vec::with_capacity(n * 3);
+    for i in 0..n {
+        data.extend_from_slice(&[r[i], g[i], b[i]]);
+    }
+    Rgb32FImage::from_raw(w as u32, h as u32, data)
+        .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))
+}
+
+/// Reads a Radiance RGBE file. Header lines before the `#?RADIANCE` magic (real files
+/// start with a `VIEW=` line, like Debevec's memorial.hdr) are skipped.
+///
+/// # Errors
+/// As [`read_hdr_image_with`].
+pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io("cannot read", path, e))?;
+    let start = find(&bytes[..bytes.len().min(4096)], b"#?")
+        .ok_or_else(|| Error::invalid("Radiance HDR", "no #? magic line in the header", path))?;
+    let cursor = std::io::Cursor::new(&bytes[start..]);
+    let decoder = image::codecs::hdr::HdrDecoder::new(cursor)
+        .map_err(|e| Error::invalid("Radiance HDR", e.to_string(), path))?;
+    let (w, h) = decoder.dimensions();
+    limits.check(u64::from(w), u64::from(h))?;
+    let img = image::DynamicImage::from_decoder(decoder).map_err(|e| {
+        Error::invalid(
+            "Radiance HDR",
+            format!("{e} (truncated or corrupt data?)"),
+            path,
+        )
+    })?;
+    Ok(img.into_rgb32f())
+}
+
+/// Reads a PFM file (`PF` colour or `Pf` grey, either byte order, bottom row first).
+///
+/// # Errors
+/// As [`read_hdr_image_with`]; the data length must match the header exactly.
+pub fn read_pfm(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io("cannot read", path, e))?;
+    let bad = |m: &str| Error::invalid("PFM", m, path);
+    // Three whitespace-separated tokens after the magic, then exactly one whitespace byte.
+    let mut pos = 0;
+    let mut tokens = Vec::new();
+    while tokens.len() < 4 {
+        while pos < bytes.len() && bytes[pos].is_ascii_whitespace() {
+            pos += 1;
+        }
+        let start = pos;
+        while pos < bytes.len() && !bytes[pos].is_ascii_whitespace() {
+            pos += 1;
+        }
+        if start == pos || pos - start > 64 {
+            return Err(bad("truncated or malformed header"));
+        }
+        tokens.push(String::from_utf8_lossy(&bytes[start..pos]).into_owned());
+    }
+    pos += 1; // the single whitespace byte after the scale
+    let channels = match tokens[0].as_str() {
+        "PF" => 3,
+        "Pf" => 1,
+        _ => return Err(bad("magic is not PF or Pf")),
+    };
+    let w: u64 = tokens[1]
+        .parse()
+        .map_err(|_| bad("width is not a number"))?;
+    let h: u64 = tokens[2]
+        .parse()
+        .map_err(|_| bad("height is not a number"))?;
+    let scale: f32 = tokens[3]
+        .parse()
+        .map_err(|_| bad("scale is not a number"))?;
+    if w == 0 || h == 0 {
+        return Err(bad("zero width or height"));
+    }
+    if !scale.is_finite() || scale == 0.0 {
+        return Err(bad("scale must be a non-zero finite number"));
+    }
+    limits.check(w, h)?;
+    let need = w * h * channels * 4;
+    let have = bytes.len().saturating_sub(pos) as u64;
+    if have < need {
+        return Err(bad(&format!(
+            "truncated: {have} data bytes, header needs {need}"
+        )));
+    }
+    let little = scale < 0.0;
+    let (w, h, ch) = (w as usize, h as usize, channels as usize);
+    let mut data = vec![0.0f32; w * h * 3];
+    for y in 0..h {
+        let src_row = h - 1 - y; // bottom row first in the file
+        for x in 0..w {
+            for c in 0..3 {
+                let sc = if ch == 1 { 0 } else { c };
+                let o = pos + ((src_row * w + x) * ch + sc) * 4;
+                let b4 = [bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]];
+                data[(y * w + x) * 3 + c] = if little {
+                    f32::from_le_bytes(b4)
+                } else {
+                    f32::from_be_bytes(b4)
+                };
+            }
+        }
+    }
+    Rgb32FImage::from_raw(w as u32, h as u32, data).ok_or_else(|| bad("image size overflows"))
+}
+
+/// Writes through a closure into a temporary file beside `path`, then renames it.
+///
+/// # Errors
+/// [`Error::Io`] if the folder is not writable; the closure's own errors.
+pub fn write_atomic(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<&mut File>) -> Result<()>,
+) -> Result<()> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".blueshift-")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io("cannot create a temporary file in", dir, e))?;
+    {
+        let mut w = BufWriter::new(tmp.as_file_mut());
+        write(&mut w)?;
+        w.flush().map_err(|e| Error::io("cannot write", path, e))?;
+    }
+    tmp.persist(path)
+        .map_err(|e| Error::io("cannot write", path, e.error))?;
+    Ok(())
+}
+
+/// Sample precision of an OpenEXR file.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ExrPrecision {
+    /// 16-bit half floats (the usual choice for images).
+    #[default]
+    Half,
+    /// 32-bit floats.
+    Float,
+}
+
+/// Writes an RGB OpenEXR file (zip-compressed scanlines).
+///
+/// # Errors
+/// [`Error::Io`], or [`Error::EmptyImage`].
+pub fn write_exr(path: impl AsRef<Path>, img: &Rgb32FImage, precision: ExrPrecision) -> Result<()> {
+    use exr::prelude::{Image, SpecificChannels, Vec2, WritableImage, f16};
+    let path = path.as_ref();
+    if img.width() == 0 || img.height() == 0 {
+        return Err(Error::EmptyImage);
+    }
+    let size = (img.width() as usize, img.height() as usize);
+    let px = |pos: Vec2<usize>| -> [f32; 3] {
+        let p = img.get_pixel(pos.x() as u32, pos.y() as u32);
+        [p[0], p[1], p[2]]
+    };
+    write_atomic(path, |w| {
+        let result = match precision {
+            ExrPrecision::Float => {
+                let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
+                    let [r, g, b] = px(pos);
+                    (r, g, b)
+                });
+                Image::from_channels(size, channels).write().to_buffered(w)
+            }
+            ExrPrecision::Half => {
+                let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
+                    let [r, g, b] = px(pos);
+                    (f16::from_f32(r), f16::from_f32(g), f16::from_f32(b))
+                });
+                Image::from_channels(size, channels).write().to_buffered(w)
+            }
+        };
+        result.map_err(|e| match e {
+            exr::error::Error::Io(io) => Error::io("cannot write", path, io),
+            other => Error::invalid("OpenEXR", other.to_string(), path),
+        })
+    })
+}
+
+/// Writes a Radiance RGBE `.hdr` file (negative and non-finite values become 0).
+///
+/// # Errors
+/// [`Error::Io`], or [`Error::EmptyImage`].
+pub fn write_radiance_hdr(path: impl AsRef<Path>, img: &Rgb32FImage) -> Result<()> {
+    let path = path.as_ref();
+    if img.width() == 0 || img.height() == 0 {
+        return Err(Error::EmptyImage);
+    }
+    let pixels: Vec<image::Rgb<f32>> = img
+        .pixels()
+        .map(|p| image::Rgb(p.0.map(|v| if v.is_finite() && v > 0.0 { v } else { 0.0 })))
+        .collect();
+    write_atomic(path, |w| {
+        image::codecs::hdr::HdrEncoder::new(w)
+            .encode(&pixels, img.width() as usize, img.height() as usize)
+            .map_err(|e| Error::invalid("Radiance HDR", e.to_string(), path))
+    })
+}
+
+/// Writes a colour PFM file (little-endian, bottom row first, as the format requires).
+///
+/// # Errors
+/// [`Error::Io`], or [`Error::EmptyImage`].
+pub fn write_pfm(path: impl AsRef<Path>, img: &Rgb32FImage) -> Result<()> {
+    let path = path.as_ref();
+    if img.width() == 0 || img.height() == 0 {
+        return Err(Error::EmptyImage);
+    }
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let raw = img.as_raw();
+    let mut bytes = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
+    bytes.reserve(w * h * 12);
+    for y in (0..h).rev() {
+        for v in &raw[y * w * 3..(y + 1) * w * 3] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    write_atomic(path, |wr| {
+        wr.write_all(&bytes)
+            .map_err(|e| Error::io("cannot write", path, e))
+    })
+}
+
+/// Bits per channel of a PNG.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PngDepth {
+    /// 8 bits per channel.
+    #[default]
+    Eight,
+    /// 16 bits per channel.
+    Sixteen,
+}
+
+/// The sRGB transfer function (IEC 61966-2-1) of a display-linear value in [0, 1].
+#[must_use]
+pub fn srgb_encode(v: f32) -> f32 {
+    let v = if v.is_finite() {
+        v.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Inverse of [`srgb_encode`].
+#[must_use]
+pub fn srgb_decode(v: f32) -> f32 {
+    if v <= 0.040_45 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Encodes a display-linear image as an sRGB PNG of 8 or 16 bits per channel (values
+/// clamped to [0, 1], NaN as 0).
+///
+/// # Errors
+/// [`Error::Io`], or [`Error::EmptyImage`].
+pub fn write_png(path: impl AsRef<Path>, display: &Rgb32FImage, depth: PngDepth) -> Result<()> {
+    let path = path.as_ref();
+    if display.width() == 0 || display.height() == 0 {
+        return Err(Error::EmptyImage);
+    }
+    let (w, h) = display.dimensions();
+    let dynimg = match depth {
+        PngDepth::Eight => image::DynamicImage::ImageRgb8(RgbImage::from_fn(w, h, |x, y| {
+            image::Rgb(
+                display
+                    .get_pixel(x, y)
+                    .0
+                    .map(|v| (srgb_encode(v) * 255.0).round() as u8),
+            )
+        })),
+        PngDepth::Sixteen => {
+            image::DynamicImage::ImageRgb16(image::ImageBuffer::from_fn(w, h, |x, y| {
+                image::Rgb(
+                    display
+                        .get_pixel(x, y)
+                        .0
+                        .map(|v| (srgb_encode(v) * 65535.0).round() as u16),
+                )
+            }))
+        }
+    };
+    write_rgb_png(path, &dynimg)
+}
+
+/// Writes an 8-bit RGB image (e.g. a pseudocolour picture) as PNG.
+///
+/// # Errors
+/// [`Error::Io`].
+pub fn write_rgb8_png(path: impl AsRef<Path>, img: &RgbImage) -> Result<()> {
+    write_rgb_png(path.as_ref(), &image::DynamicImage::ImageRgb8(img.clone()))
+}
+
+fn write_rgb_png(path: &Path, img: &image::DynamicImage) -> Result<()> {
+    write_atomic(path, |w| {
+        img.write_to(w, image::ImageFormat::Png)
+            .map_err(|e| Error::invalid("PNG", e.to_string(), path))
+    })
+}
+
+/// Writes a numbered OpenEXR sequence (`<prefix>0000.exr`, `<prefix>0001.exr`, ...): the
+/// HDR video output of HDR VolVis, readable by HDR movie players and `pfsin`.
+#[derive(Debug)]
+pub struct ExrSequenceWriter {
+    dir: PathBuf,
+    prefix: String,
+    next: usize,
+    precision: ExrPrecision,
+}
+
+impl ExrSequenceWriter {
+    /// A writer into `dir` (created if missing) with file names `<prefix>NNNN.exr`.
+    ///
+    /// # Errors
+    /// [`Error::Io`] if the folder cannot be created; [`Error::Parameter`] if the prefix
+    /// contains a path separator.
+    pub fn new(dir: impl Into<PathBuf>, prefix: &str, precision: ExrPrecision) -> Result<Self> {
+        let dir = dir.into();
+        if prefix.contains(['/', '\\']) {
+            return Err(Error::parameter(format!(
+                "sequence prefix must be a file name, got {prefix:?}"
+            )));
+        }
+        std::fs::create_dir_all(&dir).map_err(|e| Error::io("cannot create folder", &dir, e))?;
+        Ok(Self {
+            dir,
+            prefix: prefix.to_owned(),
+            next: 0,
+            precision,
+        })
+    }
+
+    /// The path frame `index` is written to.
+    #[must_use]
+    pub fn frame_path(&self, index: usize) -> PathBuf {
+        self.dir.join(format!("{}{index:04}.exr", self.prefix))
+    }
+
+    /// Writes the next frame and returns its path.
+    ///
+    /// # Errors
+    /// As [`write_exr`].
+    pub fn push(&mut self, frame: &Rgb32FImage) -> Result<PathBuf> {
+        let path = self.frame_path(self.next);
+        write_exr(&path, frame, self.precision)?;
+        self.next += 1;
+        Ok(path)
+    }
+
+    /// Number of frames written.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.next
+    }
+
+    /// Whether no frame has been written.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.next == 0
+    }
+}
+
+/// The frames of a numbered sequence in `dir` (`<prefix><digits>.exr`), sorted by number.
+///
+/// # Errors
+/// [`Error::Io`] if the folder cannot be listed.
+pub fn list_exr_sequence(dir: impl AsRef<Path>, prefix: &str) -> Result<Vec<PathBuf>> {
+    let dir = dir.as_ref();
+    let mut frames: Vec<(u64, PathBuf)> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io("cannot list", dir, e))?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let digits = name.strip_prefix(prefix)?.strip_suffix(".exr")?;
+            if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+                return None;
+            }
+            Some((digits.parse().ok()?, e.path()))
+        })
+        .collect();
+    frames.sort();
+    Ok(frames.into_iter().map(|(_, p)| p).collect())
+}

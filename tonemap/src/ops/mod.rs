@@ -1,0 +1,233 @@
+//! The tone-mapping operators and their common entry point [`Operator`].
+
+pub mod drago;
+pub mod durand;
+pub mod fattal;
+pub mod linear;
+pub mod reinhard;
+
+use image::Rgb32FImage;
+
+use crate::error::{Error, Result};
+use crate::inverse::GlobalCurve;
+use crate::plane::{Plane, log_average, positive_range, recolour};
+use crate::sanitize::sanitize;
+
+pub use drago::{DragoParams, Roi};
+pub use durand::DurandParams;
+pub use fattal::FattalParams;
+pub use linear::{ExposureSeries, LinearParams, exposure_series};
+pub use reinhard::{ReinhardLocalParams, ReinhardParams};
+
+/// A tone-mapping operator with its parameters. [`Operator::apply`] maps a linear HDR
+/// image (any unit) to a display-referred linear image whose useful range is [0, 1]; the
+/// display encoding (sRGB transfer, 8 or 16 bits) happens when writing
+/// ([`crate::io::write_png`]).
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+pub enum Operator {
+    /// Linear scaling with an exposure (global).
+    Linear(LinearParams),
+    /// Drago et al. 2003 adaptive logarithmic mapping (global).
+    Drago(DragoParams),
+    /// Reinhard et al. 2002 photographic operator, global version (Eq. 4).
+    Reinhard(ReinhardParams),
+    /// Reinhard et al. 2002 local dodging and burning (Eq. 9).
+    ReinhardLocal(ReinhardLocalParams),
+    /// Durand and Dorsey 2002 bilateral base/detail decomposition (local).
+    Durand(DurandParams),
+    /// Fattal et al. 2002 gradient-domain compression (local).
+    Fattal(FattalParams),
+}
+
+impl Default for Operator {
+    fn default() -> Self {
+        Operator::Drago(DragoParams::default())
+    }
+}
+
+/// A sanitized image and its luminance.
+pub(crate) struct Prepared {
+    pub img: Rgb32FImage,
+    pub lum: Plane,
+}
+
+pub(crate) fn check_finite(name: &str, v: f32) -> Result<()> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::parameter(format!("{name} must be finite, got {v}")))
+    }
+}
+
+pub(crate) fn check_saturation(s: f32) -> Result<()> {
+    if s > 0.0 && s <= 4.0 {
+        Ok(())
+    } else {
+        Err(Error::parameter(format!(
+            "saturation exponent must lie in (0, 4], got {s}"
+        )))
+    }
+}
+
+fn prepare(img: &Rgb32FImage) -> Result<Prepared> {
+    if img.width() == 0 || img.height() == 0 {
+        return Err(Error::EmptyImage);
+    }
+    let (clean, _) = sanitize(img);
+    let lum = Plane::luminance_of(&clean);
+    Ok(Prepared { img: clean, lum })
+}
+
+impl Operator {
+    /// The operator's name as the CLI spells it.
+    #[must_use]
+    pub fn name(&self) -> &'static str {
+        match self {
+            Operator::Linear(_) => "linear",
+            Operator::Drago(_) => "drago",
+            Operator::Reinhard(_) => "reinhard",
+            Operator::ReinhardLocal(_) => "reinhard-local",
+            Operator::Durand(_) => "durand",
+            Operator::Fattal(_) => "fattal",
+        }
+    }
+
+    /// Whether the operator applies one curve to every pixel (and so has an inverse).
+    #[must_use]
+    pub fn is_global(&self) -> bool {
+        matches!(
+            self,
+            Operator::Linear(_) | Operator::Drago(_) | Operator::Reinhard(_)
+        )
+    }
+
+    /// Checks the parameters.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] naming the parameter that is out of range.
+    pub fn validate(&self) -> Result<()> {
+        match self {
+            Operator::Linear(p) => p.validate(),
+            Operator::Drago(p) => p.validate(),
+            Operator::Reinhard(p) => p.validate(),
+            Operator::ReinhardLocal(p) => p.validate(),
+            Operator::Durand(p) => p.validate(),
+            Operator::Fattal(p) => p.validate(),
+        }
+    }
+
+    /// Tone-maps `img` (linear RGB, any positive unit) to a display-linear image.
+    ///
+    /// The dirty-input rule of [`crate::sanitize()`] is applied first; the output never
+    /// contains NaN, and pixels of zero luminance stay black.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for invalid parameters (or a region of interest with no lit
+    /// pixel), [`Error::EmptyImage`] for a 0-pixel image.
+    pub fn apply(&self, img: &Rgb32FImage) -> Result<Rgb32FImage> {
+        self.validate()?;
+        let p = prepare(img)?;
+        if positive_range(&p.lum).is_none() {
+            // All black: every operator maps black to black.
+            return Ok(Rgb32FImage::new(img.width(), img.height()));
+        }
+        if self.is_global() {
+            let curve = self.curve_of(&p)?;
+            return Ok(curve.apply_clean(&p.img, &p.lum));
+        }
+        let (w, h) = (p.lum.width, p.lum.height);
+        let (floor, _) = positive_range(&p.lum).expect("checked above");
+        let (lum_out, saturation) = match self {
+            Operator::ReinhardLocal(params) => {
+                let lavg = log_average(&p.lum, None).expect("has positive pixels");
+                let scale = (f64::from(params.key) / lavg) as f32;
+                let scaled = p.lum.map(|v| v * scale);
+                (reinhard::dodge_and_burn(&scaled, params), params.saturation)
+            }
+            Operator::Durand(params) => {
+                let log_l = p.lum.map(|v| v.max(floor).log10());
+                let out = durand::durand_log(&log_l, params);
+                (out.map(|v| 10f32.powf(v)), params.saturation)
+            }
+            Operator::Fattal(params) => {
+                let h_log = p.lum.map(|v| v.max(floor).ln());
+                let i = fattal::compressed_log_luminance(&h_log, params)?;
+                let l_out = i.map(f32::exp);
+                // Scale to the display, clipping the given percentages (lit pixels only).
+                let lit: Vec<f32> = l_out
+                    .data
+                    .iter()
+                    .zip(&p.lum.data)
+                    .filter(|(_, l)| **l > 0.0)
+                    .map(|(v, _)| *v)
+                    .collect();
+                let lo = fattal::percentile(&lit, params.black_clip_percent);
+                let hi = fattal::percentile(&lit, 100.0 - params.white_clip_percent);
+                let span = (hi - lo).max(f32::MIN_POSITIVE);
+                (l_out.map(|v| ((v - lo) / span).max(0.0)), params.saturation)
+            }
+            _ => unreachable!("global operators handled above"),
+        };
+        debug_assert_eq!((lum_out.width, lum_out.height), (w, h));
+        Ok(recolour(&p.img, &p.lum, &lum_out, saturation))
+    }
+
+    /// The resolved global curve of this operator for `img`: the operator's parameters plus
+    /// the image statistics it depends on (adaptation and maximum luminance). It maps and
+    /// inverts display values (HDR VolVis Sec. 4, last paragraph).
+    ///
+    /// # Errors
+    /// [`Error::NotInvertible`] for local operators (Reinhard local, Durand, Fattal), whose
+    /// inverse is not defined; [`Error::Parameter`] / [`Error::EmptyImage`] as in
+    /// [`Operator::apply`].
+    pub fn global_curve(&self, img: &Rgb32FImage) -> Result<GlobalCurve> {
+        self.validate()?;
+        let p = prepare(img)?;
+        self.curve_of(&p)
+    }
+
+    fn curve_of(&self, p: &Prepared) -> Result<GlobalCurve> {
+        let max = positive_range(&p.lum).map_or(1.0, |(_, hi)| hi);
+        let lavg = log_average(&p.lum, None).unwrap_or(1.0);
+        match self {
+            Operator::Linear(params) => Ok(GlobalCurve::Linear {
+                scale: f64::from(params.scale(p)),
+            }),
+            Operator::Drago(params) => {
+                let circle = params.roi.map(|r| (r.x_px, r.y_px, r.radius_px));
+                let lwa = match circle {
+                    Some(c) => log_average(&p.lum, Some(c)).ok_or_else(|| {
+                        Error::parameter(format!(
+                            "the region of interest {:?} contains no lit pixel",
+                            params.roi.expect("some")
+                        ))
+                    })?,
+                    None => lavg,
+                };
+                let adaptation = lwa / f64::from(params.exposure_stops).exp2();
+                Ok(GlobalCurve::Drago {
+                    adaptation,
+                    scaled_max: f64::from(max) / adaptation,
+                    bias: f64::from(params.bias),
+                    max_display_luminance: f64::from(params.max_display_luminance),
+                    saturation: params.saturation,
+                })
+            }
+            Operator::Reinhard(params) => {
+                let scale = f64::from(params.key) / lavg;
+                let white = params.white.map_or(f64::from(max) * scale, f64::from);
+                Ok(GlobalCurve::Reinhard {
+                    scale,
+                    white,
+                    saturation: params.saturation,
+                })
+            }
+            _ => Err(Error::NotInvertible(format!(
+                "the {} operator is local: the same HDR value maps to different display \
+                 values, so it has no inverse (HDR VolVis Sec. 4)",
+                self.name()
+            ))),
+        }
+    }
+}

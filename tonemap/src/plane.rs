@@ -1,0 +1,333 @@
+//! A single-channel `f32` image (luminance, log luminance) and the filters the operators share.
+//!
+//! Every loop runs in parallel over rows with rayon; each output value is computed from its
+//! inputs in a fixed order, so results are bit-identical on any number of threads.
+
+use image::Rgb32FImage;
+use rayon::prelude::*;
+
+/// Rec. 709 / sRGB luminance weights of linear R, G, B (the Y row of the sRGB-to-XYZ matrix).
+pub const LUMINANCE_WEIGHTS: [f32; 3] = [0.2126, 0.7152, 0.0722];
+
+/// Luminance Y of one linear-sRGB pixel (Rec. 709 weights).
+#[must_use]
+#[inline]
+pub fn luminance(rgb: [f32; 3]) -> f32 {
+    LUMINANCE_WEIGHTS[0] * rgb[0] + LUMINANCE_WEIGHTS[1] * rgb[1] + LUMINANCE_WEIGHTS[2] * rgb[2]
+}
+
+/// A row-major single-channel image.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Plane {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// `width * height` values, row by row, top row first.
+    pub data: Vec<f32>,
+}
+
+impl Plane {
+    /// A plane filled with `value`.
+    #[must_use]
+    pub fn filled(width: usize, height: usize, value: f32) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![value; width * height],
+        }
+    }
+
+    /// A plane from a function of (x, y).
+    #[must_use]
+    pub fn from_fn(width: usize, height: usize, f: impl Fn(usize, usize) -> f32 + Sync) -> Self {
+        let mut data = vec![0.0; width * height];
+        if width > 0 {
+            data.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+                for (x, v) in row.iter_mut().enumerate() {
+                    *v = f(x, y);
+                }
+            });
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// The luminance plane of a linear RGB image.
+    #[must_use]
+    pub fn luminance_of(img: &Rgb32FImage) -> Self {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let raw = img.as_raw();
+        let mut data = vec![0.0; w * h];
+        if w > 0 {
+            data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                let src = &raw[y * w * 3..(y + 1) * w * 3];
+                for (x, v) in row.iter_mut().enumerate() {
+                    *v = luminance([src[3 * x], src[3 * x + 1], src[3 * x + 2]]);
+                }
+            });
+        }
+        Self {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    /// Value at (x, y), coordinates clamped to the edge.
+    #[must_use]
+    #[inline]
+    pub fn at_clamped(&self, x: isize, y: isize) -> f32 {
+        let xc = x.clamp(0, self.width as isize - 1) as usize;
+        let yc = y.clamp(0, self.height as isize - 1) as usize;
+        self.data[yc * self.width + xc]
+    }
+
+    /// Applies `f` to every value (in parallel).
+    #[must_use]
+    pub fn map(&self, f: impl Fn(f32) -> f32 + Sync) -> Self {
+        Self {
+            width: self.width,
+            height: self.height,
+            data: self.data.par_iter().map(|&v| f(v)).collect(),
+        }
+    }
+
+    /// Minimum and maximum value (NaN-free input assumed).
+    #[must_use]
+    pub fn min_max(&self) -> (f32, f32) {
+        self.data
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            })
+    }
+
+    /// Gaussian blur with standard deviation `sigma_px` (separable, kernel truncated at
+    /// 3 sigma, edges clamped). `sigma_px <= 0` returns a copy.
+    #[must_use]
+    pub fn gaussian_blur(&self, sigma_px: f32) -> Self {
+        if sigma_px <= 0.0 || self.data.is_empty() {
+            return self.clone();
+        }
+        let kernel = gaussian_kernel(sigma_px);
+        let tmp = self.convolve_rows(&kernel);
+        tmp.convolve_columns(&kernel)
+    }
+
+    /// Horizontal convolution with a symmetric odd kernel, edges clamped.
+    fn convolve_rows(&self, kernel: &[f32]) -> Self {
+        let (w, h) = (self.width, self.height);
+        let r = kernel.len() / 2;
+        let mut out = vec![0.0f32; w * h];
+        out.par_chunks_mut(w).enumerate().for_each(|(y, orow)| {
+            let row = &self.data[y * w..(y + 1) * w];
+            // Padded copy of the row so the inner loop has no branches.
+            let mut padded = Vec::with_capacity(w + 2 * r);
+            padded.extend(std::iter::repeat_n(row[0], r));
+            padded.extend_from_slice(row);
+            padded.extend(std::iter::repeat_n(row[w - 1], r));
+            for (x, o) in orow.iter_mut().enumerate() {
+                let win = &padded[x..x + kernel.len()];
+                let mut acc = 0.0f32;
+                for (k, v) in kernel.iter().zip(win) {
+                    acc += k * v;
+                }
+                *o = acc;
+            }
+        });
+        Self {
+            width: w,
+            height: h,
+            data: out,
+        }
+    }
+
+    /// Vertical convolution with a symmetric odd kernel, edges clamped (row-wise
+    /// accumulation, so the inner loop runs along contiguous memory).
+    fn convolve_columns(&self, kernel: &[f32]) -> Self {
+        let (w, h) = (self.width, self.height);
+        let r = kernel.len() as isize / 2;
+        let mut out = vec![0.0f32; w * h];
+        out.par_chunks_mut(w).enumerate().for_each(|(y, orow)| {
+            for (i, &k) in kernel.iter().enumerate() {
+                let ys = (y as isize + i as isize - r).clamp(0, h as isize - 1) as usize;
+                let src = &self.data[ys * w..(ys + 1) * w];
+                for (o, s) in orow.iter_mut().zip(src) {
+                    *o += k * s;
+                }
+            }
+        });
+        Self {
+            width: w,
+            height: h,
+            data: out,
+        }
+    }
+
+    /// Box-average down-sampling by an integer factor (the last block may be partial).
+    #[must_use]
+    pub fn downsample_box(&self, factor: usize) -> Self {
+        let factor = factor.max(1);
+        let nw = self.width.div_ceil(factor);
+        let nh = self.height.div_ceil(factor);
+        Self::from_fn(nw, nh, |x, y| {
+            let (x0, y0) = (x * factor, y * factor);
+            let x1 = (x0 + factor).min(self.width);
+            let y1 = (y0 + factor).min(self.height);
+            let mut acc = 0.0f64;
+            for yy in y0..y1 {
+                for xx in x0..x1 {
+                    acc += f64::from(self.data[yy * self.width + xx]);
+                }
+            }
+            (acc / ((x1 - x0) * (y1 - y0)) as f64) as f32
+        })
+    }
+
+    /// Bilinear sample at continuous pixel coordinates (pixel centres at integers), edges
+    /// clamped.
+    #[must_use]
+    #[inline]
+    pub fn sample_bilinear(&self, x: f32, y: f32) -> f32 {
+        let x = x.clamp(0.0, (self.width - 1) as f32);
+        let y = y.clamp(0.0, (self.height - 1) as f32);
+        let x0 = x.floor() as usize;
+        let y0 = y.floor() as usize;
+        let x1 = (x0 + 1).min(self.width - 1);
+        let y1 = (y0 + 1).min(self.height - 1);
+        let fx = x - x0 as f32;
+        let fy = y - y0 as f32;
+        let a = self.data[y0 * self.width + x0];
+        let b = self.data[y0 * self.width + x1];
+        let c = self.data[y1 * self.width + x0];
+        let d = self.data[y1 * self.width + x1];
+        (a * (1.0 - fx) + b * fx) * (1.0 - fy) + (c * (1.0 - fx) + d * fx) * fy
+    }
+
+    /// Bilinear resize to `width` x `height` (pixel-centre aligned).
+    #[must_use]
+    pub fn resize_bilinear(&self, width: usize, height: usize) -> Self {
+        let sx = self.width as f32 / width as f32;
+        let sy = self.height as f32 / height as f32;
+        Self::from_fn(width, height, |x, y| {
+            self.sample_bilinear((x as f32 + 0.5) * sx - 0.5, (y as f32 + 0.5) * sy - 0.5)
+        })
+    }
+}
+
+/// Normalised Gaussian kernel of standard deviation `sigma_px`, radius `ceil(3 sigma)`.
+#[must_use]
+pub fn gaussian_kernel(sigma_px: f32) -> Vec<f32> {
+    let r = (3.0 * sigma_px).ceil().max(1.0) as isize;
+    let mut k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma_px * sigma_px)).exp())
+        .collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= s);
+    k
+}
+
+/// Replaces the luminance of `img` by `lum_out`, keeping colour ratios with a saturation
+/// exponent: `C_out = (C_in / L_in)^s * L_out` (Fattal et al. 2002 Eq. 7, Durand and
+/// Dorsey 2002 Sec. 5.3, Schlick 1994). Pixels with `L_in <= 0` come out black.
+#[must_use]
+pub fn recolour(
+    img: &Rgb32FImage,
+    lum_in: &Plane,
+    lum_out: &Plane,
+    saturation: f32,
+) -> Rgb32FImage {
+    let (w, h) = (img.width(), img.height());
+    let src = img.as_raw();
+    let mut out = vec![0.0f32; src.len()];
+    let wu = w as usize;
+    if wu > 0 {
+        out.par_chunks_mut(wu * 3)
+            .enumerate()
+            .for_each(|(y, orow)| {
+                for x in 0..wu {
+                    let i = y * wu + x;
+                    let lin = lum_in.data[i];
+                    let lout = lum_out.data[i];
+                    for c in 0..3 {
+                        let v = src[3 * i + c];
+                        orow[3 * x + c] = if lin > 0.0 && lout > 0.0 {
+                            let ratio = v / lin;
+                            if saturation == 1.0 {
+                                ratio * lout
+                            } else {
+                                ratio.powf(saturation) * lout
+                            }
+                        } else {
+                            0.0
+                        };
+                    }
+                }
+            });
+    }
+    Rgb32FImage::from_raw(w, h, out).expect("buffer size matches dimensions")
+}
+
+/// Log-average (geometric mean) of the positive values inside an optional circle
+/// `(cx, cy, r)` in pixels. Zero pixels (a render's empty background) are left out, so
+/// they cannot drag the adaptation level down. Summed in `f64` per row, then over rows
+/// in order: deterministic on any thread count. `None` when no value is positive.
+#[must_use]
+pub fn log_average(lum: &Plane, circle: Option<(f32, f32, f32)>) -> Option<f64> {
+    let w = lum.width;
+    if w == 0 {
+        return None;
+    }
+    let rows: Vec<(f64, u64)> = lum
+        .data
+        .par_chunks(w)
+        .enumerate()
+        .map(|(y, row)| {
+            let mut s = 0.0f64;
+            let mut n = 0u64;
+            for (x, &v) in row.iter().enumerate() {
+                if let Some((cx, cy, r)) = circle {
+                    let dx = x as f32 + 0.5 - cx;
+                    let dy = y as f32 + 0.5 - cy;
+                    if dx * dx + dy * dy > r * r {
+                        continue;
+                    }
+                }
+                if v > 0.0 {
+                    s += f64::from(v).ln();
+                    n += 1;
+                }
+            }
+            (s, n)
+        })
+        .collect();
+    let (s, n) = rows
+        .iter()
+        .fold((0.0, 0u64), |(a, b), &(s, n)| (a + s, b + n));
+    (n > 0).then(|| (s / n as f64).exp())
+}
+
+/// The smallest positive value and the largest value (`None` if none is positive).
+#[must_use]
+pub fn positive_range(lum: &Plane) -> Option<(f32, f32)> {
+    let w = lum.width.max(1);
+    let rows: Vec<(f32, f32)> = lum
+        .data
+        .par_chunks(w)
+        .map(|row| {
+            row.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &v| {
+                (if v > 0.0 { lo.min(v) } else { lo }, hi.max(v))
+            })
+        })
+        .collect();
+    let (lo, hi) = rows
+        .iter()
+        .fold((f32::INFINITY, 0.0f32), |(a, b), &(lo, hi)| {
+            (a.min(lo), b.max(hi))
+        });
+    (hi > 0.0 && lo.is_finite()).then_some((lo, hi))
+}

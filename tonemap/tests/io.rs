@@ -1,0 +1,184 @@
+//! I/O: round trips, the real photographs of shared/data, and bad files.
+
+use std::path::PathBuf;
+
+use blueshift_tonemap::io::*;
+use blueshift_tonemap::{Error, Plane, dynamic_range};
+use image::{Rgb, Rgb32FImage};
+
+fn data_dir() -> PathBuf {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    for up in [
+        "../../shared/data/hdr-photos",
+        "../../../shared/data/hdr-photos",
+    ] {
+        let p = root.join(up);
+        if p.is_dir() {
+            return p;
+        }
+    }
+    panic!("shared/data/hdr-photos not found beside the repository (see DESIGN.md)");
+}
+
+fn ramp() -> Rgb32FImage {
+    Rgb32FImage::from_fn(13, 7, |x, y| {
+        let v = 10f32.powf(x as f32 / 3.0 - 2.0) * (1.0 + y as f32 * 0.1);
+        Rgb([v, v * 0.5, v * 2.0])
+    })
+}
+
+#[test]
+fn real_photographs_have_the_documented_sizes_and_luminance_ranges() {
+    // shared/data/hdr-photos/SOURCE.md: size, Y max, and Desk's 4,837 negative pixels.
+    let dir = data_dir();
+    for (name, w, h, ymax) in [
+        ("Desk.exr", 644, 874, 201.7),
+        ("MtTamWest.exr", 1214, 732, 3.89),
+        ("memorial.hdr", 512, 768, 223.0),
+    ] {
+        let img = read_hdr_image(dir.join(name)).unwrap();
+        assert_eq!(img.dimensions(), (w, h), "{name}");
+        let dr = dynamic_range(&img).unwrap();
+        assert!(
+            (f64::from(dr.max) / ymax - 1.0).abs() < 0.01,
+            "{name}: Y max {}",
+            dr.max
+        );
+    }
+    let desk = read_hdr_image(dir.join("Desk.exr")).unwrap();
+    let negative = Plane::luminance_of(&desk)
+        .data
+        .iter()
+        .filter(|&&v| v < 0.0)
+        .count();
+    assert_eq!(negative, 4837);
+}
+
+#[test]
+fn exr_pfm_and_radiance_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let img = ramp();
+    let p = dir.path().join("a.exr");
+    write_exr(&p, &img, ExrPrecision::Float).unwrap();
+    assert_eq!(read_hdr_image(&p).unwrap(), img);
+    write_exr(&p, &img, ExrPrecision::Half).unwrap();
+    for (a, b) in read_hdr_image(&p)
+        .unwrap()
+        .as_raw()
+        .iter()
+        .zip(img.as_raw())
+    {
+        assert!((a / b - 1.0).abs() < 1e-3, "half: {a} vs {b}"); // 11-bit mantissa
+    }
+    let p = dir.path().join("a.pfm");
+    write_pfm(&p, &img).unwrap();
+    assert_eq!(read_hdr_image(&p).unwrap(), img);
+    let p = dir.path().join("a.hdr");
+    write_radiance_hdr(&p, &img).unwrap();
+    let back = read_hdr_image(&p).unwrap();
+    for (a, b) in back.as_raw().chunks(3).zip(img.as_raw().chunks(3)) {
+        // RGBE: 8-bit mantissas under the exponent of the largest channel.
+        let top = b.iter().copied().fold(0.0f32, f32::max);
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() <= top / 32.0, "rgbe: {a:?} vs {b:?}");
+        }
+    }
+}
+
+#[test]
+fn png_is_srgb_encoded_in_8_and_16_bits() {
+    let dir = tempfile::tempdir().unwrap();
+    let img = Rgb32FImage::from_fn(3, 1, |x, _| {
+        let v = [0.0, srgb_decode(128.0 / 255.0), 1.0][x as usize];
+        Rgb([v, v, v])
+    });
+    let p = dir.path().join("a.png");
+    write_png(&p, &img, PngDepth::Eight).unwrap();
+    let back = image::open(&p).unwrap().to_rgb8();
+    // IEC 61966-2-1: sRGB 0.5 decodes to 0.21404 linear.
+    assert!((srgb_decode(0.5) - 0.214_04).abs() < 1e-5);
+    assert_eq!(
+        [
+            back.get_pixel(0, 0)[0],
+            back.get_pixel(1, 0)[0],
+            back.get_pixel(2, 0)[0]
+        ],
+        [0, 128, 255]
+    );
+    write_png(&p, &img, PngDepth::Sixteen).unwrap();
+    let back = image::open(&p).unwrap().to_rgb16();
+    assert!((i32::from(back.get_pixel(1, 0)[0]) - 32896).abs() <= 1);
+}
+
+#[test]
+fn luminance_only_exr_reads_as_grey() {
+    use exr::prelude::*;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("y.exr");
+    let ys: Vec<f32> = (0..20).map(|i| i as f32 * 0.5).collect();
+    let channel = AnyChannel::new("Y", FlatSamples::F32(ys.clone()));
+    let layer = Layer::new(
+        (5, 4),
+        LayerAttributes::default(),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(vec![channel].into()),
+    );
+    Image::from_layer(layer).write().to_file(&p).unwrap();
+    let img = read_hdr_image(&p).unwrap();
+    assert_eq!(img.get_pixel(3, 2).0, [ys[13]; 3]);
+}
+
+#[test]
+fn exr_sequence_frames_are_numbered_and_listed_in_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut seq =
+        ExrSequenceWriter::new(dir.path().join("movie"), "frame_", ExrPrecision::Half).unwrap();
+    for _ in 0..12 {
+        seq.push(&ramp()).unwrap();
+    }
+    let frames = list_exr_sequence(dir.path().join("movie"), "frame_").unwrap();
+    assert_eq!(frames.len(), 12);
+    assert!(frames[11].ends_with("frame_0011.exr"));
+    assert!(read_hdr_image(&frames[3]).is_ok());
+}
+
+#[test]
+fn invalid_files_error_without_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("g.exr");
+    write_exr(&good, &ramp(), ExrPrecision::Half).unwrap();
+    let exr_bytes = std::fs::read(&good).unwrap();
+    let pfm = dir.path().join("g.pfm");
+    write_pfm(&pfm, &ramp()).unwrap();
+    let pfm_bytes = std::fs::read(&pfm).unwrap();
+    let memorial = std::fs::read(data_dir().join("memorial.hdr")).unwrap();
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("truncated.exr", exr_bytes[..exr_bytes.len() / 2].to_vec()),
+        ("header-only.exr", exr_bytes[..40].to_vec()),
+        ("truncated.pfm", pfm_bytes[..pfm_bytes.len() - 10].to_vec()),
+        (
+            "huge.pfm",
+            b"PF\n4000000000 4000000000\n-1.0\n\0\0\0\0".to_vec(),
+        ),
+        ("nan-scale.pfm", b"PF\n2 2\nnan\n".to_vec()),
+        ("truncated.hdr", memorial[..memorial.len() / 3].to_vec()),
+        ("garbage.hdr", b"hello, not an image".to_vec()),
+        ("empty.exr", Vec::new()),
+    ];
+    for (name, bytes) in cases {
+        let p = dir.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let r = read_hdr_image(&p);
+        assert!(
+            matches!(
+                r,
+                Err(Error::Invalid { .. } | Error::Unsupported { .. } | Error::Limits { .. })
+            ),
+            "{name}: {r:?}"
+        );
+    }
+    assert!(matches!(
+        read_hdr_image(dir.path().join("missing.exr")),
+        Err(Error::Io { .. })
+    ));
+}
