@@ -31,19 +31,20 @@ pub enum ColorSpace {
 impl ColorSpace {
     /// Interpolates between `a` (at s = 0) and `b` (at s = 1) in this space.
     #[must_use]
+    /// At `s <= 0` it returns `a` and at `s >= 1` it returns `b` exactly.
     pub fn interpolate(self, a: [f64; 3], b: [f64; 3], s: f64) -> [f64; 3] {
+        if s <= 0.0 {
+            return a;
+        }
+        if s >= 1.0 {
+            return b;
+        }
         match self {
             ColorSpace::Rgb => lerp3(a, b, s),
             ColorSpace::Hsv => hsv_interpolate(a, b, s),
             ColorSpace::Lab => lab_to_rgb(lerp3(rgb_to_lab(a), rgb_to_lab(b), s)),
             ColorSpace::Diverging => diverging_interpolate(a, b, s),
-            ColorSpace::Step => {
-                if s <= 0.0 {
-                    a
-                } else {
-                    b
-                }
-            }
+            ColorSpace::Step => b,
         }
     }
 }
