@@ -93,7 +93,7 @@ impl EditorView {
             )));
         }
         let (x0, x1) = (78, self.width - 44);
-        let top = 30;
+        let top = 44;
         let bottom_axis = 40;
         let colorbar_h = 26;
         let focus_h = 8;
@@ -234,7 +234,7 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             ValueAxis::Linear => "opacity".to_string(),
             ValueAxis::Log { .. } => "opacity (log)".to_string(),
         };
-        root.draw(&Text::new(axis_name, (4, 8), text(12))).map_err(draw_err)?;
+        root.draw(&Text::new(axis_name, (4, 26), text(12))).map_err(draw_err)?;
 
         // Focus region edges.
         for r in view.fisheye.regions() {
@@ -275,8 +275,8 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
                 .collect();
             root.draw(&PathElement::new(pts, RGBColor(240, 200, 40).stroke_width(1)))
                 .map_err(draw_err)?;
-            let label = format!("M: c={} min={:.3}", format_tick(mmax), view.fisheye.m_min());
-            root.draw(&Text::new(label, (lay.x1 as i32 - 190, py0 as i32 + 4), font(12).color(&RGBColor(240, 200, 40))))
+            let label = format!("magnification: M_c {}, M_min {:.3}", format_tick(mmax), view.fisheye.m_min());
+            root.draw(&Text::new(label, (lay.x1 as i32 - 300, py0 as i32 - 16), font(12).color(&RGBColor(240, 200, 40))))
                 .map_err(draw_err)?;
         }
 
@@ -335,7 +335,7 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             },
             tf.alpha_g()
         );
-        root.draw(&Text::new(title, (lay.x0 as i32, 8), text(13))).map_err(draw_err)?;
+        root.draw(&Text::new(title, (4, 6), text(13))).map_err(draw_err)?;
         root.present().map_err(draw_err)?;
     }
     RgbImage::from_raw(w, h, buf)
