@@ -23,12 +23,15 @@ struct Cli {
 enum Command {
     /// Build a spectrum (black body, emission lines, Doppler shift) and report its colour.
     Spectrum(commands::spectrum::Args),
+    /// Transfer functions: draw the editor view, convert ParaView presets, write lookup tables.
+    Tf(commands::tf::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
+        Command::Tf(args) => commands::tf::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
