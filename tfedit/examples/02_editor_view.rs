@@ -5,19 +5,29 @@
 
 use blueshift_tfedit::picture::{EditorView, render_editor_view};
 use blueshift_tfedit::{
-    ColorKnot, ColorSpace, DataAxis, Fisheye, FocusRegion, OpacityKnot, TransferFunction,
-    ValueAxis,
+    ColorKnot, ColorSpace, DataAxis, Fisheye, FocusRegion, OpacityKnot, TransferFunction, ValueAxis,
 };
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let out = std::env::args().nth(1).unwrap_or_else(|| "editor.png".into());
+    let out = std::env::args()
+        .nth(1)
+        .unwrap_or_else(|| "editor.png".into());
     // Vorticity-like data spanning five decades; colours interpolated in HSV (section 5).
     let tf = TransferFunction::new(
         [1e-2, 1e3],
         vec![
-            ColorKnot { x: 1e-2, rgb: [0.1, 0.1, 0.9] },
-            ColorKnot { x: 1.0, rgb: [0.1, 0.9, 0.3] },
-            ColorKnot { x: 1e3, rgb: [0.95, 0.2, 0.1] },
+            ColorKnot {
+                x: 1e-2,
+                rgb: [0.1, 0.1, 0.9],
+            },
+            ColorKnot {
+                x: 1.0,
+                rgb: [0.1, 0.9, 0.3],
+            },
+            ColorKnot {
+                x: 1e3,
+                rgb: [0.95, 0.2, 0.1],
+            },
         ],
         vec![
             OpacityKnot::new(1e-2, 1e-4),
@@ -35,7 +45,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Focus on [0.5, 1.1] and [50, 80]: centre and width on the normalised log axis.
     let focus = |a: f64, b: f64, m: f64| {
         let (ta, tb) = (tf.normalized(a), tf.normalized(b));
-        FocusRegion { center: 0.5 * (ta + tb), width: tb - ta, magnification: m, transition: 0.03 }
+        FocusRegion {
+            center: 0.5 * (ta + tb),
+            width: tb - ta,
+            magnification: m,
+            transition: 0.03,
+        }
     };
     let view = EditorView {
         fisheye: Fisheye::new(vec![focus(0.5, 1.1, 4.0), focus(50.0, 80.0, 3.0)])?,

@@ -105,7 +105,9 @@ impl Fisheye {
                 .iter()
                 .all(|v| v.is_finite());
             if !finite {
-                return Err(Error::parameter(format!("focus region {i}: numbers must be finite, got {r:?}")));
+                return Err(Error::parameter(format!(
+                    "focus region {i}: numbers must be finite, got {r:?}"
+                )));
             }
             if !(0.0..=1.0).contains(&r.center) {
                 return Err(Error::parameter(format!(
@@ -114,7 +116,10 @@ impl Fisheye {
                 )));
             }
             if r.width <= 0.0 {
-                return Err(Error::parameter(format!("focus region {i}: width {} must be > 0", r.width)));
+                return Err(Error::parameter(format!(
+                    "focus region {i}: width {} must be > 0",
+                    r.width
+                )));
             }
             if r.magnification <= 1.0 {
                 return Err(Error::parameter(format!(
@@ -164,7 +169,14 @@ impl Fisheye {
                 (m0.0 + (m1.0 - m0.0) * f, m0.1 + (m1.1 - m0.1) * f)
             };
             let (p, q) = (at(c0), at(c1));
-            sym.push(Sym { t0: c0, t1: c1, a0: p.0, b0: p.1, a1: q.0, b1: q.1 });
+            sym.push(Sym {
+                t0: c0,
+                t1: c1,
+                a0: p.0,
+                b0: p.1,
+                a1: q.0,
+                b1: q.1,
+            });
         };
         let ctx = (0.0, 1.0);
         let mut cursor = 0.0f64;
@@ -186,8 +198,12 @@ impl Fisheye {
             a += 0.5 * (p.a0 + p.a1) * len;
             b += 0.5 * (p.b0 + p.b1) * len;
         }
-        let m_min = if b > 0.0 { (1.0 - a) / b } else { f64::NEG_INFINITY };
-        if !(m_min > 0.0) {
+        let m_min = if b > 0.0 {
+            (1.0 - a) / b
+        } else {
+            f64::NEG_INFINITY
+        };
+        if m_min.is_nan() || m_min <= 0.0 {
             return Err(Error::parameter(format!(
                 "the focus regions magnify {a:.4} of the window's width on their own, leaving no room for the context (M_min = {m_min:.4} <= 0); lower a magnification or a width"
             )));

@@ -121,11 +121,7 @@ pub fn hsv_interpolate(a: [f64; 3], b: [f64; 3], s: f64) -> [f64; 3] {
         dh += 1.0;
     }
     let h = (ha[0] + dh * s).rem_euclid(1.0);
-    hsv_to_rgb([
-        h,
-        ha[1] + (hb[1] - ha[1]) * s,
-        ha[2] + (hb[2] - ha[2]) * s,
-    ])
+    hsv_to_rgb([h, ha[1] + (hb[1] - ha[1]) * s, ha[2] + (hb[2] - ha[2]) * s])
 }
 
 const WHITE_D65: [f64; 3] = [0.9505, 1.0, 1.089];

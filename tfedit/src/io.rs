@@ -166,11 +166,13 @@ pub fn detect(doc: &Value) -> Option<Format> {
 /// Parses transfer-function text in either format (see [`detect`]); for ParaView files the
 /// first preset is taken.
 pub fn parse_any(text: &str) -> Result<(TransferFunction, Format)> {
-    let doc: Value = serde_json::from_str(text)
-        .map_err(|e| Error::invalid(format!("not valid JSON: {e}")))?;
+    let doc: Value =
+        serde_json::from_str(text).map_err(|e| Error::invalid(format!("not valid JSON: {e}")))?;
     match detect(&doc) {
         Some(Format::Blueshift) => Ok((from_blueshift_value(doc)?, Format::Blueshift)),
-        Some(Format::ParaView) => Ok((paraview::from_paraview_value(&doc, None)?, Format::ParaView)),
+        Some(Format::ParaView) => {
+            Ok((paraview::from_paraview_value(&doc, None)?, Format::ParaView))
+        }
         None => Err(Error::invalid(format!(
             "neither a blueshift transfer function (an object with \"format\": {FORMAT_TAG:?}) nor a ParaView preset (an array of objects with \"RGBPoints\")"
         ))),
@@ -201,10 +203,8 @@ pub fn load(path: impl AsRef<Path>) -> Result<TransferFunction> {
             io("read", e)
         }
     })?;
-    parse_any(&text)
-        .map(|(tf, _)| tf)
-        .map_err(|e| match e {
-            Error::Invalid(m) => Error::Invalid(format!("{m} (in {})", path.display())),
-            other => other,
-        })
+    parse_any(&text).map(|(tf, _)| tf).map_err(|e| match e {
+        Error::Invalid(m) => Error::Invalid(format!("{m} (in {})", path.display())),
+        other => other,
+    })
 }

@@ -35,7 +35,11 @@ impl TransferFunction {
         let fill = |(c, chunk): (usize, &mut [f32])| {
             for (j, px) in chunk.chunks_exact_mut(4).enumerate() {
                 let i = c * CHUNK + j;
-                let v = if i + 1 == entries { hi } else { lo + i as f64 * step };
+                let v = if i + 1 == entries {
+                    hi
+                } else {
+                    lo + i as f64 * step
+                };
                 px.copy_from_slice(&self.eval(v));
             }
         };
@@ -207,7 +211,12 @@ impl Lut2d {
             return None;
         }
         let o = (row * self.width() + col) * 4;
-        Some([self.rgba[o], self.rgba[o + 1], self.rgba[o + 2], self.rgba[o + 3]])
+        Some([
+            self.rgba[o],
+            self.rgba[o + 1],
+            self.rgba[o + 2],
+            self.rgba[o + 3],
+        ])
     }
 
     /// Where 1D entry `i` lives: `(row, col)` with `col` in `1 ..= n`.

@@ -42,7 +42,12 @@ pub fn from_paraview_str(text: &str, name: Option<&str>) -> Result<TransferFunct
 pub fn paraview_preset_names(doc: &Value) -> Vec<String> {
     presets(doc)
         .iter()
-        .map(|p| p.get("Name").and_then(Value::as_str).unwrap_or("").to_string())
+        .map(|p| {
+            p.get("Name")
+                .and_then(Value::as_str)
+                .unwrap_or("")
+                .to_string()
+        })
         .collect()
 }
 
@@ -77,7 +82,12 @@ pub fn from_paraview_value(doc: &Value, name: Option<&str>) -> Result<TransferFu
     convert(preset)
 }
 
-fn numbers(preset: &Map<String, Value>, key: &str, group: usize, pname: &str) -> Result<Option<Vec<f64>>> {
+fn numbers(
+    preset: &Map<String, Value>,
+    key: &str,
+    group: usize,
+    pname: &str,
+) -> Result<Option<Vec<f64>>> {
     let Some(v) = preset.get(key) else {
         return Ok(None);
     };
@@ -133,7 +143,11 @@ fn sort_points(points: &mut [(f64, usize)]) {
 }
 
 fn convert(preset: &Map<String, Value>) -> Result<TransferFunction> {
-    let pname = preset.get("Name").and_then(Value::as_str).unwrap_or("").to_string();
+    let pname = preset
+        .get("Name")
+        .and_then(Value::as_str)
+        .unwrap_or("")
+        .to_string();
     if preset.contains_key("IndexedColors") && !preset.contains_key("RGBPoints") {
         return Err(Error::Unsupported(format!(
             "ParaView preset {pname:?} is categorical (IndexedColors); only continuous maps (RGBPoints) are supported"
@@ -143,7 +157,9 @@ fn convert(preset: &Map<String, Value>) -> Result<TransferFunction> {
         Error::invalid(format!("ParaView preset {pname:?}: RGBPoints is missing"))
     })?;
     if rgb.is_empty() {
-        return Err(Error::invalid(format!("ParaView preset {pname:?}: RGBPoints is empty")));
+        return Err(Error::invalid(format!(
+            "ParaView preset {pname:?}: RGBPoints is empty"
+        )));
     }
     let pts = numbers(preset, "Points", 4, &pname)?;
     let space = match preset.get("ColorSpace") {
@@ -157,12 +173,21 @@ fn convert(preset: &Map<String, Value>) -> Result<TransferFunction> {
     };
     let log = match preset.get("UseLogScale") {
         None => false,
-        Some(v) => v.as_bool().or_else(|| v.as_f64().map(|f| f != 0.0)).ok_or_else(|| {
-            Error::invalid(format!("ParaView preset {pname:?}: UseLogScale {v} is not a boolean"))
-        })?,
+        Some(v) => v
+            .as_bool()
+            .or_else(|| v.as_f64().map(|f| f != 0.0))
+            .ok_or_else(|| {
+                Error::invalid(format!(
+                    "ParaView preset {pname:?}: UseLogScale {v} is not a boolean"
+                ))
+            })?,
     };
 
-    let mut order: Vec<(f64, usize)> = rgb.chunks_exact(4).enumerate().map(|(i, c)| (c[0], i)).collect();
+    let mut order: Vec<(f64, usize)> = rgb
+        .chunks_exact(4)
+        .enumerate()
+        .map(|(i, c)| (c[0], i))
+        .collect();
     for (x, i) in &order {
         if !x.is_finite() {
             return Err(Error::invalid(format!(
@@ -191,8 +216,11 @@ fn convert(preset: &Map<String, Value>) -> Result<TransferFunction> {
 
     let opacity = match pts {
         Some(p) if !p.is_empty() => {
-            let mut order: Vec<(f64, usize)> =
-                p.chunks_exact(4).enumerate().map(|(i, c)| (c[0], i)).collect();
+            let mut order: Vec<(f64, usize)> = p
+                .chunks_exact(4)
+                .enumerate()
+                .map(|(i, c)| (c[0], i))
+                .collect();
             for (x, i) in &order {
                 if !x.is_finite() {
                     return Err(Error::invalid(format!(
@@ -238,13 +266,13 @@ fn convert(preset: &Map<String, Value>) -> Result<TransferFunction> {
             .with_data_axis(DataAxis::Log)
             .map_err(|e| Error::invalid(format!("ParaView preset {pname:?}: {e}")))?;
     }
-    if let Some(nan) = numbers(preset, "NanColor", 3, &pname)? {
-        if nan.len() == 3 {
-            let c = [nan[0] as f32, nan[1] as f32, nan[2] as f32];
-            tf = tf
-                .with_nan_color(c)
-                .map_err(|e| Error::invalid(format!("ParaView preset {pname:?}: {e}")))?;
-        }
+    if let Some(nan) = numbers(preset, "NanColor", 3, &pname)?
+        && nan.len() == 3
+    {
+        let c = [nan[0] as f32, nan[1] as f32, nan[2] as f32];
+        tf = tf
+            .with_nan_color(c)
+            .map_err(|e| Error::invalid(format!("ParaView preset {pname:?}: {e}")))?;
     }
     if let Some(a) = preset.get(ALPHA_G_KEY).and_then(Value::as_f64) {
         tf = tf

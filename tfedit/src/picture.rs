@@ -23,7 +23,9 @@ fn register_font() -> Result<()> {
     if ok {
         Ok(())
     } else {
-        Err(Error::Unsupported("the bundled DejaVu Sans Mono font could not be loaded".into()))
+        Err(Error::Unsupported(
+            "the bundled DejaVu Sans Mono font could not be loaded".into(),
+        ))
     }
 }
 
@@ -121,7 +123,7 @@ fn to_u8(c: f32) -> u8 {
 
 /// "Nice" tick values covering `[lo, hi]` with about `count` steps (1, 2, 5 x 10^k).
 fn nice_ticks(lo: f64, hi: f64, count: usize) -> Vec<f64> {
-    if !(hi > lo) || count == 0 {
+    if hi.is_nan() || lo.is_nan() || hi <= lo || count == 0 {
         return vec![lo];
     }
     let raw = (hi - lo) / count as f64;
@@ -170,10 +172,10 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
     }
     let (py0, py1) = lay.plot_y;
     let plot_h = f64::from(py1 - py0);
-    let y_of = |opacity: f64| -> f64 {
-        f64::from(py1) - view.opacity_axis.forward(opacity) * plot_h
-    };
-    let value_of_col = |px: u32| tf.value_at_normalized(view.fisheye.inverse(lay.column_to_window(px)));
+    let y_of =
+        |opacity: f64| -> f64 { f64::from(py1) - view.opacity_axis.forward(opacity) * plot_h };
+    let value_of_col =
+        |px: u32| tf.value_at_normalized(view.fisheye.inverse(lay.column_to_window(px)));
 
     // Colour bar, area under the opacity curve, focus bar: pixel by pixel.
     let mut curve = Vec::with_capacity((lay.x1 - lay.x0) as usize);
@@ -186,7 +188,11 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
         }
         let top = y_of(f64::from(a));
         for y in py0..py1 {
-            let c = if f64::from(y) + 0.5 >= top && a > 0.0 { col } else { PLOT_BG };
+            let c = if f64::from(y) + 0.5 >= top && a > 0.0 {
+                col
+            } else {
+                PLOT_BG
+            };
             put(&mut buf, px, y, c);
         }
         curve.push((px as i32, top.round() as i32));
@@ -207,7 +213,9 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
 
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        let draw_err = |e: DrawingAreaErrorKind<_>| Error::Unsupported(format!("drawing the editor view failed: {e}"));
+        let draw_err = |e: DrawingAreaErrorKind<_>| {
+            Error::Unsupported(format!("drawing the editor view failed: {e}"))
+        };
         let font = |size: u32| (FONT_NAME, size).into_font();
         let white = RGBColor(230, 230, 230);
         let grid = RGBColor(75, 75, 85);
@@ -223,8 +231,11 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
         };
         for &o in &opacity_ticks {
             let y = y_of(o).round() as i32;
-            root.draw(&PathElement::new(vec![(lay.x0 as i32, y), (lay.x1 as i32 - 1, y)], grid))
-                .map_err(draw_err)?;
+            root.draw(&PathElement::new(
+                vec![(lay.x0 as i32, y), (lay.x1 as i32 - 1, y)],
+                grid,
+            ))
+            .map_err(draw_err)?;
             let label = format_tick(o);
             let tw = 7 * label.len() as i32;
             root.draw(&Text::new(label, (lay.x0 as i32 - 6 - tw, y - 6), text(12)))
@@ -234,7 +245,8 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             ValueAxis::Linear => "opacity".to_string(),
             ValueAxis::Log { .. } => "opacity (log)".to_string(),
         };
-        root.draw(&Text::new(axis_name, (4, 26), text(12))).map_err(draw_err)?;
+        root.draw(&Text::new(axis_name, (4, 26), text(12)))
+            .map_err(draw_err)?;
 
         // Focus region edges.
         for r in view.fisheye.regions() {
@@ -244,19 +256,25 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             ] {
                 if (0.0..=1.0).contains(&t) {
                     let x = lay.window_to_column(view.fisheye.forward(t)) as i32;
-                    root.draw(&PathElement::new(vec![(x, py0 as i32), (x, py1 as i32)], c.stroke_width(1)))
-                        .map_err(draw_err)?;
+                    root.draw(&PathElement::new(
+                        vec![(x, py0 as i32), (x, py1 as i32)],
+                        c.stroke_width(1),
+                    ))
+                    .map_err(draw_err)?;
                 }
             }
         }
 
         // Opacity curve and knots.
-        root.draw(&PathElement::new(curve, white.stroke_width(2))).map_err(draw_err)?;
+        root.draw(&PathElement::new(curve, white.stroke_width(2)))
+            .map_err(draw_err)?;
         for k in tf.opacity_knots() {
             let x = lay.window_to_column(view.fisheye.forward(tf.normalized(k.x))) as i32;
             let y = y_of(f64::from(k.alpha) * f64::from(tf.alpha_g())).round() as i32;
-            root.draw(&Circle::new((x, y), 4, white.filled())).map_err(draw_err)?;
-            root.draw(&Circle::new((x, y), 4, RGBColor(0, 0, 0).stroke_width(1))).map_err(draw_err)?;
+            root.draw(&Circle::new((x, y), 4, white.filled()))
+                .map_err(draw_err)?;
+            root.draw(&Circle::new((x, y), 4, RGBColor(0, 0, 0).stroke_width(1)))
+                .map_err(draw_err)?;
         }
 
         // Magnification curve M(t) (Fig. 6b), scaled so that max(M_c) reaches the top.
@@ -269,15 +287,31 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
                 .fold(1.0, f64::max);
             let pts: Vec<(i32, i32)> = (lay.x0..lay.x1)
                 .map(|px| {
-                    let m = view.fisheye.magnification(view.fisheye.inverse(lay.column_to_window(px)));
-                    (px as i32, (f64::from(py1) - m / mmax * plot_h * 0.95).round() as i32)
+                    let m = view
+                        .fisheye
+                        .magnification(view.fisheye.inverse(lay.column_to_window(px)));
+                    (
+                        px as i32,
+                        (f64::from(py1) - m / mmax * plot_h * 0.95).round() as i32,
+                    )
                 })
                 .collect();
-            root.draw(&PathElement::new(pts, RGBColor(240, 200, 40).stroke_width(1)))
-                .map_err(draw_err)?;
-            let label = format!("magnification: M_c {}, M_min {:.3}", format_tick(mmax), view.fisheye.m_min());
-            root.draw(&Text::new(label, (lay.x1 as i32 - 300, py0 as i32 - 16), font(12).color(&RGBColor(240, 200, 40))))
-                .map_err(draw_err)?;
+            root.draw(&PathElement::new(
+                pts,
+                RGBColor(240, 200, 40).stroke_width(1),
+            ))
+            .map_err(draw_err)?;
+            let label = format!(
+                "magnification: M_c {}, M_min {:.3}",
+                format_tick(mmax),
+                view.fisheye.m_min()
+            );
+            root.draw(&Text::new(
+                label,
+                (lay.x1 as i32 - 300, py0 as i32 - 16),
+                font(12).color(&RGBColor(240, 200, 40)),
+            ))
+            .map_err(draw_err)?;
         }
 
         // Data-axis ticks: context ticks over the whole domain, plus finer ticks inside
@@ -313,7 +347,8 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             }
             let x = lay.window_to_column(view.fisheye.forward(tf.normalized(v))) as i32;
             let len = if focus { 4 } else { 7 };
-            root.draw(&PathElement::new(vec![(x, ty), (x, ty + len)], white)).map_err(draw_err)?;
+            root.draw(&PathElement::new(vec![(x, ty), (x, ty + len)], white))
+                .map_err(draw_err)?;
             let label = format_tick(v);
             let tw = 7 * label.len() as i32;
             let (a, b) = (x - tw / 2 - 3, x + tw / 2 + 3);
@@ -321,12 +356,17 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
                 continue;
             }
             taken.push((a, b));
-            root.draw(&Text::new(label, (x - tw / 2, ty + 10), text(12))).map_err(draw_err)?;
+            root.draw(&Text::new(label, (x - tw / 2, ty + 10), text(12)))
+                .map_err(draw_err)?;
         }
 
         let title = format!(
             "{}  domain [{}, {}]  {} axis  alpha_g = {}",
-            if tf.name().is_empty() { "transfer function" } else { tf.name() },
+            if tf.name().is_empty() {
+                "transfer function"
+            } else {
+                tf.name()
+            },
             format_tick(lo),
             format_tick(hi),
             match tf.data_axis() {
@@ -335,7 +375,8 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             },
             tf.alpha_g()
         );
-        root.draw(&Text::new(title, (4, 6), text(13))).map_err(draw_err)?;
+        root.draw(&Text::new(title, (4, 6), text(13)))
+            .map_err(draw_err)?;
         root.present().map_err(draw_err)?;
     }
     RgbImage::from_raw(w, h, buf)

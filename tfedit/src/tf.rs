@@ -212,7 +212,9 @@ impl TransferFunction {
         }
         let check_x = |kind: &str, i: usize, x: f64, prev: Option<f64>| -> Result<()> {
             if !x.is_finite() {
-                return Err(Error::invalid(format!("{kind} knot {i}: position {x} is not finite")));
+                return Err(Error::invalid(format!(
+                    "{kind} knot {i}: position {x} is not finite"
+                )));
             }
             if log && x <= 0.0 {
                 return Err(Error::invalid(format!(
@@ -240,8 +242,17 @@ impl TransferFunction {
             }
         }
         for (i, k) in self.opacity.iter().enumerate() {
-            check_x("opacity", i, k.x, i.checked_sub(1).map(|j| self.opacity[j].x))?;
-            for (what, v) in [("opacity", k.alpha), ("midpoint", k.midpoint), ("sharpness", k.sharpness)] {
+            check_x(
+                "opacity",
+                i,
+                k.x,
+                i.checked_sub(1).map(|j| self.opacity[j].x),
+            )?;
+            for (what, v) in [
+                ("opacity", k.alpha),
+                ("midpoint", k.midpoint),
+                ("sharpness", k.sharpness),
+            ] {
                 if !(0.0..=1.0).contains(&v) {
                     return Err(Error::invalid(format!(
                         "opacity knot {i} (x = {}): {what} {v} is outside [0, 1]",
@@ -321,7 +332,8 @@ impl TransferFunction {
 
     #[inline]
     fn coord_clamped(&self, value: f64) -> f64 {
-        self.data_axis.coord(value.clamp(self.domain[0], self.domain[1]))
+        self.data_axis
+            .coord(value.clamp(self.domain[0], self.domain[1]))
     }
 
     /// Evaluates RGBA at a data value: colour interpolated in the chosen space, opacity
@@ -518,8 +530,14 @@ mod tests {
         TransferFunction::new(
             [0.0, 10.0],
             vec![
-                ColorKnot { x: 0.0, rgb: [0.0, 0.0, 0.0] },
-                ColorKnot { x: 10.0, rgb: [1.0, 1.0, 1.0] },
+                ColorKnot {
+                    x: 0.0,
+                    rgb: [0.0, 0.0, 0.0],
+                },
+                ColorKnot {
+                    x: 10.0,
+                    rgb: [1.0, 1.0, 1.0],
+                },
             ],
             vec![
                 OpacityKnot::new(0.0, 0.0),
@@ -558,9 +576,17 @@ mod tests {
         // With midpoint 0.25 the curve reaches (y1 + y2) / 2 a quarter of the way along.
         let tf = TransferFunction::new(
             [0.0, 1.0],
-            vec![ColorKnot { x: 0.0, rgb: [1.0; 3] }],
+            vec![ColorKnot {
+                x: 0.0,
+                rgb: [1.0; 3],
+            }],
             vec![
-                OpacityKnot { x: 0.0, alpha: 0.0, midpoint: 0.25, sharpness: 0.0 },
+                OpacityKnot {
+                    x: 0.0,
+                    alpha: 0.0,
+                    midpoint: 0.25,
+                    sharpness: 0.0,
+                },
                 OpacityKnot::new(1.0, 1.0),
             ],
         )

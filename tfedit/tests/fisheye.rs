@@ -7,7 +7,12 @@ use blueshift_tfedit::{Error, Fisheye, FocusRegion, ValueAxis};
 use proptest::prelude::*;
 
 fn region(center: f64, width: f64, magnification: f64, transition: f64) -> FocusRegion {
-    FocusRegion { center, width, magnification, transition }
+    FocusRegion {
+        center,
+        width,
+        magnification,
+        transition,
+    }
 }
 
 #[test]
@@ -34,7 +39,10 @@ fn eq2_integral_holds_by_independent_quadrature() {
     ])
     .unwrap();
     let n = 200_000;
-    let integral: f64 = (0..n).map(|i| f.magnification((f64::from(i) + 0.5) / f64::from(n))).sum::<f64>() / f64::from(n);
+    let integral: f64 = (0..n)
+        .map(|i| f.magnification((f64::from(i) + 0.5) / f64::from(n)))
+        .sum::<f64>()
+        / f64::from(n);
     assert_close(integral, 1.0, 1e-6, "∫ M(t) dt over [0, 1]");
     assert!(f.m_min() > 0.0 && f.m_min() < 1.0);
 }
@@ -43,13 +51,26 @@ fn eq2_integral_holds_by_independent_quadrature() {
 fn impossible_or_overlapping_focus_settings_are_refused() {
     // M_c w = 2 > 1: the focus alone is wider than the window, M_min would be negative.
     let e = Fisheye::new(vec![region(0.5, 0.2, 10.0, 0.0)]).unwrap_err();
-    assert!(matches!(e, Error::Parameter(_)) && e.to_string().contains("M_min"), "{e}");
+    assert!(
+        matches!(e, Error::Parameter(_)) && e.to_string().contains("M_min"),
+        "{e}"
+    );
     // Exactly filling the window leaves M_min = 0, also refused.
     let e = Fisheye::new(vec![region(0.5, 0.25, 4.0, 0.0)]).unwrap_err();
     assert!(e.to_string().contains("M_min"), "{e}");
-    let e = Fisheye::new(vec![region(0.3, 0.1, 2.0, 0.05), region(0.45, 0.1, 2.0, 0.05)]).unwrap_err();
+    let e = Fisheye::new(vec![
+        region(0.3, 0.1, 2.0, 0.05),
+        region(0.45, 0.1, 2.0, 0.05),
+    ])
+    .unwrap_err();
     assert!(e.to_string().contains("overlap"), "{e}");
-    for bad in [region(0.5, 0.1, 1.0, 0.0), region(1.5, 0.1, 2.0, 0.0), region(0.5, 0.0, 2.0, 0.0), region(0.5, 0.1, 2.0, -0.1), region(0.5, f64::NAN, 2.0, 0.0)] {
+    for bad in [
+        region(0.5, 0.1, 1.0, 0.0),
+        region(1.5, 0.1, 2.0, 0.0),
+        region(0.5, 0.0, 2.0, 0.0),
+        region(0.5, 0.1, 2.0, -0.1),
+        region(0.5, f64::NAN, 2.0, 0.0),
+    ] {
         assert!(Fisheye::new(vec![bad]).is_err(), "{bad:?} accepted");
     }
 }
@@ -81,10 +102,18 @@ fn log_value_axis_maps_floor_to_0_one_to_1_and_is_invertible() {
 
 /// 1 to 3 non-overlapping focus regions with a feasible total magnification.
 fn arb_fisheye() -> impl Strategy<Value = Fisheye> {
-    prop::collection::vec((0.0f64..1.0, 0.005f64..0.1, 1.1f64..6.0, 0.0f64..0.05), 1..4)
-        .prop_filter_map("overlapping or infeasible", |rs| {
-            Fisheye::new(rs.into_iter().map(|(c, w, m, t)| region(c, w, m, t)).collect()).ok()
-        })
+    prop::collection::vec(
+        (0.0f64..1.0, 0.005f64..0.1, 1.1f64..6.0, 0.0f64..0.05),
+        1..4,
+    )
+    .prop_filter_map("overlapping or infeasible", |rs| {
+        Fisheye::new(
+            rs.into_iter()
+                .map(|(c, w, m, t)| region(c, w, m, t))
+                .collect(),
+        )
+        .ok()
+    })
 }
 
 proptest! {

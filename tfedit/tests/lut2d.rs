@@ -8,7 +8,10 @@ use blueshift_tfedit::{Lut2d, builtin_over};
 #[test]
 fn linear_filtering_across_every_row_break_equals_the_1d_table() {
     // 65,536 entries (16-bit data) in rows of n = 4,094: 17 rows of 4,096 texels.
-    let tf = builtin_over("inferno", [0.0, 65_535.0]).unwrap().with_alpha_g(0.01).unwrap();
+    let tf = builtin_over("inferno", [0.0, 65_535.0])
+        .unwrap()
+        .with_alpha_g(0.01)
+        .unwrap();
     let lut = tf.lut(65_536).unwrap();
     let tex = Lut2d::encode_for_max_texture(&lut, 4096).unwrap();
     assert_eq!((tex.rows(), tex.width(), tex.row_len()), (17, 4096, 4094));
@@ -20,14 +23,24 @@ fn linear_filtering_across_every_row_break_equals_the_1d_table() {
             let a = lut.sample_position(p);
             let b = tex.sample_position(p);
             for c in 0..4 {
-                assert_close(f64::from(b[c]), f64::from(a[c]), 1e-6, &format!("row break {k}, p = {p}, channel {c}"));
+                assert_close(
+                    f64::from(b[c]),
+                    f64::from(a[c]),
+                    1e-6,
+                    &format!("row break {k}, p = {p}, channel {c}"),
+                );
             }
             // Independently: linear interpolation between the two neighbouring entries.
             let i = p.floor() as usize;
             let f = (p - i as f64) as f32;
             let (e0, e1) = (lut.get(i).unwrap(), lut.get(i + 1).unwrap());
             let expected = e0[0] + (e1[0] - e0[0]) * f;
-            assert_close(f64::from(b[0]), f64::from(expected), 1e-6, "lerp of neighbours");
+            assert_close(
+                f64::from(b[0]),
+                f64::from(expected),
+                1e-6,
+                "lerp of neighbours",
+            );
         }
     }
 }
@@ -54,12 +67,20 @@ fn border_texels_duplicate_the_neighbouring_rows_entries() {
         assert_eq!(tex.entry_of_texel(row, col), Some(i));
         assert_eq!(tex.texel(row, col), lut.get(i));
         let (x, r) = tex.coords_of_position(i as f64);
-        assert_close(tex.position_of_coords(x, r), i as f64, 1e-12, "position round trip");
+        assert_close(
+            tex.position_of_coords(x, r),
+            i as f64,
+            1e-12,
+            "position round trip",
+        );
     }
     assert_eq!(tex.texel_of_entry(1000), None);
     assert_eq!(tex.entry_of_texel(16, 0), None);
     assert!(Lut2d::encode(&lut, 0).is_err());
-    assert!(Lut2d::encode_for_max_texture(&lut, 16).is_err(), "1000 entries do not fit 16 x 16");
+    assert!(
+        Lut2d::encode_for_max_texture(&lut, 16).is_err(),
+        "1000 entries do not fit 16 x 16"
+    );
 }
 
 #[test]

@@ -5,7 +5,9 @@ mod common;
 use common::assert_close;
 
 use blueshift_tfedit::paraview::{from_paraview_str, paraview_preset_names, to_paraview_string};
-use blueshift_tfedit::{ColorSpace, DataAxis, Error, Format, TransferFunction, builtin, load, parse_any};
+use blueshift_tfedit::{
+    ColorSpace, DataAxis, Error, Format, TransferFunction, builtin, load, parse_any,
+};
 
 const EXCERPT: &str = include_str!("data/paraview/ColorMaps-excerpt.json");
 const OKUBO_WEISS: &str = include_str!("data/paraview/OkuboWeiss.json");
@@ -37,7 +39,12 @@ fn imported_presets_reproduce_their_control_points() {
     for preset in doc.as_array().unwrap() {
         let name = preset["Name"].as_str().unwrap();
         let tf = from_paraview_str(EXCERPT, Some(name)).unwrap();
-        let pts: Vec<f64> = preset["RGBPoints"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let pts: Vec<f64> = preset["RGBPoints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
         let quads: Vec<&[f64]> = pts.chunks_exact(4).collect();
         for (i, q) in quads.iter().enumerate() {
             // Two points at the same x make a jump; the function takes the later colour
@@ -47,7 +54,12 @@ fn imported_presets_reproduce_their_control_points() {
             }
             let c = tf.color(q[0]);
             for k in 0..3 {
-                assert_close(f64::from(c[k]), q[k + 1], 1e-6, &format!("{name} at x = {}", q[0]));
+                assert_close(
+                    f64::from(c[k]),
+                    q[k + 1],
+                    1e-6,
+                    &format!("{name} at x = {}", q[0]),
+                );
             }
         }
         // Without "Points" the opacity is ParaView's default ramp from 0 to 1.
@@ -57,7 +69,12 @@ fn imported_presets_reproduce_their_control_points() {
     }
     let cw = from_paraview_str(EXCERPT, Some("Cool to Warm")).unwrap();
     assert_eq!(cw.color_space(), ColorSpace::Diverging);
-    assert_eq!(from_paraview_str(EXCERPT, Some("Blue to Red Rainbow")).unwrap().color_space(), ColorSpace::Hsv);
+    assert_eq!(
+        from_paraview_str(EXCERPT, Some("Blue to Red Rainbow"))
+            .unwrap()
+            .color_space(),
+        ColorSpace::Hsv
+    );
 }
 
 #[test]
@@ -81,8 +98,14 @@ fn vtk_colour_space_reference_values() {
     // (128, 0, 128) in RGB and (0, 0, 255) in Step.
     let (red, blue) = ([1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
     let to8 = |c: [f64; 3]| c.map(|v| (255.0 * v + 0.5) as u8);
-    assert_eq!(to8(ColorSpace::Rgb.interpolate(red, blue, 0.5)), [128, 0, 128]);
-    assert_eq!(to8(ColorSpace::Step.interpolate(red, blue, 0.5)), [0, 0, 255]);
+    assert_eq!(
+        to8(ColorSpace::Rgb.interpolate(red, blue, 0.5)),
+        [128, 0, 128]
+    );
+    assert_eq!(
+        to8(ColorSpace::Step.interpolate(red, blue, 0.5)),
+        [0, 0, 255]
+    );
 }
 
 #[test]
@@ -95,7 +118,12 @@ fn paraview_export_with_opacity_points_gives_that_opacity_curve() {
     assert_close(f64::from(tf.opacity(0.5)), 0.5, 1e-7, "x = 0.5");
     assert_close(f64::from(tf.opacity(1.0)), 0.0, 0.0, "x = 1");
     assert_close(f64::from(tf.opacity(1.75)), 0.75, 1e-7, "x = 1.75");
-    assert_close(f64::from(tf.max_opacity(0.6..=1.2)), 0.4, 1e-6, "majorant of [0.6, 1.2]");
+    assert_close(
+        f64::from(tf.max_opacity(0.6..=1.2)),
+        0.4,
+        1e-6,
+        "majorant of [0.6, 1.2]",
+    );
     assert_close(f64::from(tf.color(1.0)[1]), 0.913725, 1e-6, "green knot");
     // And through load(), told apart from blueshift's JSON by content.
     let dir = tempfile::tempdir().unwrap();
@@ -114,12 +142,15 @@ fn builtin_viridis_and_inferno_follow_matplotlibs_256_entry_tables() {
         let mut worst = 0f32;
         for k in full.color_knots() {
             let c = ours.color(k.x);
-            for j in 0..3 {
-                worst = worst.max((c[j] - k.rgb[j]).abs());
+            for (ours_c, table_c) in c.iter().zip(k.rgb) {
+                worst = worst.max((ours_c - table_c).abs());
             }
         }
         // 65 of 256 knots, interpolated linearly: within 1/255 of every table entry.
-        assert!(worst < 1.0 / 255.0, "{builtin_name}: worst deviation {worst}");
+        assert!(
+            worst < 1.0 / 255.0,
+            "{builtin_name}: worst deviation {worst}"
+        );
     }
     for name in blueshift_tfedit::BUILTIN_NAMES {
         let tf = builtin(name).unwrap();
@@ -128,8 +159,14 @@ fn builtin_viridis_and_inferno_follow_matplotlibs_256_entry_tables() {
     }
     assert!(matches!(builtin("jet"), Err(Error::Parameter(_))));
     // cool-warm and black-body are ParaView's own presets.
-    for (b, p) in [("cool-warm", "Cool to Warm"), ("black-body", "Black-Body Radiation")] {
-        let (ours, theirs) = (builtin(b).unwrap(), from_paraview_str(EXCERPT, Some(p)).unwrap());
+    for (b, p) in [
+        ("cool-warm", "Cool to Warm"),
+        ("black-body", "Black-Body Radiation"),
+    ] {
+        let (ours, theirs) = (
+            builtin(b).unwrap(),
+            from_paraview_str(EXCERPT, Some(p)).unwrap(),
+        );
         for i in 0..=100 {
             let v = f64::from(i) / 100.0;
             assert_eq!(ours.color(v), theirs.color(v), "{b} at {v}");
@@ -165,34 +202,84 @@ fn blueshift_json_round_trips_and_is_told_apart_from_paraview() {
 fn malformed_files_give_errors_naming_the_entry_and_never_panic() {
     let cases: &[(&str, &str)] = &[
         ("", "not valid JSON"),
-        ("[{\"Name\": \"x\", \"RGBPoints\": [0, 0, 0", "not valid JSON"),
+        (
+            "[{\"Name\": \"x\", \"RGBPoints\": [0, 0, 0",
+            "not valid JSON",
+        ),
         ("42", "neither"),
         ("{\"hello\": 1}", "neither"),
         ("[]", "neither"),
-        ("[{\"Name\": \"e\", \"RGBPoints\": []}]", "RGBPoints is empty"),
-        ("[{\"Name\": \"m\", \"RGBPoints\": [0, 0, 0]}]", "not a multiple of 4"),
-        ("[{\"Name\": \"s\", \"RGBPoints\": [0, 0, 0, \"red\"]}]", "entry 3"),
-        ("[{\"Name\": \"c\", \"RGBPoints\": [0, 0, 0, 0, 1, 2, 0, 0]}]", "RGBPoints point 1"),
-        ("[{\"Name\": \"o\", \"RGBPoints\": [0, 0, 0, 0, 1, 1, 1, 1], \"Points\": [0, 0, 0.5, 0, 1, 1.5, 0.5, 0]}]", "Points point 1"),
+        (
+            "[{\"Name\": \"e\", \"RGBPoints\": []}]",
+            "RGBPoints is empty",
+        ),
+        (
+            "[{\"Name\": \"m\", \"RGBPoints\": [0, 0, 0]}]",
+            "not a multiple of 4",
+        ),
+        (
+            "[{\"Name\": \"s\", \"RGBPoints\": [0, 0, 0, \"red\"]}]",
+            "entry 3",
+        ),
+        (
+            "[{\"Name\": \"c\", \"RGBPoints\": [0, 0, 0, 0, 1, 2, 0, 0]}]",
+            "RGBPoints point 1",
+        ),
+        (
+            "[{\"Name\": \"o\", \"RGBPoints\": [0, 0, 0, 0, 1, 1, 1, 1], \"Points\": [0, 0, 0.5, 0, 1, 1.5, 0.5, 0]}]",
+            "Points point 1",
+        ),
         ("[{\"Name\": \"z\", \"RGBPoints\": [3, 0, 0, 0]}]", "range"),
-        ("[{\"Name\": \"k\", \"ColorSpace\": \"Wavelet\", \"RGBPoints\": [0, 0, 0, 0, 1, 1, 1, 1]}]", "unknown ColorSpace"),
-        ("[{\"Name\": \"i\", \"IndexedColors\": [1, 0, 0]}]", "categorical"),
-        ("[{\"Name\": \"l\", \"UseLogScale\": true, \"RGBPoints\": [-1, 0, 0, 0, 1, 1, 1, 1]}]", "positive"),
-        ("{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [], \"opacity\": [{\"x\": 0, \"alpha\": 0}]}", "no colour knots"),
-        ("{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0, 0]}], \"opacity\": [{\"x\": 0.5, \"alpha\": 0}, {\"x\": 0.2, \"alpha\": 0}]}", "opacity knot 1"),
-        ("{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0, 0]}], \"opacity\": [{\"x\": 0, \"alpha\": -0.1}]}", "opacity knot 0"),
-        ("{\"format\": \"blueshift-transfer-function\", \"version\": 9, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0, 0]}], \"opacity\": [{\"x\": 0, \"alpha\": 0}]}", "version 9"),
-        ("{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0]}], \"opacity\": []}", "blueshift transfer function"),
-        ("{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"colour\": []}", "unknown field"),
+        (
+            "[{\"Name\": \"k\", \"ColorSpace\": \"Wavelet\", \"RGBPoints\": [0, 0, 0, 0, 1, 1, 1, 1]}]",
+            "unknown ColorSpace",
+        ),
+        (
+            "[{\"Name\": \"i\", \"IndexedColors\": [1, 0, 0]}]",
+            "categorical",
+        ),
+        (
+            "[{\"Name\": \"l\", \"UseLogScale\": true, \"RGBPoints\": [-1, 0, 0, 0, 1, 1, 1, 1]}]",
+            "positive",
+        ),
+        (
+            "{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [], \"opacity\": [{\"x\": 0, \"alpha\": 0}]}",
+            "no colour knots",
+        ),
+        (
+            "{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0, 0]}], \"opacity\": [{\"x\": 0.5, \"alpha\": 0}, {\"x\": 0.2, \"alpha\": 0}]}",
+            "opacity knot 1",
+        ),
+        (
+            "{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0, 0]}], \"opacity\": [{\"x\": 0, \"alpha\": -0.1}]}",
+            "opacity knot 0",
+        ),
+        (
+            "{\"format\": \"blueshift-transfer-function\", \"version\": 9, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0, 0]}], \"opacity\": [{\"x\": 0, \"alpha\": 0}]}",
+            "version 9",
+        ),
+        (
+            "{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"color\": [{\"x\": 0, \"rgb\": [0, 0]}], \"opacity\": []}",
+            "blueshift transfer function",
+        ),
+        (
+            "{\"format\": \"blueshift-transfer-function\", \"version\": 1, \"domain\": [0, 1], \"colour\": []}",
+            "unknown field",
+        ),
     ];
     for (text, needle) in cases {
         let err = parse_any(text).unwrap_err().to_string();
-        assert!(err.contains(needle), "{text:?}: error {err:?} does not mention {needle:?}");
+        assert!(
+            err.contains(needle),
+            "{text:?}: error {err:?} does not mention {needle:?}"
+        );
     }
     // Every truncation of a real preset is an error, not a panic.
     for cut in (0..OKUBO_WEISS.len()).step_by(7) {
         let _ = parse_any(&OKUBO_WEISS[..cut]);
     }
     let missing = load("/nonexistent/tf.json").unwrap_err();
-    assert!(matches!(missing, Error::Io { .. }) && missing.to_string().contains("/nonexistent/tf.json"));
+    assert!(
+        matches!(missing, Error::Io { .. }) && missing.to_string().contains("/nonexistent/tf.json")
+    );
 }

@@ -20,17 +20,31 @@ fn alpha_g_multiplies_every_opacity() {
     let base = TransferFunction::new(
         [0.0, 1.0],
         vec![ck(0.0, [1.0, 0.5, 0.0])],
-        vec![OpacityKnot::new(0.0, 0.1), OpacityKnot::new(0.3, 0.9), OpacityKnot::new(1.0, 0.5)],
+        vec![
+            OpacityKnot::new(0.0, 0.1),
+            OpacityKnot::new(0.3, 0.9),
+            OpacityKnot::new(1.0, 0.5),
+        ],
     )
     .unwrap();
     let scaled = base.clone().with_alpha_g(0.005).unwrap();
     for i in 0..=100 {
         let v = f64::from(i) / 100.0;
         let expected = f64::from(base.eval(v)[3]) * 0.005;
-        assert_close(f64::from(scaled.eval(v)[3]), expected, 1e-9, "alpha_g * opacity");
+        assert_close(
+            f64::from(scaled.eval(v)[3]),
+            expected,
+            1e-9,
+            "alpha_g * opacity",
+        );
         assert_eq!(scaled.eval(v)[..3], base.eval(v)[..3]);
     }
-    assert_close(f64::from(scaled.global_max_opacity()), 0.9 * 0.005, 1e-9, "global max");
+    assert_close(
+        f64::from(scaled.global_max_opacity()),
+        0.9 * 0.005,
+        1e-9,
+        "global max",
+    );
 }
 
 #[test]
@@ -53,7 +67,10 @@ fn hsv_interpolation_goes_the_short_way_round_the_hue_circle() {
     }
     // The same knots in RGB pass through (0.9, 0, 0.5): a different colour, so the space matters.
     let rgb = tf.clone().with_color_space(ColorSpace::Rgb).color(0.5);
-    assert!((rgb[0] - 0.9).abs() < 1e-6 && (rgb[2] - 0.5).abs() < 1e-6, "{rgb:?}");
+    assert!(
+        (rgb[0] - 0.9).abs() < 1e-6 && (rgb[2] - 0.5).abs() < 1e-6,
+        "{rgb:?}"
+    );
 }
 
 #[test]
@@ -81,14 +98,33 @@ fn log_data_axis_interpolates_in_log10_of_the_value() {
     let tf = TransferFunction::new(
         [1.0, 100.0],
         vec![ck(1.0, [0.0; 3]), ck(100.0, [1.0; 3])],
-        vec![OpacityKnot::new(1.0, 0.0), OpacityKnot::new(10.0, 1.0), OpacityKnot::new(100.0, 0.0)],
+        vec![
+            OpacityKnot::new(1.0, 0.0),
+            OpacityKnot::new(10.0, 1.0),
+            OpacityKnot::new(100.0, 0.0),
+        ],
     )
     .unwrap()
     .with_data_axis(DataAxis::Log)
     .unwrap();
-    assert_close(f64::from(tf.opacity(10f64.sqrt())), 0.5, 1e-6, "opacity at sqrt(10)");
-    assert_close(f64::from(tf.opacity(10f64.powf(1.75))), 0.25, 1e-6, "opacity at 10^1.75");
-    assert_close(f64::from(tf.color(10.0)[0]), 0.5, 1e-6, "colour half way in log");
+    assert_close(
+        f64::from(tf.opacity(10f64.sqrt())),
+        0.5,
+        1e-6,
+        "opacity at sqrt(10)",
+    );
+    assert_close(
+        f64::from(tf.opacity(10f64.powf(1.75))),
+        0.25,
+        1e-6,
+        "opacity at 10^1.75",
+    );
+    assert_close(
+        f64::from(tf.color(10.0)[0]),
+        0.5,
+        1e-6,
+        "colour half way in log",
+    );
     assert_close(tf.normalized(10.0), 0.5, 1e-12, "normalised position of 10");
     assert_close(tf.value_at_normalized(0.5), 10.0, 1e-9, "value at 0.5");
 }
@@ -102,7 +138,10 @@ fn log_data_axis_refuses_non_positive_domains_and_knots() {
     )
     .unwrap();
     let err = tf.with_data_axis(DataAxis::Log).unwrap_err();
-    assert!(matches!(err, Error::Invalid(_)) && err.to_string().contains("positive"), "{err}");
+    assert!(
+        matches!(err, Error::Invalid(_)) && err.to_string().contains("positive"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -110,7 +149,8 @@ fn bad_knots_get_errors_naming_the_entry() {
     let c = vec![ck(0.0, [0.0; 3])];
     let e = TransferFunction::new([0.0, 1.0], c.clone(), vec![]).unwrap_err();
     assert!(e.to_string().contains("no opacity knots"), "{e}");
-    let e = TransferFunction::new([0.0, 1.0], vec![], vec![OpacityKnot::new(0.0, 0.0)]).unwrap_err();
+    let e =
+        TransferFunction::new([0.0, 1.0], vec![], vec![OpacityKnot::new(0.0, 0.0)]).unwrap_err();
     assert!(e.to_string().contains("no colour knots"), "{e}");
     let e = TransferFunction::new(
         [0.0, 1.0],
@@ -118,25 +158,45 @@ fn bad_knots_get_errors_naming_the_entry() {
         vec![OpacityKnot::new(0.0, 0.0), OpacityKnot::new(0.5, 1.5)],
     )
     .unwrap_err();
-    assert!(e.to_string().contains("opacity knot 1") && e.to_string().contains("1.5"), "{e}");
+    assert!(
+        e.to_string().contains("opacity knot 1") && e.to_string().contains("1.5"),
+        "{e}"
+    );
     let e = TransferFunction::new(
         [0.0, 1.0],
         c.clone(),
-        vec![OpacityKnot::new(0.6, 0.0), OpacityKnot::new(0.5, 0.2), OpacityKnot::new(0.4, 0.2)],
+        vec![
+            OpacityKnot::new(0.6, 0.0),
+            OpacityKnot::new(0.5, 0.2),
+            OpacityKnot::new(0.4, 0.2),
+        ],
     )
     .unwrap_err();
-    assert!(e.to_string().contains("opacity knot 1") && e.to_string().contains("sorted"), "{e}");
-    let e = TransferFunction::new([0.0, 1.0], vec![ck(f64::NAN, [0.0; 3])], vec![OpacityKnot::new(0.0, 0.0)]).unwrap_err();
+    assert!(
+        e.to_string().contains("opacity knot 1") && e.to_string().contains("sorted"),
+        "{e}"
+    );
+    let e = TransferFunction::new(
+        [0.0, 1.0],
+        vec![ck(f64::NAN, [0.0; 3])],
+        vec![OpacityKnot::new(0.0, 0.0)],
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("colour knot 0"), "{e}");
-    let e = TransferFunction::new([1.0, 1.0], c.clone(), vec![OpacityKnot::new(0.0, 0.0)]).unwrap_err();
+    let e =
+        TransferFunction::new([1.0, 1.0], c.clone(), vec![OpacityKnot::new(0.0, 0.0)]).unwrap_err();
     assert!(e.to_string().contains("domain"), "{e}");
-    let e = TransferFunction::new([0.0, f64::INFINITY], c, vec![OpacityKnot::new(0.0, 0.0)]).unwrap_err();
+    let e = TransferFunction::new([0.0, f64::INFINITY], c, vec![OpacityKnot::new(0.0, 0.0)])
+        .unwrap_err();
     assert!(e.to_string().contains("domain"), "{e}");
 }
 
 #[test]
 fn nan_data_is_transparent_and_takes_the_nan_colour() {
-    let tf = blueshift_tfedit::builtin("grey").unwrap().with_nan_color([1.0, 0.0, 1.0]).unwrap();
+    let tf = blueshift_tfedit::builtin("grey")
+        .unwrap()
+        .with_nan_color([1.0, 0.0, 1.0])
+        .unwrap();
     assert_eq!(tf.eval(f64::NAN), [1.0, 0.0, 1.0, 0.0]);
 }
 
@@ -175,7 +235,15 @@ fn lut_lengths_outside_2_to_2_pow_24_are_refused() {
 /// VTK midpoint/sharpness shaping, on a linear or log axis.
 fn arb_tf() -> impl Strategy<Value = TransferFunction> {
     (
-        prop::collection::vec((0.0f64..1.0, 0.0f32..=1.0, 0.05f32..0.95, prop::sample::select(vec![0.0f32, 0.0, 0.3, 1.0])), 1..12),
+        prop::collection::vec(
+            (
+                0.0f64..1.0,
+                0.0f32..=1.0,
+                0.05f32..0.95,
+                prop::sample::select(vec![0.0f32, 0.0, 0.3, 1.0]),
+            ),
+            1..12,
+        ),
         any::<bool>(),
         0.0f32..=1.0,
     )
@@ -188,14 +256,26 @@ fn arb_tf() -> impl Strategy<Value = TransferFunction> {
             };
             let opacity = knots
                 .iter()
-                .map(|&(t, a, m, s)| OpacityKnot { x: map(t), alpha: a, midpoint: m, sharpness: s })
+                .map(|&(t, a, m, s)| OpacityKnot {
+                    x: map(t),
+                    alpha: a,
+                    midpoint: m,
+                    sharpness: s,
+                })
                 .collect();
-            TransferFunction::new(domain, vec![ColorKnot { x: domain[0], rgb: [1.0; 3] }], opacity)
-                .unwrap()
-                .with_data_axis(if log { DataAxis::Log } else { DataAxis::Linear })
-                .unwrap()
-                .with_alpha_g(alpha_g)
-                .unwrap()
+            TransferFunction::new(
+                domain,
+                vec![ColorKnot {
+                    x: domain[0],
+                    rgb: [1.0; 3],
+                }],
+                opacity,
+            )
+            .unwrap()
+            .with_data_axis(if log { DataAxis::Log } else { DataAxis::Linear })
+            .unwrap()
+            .with_alpha_g(alpha_g)
+            .unwrap()
         })
 }
 

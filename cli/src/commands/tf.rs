@@ -128,7 +128,11 @@ fn parse_focus(tf: &TransferFunction, spec: &str) -> Result<FocusRegion> {
         }
         Ok(v)
     };
-    let (c, w, m) = (num(0, "centre")?, num(1, "width")?, num(2, "magnification")?);
+    let (c, w, m) = (
+        num(0, "centre")?,
+        num(1, "width")?,
+        num(2, "magnification")?,
+    );
     if w <= 0.0 {
         bail!("--focus {spec:?}: width must be > 0");
     }
@@ -210,8 +214,8 @@ fn emit(out: Option<&Path>, text: &str) -> Result<()> {
 }
 
 fn import(a: ImportArgs) -> Result<()> {
-    let meta = std::fs::metadata(&a.file)
-        .with_context(|| format!("cannot read {}", a.file.display()))?;
+    let meta =
+        std::fs::metadata(&a.file).with_context(|| format!("cannot read {}", a.file.display()))?;
     if meta.len() > blueshift_tfedit::MAX_FILE_BYTES {
         bail!("{} is too large for a colour-map preset", a.file.display());
     }
