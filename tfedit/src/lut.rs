@@ -33,15 +33,15 @@ impl TransferFunction {
         let step = (hi - lo) / (entries - 1) as f64;
         let mut rgba = vec![0f32; entries * 4];
         let fill = |(c, chunk): (usize, &mut [f32])| {
-            for (j, px) in chunk.chunks_exact_mut(4).enumerate() {
-                let i = c * CHUNK + j;
-                let v = if i + 1 == entries {
+            let first = c * CHUNK;
+            let values = (first..first + chunk.len() / 4).map(|i| {
+                if i + 1 == entries {
                     hi
                 } else {
                     lo + i as f64 * step
-                };
-                px.copy_from_slice(&self.eval(v));
-            }
+                }
+            });
+            self.eval_increasing(values, chunk);
         };
         #[cfg(feature = "rayon")]
         {

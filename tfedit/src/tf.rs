@@ -382,8 +382,13 @@ impl TransferFunction {
     }
 
     fn color_at(&self, u: f64) -> [f32; 3] {
+        self.color_in_segment(self.color_u.partition_point(|&k| k <= u), u)
+    }
+
+    /// Colour at axis coordinate `u`, given `i`, the number of colour knots at or before `u`.
+    #[inline]
+    fn color_in_segment(&self, i: usize, u: f64) -> [f32; 3] {
         let ku = &self.color_u;
-        let i = ku.partition_point(|&k| k <= u);
         let f = |k: &ColorKnot| k.rgb.map(f64::from);
         let rgb = if i == 0 {
             f(&self.color[0])
@@ -397,11 +402,43 @@ impl TransferFunction {
         rgb.map(|c| c.clamp(0.0, 1.0) as f32)
     }
 
+    /// Evaluates at increasing data values, writing RGBA into `out` (4 numbers per value).
+    /// Walks the knots instead of searching them; the result is bit for bit that of
+    /// [`TransferFunction::eval`].
+    pub(crate) fn eval_increasing(&self, values: impl Iterator<Item = f64>, out: &mut [f32]) {
+        let (mut ci, mut oi) = (usize::MAX, usize::MAX);
+        let advance = |ku: &[f64], i: &mut usize, u: f64| {
+            if *i == usize::MAX || (*i > 0 && ku[*i - 1] > u) {
+                *i = ku.partition_point(|&k| k <= u);
+            } else {
+                while *i < ku.len() && ku[*i] <= u {
+                    *i += 1;
+                }
+            }
+        };
+        for (v, px) in values.zip(out.chunks_exact_mut(4)) {
+            if v.is_nan() {
+                px.copy_from_slice(&self.eval(v));
+                continue;
+            }
+            let u = self.coord_clamped(v);
+            advance(&self.color_u, &mut ci, u);
+            advance(&self.opacity_u, &mut oi, u);
+            let [r, g, b] = self.color_in_segment(ci, u);
+            px.copy_from_slice(&[r, g, b, self.scaled(self.opacity_in_segment(oi, u))]);
+        }
+    }
+
     /// Knot opacity at axis coordinate `u`, before alpha_g. Within a segment it is
     /// monotonic in `u` (also in floating point for straight segments, see `max_opacity`).
     fn opacity_raw(&self, u: f64) -> f64 {
+        self.opacity_in_segment(self.opacity_u.partition_point(|&k| k <= u), u)
+    }
+
+    /// Knot opacity at `u`, given `i`, the number of opacity knots at or before `u`.
+    #[inline]
+    fn opacity_in_segment(&self, i: usize, u: f64) -> f64 {
         let ku = &self.opacity_u;
-        let i = ku.partition_point(|&k| k <= u);
         if i == 0 {
             return f64::from(self.opacity[0].alpha);
         }

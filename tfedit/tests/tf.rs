@@ -327,3 +327,17 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    /// The table walks the knots instead of searching them; every entry must still be
+    /// exactly `eval` at `min + i (max - min) / (N - 1)`.
+    #[test]
+    fn lut_entries_are_eval_bit_for_bit(tf in arb_tf(), n in 2usize..3000) {
+        let lut = tf.lut(n).unwrap();
+        let [lo, hi] = tf.domain();
+        for i in 0..n {
+            let v = if i + 1 == n { hi } else { lo + i as f64 * ((hi - lo) / (n - 1) as f64) };
+            prop_assert_eq!(lut.get(i).unwrap(), tf.eval(v), "entry {} of {}", i, n);
+        }
+    }
+}
