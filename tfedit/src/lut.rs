@@ -90,6 +90,16 @@ impl Lut {
         self.rgba
     }
 
+    /// Spacing of the entries in data units, `(max - min) / (N - 1)`.
+    ///
+    /// A linearly filtered lookup at value `v` blends the two entries around `v`, so over a
+    /// value range `[lo, hi]` the filtered opacity is bounded, up to the rounding of the
+    /// filter's own arithmetic, by `tf.max_opacity(lo - step ..= hi + step)`.
+    #[must_use]
+    pub fn step(&self) -> f64 {
+        (self.domain[1] - self.domain[0]) / (self.len() - 1) as f64
+    }
+
     /// Fractional entry index of a data value, clamped to `[0, N - 1]` (the texture
     /// coordinate of a 1D lookup in entry units).
     #[must_use]

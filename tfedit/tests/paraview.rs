@@ -283,3 +283,31 @@ fn malformed_files_give_errors_naming_the_entry_and_never_panic() {
         matches!(missing, Error::Io { .. }) && missing.to_string().contains("/nonexistent/tf.json")
     );
 }
+
+mod never_panics {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Fuzz-style: the real presets with bytes overwritten by JSON-significant
+        /// characters parse to a value or an error, never a panic.
+        #[test]
+        fn mutated_presets_never_panic(
+            edits in prop::collection::vec((0usize..400, prop::sample::select(b"[]{},:\"-0123456789.eE tn".to_vec())), 1..6),
+            which in any::<bool>(),
+        ) {
+            let mut bytes = if which { OKUBO_WEISS.as_bytes().to_vec() } else { EXCERPT.as_bytes()[..2000].to_vec() };
+            for (pos, b) in edits {
+                let i = pos % bytes.len();
+                bytes[i] = b;
+            }
+            let text = String::from_utf8_lossy(&bytes);
+            if let Ok((tf, _)) = parse_any(&text) {
+                // Whatever parses is a valid transfer function.
+                let [lo, hi] = tf.domain();
+                prop_assert!(lo < hi);
+                let _ = tf.eval(0.5 * (lo + hi));
+            }
+        }
+    }
+}
