@@ -341,3 +341,25 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn lut_is_identical_on_one_and_four_threads() {
+    let tf = blueshift_tfedit::builtin_over("cool-warm", [-1.0, 7.0])
+        .unwrap()
+        .with_alpha_g(0.3)
+        .unwrap();
+    let build = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| tf.lut(100_003).unwrap())
+    };
+    let (one, four) = (build(1), build(4));
+    assert!(
+        one.as_rgba()
+            .iter()
+            .zip(four.as_rgba())
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
+}
