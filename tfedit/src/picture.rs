@@ -2,30 +2,79 @@
 //! curve on a linear or logarithmic axis over the fisheye-scaled data axis, the focus
 //! regions, the magnification curve, the colour bar and tick labels in data units.
 
-use std::sync::OnceLock;
-
+use ab_glyph::{Font, FontRef, PxScale, ScaleFont, point};
 use image::RgbImage;
 use plotters::prelude::*;
-use plotters::style::FontStyle;
 
 use crate::axis::{Fisheye, ValueAxis};
 use crate::tf::{DataAxis, TransferFunction};
 use crate::{Error, Result};
 
-const FONT_NAME: &str = "blueshift-tfedit-mono";
 static FONT_BYTES: &[u8] = include_bytes!("../assets/DejaVuSansMono.ttf");
 
-fn register_font() -> Result<()> {
-    static REGISTERED: OnceLock<bool> = OnceLock::new();
-    let ok = *REGISTERED.get_or_init(|| {
-        plotters::style::register_font(FONT_NAME, FontStyle::Normal, FONT_BYTES).is_ok()
-    });
-    if ok {
-        Ok(())
-    } else {
-        Err(Error::Unsupported(
-            "the bundled DejaVu Sans Mono font could not be loaded".into(),
-        ))
+fn load_font() -> Result<FontRef<'static>> {
+    FontRef::try_from_slice(FONT_BYTES).map_err(|_| {
+        Error::Unsupported("the bundled DejaVu Sans Mono font could not be loaded".into())
+    })
+}
+
+/// A piece of text to draw once the lines are done: top-left corner, pixel size, colour.
+struct Label {
+    text: String,
+    x: f32,
+    y: f32,
+    size: f32,
+    color: [u8; 3],
+}
+
+/// Width in pixels of `text` at `size`.
+fn text_width(font: &FontRef<'_>, size: f32, text: &str) -> f32 {
+    let scaled = font.as_scaled(PxScale::from(size));
+    let mut w = 0.0;
+    let mut prev = None;
+    for c in text.chars() {
+        let id = scaled.glyph_id(c);
+        if let Some(p) = prev {
+            w += scaled.kern(p, id);
+        }
+        w += scaled.h_advance(id);
+        prev = Some(id);
+    }
+    w
+}
+
+/// Draws text with ab_glyph, each glyph at its own origin and side bearing, blending its
+/// coverage into the RGB buffer.
+fn draw_label(buf: &mut [u8], w: u32, h: u32, font: &FontRef<'_>, l: &Label) {
+    let scaled = font.as_scaled(PxScale::from(l.size));
+    let baseline = l.y + scaled.ascent();
+    let mut caret = l.x;
+    let mut prev = None;
+    for c in l.text.chars() {
+        let id = scaled.glyph_id(c);
+        if let Some(p) = prev {
+            caret += scaled.kern(p, id);
+        }
+        prev = Some(id);
+        let glyph = id.with_scale_and_position(l.size, point(caret, baseline));
+        caret += scaled.h_advance(id);
+        let Some(outline) = font.outline_glyph(glyph) else {
+            continue;
+        };
+        let bounds = outline.px_bounds();
+        outline.draw(|gx, gy, coverage| {
+            let x = bounds.min.x as i64 + i64::from(gx);
+            let y = bounds.min.y as i64 + i64::from(gy);
+            if x < 0 || y < 0 || x >= i64::from(w) || y >= i64::from(h) {
+                return;
+            }
+            let o = (y as usize * w as usize + x as usize) * 3;
+            let a = coverage.clamp(0.0, 1.0);
+            for k in 0..3 {
+                let bg = f32::from(buf[o + k]);
+                buf[o + k] = (bg + (f32::from(l.color[k]) - bg) * a).round() as u8;
+            }
+        });
     }
 }
 
@@ -159,7 +208,10 @@ fn format_tick(v: f64) -> String {
 /// [`TransferFunction::eval`] returns (knot opacity times alpha_g), on `view.opacity_axis`,
 /// with the area under it filled with the transfer function's colour.
 pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<RgbImage> {
-    register_font()?;
+    let font = load_font()?;
+    let mut labels: Vec<Label> = Vec::new();
+    const WHITE_TEXT: [u8; 3] = [230, 230, 230];
+    const YELLOW: [u8; 3] = [240, 200, 40];
     let lay = view.layout()?;
     let (w, h) = (view.width, view.height);
     let mut buf = vec![0u8; (w as usize) * (h as usize) * 3];
@@ -216,10 +268,8 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
         let draw_err = |e: DrawingAreaErrorKind<_>| {
             Error::Unsupported(format!("drawing the editor view failed: {e}"))
         };
-        let font = |size: u32| (FONT_NAME, size).into_font();
         let white = RGBColor(230, 230, 230);
         let grid = RGBColor(75, 75, 85);
-        let text = |s: u32| font(s).color(&white);
 
         // Horizontal grid and opacity tick labels.
         let opacity_ticks: Vec<f64> = match view.opacity_axis {
@@ -237,16 +287,26 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             ))
             .map_err(draw_err)?;
             let label = format_tick(o);
-            let tw = 7 * label.len() as i32;
-            root.draw(&Text::new(label, (lay.x0 as i32 - 6 - tw, y - 6), text(12)))
-                .map_err(draw_err)?;
+            let tw = text_width(&font, 12.0, &label);
+            labels.push(Label {
+                x: lay.x0 as f32 - 6.0 - tw,
+                y: y as f32 - 7.0,
+                size: 12.0,
+                color: WHITE_TEXT,
+                text: label,
+            });
         }
         let axis_name = match view.opacity_axis {
             ValueAxis::Linear => "opacity".to_string(),
             ValueAxis::Log { .. } => "opacity (log)".to_string(),
         };
-        root.draw(&Text::new(axis_name, (4, 26), text(12)))
-            .map_err(draw_err)?;
+        labels.push(Label {
+            text: axis_name,
+            x: 4.0,
+            y: 26.0,
+            size: 12.0,
+            color: WHITE_TEXT,
+        });
 
         // Focus region edges.
         for r in view.fisheye.regions() {
@@ -306,12 +366,14 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
                 format_tick(mmax),
                 view.fisheye.m_min()
             );
-            root.draw(&Text::new(
-                label,
-                (lay.x1 as i32 - 300, py0 as i32 - 16),
-                font(12).color(&RGBColor(240, 200, 40)),
-            ))
-            .map_err(draw_err)?;
+            let tw = text_width(&font, 12.0, &label);
+            labels.push(Label {
+                x: lay.x1 as f32 - tw,
+                y: py0 as f32 - 16.0,
+                size: 12.0,
+                color: YELLOW,
+                text: label,
+            });
         }
 
         // Data-axis ticks: context ticks over the whole domain, plus finer ticks inside
@@ -340,7 +402,7 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
         ticks.push((lo, false));
         ticks.push((hi, false));
         let ty = lay.colorbar_y.1 as i32;
-        let mut taken: Vec<(i32, i32)> = Vec::new();
+        let mut taken: Vec<(f32, f32)> = Vec::new();
         for (v, focus) in ticks {
             if !(lo..=hi).contains(&v) {
                 continue;
@@ -350,14 +412,20 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             root.draw(&PathElement::new(vec![(x, ty), (x, ty + len)], white))
                 .map_err(draw_err)?;
             let label = format_tick(v);
-            let tw = 7 * label.len() as i32;
-            let (a, b) = (x - tw / 2 - 3, x + tw / 2 + 3);
+            let tw = text_width(&font, 12.0, &label);
+            let left = (x as f32 - tw / 2.0).clamp(0.0, (w as f32 - tw).max(0.0));
+            let (a, b) = (left - 4.0, left + tw + 4.0);
             if taken.iter().any(|&(p, q)| a < q && p < b) {
                 continue;
             }
             taken.push((a, b));
-            root.draw(&Text::new(label, (x - tw / 2, ty + 10), text(12)))
-                .map_err(draw_err)?;
+            labels.push(Label {
+                x: left,
+                y: ty as f32 + 10.0,
+                size: 12.0,
+                color: WHITE_TEXT,
+                text: label,
+            });
         }
 
         let title = format!(
@@ -375,9 +443,17 @@ pub fn render_editor_view(tf: &TransferFunction, view: &EditorView) -> Result<Rg
             },
             tf.alpha_g()
         );
-        root.draw(&Text::new(title, (4, 6), text(13)))
-            .map_err(draw_err)?;
+        labels.push(Label {
+            text: title,
+            x: 4.0,
+            y: 6.0,
+            size: 13.0,
+            color: WHITE_TEXT,
+        });
         root.present().map_err(draw_err)?;
+    }
+    for l in &labels {
+        draw_label(&mut buf, w, h, &font, l);
     }
     RgbImage::from_raw(w, h, buf)
         .ok_or_else(|| Error::Unsupported("editor view buffer has the wrong size".into()))
