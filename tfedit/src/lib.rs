@@ -37,7 +37,7 @@
 //!
 //! ## Features
 //! - `rayon` (default): build long tables on all cores; results are identical without it.
-//! - `picture` (default): the editor-view picture (`plotters`, `image`).
+//! - `picture` (default): the editor-view picture (`plotters`, `image`, `ab_glyph`).
 
 mod axis;
 pub mod color;
