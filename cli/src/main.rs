@@ -26,6 +26,8 @@ enum Command {
     Spectrum(commands::spectrum::Args),
     /// Tone-map an HDR image (EXR, Radiance .hdr, PFM) for display; print its dynamic range.
     Tonemap(Box<commands::tonemap::Args>),
+    /// Transfer functions: draw the editor view, convert ParaView presets, write lookup tables.
+    Tf(commands::tf::Args),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +43,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
         Command::Tonemap(args) => commands::tonemap::run(*args),
+        Command::Tf(args) => commands::tf::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

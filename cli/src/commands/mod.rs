@@ -2,3 +2,4 @@
 
 pub mod spectrum;
 pub mod tonemap;
+pub mod tf;
