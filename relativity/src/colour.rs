@@ -30,7 +30,7 @@ use blueshift_spectrum::{
     xyz_to_linear_srgb_matrix,
 };
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 
 const BASIS_CSV: &str = include_str!("../data/mallett2019-cie1931-bt709-380+5+780.csv");
 
@@ -102,14 +102,34 @@ impl SpectralPrimaries {
     }
 
     /// The emission spectrum of a linear sRGB triple (W sr^-1 m^-2 nm^-1 per unit of the
-    /// RGB scale whose white has `Y = 1`).
+    /// RGB scale whose white has `Y = 1`). Spectra cannot be negative, so colours outside
+    /// the sRGB gamut (a basis weight below `-2e-3` of the largest) are refused; smaller
+    /// negative weights are set to zero. (Against the spectrum crate's 1 nm CIE functions
+    /// the published basis, fitted at 5 nm, needs weights down to `-1.4e-3` of the largest
+    /// for the pure primaries; clipping them changes such colours by under 0.3%.) (The renderer does not need this: it
+    /// works with the linear matrices, which accept any RGB.)
     pub fn upsample(&self, rgb: [f64; 3]) -> Result<PiecewiseLinear> {
-        let w = blueshift_spectrum::mat_mul(&self.rgb_to_weights, rgb);
+        let w = self.weights(rgb);
+        let max = w.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
         let mut s = PiecewiseLinear::new();
         for j in 0..3 {
-            s.add(&self.emission[j].scaled(w[j])?);
+            let wj = if w[j] < 0.0 && w[j] >= -2e-3 * max { 0.0 } else { w[j] };
+            if wj < 0.0 {
+                return Err(Error::param(
+                    "basis weight of an RGB colour",
+                    wj,
+                    "the colour is outside the sRGB gamut and has no non-negative spectrum",
+                ));
+            }
+            s.add(&self.emission[j].scaled(wj)?);
         }
         Ok(s)
+    }
+
+    /// The basis weights `a = P^-1 M rgb` of a linear sRGB triple.
+    #[must_use]
+    pub fn weights(&self, rgb: [f64; 3]) -> [f64; 3] {
+        blueshift_spectrum::mat_mul(&self.rgb_to_weights, rgb)
     }
 
     /// The exact colour matrix `K(D)` (Doppler only, integral kept; multiply by `D^4` for the
