@@ -233,6 +233,8 @@ pub fn parse_ramp(spec: &str) -> Result<Vec<f64>> {
         .map(|k| {
             if n == 1 {
                 start
+            } else if k == n - 1 {
+                end
             } else {
                 start + (end - start) * k as f64 / (n - 1) as f64
             }
