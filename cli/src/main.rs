@@ -24,6 +24,8 @@ struct Cli {
 enum Command {
     /// Build a spectrum (black body, emission lines, Doppler shift) and report its colour.
     Spectrum(commands::spectrum::Args),
+    /// Render what a fast observer sees: aberration, Doppler colour shift, searchlight.
+    Relativity(commands::relativity::Args),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +40,7 @@ fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
+        Command::Relativity(args) => commands::relativity::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
