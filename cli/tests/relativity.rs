@@ -14,14 +14,25 @@ fn synth_checker_writes_exr_and_png_of_the_requested_size() {
     let out = blueshift()
         .args(["relativity", "--synth", "checker", "--beta", "0.9"])
         .args(["--direction", "0,0,-1", "--look", "1,0,0", "--fov", "70"])
-        .args(["--width", "64", "--height", "32", "--effects", "aberration,doppler"])
+        .args([
+            "--width",
+            "64",
+            "--height",
+            "32",
+            "--effects",
+            "aberration,doppler",
+        ])
         .arg("--out")
         .arg(&exr)
         .arg("--png")
         .arg(&png)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let hdr = image::open(&exr).unwrap().into_rgb32f();
     assert_eq!(hdr.dimensions(), (64, 32));
     let ldr = image::open(&png).unwrap();
@@ -46,12 +57,18 @@ fn equirect_map_searchlight_centre_pixel() {
     let out = blueshift()
         .arg("relativity")
         .arg(&env)
-        .args(["--beta", "0.6", "--look", "0,1,0", "--width", "5", "--height", "5"])
+        .args([
+            "--beta", "0.6", "--look", "0,1,0", "--width", "5", "--height", "5",
+        ])
         .args(["--effects", "aberration,searchlight", "--out"])
         .arg(&out_path)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let img = image::open(&out_path).unwrap().into_rgb32f();
     let d = (1.6_f64 / 0.4).sqrt();
     let v = f64::from(img.get_pixel(2, 2).0[0]);
@@ -68,7 +85,11 @@ fn ramp_writes_numbered_frames() {
         .arg(&out_path)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     for k in 0..3 {
         assert!(dir.path().join(format!("f_{k:04}.png")).is_file());
     }
@@ -82,12 +103,42 @@ fn bad_input_fails_cleanly_without_output() {
     let junk = dir.path().join("junk.hdr");
     std::fs::write(&junk, b"#?RADIANCE\ngarbage").unwrap();
     let cases: Vec<Vec<String>> = vec![
-        vec!["--synth".into(), "checker".into(), "--beta".into(), "1".into()],
-        vec!["--synth".into(), "checker".into(), "--beta".into(), "NaN".into()],
-        vec!["--synth".into(), "checker".into(), "--direction".into(), "0,0,0".into()],
-        vec!["--synth".into(), "checker".into(), "--fov".into(), "180".into()],
-        vec!["--synth".into(), "checker".into(), "--effects".into(), "warp".into()],
-        vec!["--synth".into(), "checker".into(), "--ramp".into(), "0:1.5:3".into()],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--beta".into(),
+            "1".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--beta".into(),
+            "NaN".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--direction".into(),
+            "0,0,0".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--fov".into(),
+            "180".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--effects".into(),
+            "warp".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--ramp".into(),
+            "0:1.5:3".into(),
+        ],
         vec![junk.to_string_lossy().into_owned()],
         vec![dir.path().join("missing_").to_string_lossy().into_owned()],
     ];
@@ -103,4 +154,48 @@ fn bad_input_fails_cleanly_without_output() {
         assert!(!String::from_utf8_lossy(&out.stderr).is_empty());
         assert!(!out_path.exists(), "{args:?}");
     }
+}
+
+/// Layout conversion: equirect -> cube (six files by prefix) -> rendering from the cube at
+/// beta = 0 looking at a face centre gives the equirect's value there.
+#[test]
+fn convert_equirect_to_cube_and_render_from_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let env = dir.path().join("grad.exr");
+    // Radiance depends on the row only (polar angle): 1 + row index.
+    let img = image::Rgb32FImage::from_fn(64, 32, |_, y| image::Rgb([1.0 + y as f32, 1.0, 1.0]));
+    image::DynamicImage::ImageRgb32F(img).save(&env).unwrap();
+    let prefix = dir.path().join("sky_.exr");
+    let out = blueshift()
+        .arg("relativity")
+        .arg(&env)
+        .args(["--convert", "cube:32", "--out"])
+        .arg(&prefix)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let render_path = dir.path().join("r.exr");
+    let out = blueshift()
+        .arg("relativity")
+        .arg(dir.path().join("sky_"))
+        .args([
+            "--beta", "0", "--look", "1,0,0", "--width", "3", "--height", "3",
+        ])
+        .arg("--out")
+        .arg(&render_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = image::open(&render_path).unwrap().into_rgb32f();
+    // The horizon (polar 90 degrees) lies between rows 15 and 16: value 16.5.
+    let v = r.get_pixel(1, 1).0[0];
+    assert!((v - 16.5).abs() < 0.05, "{v}");
 }

@@ -113,7 +113,11 @@ impl SpectralPrimaries {
         let max = w.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
         let mut s = PiecewiseLinear::new();
         for j in 0..3 {
-            let wj = if w[j] < 0.0 && w[j] >= -2e-3 * max { 0.0 } else { w[j] };
+            let wj = if w[j] < 0.0 && w[j] >= -2e-3 * max {
+                0.0
+            } else {
+                w[j]
+            };
             if wj < 0.0 {
                 return Err(Error::param(
                     "basis weight of an RGB colour",

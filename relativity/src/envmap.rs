@@ -373,12 +373,10 @@ impl Environment {
         let faces: [Rgb32FImage; 6] = faces
             .try_into()
             .map_err(|_| Error::map(path, "six faces expected"))?;
-        CubeMap::new(faces)
-            .map(Self::Cube)
-            .map_err(|e| match e {
-                Error::MalformedMap { reason, .. } => Error::map(path, reason),
-                other => other,
-            })
+        CubeMap::new(faces).map(Self::Cube).map_err(|e| match e {
+            Error::MalformedMap { reason, .. } => Error::map(path, reason),
+            other => other,
+        })
     }
 
     /// Resamples into an equirectangular map of `width x height` (bilinear source sampling

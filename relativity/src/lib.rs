@@ -52,15 +52,15 @@ mod error;
 mod lorentz;
 mod render;
 
-pub use error::{Error, Result};
-pub use lorentz::{
-    Event, LorentzMatrix, Velocity, searchlight_integrated, searchlight_per_frequency,
-    searchlight_per_wavelength, unit,
-};
 pub use colour::{DopplerColourTable, Mat3, SpectralPrimaries, TABLE_D_MAX, TABLE_D_MIN};
 pub use envmap::{
     Checker, CubeMap, Environment, EquirectMap, FACE_NAMES, MAX_MAP_BYTES, MAX_MAP_SIDE, Rgb,
     check_size, cube_dir, cube_face_st, from_lon_polar, lon_polar, read_linear,
+};
+pub use error::{Error, Result};
+pub use lorentz::{
+    Event, LorentzMatrix, Velocity, searchlight_integrated, searchlight_per_frequency,
+    searchlight_per_wavelength, unit,
 };
 pub use render::{
     Camera, CameraFrame, Effects, parse_ramp, ramp, render, scene_direction, to_srgb8,

@@ -113,7 +113,11 @@ impl CameraFrame {
         let up0 = unit(cam.up, "up direction length")?;
         let mut right = forward.cross(up0);
         if right.length() < 1e-9 {
-            let alt = if forward.z.abs() < 0.9 { DVec3::Z } else { DVec3::X };
+            let alt = if forward.z.abs() < 0.9 {
+                DVec3::Z
+            } else {
+                DVec3::X
+            };
             right = forward.cross(alt);
         }
         let right = right.normalize();
@@ -215,14 +219,24 @@ pub fn parse_ramp(spec: &str) -> Result<Vec<f64>> {
     if parts.len() != 3 {
         return Err(bad("expected START:END:FRAMES, for example 0:0.99:60"));
     }
-    let start: f64 = parts[0].trim().parse().map_err(|_| bad("START is not a number"))?;
-    let end: f64 = parts[1].trim().parse().map_err(|_| bad("END is not a number"))?;
+    let start: f64 = parts[0]
+        .trim()
+        .parse()
+        .map_err(|_| bad("START is not a number"))?;
+    let end: f64 = parts[1]
+        .trim()
+        .parse()
+        .map_err(|_| bad("END is not a number"))?;
     let n: usize = parts[2]
         .trim()
         .parse()
         .map_err(|_| bad("FRAMES is not a whole number"))?;
     if !(1..=100_000).contains(&n) {
-        return Err(Error::param("ramp frames", n as f64, "must be in 1..=100000"));
+        return Err(Error::param(
+            "ramp frames",
+            n as f64,
+            "must be in 1..=100000",
+        ));
     }
     for b in [start, end] {
         if !(b.is_finite() && (0.0..1.0).contains(&b)) {

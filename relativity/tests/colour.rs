@@ -10,19 +10,29 @@ fn primaries() -> SpectralPrimaries {
 #[test]
 fn upsampling_reproduces_rgb_and_is_non_negative() {
     let p = primaries();
-    for rgb in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.3, 0.5, 0.2]] {
+    for rgb in [
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.3, 0.5, 0.2],
+    ] {
         let s = p.upsample(rgb).unwrap();
         let back = Cmf::cie1931_2deg().xyz_of(&s).to_linear_srgb();
         for c in 0..3 {
             assert!((back[c] - rgb[c]).abs() < 3e-3, "{rgb:?} -> {back:?}");
         }
         // Mallett-Yuksel: in-gamut colours have non-negative spectra.
-        let min = s.pieces().map(|q| q.value_start.min(q.value_end)).fold(f64::INFINITY, f64::min);
+        let min = s
+            .pieces()
+            .map(|q| q.value_start.min(q.value_end))
+            .fold(f64::INFINITY, f64::min);
         assert!(min >= -1e-12, "{rgb:?}: min {min}");
     }
     // Inside the gamut the round trip is exact.
     let rgb = [0.3, 0.5, 0.2];
-    let back = Cmf::cie1931_2deg().xyz_of(&p.upsample(rgb).unwrap()).to_linear_srgb();
+    let back = Cmf::cie1931_2deg()
+        .xyz_of(&p.upsample(rgb).unwrap())
+        .to_linear_srgb();
     for c in 0..3 {
         assert!((back[c] - rgb[c]).abs() < 1e-9);
     }
@@ -45,7 +55,11 @@ fn table_matches_exact_matrices() {
     for d in [0.5, 0.61, 0.8, 0.97, 1.0, 1.03, 1.3, 1.7, 2.1] {
         let exact = p.doppler_matrix(d).unwrap();
         let approx = t.matrix(d);
-        let scale = exact.iter().flatten().fold(0.0_f64, |m, v| m.max(v.abs())).max(1e-3);
+        let scale = exact
+            .iter()
+            .flatten()
+            .fold(0.0_f64, |m, v| m.max(v.abs()))
+            .max(1e-3);
         for i in 0..3 {
             for j in 0..3 {
                 assert!((exact[i][j] - approx[i][j]).abs() < 1e-4 * scale, "D {d}");
@@ -81,7 +95,10 @@ fn black_body_texel_shifts_to_black_body_at_d_t() {
     for t_k in [4000.0, 5800.0, 8000.0, 12000.0] {
         // Scale to keep numbers near 1 (the same scale on both sides).
         let scale = 1.0 / Blackbody::new(t_k).unwrap().xyz().y;
-        let rgb = blueshift_spectrum::mat_mul(&to_rgb, Blackbody::new(t_k).unwrap().xyz().scaled(scale).to_array());
+        let rgb = blueshift_spectrum::mat_mul(
+            &to_rgb,
+            Blackbody::new(t_k).unwrap().xyz().scaled(scale).to_array(),
+        );
         for d in [0.95, 0.97, 1.0, 1.03, 1.05, 1.1] {
             let k = table.matrix(d);
             let seen: [f64; 3] = std::array::from_fn(|i| {
@@ -89,7 +106,11 @@ fn black_body_texel_shifts_to_black_body_at_d_t() {
             });
             let truth = blueshift_spectrum::mat_mul(
                 &to_rgb,
-                Blackbody::new(d * t_k).unwrap().xyz().scaled(scale).to_array(),
+                Blackbody::new(d * t_k)
+                    .unwrap()
+                    .xyz()
+                    .scaled(scale)
+                    .to_array(),
             );
             let (xy_s, y_s) = xy(seen);
             let (xy_t, y_t) = xy(truth);

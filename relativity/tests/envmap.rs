@@ -56,7 +56,10 @@ fn cube_faces_follow_the_opengl_convention() {
     for (d, face, s, t) in cases {
         let (f, s2, t2) = cube_face_st(d);
         assert_eq!(f, face, "{d}");
-        assert!((s - s2).abs() < 1e-12 && (t - t2).abs() < 1e-12, "{d}: {s2} {t2}");
+        assert!(
+            (s - s2).abs() < 1e-12 && (t - t2).abs() < 1e-12,
+            "{d}: {s2} {t2}"
+        );
     }
     for d in dirs() {
         let (f, s, t) = cube_face_st(d);
@@ -99,7 +102,10 @@ fn cube_sampling_is_seamless() {
         let a = cube.sample(base + DVec3::new(eps, eps, -eps));
         let b = cube.sample(base + DVec3::new(-eps, -eps, eps));
         for c in 0..3 {
-            assert!((a[c] - b[c]).abs() < 0.1 * texel as f32, "{base}: {a:?} {b:?}");
+            assert!(
+                (a[c] - b[c]).abs() < 0.1 * texel as f32,
+                "{base}: {a:?} {b:?}"
+            );
         }
     }
 }
@@ -151,10 +157,7 @@ fn malformed_maps_are_errors() {
     let bytes = std::fs::read(&full).unwrap();
     let cut = dir.path().join("cut.png");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    assert!(matches!(
-        Environment::load(&cut),
-        Err(Error::Image { .. })
-    ));
+    assert!(matches!(Environment::load(&cut), Err(Error::Image { .. })));
     // Not an image at all, and a missing path.
     let junk = dir.path().join("junk.exr");
     std::fs::write(&junk, b"not an exr").unwrap();

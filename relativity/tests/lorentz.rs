@@ -5,7 +5,11 @@ use glam::DVec3;
 use proptest::prelude::*;
 
 fn dir(theta: f64, phi: f64) -> DVec3 {
-    DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos())
+    DVec3::new(
+        theta.sin() * phi.cos(),
+        theta.sin() * phi.sin(),
+        theta.cos(),
+    )
 }
 
 proptest! {
@@ -148,7 +152,10 @@ fn invalid_velocities_are_errors() {
         DVec3::new(f64::NAN, 0.0, 0.0),
         DVec3::new(0.0, f64::INFINITY, 0.0),
     ] {
-        assert!(matches!(Velocity::new(b), Err(Error::Velocity { .. })), "{b}");
+        assert!(
+            matches!(Velocity::new(b), Err(Error::Velocity { .. })),
+            "{b}"
+        );
     }
     assert!(Velocity::along(DVec3::ZERO, 0.5).is_err());
     assert!(Velocity::along(DVec3::X, -1.0).is_err());

@@ -134,7 +134,10 @@ fn searchlight_scales_radiance_by_d_to_the_fourth() {
         };
         let img = render(&env, &cam, v, searchlight_only, None).unwrap();
         let p = img.get_pixel(1, 1).0;
-        assert!((f64::from(p[1]) / expected - 1.0).abs() < 1e-5, "{p:?} vs {expected}");
+        assert!(
+            (f64::from(p[1]) / expected - 1.0).abs() < 1e-5,
+            "{p:?} vs {expected}"
+        );
     }
     // At the observer direction where D = 1, cos(theta') = (1 - 1/gamma) / b, the full
     // effect set leaves white unchanged (K(1) = identity).
@@ -147,7 +150,10 @@ fn searchlight_scales_radiance_by_d_to_the_fourth() {
         height: 1,
         ..Camera::default()
     };
-    let p = render(&env, &cam, v, Effects::ALL, None).unwrap().get_pixel(0, 0).0;
+    let p = render(&env, &cam, v, Effects::ALL, None)
+        .unwrap()
+        .get_pixel(0, 0)
+        .0;
     for ch in p {
         assert!((ch - 1.0).abs() < 1e-4, "{p:?}");
     }
@@ -162,8 +168,14 @@ fn rendering_is_identical_on_any_thread_count() {
         ..Camera::default()
     };
     let v = Velocity::new(DVec3::new(0.3, 0.2, -0.6)).unwrap();
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
-    let three = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let three = rayon::ThreadPoolBuilder::new()
+        .num_threads(3)
+        .build()
+        .unwrap();
     let a = one.install(|| render(&env, &cam, v, Effects::ALL, None).unwrap());
     let b = three.install(|| render(&env, &cam, v, Effects::ALL, None).unwrap());
     assert_eq!(a.as_raw(), b.as_raw());
@@ -174,16 +186,41 @@ fn bad_camera_and_ramp_are_errors() {
     let env = Environment::Checker(Checker::default());
     let v = Velocity::ZERO;
     for cam in [
-        Camera { fov_y_deg: 0.0, ..Camera::default() },
-        Camera { fov_y_deg: f64::NAN, ..Camera::default() },
-        Camera { width: 0, ..Camera::default() },
-        Camera { height: 1_000_000, ..Camera::default() },
-        Camera { look: DVec3::ZERO, ..Camera::default() },
+        Camera {
+            fov_y_deg: 0.0,
+            ..Camera::default()
+        },
+        Camera {
+            fov_y_deg: f64::NAN,
+            ..Camera::default()
+        },
+        Camera {
+            width: 0,
+            ..Camera::default()
+        },
+        Camera {
+            height: 1_000_000,
+            ..Camera::default()
+        },
+        Camera {
+            look: DVec3::ZERO,
+            ..Camera::default()
+        },
     ] {
-        assert!(render(&env, &cam, v, Effects::ALL, None).is_err(), "{cam:?}");
+        assert!(
+            render(&env, &cam, v, Effects::ALL, None).is_err(),
+            "{cam:?}"
+        );
     }
     assert_eq!(parse_ramp("0:0.99:4").unwrap(), vec![0.0, 0.33, 0.66, 0.99]);
-    for bad in ["0:1:10", "0:0.5", "a:0.5:3", "0:0.5:0", "-0.1:0.5:3", "0:NaN:3"] {
+    for bad in [
+        "0:1:10",
+        "0:0.5",
+        "a:0.5:3",
+        "0:0.5:0",
+        "-0.1:0.5:3",
+        "0:NaN:3",
+    ] {
         assert!(parse_ramp(bad).is_err(), "{bad}");
     }
 }

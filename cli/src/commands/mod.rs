@@ -1,4 +1,4 @@
 //! One module per `blueshift` verb.
 
-pub mod spectrum;
 pub mod relativity;
+pub mod spectrum;

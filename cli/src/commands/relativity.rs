@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use blueshift_relativity::{
-    Camera, Checker, Effects, Environment, Velocity, parse_ramp, render, to_srgb8,
+    Camera, Checker, Effects, Environment, FACE_NAMES, Velocity, parse_ramp, render, to_srgb8,
 };
 use glam::DVec3;
 use image::Rgb32FImage;
@@ -70,6 +70,54 @@ pub struct Args {
     /// Velocity ramp START:END:FRAMES (for example 0:0.99:60) instead of --beta.
     #[arg(long)]
     pub ramp: Option<String>,
+    /// Convert the environment instead of rendering: `equirect:WxH` writes --out,
+    /// `cube:SIZE` writes six faces STEMpx.EXT ... STEMnz.EXT (for example --out sky_.exr).
+    #[arg(long, conflicts_with = "ramp")]
+    pub convert: Option<String>,
+}
+
+fn convert(env: &Environment, spec: &str, out: &Path, exposure: f64) -> Result<()> {
+    let (kind, size) = spec
+        .split_once(':')
+        .with_context(|| format!("--convert {spec:?}: expected equirect:WxH or cube:SIZE"))?;
+    match kind {
+        "equirect" => {
+            let (w, h) = size
+                .split_once('x')
+                .with_context(|| format!("--convert {spec:?}: expected equirect:WxH"))?;
+            let w: u32 = w
+                .trim()
+                .parse()
+                .context("--convert: width is not a whole number")?;
+            let h: u32 = h
+                .trim()
+                .parse()
+                .context("--convert: height is not a whole number")?;
+            let map = env.to_equirect(w, h)?;
+            write_image(out, map.image(), exposure)
+        }
+        "cube" => {
+            let n: u32 = size
+                .trim()
+                .parse()
+                .context("--convert: size is not a whole number")?;
+            let cube = env.to_cube(n)?;
+            let ext = out
+                .extension()
+                .map(|e| e.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let stem = out.with_extension("").to_string_lossy().into_owned();
+            for (face, name) in cube.faces().iter().zip(FACE_NAMES) {
+                write_image(
+                    &PathBuf::from(format!("{stem}{name}.{ext}")),
+                    face,
+                    exposure,
+                )?;
+            }
+            Ok(())
+        }
+        _ => bail!("--convert {spec:?}: the layout must be equirect or cube"),
+    }
 }
 
 fn parse_vec(name: &str, s: &str) -> Result<DVec3> {
@@ -163,6 +211,9 @@ pub fn run(args: Args) -> Result<()> {
         (None, Some(p)) => Environment::load(p)?,
         (None, None) => bail!("give an environment map ENV or --synth checker"),
     };
+    if let Some(spec) = &args.convert {
+        return convert(&env, spec, &args.out, args.exposure);
+    }
     match speeds {
         None => {
             let v = Velocity::along(direction, args.beta)?;
