@@ -342,16 +342,17 @@ impl Environment {
                 continue;
             }
             let stem = stem.to_string_lossy();
-            if let Some(rest) = stem.strip_prefix(prefix.as_str()) {
-                if let Some(k) = FACE_NAMES.iter().position(|n| *n == rest) {
-                    if found[k].is_some() {
-                        return Err(Error::map(
-                            path,
-                            format!("face {rest} is given by more than one file"),
-                        ));
-                    }
-                    found[k] = Some(p);
+            let face = stem
+                .strip_prefix(prefix.as_str())
+                .and_then(|rest| FACE_NAMES.iter().position(|n| *n == rest));
+            if let Some(k) = face {
+                if found[k].is_some() {
+                    return Err(Error::map(
+                        path,
+                        format!("face {} is given by more than one file", FACE_NAMES[k]),
+                    ));
                 }
+                found[k] = Some(p);
             }
         }
         let missing: Vec<&str> = FACE_NAMES

@@ -114,7 +114,7 @@ fn black_body_texel_shifts_to_black_body_at_d_t() {
             );
             let (xy_s, y_s) = xy(seen);
             let (xy_t, y_t) = xy(truth);
-            let dxy = ((xy_s[0] - xy_t[0]).powi(2) + (xy_s[1] - xy_t[1]).powi(2)).sqrt();
+            let dxy = (xy_s[0] - xy_t[0]).hypot(xy_s[1] - xy_t[1]);
             worst_xy = worst_xy.max(dxy);
             worst_y = worst_y.max((y_s / y_t - 1.0).abs());
         }
