@@ -28,6 +28,8 @@ enum Command {
     Tonemap(Box<commands::tonemap::Args>),
     /// Transfer functions: draw the editor view, convert ParaView presets, write lookup tables.
     Tf(commands::tf::Args),
+    /// Render what a fast observer sees: aberration, Doppler colour shift, searchlight.
+    Relativity(commands::relativity::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +46,7 @@ fn main() -> ExitCode {
         Command::Spectrum(args) => commands::spectrum::run(args),
         Command::Tonemap(args) => commands::tonemap::run(*args),
         Command::Tf(args) => commands::tf::run(args),
+        Command::Relativity(args) => commands::relativity::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

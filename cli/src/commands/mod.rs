@@ -1,5 +1,6 @@
 //! One module per `blueshift` verb.
 
+pub mod relativity;
 pub mod spectrum;
 pub mod tonemap;
 pub mod tf;

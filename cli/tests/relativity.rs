@@ -1,0 +1,201 @@
+//! `blueshift relativity` from the outside: files, formats, ramp, errors.
+
+use std::process::Command;
+
+fn blueshift() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_blueshift"))
+}
+
+#[test]
+fn synth_checker_writes_exr_and_png_of_the_requested_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let exr = dir.path().join("v.exr");
+    let png = dir.path().join("v.png");
+    let out = blueshift()
+        .args(["relativity", "--synth", "checker", "--beta", "0.9"])
+        .args(["--direction", "0,0,-1", "--look", "1,0,0", "--fov", "70"])
+        .args([
+            "--width",
+            "64",
+            "--height",
+            "32",
+            "--effects",
+            "aberration,doppler",
+        ])
+        .arg("--out")
+        .arg(&exr)
+        .arg("--png")
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let hdr = image::open(&exr).unwrap().into_rgb32f();
+    assert_eq!(hdr.dimensions(), (64, 32));
+    let ldr = image::open(&png).unwrap();
+    assert_eq!((ldr.width(), ldr.height()), (64, 32));
+}
+
+/// Searchlight only on an equirect map of constant radiance 0.25: looking along the motion
+/// every pixel is 0.25 D^4 with D = 1 / (gamma (1 - beta . d')), and the centre pixel has
+/// D = sqrt((1 + b) / (1 - b)).
+#[test]
+fn equirect_map_searchlight_centre_pixel() {
+    let dir = tempfile::tempdir().unwrap();
+    let env = dir.path().join("flat.exr");
+    image::DynamicImage::ImageRgb32F(image::Rgb32FImage::from_pixel(
+        32,
+        16,
+        image::Rgb([0.25, 0.25, 0.25]),
+    ))
+    .save(&env)
+    .unwrap();
+    let out_path = dir.path().join("o.exr");
+    let out = blueshift()
+        .arg("relativity")
+        .arg(&env)
+        .args([
+            "--beta", "0.6", "--look", "0,1,0", "--width", "5", "--height", "5",
+        ])
+        .args(["--effects", "aberration,searchlight", "--out"])
+        .arg(&out_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let img = image::open(&out_path).unwrap().into_rgb32f();
+    let d = (1.6_f64 / 0.4).sqrt();
+    let v = f64::from(img.get_pixel(2, 2).0[0]);
+    assert!((v / (0.25 * d.powi(4)) - 1.0).abs() < 1e-4, "{v}");
+}
+
+#[test]
+fn ramp_writes_numbered_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_path = dir.path().join("f.png");
+    let out = blueshift()
+        .args(["relativity", "--synth", "checker", "--ramp", "0:0.99:3"])
+        .args(["--width", "16", "--height", "8", "--out"])
+        .arg(&out_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for k in 0..3 {
+        assert!(dir.path().join(format!("f_{k:04}.png")).is_file());
+    }
+    assert!(!dir.path().join("f_0003.png").exists());
+}
+
+#[test]
+fn bad_input_fails_cleanly_without_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_path = dir.path().join("o.exr");
+    let junk = dir.path().join("junk.hdr");
+    std::fs::write(&junk, b"#?RADIANCE\ngarbage").unwrap();
+    let cases: Vec<Vec<String>> = vec![
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--beta".into(),
+            "1".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--beta".into(),
+            "NaN".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--direction".into(),
+            "0,0,0".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--fov".into(),
+            "180".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--effects".into(),
+            "warp".into(),
+        ],
+        vec![
+            "--synth".into(),
+            "checker".into(),
+            "--ramp".into(),
+            "0:1.5:3".into(),
+        ],
+        vec![junk.to_string_lossy().into_owned()],
+        vec![dir.path().join("missing_").to_string_lossy().into_owned()],
+    ];
+    for args in cases {
+        let out = blueshift()
+            .arg("relativity")
+            .args(&args)
+            .arg("--out")
+            .arg(&out_path)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        assert!(!String::from_utf8_lossy(&out.stderr).is_empty());
+        assert!(!out_path.exists(), "{args:?}");
+    }
+}
+
+/// Layout conversion: equirect -> cube (six files by prefix) -> rendering from the cube at
+/// beta = 0 looking at a face centre gives the equirect's value there.
+#[test]
+fn convert_equirect_to_cube_and_render_from_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let env = dir.path().join("grad.exr");
+    // Radiance depends on the row only (polar angle): 1 + row index.
+    let img = image::Rgb32FImage::from_fn(64, 32, |_, y| image::Rgb([1.0 + y as f32, 1.0, 1.0]));
+    image::DynamicImage::ImageRgb32F(img).save(&env).unwrap();
+    let prefix = dir.path().join("sky_.exr");
+    let out = blueshift()
+        .arg("relativity")
+        .arg(&env)
+        .args(["--convert", "cube:32", "--out"])
+        .arg(&prefix)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let render_path = dir.path().join("r.exr");
+    let out = blueshift()
+        .arg("relativity")
+        .arg(dir.path().join("sky_"))
+        .args([
+            "--beta", "0", "--look", "1,0,0", "--width", "3", "--height", "3",
+        ])
+        .arg("--out")
+        .arg(&render_path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = image::open(&render_path).unwrap().into_rgb32f();
+    // The horizon (polar 90 degrees) lies between rows 15 and 16: value 16.5.
+    let v = r.get_pixel(1, 1).0[0];
+    assert!((v - 16.5).abs() < 0.05, "{v}");
+}

@@ -1,0 +1,231 @@
+//! Doppler colour shift through spectra.
+//!
+//! Each texel's linear sRGB is turned into a spectrum by the **spectral primary
+//! decomposition** of Mallett and Yuksel (EGSR 2019): three fixed, smooth, non-negative
+//! reflectance spectra `rho_r, rho_g, rho_b` (380-780 nm, 5 nm; the authors' published table,
+//! `data/mallett2019-cie1931-bt709-380+5+780.csv`) with `rho_r + rho_g + rho_b = 1`. For
+//! emitted radiance we use the emission spectra `E_j = rho_j * D65` (sRGB white is D65), so
+//! `S = sum_j a_j E_j` with `a = P^-1 M rgb`, where `M` is linear sRGB -> XYZ and `P` holds
+//! the XYZ of the `E_j` under the spectrum crate's piecewise-linear CIE 1931 functions: the
+//! round trip reproduces the input XYZ exactly (to rounding). `P^-1 M` is close to a
+//! multiple of the identity because the published basis was built to reproduce the sRGB
+//! primaries.
+//!
+//! A Doppler factor `D` maps `S(lambda)` to `S'(lambda') = D S(lambda' D)` (integral kept,
+//! "Doppler only"); the searchlight effect multiplies by a further `D^4` (together `D^5` per
+//! wavelength, the invariant transform, see [`crate::searchlight_per_wavelength`]). Because
+//! the upsampling is linear, the whole chain is a 3x3 matrix `K(D)` on linear sRGB, which
+//! [`DopplerColourTable`] tabulates over `ln D` and interpolates linearly.
+//!
+//! **Limitation (stated error):** an RGB triple says nothing about the ultraviolet and
+//! infrared, so the upsampled spectrum is zero outside 380-780 nm. For `D` outside about
+//! `[0.46, 2.18]` the visible window sees only that zero and `K(D) = 0`, whereas a real
+//! thermal source would shift its infrared or ultraviolet into view. See the crate tests
+//! for the measured black-body error over a range of `D`.
+
+use std::sync::OnceLock;
+
+use blueshift_spectrum::{
+    Cmf, PiecewiseLinear, RadiometricTransform, WavelengthShift, d65, linear_srgb_to_xyz_matrix,
+    xyz_to_linear_srgb_matrix,
+};
+
+use crate::error::{Error, Result};
+
+const BASIS_CSV: &str = include_str!("../data/mallett2019-cie1931-bt709-380+5+780.csv");
+
+/// A 3x3 matrix on linear RGB, row-major.
+pub type Mat3 = [[f64; 3]; 3];
+
+fn mat_mul3(a: &Mat3, b: &Mat3) -> Mat3 {
+    let mut m = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            m[i][j] = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+        }
+    }
+    m
+}
+
+fn inverse3(m: &Mat3) -> Mat3 {
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    let mut inv = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            let (a, b) = ((j + 1) % 3, (j + 2) % 3);
+            let (c, d) = ((i + 1) % 3, (i + 2) % 3);
+            inv[i][j] = (m[a][c] * m[b][d] - m[a][d] * m[b][c]) / det;
+        }
+    }
+    inv
+}
+
+/// The spectral primary decomposition of linear sRGB into emission spectra.
+#[derive(Clone, Debug)]
+pub struct SpectralPrimaries {
+    emission: [PiecewiseLinear; 3],
+    /// `P^-1 M`: linear sRGB -> basis weights.
+    rgb_to_weights: Mat3,
+}
+
+impl SpectralPrimaries {
+    /// The Mallett-Yuksel 2019 basis times D65, calibrated against the CIE 1931 functions.
+    pub fn mallett_yuksel_2019() -> Result<Self> {
+        let d65 = d65();
+        let mut samples: [Vec<(f64, f64)>; 3] = Default::default();
+        for (k, line) in BASIS_CSV.lines().enumerate() {
+            let lambda = 380.0 + 5.0 * k as f64;
+            for (j, v) in line.split(',').enumerate().take(3) {
+                let v: f64 = v.trim().parse().unwrap_or(0.0);
+                samples[j].push((lambda, v * d65.eval(lambda)));
+            }
+        }
+        let mut emission: [PiecewiseLinear; 3] = Default::default();
+        for j in 0..3 {
+            emission[j] = PiecewiseLinear::from_samples(&samples[j])?;
+        }
+        let cmf = Cmf::cie1931_2deg();
+        let mut p = [[0.0; 3]; 3];
+        for j in 0..3 {
+            let xyz = cmf.xyz_of(&emission[j]).to_array();
+            for i in 0..3 {
+                p[i][j] = xyz[i];
+            }
+        }
+        let rgb_to_weights = mat_mul3(&inverse3(&p), &linear_srgb_to_xyz_matrix());
+        Ok(Self {
+            emission,
+            rgb_to_weights,
+        })
+    }
+
+    /// The emission spectrum of a linear sRGB triple (W sr^-1 m^-2 nm^-1 per unit of the
+    /// RGB scale whose white has `Y = 1`). Spectra cannot be negative, so colours outside
+    /// the sRGB gamut (a basis weight below `-2e-3` of the largest) are refused; smaller
+    /// negative weights are set to zero. (Against the spectrum crate's 1 nm CIE functions
+    /// the published basis, fitted at 5 nm, needs weights down to `-1.4e-3` of the largest
+    /// for the pure primaries; clipping them changes such colours by under 0.3%.) (The renderer does not need this: it
+    /// works with the linear matrices, which accept any RGB.)
+    pub fn upsample(&self, rgb: [f64; 3]) -> Result<PiecewiseLinear> {
+        let w = self.weights(rgb);
+        let max = w.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+        let mut s = PiecewiseLinear::new();
+        for j in 0..3 {
+            let wj = if w[j] < 0.0 && w[j] >= -2e-3 * max {
+                0.0
+            } else {
+                w[j]
+            };
+            if wj < 0.0 {
+                return Err(Error::param(
+                    "basis weight of an RGB colour",
+                    wj,
+                    "the colour is outside the sRGB gamut and has no non-negative spectrum",
+                ));
+            }
+            s.add(&self.emission[j].scaled(wj)?);
+        }
+        Ok(s)
+    }
+
+    /// The basis weights `a = P^-1 M rgb` of a linear sRGB triple.
+    #[must_use]
+    pub fn weights(&self, rgb: [f64; 3]) -> [f64; 3] {
+        blueshift_spectrum::mat_mul(&self.rgb_to_weights, rgb)
+    }
+
+    /// The exact colour matrix `K(D)` (Doppler only, integral kept; multiply by `D^4` for the
+    /// searchlight effect): linear sRGB in, linear sRGB seen through `D` out.
+    pub fn doppler_matrix(&self, doppler_factor: f64) -> Result<Mat3> {
+        let d = blueshift_spectrum::DopplerFactor::new(doppler_factor)?;
+        let shift: WavelengthShift = d.recip();
+        let cmf = Cmf::cie1931_2deg();
+        let mut pd = [[0.0; 3]; 3];
+        for j in 0..3 {
+            let shifted = self.emission[j].shifted(shift, RadiometricTransform::None);
+            let xyz = cmf.xyz_of(&shifted).scaled(doppler_factor).to_array();
+            for i in 0..3 {
+                pd[i][j] = xyz[i];
+            }
+        }
+        Ok(mat_mul3(
+            &xyz_to_linear_srgb_matrix(),
+            &mat_mul3(&pd, &self.rgb_to_weights),
+        ))
+    }
+}
+
+/// `K(D)` tabulated over `ln D` for interactive rendering.
+#[derive(Clone, Debug)]
+pub struct DopplerColourTable {
+    ln_min: f64,
+    ln_max: f64,
+    step: f64,
+    mats: Vec<Mat3>,
+}
+
+/// `K(D) = 0` exactly below this `D`: 830 nm observed came from below 380 nm.
+pub const TABLE_D_MIN: f64 = 0.45;
+/// `K(D) = 0` exactly above this `D`: 360 nm observed came from above 780 nm.
+pub const TABLE_D_MAX: f64 = 2.2;
+
+impl DopplerColourTable {
+    /// Tabulates `K(D)` at `entries` points (>= 2) uniform in `ln D` over
+    /// `[TABLE_D_MIN, TABLE_D_MAX]`.
+    pub fn new(primaries: &SpectralPrimaries, entries: usize) -> Result<Self> {
+        let entries = entries.clamp(2, 1 << 16);
+        let ln_min = TABLE_D_MIN.ln();
+        let ln_max = TABLE_D_MAX.ln();
+        let step = (ln_max - ln_min) / (entries - 1) as f64;
+        let mats = (0..entries)
+            .map(|k| primaries.doppler_matrix((ln_min + step * k as f64).exp()))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            ln_min,
+            ln_max,
+            step,
+            mats,
+        })
+    }
+
+    /// The shared table (Mallett-Yuksel primaries, 2048 entries), built on first use.
+    #[must_use]
+    pub fn global() -> &'static Self {
+        static T: OnceLock<DopplerColourTable> = OnceLock::new();
+        T.get_or_init(|| {
+            let p = SpectralPrimaries::mallett_yuksel_2019()
+                .expect("the built-in basis table is well formed");
+            Self::new(&p, 2048).expect("table factors are finite and positive")
+        })
+    }
+
+    /// The interpolated `K(D)`; zero outside the tabulated range (see the module docs).
+    #[must_use]
+    pub fn matrix(&self, doppler_factor: f64) -> Mat3 {
+        let l = doppler_factor.ln();
+        if !(l >= self.ln_min && l <= self.ln_max) {
+            return [[0.0; 3]; 3];
+        }
+        let x = (l - self.ln_min) / self.step;
+        let k = (x.floor() as usize).min(self.mats.len() - 2);
+        let t = x - k as f64;
+        let (a, b) = (&self.mats[k], &self.mats[k + 1]);
+        let mut m = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                m[i][j] = a[i][j] + (b[i][j] - a[i][j]) * t;
+            }
+        }
+        m
+    }
+
+    /// Applies `K(D)` to a linear RGB texel.
+    #[must_use]
+    pub fn apply(&self, doppler_factor: f64, rgb: [f32; 3]) -> [f32; 3] {
+        let m = self.matrix(doppler_factor);
+        let v = rgb.map(f64::from);
+        std::array::from_fn(|i| (m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2]) as f32)
+    }
+}

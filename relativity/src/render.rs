@@ -1,0 +1,288 @@
+//! The renderer: a pinhole camera in the observer's frame, inverse aberration, environment
+//! lookup, Doppler colour shift and searchlight; a velocity ramp; a simple PNG encoding.
+
+use glam::DVec3;
+use image::{Rgb32FImage, RgbImage};
+use rayon::prelude::*;
+
+use crate::colour::DopplerColourTable;
+use crate::envmap::{Environment, check_size};
+use crate::error::{Error, Result};
+use crate::lorentz::{Velocity, searchlight_integrated, unit};
+
+/// A pinhole camera in the observer's frame (C8: plain settings with `Default`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    /// Viewing direction (need not be normalised).
+    pub look: DVec3,
+    /// Approximate up direction (made orthogonal to `look`; if parallel, `+Z` or `+X` is used).
+    pub up: DVec3,
+    /// Vertical field of view in degrees, in `(0, 180)`.
+    pub fov_y_deg: f64,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+}
+
+impl Default for Camera {
+    fn default() -> Self {
+        Self {
+            look: DVec3::NEG_Z,
+            up: DVec3::Y,
+            fov_y_deg: 90.0,
+            width: 640,
+            height: 360,
+        }
+    }
+}
+
+/// Which relativistic effects to render.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Effects {
+    /// Aberration of light (geometry).
+    pub aberration: bool,
+    /// Doppler colour shift (spectral, integral kept).
+    pub doppler: bool,
+    /// Searchlight: integrated radiance times `D^4` (with `doppler`: `D^5` per wavelength).
+    pub searchlight: bool,
+}
+
+impl Effects {
+    /// All three effects.
+    pub const ALL: Self = Self {
+        aberration: true,
+        doppler: true,
+        searchlight: true,
+    };
+    /// Only aberration.
+    pub const ABERRATION: Self = Self {
+        aberration: true,
+        doppler: false,
+        searchlight: false,
+    };
+
+    /// Parses a comma-separated list of `aberration`, `doppler`, `searchlight` (or `all`,
+    /// `none`).
+    pub fn parse(list: &str) -> Result<Self> {
+        let mut e = Self::default();
+        for item in list.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            match item {
+                "aberration" => e.aberration = true,
+                "doppler" => e.doppler = true,
+                "searchlight" => e.searchlight = true,
+                "all" => e = Self::ALL,
+                "none" => {}
+                _ => {
+                    return Err(Error::param(
+                        "effect (aberration, doppler, searchlight, all, none)",
+                        f64::NAN,
+                        "unknown effect name",
+                    ));
+                }
+            }
+        }
+        Ok(e)
+    }
+}
+
+/// The camera's orthonormal frame and the image-plane half extents.
+#[derive(Clone, Copy, Debug)]
+pub struct CameraFrame {
+    forward: DVec3,
+    right: DVec3,
+    up: DVec3,
+    half_w: f64,
+    half_h: f64,
+    width: u32,
+    height: u32,
+}
+
+impl CameraFrame {
+    /// Validates the camera and builds its frame.
+    pub fn new(cam: &Camera) -> Result<Self> {
+        check_size(cam.width, cam.height)?;
+        if !(cam.fov_y_deg > 0.0 && cam.fov_y_deg < 180.0) {
+            return Err(Error::param(
+                "vertical field of view (degrees)",
+                cam.fov_y_deg,
+                "must be in (0, 180)",
+            ));
+        }
+        let forward = unit(cam.look, "look direction length")?;
+        let up0 = unit(cam.up, "up direction length")?;
+        let mut right = forward.cross(up0);
+        if right.length() < 1e-9 {
+            let alt = if forward.z.abs() < 0.9 {
+                DVec3::Z
+            } else {
+                DVec3::X
+            };
+            right = forward.cross(alt);
+        }
+        let right = right.normalize();
+        let up = right.cross(forward);
+        let half_h = (0.5 * cam.fov_y_deg.to_radians()).tan();
+        let half_w = half_h * f64::from(cam.width) / f64::from(cam.height);
+        Ok(Self {
+            forward,
+            right,
+            up,
+            half_w,
+            half_h,
+            width: cam.width,
+            height: cam.height,
+        })
+    }
+
+    /// The observer-frame unit viewing direction through pixel centre `(x, y)` (row 0 at
+    /// the top).
+    #[must_use]
+    pub fn pixel_direction(&self, x: f64, y: f64) -> DVec3 {
+        let sx = (2.0 * (x + 0.5) / f64::from(self.width) - 1.0) * self.half_w;
+        let sy = (1.0 - 2.0 * (y + 0.5) / f64::from(self.height)) * self.half_h;
+        (self.forward + sx * self.right + sy * self.up).normalize()
+    }
+}
+
+/// The scene-frame direction seen through pixel `(x, y)`: inverse aberration of the pixel's
+/// observer-frame direction when `effects.aberration`, else that direction itself.
+pub fn scene_direction(
+    cam: &Camera,
+    velocity: Velocity,
+    effects: Effects,
+    x: u32,
+    y: u32,
+) -> Result<DVec3> {
+    let frame = CameraFrame::new(cam)?;
+    let d = frame.pixel_direction(f64::from(x), f64::from(y));
+    Ok(if effects.aberration {
+        velocity.observer_to_scene(d)
+    } else {
+        d
+    })
+}
+
+/// Renders one frame: for every pixel, the observer-frame direction, its scene-frame
+/// direction (inverse aberration), the environment's radiance there, the Doppler colour
+/// shift `K(D)` and the searchlight factor `D^4`, as selected. `table` defaults to
+/// [`DopplerColourTable::global`]. Rows are rendered in parallel; the result does not depend
+/// on the thread count.
+pub fn render(
+    env: &Environment,
+    cam: &Camera,
+    velocity: Velocity,
+    effects: Effects,
+    table: Option<&DopplerColourTable>,
+) -> Result<Rgb32FImage> {
+    let frame = CameraFrame::new(cam)?;
+    let table = if effects.doppler {
+        Some(table.unwrap_or_else(|| DopplerColourTable::global()))
+    } else {
+        None
+    };
+    let (w, h) = (cam.width, cam.height);
+    let mut buf = vec![0.0_f32; w as usize * h as usize * 3];
+    buf.par_chunks_mut(w as usize * 3)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for x in 0..w as usize {
+                let d_obs = frame.pixel_direction(x as f64, y as f64);
+                let d_scene = if effects.aberration {
+                    velocity.observer_to_scene(d_obs)
+                } else {
+                    d_obs
+                };
+                let mut rgb = env.sample(d_scene);
+                if effects.doppler || effects.searchlight {
+                    let dop = velocity.doppler_factor_observer(d_obs);
+                    if let Some(t) = table {
+                        rgb = t.apply(dop, rgb);
+                    }
+                    if effects.searchlight {
+                        let f = searchlight_integrated(dop) as f32;
+                        rgb = rgb.map(|c| c * f);
+                    }
+                }
+                row[3 * x..3 * x + 3].copy_from_slice(&rgb);
+            }
+        });
+    Rgb32FImage::from_raw(w, h, buf)
+        .ok_or_else(|| Error::param("image size", f64::from(w), "buffer mismatch"))
+}
+
+/// The speeds of a ramp `start:end:frames` (for example `0:0.99:60`): `frames` values
+/// evenly spaced from `start` to `end` inclusive, each in `[0, 1)`.
+pub fn parse_ramp(spec: &str) -> Result<Vec<f64>> {
+    let parts: Vec<&str> = spec.split(':').collect();
+    let bad = |reason| Error::param("ramp start:end:frames", f64::NAN, reason);
+    if parts.len() != 3 {
+        return Err(bad("expected START:END:FRAMES, for example 0:0.99:60"));
+    }
+    let start: f64 = parts[0]
+        .trim()
+        .parse()
+        .map_err(|_| bad("START is not a number"))?;
+    let end: f64 = parts[1]
+        .trim()
+        .parse()
+        .map_err(|_| bad("END is not a number"))?;
+    let n: usize = parts[2]
+        .trim()
+        .parse()
+        .map_err(|_| bad("FRAMES is not a whole number"))?;
+    if !(1..=100_000).contains(&n) {
+        return Err(Error::param(
+            "ramp frames",
+            n as f64,
+            "must be in 1..=100000",
+        ));
+    }
+    for b in [start, end] {
+        if !(b.is_finite() && (0.0..1.0).contains(&b)) {
+            return Err(Error::param("ramp speed |beta|", b, "must be in [0, 1)"));
+        }
+    }
+    Ok((0..n)
+        .map(|k| {
+            if n == 1 {
+                start
+            } else if k == n - 1 {
+                end
+            } else {
+                start + (end - start) * k as f64 / (n - 1) as f64
+            }
+        })
+        .collect())
+}
+
+/// Renders a velocity ramp along `direction`: one frame per speed, calling `sink` with the
+/// frame index, speed and image (so frames can be written as they are made).
+pub fn ramp(
+    env: &Environment,
+    cam: &Camera,
+    direction: DVec3,
+    speeds: &[f64],
+    effects: Effects,
+    mut sink: impl FnMut(usize, f64, Rgb32FImage) -> Result<()>,
+) -> Result<()> {
+    for (k, &b) in speeds.iter().enumerate() {
+        let v = Velocity::along(direction, b)?;
+        sink(k, b, render(env, cam, v, effects, None)?)?;
+    }
+    Ok(())
+}
+
+/// A display image: linear RGB times `2^exposure`, clipped to `[0, 1]`, sRGB-encoded to 8 bit.
+#[must_use]
+pub fn to_srgb8(img: &Rgb32FImage, exposure_stops: f64) -> RgbImage {
+    let k = exposure_stops.exp2();
+    let mut out = RgbImage::new(img.width(), img.height());
+    for (o, p) in out.pixels_mut().zip(img.pixels()) {
+        for c in 0..3 {
+            let v = blueshift_spectrum::srgb_encode((f64::from(p.0[c]) * k).clamp(0.0, 1.0));
+            o.0[c] = (v * 255.0).round().clamp(0.0, 255.0) as u8;
+        }
+    }
+    out
+}

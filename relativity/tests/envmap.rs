@@ -1,0 +1,193 @@
+//! Environment maps: the OpenGL cube convention, seamless sampling, conversion, bad input.
+
+use blueshift_relativity::{
+    CubeMap, Environment, EquirectMap, Error, cube_dir, cube_face_st, from_lon_polar, lon_polar,
+};
+use glam::DVec3;
+use image::Rgb32FImage;
+
+/// A smooth test field: linear in the direction, so bilinear sampling of texel-centre
+/// values is accurate to O(1/N^2) on a face and to O(1/N) across edges if seamless.
+fn field(d: DVec3) -> [f32; 3] {
+    let d = d.normalize();
+    [(1.0 + d.x) as f32, (1.0 + d.y) as f32, (1.0 + d.z) as f32]
+}
+
+fn cube_of(n: u32) -> CubeMap {
+    let faces = std::array::from_fn(|f| {
+        Rgb32FImage::from_fn(n, n, |x, y| {
+            let nf = f64::from(n);
+            image::Rgb(field(cube_dir(
+                f,
+                (f64::from(x) + 0.5) / nf,
+                (f64::from(y) + 0.5) / nf,
+            )))
+        })
+    });
+    CubeMap::new(faces).unwrap()
+}
+
+fn dirs() -> Vec<DVec3> {
+    // A deterministic spiral of directions over the sphere (Fibonacci lattice).
+    let n = 2000;
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (f64::from(i) + 0.5) / f64::from(n);
+            let phi = f64::from(i) * 2.399_963_229_728_653;
+            let r = (1.0 - z * z).sqrt();
+            DVec3::new(r * phi.cos(), r * phi.sin(), z)
+        })
+        .collect()
+}
+
+/// OpenGL 4.6 table 8.19: spot checks of face selection and (s, t) orientation.
+#[test]
+fn cube_faces_follow_the_opengl_convention() {
+    let cases = [
+        (DVec3::new(1.0, 0.0, -0.5), 0, 0.75, 0.5),
+        (DVec3::new(1.0, 0.5, 0.0), 0, 0.5, 0.25),
+        (DVec3::new(-1.0, 0.0, 0.5), 1, 0.75, 0.5),
+        (DVec3::new(0.5, 1.0, 0.0), 2, 0.75, 0.5),
+        (DVec3::new(0.0, 1.0, 0.5), 2, 0.5, 0.75),
+        (DVec3::new(0.0, -1.0, 0.5), 3, 0.5, 0.25),
+        (DVec3::new(0.5, 0.0, 1.0), 4, 0.75, 0.5),
+        (DVec3::new(0.5, 0.0, -1.0), 5, 0.25, 0.5),
+    ];
+    for (d, face, s, t) in cases {
+        let (f, s2, t2) = cube_face_st(d);
+        assert_eq!(f, face, "{d}");
+        assert!(
+            (s - s2).abs() < 1e-12 && (t - t2).abs() < 1e-12,
+            "{d}: {s2} {t2}"
+        );
+    }
+    for d in dirs() {
+        let (f, s, t) = cube_face_st(d);
+        assert!((cube_dir(f, s, t).normalize() - d).length() < 1e-12);
+    }
+}
+
+#[test]
+fn lon_polar_round_trip() {
+    for d in dirs() {
+        let (lon, polar) = lon_polar(d);
+        assert!((from_lon_polar(lon, polar) - d).length() < 1e-12);
+    }
+    // -Z is the centre of the equirectangular image, +Y its top.
+    assert!(lon_polar(DVec3::NEG_Z).0.abs() < 1e-15);
+    assert!(lon_polar(DVec3::Y).1.abs() < 1e-15);
+}
+
+/// Seamless: the bilinear cube sample of a linear field is within a texel's variation of
+/// the field everywhere, edges and corners included (a non-seamless sampler that clamps at
+/// face edges errs by half a texel's gradient there too, so we also check continuity across
+/// each edge directly).
+#[test]
+fn cube_sampling_is_seamless() {
+    let n = 32;
+    let cube = cube_of(n);
+    let texel = 2.0 / f64::from(n); // field change per texel is at most this
+    let mut worst = 0.0_f64;
+    for d in dirs() {
+        let s = cube.sample(d);
+        let f = field(d);
+        for c in 0..3 {
+            worst = worst.max(f64::from((s[c] - f[c]).abs()));
+        }
+    }
+    assert!(worst < 0.5 * texel, "worst {worst} vs texel {texel}");
+    // Continuity across the +X / +Z edge and the +X/+Y/+Z corner.
+    for base in [DVec3::new(1.0, 0.3, 1.0), DVec3::new(1.0, 1.0, 1.0)] {
+        let eps = 1e-7;
+        let a = cube.sample(base + DVec3::new(eps, eps, -eps));
+        let b = cube.sample(base + DVec3::new(-eps, -eps, eps));
+        for c in 0..3 {
+            assert!(
+                (a[c] - b[c]).abs() < 0.1 * texel as f32,
+                "{base}: {a:?} {b:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn equirect_and_cube_convert_into_each_other() {
+    let cube = Environment::Cube(cube_of(64));
+    let eq = Environment::Equirect(cube.to_equirect(256, 128).unwrap());
+    let back = eq.to_cube(64).unwrap();
+    let back = Environment::Cube(back);
+    let mut worst = 0.0_f32;
+    for d in dirs() {
+        let (a, b) = (field(d), back.sample(d));
+        for c in 0..3 {
+            worst = worst.max((a[c] - b[c]).abs());
+        }
+    }
+    // Two resamplings of a linear field: error bounded by a few texels' variation.
+    assert!(worst < 0.05, "worst {worst}");
+}
+
+#[test]
+fn malformed_maps_are_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    // Missing faces.
+    for name in ["px", "nx", "py"] {
+        image::RgbImage::new(4, 4)
+            .save(dir.path().join(format!("{name}.png")))
+            .unwrap();
+    }
+    let e = Environment::load(dir.path()).unwrap_err();
+    assert!(e.to_string().contains("ny, pz, nz"), "{e}");
+    // Unequal faces.
+    for name in ["ny", "pz"] {
+        image::RgbImage::new(4, 4)
+            .save(dir.path().join(format!("{name}.png")))
+            .unwrap();
+    }
+    image::RgbImage::new(4, 5)
+        .save(dir.path().join("nz.png"))
+        .unwrap();
+    assert!(matches!(
+        Environment::load(dir.path()),
+        Err(Error::MalformedMap { .. })
+    ));
+    // Truncated file.
+    let full = dir.path().join("full.png");
+    image::RgbImage::new(16, 8).save(&full).unwrap();
+    let bytes = std::fs::read(&full).unwrap();
+    let cut = dir.path().join("cut.png");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(matches!(Environment::load(&cut), Err(Error::Image { .. })));
+    // Not an image at all, and a missing path.
+    let junk = dir.path().join("junk.exr");
+    std::fs::write(&junk, b"not an exr").unwrap();
+    assert!(Environment::load(&junk).is_err());
+    assert!(Environment::load(&dir.path().join("nothing")).is_err());
+    // NaN texels.
+    let mut img = Rgb32FImage::new(4, 2);
+    img.put_pixel(1, 1, image::Rgb([f32::NAN, 0.0, 0.0]));
+    assert!(EquirectMap::new(img).is_err());
+}
+
+/// PNG is sRGB-encoded: 8-bit 128 decodes to ((128/255 + 0.055) / 1.055)^2.4 = 0.21586.
+#[test]
+fn png_is_srgb_decoded_and_prefix_cube_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("env.png");
+    image::RgbImage::from_pixel(8, 4, image::Rgb([128, 128, 128]))
+        .save(&p)
+        .unwrap();
+    let env = Environment::load(&p).unwrap();
+    let v = env.sample(DVec3::X)[0];
+    assert!((v - 0.215_861).abs() < 1e-5, "{v}");
+    // Cube by common prefix, float (.exr) faces kept linear.
+    for (k, name) in ["px", "nx", "py", "ny", "pz", "nz"].iter().enumerate() {
+        let img = Rgb32FImage::from_pixel(4, 4, image::Rgb([k as f32 + 0.5, 2.0, 3.0]));
+        image::DynamicImage::ImageRgb32F(img)
+            .save(dir.path().join(format!("sky_{name}.exr")))
+            .unwrap();
+    }
+    let cube = Environment::load(&dir.path().join("sky_")).unwrap();
+    assert!((cube.sample(DVec3::NEG_Y)[0] - 3.5).abs() < 1e-6);
+    assert!((cube.sample(DVec3::Z)[0] - 4.5).abs() < 1e-6);
+}
