@@ -213,9 +213,10 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
             return Err(Error::invalid(format!("NRRD: spacings has {} entries, dimension is {dimension}", sp.len())));
         }
         for (a, s) in sp[spatial_start..].iter().enumerate() {
-            if s.is_finite() {
-                spacing[a] = s.abs();
+            if !s.is_finite() || *s == 0.0 {
+                return Err(Error::invalid(format!("NRRD: spacing {s} on spatial axis {a}")));
             }
+            spacing[a] = s.abs();
         }
     }
     if let Some(dirs) = &directions {
