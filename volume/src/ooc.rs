@@ -154,6 +154,16 @@ impl RawFileSource {
         Ok(RawFileSource { file, offset, disk, endian, geometry, buf: Vec::new() })
     }
 
+    /// Replaces origin and spacing (the dims must stay the same).
+    pub fn set_geometry(&mut self, geometry: Geometry) -> Result<()> {
+        geometry.validate()?;
+        if geometry.dims != self.geometry.dims {
+            return Err(Error::parameter("new geometry must keep the dims"));
+        }
+        self.geometry = geometry;
+        Ok(())
+    }
+
     /// Opens any file whose voxels can be streamed without decompression: an Open SciVis raw
     /// file or a raw-encoded NRRD. `None` for everything else (read those in core).
     pub fn probe(path: &Path) -> Result<Option<Self>> {

@@ -183,7 +183,7 @@ fn nrrd_writer_round_trips_and_keeps_i16_and_spacing() {
     let dir = tempfile::tempdir().unwrap();
     for gzip in [false, true] {
         let out = dir.path().join(format!("rt{gzip}.nrrd"));
-        let written = nrrd::write_file(&out, &v.channels()[0], &nrrd::WriteOptions { gzip }).unwrap();
+        let written = nrrd::write_file(&out, &v.channels()[0], &nrrd::WriteOptions { gzip, disk: None }).unwrap();
         assert_eq!(written, DiskType::I16);
         let text = std::fs::read(&out).unwrap();
         assert!(text.starts_with(b"NRRD0004\n") && text.windows(12).any(|w| w == b"type: int16\n"));

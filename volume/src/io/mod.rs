@@ -396,16 +396,18 @@ pub fn output_type(channel: &Channel) -> DiskType {
 }
 
 /// Encodes a channel's voxels little-endian as `disk` (vectors: 3 interleaved components).
+/// Conversion to an integer type rounds to nearest and saturates at the type's range.
 pub(crate) fn encode(grid: &AnyGrid, disk: DiskType) -> Vec<u8> {
     let n = grid.geometry().voxel_count();
     let mut out = Vec::with_capacity(n * disk.size_bytes() * if grid.is_vector() { 3 } else { 1 });
+    // Integer targets round to nearest and saturate at the type's range (NaN becomes 0).
     let mut put = |v: f32| match disk {
-        DiskType::U8 => out.push(v as u8),
-        DiskType::I8 => out.push(v as i8 as u8),
-        DiskType::U16 => out.extend_from_slice(&(v as u16).to_le_bytes()),
-        DiskType::I16 => out.extend_from_slice(&(v as i16).to_le_bytes()),
-        DiskType::U32 => out.extend_from_slice(&(v as u32).to_le_bytes()),
-        DiskType::I32 => out.extend_from_slice(&(v as i32).to_le_bytes()),
+        DiskType::U8 => out.push(v.round() as u8),
+        DiskType::I8 => out.push(v.round() as i8 as u8),
+        DiskType::U16 => out.extend_from_slice(&(v.round() as u16).to_le_bytes()),
+        DiskType::I16 => out.extend_from_slice(&(v.round() as i16).to_le_bytes()),
+        DiskType::U32 => out.extend_from_slice(&(f64::from(v).round() as u32).to_le_bytes()),
+        DiskType::I32 => out.extend_from_slice(&(f64::from(v).round() as i32).to_le_bytes()),
         DiskType::F32 => out.extend_from_slice(&v.to_le_bytes()),
         DiskType::F64 => out.extend_from_slice(&f64::from(v).to_le_bytes()),
     };

@@ -355,6 +355,9 @@ fn truncated(len: usize, avail: u64, path: &Path) -> Error {
 pub struct WriteOptions {
     /// gzip the voxel data (`encoding: gzip`) instead of `raw`.
     pub gzip: bool,
+    /// Voxel type to write; `None` keeps the channel's type ([`super::output_type`]).
+    /// Integer targets round to nearest and saturate.
+    pub disk: Option<DiskType>,
 }
 
 /// The NRRD header text (up to and excluding the blank line) for `channel`, written as
@@ -398,7 +401,7 @@ fn payload(channel: &Channel, disk: DiskType, gzip: bool) -> Result<Vec<u8>> {
 /// original on-disk type when that is lossless ([`super::output_type`]), the spacing and
 /// origin are kept, and the channel name goes into `content`. Returns the type written.
 pub fn write(w: &mut dyn Write, channel: &Channel, opts: &WriteOptions) -> Result<DiskType> {
-    let disk = super::output_type(channel);
+    let disk = opts.disk.unwrap_or_else(|| super::output_type(channel));
     w.write_all(header(channel, disk, opts.gzip, None).as_bytes())?;
     w.write_all(b"\n")?;
     w.write_all(&payload(channel, disk, opts.gzip)?)?;
@@ -414,7 +417,7 @@ pub fn write_detached(
     channel: &Channel,
     opts: &WriteOptions,
 ) -> Result<DiskType> {
-    let disk = super::output_type(channel);
+    let disk = opts.disk.unwrap_or_else(|| super::output_type(channel));
     header_out.write_all(header(channel, disk, opts.gzip, Some(data_file_name)).as_bytes())?;
     data_out.write_all(&payload(channel, disk, opts.gzip)?)?;
     Ok(disk)

@@ -104,7 +104,13 @@ pub fn read_raw(
 /// Writes a channel as headerless little-endian voxels of [`super::output_type`]; returns the
 /// type written (which the caller needs for the file name).
 pub fn write_raw(w: &mut dyn Write, channel: &Channel) -> Result<DiskType> {
-    let disk = super::output_type(channel);
+    write_raw_as(w, channel, None)
+}
+
+/// Writes a channel as headerless little-endian voxels of `disk` (or
+/// [`super::output_type`] for `None`); integer targets round to nearest and saturate.
+pub fn write_raw_as(w: &mut dyn Write, channel: &Channel, disk: Option<DiskType>) -> Result<DiskType> {
+    let disk = disk.unwrap_or_else(|| super::output_type(channel));
     w.write_all(&super::encode(&channel.grid, disk))?;
     Ok(disk)
 }
