@@ -80,7 +80,10 @@ pub struct Limits {
 impl Default for Limits {
     /// 2^31 voxels and 8 GiB per channel.
     fn default() -> Self {
-        Limits { max_voxels: 1 << 31, max_alloc_bytes: 8 << 30 }
+        Limits {
+            max_voxels: 1 << 31,
+            max_alloc_bytes: 8 << 30,
+        }
     }
 }
 
@@ -88,7 +91,10 @@ impl Limits {
     /// No caps at all (only the file size still bounds what is read).
     #[must_use]
     pub fn no_limits() -> Self {
-        Limits { max_voxels: u64::MAX, max_alloc_bytes: u64::MAX }
+        Limits {
+            max_voxels: u64::MAX,
+            max_alloc_bytes: u64::MAX,
+        }
     }
 
     /// Checks `dims` (with `bytes_per_voxel` in memory) against the caps.

@@ -29,14 +29,21 @@ impl Geometry {
     /// A geometry with origin 0 and spacing 1, so world and index space coincide.
     #[must_use]
     pub fn unit(dims: [usize; 3]) -> Self {
-        Geometry { dims, origin: Vec3::ZERO, spacing: Vec3::ONE }
+        Geometry {
+            dims,
+            origin: Vec3::ZERO,
+            spacing: Vec3::ONE,
+        }
     }
 
     /// Checks that every dimension is at least 1 and spacing and origin are finite, with
     /// positive spacing.
     pub fn validate(&self) -> Result<()> {
         if self.dims.contains(&0) {
-            return Err(Error::invalid(format!("dimensions {:?} contain a zero", self.dims)));
+            return Err(Error::invalid(format!(
+                "dimensions {:?} contain a zero",
+                self.dims
+            )));
         }
         if !self.spacing.is_finite() || self.spacing.min_element() <= 0.0 {
             return Err(Error::invalid(format!(
@@ -45,7 +52,10 @@ impl Geometry {
             )));
         }
         if !self.origin.is_finite() {
-            return Err(Error::invalid(format!("origin {} must be finite", self.origin)));
+            return Err(Error::invalid(format!(
+                "origin {} must be finite",
+                self.origin
+            )));
         }
         Ok(())
     }
@@ -53,7 +63,9 @@ impl Geometry {
     /// Total number of voxels (saturating).
     #[must_use]
     pub fn voxel_count(&self) -> usize {
-        self.dims[0].saturating_mul(self.dims[1]).saturating_mul(self.dims[2])
+        self.dims[0]
+            .saturating_mul(self.dims[1])
+            .saturating_mul(self.dims[2])
     }
 
     /// Linear index of voxel `[x, y, z]` (x fastest).
@@ -230,21 +242,30 @@ impl<T: Voxel> Grid<T> {
     pub fn zeros(geometry: Geometry, limits: &Limits) -> Result<Self> {
         geometry.validate()?;
         let n = limits.check(geometry.dims, std::mem::size_of::<T>())?;
-        Ok(Grid { geometry, data: vec![T::default(); n as usize] })
+        Ok(Grid {
+            geometry,
+            data: vec![T::default(); n as usize],
+        })
     }
 
     /// A grid whose voxel `[x, y, z]` is `f(x, y, z)`, filled in parallel over z slices.
-    pub fn from_fn(geometry: Geometry, f: impl Fn(usize, usize, usize) -> T + Sync) -> Result<Self> {
+    pub fn from_fn(
+        geometry: Geometry,
+        f: impl Fn(usize, usize, usize) -> T + Sync,
+    ) -> Result<Self> {
         use rayon::prelude::*;
         let mut g = Self::zeros(geometry, &Limits::no_limits())?;
         let [nx, ny, _] = geometry.dims;
-        g.data.par_chunks_mut(nx * ny).enumerate().for_each(|(z, slice)| {
-            for y in 0..ny {
-                for x in 0..nx {
-                    slice[x + nx * y] = f(x, y, z);
+        g.data
+            .par_chunks_mut(nx * ny)
+            .enumerate()
+            .for_each(|(z, slice)| {
+                for y in 0..ny {
+                    for x in 0..nx {
+                        slice[x + nx * y] = f(x, y, z);
+                    }
                 }
-            }
-        });
+            });
         Ok(g)
     }
 
@@ -452,7 +473,9 @@ impl AnyGrid {
     /// A copy of the scalar values as f32 (vector grids: lengths).
     #[must_use]
     pub fn to_f32_vec(&self) -> Vec<f32> {
-        (0..self.geometry().voxel_count()).map(|i| self.scalar_at(i)).collect()
+        (0..self.geometry().voxel_count())
+            .map(|i| self.scalar_at(i))
+            .collect()
     }
 
     /// Minimum and maximum of the finite scalar values (vector grids: lengths); `None` if no
@@ -477,7 +500,12 @@ impl AnyGrid {
         let g = *self.geometry();
         let bad = |i: usize, value: f32| {
             let [nx, ny, _] = g.dims;
-            Err(Error::NonFinite { value, x: i % nx, y: (i / nx) % ny, z: i / (nx * ny) })
+            Err(Error::NonFinite {
+                value,
+                x: i % nx,
+                y: (i / nx) % ny,
+                z: i / (nx * ny),
+            })
         };
         match self {
             AnyGrid::F16(grid) => {

@@ -17,9 +17,18 @@ pub fn downsample<T: Voxel<Value = f32>>(grid: &Grid<T>) -> Result<Grid<f32>> {
     let src = grid.data();
     let mut out = Grid::<f32>::zeros(c, &Limits::no_limits())?;
     let [cx, cy, _] = c.dims;
-    out.data_mut().par_chunks_mut(cx * cy).enumerate().for_each(|(z, slice)| {
-        downsample_slice(|x, y, zz| src[g.index(x, y, zz)].value(), [nx, ny, nz], z, slice, [cx, cy]);
-    });
+    out.data_mut()
+        .par_chunks_mut(cx * cy)
+        .enumerate()
+        .for_each(|(z, slice)| {
+            downsample_slice(
+                |x, y, zz| src[g.index(x, y, zz)].value(),
+                [nx, ny, nz],
+                z,
+                slice,
+                [cx, cy],
+            );
+        });
     Ok(out)
 }
 
@@ -62,7 +71,10 @@ impl Pyramid {
         };
         let mut levels = vec![g0];
         let min_edge = min_edge.max(1);
-        while levels.last().is_some_and(|l| l.dims().iter().any(|&d| d > min_edge)) {
+        while levels
+            .last()
+            .is_some_and(|l| l.dims().iter().any(|&d| d > min_edge))
+        {
             let next = downsample(levels.last().expect("non-empty"))?;
             levels.push(next);
         }
@@ -81,7 +93,10 @@ impl Pyramid {
 #[must_use]
 pub fn level_geometries(g0: Geometry, min_edge: usize) -> Vec<Geometry> {
     let mut v = vec![g0];
-    while v.last().is_some_and(|l| l.dims.iter().any(|&d| d > min_edge.max(1))) {
+    while v
+        .last()
+        .is_some_and(|l| l.dims.iter().any(|&d| d > min_edge.max(1)))
+    {
         let next = v.last().expect("non-empty").downsampled();
         v.push(next);
     }

@@ -61,32 +61,41 @@ impl Macrocells {
         let layer = dims[0] * dims[1];
         let mut min = vec![f32::INFINITY; layer * dims[2]];
         let mut max = vec![f32::NEG_INFINITY; layer * dims[2]];
-        min.par_chunks_mut(layer).zip(max.par_chunks_mut(layer)).enumerate().for_each(|(cz, (mn, mx))| {
-            let z0 = cz * k;
-            let z1 = ((cz + 1) * k).min(n[2] - 1);
-            for cy in 0..dims[1] {
-                let y0 = cy * k;
-                let y1 = ((cy + 1) * k).min(n[1] - 1);
-                for cx in 0..dims[0] {
-                    let x0 = cx * k;
-                    let x1 = ((cx + 1) * k).min(n[0] - 1);
-                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                    for z in z0..=z1 {
-                        for y in y0..=y1 {
-                            let row = geometry.index(0, y, z);
-                            for v in &data[row + x0..=row + x1] {
-                                let v = v.value();
-                                lo = lo.min(v);
-                                hi = hi.max(v);
+        min.par_chunks_mut(layer)
+            .zip(max.par_chunks_mut(layer))
+            .enumerate()
+            .for_each(|(cz, (mn, mx))| {
+                let z0 = cz * k;
+                let z1 = ((cz + 1) * k).min(n[2] - 1);
+                for cy in 0..dims[1] {
+                    let y0 = cy * k;
+                    let y1 = ((cy + 1) * k).min(n[1] - 1);
+                    for cx in 0..dims[0] {
+                        let x0 = cx * k;
+                        let x1 = ((cx + 1) * k).min(n[0] - 1);
+                        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                        for z in z0..=z1 {
+                            for y in y0..=y1 {
+                                let row = geometry.index(0, y, z);
+                                for v in &data[row + x0..=row + x1] {
+                                    let v = v.value();
+                                    lo = lo.min(v);
+                                    hi = hi.max(v);
+                                }
                             }
                         }
+                        mn[cx + dims[0] * cy] = lo;
+                        mx[cx + dims[0] * cy] = hi;
                     }
-                    mn[cx + dims[0] * cy] = lo;
-                    mx[cx + dims[0] * cy] = hi;
                 }
-            }
-        });
-        Ok(Macrocells { k, dims, geometry, min, max })
+            });
+        Ok(Macrocells {
+            k,
+            dims,
+            geometry,
+            min,
+            max,
+        })
     }
 
     /// [`Macrocells::build`] for any scalar grid; vector grids are refused.
@@ -96,7 +105,9 @@ impl Macrocells {
             AnyGrid::U16(g) => Self::build(g, k),
             AnyGrid::F16(g) => Self::build(g, k),
             AnyGrid::F32(g) => Self::build(g, k),
-            AnyGrid::Vec3(_) => Err(Error::parameter("macrocells are built over scalar channels, not vectors")),
+            AnyGrid::Vec3(_) => Err(Error::parameter(
+                "macrocells are built over scalar channels, not vectors",
+            )),
         }
     }
 
@@ -157,7 +168,11 @@ impl Macrocells {
         let mut c = [0usize; 3];
         for a in 0..3 {
             let q = (p[a] / self.k as f32).floor();
-            c[a] = if q.is_nan() || q < 0.0 { 0 } else { (q as usize).min(self.dims[a] - 1) };
+            c[a] = if q.is_nan() || q < 0.0 {
+                0
+            } else {
+                (q as usize).min(self.dims[a] - 1)
+            };
         }
         c
     }
@@ -178,7 +193,10 @@ impl Macrocells {
             lo[a] = (c[a] * self.k) as f32;
             hi[a] = (((c[a] + 1) * self.k).min(n[a] - 1)) as f32;
         }
-        (self.geometry.index_to_world(lo), self.geometry.index_to_world(hi))
+        (
+            self.geometry.index_to_world(lo),
+            self.geometry.index_to_world(hi),
+        )
     }
 
     /// The value intervals along the world-space ray `origin + t * dir` for `t` in `t_range`,
@@ -214,7 +232,14 @@ impl Macrocells {
             }
         }
         ok &= t0 <= t1;
-        ValueIntervals { cells: self, o, d, t: t0, t_end: t1, done: !ok }
+        ValueIntervals {
+            cells: self,
+            o,
+            d,
+            t: t0,
+            t_end: t1,
+            done: !ok,
+        }
     }
 }
 
@@ -247,13 +272,25 @@ impl Iterator for ValueIntervals<'_> {
             if self.d[a] < 0.0 && p[a] == q {
                 q -= 1.0;
             }
-            let ca = if q < 0.0 { 0 } else { (q as usize).min(dims[a] - 1) };
+            let ca = if q < 0.0 {
+                0
+            } else {
+                (q as usize).min(dims[a] - 1)
+            };
             c[a] = ca;
             if self.d[a] > 0.0 {
-                let face = if ca + 1 == dims[a] { f32::INFINITY } else { (ca + 1) as f32 };
+                let face = if ca + 1 == dims[a] {
+                    f32::INFINITY
+                } else {
+                    (ca + 1) as f32
+                };
                 t_exit = t_exit.min((face - self.o[a]) / self.d[a]);
             } else if self.d[a] < 0.0 {
-                let face = if ca == 0 { f32::NEG_INFINITY } else { ca as f32 };
+                let face = if ca == 0 {
+                    f32::NEG_INFINITY
+                } else {
+                    ca as f32
+                };
                 t_exit = t_exit.min((face - self.o[a]) / self.d[a]);
             }
         }
@@ -262,7 +299,11 @@ impl Iterator for ValueIntervals<'_> {
             t_exit = next_up(self.t).min(self.t_end);
         }
         let (lo, hi) = self.cells.min_max(c);
-        let iv = ValueInterval { t: self.t..t_exit, value: lo..hi, cell: c };
+        let iv = ValueInterval {
+            t: self.t..t_exit,
+            value: lo..hi,
+            cell: c,
+        };
         if t_exit >= self.t_end {
             self.done = true;
         }

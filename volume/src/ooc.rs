@@ -73,17 +73,26 @@ pub struct BrickLayout {
 
 impl Default for BrickLayout {
     fn default() -> Self {
-        BrickLayout { brick: 64, apron: 1 }
+        BrickLayout {
+            brick: 64,
+            apron: 1,
+        }
     }
 }
 
 impl BrickLayout {
     fn validate(&self) -> Result<()> {
-        if self.brick < 2 || self.brick % 2 != 0 || self.brick > 1024 {
-            return Err(Error::parameter(format!("brick edge {} must be even, 2..=1024", self.brick)));
+        if self.brick < 2 || !self.brick.is_multiple_of(2) || self.brick > 1024 {
+            return Err(Error::parameter(format!(
+                "brick edge {} must be even, 2..=1024",
+                self.brick
+            )));
         }
         if self.apron < 1 || self.apron > self.brick {
-            return Err(Error::parameter(format!("apron {} must be 1..=brick edge", self.apron)));
+            return Err(Error::parameter(format!(
+                "apron {} must be 1..=brick edge",
+                self.apron
+            )));
         }
         Ok(())
     }
@@ -140,7 +149,13 @@ pub struct RawFileSource {
 impl RawFileSource {
     /// Opens `path` holding scalar voxels of `disk` type at byte `offset`; checks that the file
     /// is long enough.
-    pub fn new(path: &Path, offset: u64, disk: DiskType, endian: Endian, geometry: Geometry) -> Result<Self> {
+    pub fn new(
+        path: &Path,
+        offset: u64,
+        disk: DiskType,
+        endian: Endian,
+        geometry: Geometry,
+    ) -> Result<Self> {
         geometry.validate()?;
         let file = File::open(path)?;
         let need = (geometry.voxel_count() as u64).saturating_mul(disk.size_bytes() as u64);
@@ -151,7 +166,14 @@ impl RawFileSource {
                 path.display()
             )));
         }
-        Ok(RawFileSource { file, offset, disk, endian, geometry, buf: Vec::new() })
+        Ok(RawFileSource {
+            file,
+            offset,
+            disk,
+            endian,
+            geometry,
+            buf: Vec::new(),
+        })
     }
 
     /// Replaces origin and spacing (the dims must stay the same).
@@ -170,7 +192,9 @@ impl RawFileSource {
         use crate::io::{Format, detect_format};
         match detect_format(path)? {
             Format::Raw => {
-                let Some(n) = crate::io::raw::parse_scivis_name(path) else { return Ok(None) };
+                let Some(n) = crate::io::raw::parse_scivis_name(path) else {
+                    return Ok(None);
+                };
                 if n.components != 1 {
                     return Ok(None);
                 }
@@ -196,7 +220,8 @@ impl SlabSource for RawFileSource {
         let size = self.disk.size_bytes();
         let bytes = nx * ny * size;
         self.buf.resize(bytes, 0);
-        self.file.seek(SeekFrom::Start(self.offset + (z * bytes) as u64))?;
+        self.file
+            .seek(SeekFrom::Start(self.offset + (z * bytes) as u64))?;
         self.file.read_exact(&mut self.buf)?;
         let big = self.endian == Endian::Big;
         for (o, c) in out.iter_mut().zip(self.buf.chunks_exact(size)) {
@@ -211,7 +236,11 @@ fn decode_one(b: &[u8], disk: DiskType, big: bool) -> f32 {
         ($t:ty, $n:literal) => {{
             let mut a = [0u8; $n];
             a.copy_from_slice(b);
-            if big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }
+            if big {
+                <$t>::from_be_bytes(a)
+            } else {
+                <$t>::from_le_bytes(a)
+            }
         }};
     }
     match disk {
@@ -238,7 +267,9 @@ fn level_offsets(geoms: &[Geometry], layout: &BrickLayout) -> Result<(Vec<u64>, 
             .and_then(|n| n.checked_mul(b[2] as u64))
             .and_then(|n| n.checked_mul(brick_bytes))
             .ok_or_else(|| Error::Limits("bricked file size overflows".into()))?;
-        off = off.checked_add(n).ok_or_else(|| Error::Limits("bricked file size overflows".into()))?;
+        off = off
+            .checked_add(n)
+            .ok_or_else(|| Error::Limits("bricked file size overflows".into()))?;
     }
     Ok((v, off))
 }
@@ -263,7 +294,12 @@ pub fn convert(
     if name.len() > 255 {
         return Err(Error::parameter("channel name longer than 255 bytes"));
     }
-    let file = std::fs::OpenOptions::new().create(true).write(true).truncate(true).read(true).open(out)?;
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .write(true)
+        .truncate(true)
+        .read(true)
+        .open(out)?;
     file.set_len(total)?;
     let mut w = BufWriter::new(file);
     let mut h = Vec::with_capacity(HEADER_BYTES as usize);
@@ -275,14 +311,22 @@ pub fn convert(
     for d in g0.dims {
         h.extend_from_slice(&(d as u64).to_le_bytes());
     }
-    for v in g0.origin.to_array().into_iter().chain(g0.spacing.to_array()) {
+    for v in g0
+        .origin
+        .to_array()
+        .into_iter()
+        .chain(g0.spacing.to_array())
+    {
         h.extend_from_slice(&v.to_le_bytes());
     }
     h.extend_from_slice(&(name.len() as u32).to_le_bytes());
     h.extend_from_slice(name);
     w.write_all(&h)?;
 
-    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let dir = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     let mut current: Box<dyn SlabSource> = Box::new(BorrowedSource(source));
     let mut _keep: Option<tempfile::NamedTempFile>;
     for (l, g) in geoms.iter().enumerate() {
@@ -294,7 +338,16 @@ pub fn convert(
         {
             let mut tmp_w = tmp.as_mut().map(|t| BufWriter::new(t.as_file_mut()));
             let report: &mut dyn FnMut(u64, u64) = if l == 0 { progress } else { &mut |_, _| {} };
-            brick_level(current.as_mut(), *g, next, &layout, offsets[l], &mut w, tmp_w.as_mut().map(|b| b as &mut dyn Write), report)?;
+            brick_level(
+                current.as_mut(),
+                *g,
+                next,
+                &layout,
+                offsets[l],
+                &mut w,
+                tmp_w.as_mut().map(|b| b as &mut dyn Write),
+                report,
+            )?;
             if let Some(t) = tmp_w.as_mut() {
                 t.flush()?;
             }
@@ -353,8 +406,10 @@ fn brick_level(
                     for ly in 0..s {
                         let y = ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
                         for lx in 0..s {
-                            let x = ((bx * b + lx) as i64 - a as i64).clamp(0, nx as i64 - 1) as usize;
-                            brick[k..k + 4].copy_from_slice(&slab[lz * slice + y * nx + x].to_le_bytes());
+                            let x =
+                                ((bx * b + lx) as i64 - a as i64).clamp(0, nx as i64 - 1) as usize;
+                            brick[k..k + 4]
+                                .copy_from_slice(&slab[lz * slice + y * nx + x].to_le_bytes());
                             k += 4;
                         }
                     }
@@ -369,7 +424,8 @@ fn brick_level(
             let j0 = bz * b / 2;
             let j1 = (((bz + 1) * b) / 2).min(cg.dims[2]);
             for j in j0..j1 {
-                let fine = |x: usize, y: usize, z: usize| slab[(z + a - bz * b) * slice + y * nx + x];
+                let fine =
+                    |x: usize, y: usize, z: usize| slab[(z + a - bz * b) * slice + y * nx + x];
                 downsample_slice(fine, g.dims, j, c, [cg.dims[0], cg.dims[1]]);
                 for v in c.iter() {
                     out.write_all(&v.to_le_bytes())?;
@@ -413,33 +469,53 @@ impl BrickedFile {
         let map = unsafe { memmap2::Mmap::map(&file)? };
         let h = &map[..];
         if h.len() < 76 || !h.starts_with(MAGIC) {
-            return Err(Error::invalid(format!("not a bricked volume file: {}", path.display())));
+            return Err(Error::invalid(format!(
+                "not a bricked volume file: {}",
+                path.display()
+            )));
         }
         let u32_at = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]);
         let u64_at = |o: usize| u64::from_le_bytes(h[o..o + 8].try_into().expect("8 bytes"));
         let f32_at = |o: usize| f32::from_le_bytes(h[o..o + 4].try_into().expect("4 bytes"));
         if u32_at(8) != 1 {
-            return Err(Error::unsupported(format!("bricked file version {}", u32_at(8))));
+            return Err(Error::unsupported(format!(
+                "bricked file version {}",
+                u32_at(8)
+            )));
         }
-        let layout = BrickLayout { brick: u32_at(12) as usize, apron: u32_at(16) as usize };
-        layout.validate().map_err(|e| Error::invalid(format!("bricked file: {e}")))?;
+        let layout = BrickLayout {
+            brick: u32_at(12) as usize,
+            apron: u32_at(16) as usize,
+        };
+        layout
+            .validate()
+            .map_err(|e| Error::invalid(format!("bricked file: {e}")))?;
         let mut dims = [0usize; 3];
         for (a, d) in dims.iter_mut().enumerate() {
-            *d = usize::try_from(u64_at(24 + 8 * a)).map_err(|_| Error::invalid("bricked file: dims overflow"))?;
+            *d = usize::try_from(u64_at(24 + 8 * a))
+                .map_err(|_| Error::invalid("bricked file: dims overflow"))?;
         }
         let origin = Vec3::new(f32_at(48), f32_at(52), f32_at(56));
         let spacing = Vec3::new(f32_at(60), f32_at(64), f32_at(68));
-        let g0 = Geometry { dims, origin, spacing };
-        g0.validate().map_err(|e| Error::invalid(format!("bricked file: {e}")))?;
+        let g0 = Geometry {
+            dims,
+            origin,
+            spacing,
+        };
+        g0.validate()
+            .map_err(|e| Error::invalid(format!("bricked file: {e}")))?;
         Limits::no_limits().check(dims, 4)?;
         let name_len = u32_at(72) as usize;
         if name_len > 255 {
             return Err(Error::invalid("bricked file: channel name too long"));
         }
-        let name = String::from_utf8(h[76..76 + name_len].to_vec()).map_err(|_| Error::invalid("bricked file: name is not UTF-8"))?;
+        let name = String::from_utf8(h[76..76 + name_len].to_vec())
+            .map_err(|_| Error::invalid("bricked file: name is not UTF-8"))?;
         let geoms = level_geometries(g0, layout.brick);
         if geoms.len() != u32_at(20) as usize {
-            return Err(Error::invalid("bricked file: level count does not match the dimensions"));
+            return Err(Error::invalid(
+                "bricked file: level count does not match the dimensions",
+            ));
         }
         let (offsets, total) = level_offsets(&geoms, &layout)?;
         if (h.len() as u64) < total {
@@ -449,7 +525,15 @@ impl BrickedFile {
                 path.display()
             )));
         }
-        Ok(BrickedFile { map, layout, geoms, offsets, name, capacity: cache_bricks.max(1), cache: Mutex::new(Cache::default()) })
+        Ok(BrickedFile {
+            map,
+            layout,
+            geoms,
+            offsets,
+            name,
+            capacity: cache_bricks.max(1),
+            cache: Mutex::new(Cache::default()),
+        })
     }
 
     /// Name of the stored channel.
@@ -479,7 +563,10 @@ impl BrickedFile {
     /// A [`Sampler`] over one level.
     pub fn level(&self, level: usize) -> Result<LevelSampler<'_>> {
         if level >= self.geoms.len() {
-            return Err(Error::parameter(format!("level {level} of {}", self.geoms.len())));
+            return Err(Error::parameter(format!(
+                "level {level} of {}",
+                self.geoms.len()
+            )));
         }
         Ok(LevelSampler { file: self, level })
     }
@@ -511,14 +598,23 @@ impl BrickedFile {
         (0..self.geoms.len()).find(|&l| {
             let g = self.geoms[l];
             let q = g.world_to_index(p);
-            let v = [0, 1, 2].map(|a| if q[a].is_nan() { 0 } else { (q[a].max(0.0) as usize).min(g.dims[a] - 1) });
+            let v = [0, 1, 2].map(|a| {
+                if q[a].is_nan() {
+                    0
+                } else {
+                    (q[a].max(0.0) as usize).min(g.dims[a] - 1)
+                }
+            });
             cache.map.contains_key(&(l as u32, self.brick_of(l, v)))
         })
     }
 
     fn brick(&self, level: usize, idx: u64) -> Result<Arc<[f32]>> {
         let key = (level as u32, idx);
-        let mut c = self.cache.lock().map_err(|_| Error::invalid("brick cache poisoned"))?;
+        let mut c = self
+            .cache
+            .lock()
+            .map_err(|_| Error::invalid("brick cache poisoned"))?;
         c.tick += 1;
         let tick = c.tick;
         if let Some(e) = c.map.get_mut(&key) {
@@ -528,12 +624,18 @@ impl BrickedFile {
         let s = self.layout.stored_edge();
         let n = s * s * s;
         let start = (self.offsets[level] + idx * (n as u64 * 4)) as usize;
-        let bytes = self.map.get(start..start + 4 * n).ok_or_else(|| Error::invalid("bricked file: brick outside the file"))?;
-        let data: Arc<[f32]> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
-        if c.map.len() >= self.capacity {
-            if let Some(old) = c.map.iter().min_by_key(|(_, v)| v.1).map(|(k, _)| *k) {
-                c.map.remove(&old);
-            }
+        let bytes = self
+            .map
+            .get(start..start + 4 * n)
+            .ok_or_else(|| Error::invalid("bricked file: brick outside the file"))?;
+        let data: Arc<[f32]> = bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        if c.map.len() >= self.capacity
+            && let Some(old) = c.map.iter().min_by_key(|(_, v)| v.1).map(|(k, _)| *k)
+        {
+            c.map.remove(&old);
         }
         c.map.insert(key, (data.clone(), tick));
         Ok(data)
@@ -541,20 +643,28 @@ impl BrickedFile {
 
     /// Loads a whole level into memory as an f32 grid (checked against `limits`).
     pub fn load_level(&self, level: usize, limits: &Limits) -> Result<crate::AnyGrid> {
-        let g = self.level_geometry(level).ok_or_else(|| Error::parameter(format!("level {level}")))?;
+        let g = self
+            .level_geometry(level)
+            .ok_or_else(|| Error::parameter(format!("level {level}")))?;
         let mut out = Grid::<f32>::zeros(g, limits)?;
         let [nx, ny, nz] = g.dims;
-        let (b, a, s) = (self.layout.brick, self.layout.apron, self.layout.stored_edge());
+        let (b, a, s) = (
+            self.layout.brick,
+            self.layout.apron,
+            self.layout.stored_edge(),
+        );
         let nb = self.layout.bricks(g.dims);
         let data = out.data_mut();
         for bz in 0..nb[2] {
             for by in 0..nb[1] {
                 for bx in 0..nb[0] {
-                    let brick = self.read_brick_uncached(level, (bx + nb[0] * (by + nb[1] * bz)) as u64)?;
+                    let brick =
+                        self.read_brick_uncached(level, (bx + nb[0] * (by + nb[1] * bz)) as u64)?;
                     for z in bz * b..((bz + 1) * b).min(nz) {
                         for y in by * b..((by + 1) * b).min(ny) {
                             for x in bx * b..((bx + 1) * b).min(nx) {
-                                let l = (x - bx * b + a) + s * ((y - by * b + a) + s * (z - bz * b + a));
+                                let l = (x - bx * b + a)
+                                    + s * ((y - by * b + a) + s * (z - bz * b + a));
                                 data[x + nx * (y + ny * z)] = brick[l];
                             }
                         }
@@ -569,8 +679,14 @@ impl BrickedFile {
         let s = self.layout.stored_edge();
         let n = s * s * s;
         let start = (self.offsets[level] + idx * (n as u64 * 4)) as usize;
-        let bytes = self.map.get(start..start + 4 * n).ok_or_else(|| Error::invalid("bricked file: brick outside the file"))?;
-        Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+        let bytes = self
+            .map
+            .get(start..start + 4 * n)
+            .ok_or_else(|| Error::invalid("bricked file: brick outside the file"))?;
+        Ok(bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect())
     }
 }
 
@@ -602,11 +718,17 @@ impl Sampler for LevelSampler<'_> {
         let v0 = [f.x as usize, f.y as usize, f.z as usize];
         let idx = self.file.brick_of(self.level, v0);
         let brick = self.file.brick(self.level, idx)?;
-        let (b, a, s) = (self.file.layout.brick, self.file.layout.apron, self.file.layout.stored_edge());
+        let (b, a, s) = (
+            self.file.layout.brick,
+            self.file.layout.apron,
+            self.file.layout.stored_edge(),
+        );
         // Local coordinates of v0; v0 + 1 lies in the apron, which repeats the edge voxel
         // exactly where the in-core sampler clamps.
         let l = v0.map(|c| c % b + a);
-        let v = |dx: usize, dy: usize, dz: usize| brick[(l[0] + dx) + s * ((l[1] + dy) + s * (l[2] + dz))];
+        let v = |dx: usize, dy: usize, dz: usize| {
+            brick[(l[0] + dx) + s * ((l[1] + dy) + s * (l[2] + dz))]
+        };
         let lerp = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
         let c00 = lerp(v(0, 0, 0), v(1, 0, 0), t.x);
         let c10 = lerp(v(0, 1, 0), v(1, 1, 0), t.x);

@@ -18,7 +18,14 @@ use crate::volume::Volume;
 use crate::{Error, Result};
 
 /// Names accepted by [`by_name`].
-pub const NAMES: &[&str] = &["galaxy", "hydrogen-shell", "three-cubes", "turbulence", "marschner-lobb", "channels12"];
+pub const NAMES: &[&str] = &[
+    "galaxy",
+    "hydrogen-shell",
+    "three-cubes",
+    "turbulence",
+    "marschner-lobb",
+    "channels12",
+];
 
 /// Builds the dataset called `name` (see [`NAMES`]) at `res` voxels per edge.
 pub fn by_name(name: &str, res: usize, seed: u64) -> Result<Volume> {
@@ -29,21 +36,35 @@ pub fn by_name(name: &str, res: usize, seed: u64) -> Result<Volume> {
         "turbulence" => turbulence(res, seed),
         "marschner-lobb" => marschner_lobb(res),
         "channels12" => channels12(res, seed),
-        other => Err(Error::parameter(format!("unknown dataset '{other}' (known: {})", NAMES.join(", ")))),
+        other => Err(Error::parameter(format!(
+            "unknown dataset '{other}' (known: {})",
+            NAMES.join(", ")
+        ))),
     }
 }
 
 fn check_res(res: usize) -> Result<()> {
     if !(2..=2048).contains(&res) {
-        return Err(Error::parameter(format!("resolution {res} must be 2..=2048")));
+        return Err(Error::parameter(format!(
+            "resolution {res} must be 2..=2048"
+        )));
     }
     Ok(())
 }
 
 /// Geometry spanning `[lo, hi]` along each axis with `dims` voxels.
 fn box_geometry(dims: [usize; 3], lo: Vec3, hi: Vec3) -> Geometry {
-    let n = Vec3::new(dims[0] as f32 - 1.0, dims[1] as f32 - 1.0, dims[2] as f32 - 1.0).max(Vec3::ONE);
-    Geometry { dims, origin: lo, spacing: (hi - lo) / n }
+    let n = Vec3::new(
+        dims[0] as f32 - 1.0,
+        dims[1] as f32 - 1.0,
+        dims[2] as f32 - 1.0,
+    )
+    .max(Vec3::ONE);
+    Geometry {
+        dims,
+        origin: lo,
+        spacing: (hi - lo) / n,
+    }
 }
 
 fn hash(seed: u64, x: i64, y: i64, z: i64) -> f32 {
@@ -101,13 +122,18 @@ fn fbm(p: Vec3, octaves: u32, seed: u64) -> f32 {
 pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
     check_res(res)?;
     let dims = [res, res, (res / 2).max(2)];
-    let geom = box_geometry(dims, Vec3::new(-15.0, -15.0, -7.5), Vec3::new(15.0, 15.0, 7.5));
+    let geom = box_geometry(
+        dims,
+        Vec3::new(-15.0, -15.0, -7.5),
+        Vec3::new(15.0, 15.0, 7.5),
+    );
     let bar_angle = 25f32.to_radians();
     let (rd, hz) = (4.0f32, 0.4f32);
-    let pos = |x: usize, y: usize, z: usize| geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
+    let pos =
+        |x: usize, y: usize, z: usize| geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
     // Shared structure factors.
     let structure = move |p: Vec3| -> (f32, f32, f32) {
-        let r = (p.x * p.x + p.y * p.y).sqrt();
+        let r = p.x.hypot(p.y);
         let phi = p.y.atan2(p.x);
         // Bar: elongated Gaussian in the rotated frame.
         let (s, c) = bar_angle.sin_cos();
@@ -115,7 +141,8 @@ pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
         let yb = -s * p.x + c * p.y;
         let bar = (-(xb / 4.0).powi(2) - (yb / 1.2).powi(2)).exp();
         // Two logarithmic spiral arms (pitch ~ 15 degrees), starting at the bar ends.
-        let arm_phase = 2.0 * (phi - bar_angle) - 2.0 / 15f32.to_radians().tan() * (r.max(0.5) / 4.0).ln();
+        let arm_phase =
+            2.0 * (phi - bar_angle) - 2.0 / 15f32.to_radians().tan() * (r.max(0.5) / 4.0).ln();
         let arms = (0.5 + 0.5 * arm_phase.cos()).powi(4) * (1.0 - (-(r / 4.0).powi(2)).exp());
         let clump = (1.2 * fbm(p * 0.8, 4, seed)).exp();
         (r, 1.0 + 2.0 * bar + 2.5 * arms, clump)
@@ -136,7 +163,9 @@ pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
         let (_, s, _) = structure(p);
         3e-4 * hi.data()[geom.index(x, y, z)] * (s - 1.0).max(0.0)
     })?;
-    let dust = Grid::from_fn(geom, |x, y, z| 0.3 * c.data()[geom.index(x, y, z)] + 1e-3 * hi.data()[geom.index(x, y, z)])?;
+    let dust = Grid::from_fn(geom, |x, y, z| {
+        0.3 * c.data()[geom.index(x, y, z)] + 1e-3 * hi.data()[geom.index(x, y, z)]
+    })?;
     let temp = Grid::from_fn(geom, |x, y, z| {
         let p = pos(x, y, z);
         let n = hi.data()[geom.index(x, y, z)];
@@ -146,12 +175,16 @@ pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
     })?;
     let vel = Grid::from_fn(geom, |x, y, z| {
         let p = pos(x, y, z);
-        let r = (p.x * p.x + p.y * p.y).sqrt().max(1e-3);
+        let r = p.x.hypot(p.y).max(1e-3);
         let vc = 220e3 * (1.0 - (-r / 1.0).exp());
         let tangential = Vec3::new(-p.y / r, p.x / r, 0.0);
         let radial = Vec3::new(p.x / r, p.y / r, 0.0);
         let phi = p.y.atan2(p.x);
-        let v_bar = 60e3 * (2.0 * (phi - bar_angle)).sin() * (r / 4.0) * (-r / 4.0).exp() * std::f32::consts::E;
+        let v_bar = 60e3
+            * (2.0 * (phi - bar_angle)).sin()
+            * (r / 4.0)
+            * (-r / 4.0).exp()
+            * std::f32::consts::E;
         let turb = Vec3::new(
             fbm(p * 0.5, 3, seed ^ 1),
             fbm(p * 0.5, 3, seed ^ 2),
@@ -187,7 +220,8 @@ pub const SHELL_SPEED_M_PER_S: f32 = 300e3;
 pub fn hydrogen_shell(res: usize, seed: u64) -> Result<Volume> {
     check_res(res)?;
     let geom = box_geometry([res; 3], Vec3::splat(-1.0), Vec3::splat(1.0));
-    let pos = |x: usize, y: usize, z: usize| geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
+    let pos =
+        |x: usize, y: usize, z: usize| geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
     let half = SHELL_THICKNESS / 2.0;
     let hi = Grid::from_fn(geom, |x, y, z| {
         let p = pos(x, y, z);
@@ -257,7 +291,12 @@ pub fn turbulence(res: usize, seed: u64) -> Result<Volume> {
         let g = fbm(p * freq, 6, seed);
         g + 0.5 * g * g * g.signum()
     })?;
-    let (lo, hi) = raw.data().iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let (lo, hi) = raw
+        .data()
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
     let span = (hi - lo).max(f32::MIN_POSITIVE);
     let g = Grid::from_fn(geom, |x, y, z| {
         let u = (raw.data()[geom.index(x, y, z)] - lo) / span;
@@ -284,7 +323,7 @@ pub fn marschner_lobb(res: usize) -> Result<Volume> {
 pub fn marschner_lobb_at(p: Vec3) -> f32 {
     use std::f32::consts::PI;
     let (fm, alpha) = (6.0f32, 0.25f32);
-    let r = (p.x * p.x + p.y * p.y).sqrt();
+    let r = p.x.hypot(p.y);
     let rho_r = (2.0 * PI * fm * (PI * r / 2.0).cos()).cos();
     (1.0 - (PI * p.z / 2.0).sin() + alpha * (1.0 + rho_r)) / (2.0 * (1.0 + alpha))
 }
@@ -297,7 +336,8 @@ pub fn channels12(res: usize, seed: u64) -> Result<Volume> {
     let mut v = Volume::new(geom)?;
     for i in 0..12u64 {
         let s = seed.wrapping_mul(1000).wrapping_add(i);
-        let c = Vec3::new(hash(s, 1, 0, 0), hash(s, 2, 0, 0), hash(s, 3, 0, 0)) * 0.6 + Vec3::splat(0.2);
+        let c = Vec3::new(hash(s, 1, 0, 0), hash(s, 2, 0, 0), hash(s, 3, 0, 0)) * 0.6
+            + Vec3::splat(0.2);
         let g = Grid::from_fn(geom, |x, y, z| {
             let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
             let d2 = (p - c).length_squared();

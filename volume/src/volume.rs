@@ -29,7 +29,10 @@ impl Volume {
     /// An empty volume with `geometry`.
     pub fn new(geometry: Geometry) -> Result<Self> {
         geometry.validate()?;
-        Ok(Volume { geometry, channels: Vec::new() })
+        Ok(Volume {
+            geometry,
+            channels: Vec::new(),
+        })
     }
 
     /// A one-channel volume.
@@ -43,7 +46,11 @@ impl Volume {
     /// Adds a channel; refuses a duplicate name or a grid with different dims. The grid's
     /// origin and spacing are replaced by the volume's.
     pub fn push(&mut self, name: impl Into<String>, grid: impl Into<AnyGrid>) -> Result<()> {
-        self.push_channel(Channel { name: name.into(), grid: grid.into(), stored_as: None })
+        self.push_channel(Channel {
+            name: name.into(),
+            grid: grid.into(),
+            stored_as: None,
+        })
     }
 
     /// Adds a channel with its on-disk type (see [`Volume::push`]).
@@ -57,7 +64,10 @@ impl Volume {
             )));
         }
         if self.channel(&channel.name).is_some() {
-            return Err(Error::parameter(format!("duplicate channel name '{}'", channel.name)));
+            return Err(Error::parameter(format!(
+                "duplicate channel name '{}'",
+                channel.name
+            )));
         }
         channel.grid.set_geometry(self.geometry)?;
         self.channels.push(channel);
@@ -101,7 +111,10 @@ impl Volume {
     pub fn grid(&self, name: &str) -> Result<&AnyGrid> {
         self.channel(name).map(|c| &c.grid).ok_or_else(|| {
             let names: Vec<&str> = self.channels.iter().map(|c| c.name.as_str()).collect();
-            Error::parameter(format!("no channel '{name}' (channels: {})", names.join(", ")))
+            Error::parameter(format!(
+                "no channel '{name}' (channels: {})",
+                names.join(", ")
+            ))
         })
     }
 
@@ -117,6 +130,8 @@ impl Volume {
 
     /// Refuses NaN/Inf in any channel.
     pub fn reject_non_finite(&self) -> Result<()> {
-        self.channels.iter().try_for_each(|c| c.grid.reject_non_finite())
+        self.channels
+            .iter()
+            .try_for_each(|c| c.grid.reject_non_finite())
     }
 }

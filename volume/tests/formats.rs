@@ -8,13 +8,18 @@ use blueshift_volume::{AnyGrid, DiskType, Error, ReadOptions, Volume, read, read
 use glam::Vec3;
 
 fn data(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
 }
 
 /// The shared real datasets, or `None` with a printed reason (the tests then skip).
 fn shared(rel: &str) -> Option<PathBuf> {
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut candidates: Vec<PathBuf> = std::env::var_os("BLUESHIFT_SHARED_DATA").map(PathBuf::from).into_iter().collect();
+    let mut candidates: Vec<PathBuf> = std::env::var_os("BLUESHIFT_SHARED_DATA")
+        .map(PathBuf::from)
+        .into_iter()
+        .collect();
     candidates.push(manifest.join("../../shared/data"));
     candidates.push(manifest.join("../../../shared/data"));
     for c in candidates {
@@ -23,18 +28,29 @@ fn shared(rel: &str) -> Option<PathBuf> {
             return Some(p);
         }
     }
-    eprintln!("SKIP: shared data file {rel} not found (set BLUESHIFT_SHARED_DATA to ../shared/data)");
+    eprintln!(
+        "SKIP: shared data file {rel} not found (set BLUESHIFT_SHARED_DATA to ../shared/data)"
+    );
     None
 }
 
 fn i16_le(bytes: &[u8]) -> Vec<f32> {
-    bytes.chunks_exact(2).map(|c| f32::from(i16::from_le_bytes([c[0], c[1]]))).collect()
+    bytes
+        .chunks_exact(2)
+        .map(|c| f32::from(i16::from_le_bytes([c[0], c[1]])))
+        .collect()
 }
 fn f32_le(bytes: &[u8]) -> Vec<f32> {
-    bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
 }
 fn f32_be(bytes: &[u8]) -> Vec<f32> {
-    bytes.chunks_exact(4).map(|c| f32::from_be_bytes([c[0], c[1], c[2], c[3]])).collect()
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_be_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
 }
 
 fn scalars(v: &Volume, ch: usize) -> Vec<f32> {
@@ -49,7 +65,11 @@ fn vectors(v: &Volume, name: &str) -> Vec<f32> {
 }
 
 fn assert_close(a: Vec3, b: Vec3, what: &str) {
-    assert!((a - b).abs().max_element() < 1e-4, "{what}: expected {b}, got {a}, diff {}", (a - b).abs());
+    assert!(
+        (a - b).abs().max_element() < 1e-4,
+        "{what}: expected {b}, got {a}, diff {}",
+        (a - b).abs()
+    );
 }
 
 #[test]
@@ -58,11 +78,23 @@ fn headsq_crop_reads_identically_in_every_format() {
     let org = Vec3::new(20.0 * 3.2, 20.0 * 3.2, 40.0 * 1.5);
     let cases: [(&str, Vec3, Vec3); 7] = [
         ("valid/headsq_crop_16x16x8_int16.raw", Vec3::ONE, Vec3::ZERO),
-        ("valid/headsq_crop_be.nrrd", Vec3::new(3.2, 3.2, 1.5), Vec3::ZERO),
+        (
+            "valid/headsq_crop_be.nrrd",
+            Vec3::new(3.2, 3.2, 1.5),
+            Vec3::ZERO,
+        ),
         ("valid/headsq_crop_gzip.nrrd", Vec3::new(3.2, 3.2, 1.5), org),
-        ("valid/headsq_crop.nhdr", Vec3::new(3.2, 3.2, 1.5), Vec3::ZERO),
+        (
+            "valid/headsq_crop.nhdr",
+            Vec3::new(3.2, 3.2, 1.5),
+            Vec3::ZERO,
+        ),
         ("valid/headsq_crop.mha", Vec3::new(3.2, 3.2, 1.5), org),
-        ("valid/headsq_crop.mhd", Vec3::new(3.2, 3.2, 1.5), Vec3::ZERO),
+        (
+            "valid/headsq_crop.mhd",
+            Vec3::new(3.2, 3.2, 1.5),
+            Vec3::ZERO,
+        ),
         ("valid/headsq_crop_ascii.vtk", Vec3::new(3.2, 3.2, 1.5), org),
     ];
     for (file, spacing, origin) in cases {
@@ -77,8 +109,10 @@ fn headsq_crop_reads_identically_in_every_format() {
 
 #[test]
 fn carotid_crop_vtk_loads_scalars_and_interleaved_vectors() {
-    let s_ref = f32_le(&std::fs::read(data("valid/carotid_crop_scalars_8x8x6_float32.raw")).unwrap());
-    let v_ref = f32_le(&std::fs::read(data("valid/carotid_crop_vectors_8x8x6x3_float32.raw")).unwrap());
+    let s_ref =
+        f32_le(&std::fs::read(data("valid/carotid_crop_scalars_8x8x6_float32.raw")).unwrap());
+    let v_ref =
+        f32_le(&std::fs::read(data("valid/carotid_crop_vectors_8x8x6x3_float32.raw")).unwrap());
     let v = read(data("valid/carotid_crop_binary.vtk")).unwrap();
     assert_eq!(v.geometry().dims, [8, 8, 6]);
     assert_close(v.geometry().origin, Vec3::new(130.0, 100.0, 21.0), "origin");
@@ -96,7 +130,9 @@ fn carotid_crop_vtk_loads_scalars_and_interleaved_vectors() {
 
 #[test]
 fn headsq_matches_independent_decode_and_published_statistics() {
-    let Some(nhdr) = shared("headsq/headsq_64x64x93_int16le.nhdr") else { return };
+    let Some(nhdr) = shared("headsq/headsq_64x64x93_int16le.nhdr") else {
+        return;
+    };
     let raw = i16_le(&std::fs::read(nhdr.with_file_name("headsq_64x64x93_int16le.raw")).unwrap());
     let v = read(&nhdr).unwrap();
     assert_eq!(v.geometry().dims, [64, 64, 93]);
@@ -106,36 +142,59 @@ fn headsq_matches_independent_decode_and_published_statistics() {
     // SOURCE.md: values 0..3926, mean 507.7.
     assert_eq!(v.channels()[0].grid.finite_range(), Some((0.0, 3926.0)));
     let mean = got.iter().map(|&x| f64::from(x)).sum::<f64>() / got.len() as f64;
-    assert!((mean - 507.7).abs() < 0.05, "mean {mean}, SOURCE.md says 507.7");
+    assert!(
+        (mean - 507.7).abs() < 0.05,
+        "mean {mean}, SOURCE.md says 507.7"
+    );
 }
 
 #[test]
 fn lidc2_gzip_nrrd_matches_flate2_and_published_mean() {
-    let Some(nhdr) = shared("lidc2-ct/lidc2_256x256x133_uint8.nhdr") else { return };
+    let Some(nhdr) = shared("lidc2-ct/lidc2_256x256x133_uint8.nhdr") else {
+        return;
+    };
     use std::io::Read;
     let mut raw = Vec::new();
-    flate2::read::GzDecoder::new(std::fs::File::open(nhdr.with_file_name("lidc2_256x256x133_uint8.raw.gz")).unwrap())
-        .read_to_end(&mut raw)
-        .unwrap();
+    flate2::read::GzDecoder::new(
+        std::fs::File::open(nhdr.with_file_name("lidc2_256x256x133_uint8.raw.gz")).unwrap(),
+    )
+    .read_to_end(&mut raw)
+    .unwrap();
     let v = read(&nhdr).unwrap();
     assert_eq!(v.geometry().dims, [256, 256, 133]);
-    assert_close(v.geometry().spacing, Vec3::new(1.40625, 1.40625, 2.5), "spacing");
-    let AnyGrid::U8(g) = &v.channels()[0].grid else { panic!("uint8 should stay u8") };
+    assert_close(
+        v.geometry().spacing,
+        Vec3::new(1.40625, 1.40625, 2.5),
+        "spacing",
+    );
+    let AnyGrid::U8(g) = &v.channels()[0].grid else {
+        panic!("uint8 should stay u8")
+    };
     assert_eq!(g.data(), &raw[..]);
     let mean = raw.iter().map(|&b| f64::from(b)).sum::<f64>() / raw.len() as f64;
-    assert!((mean - 7.05).abs() < 0.01, "mean {mean}, SOURCE.md says 7.05");
+    assert!(
+        (mean - 7.05).abs() < 0.01,
+        "mean {mean}, SOURCE.md says 7.05"
+    );
 }
 
 #[test]
 fn ironprot_vtk_equals_its_extracted_raw() {
-    let Some(vtk) = shared("ironprot/ironProt.vtk") else { return };
+    let Some(vtk) = shared("ironprot/ironProt.vtk") else {
+        return;
+    };
     let raw = std::fs::read(vtk.with_file_name("ironProt_68x68x68_uint8.raw")).unwrap();
     let v = read(&vtk).unwrap();
     assert_eq!(v.geometry().dims, [68, 68, 68]);
-    let AnyGrid::U8(g) = &v.channels()[0].grid else { panic!("unsigned_char should load as u8") };
+    let AnyGrid::U8(g) = &v.channels()[0].grid else {
+        panic!("unsigned_char should load as u8")
+    };
     assert_eq!(g.data(), &raw[..]);
     let mean = raw.iter().map(|&b| f64::from(b)).sum::<f64>() / raw.len() as f64;
-    assert!((mean - 13.1).abs() < 0.05, "mean {mean}, SOURCE.md says 13.1");
+    assert!(
+        (mean - 13.1).abs() < 0.05,
+        "mean {mean}, SOURCE.md says 13.1"
+    );
     // The NRRD header over the same bytes gives the same grid.
     let n = read(vtk.with_file_name("ironProt_68x68x68_uint8.nhdr")).unwrap();
     assert_eq!(n.channels()[0].grid, v.channels()[0].grid);
@@ -143,7 +202,9 @@ fn ironprot_vtk_equals_its_extracted_raw() {
 
 #[test]
 fn carotid_vtk_matches_byte_offsets_of_source_md() {
-    let Some(vtk) = shared("carotid-flow/carotid.vtk") else { return };
+    let Some(vtk) = shared("carotid-flow/carotid.vtk") else {
+        return;
+    };
     let bytes = std::fs::read(&vtk).unwrap();
     let n = 76 * 49 * 45;
     // SOURCE.md: scalars at byte 182, vectors at byte 670525, both big-endian f32.
@@ -159,19 +220,29 @@ fn carotid_vtk_matches_byte_offsets_of_source_md() {
 
 #[test]
 fn enzo_channels_match_source_md_ranges() {
-    let Some(d) = shared("enzo-moving7/density_gcm3_64x64x64_f32le.nhdr") else { return };
+    let Some(d) = shared("enzo-moving7/density_gcm3_64x64x64_f32le.nhdr") else {
+        return;
+    };
     let dens = read(&d).unwrap();
     assert_close(dens.geometry().spacing, Vec3::splat(0.015625), "spacing");
     let (_, hi) = dens.channels()[0].grid.finite_range().unwrap();
     assert!((hi / 2.75e-24 - 1.0).abs() < 0.01, "max density {hi}");
     let t = read(d.with_file_name("temperature_K_64x64x64_f32le.nhdr")).unwrap();
     let (lo, hi) = t.channels()[0].grid.finite_range().unwrap();
-    assert!((lo - 1.0).abs() < 0.01 && (hi - 16_697.0).abs() < 1.0, "temperature {lo}..{hi}");
+    assert!(
+        (lo - 1.0).abs() < 0.01 && (hi - 16_697.0).abs() < 1.0,
+        "temperature {lo}..{hi}"
+    );
     let vel = read(d.with_file_name("velocity_kms_64x64x64x3_f32le.nhdr")).unwrap();
     assert_eq!(vel.geometry().dims, [64, 64, 64]);
     let comps = vectors(&vel, "vectors");
-    let (lo, hi) = comps.iter().fold((f32::MAX, f32::MIN), |(a, b), &c| (a.min(c), b.max(c)));
-    assert!((lo - 155.6).abs() < 0.1 && (hi - 331.9).abs() < 0.1, "velocity {lo}..{hi} km/s");
+    let (lo, hi) = comps
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &c| (a.min(c), b.max(c)));
+    assert!(
+        (lo - 155.6).abs() < 0.1 && (hi - 331.9).abs() < 0.1,
+        "velocity {lo}..{hi} km/s"
+    );
     // The raw file by its Open SciVis-style name gives the same vectors.
     let raw = read(d.with_file_name("velocity_kms_64x64x64x3_f32le.raw")).unwrap();
     assert_eq!(vectors(&raw, "vectors"), comps);
@@ -183,7 +254,12 @@ fn nrrd_writer_round_trips_and_keeps_i16_and_spacing() {
     let dir = tempfile::tempdir().unwrap();
     for gzip in [false, true] {
         let out = dir.path().join(format!("rt{gzip}.nrrd"));
-        let written = nrrd::write_file(&out, &v.channels()[0], &nrrd::WriteOptions { gzip, disk: None }).unwrap();
+        let written = nrrd::write_file(
+            &out,
+            &v.channels()[0],
+            &nrrd::WriteOptions { gzip, disk: None },
+        )
+        .unwrap();
         assert_eq!(written, DiskType::I16);
         let text = std::fs::read(&out).unwrap();
         assert!(text.starts_with(b"NRRD0004\n") && text.windows(12).any(|w| w == b"type: int16\n"));
@@ -194,8 +270,16 @@ fn nrrd_writer_round_trips_and_keeps_i16_and_spacing() {
     // Vectors round-trip as a 4D float NRRD.
     let c = read(data("valid/carotid_crop_binary.vtk")).unwrap();
     let out = dir.path().join("vec.nrrd");
-    nrrd::write_file(&out, c.channel("vectors").unwrap(), &nrrd::WriteOptions::default()).unwrap();
-    assert_eq!(vectors(&read(&out).unwrap(), "vectors"), vectors(&c, "vectors"));
+    nrrd::write_file(
+        &out,
+        c.channel("vectors").unwrap(),
+        &nrrd::WriteOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(
+        vectors(&read(&out).unwrap(), "vectors"),
+        vectors(&c, "vectors")
+    );
 }
 
 #[test]
@@ -215,19 +299,42 @@ fn raw_writer_round_trips_through_the_scivis_name() {
 fn non_finite_values_are_refused_on_request() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("nan.nrrd");
-    let mut b = b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 1 1\nendian: little\nencoding: raw\n\n".to_vec();
+    let mut b =
+        b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 1 1\nendian: little\nencoding: raw\n\n"
+            .to_vec();
     b.extend_from_slice(&1.0f32.to_le_bytes());
     b.extend_from_slice(&f32::NAN.to_le_bytes());
     std::fs::write(&p, &b).unwrap();
     assert!(read(&p).is_ok(), "NaN is allowed by default");
-    let err = read_with(&p, &ReadOptions { reject_non_finite: true, ..Default::default() }).unwrap_err();
-    assert!(matches!(err, Error::NonFinite { x: 1, y: 0, z: 0, .. }), "{err}");
+    let err = read_with(
+        &p,
+        &ReadOptions {
+            reject_non_finite: true,
+            ..Default::default()
+        },
+    )
+    .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            Error::NonFinite {
+                x: 1,
+                y: 0,
+                z: 0,
+                ..
+            }
+        ),
+        "{err}"
+    );
 }
 
 #[test]
 fn limits_refuse_before_allocating() {
     let opts = ReadOptions {
-        limits: blueshift_volume::Limits { max_voxels: 1000, max_alloc_bytes: 1 << 20 },
+        limits: blueshift_volume::Limits {
+            max_voxels: 1000,
+            max_alloc_bytes: 1 << 20,
+        },
         ..Default::default()
     };
     let err = read_with(data("valid/headsq_crop.mha"), &opts).unwrap_err();
@@ -243,7 +350,11 @@ fn invalid_files_error_without_panic() {
         let r = read(&p);
         assert!(r.is_err(), "{} should be refused", p.display());
         let msg = r.unwrap_err().to_string();
-        assert!(!msg.is_empty() && !msg.contains('\n'), "one-line message for {}: {msg}", p.display());
+        assert!(
+            !msg.is_empty() && !msg.contains('\n'),
+            "one-line message for {}: {msg}",
+            p.display()
+        );
         n += 1;
     }
     assert!(n >= 25, "only {n} invalid files tested");
@@ -272,7 +383,13 @@ mod mutated_headers {
         std::fs::write(&p, bytes).unwrap();
         let raw = "headsq_crop_16x16x8_int16.raw";
         std::fs::copy(data(&format!("valid/{raw}")), dir.path().join(raw)).unwrap();
-        let opts = ReadOptions { limits: blueshift_volume::Limits { max_voxels: 1 << 22, max_alloc_bytes: 1 << 26 }, ..Default::default() };
+        let opts = ReadOptions {
+            limits: blueshift_volume::Limits {
+                max_voxels: 1 << 22,
+                max_alloc_bytes: 1 << 26,
+            },
+            ..Default::default()
+        };
         let _ = read_with(&p, &opts);
     }
 

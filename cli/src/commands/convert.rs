@@ -45,7 +45,14 @@ pub struct Args {
 }
 
 fn parse_vec3(s: &str) -> Result<Vec3, String> {
-    let v: Vec<f32> = s.split(',').map(|c| c.trim().parse::<f32>().map_err(|_| format!("'{c}' is not a number"))).collect::<Result<_, _>>()?;
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|c| {
+            c.trim()
+                .parse::<f32>()
+                .map_err(|_| format!("'{c}' is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
     match v.as_slice() {
         [x, y, z] if v.iter().all(|c| c.is_finite() && *c > 0.0) => Ok(Vec3::new(*x, *y, *z)),
         _ => Err(format!("'{s}' must be three positive numbers sx,sy,sz")),
@@ -54,7 +61,9 @@ fn parse_vec3(s: &str) -> Result<Vec3, String> {
 
 fn progress_bar(total: u64) -> indicatif::ProgressBar {
     let pb = indicatif::ProgressBar::new(total);
-    if let Ok(style) = indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} slices ({eta})") {
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} slices ({eta})")
+    {
         pb.set_style(style.progress_chars("=> "));
     }
     pb.set_message("bricking");
@@ -65,30 +74,44 @@ fn progress_bar(total: u64) -> indicatif::ProgressBar {
 pub fn run(args: Args) -> Result<()> {
     let fmt = out_format(&args.output)?;
     let ctx = || format!("cannot convert {}", args.input.display());
-    let read = |p: &std::path::Path| blueshift_volume::read(p).map_err(|e| anyhow::anyhow!("{e}: {}", p.display()));
+    let read = |p: &std::path::Path| {
+        blueshift_volume::read(p).map_err(|e| anyhow::anyhow!("{e}: {}", p.display()))
+    };
     if fmt == OutFormat::Bricked {
-        let layout = BrickLayout { brick: args.brick, ..BrickLayout::default() };
+        let layout = BrickLayout {
+            brick: args.brick,
+            ..BrickLayout::default()
+        };
         // Stream straight from the file when its voxels are stored uncompressed.
-        if args.channel.is_none() {
-            if let Some(mut src) = RawFileSource::probe(&args.input).with_context(ctx)? {
-                if let Some(s) = args.spacing {
-                    let g = src.geometry();
-                    src.set_geometry(Geometry { spacing: s, ..g }).with_context(ctx)?;
-                }
-                return brick(&mut src, &args, "scalars", layout);
+        if args.channel.is_none()
+            && let Some(mut src) = RawFileSource::probe(&args.input).with_context(ctx)?
+        {
+            if let Some(s) = args.spacing {
+                let g = src.geometry();
+                src.set_geometry(Geometry { spacing: s, ..g })
+                    .with_context(ctx)?;
             }
+            return brick(&mut src, &args, "scalars", layout);
         }
         let mut vol = read(&args.input)?;
         if let Some(s) = args.spacing {
-            vol.set_geometry(Geometry { spacing: s, ..*vol.geometry() }).with_context(ctx)?;
+            vol.set_geometry(Geometry {
+                spacing: s,
+                ..*vol.geometry()
+            })
+            .with_context(ctx)?;
         }
         let ch = match &args.channel {
-            Some(name) => vol.channel(name).ok_or_else(|| anyhow::anyhow!("no channel '{name}' in {}", args.input.display()))?,
+            Some(name) => vol.channel(name).ok_or_else(|| {
+                anyhow::anyhow!("no channel '{name}' in {}", args.input.display())
+            })?,
             None => vol
                 .channels()
                 .iter()
                 .find(|c| !c.grid.is_vector())
-                .ok_or_else(|| anyhow::anyhow!("{} has no scalar channel to brick", args.input.display()))?,
+                .ok_or_else(|| {
+                    anyhow::anyhow!("{} has no scalar channel to brick", args.input.display())
+                })?,
         };
         let name = ch.name.clone();
         return match &ch.grid {
@@ -96,14 +119,23 @@ pub fn run(args: Args) -> Result<()> {
             AnyGrid::U16(g) => brick(&mut GridSource(g), &args, &name, layout),
             AnyGrid::F16(g) => brick(&mut GridSource(g), &args, &name, layout),
             AnyGrid::F32(g) => brick(&mut GridSource(g), &args, &name, layout),
-            AnyGrid::Vec3(_) => anyhow::bail!("channel '{name}' is a vector field; bricked files hold scalars"),
+            AnyGrid::Vec3(_) => {
+                anyhow::bail!("channel '{name}' is a vector field; bricked files hold scalars")
+            }
         };
     }
     let mut vol = read(&args.input)?;
     if let Some(s) = args.spacing {
-        vol.set_geometry(Geometry { spacing: s, ..*vol.geometry() }).with_context(ctx)?;
+        vol.set_geometry(Geometry {
+            spacing: s,
+            ..*vol.geometry()
+        })
+        .with_context(ctx)?;
     }
-    let opts = nrrd::WriteOptions { gzip: args.gzip, disk: args.disk_type };
+    let opts = nrrd::WriteOptions {
+        gzip: args.gzip,
+        disk: args.disk_type,
+    };
     let written = write_volume(&args.output, &vol, args.channel.as_deref(), &opts)?;
     for p in written {
         eprintln!("wrote {}", p.display());

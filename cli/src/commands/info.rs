@@ -53,7 +53,11 @@ fn stats(c: &Channel, bins: usize) -> Option<Stats> {
     let mut counts = vec![0u64; bins];
     let width = (max - min) / bins as f64;
     for &v in &vals {
-        let b = if width > 0.0 { ((f64::from(v) - min) / width) as usize } else { 0 };
+        let b = if width > 0.0 {
+            ((f64::from(v) - min) / width) as usize
+        } else {
+            0
+        };
         counts[b.min(bins - 1)] += 1;
     }
     Some(Stats {
@@ -83,8 +87,10 @@ fn type_name(c: &Channel) -> String {
 
 /// Runs `blueshift info`.
 pub fn run(args: Args) -> Result<()> {
-    let format = detect_format(&args.file).map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
-    let vol = blueshift_volume::read(&args.file).map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
+    let format =
+        detect_format(&args.file).map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
+    let vol = blueshift_volume::read(&args.file)
+        .map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
     let g = *vol.geometry();
     let bins = args.bins as usize;
     let per: Vec<_> = vol.channels().iter().map(|c| (c, stats(c, bins))).collect();
@@ -104,8 +110,14 @@ pub fn run(args: Args) -> Result<()> {
                     o["mean"] = json!(s.mean);
                     o["finite_count"] = json!(s.count);
                     o["non_finite_count"] = json!(s.non_finite);
-                    o["percentiles"] = json!(s.percentiles.iter().map(|(p, v)| (format!("p{p}"), json!(*v))).collect::<serde_json::Map<String, serde_json::Value>>());
-                    o["histogram"] = json!({ "bins": bins, "min": s.min, "max": s.max, "counts": s.counts });
+                    o["percentiles"] = json!(
+                        s.percentiles
+                            .iter()
+                            .map(|(p, v)| (format!("p{p}"), json!(*v)))
+                            .collect::<serde_json::Map<String, serde_json::Value>>()
+                    );
+                    o["histogram"] =
+                        json!({ "bins": bins, "min": s.min, "max": s.max, "counts": s.counts });
                 } else {
                     o["min"] = serde_json::Value::Null;
                     o["max"] = serde_json::Value::Null;
@@ -130,25 +142,54 @@ pub fn run(args: Args) -> Result<()> {
     let mut t = String::new();
     writeln!(t, "file: {}", args.file.display())?;
     writeln!(t, "format: {format:?}")?;
-    writeln!(t, "dims: {} x {} x {} ({} voxels)", g.dims[0], g.dims[1], g.dims[2], g.voxel_count())?;
-    writeln!(t, "spacing: {} {} {}", g.spacing.x, g.spacing.y, g.spacing.z)?;
+    writeln!(
+        t,
+        "dims: {} x {} x {} ({} voxels)",
+        g.dims[0],
+        g.dims[1],
+        g.dims[2],
+        g.voxel_count()
+    )?;
+    writeln!(
+        t,
+        "spacing: {} {} {}",
+        g.spacing.x, g.spacing.y, g.spacing.z
+    )?;
     writeln!(t, "origin: {} {} {}", g.origin.x, g.origin.y, g.origin.z)?;
     for (c, s) in &per {
-        writeln!(t, "channel '{}': type {} (in memory {})", c.name, type_name(c), c.grid.scalar_type().name())?;
+        writeln!(
+            t,
+            "channel '{}': type {} (in memory {})",
+            c.name,
+            type_name(c),
+            c.grid.scalar_type().name()
+        )?;
         match s {
             None => writeln!(t, "  no finite values")?,
             Some(s) => {
-                writeln!(t, "  min {:.6e}  max {:.6e}  mean {:.6e}", s.min, s.max, s.mean)?;
+                writeln!(
+                    t,
+                    "  min {:.6e}  max {:.6e}  mean {:.6e}",
+                    s.min, s.max, s.mean
+                )?;
                 if s.non_finite > 0 {
                     writeln!(t, "  {} non-finite values (NaN/Inf)", s.non_finite)?;
                 }
-                let p: Vec<String> = s.percentiles.iter().map(|(p, v)| format!("p{p} {v:.4e}")).collect();
+                let p: Vec<String> = s
+                    .percentiles
+                    .iter()
+                    .map(|(p, v)| format!("p{p} {v:.4e}"))
+                    .collect();
                 writeln!(t, "  percentiles: {}", p.join("  "))?;
                 if s.min > 0.0 {
                     writeln!(t, "  dynamic range: {:.2} decades", (s.max / s.min).log10())?;
                 }
                 let peak = s.counts.iter().copied().max().unwrap_or(1).max(1);
-                writeln!(t, "  histogram ({} bins, {:.4e} .. {:.4e}):", bins, s.min, s.max)?;
+                writeln!(
+                    t,
+                    "  histogram ({} bins, {:.4e} .. {:.4e}):",
+                    bins, s.min, s.max
+                )?;
                 for (i, &n) in s.counts.iter().enumerate() {
                     let lo = s.min + (s.max - s.min) * i as f64 / bins as f64;
                     let bar = "#".repeat(((n as f64 / peak as f64) * 40.0).ceil() as usize);

@@ -1,7 +1,7 @@
 //! One module per `blueshift` verb.
 
-pub mod spectrum;
-pub mod info;
 pub mod convert;
+pub mod info;
+pub mod spectrum;
 pub mod synth;
 mod volume_common;

@@ -37,8 +37,12 @@ pub struct Args {
 
 /// Runs `blueshift synth`.
 pub fn run(args: Args) -> Result<()> {
-    let vol = synth::by_name(&args.name, args.res, args.seed).with_context(|| format!("cannot make '{}'", args.name))?;
-    let opts = nrrd::WriteOptions { gzip: args.gzip, disk: None };
+    let vol = synth::by_name(&args.name, args.res, args.seed)
+        .with_context(|| format!("cannot make '{}'", args.name))?;
+    let opts = nrrd::WriteOptions {
+        gzip: args.gzip,
+        disk: None,
+    };
     for p in write_volume(&args.output, &vol, args.channel.as_deref(), &opts)? {
         eprintln!("wrote {}", p.display());
     }

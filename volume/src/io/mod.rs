@@ -161,7 +161,11 @@ pub(crate) struct Layout {
 impl Layout {
     /// Bytes of voxel data the layout needs; checks limits first.
     pub fn byte_len(&self, limits: &Limits) -> Result<usize> {
-        let mem = if self.components == 3 { 12 } else { self.disk.size_bytes().max(4) };
+        let mem = if self.components == 3 {
+            12
+        } else {
+            self.disk.size_bytes().max(4)
+        };
         let n = limits.check(self.dims, mem)?;
         let bytes = n
             .checked_mul((self.disk.size_bytes() * self.components) as u64)
@@ -177,8 +181,12 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
     let mut out = Vec::new();
     let got = match encoding {
         Encoding::Raw => r.take(len as u64).read_to_end(&mut out)?,
-        Encoding::Gzip => flate2::read::MultiGzDecoder::new(r).take(len as u64).read_to_end(&mut out)?,
-        Encoding::Zlib => flate2::read::ZlibDecoder::new(r).take(len as u64).read_to_end(&mut out)?,
+        Encoding::Gzip => flate2::read::MultiGzDecoder::new(r)
+            .take(len as u64)
+            .read_to_end(&mut out)?,
+        Encoding::Zlib => flate2::read::ZlibDecoder::new(r)
+            .take(len as u64)
+            .read_to_end(&mut out)?,
     };
     if got < len {
         return Err(Error::invalid(format!(
@@ -190,8 +198,12 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
 
 /// Opens a file and returns it with its length.
 pub(crate) fn open(path: &Path) -> Result<(std::fs::File, u64)> {
-    let f = std::fs::File::open(path)
-        .map_err(|e| Error::Io(std::io::Error::new(e.kind(), format!("{e}: {}", path.display()))))?;
+    let f = std::fs::File::open(path).map_err(|e| {
+        Error::Io(std::io::Error::new(
+            e.kind(),
+            format!("{e}: {}", path.display()),
+        ))
+    })?;
     let len = f.metadata()?.len();
     Ok((f, len))
 }
@@ -206,7 +218,9 @@ pub(crate) fn decode(bytes: &[u8], layout: &Layout, geometry: Geometry) -> Resul
     }
     let comp = |i: usize| -> f32 { component(&bytes[i * size..i * size + size], layout.disk, big) };
     if layout.components == 3 {
-        let data = (0..n / 3).map(|i| Vec3::new(comp(3 * i), comp(3 * i + 1), comp(3 * i + 2))).collect();
+        let data = (0..n / 3)
+            .map(|i| Vec3::new(comp(3 * i), comp(3 * i + 1), comp(3 * i + 2)))
+            .collect();
         return Ok(Grid::from_vec(geometry, data)?.into());
     }
     if layout.components != 1 {
@@ -220,7 +234,13 @@ pub(crate) fn decode(bytes: &[u8], layout: &Layout, geometry: Geometry) -> Resul
         DiskType::U16 => {
             let data = bytes[..2 * n]
                 .chunks_exact(2)
-                .map(|c| if big { u16::from_be_bytes([c[0], c[1]]) } else { u16::from_le_bytes([c[0], c[1]]) })
+                .map(|c| {
+                    if big {
+                        u16::from_be_bytes([c[0], c[1]])
+                    } else {
+                        u16::from_le_bytes([c[0], c[1]])
+                    }
+                })
                 .collect();
             Grid::from_vec(geometry, data)?.into()
         }
@@ -235,7 +255,11 @@ fn component(b: &[u8], disk: DiskType, big: bool) -> f32 {
         ($t:ty, $n:literal) => {{
             let mut a = [0u8; $n];
             a.copy_from_slice(b);
-            if big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }
+            if big {
+                <$t>::from_be_bytes(a)
+            } else {
+                <$t>::from_le_bytes(a)
+            }
         }};
     }
     match disk {
@@ -251,12 +275,21 @@ fn component(b: &[u8], disk: DiskType, big: bool) -> f32 {
 }
 
 /// Wraps a decoded grid as a one-channel volume, applying the options.
-pub(crate) fn finish(name: &str, grid: AnyGrid, disk: DiskType, opts: &ReadOptions) -> Result<Volume> {
+pub(crate) fn finish(
+    name: &str,
+    grid: AnyGrid,
+    disk: DiskType,
+    opts: &ReadOptions,
+) -> Result<Volume> {
     if opts.reject_non_finite {
         grid.reject_non_finite()?;
     }
     let mut v = Volume::new(*grid.geometry())?;
-    v.push_channel(Channel { name: name.to_string(), grid, stored_as: Some(disk) })?;
+    v.push_channel(Channel {
+        name: name.to_string(),
+        grid,
+        stored_as: Some(disk),
+    })?;
     Ok(v)
 }
 
@@ -301,7 +334,10 @@ pub enum Format {
 
 /// Guesses the format from the extension, then from the first bytes of the file.
 pub fn detect_format(path: &Path) -> Result<Format> {
-    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
     let by_ext = if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
         Some(Format::Nrrd)
     } else if name.ends_with(".mhd") || name.ends_with(".mha") {
@@ -388,7 +424,11 @@ pub fn output_type(channel: &Channel) -> DiskType {
     match channel.stored_as {
         Some(d) if d != natural && !channel.grid.is_vector() => {
             let n = channel.grid.geometry().voxel_count();
-            if (0..n).all(|i| d.holds_exactly(channel.grid.scalar_at(i))) { d } else { natural }
+            if (0..n).all(|i| d.holds_exactly(channel.grid.scalar_at(i))) {
+                d
+            } else {
+                natural
+            }
         }
         Some(DiskType::F64) => DiskType::F64,
         _ => natural,

@@ -13,7 +13,10 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::{DiskType, Encoding, Endian, Layout, ReadOptions, decode, finish, open, parse_dim, parse_f32, read_payload};
+use super::{
+    DiskType, Encoding, Endian, Layout, ReadOptions, decode, finish, open, parse_dim, parse_f32,
+    read_payload,
+};
 use crate::grid::Geometry;
 use crate::volume::{Channel, Volume};
 use crate::{Error, Result};
@@ -38,14 +41,18 @@ pub(crate) fn read_line(r: &mut impl BufRead, pos: &mut u64) -> Result<Option<St
     while matches!(buf.last(), Some(b'\n' | b'\r')) {
         buf.pop();
     }
-    String::from_utf8(buf).map(Some).map_err(|_| Error::invalid("header line is not UTF-8 text"))
+    String::from_utf8(buf)
+        .map(Some)
+        .map_err(|_| Error::invalid("header line is not UTF-8 text"))
 }
 
 fn nrrd_type(s: &str) -> Result<DiskType> {
     Ok(match s.trim() {
         "signed char" | "int8" | "int8_t" => DiskType::I8,
         "uchar" | "unsigned char" | "uint8" | "uint8_t" => DiskType::U8,
-        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => DiskType::I16,
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
+            DiskType::I16
+        }
         "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => DiskType::U16,
         "int" | "signed int" | "int32" | "int32_t" => DiskType::I32,
         "uint" | "unsigned int" | "uint32" | "uint32_t" => DiskType::U32,
@@ -75,7 +82,10 @@ fn parse_vector(s: &str, what: &str) -> Result<Vec<f32>> {
         .strip_prefix('(')
         .and_then(|t| t.strip_suffix(')'))
         .ok_or_else(|| Error::invalid(format!("NRRD {what}: '{s}' is not a (x,y,z) vector")))?;
-    inner.split(',').map(|c| parse_f32(c, &format!("NRRD {what}"))).collect()
+    inner
+        .split(',')
+        .map(|c| parse_f32(c, &format!("NRRD {what}")))
+        .collect()
 }
 
 /// Splits `space directions` into per-axis entries: `(..)` groups or `none`.
@@ -87,11 +97,15 @@ fn split_directions(s: &str) -> Result<Vec<Option<Vec<f32>>>> {
             out.push(None);
             rest = r.trim_start();
         } else if rest.starts_with('(') {
-            let end = rest.find(')').ok_or_else(|| Error::invalid("NRRD space directions: missing ')'"))?;
+            let end = rest
+                .find(')')
+                .ok_or_else(|| Error::invalid("NRRD space directions: missing ')'"))?;
             out.push(Some(parse_vector(&rest[..=end], "space directions")?));
             rest = rest[end + 1..].trim_start();
         } else {
-            return Err(Error::invalid(format!("NRRD space directions: unexpected '{rest}'")));
+            return Err(Error::invalid(format!(
+                "NRRD space directions: unexpected '{rest}'"
+            )));
         }
         if out.len() > 16 {
             return Err(Error::invalid("NRRD space directions: too many entries"));
@@ -106,7 +120,10 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
     let mut pos = 0u64;
     let magic = read_line(&mut r, &mut pos)?.ok_or_else(|| Error::invalid("NRRD: empty file"))?;
     if !magic.starts_with("NRRD000") {
-        return Err(Error::invalid(format!("NRRD: bad magic '{}'", magic.chars().take(16).collect::<String>())));
+        return Err(Error::invalid(format!(
+            "NRRD: bad magic '{}'",
+            magic.chars().take(16).collect::<String>()
+        )));
     }
     let mut disk = None;
     let mut dimension = None;
@@ -121,7 +138,9 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
     let mut line_skip: usize = 0;
     let mut ended_by_blank = false;
     for _ in 0..MAX_LINES {
-        let Some(line) = read_line(&mut r, &mut pos)? else { break };
+        let Some(line) = read_line(&mut r, &mut pos)? else {
+            break;
+        };
         if line.is_empty() {
             ended_by_blank = true;
             break;
@@ -137,12 +156,25 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
         match key.trim() {
             "type" => disk = Some(nrrd_type(value)?),
             "dimension" => dimension = Some(parse_dim(value, "NRRD dimension")?),
-            "sizes" => sizes = Some(value.split_whitespace().map(|s| parse_dim(s, "NRRD sizes")).collect::<Result<_>>()?),
+            "sizes" => {
+                sizes = Some(
+                    value
+                        .split_whitespace()
+                        .map(|s| parse_dim(s, "NRRD sizes"))
+                        .collect::<Result<_>>()?,
+                )
+            }
             "spacings" => {
                 spacings = Some(
                     value
                         .split_whitespace()
-                        .map(|s| if s.eq_ignore_ascii_case("nan") { Ok(f32::NAN) } else { parse_f32(s, "NRRD spacings") })
+                        .map(|s| {
+                            if s.eq_ignore_ascii_case("nan") {
+                                Ok(f32::NAN)
+                            } else {
+                                parse_f32(s, "NRRD spacings")
+                            }
+                        })
                         .collect::<Result<_>>()?,
                 );
             }
@@ -165,18 +197,26 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
                 encoding = Some(match value {
                     "raw" => Encoding::Raw,
                     "gzip" | "gz" => Encoding::Gzip,
-                    other => return Err(Error::unsupported(format!("NRRD encoding '{other}' (raw and gzip are read)"))),
+                    other => {
+                        return Err(Error::unsupported(format!(
+                            "NRRD encoding '{other}' (raw and gzip are read)"
+                        )));
+                    }
                 });
             }
             "data file" | "datafile" => data_file = Some(value.to_string()),
             "byte skip" | "byteskip" => {
-                byte_skip = value.parse().map_err(|_| Error::invalid(format!("NRRD byte skip '{value}'")))?;
+                byte_skip = value
+                    .parse()
+                    .map_err(|_| Error::invalid(format!("NRRD byte skip '{value}'")))?;
                 if byte_skip < -1 {
                     return Err(Error::invalid(format!("NRRD byte skip {byte_skip}")));
                 }
             }
             "line skip" | "lineskip" => {
-                line_skip = value.parse().map_err(|_| Error::invalid(format!("NRRD line skip '{value}'")))?;
+                line_skip = value
+                    .parse()
+                    .map_err(|_| Error::invalid(format!("NRRD line skip '{value}'")))?;
                 if line_skip > MAX_LINES {
                     return Err(Error::invalid(format!("NRRD line skip {line_skip}")));
                 }
@@ -188,11 +228,16 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
     let sizes = sizes.ok_or_else(|| Error::invalid("NRRD: missing 'sizes'"))?;
     let dimension = dimension.ok_or_else(|| Error::invalid("NRRD: missing 'dimension'"))?;
     if sizes.len() != dimension {
-        return Err(Error::invalid(format!("NRRD: sizes has {} entries, dimension is {dimension}", sizes.len())));
+        return Err(Error::invalid(format!(
+            "NRRD: sizes has {} entries, dimension is {dimension}",
+            sizes.len()
+        )));
     }
     let encoding = encoding.ok_or_else(|| Error::invalid("NRRD: missing 'encoding'"))?;
     if endian.is_none() && disk.size_bytes() > 1 {
-        return Err(Error::invalid("NRRD: missing 'endian' for a multi-byte type"));
+        return Err(Error::invalid(
+            "NRRD: missing 'endian' for a multi-byte type",
+        ));
     }
     let endian = endian.unwrap_or(Endian::Little);
     // Axes: optional leading component axis (size 1 or 3), then up to 3 spatial axes.
@@ -210,11 +255,16 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
     let mut spacing = Vec3::ONE;
     if let Some(sp) = &spacings {
         if sp.len() != dimension {
-            return Err(Error::invalid(format!("NRRD: spacings has {} entries, dimension is {dimension}", sp.len())));
+            return Err(Error::invalid(format!(
+                "NRRD: spacings has {} entries, dimension is {dimension}",
+                sp.len()
+            )));
         }
         for (a, s) in sp[spatial_start..].iter().enumerate() {
             if !s.is_finite() || *s == 0.0 {
-                return Err(Error::invalid(format!("NRRD: spacing {s} on spatial axis {a}")));
+                return Err(Error::invalid(format!(
+                    "NRRD: spacing {s} on spatial axis {a}"
+                )));
             }
             spacing[a] = s.abs();
         }
@@ -227,42 +277,77 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
             )));
         }
         for (a, d) in dirs[spatial_start..].iter().enumerate() {
-            let d = d.as_ref().ok_or_else(|| Error::invalid("NRRD: 'none' direction on a spatial axis"))?;
+            let d = d
+                .as_ref()
+                .ok_or_else(|| Error::invalid("NRRD: 'none' direction on a spatial axis"))?;
             if d.len() != 3 {
-                return Err(Error::unsupported("NRRD: space directions with other than 3 components"));
+                return Err(Error::unsupported(
+                    "NRRD: space directions with other than 3 components",
+                ));
             }
             let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            let off = (0..3).filter(|&i| i != a).map(|i| d[i].abs()).fold(0.0, f32::max);
+            let off = (0..3)
+                .filter(|&i| i != a)
+                .map(|i| d[i].abs())
+                .fold(0.0, f32::max);
             if off > 1e-6 * len {
-                return Err(Error::unsupported(format!("NRRD: rotated space direction {d:?} (only axis-aligned)")));
+                return Err(Error::unsupported(format!(
+                    "NRRD: rotated space direction {d:?} (only axis-aligned)"
+                )));
             }
             spacing[a] = len;
         }
     }
-    let geometry = Geometry { dims, origin, spacing };
-    geometry.validate().map_err(|e| Error::invalid(format!("NRRD: {e}")))?;
-    let layout = Layout { dims, disk, endian, components };
+    let geometry = Geometry {
+        dims,
+        origin,
+        spacing,
+    };
+    geometry
+        .validate()
+        .map_err(|e| Error::invalid(format!("NRRD: {e}")))?;
+    let layout = Layout {
+        dims,
+        disk,
+        endian,
+        components,
+    };
     layout.byte_len(limits)?;
     let data_file = match &data_file {
         Some(name) => {
             if name.starts_with("LIST") || name.contains('%') {
-                return Err(Error::unsupported("NRRD: multi-file data ('LIST' or a format pattern)"));
+                return Err(Error::unsupported(
+                    "NRRD: multi-file data ('LIST' or a format pattern)",
+                ));
             }
             Some(path.parent().unwrap_or(Path::new(".")).join(name))
         }
         None => {
             if !ended_by_blank {
-                return Err(Error::invalid("NRRD: header does not end with a blank line and names no data file"));
+                return Err(Error::invalid(
+                    "NRRD: header does not end with a blank line and names no data file",
+                ));
             }
             None
         }
     };
-    Ok(Header { layout, geometry, encoding, data_file, byte_skip, line_skip, header_end: pos })
+    Ok(Header {
+        layout,
+        geometry,
+        encoding,
+        data_file,
+        byte_skip,
+        line_skip,
+        header_end: pos,
+    })
 }
 
 /// Where a raw-encoded NRRD keeps its voxels: file, byte offset, layout and geometry.
 /// `None` for gzip data or headers with `line skip`/`byte skip -1` (read those in core).
-pub(crate) fn raw_payload(path: &Path, limits: &crate::Limits) -> Result<Option<(PathBuf, u64, Layout, Geometry)>> {
+pub(crate) fn raw_payload(
+    path: &Path,
+    limits: &crate::Limits,
+) -> Result<Option<(PathBuf, u64, Layout, Geometry)>> {
     let h = parse_header(path, limits)?;
     if h.encoding != Encoding::Raw || h.line_skip != 0 || h.byte_skip < 0 {
         return Ok(None);
@@ -287,7 +372,8 @@ struct Header {
 /// Reads an NRRD file (attached or detached).
 pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     let h = parse_header(path, &opts.limits)?;
-    let (layout, geometry, encoding, byte_skip, line_skip) = (h.layout, h.geometry, h.encoding, h.byte_skip, h.line_skip);
+    let (layout, geometry, encoding, byte_skip, line_skip) =
+        (h.layout, h.geometry, h.encoding, h.byte_skip, h.line_skip);
     let (components, disk) = (layout.components, layout.disk);
     let len = layout.byte_len(&opts.limits)?;
     let (mut src, src_len, start): (Box<dyn Read>, u64, u64) = match &h.data_file {
@@ -307,7 +393,9 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
         let mut b = [0u8; 1];
         loop {
             if src.read(&mut b)? == 0 {
-                return Err(Error::invalid("NRRD: line skip runs past the end of the data"));
+                return Err(Error::invalid(
+                    "NRRD: line skip runs past the end of the data",
+                ));
             }
             consumed += 1;
             if b[0] == b'\n' {
@@ -318,7 +406,9 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     let remaining = src_len.saturating_sub(consumed);
     if byte_skip == -1 {
         if encoding != Encoding::Raw {
-            return Err(Error::invalid("NRRD: byte skip -1 is only valid with raw encoding"));
+            return Err(Error::invalid(
+                "NRRD: byte skip -1 is only valid with raw encoding",
+            ));
         }
         if (len as u64) > remaining {
             return Err(truncated(len, remaining, path));
@@ -327,9 +417,14 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
         let skip = remaining - len as u64;
         std::io::copy(&mut src.by_ref().take(skip), &mut std::io::sink())?;
     } else if byte_skip > 0 {
-        let got = std::io::copy(&mut src.by_ref().take(byte_skip as u64), &mut std::io::sink())?;
+        let got = std::io::copy(
+            &mut src.by_ref().take(byte_skip as u64),
+            &mut std::io::sink(),
+        )?;
         if got < byte_skip as u64 {
-            return Err(Error::invalid("NRRD: byte skip runs past the end of the data"));
+            return Err(Error::invalid(
+                "NRRD: byte skip runs past the end of the data",
+            ));
         }
         if encoding == Encoding::Raw && (len as u64) > remaining - got {
             return Err(truncated(len, remaining - got, path));
@@ -339,7 +434,11 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     }
     let bytes = read_payload(src, encoding, len)?;
     let grid = decode(&bytes, &layout, geometry)?;
-    let name = if components == 3 { "vectors" } else { "scalars" };
+    let name = if components == 3 {
+        "vectors"
+    } else {
+        "scalars"
+    };
     finish(name, grid, disk, opts)
 }
 
@@ -369,18 +468,30 @@ fn header(channel: &Channel, disk: DiskType, gzip: bool, data_file: Option<&str>
     let mut h = String::from("NRRD0004\n# written by blueshift-volume\n");
     h += &format!("type: {}\n", nrrd_type_name(disk));
     if channel.grid.is_vector() {
-        h += &format!("dimension: 4\nsizes: 3 {nx} {ny} {nz}\nkinds: 3-vector domain domain domain\n");
-        h += &format!("space: 3D-right-handed\nspace directions: none ({},0,0) (0,{},0) (0,0,{})\n", s.x, s.y, s.z);
+        h += &format!(
+            "dimension: 4\nsizes: 3 {nx} {ny} {nz}\nkinds: 3-vector domain domain domain\n"
+        );
+        h += &format!(
+            "space: 3D-right-handed\nspace directions: none ({},0,0) (0,{},0) (0,0,{})\n",
+            s.x, s.y, s.z
+        );
     } else {
         h += &format!("dimension: 3\nsizes: {nx} {ny} {nz}\n");
-        h += &format!("space: 3D-right-handed\nspace directions: ({},0,0) (0,{},0) (0,0,{})\n", s.x, s.y, s.z);
+        h += &format!(
+            "space: 3D-right-handed\nspace directions: ({},0,0) (0,{},0) (0,0,{})\n",
+            s.x, s.y, s.z
+        );
     }
     h += &format!("space origin: ({},{},{})\n", o.x, o.y, o.z);
     h += &format!("content: {}\n", channel.name.replace(['\n', '\r'], " "));
     if disk.size_bytes() > 1 {
         h += "endian: little\n";
     }
-    h += if gzip { "encoding: gzip\n" } else { "encoding: raw\n" };
+    h += if gzip {
+        "encoding: gzip\n"
+    } else {
+        "encoding: raw\n"
+    };
     if let Some(d) = data_file {
         h += &format!("data file: {d}\n");
     }

@@ -29,14 +29,19 @@ pub struct SciVisName {
 #[must_use]
 pub fn parse_scivis_name(path: &Path) -> Option<SciVisName> {
     let name = path.file_name()?.to_str()?;
-    let stem = name.strip_suffix(".raw").or_else(|| name.strip_suffix(".RAW"))?;
+    let stem = name
+        .strip_suffix(".raw")
+        .or_else(|| name.strip_suffix(".RAW"))?;
     let mut parts = stem.rsplitn(3, '_');
     let dtype = parts.next()?;
     let size = parts.next()?;
     let _name = parts.next()?;
     let dtype = dtype.trim_end_matches("le").trim_end_matches("be");
     let disk = DiskType::from_scivis_name(dtype)?;
-    let nums: Vec<usize> = size.split('x').map(|s| s.parse().ok()).collect::<Option<_>>()?;
+    let nums: Vec<usize> = size
+        .split('x')
+        .map(|s| s.parse().ok())
+        .collect::<Option<_>>()?;
     let (dims, components) = match nums.as_slice() {
         [x, y, z] => ([*x, *y, *z], 1),
         [x, y, z, 3] => ([*x, *y, *z], 3),
@@ -45,13 +50,23 @@ pub fn parse_scivis_name(path: &Path) -> Option<SciVisName> {
     if dims.contains(&0) {
         return None;
     }
-    Some(SciVisName { dims, disk, components })
+    Some(SciVisName {
+        dims,
+        disk,
+        components,
+    })
 }
 
 /// The Open SciVis file name for a volume: `{name}_{X}x{Y}x{Z}_{dtype}.raw`.
 #[must_use]
 pub fn scivis_file_name(name: &str, dims: [usize; 3], disk: DiskType) -> String {
-    format!("{name}_{}x{}x{}_{}.raw", dims[0], dims[1], dims[2], disk.scivis_name())
+    format!(
+        "{name}_{}x{}x{}_{}.raw",
+        dims[0],
+        dims[1],
+        dims[2],
+        disk.scivis_name()
+    )
 }
 
 /// Reads a raw file whose name follows the Open SciVis convention (little-endian unless
@@ -63,8 +78,15 @@ pub fn read_scivis(path: &Path, opts: &ReadOptions) -> Result<Volume> {
             path.display()
         ))
     })?;
-    let fname = path.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
-    let endian = if fname.trim_end_matches(".raw").ends_with("be") { Endian::Big } else { Endian::Little };
+    let fname = path
+        .file_name()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    let endian = if fname.trim_end_matches(".raw").ends_with("be") {
+        Endian::Big
+    } else {
+        Endian::Little
+    };
     read_raw(path, n.dims, n.disk, endian, n.components, 0, opts)
 }
 
@@ -80,9 +102,16 @@ pub fn read_raw(
     opts: &ReadOptions,
 ) -> Result<Volume> {
     if components != 1 && components != 3 {
-        return Err(Error::parameter(format!("{components} components (1 or 3)")));
+        return Err(Error::parameter(format!(
+            "{components} components (1 or 3)"
+        )));
     }
-    let layout = Layout { dims, disk, endian, components };
+    let layout = Layout {
+        dims,
+        disk,
+        endian,
+        components,
+    };
     let len = layout.byte_len(&opts.limits)?;
     let (mut f, file_len) = open(path)?;
     let avail = file_len.saturating_sub(offset);
@@ -97,7 +126,11 @@ pub fn read_raw(
     f.seek(SeekFrom::Start(offset))?;
     let bytes = read_payload(std::io::BufReader::new(f), Encoding::Raw, len)?;
     let grid = decode(&bytes, &layout, Geometry::unit(dims))?;
-    let name = if components == 3 { "vectors" } else { "scalars" };
+    let name = if components == 3 {
+        "vectors"
+    } else {
+        "scalars"
+    };
     finish(name, grid, disk, opts)
 }
 
@@ -109,7 +142,11 @@ pub fn write_raw(w: &mut dyn Write, channel: &Channel) -> Result<DiskType> {
 
 /// Writes a channel as headerless little-endian voxels of `disk` (or
 /// [`super::output_type`] for `None`); integer targets round to nearest and saturate.
-pub fn write_raw_as(w: &mut dyn Write, channel: &Channel, disk: Option<DiskType>) -> Result<DiskType> {
+pub fn write_raw_as(
+    w: &mut dyn Write,
+    channel: &Channel,
+    disk: Option<DiskType>,
+) -> Result<DiskType> {
     let disk = disk.unwrap_or_else(|| super::output_type(channel));
     w.write_all(&super::encode(&channel.grid, disk))?;
     Ok(disk)

@@ -8,7 +8,10 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use super::{DiskType, Encoding, Endian, Layout, ReadOptions, decode, open, parse_dim, parse_f32, read_payload};
+use super::{
+    DiskType, Encoding, Endian, Layout, ReadOptions, decode, open, parse_dim, parse_f32,
+    read_payload,
+};
 use crate::grid::Geometry;
 use crate::volume::{Channel, Volume};
 use crate::{Error, Result};
@@ -47,11 +50,14 @@ impl<R: BufRead> Lexer<R> {
         if tok.is_empty() {
             return Ok(None);
         }
-        String::from_utf8(tok).map(Some).map_err(|_| Error::invalid("VTK: header is not text"))
+        String::from_utf8(tok)
+            .map(Some)
+            .map_err(|_| Error::invalid("VTK: header is not text"))
     }
 
     fn expect_token(&mut self, what: &str) -> Result<String> {
-        self.token()?.ok_or_else(|| Error::invalid(format!("VTK: file ends where {what} was expected")))
+        self.token()?
+            .ok_or_else(|| Error::invalid(format!("VTK: file ends where {what} was expected")))
     }
 
     /// Rest of the current line (after the last token), consuming the newline.
@@ -77,23 +83,39 @@ fn vtk_type(s: &str) -> Result<DiskType> {
 /// Reads a legacy VTK structured-points file; one channel per `SCALARS`/`VECTORS` block.
 pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     let (f, file_len) = open(path)?;
-    let mut lx = Lexer { r: BufReader::new(f), pos: 0, len: file_len };
+    let mut lx = Lexer {
+        r: BufReader::new(f),
+        pos: 0,
+        len: file_len,
+    };
     let magic = lx.rest_of_line()?;
     if !magic.starts_with("# vtk DataFile") {
-        return Err(Error::invalid("VTK: first line is not '# vtk DataFile Version ...'"));
+        return Err(Error::invalid(
+            "VTK: first line is not '# vtk DataFile Version ...'",
+        ));
     }
     let _title = lx.rest_of_line()?;
-    let binary = match lx.expect_token("ASCII or BINARY")?.to_ascii_uppercase().as_str() {
+    let binary = match lx
+        .expect_token("ASCII or BINARY")?
+        .to_ascii_uppercase()
+        .as_str()
+    {
         "BINARY" => true,
         "ASCII" => false,
-        other => return Err(Error::invalid(format!("VTK: '{other}' where ASCII or BINARY was expected"))),
+        other => {
+            return Err(Error::invalid(format!(
+                "VTK: '{other}' where ASCII or BINARY was expected"
+            )));
+        }
     };
-    if lx.expect_token("DATASET")?.to_ascii_uppercase() != "DATASET" {
+    if !lx.expect_token("DATASET")?.eq_ignore_ascii_case("DATASET") {
         return Err(Error::invalid("VTK: missing DATASET"));
     }
     let ds = lx.expect_token("dataset type")?;
     if !ds.eq_ignore_ascii_case("STRUCTURED_POINTS") {
-        return Err(Error::unsupported(format!("VTK dataset '{ds}' (STRUCTURED_POINTS only)")));
+        return Err(Error::unsupported(format!(
+            "VTK dataset '{ds}' (STRUCTURED_POINTS only)"
+        )));
     }
     let mut dims = None;
     let mut spacing = Vec3::ONE;
@@ -118,14 +140,33 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
             }
             "SPACING" | "ASPECT_RATIO" => spacing = vec3(&mut lx, "SPACING")?,
             "ORIGIN" => origin = vec3(&mut lx, "ORIGIN")?,
-            "POINT_DATA" => npoints = Some(parse_dim(&lx.expect_token("POINT_DATA")?, "VTK POINT_DATA")?),
+            "POINT_DATA" => {
+                npoints = Some(parse_dim(
+                    &lx.expect_token("POINT_DATA")?,
+                    "VTK POINT_DATA",
+                )?)
+            }
             kw @ ("SCALARS" | "VECTORS") => {
-                let dims = dims.ok_or_else(|| Error::invalid("VTK: attribute data before DIMENSIONS"))?;
-                let n = npoints.ok_or_else(|| Error::invalid("VTK: attribute data before POINT_DATA"))?;
-                let geometry = Geometry { dims, origin, spacing };
-                geometry.validate().map_err(|e| Error::invalid(format!("VTK: {e}")))?;
-                if Some(n) != dims[0].checked_mul(dims[1]).and_then(|v| v.checked_mul(dims[2])) {
-                    return Err(Error::invalid(format!("VTK: POINT_DATA {n} does not match DIMENSIONS {dims:?}")));
+                let dims =
+                    dims.ok_or_else(|| Error::invalid("VTK: attribute data before DIMENSIONS"))?;
+                let n = npoints
+                    .ok_or_else(|| Error::invalid("VTK: attribute data before POINT_DATA"))?;
+                let geometry = Geometry {
+                    dims,
+                    origin,
+                    spacing,
+                };
+                geometry
+                    .validate()
+                    .map_err(|e| Error::invalid(format!("VTK: {e}")))?;
+                if Some(n)
+                    != dims[0]
+                        .checked_mul(dims[1])
+                        .and_then(|v| v.checked_mul(dims[2]))
+                {
+                    return Err(Error::invalid(format!(
+                        "VTK: POINT_DATA {n} does not match DIMENSIONS {dims:?}"
+                    )));
                 }
                 let name = lx.expect_token("attribute name")?;
                 let disk = vtk_type(&lx.expect_token("data type")?)?;
@@ -136,17 +177,26 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                         components = parse_dim(c, "VTK SCALARS numComp")?;
                     }
                     if components != 1 && components != 3 {
-                        return Err(Error::unsupported(format!("VTK SCALARS with {components} components")));
+                        return Err(Error::unsupported(format!(
+                            "VTK SCALARS with {components} components"
+                        )));
                     }
                     // The format requires a `LOOKUP_TABLE name` line after SCALARS.
                     let lt = lx.expect_token("LOOKUP_TABLE")?;
                     if !lt.eq_ignore_ascii_case("LOOKUP_TABLE") {
-                        return Err(Error::invalid(format!("VTK: '{lt}' where LOOKUP_TABLE was expected")));
+                        return Err(Error::invalid(format!(
+                            "VTK: '{lt}' where LOOKUP_TABLE was expected"
+                        )));
                     }
                     lx.expect_token("lookup table name")?;
                     lx.rest_of_line()?;
                 }
-                let layout = Layout { dims, disk, endian: Endian::Big, components };
+                let layout = Layout {
+                    dims,
+                    disk,
+                    endian: Endian::Big,
+                    components,
+                };
                 let len = layout.byte_len(&opts.limits)?;
                 let bytes = if binary {
                     let avail = lx.len.saturating_sub(lx.pos);
@@ -162,12 +212,16 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                 } else {
                     let count = n * components;
                     if count as u64 > lx.len.saturating_sub(lx.pos) {
-                        return Err(Error::invalid(format!("VTK: truncated ASCII data for {kw} {name}")));
+                        return Err(Error::invalid(format!(
+                            "VTK: truncated ASCII data for {kw} {name}"
+                        )));
                     }
                     let mut b = Vec::with_capacity(len);
                     for _ in 0..count {
                         let t = lx.expect_token("ASCII voxel values")?;
-                        let v: f64 = t.parse().map_err(|_| Error::invalid(format!("VTK: '{t}' is not a number")))?;
+                        let v: f64 = t
+                            .parse()
+                            .map_err(|_| Error::invalid(format!("VTK: '{t}' is not a number")))?;
                         put_be(&mut b, disk, v);
                     }
                     b
@@ -186,14 +240,26 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                     cname = format!("{name}_{k}");
                     k += 1;
                 }
-                v.push_channel(Channel { name: cname, grid, stored_as: Some(disk) })?;
+                v.push_channel(Channel {
+                    name: cname,
+                    grid,
+                    stored_as: Some(disk),
+                })?;
             }
-            "CELL_DATA" | "FIELD" | "NORMALS" | "TENSORS" | "TEXTURE_COORDINATES" | "COLOR_SCALARS" | "LOOKUP_TABLE" => {
+            "CELL_DATA"
+            | "FIELD"
+            | "NORMALS"
+            | "TENSORS"
+            | "TEXTURE_COORDINATES"
+            | "COLOR_SCALARS"
+            | "LOOKUP_TABLE" => {
                 // Attributes this reader does not load: stop here, keeping what was read.
                 if volume.is_some() {
                     break;
                 }
-                return Err(Error::unsupported(format!("VTK attribute '{tok}' (SCALARS and VECTORS are read)")));
+                return Err(Error::unsupported(format!(
+                    "VTK attribute '{tok}' (SCALARS and VECTORS are read)"
+                )));
             }
             other => return Err(Error::invalid(format!("VTK: unexpected keyword '{other}'"))),
         }
