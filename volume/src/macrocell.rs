@@ -232,14 +232,33 @@ impl Macrocells {
             }
         }
         ok &= t0 <= t1;
-        ValueIntervals {
-            cells: self,
-            o,
-            d,
-            t: t0,
-            t_end: t1,
-            done: !ok,
+        // Standard 3D DDA state (Amanatides & Woo) in cell units.
+        let mut cell = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut t_max = [f32::INFINITY; 3];
+        let mut t_delta = [f32::INFINITY; 3];
+        if ok {
+            let p = o + d * t0;
+            for a in 0..3 {
+                let mut q = p[a].floor();
+                // On a face while moving backwards, the cell being entered is the lower one.
+                if d[a] < 0.0 && p[a] == q {
+                    q -= 1.0;
+                }
+                let c = (q.max(0.0) as i64).min(self.dims[a] as i64 - 1);
+                cell[a] = c;
+                if d[a] > 0.0 {
+                    step[a] = 1;
+                    t_delta[a] = 1.0 / d[a];
+                    t_max[a] = ((c + 1) as f32 - o[a]) / d[a];
+                } else if d[a] < 0.0 {
+                    step[a] = -1;
+                    t_delta[a] = -1.0 / d[a];
+                    t_max[a] = (c as f32 - o[a]) / d[a];
+                }
+            }
         }
+        ValueIntervals { cells: self, cell, step, t_max, t_delta, t: t0, t_end: t1, done: !ok }
     }
 }
 
@@ -247,8 +266,10 @@ impl Macrocells {
 #[derive(Debug)]
 pub struct ValueIntervals<'a> {
     cells: &'a Macrocells,
-    o: Vec3,
-    d: Vec3,
+    cell: [i64; 3],
+    step: [i64; 3],
+    t_max: [f32; 3],
+    t_delta: [f32; 3],
     t: f32,
     t_end: f32,
     done: bool,
@@ -261,64 +282,26 @@ impl Iterator for ValueIntervals<'_> {
         if self.done {
             return None;
         }
-        let dims = self.cells.dims;
-        // Current cell: evaluate at the interval start, nudged along the ray so a point on
-        // a face picks the cell being entered.
-        let p = self.o + self.d * self.t;
-        let mut c = [0usize; 3];
-        let mut t_exit = self.t_end;
-        for a in 0..3 {
-            let mut q = p[a].floor();
-            if self.d[a] < 0.0 && p[a] == q {
-                q -= 1.0;
-            }
-            let ca = if q < 0.0 {
-                0
-            } else {
-                (q as usize).min(dims[a] - 1)
-            };
-            c[a] = ca;
-            if self.d[a] > 0.0 {
-                let face = if ca + 1 == dims[a] {
-                    f32::INFINITY
-                } else {
-                    (ca + 1) as f32
-                };
-                t_exit = t_exit.min((face - self.o[a]) / self.d[a]);
-            } else if self.d[a] < 0.0 {
-                let face = if ca == 0 {
-                    f32::NEG_INFINITY
-                } else {
-                    ca as f32
-                };
-                t_exit = t_exit.min((face - self.o[a]) / self.d[a]);
-            }
-        }
-        // Guard against zero-length steps from rounding.
-        if t_exit <= self.t {
-            t_exit = next_up(self.t).min(self.t_end);
-        }
+        let t_next = self.t_max[0].min(self.t_max[1]).min(self.t_max[2]);
+        let t_exit = t_next.min(self.t_end).max(self.t);
+        let c = self.cell.map(|v| v as usize);
         let (lo, hi) = self.cells.min_max(c);
-        let iv = ValueInterval {
-            t: self.t..t_exit,
-            value: lo..hi,
-            cell: c,
-        };
+        let iv = ValueInterval { t: self.t..t_exit, value: lo..hi, cell: c };
         if t_exit >= self.t_end {
             self.done = true;
+        } else {
+            // Step every axis whose face is crossed here (edges and corners at once).
+            for a in 0..3 {
+                if self.t_max[a] <= t_next {
+                    self.cell[a] += self.step[a];
+                    self.t_max[a] += self.t_delta[a];
+                    if self.cell[a] < 0 || self.cell[a] >= self.cells.dims[a] as i64 {
+                        self.done = true;
+                    }
+                }
+            }
         }
         self.t = t_exit;
         Some(iv)
     }
-}
-
-fn next_up(x: f32) -> f32 {
-    if x.is_nan() || x == f32::INFINITY {
-        return x;
-    }
-    if x == 0.0 {
-        return f32::from_bits(1);
-    }
-    let b = x.to_bits();
-    f32::from_bits(if x > 0.0 { b + 1 } else { b - 1 })
 }
