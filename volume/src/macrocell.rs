@@ -258,7 +258,16 @@ impl Macrocells {
                 }
             }
         }
-        ValueIntervals { cells: self, cell, step, t_max, t_delta, t: t0, t_end: t1, done: !ok }
+        ValueIntervals {
+            cells: self,
+            cell,
+            step,
+            t_max,
+            t_delta,
+            t: t0,
+            t_end: t1,
+            done: !ok,
+        }
     }
 }
 
@@ -286,7 +295,11 @@ impl Iterator for ValueIntervals<'_> {
         let t_exit = t_next.min(self.t_end).max(self.t);
         let c = self.cell.map(|v| v as usize);
         let (lo, hi) = self.cells.min_max(c);
-        let iv = ValueInterval { t: self.t..t_exit, value: lo..hi, cell: c };
+        let iv = ValueInterval {
+            t: self.t..t_exit,
+            value: lo..hi,
+            cell: c,
+        };
         if t_exit >= self.t_end {
             self.done = true;
         } else {

@@ -23,7 +23,6 @@
 //! edge), so trilinear sampling never needs a second brick. Levels are added until every
 //! dimension fits in one brick. Voxels are stored as f32 whatever the source type.
 
-use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::Path;
@@ -438,9 +437,12 @@ fn brick_level(
 
 type BrickKey = (u32, u64);
 
+/// Decoded bricks: one slot per brick of every level (indexing instead of hashing keeps warm
+/// lookups cheap), plus the list of occupied slots for least-recently-used eviction.
 #[derive(Debug, Default)]
 struct Cache {
-    map: HashMap<BrickKey, (Arc<[f32]>, u64)>,
+    slots: Vec<Vec<Option<(Arc<[f32]>, u64)>>>,
+    resident: Vec<BrickKey>,
     tick: u64,
 }
 
@@ -525,6 +527,19 @@ impl BrickedFile {
                 path.display()
             )));
         }
+        // The file holds every brick (checked above), so these slots are bounded by its size.
+        let slots = geoms
+            .iter()
+            .map(|g| {
+                let b = layout.bricks(g.dims);
+                vec![None; b[0] * b[1] * b[2]]
+            })
+            .collect();
+        let cache = Mutex::new(Cache {
+            slots,
+            resident: Vec::new(),
+            tick: 0,
+        });
         Ok(BrickedFile {
             map,
             layout,
@@ -532,7 +547,7 @@ impl BrickedFile {
             offsets,
             name,
             capacity: cache_bricks.max(1),
-            cache: Mutex::new(Cache::default()),
+            cache,
         })
     }
 
@@ -568,19 +583,26 @@ impl BrickedFile {
                 self.geoms.len()
             )));
         }
-        Ok(LevelSampler { file: self, level })
+        Ok(LevelSampler {
+            file: self,
+            level,
+            last: std::cell::RefCell::new(None),
+        })
     }
 
     /// Number of decoded bricks held now.
     #[must_use]
     pub fn resident_bricks(&self) -> usize {
-        self.cache.lock().map(|c| c.map.len()).unwrap_or(0)
+        self.cache.lock().map(|c| c.resident.len()).unwrap_or(0)
     }
 
     /// Drops every cached brick (a cold cache).
     pub fn clear_cache(&self) {
         if let Ok(mut c) = self.cache.lock() {
-            c.map.clear();
+            let c = &mut *c;
+            for (l, i) in c.resident.drain(..) {
+                c.slots[l as usize][i as usize] = None;
+            }
         }
     }
 
@@ -605,39 +627,36 @@ impl BrickedFile {
                     (q[a].max(0.0) as usize).min(g.dims[a] - 1)
                 }
             });
-            cache.map.contains_key(&(l as u32, self.brick_of(l, v)))
+            cache.slots[l][self.brick_of(l, v) as usize].is_some()
         })
     }
 
     fn brick(&self, level: usize, idx: u64) -> Result<Arc<[f32]>> {
-        let key = (level as u32, idx);
-        let mut c = self
+        let mut guard = self
             .cache
             .lock()
             .map_err(|_| Error::invalid("brick cache poisoned"))?;
+        let c = &mut *guard;
         c.tick += 1;
         let tick = c.tick;
-        if let Some(e) = c.map.get_mut(&key) {
+        if let Some(e) = &mut c.slots[level][idx as usize] {
             e.1 = tick;
             return Ok(e.0.clone());
         }
-        let s = self.layout.stored_edge();
-        let n = s * s * s;
-        let start = (self.offsets[level] + idx * (n as u64 * 4)) as usize;
-        let bytes = self
-            .map
-            .get(start..start + 4 * n)
-            .ok_or_else(|| Error::invalid("bricked file: brick outside the file"))?;
-        let data: Arc<[f32]> = bytes
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect();
-        if c.map.len() >= self.capacity
-            && let Some(old) = c.map.iter().min_by_key(|(_, v)| v.1).map(|(k, _)| *k)
-        {
-            c.map.remove(&old);
+        let data: Arc<[f32]> = self.read_brick_uncached(level, idx)?.into();
+        if c.resident.len() >= self.capacity {
+            // Evict the least recently used brick.
+            let slots = &c.slots;
+            if let Some(pos) = (0..c.resident.len()).min_by_key(|&i| {
+                let (l, b) = c.resident[i];
+                slots[l as usize][b as usize].as_ref().map_or(0, |e| e.1)
+            }) {
+                let (l, b) = c.resident.swap_remove(pos);
+                c.slots[l as usize][b as usize] = None;
+            }
         }
-        c.map.insert(key, (data.clone(), tick));
+        c.slots[level][idx as usize] = Some((data.clone(), tick));
+        c.resident.push((level as u32, idx));
         Ok(data)
     }
 
@@ -692,10 +711,15 @@ impl BrickedFile {
 
 /// One level of a [`BrickedFile`] as a [`Sampler`]; gives the same values as trilinear
 /// sampling of the in-core grid, voxel for voxel.
-#[derive(Debug, Clone, Copy)]
+///
+/// It remembers the last brick it used, so coherent samples (along a ray) skip the shared
+/// cache; make one sampler per thread (it is `Send`, not `Sync`). The remembered brick may
+/// outlive its eviction from the cache by one brick per sampler.
+#[derive(Debug)]
 pub struct LevelSampler<'a> {
     file: &'a BrickedFile,
     level: usize,
+    last: std::cell::RefCell<Option<(u64, Arc<[f32]>)>>,
 }
 
 impl Sampler for LevelSampler<'_> {
@@ -717,7 +741,16 @@ impl Sampler for LevelSampler<'_> {
         let t = p - f;
         let v0 = [f.x as usize, f.y as usize, f.z as usize];
         let idx = self.file.brick_of(self.level, v0);
-        let brick = self.file.brick(self.level, idx)?;
+        let mut last = self.last.borrow_mut();
+        let brick = match &*last {
+            Some((i, b)) if *i == idx => b.clone(),
+            _ => {
+                let b = self.file.brick(self.level, idx)?;
+                *last = Some((idx, b.clone()));
+                b
+            }
+        };
+        drop(last);
         let (b, a, s) = (
             self.file.layout.brick,
             self.file.layout.apron,

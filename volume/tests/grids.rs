@@ -407,9 +407,15 @@ fn a_diagonal_ray_through_cell_corners_visits_each_diagonal_cell_once() {
     // 17^3 voxels, k = 4: 4 cells per axis; the main diagonal passes exactly through corners.
     let g = Grid::from_fn(Geometry::unit([17, 17, 17]), |x, y, z| (x + y + z) as f32).unwrap();
     let cells = Macrocells::build(&g, 4).unwrap();
-    let ivs: Vec<_> = cells.intervals(Vec3::splat(-2.0), Vec3::ONE, 0.0..100.0).collect();
+    let ivs: Vec<_> = cells
+        .intervals(Vec3::splat(-2.0), Vec3::ONE, 0.0..100.0)
+        .collect();
     let visited: Vec<_> = ivs.iter().map(|iv| iv.cell).collect();
     assert_eq!(visited, vec![[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]]);
     assert!(ivs.iter().all(|iv| iv.t.end > iv.t.start), "{ivs:?}");
-    assert_eq!((ivs[0].t.start, ivs[3].t.end), (2.0, 18.0), "clipped to the voxel-centre box 0..=16");
+    assert_eq!(
+        (ivs[0].t.start, ivs[3].t.end),
+        (2.0, 18.0),
+        "clipped to the voxel-centre box 0..=16"
+    );
 }
