@@ -104,3 +104,43 @@ fn malformed_files_give_one_line_errors_and_nonzero_exit() {
     let out = blueshift(&["info".as_ref(), "/nonexistent/file.nrrd".as_ref()]);
     assert_eq!(out.status.code(), Some(1));
 }
+
+#[test]
+fn raw_input_layout_can_come_from_arguments() {
+    let dir = tempfile::tempdir().unwrap();
+    let bin = dir.path().join("crop.bin");
+    std::fs::copy(data("valid/headsq_crop_16x16x8_int16.raw"), &bin).unwrap();
+    // Without a layout the file cannot be read.
+    assert_eq!(
+        blueshift(&["info".as_ref(), bin.as_os_str()]).status.code(),
+        Some(1)
+    );
+    let out = blueshift(&[
+        "info".as_ref(),
+        bin.as_os_str(),
+        "--json".as_ref(),
+        "--raw-dims".as_ref(),
+        "16,16,8".as_ref(),
+        "--raw-type".as_ref(),
+        "int16".as_ref(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["dims"], serde_json::json!([16, 16, 8]));
+    assert_eq!(v["type"], "int16");
+    // A declared size larger than the file is refused.
+    let out = blueshift(&[
+        "info".as_ref(),
+        bin.as_os_str(),
+        "--raw-dims".as_ref(),
+        "16,16,9".as_ref(),
+        "--raw-type".as_ref(),
+        "int16".as_ref(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("file holds"));
+}

@@ -57,7 +57,7 @@ mod volume;
 
 pub use error::{Error, Limits, Result};
 pub use grid::{AnyGrid, Geometry, Grid, Interpolant, ScalarType, Voxel};
-pub use io::{DiskType, ReadOptions, read, read_with};
+pub use io::{DiskType, RawSpec, ReadOptions, read, read_with};
 pub use macrocell::{DEFAULT_K, Macrocells, ValueInterval, ValueIntervals};
 pub use ooc::Sampler;
 pub use volume::{Channel, Volume};

@@ -25,7 +25,7 @@ use crate::{Error, Result};
 pub const DEFAULT_K: usize = 4;
 
 /// Per-cell min/max of one scalar channel over k^3-voxel blocks (plus the shared
-/// interpolation neighbour; see the [module docs](self)).
+/// interpolation neighbour, so the ranges are conservative for trilinear sampling).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Macrocells {
     k: usize,

@@ -42,6 +42,8 @@ pub struct Args {
     /// Brick edge for .bsv output (even, 2..=1024).
     #[arg(long, default_value_t = 64)]
     pub brick: usize,
+    #[command(flatten)]
+    pub input_args: super::volume_common::InputArgs,
 }
 
 fn parse_vec3(s: &str) -> Result<Vec3, String> {
@@ -74,17 +76,31 @@ fn progress_bar(total: u64) -> indicatif::ProgressBar {
 pub fn run(args: Args) -> Result<()> {
     let fmt = out_format(&args.output)?;
     let ctx = || format!("cannot convert {}", args.input.display());
-    let read = |p: &std::path::Path| {
-        blueshift_volume::read(p).map_err(|e| anyhow::anyhow!("{e}: {}", p.display()))
-    };
+    let read = |p: &std::path::Path| args.input_args.read(p);
+    let opts = args.input_args.read_options()?;
     if fmt == OutFormat::Bricked {
         let layout = BrickLayout {
             brick: args.brick,
             ..BrickLayout::default()
         };
         // Stream straight from the file when its voxels are stored uncompressed.
+        let streamed = match opts.raw {
+            Some(r) if r.components == 1 => Some(
+                RawFileSource::new(
+                    &args.input,
+                    r.offset,
+                    r.disk,
+                    r.endian,
+                    Geometry::unit(r.dims),
+                )
+                .with_context(ctx)?,
+            ),
+            Some(_) => None,
+            None => RawFileSource::probe(&args.input).with_context(ctx)?,
+        };
         if args.channel.is_none()
-            && let Some(mut src) = RawFileSource::probe(&args.input).with_context(ctx)?
+            && !opts.reject_non_finite
+            && let Some(mut src) = streamed
         {
             if let Some(s) = args.spacing {
                 let g = src.geometry();

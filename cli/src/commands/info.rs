@@ -21,6 +21,8 @@ pub struct Args {
     /// Histogram bins (linear between min and max).
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub bins: u32,
+    #[command(flatten)]
+    pub input: super::volume_common::InputArgs,
 }
 
 /// Statistics of one channel over its finite values (vector channels: all components).
@@ -87,10 +89,12 @@ fn type_name(c: &Channel) -> String {
 
 /// Runs `blueshift info`.
 pub fn run(args: Args) -> Result<()> {
-    let format =
-        detect_format(&args.file).map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
-    let vol = blueshift_volume::read(&args.file)
-        .map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
+    let format = if args.input.raw_dims.is_some() {
+        blueshift_volume::io::Format::Raw
+    } else {
+        detect_format(&args.file).map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?
+    };
+    let vol = args.input.read(&args.file)?;
     let g = *vol.geometry();
     let bins = args.bins as usize;
     let per: Vec<_> = vol.channels().iter().map(|c| (c, stats(c, bins))).collect();

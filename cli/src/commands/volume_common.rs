@@ -134,3 +134,88 @@ pub fn write_volume(
     }
     Ok(written)
 }
+
+/// Flags describing a headerless raw input whose name does not follow the Open SciVis
+/// convention, plus reader checks.
+#[derive(Debug, Clone, clap::Args)]
+pub struct InputArgs {
+    /// Read the input as headerless raw voxels with these dimensions, "X,Y,Z".
+    #[arg(long, value_parser = parse_dims, requires = "raw_type")]
+    pub raw_dims: Option<[usize; 3]>,
+    /// Voxel type of the raw input (uint8, int8, uint16, int16, uint32, int32, float32, float64).
+    #[arg(long, value_parser = parse_disk_type, requires = "raw_dims")]
+    pub raw_type: Option<DiskType>,
+    /// Byte order of the raw input.
+    #[arg(long, default_value = "little", value_parser = ["little", "big"])]
+    pub raw_endian: String,
+    /// Components per raw voxel: 1 (scalars) or 3 (interleaved vectors).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=3))]
+    pub raw_components: u8,
+    /// Bytes to skip at the start of the raw input.
+    #[arg(long, default_value_t = 0)]
+    pub raw_offset: u64,
+    /// Refuse inputs holding NaN or infinite voxels.
+    #[arg(long)]
+    pub reject_non_finite: bool,
+}
+
+fn parse_dims(s: &str) -> Result<[usize; 3], String> {
+    let v: Vec<usize> = s
+        .split([',', 'x'])
+        .map(|c| {
+            c.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("'{c}' is not a positive integer"))
+        })
+        .collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [x, y, z] if v.iter().all(|&d| d > 0) => Ok([*x, *y, *z]),
+        _ => Err(format!("'{s}' must be three positive integers X,Y,Z")),
+    }
+}
+
+impl InputArgs {
+    /// The reader options these flags ask for.
+    pub fn read_options(&self) -> Result<blueshift_volume::ReadOptions> {
+        let raw = match (self.raw_dims, self.raw_type) {
+            (Some(dims), Some(disk)) => {
+                if self.raw_components == 2 {
+                    anyhow::bail!("--raw-components must be 1 or 3");
+                }
+                Some(blueshift_volume::RawSpec {
+                    dims,
+                    disk,
+                    endian: if self.raw_endian == "big" {
+                        blueshift_volume::io::Endian::Big
+                    } else {
+                        blueshift_volume::io::Endian::Little
+                    },
+                    components: usize::from(self.raw_components),
+                    offset: self.raw_offset,
+                })
+            }
+            _ => None,
+        };
+        Ok(blueshift_volume::ReadOptions {
+            raw,
+            reject_non_finite: self.reject_non_finite,
+            ..Default::default()
+        })
+    }
+
+    /// Reads `path` with these options; errors end with the path.
+    pub fn read(&self, path: &Path) -> Result<Volume> {
+        blueshift_volume::read_with(path, &self.read_options()?).map_err(|e| with_path(&e, path))
+    }
+}
+
+/// The error's message with the file path last (once, even if the message already ends with it).
+pub fn with_path(e: &dyn std::fmt::Display, path: &Path) -> anyhow::Error {
+    let msg = e.to_string();
+    let p = path.display().to_string();
+    if msg.ends_with(&p) {
+        anyhow::anyhow!("{msg}")
+    } else {
+        anyhow::anyhow!("{msg}: {p}")
+    }
+}

@@ -146,6 +146,23 @@ pub struct ReadOptions {
     pub limits: Limits,
     /// Refuse NaN or ±Inf voxels with [`Error::NonFinite`].
     pub reject_non_finite: bool,
+    /// Read the file as headerless raw voxels with this layout, whatever its name says.
+    pub raw: Option<RawSpec>,
+}
+
+/// The layout of a headerless raw file, given by the caller (see [`ReadOptions::raw`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RawSpec {
+    /// Voxels along x, y, z.
+    pub dims: [usize; 3],
+    /// Voxel type on disk.
+    pub disk: DiskType,
+    /// Byte order.
+    pub endian: Endian,
+    /// 1 for scalars, 3 for interleaved vectors.
+    pub components: usize,
+    /// Bytes to skip before the voxels.
+    pub offset: u64,
 }
 
 /// A decoded voxel block description: what the header says about the bytes.
@@ -374,10 +391,10 @@ pub fn detect_format(path: &Path) -> Result<Format> {
     } else if raw::parse_scivis_name(path).is_some() {
         Ok(Format::Raw)
     } else {
-        Err(Error::unsupported(format!(
-            "cannot tell the format of {} (expected .raw with an Open SciVis name, .nrrd, .nhdr, .mhd, .mha, .vtk or .bsv)",
-            path.display()
-        )))
+        Err(Error::unsupported(
+            "cannot tell the file format (expected .raw with an Open SciVis name such as \
+             skull_256x256x256_uint8.raw, or .nrrd, .nhdr, .mhd, .mha, .vtk, .bsv)",
+        ))
     }
 }
 
@@ -395,6 +412,9 @@ pub fn read(path: impl AsRef<Path>) -> Result<Volume> {
 /// Reads any supported file into a [`Volume`].
 pub fn read_with(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Volume> {
     let path = path.as_ref();
+    if let Some(r) = &opts.raw {
+        return raw::read_raw(path, r.dims, r.disk, r.endian, r.components, r.offset, opts);
+    }
     match detect_format(path)? {
         Format::Raw => raw::read_scivis(path, opts),
         Format::Nrrd => nrrd::read(path, opts),

@@ -449,7 +449,7 @@ fn truncated(len: usize, avail: u64, path: &Path) -> Error {
     ))
 }
 
-/// Options for [`write`].
+/// Options for [`write()`] and [`write_detached`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct WriteOptions {
     /// gzip the voxel data (`encoding: gzip`) instead of `raw`.
