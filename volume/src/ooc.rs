@@ -436,12 +436,14 @@ fn brick_level(
 }
 
 type BrickKey = (u32, u64);
+/// A decoded brick and the tick of its last use.
+type Slot = Option<(Arc<[f32]>, u64)>;
 
 /// Decoded bricks: one slot per brick of every level (indexing instead of hashing keeps warm
 /// lookups cheap), plus the list of occupied slots for least-recently-used eviction.
 #[derive(Debug, Default)]
 struct Cache {
-    slots: Vec<Vec<Option<(Arc<[f32]>, u64)>>>,
+    slots: Vec<Vec<Slot>>,
     resident: Vec<BrickKey>,
     tick: u64,
 }
