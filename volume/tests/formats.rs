@@ -76,7 +76,12 @@ fn assert_close(a: Vec3, b: Vec3, what: &str) {
 fn headsq_crop_reads_identically_in_every_format() {
     let reference = i16_le(&std::fs::read(data("valid/headsq_crop_16x16x8_int16.raw")).unwrap());
     let org = Vec3::new(20.0 * 3.2, 20.0 * 3.2, 40.0 * 1.5);
-    let cases: [(&str, Vec3, Vec3); 7] = [
+    let cases: [(&str, Vec3, Vec3); 8] = [
+        (
+            "valid/headsq_crop_ascii.nrrd",
+            Vec3::new(3.2, 3.2, 1.5),
+            Vec3::ZERO,
+        ),
         ("valid/headsq_crop_16x16x8_int16.raw", Vec3::ONE, Vec3::ZERO),
         (
             "valid/headsq_crop_be.nrrd",
@@ -366,7 +371,8 @@ mod mutated_headers {
     use super::*;
     use proptest::prelude::*;
 
-    const FILES: [&str; 7] = [
+    const FILES: [&str; 8] = [
+        "valid/headsq_crop_ascii.nrrd",
         "valid/headsq_crop_be.nrrd",
         "valid/headsq_crop_gzip.nrrd",
         "valid/headsq_crop.mha",

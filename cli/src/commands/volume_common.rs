@@ -90,7 +90,7 @@ pub fn write_channel(
             Ok(())
         }),
         OutFormat::Nhdr => {
-            let data_path = path.with_extension("raw");
+            let data_path = path.with_extension(if opts.gzip { "raw.gz" } else { "raw" });
             let data_name = data_path
                 .file_name()
                 .map(|s| s.to_string_lossy().to_string())

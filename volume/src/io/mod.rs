@@ -137,6 +137,8 @@ pub enum Encoding {
     Gzip,
     /// zlib (RFC 1950), as in MetaImage `CompressedData = True`.
     Zlib,
+    /// Whitespace-separated decimal text, as in NRRD `encoding: ascii`.
+    Ascii,
 }
 
 /// Options shared by all readers (one-liners use the defaults).
@@ -204,6 +206,11 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
         Encoding::Zlib => flate2::read::ZlibDecoder::new(r)
             .take(len as u64)
             .read_to_end(&mut out)?,
+        Encoding::Ascii => {
+            return Err(Error::invalid(
+                "internal: ASCII data goes through read_ascii",
+            ));
+        }
     };
     if got < len {
         return Err(Error::invalid(format!(
@@ -487,4 +494,63 @@ pub(crate) fn encode(grid: &AnyGrid, disk: DiskType) -> Vec<u8> {
         }
     }
     out
+}
+
+/// Reads `count` whitespace-separated numbers and returns them as little-endian `disk`
+/// values (integers round to nearest and saturate). Memory grows only with the numbers read.
+pub(crate) fn read_ascii(r: impl Read, disk: DiskType, count: usize) -> Result<Vec<u8>> {
+    use std::io::BufRead;
+    let mut r = std::io::BufReader::new(r);
+    let mut out = Vec::new();
+    let mut tok = Vec::with_capacity(32);
+    let mut n = 0;
+    while n < count {
+        tok.clear();
+        loop {
+            let buf = r.fill_buf()?;
+            if buf.is_empty() {
+                break;
+            }
+            let b = buf[0];
+            r.consume(1);
+            if b.is_ascii_whitespace() || b == b',' {
+                if tok.is_empty() {
+                    continue;
+                }
+                break;
+            }
+            tok.push(b);
+            if tok.len() > 64 {
+                return Err(Error::invalid(
+                    "ASCII data: a number longer than 64 characters",
+                ));
+            }
+        }
+        if tok.is_empty() {
+            return Err(Error::invalid(format!(
+                "truncated ASCII data: {n} of {count} values"
+            )));
+        }
+        let t = std::str::from_utf8(&tok).map_err(|_| Error::invalid("ASCII data is not text"))?;
+        let v: f64 = t
+            .parse()
+            .map_err(|_| Error::invalid(format!("ASCII data: '{t}' is not a number")))?;
+        put_le(&mut out, disk, v);
+        n += 1;
+    }
+    Ok(out)
+}
+
+/// Appends `v` as a little-endian `disk` value (integers round to nearest and saturate).
+pub(crate) fn put_le(b: &mut Vec<u8>, disk: DiskType, v: f64) {
+    match disk {
+        DiskType::U8 => b.push(v.round() as u8),
+        DiskType::I8 => b.push(v.round() as i8 as u8),
+        DiskType::U16 => b.extend_from_slice(&(v.round() as u16).to_le_bytes()),
+        DiskType::I16 => b.extend_from_slice(&(v.round() as i16).to_le_bytes()),
+        DiskType::U32 => b.extend_from_slice(&(v.round() as u32).to_le_bytes()),
+        DiskType::I32 => b.extend_from_slice(&(v.round() as i32).to_le_bytes()),
+        DiskType::F32 => b.extend_from_slice(&(v as f32).to_le_bytes()),
+        DiskType::F64 => b.extend_from_slice(&v.to_le_bytes()),
+    }
 }

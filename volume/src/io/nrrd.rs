@@ -1,5 +1,5 @@
 //! NRRD (<https://teem.sourceforge.net/nrrd/format.html>): attached (`.nrrd`) and detached
-//! (`.nhdr` + data file) data, `raw` and `gzip` encodings, both endians, `spacings` or
+//! (`.nhdr` + data file) data, `raw`, `gzip` and `ascii` encodings, both endians, `spacings` or
 //! axis-aligned `space directions`, `space origin`, `byte skip`, `line skip`.
 //!
 //! A 4D file whose first axis has size 3 (`kinds: 3-vector ...`) loads as a [`glam::Vec3`]
@@ -197,9 +197,10 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
                 encoding = Some(match value {
                     "raw" => Encoding::Raw,
                     "gzip" | "gz" => Encoding::Gzip,
+                    "ascii" | "text" | "txt" => Encoding::Ascii,
                     other => {
                         return Err(Error::unsupported(format!(
-                            "NRRD encoding '{other}' (raw and gzip are read)"
+                            "NRRD encoding '{other}' (raw, gzip and ascii are read)"
                         )));
                     }
                 });
@@ -234,7 +235,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
         )));
     }
     let encoding = encoding.ok_or_else(|| Error::invalid("NRRD: missing 'encoding'"))?;
-    if endian.is_none() && disk.size_bytes() > 1 {
+    if endian.is_none() && disk.size_bytes() > 1 && encoding != Encoding::Ascii {
         return Err(Error::invalid(
             "NRRD: missing 'endian' for a multi-byte type",
         ));
@@ -432,7 +433,18 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     } else if encoding == Encoding::Raw && (len as u64) > remaining {
         return Err(truncated(len, remaining, path));
     }
-    let bytes = read_payload(src, encoding, len)?;
+    let (bytes, layout) = if encoding == Encoding::Ascii {
+        let b = super::read_ascii(src, layout.disk, geometry.voxel_count() * components)?;
+        (
+            b,
+            Layout {
+                endian: Endian::Little,
+                ..layout
+            },
+        )
+    } else {
+        (read_payload(src, encoding, len)?, layout)
+    };
     let grid = decode(&bytes, &layout, geometry)?;
     let name = if components == 3 {
         "vectors"

@@ -37,7 +37,7 @@ w("headsq_crop_be.nrrd",
 w("headsq_crop_gzip.nrrd",
   (f"NRRD0005\ntype: int16\ndimension: 3\nspace: left-posterior-superior\nsizes: {nx} {ny} {nz}\n"
    f"space directions: (3.2,0,0) (0,3.2,0) (0,0,1.5)\nspace origin: ({org[0]},{org[1]},{org[2]})\n"
-   f"endian: little\nencoding: gzip\n\n").encode() + gzip.compress(c.astype("<i2").tobytes()))
+   f"endian: little\nencoding: gzip\n\n").encode() + gzip.compress(c.astype("<i2").tobytes(), mtime=0))
 w("headsq_crop.nhdr",
   (f"NRRD0004\ntype: int16\ndimension: 3\nsizes: {nx} {ny} {nz}\nspacings: 3.2 3.2 1.5\n"
    f"endian: little\nencoding: raw\ndata file: {raw_name}\n").encode())
@@ -51,6 +51,9 @@ w("headsq_crop.mhd",
    f"CompressedData = False\nElementSpacing = 3.2 3.2 1.5\nDimSize = {nx} {ny} {nz}\n"
    f"ElementType = MET_SHORT\nElementDataFile = {raw_name}\n").encode())
 vals = "\n".join(" ".join(str(int(v)) for v in row) for row in c.reshape(-1, nx))
+w("headsq_crop_ascii.nrrd",
+  (f"NRRD0004\ntype: short\ndimension: 3\nsizes: {nx} {ny} {nz}\nspacings: 3.2 3.2 1.5\n"
+   f"encoding: ascii\n\n{vals}\n").encode())
 w("headsq_crop_ascii.vtk",
   (f"# vtk DataFile Version 3.0\nheadsq crop\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS {nx} {ny} {nz}\n"
    f"SPACING 3.2 3.2 1.5\nORIGIN {org[0]} {org[1]} {org[2]}\nPOINT_DATA {nx*ny*nz}\n"
