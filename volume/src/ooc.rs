@@ -14,14 +14,17 @@
 //! | 24..48 | u64 x 3 level-0 dims |
 //! | 48..60 | f32 x 3 level-0 origin |
 //! | 60..72 | f32 x 3 level-0 spacing |
-//! | 72..76 | u32 channel-name length (at most 255), then the UTF-8 name |
+//! | 72..76 | u32 level-0 voxel type: 0 = u8, 1 = u16, 2 = f16, 3 = f32 |
+//! | 76..80 | u32 channel-name length (at most 255), then the UTF-8 name |
 //! | 4096.. | level 0 bricks, then level 1, ... |
 //!
 //! Level `l` has the geometry of [`crate::Geometry::downsampled`] applied `l` times and
 //! `ceil(dims / B)` bricks per axis, stored x fastest. A brick holds `(B + 2A)^3` f32 voxels:
 //! its `B^3` own voxels plus an apron of `A` voxels on each side (clamped to the volume's
 //! edge), so trilinear sampling never needs a second brick. Levels are added until every
-//! dimension fits in one brick. Voxels are stored as f32 whatever the source type.
+//! dimension fits in one brick. Level 0 keeps the source's in-memory type (u8, u16, f16 or
+//! f32; other on-disk types are f32 as in [`crate::io`]), so a u8 CT scan stays one byte per
+//! voxel; the down-sampled levels hold means and are f32. Decoded bricks are f32.
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -30,7 +33,7 @@ use std::sync::{Arc, Mutex};
 
 use glam::Vec3;
 
-use crate::grid::{Geometry, Grid, Voxel};
+use crate::grid::{Geometry, Grid, ScalarType, Voxel};
 use crate::io::{DiskType, Endian};
 use crate::lod::{downsample_slice, level_geometries};
 use crate::{Error, Limits, Result};
@@ -38,6 +41,7 @@ use crate::{Error, Limits, Result};
 /// First bytes of a bricked file.
 pub const MAGIC: &[u8] = b"BSBRICK1";
 const HEADER_BYTES: u64 = 4096;
+const VERSION: u32 = 2;
 
 /// Something that can be sampled like a scalar grid: in-core [`Grid`]s and levels of a
 /// [`BrickedFile`].
@@ -113,6 +117,11 @@ pub trait SlabSource {
     fn geometry(&self) -> Geometry;
     /// Fills `out` (`dims.x * dims.y` values, x fastest) with slice `z`.
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()>;
+    /// The type level 0 is stored in; every value `read_slice` gives must convert to it
+    /// exactly (default f32).
+    fn scalar_type(&self) -> ScalarType {
+        ScalarType::F32
+    }
 }
 
 /// Slices of an in-core scalar grid.
@@ -122,6 +131,9 @@ pub struct GridSource<'a, T>(pub &'a Grid<T>);
 impl<T: Voxel<Value = f32>> SlabSource for GridSource<'_, T> {
     fn geometry(&self) -> Geometry {
         *self.0.geometry()
+    }
+    fn scalar_type(&self) -> ScalarType {
+        T::TYPE
     }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.0.dims();
@@ -214,6 +226,13 @@ impl SlabSource for RawFileSource {
     fn geometry(&self) -> Geometry {
         self.geometry
     }
+    fn scalar_type(&self) -> ScalarType {
+        match self.disk {
+            DiskType::U8 => ScalarType::U8,
+            DiskType::U16 => ScalarType::U16,
+            _ => ScalarType::F32,
+        }
+    }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.geometry.dims;
         let size = self.disk.size_bytes();
@@ -254,11 +273,15 @@ fn decode_one(b: &[u8], disk: DiskType, big: bool) -> f32 {
     }
 }
 
-fn level_offsets(geoms: &[Geometry], layout: &BrickLayout) -> Result<(Vec<u64>, u64)> {
-    let brick_bytes = (layout.stored_edge() as u64).pow(3) * 4;
+fn level_offsets(
+    geoms: &[Geometry],
+    layout: &BrickLayout,
+    types: &[ScalarType],
+) -> Result<(Vec<u64>, u64)> {
     let mut off = HEADER_BYTES;
     let mut v = Vec::with_capacity(geoms.len());
-    for g in geoms {
+    for (g, t) in geoms.iter().zip(types) {
+        let brick_bytes = (layout.stored_edge() as u64).pow(3) * t.size_bytes() as u64;
         v.push(off);
         let b = layout.bricks(g.dims);
         let n = (b[0] as u64)
@@ -288,7 +311,12 @@ pub fn convert(
     let g0 = source.geometry();
     g0.validate()?;
     let geoms = level_geometries(g0, layout.brick);
-    let (offsets, total) = level_offsets(&geoms, &layout)?;
+    let t0 = match source.scalar_type() {
+        t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
+        _ => ScalarType::F32,
+    };
+    let types = level_types(geoms.len(), t0);
+    let (offsets, total) = level_offsets(&geoms, &layout, &types)?;
     let name = channel_name.as_bytes();
     if name.len() > 255 {
         return Err(Error::parameter("channel name longer than 255 bytes"));
@@ -303,7 +331,7 @@ pub fn convert(
     let mut w = BufWriter::new(file);
     let mut h = Vec::with_capacity(HEADER_BYTES as usize);
     h.extend_from_slice(MAGIC);
-    h.extend_from_slice(&1u32.to_le_bytes());
+    h.extend_from_slice(&VERSION.to_le_bytes());
     h.extend_from_slice(&(layout.brick as u32).to_le_bytes());
     h.extend_from_slice(&(layout.apron as u32).to_le_bytes());
     h.extend_from_slice(&(geoms.len() as u32).to_le_bytes());
@@ -318,6 +346,7 @@ pub fn convert(
     {
         h.extend_from_slice(&v.to_le_bytes());
     }
+    h.extend_from_slice(&type_code(t0).to_le_bytes());
     h.extend_from_slice(&(name.len() as u32).to_le_bytes());
     h.extend_from_slice(name);
     w.write_all(&h)?;
@@ -342,6 +371,7 @@ pub fn convert(
                 *g,
                 next,
                 &layout,
+                types[l],
                 offsets[l],
                 &mut w,
                 tmp_w.as_mut().map(|b| b as &mut dyn Write),
@@ -370,6 +400,62 @@ impl SlabSource for BorrowedSource<'_> {
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         self.0.read_slice(z, out)
     }
+    fn scalar_type(&self) -> ScalarType {
+        self.0.scalar_type()
+    }
+}
+
+fn type_code(t: ScalarType) -> u32 {
+    match t {
+        ScalarType::U8 => 0,
+        ScalarType::U16 => 1,
+        ScalarType::F16 => 2,
+        _ => 3,
+    }
+}
+
+fn type_from_code(c: u32) -> Option<ScalarType> {
+    Some(match c {
+        0 => ScalarType::U8,
+        1 => ScalarType::U16,
+        2 => ScalarType::F16,
+        3 => ScalarType::F32,
+        _ => return None,
+    })
+}
+
+/// Storage type of each level: level 0 as given, the means of coarser levels as f32.
+fn level_types(levels: usize, t0: ScalarType) -> Vec<ScalarType> {
+    (0..levels)
+        .map(|l| if l == 0 { t0 } else { ScalarType::F32 })
+        .collect()
+}
+
+fn put_value(out: &mut Vec<u8>, t: ScalarType, v: f32) {
+    match t {
+        ScalarType::U8 => out.push(v as u8),
+        ScalarType::U16 => out.extend_from_slice(&(v as u16).to_le_bytes()),
+        ScalarType::F16 => out.extend_from_slice(&half::f16::from_f32(v).to_le_bytes()),
+        _ => out.extend_from_slice(&v.to_le_bytes()),
+    }
+}
+
+fn decode_values(bytes: &[u8], t: ScalarType) -> Vec<f32> {
+    match t {
+        ScalarType::U8 => bytes.iter().map(|&b| f32::from(b)).collect(),
+        ScalarType::U16 => bytes
+            .chunks_exact(2)
+            .map(|b| f32::from(u16::from_le_bytes([b[0], b[1]])))
+            .collect(),
+        ScalarType::F16 => bytes
+            .chunks_exact(2)
+            .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
+            .collect(),
+        _ => bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -378,6 +464,7 @@ fn brick_level(
     g: Geometry,
     next: Option<Geometry>,
     layout: &BrickLayout,
+    ty: ScalarType,
     level_offset: u64,
     w: &mut BufWriter<File>,
     mut coarse_out: Option<&mut dyn Write>,
@@ -388,8 +475,8 @@ fn brick_level(
     let nb = layout.bricks(g.dims);
     let slice = nx * ny;
     let mut slab = vec![0f32; slice * s];
-    let brick_bytes = (s * s * s * 4) as u64;
-    let mut brick = vec![0u8; s * s * s * 4];
+    let brick_bytes = (s * s * s * ty.size_bytes()) as u64;
+    let mut brick = Vec::with_capacity(s * s * s * ty.size_bytes());
     let mut coarse = next.map(|c| vec![0f32; c.dims[0] * c.dims[1]]);
     for bz in 0..nb[2] {
         // Slab: slices bz*B - A .. bz*B + B + A, clamped to the volume.
@@ -400,16 +487,14 @@ fn brick_level(
         progress(((bz + 1) * b).min(nz) as u64, nz as u64);
         for by in 0..nb[1] {
             for bx in 0..nb[0] {
-                let mut k = 0;
+                brick.clear();
                 for lz in 0..s {
                     for ly in 0..s {
                         let y = ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
                         for lx in 0..s {
                             let x =
                                 ((bx * b + lx) as i64 - a as i64).clamp(0, nx as i64 - 1) as usize;
-                            brick[k..k + 4]
-                                .copy_from_slice(&slab[lz * slice + y * nx + x].to_le_bytes());
-                            k += 4;
+                            put_value(&mut brick, ty, slab[lz * slice + y * nx + x]);
                         }
                     }
                 }
@@ -456,6 +541,7 @@ pub struct BrickedFile {
     map: memmap2::Mmap,
     layout: BrickLayout,
     geoms: Vec<Geometry>,
+    types: Vec<ScalarType>,
     offsets: Vec<u64>,
     name: String,
     capacity: usize,
@@ -472,7 +558,7 @@ impl BrickedFile {
         #[allow(unsafe_code)]
         let map = unsafe { memmap2::Mmap::map(&file)? };
         let h = &map[..];
-        if h.len() < 76 || !h.starts_with(MAGIC) {
+        if h.len() < 80 || !h.starts_with(MAGIC) {
             return Err(Error::invalid(format!(
                 "not a bricked volume file: {}",
                 path.display()
@@ -481,7 +567,7 @@ impl BrickedFile {
         let u32_at = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]);
         let u64_at = |o: usize| u64::from_le_bytes(h[o..o + 8].try_into().expect("8 bytes"));
         let f32_at = |o: usize| f32::from_le_bytes(h[o..o + 4].try_into().expect("4 bytes"));
-        if u32_at(8) != 1 {
+        if u32_at(8) != VERSION {
             return Err(Error::unsupported(format!(
                 "bricked file version {}",
                 u32_at(8)
@@ -509,11 +595,13 @@ impl BrickedFile {
         g0.validate()
             .map_err(|e| Error::invalid(format!("bricked file: {e}")))?;
         Limits::no_limits().check(dims, 4)?;
-        let name_len = u32_at(72) as usize;
+        let t0 = type_from_code(u32_at(72))
+            .ok_or_else(|| Error::invalid("bricked file: unknown voxel type"))?;
+        let name_len = u32_at(76) as usize;
         if name_len > 255 {
             return Err(Error::invalid("bricked file: channel name too long"));
         }
-        let name = String::from_utf8(h[76..76 + name_len].to_vec())
+        let name = String::from_utf8(h[80..80 + name_len].to_vec())
             .map_err(|_| Error::invalid("bricked file: name is not UTF-8"))?;
         let geoms = level_geometries(g0, layout.brick);
         if geoms.len() != u32_at(20) as usize {
@@ -521,7 +609,8 @@ impl BrickedFile {
                 "bricked file: level count does not match the dimensions",
             ));
         }
-        let (offsets, total) = level_offsets(&geoms, &layout)?;
+        let types = level_types(geoms.len(), t0);
+        let (offsets, total) = level_offsets(&geoms, &layout, &types)?;
         if (h.len() as u64) < total {
             return Err(Error::invalid(format!(
                 "truncated bricked file: {} bytes, {total} expected: {}",
@@ -546,6 +635,7 @@ impl BrickedFile {
             map,
             layout,
             geoms,
+            types,
             offsets,
             name,
             capacity: cache_bricks.max(1),
@@ -557,6 +647,12 @@ impl BrickedFile {
     #[must_use]
     pub fn channel_name(&self) -> &str {
         &self.name
+    }
+
+    /// Storage type of level 0 (coarser levels are f32).
+    #[must_use]
+    pub fn level0_type(&self) -> ScalarType {
+        self.types[0]
     }
 
     /// Brick edge and apron.
@@ -662,7 +758,7 @@ impl BrickedFile {
         Ok(data)
     }
 
-    /// Loads a whole level into memory as an f32 grid (checked against `limits`).
+    /// Loads a whole level into memory (checked against `limits`), in its storage type.
     pub fn load_level(&self, level: usize, limits: &Limits) -> Result<crate::AnyGrid> {
         let g = self
             .level_geometry(level)
@@ -693,21 +789,28 @@ impl BrickedFile {
                 }
             }
         }
-        Ok(out.into())
+        let f = out.into_vec();
+        Ok(match self.types[level] {
+            ScalarType::U8 => Grid::from_vec(g, f.into_iter().map(|v| v as u8).collect())?.into(),
+            ScalarType::U16 => Grid::from_vec(g, f.into_iter().map(|v| v as u16).collect())?.into(),
+            ScalarType::F16 => {
+                Grid::from_vec(g, f.into_iter().map(half::f16::from_f32).collect())?.into()
+            }
+            _ => Grid::from_vec(g, f)?.into(),
+        })
     }
 
     fn read_brick_uncached(&self, level: usize, idx: u64) -> Result<Vec<f32>> {
         let s = self.layout.stored_edge();
-        let n = s * s * s;
-        let start = (self.offsets[level] + idx * (n as u64 * 4)) as usize;
+        let t = self.types[level];
+        let bytes_per = (s * s * s * t.size_bytes()) as u64;
+        let start = usize::try_from(self.offsets[level] + idx * bytes_per)
+            .map_err(|_| Error::invalid("bricked file: brick offset overflows"))?;
         let bytes = self
             .map
-            .get(start..start + 4 * n)
+            .get(start..start + bytes_per as usize)
             .ok_or_else(|| Error::invalid("bricked file: brick outside the file"))?;
-        Ok(bytes
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect())
+        Ok(decode_values(bytes, t))
     }
 }
 

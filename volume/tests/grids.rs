@@ -419,3 +419,41 @@ fn a_diagonal_ray_through_cell_corners_visits_each_diagonal_cell_once() {
         "clipped to the voxel-centre box 0..=16"
     );
 }
+
+#[test]
+fn byte_volumes_stay_one_byte_per_voxel_in_the_bricked_file() {
+    let geom = Geometry::unit([20, 20, 20]);
+    let g8 = Grid::from_fn(geom, |x, y, z| ((x * 7 + y * 13 + z * 29) % 256) as u8).unwrap();
+    let g32 = Grid::from_fn(geom, |x, y, z| g8.get(x, y, z).unwrap() as f32).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (p8, p32) = (dir.path().join("a.bsv"), dir.path().join("b.bsv"));
+    let layout = BrickLayout { brick: 8, apron: 1 };
+    ooc::convert(&mut GridSource(&g8), &p8, "u8", layout, &mut |_, _| {}).unwrap();
+    ooc::convert(&mut GridSource(&g32), &p32, "f32", layout, &mut |_, _| {}).unwrap();
+    let (f8, f32_) = (
+        BrickedFile::open(&p8, 4).unwrap(),
+        BrickedFile::open(&p32, 4).unwrap(),
+    );
+    assert_eq!(f8.level0_type(), blueshift_volume::ScalarType::U8);
+    // Level 0 shrinks four-fold: 27 bricks of 10^3 voxels, 1 byte instead of 4.
+    let (s8, s32) = (
+        std::fs::metadata(&p8).unwrap().len(),
+        std::fs::metadata(&p32).unwrap().len(),
+    );
+    assert_eq!(s32 - s8, 27 * 1000 * 3, "sizes {s8} and {s32}");
+    let mut rng = Lcg(5);
+    for _ in 0..2000 {
+        let p = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 19.0;
+        let want = g8.sample_trilinear_index(p);
+        assert_eq!(f8.level(0).unwrap().sample_index(p).unwrap(), want);
+        assert_eq!(f32_.level(0).unwrap().sample_index(p).unwrap(), want);
+        assert_eq!(
+            f8.level(1).unwrap().sample_index(p / 2.0).unwrap(),
+            f32_.level(1).unwrap().sample_index(p / 2.0).unwrap()
+        );
+    }
+    assert_eq!(
+        f8.load_level(0, &Default::default()).unwrap(),
+        AnyGrid::U8(g8)
+    );
+}
