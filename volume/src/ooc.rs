@@ -32,6 +32,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use crate::grid::{Geometry, Grid, ScalarType, Voxel};
 use crate::io::{DiskType, Endian};
@@ -476,7 +477,6 @@ fn brick_level(
     let slice = nx * ny;
     let mut slab = vec![0f32; slice * s];
     let brick_bytes = (s * s * s * ty.size_bytes()) as u64;
-    let mut brick = Vec::with_capacity(s * s * s * ty.size_bytes());
     let mut coarse = next.map(|c| vec![0f32; c.dims[0] * c.dims[1]]);
     for bz in 0..nb[2] {
         // Slab: slices bz*B - A .. bz*B + B + A, clamped to the volume.
@@ -486,21 +486,32 @@ fn brick_level(
         }
         progress(((bz + 1) * b).min(nz) as u64, nz as u64);
         for by in 0..nb[1] {
-            for bx in 0..nb[0] {
-                brick.clear();
-                for lz in 0..s {
-                    for ly in 0..s {
-                        let y = ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
-                        for lx in 0..s {
-                            let x =
-                                ((bx * b + lx) as i64 - a as i64).clamp(0, nx as i64 - 1) as usize;
-                            put_value(&mut brick, ty, slab[lz * slice + y * nx + x]);
+            // The bricks of one row along x are independent: fill them in parallel (each
+            // brick's bytes depend only on the slab), then write them in order.
+            let slab_ref = &slab;
+            let row: Vec<Vec<u8>> = (0..nb[0])
+                .into_par_iter()
+                .map(|bx| {
+                    let mut brick = Vec::with_capacity(s * s * s * ty.size_bytes());
+                    for lz in 0..s {
+                        for ly in 0..s {
+                            let y =
+                                ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
+                            let base = lz * slice + y * nx;
+                            for lx in 0..s {
+                                let x = ((bx * b + lx) as i64 - a as i64).clamp(0, nx as i64 - 1)
+                                    as usize;
+                                put_value(&mut brick, ty, slab_ref[base + x]);
+                            }
                         }
                     }
-                }
-                let idx = (bx + nb[0] * (by + nb[1] * bz)) as u64;
-                w.seek(SeekFrom::Start(level_offset + idx * brick_bytes))?;
-                w.write_all(&brick)?;
+                    brick
+                })
+                .collect();
+            let idx = (nb[0] * (by + nb[1] * bz)) as u64;
+            w.seek(SeekFrom::Start(level_offset + idx * brick_bytes))?;
+            for brick in &row {
+                w.write_all(brick)?;
             }
         }
         if let (Some(c), Some(cg), Some(out)) = (coarse.as_mut(), next, coarse_out.as_mut()) {

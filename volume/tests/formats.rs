@@ -445,3 +445,36 @@ mod mutated_headers {
         }
     }
 }
+
+#[test]
+fn scivis_names_parse_as_documented() {
+    use blueshift_volume::io::raw::parse_scivis_name;
+    let n = parse_scivis_name(Path::new("skull_256x256x256_uint8.raw")).unwrap();
+    assert_eq!(
+        (n.dims, n.disk, n.components),
+        ([256, 256, 256], DiskType::U8, 1)
+    );
+    let n = parse_scivis_name(Path::new("/x/velocity_kms_64x64x64x3_f32le.raw")).unwrap();
+    assert_eq!(
+        (n.dims, n.disk, n.components),
+        ([64, 64, 64], DiskType::F32, 3)
+    );
+    let n = parse_scivis_name(Path::new("ct_512x512x100_int16.raw")).unwrap();
+    assert_eq!(n.disk, DiskType::I16);
+    for bad in [
+        "skull.raw",
+        "a_256x256_uint8.raw",
+        "a_0x2x2_uint8.raw",
+        "a_2x2x2_complex.raw",
+        "a_2x2x2_uint8.nrrd",
+    ] {
+        assert!(parse_scivis_name(Path::new(bad)).is_none(), "{bad}");
+    }
+}
+
+proptest::proptest! {
+    #[test]
+    fn scivis_name_parsing_never_panics(name in "[a-z0-9_x.]{0,40}") {
+        let _ = blueshift_volume::io::raw::parse_scivis_name(Path::new(&name));
+    }
+}
