@@ -199,7 +199,8 @@ impl RawFileSource {
     }
 
     /// Opens any file whose voxels can be streamed without decompression: an Open SciVis raw
-    /// file or a raw-encoded NRRD. `None` for everything else (read those in core).
+    /// file, a raw-encoded NRRD or an uncompressed MetaImage. `None` for everything else
+    /// (read those in core).
     pub fn probe(path: &Path) -> Result<Option<Self>> {
         use crate::io::{Format, detect_format};
         match detect_format(path)? {
@@ -212,6 +213,12 @@ impl RawFileSource {
                 }
                 Self::new(path, 0, n.disk, Endian::Little, Geometry::unit(n.dims)).map(Some)
             }
+            Format::MetaImage => match crate::io::mhd::raw_payload(path, &Limits::no_limits())? {
+                Some((p, off, layout, geom)) if layout.components == 1 => {
+                    Self::new(&p, off, layout.disk, layout.endian, geom).map(Some)
+                }
+                _ => Ok(None),
+            },
             Format::Nrrd => match crate::io::nrrd::raw_payload(path, &Limits::no_limits())? {
                 Some((p, off, layout, geom)) if layout.components == 1 => {
                     Self::new(&p, off, layout.disk, layout.endian, geom).map(Some)

@@ -457,3 +457,40 @@ fn byte_volumes_stay_one_byte_per_voxel_in_the_bricked_file() {
         AnyGrid::U8(g8)
     );
 }
+
+#[test]
+fn uncompressed_nrrd_and_metaimage_stream_without_loading() {
+    let data = |n: &str| {
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/valid")
+            .join(n)
+    };
+    let reference = blueshift_volume::read(data("headsq_crop_16x16x8_int16.raw")).unwrap();
+    let AnyGrid::F32(want) = &reference.channels()[0].grid else {
+        unreachable!()
+    };
+    for (file, streams) in [
+        ("headsq_crop.mhd", true),
+        ("headsq_crop.nhdr", true),
+        ("headsq_crop_be.nrrd", true),
+        ("headsq_crop_16x16x8_int16.raw", true),
+        ("headsq_crop.mha", false), // zlib
+        ("headsq_crop_gzip.nrrd", false),
+    ] {
+        let src = RawFileSource::probe(&data(file)).unwrap();
+        assert_eq!(src.is_some(), streams, "{file}");
+        if let Some(mut src) = src {
+            let g = ooc::SlabSource::geometry(&src);
+            assert_eq!(g.dims, [16, 16, 8]);
+            let mut slice = vec![0f32; 256];
+            for z in 0..8 {
+                ooc::SlabSource::read_slice(&mut src, z, &mut slice).unwrap();
+                assert_eq!(
+                    &slice[..],
+                    &want.data()[z * 256..(z + 1) * 256],
+                    "{file} slice {z}"
+                );
+            }
+        }
+    }
+}

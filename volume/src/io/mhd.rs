@@ -6,8 +6,8 @@
 //! `ElementDataFile`. A `TransformMatrix` must be axis-aligned (its sign is dropped as for
 //! NRRD); rotations are refused.
 
-use std::io::{BufReader, Read};
-use std::path::Path;
+use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
@@ -55,9 +55,8 @@ fn floats(v: &str, key: &str) -> Result<Vec<f32>> {
         .collect()
 }
 
-/// Reads a MetaImage file.
-pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
-    let (f, file_len) = open(path)?;
+fn parse_header(path: &Path) -> Result<Header> {
+    let (f, _) = open(path)?;
     let mut r = BufReader::new(f);
     let mut pos = 0u64;
     let mut ndims = None;
@@ -185,6 +184,68 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
         endian: if msb { Endian::Big } else { Endian::Little },
         components: channels,
     };
+    Ok(Header {
+        layout,
+        geometry,
+        compressed,
+        header_size,
+        data_file,
+        header_end: pos,
+    })
+}
+
+struct Header {
+    layout: Layout,
+    geometry: Geometry,
+    compressed: bool,
+    header_size: i64,
+    data_file: String,
+    header_end: u64,
+}
+
+/// Where an uncompressed MetaImage keeps its voxels: file, byte offset, layout and geometry;
+/// `None` for compressed data (read those in core).
+pub(crate) fn raw_payload(
+    path: &Path,
+    limits: &crate::Limits,
+) -> Result<Option<(PathBuf, u64, Layout, Geometry)>> {
+    let h = parse_header(path)?;
+    let len = h.layout.byte_len(limits)? as u64;
+    if h.compressed || h.data_file.starts_with("LIST") || h.data_file.contains('%') {
+        return Ok(None);
+    }
+    let (p, start) = if h.data_file == "LOCAL" {
+        (path.to_path_buf(), h.header_end)
+    } else {
+        (
+            path.parent().unwrap_or(Path::new(".")).join(&h.data_file),
+            0,
+        )
+    };
+    let file_len = std::fs::metadata(&p)?.len();
+    let off = if h.header_size == -1 {
+        file_len.saturating_sub(len)
+    } else {
+        start + h.header_size as u64
+    };
+    Ok(Some((p, off, h.layout, h.geometry)))
+}
+
+/// Reads a MetaImage file.
+pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
+    let Header {
+        layout,
+        geometry,
+        compressed,
+        header_size,
+        data_file,
+        header_end,
+    } = parse_header(path)?;
+    let (disk, channels) = (layout.disk, layout.components);
+    let (f, file_len) = open(path)?;
+    let mut r = BufReader::new(f);
+    r.seek(SeekFrom::Start(header_end))?;
+    let pos = header_end;
     let len = layout.byte_len(&opts.limits)?;
     let encoding = if compressed {
         Encoding::Zlib
