@@ -154,6 +154,10 @@ fn convert_to_bricked_file_samples_like_the_input() {
     let out = run(&["info".as_ref(), a.as_os_str(), "--json".as_ref()]);
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["dims"], serde_json::json!([16, 16, 8]));
+    assert_eq!(
+        v["levels"],
+        serde_json::json!([[16, 16, 8], [8, 8, 4], [4, 4, 2]])
+    );
 }
 
 #[test]

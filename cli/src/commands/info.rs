@@ -97,6 +97,18 @@ pub fn run(args: Args) -> Result<()> {
     let vol = args.input.read(&args.file)?;
     let g = *vol.geometry();
     let bins = args.bins as usize;
+    // Bricked files also list their levels of detail.
+    let lod = if format == blueshift_volume::io::Format::Bricked {
+        let f = blueshift_volume::ooc::BrickedFile::open(&args.file, 1)
+            .map_err(|e| super::volume_common::with_path(&e, &args.file))?;
+        Some(
+            (0..f.levels())
+                .filter_map(|l| f.level_geometry(l))
+                .collect::<Vec<_>>(),
+        )
+    } else {
+        None
+    };
     let per: Vec<_> = vol.channels().iter().map(|c| (c, stats(c, bins))).collect();
     if args.json {
         let chans: Vec<_> = per
@@ -130,7 +142,7 @@ pub fn run(args: Args) -> Result<()> {
             })
             .collect();
         let first = &chans[0];
-        let out = json!({
+        let mut out = json!({
             "file": args.file.display().to_string(),
             "format": format!("{format:?}").to_lowercase(),
             "dims": g.dims,
@@ -141,6 +153,9 @@ pub fn run(args: Args) -> Result<()> {
             "max": first["max"],
             "channels": chans,
         });
+        if let Some(levels) = &lod {
+            out["levels"] = json!(levels.iter().map(|g| g.dims).collect::<Vec<_>>());
+        }
         return emit(&format!("{out}\n"));
     }
     let mut t = String::new();
@@ -160,6 +175,13 @@ pub fn run(args: Args) -> Result<()> {
         g.spacing.x, g.spacing.y, g.spacing.z
     )?;
     writeln!(t, "origin: {} {} {}", g.origin.x, g.origin.y, g.origin.z)?;
+    if let Some(levels) = &lod {
+        let d: Vec<String> = levels
+            .iter()
+            .map(|g| format!("{}x{}x{}", g.dims[0], g.dims[1], g.dims[2]))
+            .collect();
+        writeln!(t, "levels of detail: {}", d.join(", "))?;
+    }
     for (c, s) in &per {
         writeln!(
             t,
