@@ -478,3 +478,21 @@ proptest::proptest! {
         let _ = blueshift_volume::io::raw::parse_scivis_name(Path::new(&name));
     }
 }
+
+#[test]
+fn staged_reader_selects_channels_in_order() {
+    let v = io::reader(data("valid/carotid_crop_binary.vtk"))
+        .channels(["vectors", "scalars"])
+        .load()
+        .unwrap();
+    let names: Vec<&str> = v.channels().iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["vectors", "scalars"]);
+    let err = io::reader(data("valid/carotid_crop_binary.vtk"))
+        .channels(["density"])
+        .load()
+        .unwrap_err();
+    assert!(
+        err.to_string().contains("channels: scalars, vectors"),
+        "{err}"
+    );
+}

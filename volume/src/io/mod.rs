@@ -554,3 +554,75 @@ pub(crate) fn put_le(b: &mut Vec<u8>, disk: DiskType, v: f64) {
         DiskType::F64 => b.extend_from_slice(&v.to_le_bytes()),
     }
 }
+
+/// A staged reader for the full case (CONVENTIONS C8, like exrs's `read()...`):
+///
+/// ```no_run
+/// use blueshift_volume::{Limits, io::reader};
+/// let vol = reader("carotid.vtk")
+///     .channels(["vectors"])
+///     .limits(Limits { max_voxels: 1 << 24, ..Limits::default() })
+///     .reject_non_finite()
+///     .load()?;
+/// # Ok::<(), blueshift_volume::Error>(())
+/// ```
+#[must_use]
+pub fn reader(path: impl AsRef<Path>) -> Reader {
+    Reader {
+        path: path.as_ref().to_path_buf(),
+        opts: ReadOptions::default(),
+        channels: None,
+    }
+}
+
+/// Built by [`reader`]; finish with [`Reader::load`].
+#[derive(Clone, Debug)]
+pub struct Reader {
+    path: std::path::PathBuf,
+    opts: ReadOptions,
+    channels: Option<Vec<String>>,
+}
+
+impl Reader {
+    /// Keep only these channels (in this order); an unknown name is [`Error::Parameter`].
+    #[must_use]
+    pub fn channels<S: Into<String>>(mut self, names: impl IntoIterator<Item = S>) -> Self {
+        self.channels = Some(names.into_iter().map(Into::into).collect());
+        self
+    }
+    /// Size caps checked before allocation.
+    #[must_use]
+    pub fn limits(mut self, limits: Limits) -> Self {
+        self.opts.limits = limits;
+        self
+    }
+    /// Refuse NaN or ±Inf voxels.
+    #[must_use]
+    pub fn reject_non_finite(mut self) -> Self {
+        self.opts.reject_non_finite = true;
+        self
+    }
+    /// Read the file as headerless raw voxels with this layout.
+    #[must_use]
+    pub fn raw(mut self, spec: RawSpec) -> Self {
+        self.opts.raw = Some(spec);
+        self
+    }
+    /// Reads the file.
+    pub fn load(self) -> Result<Volume> {
+        let vol = read_with(&self.path, &self.opts)?;
+        let Some(names) = self.channels else {
+            return Ok(vol);
+        };
+        let mut out = Volume::new(*vol.geometry())?;
+        let mut all = vol.into_channels();
+        for n in names {
+            let i = all.iter().position(|c| c.name == n).ok_or_else(|| {
+                let have: Vec<&str> = all.iter().map(|c| c.name.as_str()).collect();
+                Error::parameter(format!("no channel '{n}' (channels: {})", have.join(", ")))
+            })?;
+            out.push_channel(all.swap_remove(i))?;
+        }
+        Ok(out)
+    }
+}
