@@ -619,8 +619,12 @@ impl BrickedFile {
         if name_len > 255 {
             return Err(Error::invalid("bricked file: channel name too long"));
         }
-        let name = String::from_utf8(h[80..80 + name_len].to_vec())
-            .map_err(|_| Error::invalid("bricked file: name is not UTF-8"))?;
+        let name = String::from_utf8(
+            h.get(80..80 + name_len)
+                .ok_or_else(|| Error::invalid("truncated bricked file header"))?
+                .to_vec(),
+        )
+        .map_err(|_| Error::invalid("bricked file: name is not UTF-8"))?;
         let geoms = level_geometries(g0, layout.brick);
         if geoms.len() != u32_at(20) as usize {
             return Err(Error::invalid(

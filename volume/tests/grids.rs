@@ -494,3 +494,23 @@ fn uncompressed_nrrd_and_metaimage_stream_without_loading() {
         }
     }
 }
+
+#[test]
+fn a_bricked_header_cut_inside_the_channel_name_is_refused() {
+    let g = noisy_grid([4, 4, 4], 2);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v.bsv");
+    ooc::convert(
+        &mut GridSource(&g),
+        &path,
+        "a-long-channel-name",
+        BrickLayout { brick: 4, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let b = std::fs::read(&path).unwrap();
+    for cut in [0, 7, 79, 80, 85, 98, 4096, b.len() - 1] {
+        std::fs::write(&path, &b[..cut]).unwrap();
+        assert!(BrickedFile::open(&path, 1).is_err(), "cut at {cut}");
+    }
+}
