@@ -30,6 +30,12 @@ enum Command {
     Tf(commands::tf::Args),
     /// Render what a fast observer sees: aberration, Doppler colour shift, searchlight.
     Relativity(commands::relativity::Args),
+    /// Print dimensions, type, spacing, value range and a histogram of a volume file.
+    Info(commands::info::Args),
+    /// Convert a volume between formats (.nrrd, .nhdr, .raw) or into the bricked .bsv layout.
+    Convert(commands::convert::Args),
+    /// Write a synthetic dataset (galaxy, hydrogen-shell, three-cubes, ...) as NRRD.
+    Synth(commands::synth::Args),
 }
 
 fn main() -> ExitCode {
@@ -47,6 +53,9 @@ fn main() -> ExitCode {
         Command::Tonemap(args) => commands::tonemap::run(*args),
         Command::Tf(args) => commands::tf::run(args),
         Command::Relativity(args) => commands::relativity::run(args),
+        Command::Info(args) => commands::info::run(args),
+        Command::Convert(args) => commands::convert::run(args),
+        Command::Synth(args) => commands::synth::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
