@@ -34,6 +34,7 @@ pub fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()
             .flush()
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
+    make_readable(tmp.path());
     tmp.persist(path)
         .map_err(|e| e.error)
         .with_context(|| format!("cannot write {}", path.display()))?;
@@ -68,9 +69,21 @@ pub fn write_via_temp_path(path: &Path, write: impl FnOnce(&Path) -> Result<()>)
         .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
     let tmp_path = tmp.into_temp_path();
     write(&tmp_path)?;
+    make_readable(&tmp_path);
     tmp_path
         .persist(path)
         .map_err(|e| e.error)
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
+}
+
+/// Temporary files are created private (0600); a finished output gets the usual 0644.
+fn make_readable(path: &Path) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644));
+    }
+    #[cfg(not(unix))]
+    let _ = path;
 }

@@ -1,11 +1,10 @@
 //! One module per `blueshift` verb.
 
-pub mod relativity;
-pub mod spectrum;
-pub mod tonemap;
-pub mod tf;
 pub mod convert;
 pub mod info;
+pub mod relativity;
 pub mod spectrum;
 pub mod synth;
+pub mod tf;
+pub mod tonemap;
 mod volume_common;
