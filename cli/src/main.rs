@@ -24,6 +24,12 @@ struct Cli {
 enum Command {
     /// Build a spectrum (black body, emission lines, Doppler shift) and report its colour.
     Spectrum(commands::spectrum::Args),
+    /// Print dimensions, type, spacing, value range and a histogram of a volume file.
+    Info(commands::info::Args),
+    /// Convert a volume between formats (.nrrd, .nhdr, .raw) or into the bricked .bsv layout.
+    Convert(commands::convert::Args),
+    /// Write a synthetic dataset (galaxy, hydrogen-shell, three-cubes, ...) as NRRD.
+    Synth(commands::synth::Args),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +44,9 @@ fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
+        Command::Info(args) => commands::info::run(args),
+        Command::Convert(args) => commands::convert::run(args),
+        Command::Synth(args) => commands::synth::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

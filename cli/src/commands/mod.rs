@@ -1,3 +1,7 @@
 //! One module per `blueshift` verb.
 
+pub mod convert;
+pub mod info;
 pub mod spectrum;
+pub mod synth;
+mod volume_common;

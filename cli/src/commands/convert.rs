@@ -1,0 +1,158 @@
+//! `blueshift convert IN OUT`: converts between volume formats, and into the bricked
+//! out-of-core layout (`.bsv`).
+//!
+//! The output format comes from OUT's extension: `.nrrd` (attached NRRD), `.nhdr` (detached
+//! NRRD header plus `.raw` data beside it), `.raw` (headerless little-endian voxels) or `.bsv`
+//! (bricked file with all levels of detail). NRRD and raw output keep the voxel type (e.g.
+//! int16 CT stays int16) and the spacing unless `--type` or `--spacing` say otherwise. A
+//! multi-channel input (a VTK file with SCALARS and VECTORS) writes its first channel to OUT
+//! and every further channel to `OUT-stem_<channel>.ext`; `--channel` picks one.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use blueshift_volume::io::{DiskType, nrrd};
+use blueshift_volume::ooc::{self, BrickLayout, GridSource, RawFileSource, SlabSource};
+use blueshift_volume::{AnyGrid, Geometry};
+use glam::Vec3;
+
+use super::volume_common::{OutFormat, out_format, parse_disk_type, write_volume};
+use crate::output;
+
+/// Arguments of `blueshift convert`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Input volume (.raw with an Open SciVis name, .nrrd, .nhdr, .mhd, .mha, .vtk, .bsv).
+    pub input: PathBuf,
+    /// Output file; the extension picks the format (.nrrd, .nhdr, .raw, .bsv).
+    pub output: PathBuf,
+    /// Convert only this channel.
+    #[arg(long)]
+    pub channel: Option<String>,
+    /// gzip the NRRD data.
+    #[arg(long)]
+    pub gzip: bool,
+    /// Voxel type to write (uint8, int8, uint16, int16, uint32, int32, float32, float64);
+    /// integers round to nearest and saturate. Default: keep the input's type.
+    #[arg(long = "type", value_parser = parse_disk_type)]
+    pub disk_type: Option<DiskType>,
+    /// Override the spacing, as "sx,sy,sz".
+    #[arg(long, value_parser = parse_vec3)]
+    pub spacing: Option<Vec3>,
+    /// Brick edge for .bsv output (even, 2..=1024).
+    #[arg(long, default_value_t = 64)]
+    pub brick: usize,
+}
+
+fn parse_vec3(s: &str) -> Result<Vec3, String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|c| {
+            c.trim()
+                .parse::<f32>()
+                .map_err(|_| format!("'{c}' is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [x, y, z] if v.iter().all(|c| c.is_finite() && *c > 0.0) => Ok(Vec3::new(*x, *y, *z)),
+        _ => Err(format!("'{s}' must be three positive numbers sx,sy,sz")),
+    }
+}
+
+fn progress_bar(total: u64) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::new(total);
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} slices ({eta})")
+    {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_message("bricking");
+    pb
+}
+
+/// Runs `blueshift convert`.
+pub fn run(args: Args) -> Result<()> {
+    let fmt = out_format(&args.output)?;
+    let ctx = || format!("cannot convert {}", args.input.display());
+    let read = |p: &std::path::Path| {
+        blueshift_volume::read(p).map_err(|e| anyhow::anyhow!("{e}: {}", p.display()))
+    };
+    if fmt == OutFormat::Bricked {
+        let layout = BrickLayout {
+            brick: args.brick,
+            ..BrickLayout::default()
+        };
+        // Stream straight from the file when its voxels are stored uncompressed.
+        if args.channel.is_none()
+            && let Some(mut src) = RawFileSource::probe(&args.input).with_context(ctx)?
+        {
+            if let Some(s) = args.spacing {
+                let g = src.geometry();
+                src.set_geometry(Geometry { spacing: s, ..g })
+                    .with_context(ctx)?;
+            }
+            return brick(&mut src, &args, "scalars", layout);
+        }
+        let mut vol = read(&args.input)?;
+        if let Some(s) = args.spacing {
+            vol.set_geometry(Geometry {
+                spacing: s,
+                ..*vol.geometry()
+            })
+            .with_context(ctx)?;
+        }
+        let ch = match &args.channel {
+            Some(name) => vol.channel(name).ok_or_else(|| {
+                anyhow::anyhow!("no channel '{name}' in {}", args.input.display())
+            })?,
+            None => vol
+                .channels()
+                .iter()
+                .find(|c| !c.grid.is_vector())
+                .ok_or_else(|| {
+                    anyhow::anyhow!("{} has no scalar channel to brick", args.input.display())
+                })?,
+        };
+        let name = ch.name.clone();
+        return match &ch.grid {
+            AnyGrid::U8(g) => brick(&mut GridSource(g), &args, &name, layout),
+            AnyGrid::U16(g) => brick(&mut GridSource(g), &args, &name, layout),
+            AnyGrid::F16(g) => brick(&mut GridSource(g), &args, &name, layout),
+            AnyGrid::F32(g) => brick(&mut GridSource(g), &args, &name, layout),
+            AnyGrid::Vec3(_) => {
+                anyhow::bail!("channel '{name}' is a vector field; bricked files hold scalars")
+            }
+        };
+    }
+    let mut vol = read(&args.input)?;
+    if let Some(s) = args.spacing {
+        vol.set_geometry(Geometry {
+            spacing: s,
+            ..*vol.geometry()
+        })
+        .with_context(ctx)?;
+    }
+    let opts = nrrd::WriteOptions {
+        gzip: args.gzip,
+        disk: args.disk_type,
+    };
+    let written = write_volume(&args.output, &vol, args.channel.as_deref(), &opts)?;
+    for p in written {
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+fn brick(src: &mut dyn SlabSource, args: &Args, name: &str, layout: BrickLayout) -> Result<()> {
+    let pb = progress_bar(src.geometry().dims[2] as u64);
+    output::write_via_temp_path(&args.output, |tmp| {
+        ooc::convert(src, tmp, name, layout, &mut |done, total| {
+            pb.set_length(total);
+            pb.set_position(done);
+        })
+        .with_context(|| format!("cannot convert {}", args.input.display()))
+    })?;
+    pb.finish_and_clear();
+    eprintln!("wrote {}", args.output.display());
+    Ok(())
+}

@@ -1,0 +1,211 @@
+//! `blueshift info FILE [--json]`: dimensions, type, spacing, value range and a histogram
+//! summary of any volume file blueshift reads.
+
+use std::path::PathBuf;
+
+use std::fmt::Write as _;
+
+use anyhow::Result;
+use blueshift_volume::io::detect_format;
+use blueshift_volume::{AnyGrid, Channel};
+use serde_json::json;
+
+/// Arguments of `blueshift info`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Volume file: .raw (Open SciVis name_XxYxZ_dtype.raw), .nrrd, .nhdr, .mhd, .mha, .vtk or .bsv.
+    pub file: PathBuf,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Histogram bins (linear between min and max).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub bins: u32,
+}
+
+/// Statistics of one channel over its finite values (vector channels: all components).
+struct Stats {
+    count: usize,
+    non_finite: usize,
+    min: f64,
+    max: f64,
+    mean: f64,
+    percentiles: [(u32, f64); 5],
+    counts: Vec<u64>,
+}
+
+fn stats(c: &Channel, bins: usize) -> Option<Stats> {
+    let mut vals: Vec<f32> = match &c.grid {
+        AnyGrid::Vec3(g) => g.data().iter().flat_map(|v| v.to_array()).collect(),
+        other => other.to_f32_vec(),
+    };
+    let total = vals.len();
+    vals.retain(|v| v.is_finite());
+    if vals.is_empty() {
+        return None;
+    }
+    vals.sort_by(f32::total_cmp);
+    let n = vals.len();
+    let min = f64::from(vals[0]);
+    let max = f64::from(vals[n - 1]);
+    let mean = vals.iter().map(|&v| f64::from(v)).sum::<f64>() / n as f64;
+    let pct = |p: u32| f64::from(vals[((n - 1) * p as usize) / 100]);
+    let mut counts = vec![0u64; bins];
+    let width = (max - min) / bins as f64;
+    for &v in &vals {
+        let b = if width > 0.0 {
+            ((f64::from(v) - min) / width) as usize
+        } else {
+            0
+        };
+        counts[b.min(bins - 1)] += 1;
+    }
+    Some(Stats {
+        count: n,
+        non_finite: total - n,
+        min,
+        max,
+        mean,
+        percentiles: [1, 25, 50, 75, 99].map(|p| (p, pct(p))),
+        counts,
+    })
+}
+
+fn type_name(c: &Channel) -> String {
+    match c.stored_as {
+        Some(d) if c.grid.is_vector() => format!("3 x {}", d.scivis_name()),
+        Some(d) => d.scivis_name().to_string(),
+        None if c.grid.is_vector() => "3 x float32".to_string(),
+        None => match c.grid.scalar_type() {
+            blueshift_volume::ScalarType::U8 => "uint8".into(),
+            blueshift_volume::ScalarType::U16 => "uint16".into(),
+            blueshift_volume::ScalarType::F16 => "float16".into(),
+            _ => "float32".into(),
+        },
+    }
+}
+
+/// Runs `blueshift info`.
+pub fn run(args: Args) -> Result<()> {
+    let format =
+        detect_format(&args.file).map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
+    let vol = blueshift_volume::read(&args.file)
+        .map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?;
+    let g = *vol.geometry();
+    let bins = args.bins as usize;
+    let per: Vec<_> = vol.channels().iter().map(|c| (c, stats(c, bins))).collect();
+    if args.json {
+        let chans: Vec<_> = per
+            .iter()
+            .map(|(c, s)| {
+                let mut o = json!({
+                    "name": c.name,
+                    "type": type_name(c),
+                    "memory_type": c.grid.scalar_type().name(),
+                    "components": if c.grid.is_vector() { 3 } else { 1 },
+                });
+                if let Some(s) = s {
+                    o["min"] = json!(s.min);
+                    o["max"] = json!(s.max);
+                    o["mean"] = json!(s.mean);
+                    o["finite_count"] = json!(s.count);
+                    o["non_finite_count"] = json!(s.non_finite);
+                    o["percentiles"] = json!(
+                        s.percentiles
+                            .iter()
+                            .map(|(p, v)| (format!("p{p}"), json!(*v)))
+                            .collect::<serde_json::Map<String, serde_json::Value>>()
+                    );
+                    o["histogram"] =
+                        json!({ "bins": bins, "min": s.min, "max": s.max, "counts": s.counts });
+                } else {
+                    o["min"] = serde_json::Value::Null;
+                    o["max"] = serde_json::Value::Null;
+                }
+                o
+            })
+            .collect();
+        let first = &chans[0];
+        let out = json!({
+            "file": args.file.display().to_string(),
+            "format": format!("{format:?}").to_lowercase(),
+            "dims": g.dims,
+            "spacing": g.spacing.to_array(),
+            "origin": g.origin.to_array(),
+            "type": first["type"],
+            "min": first["min"],
+            "max": first["max"],
+            "channels": chans,
+        });
+        return emit(&format!("{out}\n"));
+    }
+    let mut t = String::new();
+    writeln!(t, "file: {}", args.file.display())?;
+    writeln!(t, "format: {format:?}")?;
+    writeln!(
+        t,
+        "dims: {} x {} x {} ({} voxels)",
+        g.dims[0],
+        g.dims[1],
+        g.dims[2],
+        g.voxel_count()
+    )?;
+    writeln!(
+        t,
+        "spacing: {} {} {}",
+        g.spacing.x, g.spacing.y, g.spacing.z
+    )?;
+    writeln!(t, "origin: {} {} {}", g.origin.x, g.origin.y, g.origin.z)?;
+    for (c, s) in &per {
+        writeln!(
+            t,
+            "channel '{}': type {} (in memory {})",
+            c.name,
+            type_name(c),
+            c.grid.scalar_type().name()
+        )?;
+        match s {
+            None => writeln!(t, "  no finite values")?,
+            Some(s) => {
+                writeln!(
+                    t,
+                    "  min {:.6e}  max {:.6e}  mean {:.6e}",
+                    s.min, s.max, s.mean
+                )?;
+                if s.non_finite > 0 {
+                    writeln!(t, "  {} non-finite values (NaN/Inf)", s.non_finite)?;
+                }
+                let p: Vec<String> = s
+                    .percentiles
+                    .iter()
+                    .map(|(p, v)| format!("p{p} {v:.4e}"))
+                    .collect();
+                writeln!(t, "  percentiles: {}", p.join("  "))?;
+                if s.min > 0.0 {
+                    writeln!(t, "  dynamic range: {:.2} decades", (s.max / s.min).log10())?;
+                }
+                let peak = s.counts.iter().copied().max().unwrap_or(1).max(1);
+                writeln!(
+                    t,
+                    "  histogram ({} bins, {:.4e} .. {:.4e}):",
+                    bins, s.min, s.max
+                )?;
+                for (i, &n) in s.counts.iter().enumerate() {
+                    let lo = s.min + (s.max - s.min) * i as f64 / bins as f64;
+                    let bar = "#".repeat(((n as f64 / peak as f64) * 40.0).ceil() as usize);
+                    writeln!(t, "    {lo:>12.4e} {n:>10} {bar}")?;
+                }
+            }
+        }
+    }
+    emit(&t)
+}
+
+/// Writes to stdout; a closed pipe (`blueshift info f | head`) is not an error.
+fn emit(text: &str) -> Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e.into()),
+        _ => Ok(()),
+    }
+}

@@ -1,0 +1,188 @@
+//! `blueshift convert` between formats and into the bricked layout.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use blueshift_volume::ooc::{BrickedFile, Sampler};
+use blueshift_volume::{AnyGrid, DiskType, read};
+use glam::Vec3;
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../volume/tests/data")
+        .join(name)
+}
+
+fn run(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    let out = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{:?}: {}",
+        args,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn reference() -> Vec<f32> {
+    let raw = std::fs::read(data("valid/headsq_crop_16x16x8_int16.raw")).unwrap();
+    raw.chunks_exact(2)
+        .map(|c| f32::from(i16::from_le_bytes([c[0], c[1]])))
+        .collect()
+}
+
+#[test]
+fn mha_to_nrrd_keeps_int16_spacing_and_values() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, extra) in [
+        ("a.nrrd", None),
+        ("b.nrrd", Some("--gzip")),
+        ("c.nhdr", None),
+    ] {
+        let out = dir.path().join(name);
+        let input = data("valid/headsq_crop.mha");
+        let mut args: Vec<&std::ffi::OsStr> =
+            vec!["convert".as_ref(), input.as_os_str(), out.as_os_str()];
+        if let Some(e) = extra {
+            args.push(e.as_ref());
+        }
+        run(&args);
+        let v = read(&out).unwrap();
+        assert_eq!(v.channels()[0].stored_as, Some(DiskType::I16), "{name}");
+        assert!(
+            (v.geometry().spacing - Vec3::new(3.2, 3.2, 1.5))
+                .abs()
+                .max_element()
+                < 1e-6
+        );
+        assert_eq!(v.channels()[0].grid.to_f32_vec(), reference(), "{name}");
+    }
+    // --type and --spacing override.
+    let out = dir.path().join("f.nrrd");
+    run(&[
+        "convert".as_ref(),
+        data("valid/headsq_crop_be.nrrd").as_os_str(),
+        out.as_os_str(),
+        "--type".as_ref(),
+        "float32".as_ref(),
+        "--spacing".as_ref(),
+        "1,2,3".as_ref(),
+    ]);
+    let v = read(&out).unwrap();
+    assert_eq!(v.channels()[0].stored_as, Some(DiskType::F32));
+    assert_eq!(v.geometry().spacing, Vec3::new(1.0, 2.0, 3.0));
+    assert_eq!(v.channels()[0].grid.to_f32_vec(), reference());
+}
+
+#[test]
+fn vtk_with_vectors_writes_one_nrrd_per_channel() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("car.nrrd");
+    run(&[
+        "convert".as_ref(),
+        data("valid/carotid_crop_binary.vtk").as_os_str(),
+        out.as_os_str(),
+    ]);
+    let vec_ref: Vec<f32> = std::fs::read(data("valid/carotid_crop_vectors_8x8x6x3_float32.raw"))
+        .unwrap()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let v = read(dir.path().join("car_vectors.nrrd")).unwrap();
+    let AnyGrid::Vec3(g) = &v.channels()[0].grid else {
+        panic!("vectors expected")
+    };
+    let got: Vec<f32> = g.data().iter().flat_map(|v| v.to_array()).collect();
+    assert_eq!(got, vec_ref);
+    assert_eq!(
+        read(&out).unwrap().geometry().origin,
+        Vec3::new(130.0, 100.0, 21.0)
+    );
+}
+
+#[test]
+fn convert_to_bricked_file_samples_like_the_input() {
+    let dir = tempfile::tempdir().unwrap();
+    // Streaming path (detached raw NRRD) and in-core path (gzip NRRD) give the same file.
+    let a = dir.path().join("a.bsv");
+    let b = dir.path().join("b.bsv");
+    run(&[
+        "convert".as_ref(),
+        data("valid/headsq_crop.nhdr").as_os_str(),
+        a.as_os_str(),
+        "--brick".as_ref(),
+        "4".as_ref(),
+    ]);
+    run(&[
+        "convert".as_ref(),
+        data("valid/headsq_crop_gzip.nrrd").as_os_str(),
+        b.as_os_str(),
+        "--brick".as_ref(),
+        "4".as_ref(),
+        "--spacing".as_ref(),
+        "3.2,3.2,1.5".as_ref(),
+    ]);
+    let input = read(data("valid/headsq_crop.nhdr")).unwrap();
+    let AnyGrid::F32(g) = &input.channels()[0].grid else {
+        panic!("int16 loads as f32")
+    };
+    for path in [&a, &b] {
+        let f = BrickedFile::open(path, 8).unwrap();
+        assert!(
+            f.levels() >= 3,
+            "16x16x8 with 4^3 bricks needs levels down to 4^3"
+        );
+        let l0 = f.level(0).unwrap();
+        for p in [
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(3.5, 7.25, 2.5),
+            Vec3::new(15.0, 15.0, 7.0),
+            Vec3::new(8.1, 0.9, 6.6),
+        ] {
+            assert_eq!(
+                l0.sample_index(p).unwrap(),
+                g.sample_trilinear_index(p),
+                "{} at {p}",
+                path.display()
+            );
+        }
+    }
+    // info reads the bricked file back.
+    let out = run(&["info".as_ref(), a.as_os_str(), "--json".as_ref()]);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["dims"], serde_json::json!([16, 16, 8]));
+}
+
+#[test]
+fn bad_output_extension_and_bad_input_fail_cleanly_without_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.png");
+    let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args([
+            "convert".as_ref(),
+            data("valid/headsq_crop.mha").as_os_str(),
+            out.as_os_str(),
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let out = dir.path().join("x.nrrd");
+    let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args([
+            "convert".as_ref(),
+            data("invalid/truncated_data.nrrd").as_os_str(),
+            out.as_os_str(),
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(!out.exists(), "no output file on failure");
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        0,
+        "no temporary files left behind"
+    );
+}

@@ -1,0 +1,110 @@
+//! Volume benchmarks: trilinear sampling in-core versus out-of-core (cold and warm brick
+//! cache), macrocell builds at 256^3 and 512^3, and bricked conversion throughput next to
+//! the plain read throughput of the same file (the physical limit).
+//!
+//! Run briefly with `cargo bench -p blueshift-volume -- --warm-up-time 1 --measurement-time 3`.
+
+use std::hint::black_box;
+use std::io::Write;
+
+use blueshift_volume::io::{DiskType, Endian};
+use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource, RawFileSource, Sampler};
+use blueshift_volume::{Geometry, Grid, Macrocells};
+use criterion::{BatchSize, Criterion, Throughput, criterion_group, criterion_main};
+use glam::Vec3;
+
+/// Fixed-seed PCG32 (as in glam's benches) for positions and voxel values.
+struct Pcg32(u64);
+impl Pcg32 {
+    fn next_u32(&mut self) -> u32 {
+        let old = self.0;
+        self.0 = old.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+        xorshifted.rotate_right((old >> 59) as u32)
+    }
+    fn next_f32(&mut self) -> f32 {
+        (self.next_u32() >> 8) as f32 / (1u32 << 24) as f32
+    }
+}
+
+fn grid(n: usize) -> Grid<f32> {
+    let mut rng = Pcg32(0x853c_49e6_748f_ea9b);
+    let data = (0..n * n * n).map(|_| rng.next_f32()).collect();
+    Grid::from_vec(Geometry::unit([n; 3]), data).expect("grid")
+}
+
+fn positions(n: usize, count: usize) -> Vec<Vec3> {
+    let mut rng = Pcg32(42);
+    let m = (n - 1) as f32;
+    (0..count).map(|_| Vec3::new(rng.next_f32() * m, rng.next_f32() * m, rng.next_f32() * m)).collect()
+}
+
+fn trilinear(c: &mut Criterion) {
+    let n = 128;
+    let g = grid(n);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("b.bsv");
+    ooc::convert(&mut GridSource(&g), &path, "d", BrickLayout::default(), &mut |_, _| {}).expect("convert");
+    // 2 x 2 x 2 bricks at level 0: a cache of 64 holds every brick of every level.
+    let file = BrickedFile::open(&path, 64).expect("open");
+    let level = file.level(0).expect("level");
+    let pts = positions(n, 100_000);
+    let mut group = c.benchmark_group("trilinear_128cubed");
+    group.throughput(Throughput::Elements(pts.len() as u64));
+    group.bench_function("in_core", |b| b.iter(|| pts.iter().map(|&p| g.sample_trilinear_index(p)).sum::<f32>()));
+    for &p in &pts {
+        black_box(level.sample_index(p).expect("sample"));
+    }
+    group.bench_function("out_of_core_warm", |b| {
+        b.iter(|| pts.iter().map(|&p| level.sample_index(p).expect("sample")).sum::<f32>())
+    });
+    group.bench_function("out_of_core_cold", |b| {
+        b.iter_batched(
+            || file.clear_cache(),
+            |()| pts.iter().map(|&p| level.sample_index(p).expect("sample")).sum::<f32>(),
+            BatchSize::PerIteration,
+        )
+    });
+    group.finish();
+}
+
+fn macrocells(c: &mut Criterion) {
+    let mut group = c.benchmark_group("macrocell_build_k4");
+    group.sample_size(10);
+    for n in [256usize, 512] {
+        let g = grid(n);
+        group.throughput(Throughput::Elements((n * n * n) as u64));
+        group.bench_function(format!("{n}^3"), |b| b.iter(|| Macrocells::build(&g, 4).expect("build")));
+    }
+    group.finish();
+}
+
+fn conversion(c: &mut Criterion) {
+    let n = 128;
+    let g = grid(n);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let raw = dir.path().join(format!("v_{n}x{n}x{n}_float32.raw"));
+    let mut f = std::io::BufWriter::new(std::fs::File::create(&raw).expect("create"));
+    for v in g.data() {
+        f.write_all(&v.to_le_bytes()).expect("write");
+    }
+    f.flush().expect("flush");
+    drop(f);
+    let bytes = (n * n * n * 4) as u64;
+    let out = dir.path().join("o.bsv");
+    let mut group = c.benchmark_group("conversion_128cubed_f32");
+    group.sample_size(10);
+    group.throughput(Throughput::Bytes(bytes));
+    group.bench_function("plain_read", |b| b.iter(|| std::fs::read(&raw).expect("read").len()));
+    group.bench_function("read_to_grid", |b| b.iter(|| blueshift_volume::read(&raw).expect("read")));
+    group.bench_function("convert_to_bricked", |b| {
+        b.iter(|| {
+            let mut src = RawFileSource::new(&raw, 0, DiskType::F32, Endian::Little, Geometry::unit([n; 3])).expect("src");
+            ooc::convert(&mut src, &out, "d", BrickLayout::default(), &mut |_, _| {}).expect("convert");
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, trilinear, macrocells, conversion);
+criterion_main!(benches);

@@ -1,0 +1,470 @@
+//! File formats: raw, NRRD, MetaImage and legacy VTK readers; raw and NRRD writers.
+//!
+//! # Voxel types on disk and in memory
+//!
+//! Readers accept u8, i8, u16, i16, u32, i32, f32 and f64 voxels ([`DiskType`]) and map them
+//! onto the in-memory types of [`crate::AnyGrid`]:
+//!
+//! | on disk | in memory | conversion |
+//! |---|---|---|
+//! | u8 | `u8` | exact |
+//! | u16 | `u16` | exact |
+//! | i8, i16 | `f32` | exact (CT data keeps its sign, e.g. Hounsfield units) |
+//! | u32, i32 | `f32` | rounded to the nearest f32 (exact up to 2^24) |
+//! | f32 | `f32` | exact |
+//! | f64 | `f32` | rounded to the nearest f32; values beyond f32 range become ±Inf |
+//! | 3-component (any type) | `Vec3` (f32) | each component as for f32 above |
+//!
+//! The on-disk type is kept in [`crate::Channel::stored_as`], so the NRRD writer can
+//! write i16 data back as i16 when every value still fits exactly.
+//!
+//! Every reader checks the header's sizes against [`crate::Limits`] and against the number
+//! of bytes actually in the file before it allocates the voxel buffer.
+
+pub mod mhd;
+pub mod nrrd;
+pub mod raw;
+pub mod vtk;
+
+use std::io::Read;
+use std::path::Path;
+
+use glam::Vec3;
+
+use crate::grid::{AnyGrid, Geometry, Grid};
+use crate::volume::{Channel, Volume};
+use crate::{Error, Limits, Result};
+
+/// Voxel types accepted on disk. See the [module docs](self) for the in-memory mapping.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum DiskType {
+    /// Unsigned 8-bit.
+    U8,
+    /// Signed 8-bit.
+    I8,
+    /// Unsigned 16-bit.
+    U16,
+    /// Signed 16-bit (typical for CT).
+    I16,
+    /// Unsigned 32-bit.
+    U32,
+    /// Signed 32-bit.
+    I32,
+    /// IEEE single precision.
+    F32,
+    /// IEEE double precision.
+    F64,
+}
+
+impl DiskType {
+    /// Bytes per component.
+    #[must_use]
+    pub fn size_bytes(self) -> usize {
+        match self {
+            DiskType::U8 | DiskType::I8 => 1,
+            DiskType::U16 | DiskType::I16 => 2,
+            DiskType::U32 | DiskType::I32 | DiskType::F32 => 4,
+            DiskType::F64 => 8,
+        }
+    }
+
+    /// Open SciVis file-name spelling: `uint8`, `int8`, `uint16`, `int16`, `uint32`,
+    /// `int32`, `float32`, `float64`.
+    #[must_use]
+    pub fn scivis_name(self) -> &'static str {
+        match self {
+            DiskType::U8 => "uint8",
+            DiskType::I8 => "int8",
+            DiskType::U16 => "uint16",
+            DiskType::I16 => "int16",
+            DiskType::U32 => "uint32",
+            DiskType::I32 => "int32",
+            DiskType::F32 => "float32",
+            DiskType::F64 => "float64",
+        }
+    }
+
+    /// Parses the Open SciVis spelling (also accepts `float` and `double`).
+    #[must_use]
+    pub fn from_scivis_name(s: &str) -> Option<DiskType> {
+        Some(match s.to_ascii_lowercase().as_str() {
+            "uint8" | "u8" => DiskType::U8,
+            "int8" | "i8" => DiskType::I8,
+            "uint16" | "u16" => DiskType::U16,
+            "int16" | "i16" => DiskType::I16,
+            "uint32" | "u32" => DiskType::U32,
+            "int32" | "i32" => DiskType::I32,
+            "float32" | "float" | "f32" => DiskType::F32,
+            "float64" | "double" | "f64" => DiskType::F64,
+            _ => return None,
+        })
+    }
+
+    /// True if `v` converts to this type without loss.
+    #[must_use]
+    pub fn holds_exactly(self, v: f32) -> bool {
+        let int_in = |lo: f64, hi: f64| {
+            let d = f64::from(v);
+            d.fract() == 0.0 && d >= lo && d <= hi
+        };
+        match self {
+            DiskType::U8 => int_in(0.0, 255.0),
+            DiskType::I8 => int_in(-128.0, 127.0),
+            DiskType::U16 => int_in(0.0, 65535.0),
+            DiskType::I16 => int_in(-32768.0, 32767.0),
+            DiskType::U32 => int_in(0.0, 4_294_967_295.0),
+            DiskType::I32 => int_in(-2_147_483_648.0, 2_147_483_647.0),
+            DiskType::F32 | DiskType::F64 => true,
+        }
+    }
+}
+
+/// Byte order of multi-byte voxels on disk.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Endian {
+    /// Least significant byte first (x86, ARM).
+    Little,
+    /// Most significant byte first (legacy VTK binary, old SGI/Sun files).
+    Big,
+}
+
+/// How the voxel bytes are stored after the header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Encoding {
+    /// Uncompressed binary.
+    Raw,
+    /// gzip (RFC 1952), as in NRRD `encoding: gzip`.
+    Gzip,
+    /// zlib (RFC 1950), as in MetaImage `CompressedData = True`.
+    Zlib,
+}
+
+/// Options shared by all readers (one-liners use the defaults).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ReadOptions {
+    /// Size caps checked before allocation.
+    pub limits: Limits,
+    /// Refuse NaN or ±Inf voxels with [`Error::NonFinite`].
+    pub reject_non_finite: bool,
+}
+
+/// A decoded voxel block description: what the header says about the bytes.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Layout {
+    pub dims: [usize; 3],
+    pub disk: DiskType,
+    pub endian: Endian,
+    /// 1 for scalars, 3 for interleaved vectors.
+    pub components: usize,
+}
+
+impl Layout {
+    /// Bytes of voxel data the layout needs; checks limits first.
+    pub fn byte_len(&self, limits: &Limits) -> Result<usize> {
+        let mem = if self.components == 3 {
+            12
+        } else {
+            self.disk.size_bytes().max(4)
+        };
+        let n = limits.check(self.dims, mem)?;
+        let bytes = n
+            .checked_mul((self.disk.size_bytes() * self.components) as u64)
+            .ok_or_else(|| Error::Limits("voxel byte count overflows".into()))?;
+        usize::try_from(bytes).map_err(|_| Error::Limits("voxel byte count overflows".into()))
+    }
+}
+
+/// Reads exactly `len` voxel bytes from `r` with `encoding`. The raw case needs the caller to
+/// have checked `len` against the file size; the compressed cases grow the buffer only as
+/// data arrives, so a lying header costs at most what the stream really holds.
+pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    let got = match encoding {
+        Encoding::Raw => r.take(len as u64).read_to_end(&mut out)?,
+        Encoding::Gzip => flate2::read::MultiGzDecoder::new(r)
+            .take(len as u64)
+            .read_to_end(&mut out)?,
+        Encoding::Zlib => flate2::read::ZlibDecoder::new(r)
+            .take(len as u64)
+            .read_to_end(&mut out)?,
+    };
+    if got < len {
+        return Err(Error::invalid(format!(
+            "truncated data: the header declares {len} bytes of voxels, the file holds {got}"
+        )));
+    }
+    Ok(out)
+}
+
+/// Opens a file and returns it with its length.
+pub(crate) fn open(path: &Path) -> Result<(std::fs::File, u64)> {
+    let f = std::fs::File::open(path).map_err(|e| {
+        Error::Io(std::io::Error::new(
+            e.kind(),
+            format!("{e}: {}", path.display()),
+        ))
+    })?;
+    let len = f.metadata()?.len();
+    Ok((f, len))
+}
+
+/// Converts decoded bytes into a grid following the module's type mapping.
+pub(crate) fn decode(bytes: &[u8], layout: &Layout, geometry: Geometry) -> Result<AnyGrid> {
+    let size = layout.disk.size_bytes();
+    let big = layout.endian == Endian::Big;
+    let n = geometry.voxel_count() * layout.components;
+    if bytes.len() < n * size {
+        return Err(Error::invalid("truncated data"));
+    }
+    let comp = |i: usize| -> f32 { component(&bytes[i * size..i * size + size], layout.disk, big) };
+    if layout.components == 3 {
+        let data = (0..n / 3)
+            .map(|i| Vec3::new(comp(3 * i), comp(3 * i + 1), comp(3 * i + 2)))
+            .collect();
+        return Ok(Grid::from_vec(geometry, data)?.into());
+    }
+    if layout.components != 1 {
+        return Err(Error::unsupported(format!(
+            "{} components per voxel (only 1 or 3 are read)",
+            layout.components
+        )));
+    }
+    Ok(match layout.disk {
+        DiskType::U8 => Grid::from_vec(geometry, bytes[..n].to_vec())?.into(),
+        DiskType::U16 => {
+            let data = bytes[..2 * n]
+                .chunks_exact(2)
+                .map(|c| {
+                    if big {
+                        u16::from_be_bytes([c[0], c[1]])
+                    } else {
+                        u16::from_le_bytes([c[0], c[1]])
+                    }
+                })
+                .collect();
+            Grid::from_vec(geometry, data)?.into()
+        }
+        _ => Grid::from_vec(geometry, (0..n).map(comp).collect())?.into(),
+    })
+}
+
+/// One on-disk component as f32 (the module's conversion table).
+#[inline]
+fn component(b: &[u8], disk: DiskType, big: bool) -> f32 {
+    macro_rules! num {
+        ($t:ty, $n:literal) => {{
+            let mut a = [0u8; $n];
+            a.copy_from_slice(b);
+            if big {
+                <$t>::from_be_bytes(a)
+            } else {
+                <$t>::from_le_bytes(a)
+            }
+        }};
+    }
+    match disk {
+        DiskType::U8 => f32::from(b[0]),
+        DiskType::I8 => f32::from(b[0] as i8),
+        DiskType::U16 => f32::from(num!(u16, 2)),
+        DiskType::I16 => f32::from(num!(i16, 2)),
+        DiskType::U32 => num!(u32, 4) as f32,
+        DiskType::I32 => num!(i32, 4) as f32,
+        DiskType::F32 => num!(f32, 4),
+        DiskType::F64 => num!(f64, 8) as f32,
+    }
+}
+
+/// Wraps a decoded grid as a one-channel volume, applying the options.
+pub(crate) fn finish(
+    name: &str,
+    grid: AnyGrid,
+    disk: DiskType,
+    opts: &ReadOptions,
+) -> Result<Volume> {
+    if opts.reject_non_finite {
+        grid.reject_non_finite()?;
+    }
+    let mut v = Volume::new(*grid.geometry())?;
+    v.push_channel(Channel {
+        name: name.to_string(),
+        grid,
+        stored_as: Some(disk),
+    })?;
+    Ok(v)
+}
+
+/// Parses a finite float from header text.
+pub(crate) fn parse_f32(s: &str, what: &str) -> Result<f32> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| Error::invalid(format!("{what}: '{s}' is not a number")))?;
+    if !v.is_finite() {
+        return Err(Error::invalid(format!("{what}: '{s}' is not finite")));
+    }
+    Ok(v)
+}
+
+/// Parses a positive dimension from header text.
+pub(crate) fn parse_dim(s: &str, what: &str) -> Result<usize> {
+    let v: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| Error::invalid(format!("{what}: '{s}' is not a positive integer")))?;
+    if v == 0 {
+        return Err(Error::invalid(format!("{what}: a size of 0")));
+    }
+    Ok(v)
+}
+
+/// The file formats [`read`] recognises.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// Headerless voxels, size and type from the Open SciVis file name.
+    Raw,
+    /// NRRD, attached (`.nrrd`) or detached (`.nhdr`).
+    Nrrd,
+    /// MetaImage, `.mha` (attached) or `.mhd` (detached).
+    MetaImage,
+    /// Legacy VTK `STRUCTURED_POINTS`.
+    Vtk,
+    /// The bricked out-of-core layout of [`crate::ooc`] (`.bsv`); `read` loads level 0.
+    Bricked,
+}
+
+/// Guesses the format from the extension, then from the first bytes of the file.
+pub fn detect_format(path: &Path) -> Result<Format> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let by_ext = if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
+        Some(Format::Nrrd)
+    } else if name.ends_with(".mhd") || name.ends_with(".mha") {
+        Some(Format::MetaImage)
+    } else if name.ends_with(".vtk") {
+        Some(Format::Vtk)
+    } else if name.ends_with(".bsv") {
+        Some(Format::Bricked)
+    } else {
+        None
+    };
+    if let Some(f) = by_ext {
+        return Ok(f);
+    }
+    let (mut f, _) = open(path)?;
+    let mut head = [0u8; 64];
+    let mut n = 0;
+    while n < head.len() {
+        let k = f.read(&mut head[n..])?;
+        if k == 0 {
+            break;
+        }
+        n += k;
+    }
+    let head = &head[..n];
+    if head.starts_with(b"NRRD000") {
+        Ok(Format::Nrrd)
+    } else if head.starts_with(b"# vtk DataFile") {
+        Ok(Format::Vtk)
+    } else if head.starts_with(crate::ooc::MAGIC) {
+        Ok(Format::Bricked)
+    } else if head.starts_with(b"ObjectType") || head.starts_with(b"NDims") {
+        Ok(Format::MetaImage)
+    } else if raw::parse_scivis_name(path).is_some() {
+        Ok(Format::Raw)
+    } else {
+        Err(Error::unsupported(format!(
+            "cannot tell the format of {} (expected .raw with an Open SciVis name, .nrrd, .nhdr, .mhd, .mha, .vtk or .bsv)",
+            path.display()
+        )))
+    }
+}
+
+/// Reads any supported file into a [`Volume`] with default [`ReadOptions`].
+///
+/// ```no_run
+/// let vol = blueshift_volume::read("skull_256x256x256_uint8.raw")?;
+/// println!("{:?}", vol.geometry().dims);
+/// # Ok::<(), blueshift_volume::Error>(())
+/// ```
+pub fn read(path: impl AsRef<Path>) -> Result<Volume> {
+    read_with(path, &ReadOptions::default())
+}
+
+/// Reads any supported file into a [`Volume`].
+pub fn read_with(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Volume> {
+    let path = path.as_ref();
+    match detect_format(path)? {
+        Format::Raw => raw::read_scivis(path, opts),
+        Format::Nrrd => nrrd::read(path, opts),
+        Format::MetaImage => mhd::read(path, opts),
+        Format::Vtk => vtk::read(path, opts),
+        Format::Bricked => {
+            let f = crate::ooc::BrickedFile::open(path, 64)?;
+            let grid = f.load_level(0, &opts.limits)?;
+            let v = Volume::single(f.channel_name().to_string(), grid)?;
+            if opts.reject_non_finite {
+                v.reject_non_finite()?;
+            }
+            Ok(v)
+        }
+    }
+}
+
+/// Chooses the on-disk type a writer uses for `channel`: its original type when every value
+/// converts exactly, else the natural type of the in-memory grid.
+#[must_use]
+pub fn output_type(channel: &Channel) -> DiskType {
+    let natural = match channel.grid.scalar_type() {
+        crate::ScalarType::U8 => DiskType::U8,
+        crate::ScalarType::U16 => DiskType::U16,
+        _ => DiskType::F32,
+    };
+    match channel.stored_as {
+        Some(d) if d != natural && !channel.grid.is_vector() => {
+            let n = channel.grid.geometry().voxel_count();
+            if (0..n).all(|i| d.holds_exactly(channel.grid.scalar_at(i))) {
+                d
+            } else {
+                natural
+            }
+        }
+        Some(DiskType::F64) => DiskType::F64,
+        _ => natural,
+    }
+}
+
+/// Encodes a channel's voxels little-endian as `disk` (vectors: 3 interleaved components).
+/// Conversion to an integer type rounds to nearest and saturates at the type's range.
+pub(crate) fn encode(grid: &AnyGrid, disk: DiskType) -> Vec<u8> {
+    let n = grid.geometry().voxel_count();
+    let mut out = Vec::with_capacity(n * disk.size_bytes() * if grid.is_vector() { 3 } else { 1 });
+    // Integer targets round to nearest and saturate at the type's range (NaN becomes 0).
+    let mut put = |v: f32| match disk {
+        DiskType::U8 => out.push(v.round() as u8),
+        DiskType::I8 => out.push(v.round() as i8 as u8),
+        DiskType::U16 => out.extend_from_slice(&(v.round() as u16).to_le_bytes()),
+        DiskType::I16 => out.extend_from_slice(&(v.round() as i16).to_le_bytes()),
+        DiskType::U32 => out.extend_from_slice(&(f64::from(v).round() as u32).to_le_bytes()),
+        DiskType::I32 => out.extend_from_slice(&(f64::from(v).round() as i32).to_le_bytes()),
+        DiskType::F32 => out.extend_from_slice(&v.to_le_bytes()),
+        DiskType::F64 => out.extend_from_slice(&f64::from(v).to_le_bytes()),
+    };
+    match grid {
+        AnyGrid::U8(g) if disk == DiskType::U8 => return g.data().to_vec(),
+        AnyGrid::Vec3(g) => {
+            for v in g.data() {
+                put(v.x);
+                put(v.y);
+                put(v.z);
+            }
+        }
+        _ => {
+            for i in 0..n {
+                put(grid.scalar_at(i));
+            }
+        }
+    }
+    out
+}

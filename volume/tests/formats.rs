@@ -1,0 +1,441 @@
+//! Readers against independently decoded values of real files, writers round-tripping, and
+//! malformed input giving errors, never panics.
+
+use std::path::{Path, PathBuf};
+
+use blueshift_volume::io::{self, nrrd};
+use blueshift_volume::{AnyGrid, DiskType, Error, ReadOptions, Volume, read, read_with};
+use glam::Vec3;
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+/// The shared real datasets, or `None` with a printed reason (the tests then skip).
+fn shared(rel: &str) -> Option<PathBuf> {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut candidates: Vec<PathBuf> = std::env::var_os("BLUESHIFT_SHARED_DATA")
+        .map(PathBuf::from)
+        .into_iter()
+        .collect();
+    candidates.push(manifest.join("../../shared/data"));
+    candidates.push(manifest.join("../../../shared/data"));
+    for c in candidates {
+        let p = c.join(rel);
+        if p.exists() {
+            return Some(p);
+        }
+    }
+    eprintln!(
+        "SKIP: shared data file {rel} not found (set BLUESHIFT_SHARED_DATA to ../shared/data)"
+    );
+    None
+}
+
+fn i16_le(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(2)
+        .map(|c| f32::from(i16::from_le_bytes([c[0], c[1]])))
+        .collect()
+}
+fn f32_le(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+fn f32_be(bytes: &[u8]) -> Vec<f32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_be_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+fn scalars(v: &Volume, ch: usize) -> Vec<f32> {
+    v.channels()[ch].grid.to_f32_vec()
+}
+
+fn vectors(v: &Volume, name: &str) -> Vec<f32> {
+    match v.grid(name).unwrap() {
+        AnyGrid::Vec3(g) => g.data().iter().flat_map(|v| v.to_array()).collect(),
+        other => panic!("{name} is {:?}, not a vector grid", other.scalar_type()),
+    }
+}
+
+fn assert_close(a: Vec3, b: Vec3, what: &str) {
+    assert!(
+        (a - b).abs().max_element() < 1e-4,
+        "{what}: expected {b}, got {a}, diff {}",
+        (a - b).abs()
+    );
+}
+
+#[test]
+fn headsq_crop_reads_identically_in_every_format() {
+    let reference = i16_le(&std::fs::read(data("valid/headsq_crop_16x16x8_int16.raw")).unwrap());
+    let org = Vec3::new(20.0 * 3.2, 20.0 * 3.2, 40.0 * 1.5);
+    let cases: [(&str, Vec3, Vec3); 7] = [
+        ("valid/headsq_crop_16x16x8_int16.raw", Vec3::ONE, Vec3::ZERO),
+        (
+            "valid/headsq_crop_be.nrrd",
+            Vec3::new(3.2, 3.2, 1.5),
+            Vec3::ZERO,
+        ),
+        ("valid/headsq_crop_gzip.nrrd", Vec3::new(3.2, 3.2, 1.5), org),
+        (
+            "valid/headsq_crop.nhdr",
+            Vec3::new(3.2, 3.2, 1.5),
+            Vec3::ZERO,
+        ),
+        ("valid/headsq_crop.mha", Vec3::new(3.2, 3.2, 1.5), org),
+        (
+            "valid/headsq_crop.mhd",
+            Vec3::new(3.2, 3.2, 1.5),
+            Vec3::ZERO,
+        ),
+        ("valid/headsq_crop_ascii.vtk", Vec3::new(3.2, 3.2, 1.5), org),
+    ];
+    for (file, spacing, origin) in cases {
+        let v = read(data(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert_eq!(v.geometry().dims, [16, 16, 8], "{file}");
+        assert_close(v.geometry().spacing, spacing, file);
+        assert_close(v.geometry().origin, origin, file);
+        assert_eq!(v.channels()[0].stored_as, Some(DiskType::I16), "{file}");
+        assert_eq!(scalars(&v, 0), reference, "{file}: voxel values differ");
+    }
+}
+
+#[test]
+fn carotid_crop_vtk_loads_scalars_and_interleaved_vectors() {
+    let s_ref =
+        f32_le(&std::fs::read(data("valid/carotid_crop_scalars_8x8x6_float32.raw")).unwrap());
+    let v_ref =
+        f32_le(&std::fs::read(data("valid/carotid_crop_vectors_8x8x6x3_float32.raw")).unwrap());
+    let v = read(data("valid/carotid_crop_binary.vtk")).unwrap();
+    assert_eq!(v.geometry().dims, [8, 8, 6]);
+    assert_close(v.geometry().origin, Vec3::new(130.0, 100.0, 21.0), "origin");
+    let names: Vec<&str> = v.channels().iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["scalars", "vectors"]);
+    assert_eq!(scalars(&v, 0), s_ref);
+    assert_eq!(vectors(&v, "vectors"), v_ref);
+    // The same vectors as a 4D NRRD (big-endian, 3-vector axis first).
+    let n = read(data("valid/carotid_crop_vectors.nrrd")).unwrap();
+    assert_eq!(vectors(&n, "vectors"), v_ref);
+    // And as an Open SciVis raw with an x3 component count.
+    let r = read(data("valid/carotid_crop_vectors_8x8x6x3_float32.raw")).unwrap();
+    assert_eq!(vectors(&r, "vectors"), v_ref);
+}
+
+#[test]
+fn headsq_matches_independent_decode_and_published_statistics() {
+    let Some(nhdr) = shared("headsq/headsq_64x64x93_int16le.nhdr") else {
+        return;
+    };
+    let raw = i16_le(&std::fs::read(nhdr.with_file_name("headsq_64x64x93_int16le.raw")).unwrap());
+    let v = read(&nhdr).unwrap();
+    assert_eq!(v.geometry().dims, [64, 64, 93]);
+    assert_close(v.geometry().spacing, Vec3::new(3.2, 3.2, 1.5), "spacing");
+    let got = scalars(&v, 0);
+    assert_eq!(got, raw);
+    // SOURCE.md: values 0..3926, mean 507.7.
+    assert_eq!(v.channels()[0].grid.finite_range(), Some((0.0, 3926.0)));
+    let mean = got.iter().map(|&x| f64::from(x)).sum::<f64>() / got.len() as f64;
+    assert!(
+        (mean - 507.7).abs() < 0.05,
+        "mean {mean}, SOURCE.md says 507.7"
+    );
+}
+
+#[test]
+fn lidc2_gzip_nrrd_matches_flate2_and_published_mean() {
+    let Some(nhdr) = shared("lidc2-ct/lidc2_256x256x133_uint8.nhdr") else {
+        return;
+    };
+    use std::io::Read;
+    let mut raw = Vec::new();
+    flate2::read::GzDecoder::new(
+        std::fs::File::open(nhdr.with_file_name("lidc2_256x256x133_uint8.raw.gz")).unwrap(),
+    )
+    .read_to_end(&mut raw)
+    .unwrap();
+    let v = read(&nhdr).unwrap();
+    assert_eq!(v.geometry().dims, [256, 256, 133]);
+    assert_close(
+        v.geometry().spacing,
+        Vec3::new(1.40625, 1.40625, 2.5),
+        "spacing",
+    );
+    let AnyGrid::U8(g) = &v.channels()[0].grid else {
+        panic!("uint8 should stay u8")
+    };
+    assert_eq!(g.data(), &raw[..]);
+    let mean = raw.iter().map(|&b| f64::from(b)).sum::<f64>() / raw.len() as f64;
+    assert!(
+        (mean - 7.05).abs() < 0.01,
+        "mean {mean}, SOURCE.md says 7.05"
+    );
+}
+
+#[test]
+fn ironprot_vtk_equals_its_extracted_raw() {
+    let Some(vtk) = shared("ironprot/ironProt.vtk") else {
+        return;
+    };
+    let raw = std::fs::read(vtk.with_file_name("ironProt_68x68x68_uint8.raw")).unwrap();
+    let v = read(&vtk).unwrap();
+    assert_eq!(v.geometry().dims, [68, 68, 68]);
+    let AnyGrid::U8(g) = &v.channels()[0].grid else {
+        panic!("unsigned_char should load as u8")
+    };
+    assert_eq!(g.data(), &raw[..]);
+    let mean = raw.iter().map(|&b| f64::from(b)).sum::<f64>() / raw.len() as f64;
+    assert!(
+        (mean - 13.1).abs() < 0.05,
+        "mean {mean}, SOURCE.md says 13.1"
+    );
+    // The NRRD header over the same bytes gives the same grid.
+    let n = read(vtk.with_file_name("ironProt_68x68x68_uint8.nhdr")).unwrap();
+    assert_eq!(n.channels()[0].grid, v.channels()[0].grid);
+}
+
+#[test]
+fn carotid_vtk_matches_byte_offsets_of_source_md() {
+    let Some(vtk) = shared("carotid-flow/carotid.vtk") else {
+        return;
+    };
+    let bytes = std::fs::read(&vtk).unwrap();
+    let n = 76 * 49 * 45;
+    // SOURCE.md: scalars at byte 182, vectors at byte 670525, both big-endian f32.
+    let s_ref = f32_be(&bytes[182..182 + 4 * n]);
+    let v_ref = f32_be(&bytes[670_525..670_525 + 12 * n]);
+    let v = read(&vtk).unwrap();
+    assert_eq!(v.geometry().dims, [76, 49, 45]);
+    assert_close(v.geometry().origin, Vec3::new(100.0, 80.0, 1.0), "origin");
+    assert_eq!(scalars(&v, 0), s_ref);
+    assert_eq!(vectors(&v, "vectors"), v_ref);
+    assert_eq!(v.channels()[0].grid.finite_range(), Some((0.0, 580.0)));
+}
+
+#[test]
+fn enzo_channels_match_source_md_ranges() {
+    let Some(d) = shared("enzo-moving7/density_gcm3_64x64x64_f32le.nhdr") else {
+        return;
+    };
+    let dens = read(&d).unwrap();
+    assert_close(dens.geometry().spacing, Vec3::splat(0.015625), "spacing");
+    let (_, hi) = dens.channels()[0].grid.finite_range().unwrap();
+    assert!((hi / 2.75e-24 - 1.0).abs() < 0.01, "max density {hi}");
+    let t = read(d.with_file_name("temperature_K_64x64x64_f32le.nhdr")).unwrap();
+    let (lo, hi) = t.channels()[0].grid.finite_range().unwrap();
+    assert!(
+        (lo - 1.0).abs() < 0.01 && (hi - 16_697.0).abs() < 1.0,
+        "temperature {lo}..{hi}"
+    );
+    let vel = read(d.with_file_name("velocity_kms_64x64x64x3_f32le.nhdr")).unwrap();
+    assert_eq!(vel.geometry().dims, [64, 64, 64]);
+    let comps = vectors(&vel, "vectors");
+    let (lo, hi) = comps
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &c| (a.min(c), b.max(c)));
+    assert!(
+        (lo - 155.6).abs() < 0.1 && (hi - 331.9).abs() < 0.1,
+        "velocity {lo}..{hi} km/s"
+    );
+    // The raw file by its Open SciVis-style name gives the same vectors.
+    let raw = read(d.with_file_name("velocity_kms_64x64x64x3_f32le.raw")).unwrap();
+    assert_eq!(vectors(&raw, "vectors"), comps);
+}
+
+#[test]
+fn nrrd_writer_round_trips_and_keeps_i16_and_spacing() {
+    let v = read(data("valid/headsq_crop_gzip.nrrd")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for gzip in [false, true] {
+        let out = dir.path().join(format!("rt{gzip}.nrrd"));
+        let written = nrrd::write_file(
+            &out,
+            &v.channels()[0],
+            &nrrd::WriteOptions { gzip, disk: None },
+        )
+        .unwrap();
+        assert_eq!(written, DiskType::I16);
+        let text = std::fs::read(&out).unwrap();
+        assert!(text.starts_with(b"NRRD0004\n") && text.windows(12).any(|w| w == b"type: int16\n"));
+        let back = read(&out).unwrap();
+        assert_eq!(back.geometry(), v.geometry());
+        assert_eq!(scalars(&back, 0), scalars(&v, 0));
+    }
+    // Vectors round-trip as a 4D float NRRD.
+    let c = read(data("valid/carotid_crop_binary.vtk")).unwrap();
+    let out = dir.path().join("vec.nrrd");
+    nrrd::write_file(
+        &out,
+        c.channel("vectors").unwrap(),
+        &nrrd::WriteOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(
+        vectors(&read(&out).unwrap(), "vectors"),
+        vectors(&c, "vectors")
+    );
+}
+
+#[test]
+fn raw_writer_round_trips_through_the_scivis_name() {
+    let v = read(data("valid/headsq_crop.mha")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut bytes = Vec::new();
+    let disk = io::raw::write_raw(&mut bytes, &v.channels()[0]).unwrap();
+    let name = io::raw::scivis_file_name("crop", v.geometry().dims, disk);
+    assert_eq!(name, "crop_16x16x8_int16.raw");
+    let p = dir.path().join(name);
+    std::fs::write(&p, &bytes).unwrap();
+    assert_eq!(scalars(&read(&p).unwrap(), 0), scalars(&v, 0));
+}
+
+#[test]
+fn non_finite_values_are_refused_on_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("nan.nrrd");
+    let mut b =
+        b"NRRD0004\ntype: float\ndimension: 3\nsizes: 2 1 1\nendian: little\nencoding: raw\n\n"
+            .to_vec();
+    b.extend_from_slice(&1.0f32.to_le_bytes());
+    b.extend_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&p, &b).unwrap();
+    assert!(read(&p).is_ok(), "NaN is allowed by default");
+    let err = read_with(
+        &p,
+        &ReadOptions {
+            reject_non_finite: true,
+            ..Default::default()
+        },
+    )
+    .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            Error::NonFinite {
+                x: 1,
+                y: 0,
+                z: 0,
+                ..
+            }
+        ),
+        "{err}"
+    );
+}
+
+#[test]
+fn limits_refuse_before_allocating() {
+    let opts = ReadOptions {
+        limits: blueshift_volume::Limits {
+            max_voxels: 1000,
+            max_alloc_bytes: 1 << 20,
+        },
+        ..Default::default()
+    };
+    let err = read_with(data("valid/headsq_crop.mha"), &opts).unwrap_err();
+    assert!(matches!(err, Error::Limits(_)), "{err}");
+}
+
+#[test]
+fn invalid_files_error_without_panic() {
+    let dir = data("invalid");
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        let r = read(&p);
+        assert!(r.is_err(), "{} should be refused", p.display());
+        let msg = r.unwrap_err().to_string();
+        assert!(
+            !msg.is_empty() && !msg.contains('\n'),
+            "one-line message for {}: {msg}",
+            p.display()
+        );
+        n += 1;
+    }
+    assert!(n >= 25, "only {n} invalid files tested");
+}
+
+mod mutated_headers {
+    //! Property tests: any truncation or byte change in a valid file's header gives Ok or Err,
+    //! never a panic, and never a huge allocation (the default limits stay in force).
+    use super::*;
+    use proptest::prelude::*;
+
+    const FILES: [&str; 7] = [
+        "valid/headsq_crop_be.nrrd",
+        "valid/headsq_crop_gzip.nrrd",
+        "valid/headsq_crop.mha",
+        "valid/headsq_crop_ascii.vtk",
+        "valid/carotid_crop_binary.vtk",
+        "valid/carotid_crop_vectors.nrrd",
+        "valid/headsq_crop.nhdr",
+    ];
+
+    fn try_read(file: &str, bytes: &[u8]) {
+        let dir = tempfile::tempdir().unwrap();
+        // Keep the name (the format is chosen by extension) and the detached data file.
+        let p = dir.path().join(Path::new(file).file_name().unwrap());
+        std::fs::write(&p, bytes).unwrap();
+        let raw = "headsq_crop_16x16x8_int16.raw";
+        std::fs::copy(data(&format!("valid/{raw}")), dir.path().join(raw)).unwrap();
+        let opts = ReadOptions {
+            limits: blueshift_volume::Limits {
+                max_voxels: 1 << 22,
+                max_alloc_bytes: 1 << 26,
+            },
+            ..Default::default()
+        };
+        let _ = read_with(&p, &opts);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 96, ..ProptestConfig::default() })]
+
+        #[test]
+        fn truncation_never_panics(f in 0..FILES.len(), cut in 0.0f64..1.0) {
+            let b = std::fs::read(data(FILES[f])).unwrap();
+            let n = (b.len() as f64 * cut) as usize;
+            try_read(FILES[f], &b[..n]);
+        }
+
+        #[test]
+        fn header_byte_changes_never_panic(f in 0..FILES.len(), edits in prop::collection::vec((0usize..400, any::<u8>()), 1..6)) {
+            let mut b = std::fs::read(data(FILES[f])).unwrap();
+            for (pos, val) in edits {
+                let i = pos % b.len().min(400);
+                b[i] = val;
+            }
+            try_read(FILES[f], &b);
+        }
+
+        #[test]
+        fn header_number_changes_never_panic(f in 0..FILES.len(), which in 0usize..40, num in prop_oneof![
+            Just("0".to_string()), Just("-1".to_string()), Just("nan".to_string()), Just("1e39".to_string()),
+            Just("18446744073709551616".to_string()), Just("4294967296".to_string()), (0u64..100_000).prop_map(|v| v.to_string())
+        ]) {
+            let b = std::fs::read(data(FILES[f])).unwrap();
+            // Replace the `which`-th run of ASCII digits in the header region with `num`.
+            let head_len = b.len().min(400);
+            let mut runs = Vec::new();
+            let mut i = 0;
+            while i < head_len {
+                if b[i].is_ascii_digit() {
+                    let s = i;
+                    while i < head_len && b[i].is_ascii_digit() { i += 1; }
+                    runs.push((s, i));
+                } else { i += 1; }
+            }
+            prop_assume!(!runs.is_empty());
+            let (s, e) = runs[which % runs.len()];
+            let mut out = b[..s].to_vec();
+            out.extend_from_slice(num.as_bytes());
+            out.extend_from_slice(&b[e..]);
+            try_read(FILES[f], &out);
+        }
+    }
+}

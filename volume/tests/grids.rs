@@ -1,0 +1,415 @@
+//! Sampling, macrocells, levels of detail and out-of-core access, checked against analytic
+//! truths (linear fields, convexity of trilinear interpolation, box-filter means).
+
+use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource, RawFileSource, Sampler};
+use blueshift_volume::{AnyGrid, DiskType, Geometry, Grid, Macrocells, lod};
+use glam::Vec3;
+use half::f16;
+use proptest::prelude::*;
+
+/// A small deterministic generator (PCG-like LCG) for sample positions.
+struct Lcg(u64);
+impl Lcg {
+    fn next_f32(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (self.0 >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+fn linear(p: Vec3) -> f32 {
+    0.5 + 2.0 * p.x - 1.25 * p.y + 0.75 * p.z
+}
+
+#[test]
+fn trilinear_reproduces_linear_fields_in_index_and_world_space() {
+    let geom = Geometry {
+        dims: [9, 7, 5],
+        origin: Vec3::new(-1.0, 2.0, 0.5),
+        spacing: Vec3::new(0.5, 0.25, 2.0),
+    };
+    let g = Grid::from_fn(geom, |x, y, z| {
+        linear(geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32)))
+    })
+    .unwrap();
+    let mut rng = Lcg(7);
+    let (lo, hi) = geom.world_bounds();
+    for _ in 0..2000 {
+        let w = lo + (hi - lo) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let got = g.sample_trilinear(w);
+        let want = linear(w);
+        assert!(
+            (got - want).abs() <= 1e-5 * (1.0 + want.abs()),
+            "at {w}: expected {want}, got {got}, diff {}",
+            (got - want).abs()
+        );
+        // Index space agrees with world space.
+        assert_eq!(g.sample_trilinear_index(geom.world_to_index(w)), got);
+    }
+    // A vector field whose components are linear is reproduced too.
+    let vg = Grid::from_fn(geom, |x, y, z| {
+        let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
+        Vec3::new(linear(p), -linear(p), p.z)
+    })
+    .unwrap();
+    let w = Vec3::new(0.3, 2.6, 3.3);
+    let v = vg.sample_trilinear(w);
+    assert!(
+        (v - Vec3::new(linear(w), -linear(w), w.z))
+            .abs()
+            .max_element()
+            < 1e-5,
+        "{v}"
+    );
+}
+
+#[test]
+fn nearest_picks_the_closest_voxel_and_clamps_outside() {
+    let geom = Geometry::unit([4, 4, 4]);
+    let g = Grid::from_fn(geom, |x, y, z| (x + 10 * y + 100 * z) as u16).unwrap();
+    assert_eq!(g.sample_nearest_index(Vec3::new(1.4, 2.6, 0.2)), 31.0);
+    assert_eq!(g.sample_nearest_index(Vec3::new(-5.0, 9.0, 3.49)), 330.0);
+    // Trilinear clamps to the edge too (constant outside).
+    assert_eq!(g.sample_trilinear_index(Vec3::new(10.0, 10.0, 10.0)), 333.0);
+    assert_eq!(g.sample_trilinear_index(Vec3::NAN), 0.0);
+}
+
+#[test]
+fn half_and_byte_grids_sample_their_exact_values() {
+    let geom = Geometry::unit([2, 1, 1]);
+    let h = Grid::from_vec(geom, vec![f16::from_f32(1.0), f16::from_f32(3.0)]).unwrap();
+    assert_eq!(h.sample_trilinear_index(Vec3::new(0.25, 0.0, 0.0)), 1.5);
+    let b = Grid::from_vec(geom, vec![0u8, 255]).unwrap();
+    assert_eq!(b.sample_trilinear_index(Vec3::new(0.5, 0.0, 0.0)), 127.5);
+    assert!(
+        Grid::from_vec(geom, vec![0u8; 3]).is_err(),
+        "length must match dims"
+    );
+}
+
+fn noisy_grid(dims: [usize; 3], seed: u64) -> Grid<f32> {
+    let mut rng = Lcg(seed);
+    let n = dims[0] * dims[1] * dims[2];
+    // Heavy-tailed values so the ranges differ a lot from cell to cell.
+    let data = (0..n).map(|_| (8.0 * rng.next_f32()).exp_m1()).collect();
+    Grid::from_vec(
+        Geometry {
+            dims,
+            origin: Vec3::new(1.0, -2.0, 0.0),
+            spacing: Vec3::new(0.5, 1.0, 2.0),
+        },
+        data,
+    )
+    .unwrap()
+}
+
+#[test]
+fn macrocell_ranges_bound_random_trilinear_samples() {
+    for (dims, k) in [
+        ([17, 12, 9], 4),
+        ([16, 16, 16], 4),
+        ([10, 7, 5], 3),
+        ([5, 5, 5], 8),
+        ([9, 9, 9], 1),
+    ] {
+        let g = noisy_grid(dims, 3);
+        let cells = Macrocells::build(&g, k).unwrap();
+        assert_eq!(cells.dims(), dims.map(|d| (d - 1).div_ceil(k).max(1)));
+        let mut rng = Lcg(11);
+        let max_i = Vec3::new(
+            dims[0] as f32 - 1.0,
+            dims[1] as f32 - 1.0,
+            dims[2] as f32 - 1.0,
+        );
+        for _ in 0..20_000 {
+            let p = max_i * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let v = g.sample_trilinear_index(p);
+            let (lo, hi) = cells.min_max(cells.cell_of_index(p));
+            assert!(
+                v >= lo && v <= hi,
+                "dims {dims:?} k {k}: sample {v} at {p} outside cell range {lo}..{hi}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_spike_on_a_cell_face_shows_up_in_both_neighbouring_cells() {
+    // The +1 neighbour: a spike at voxel x = 4 is reached by interpolation in cells 0 and 1.
+    let geom = Geometry::unit([9, 2, 2]);
+    let g = Grid::from_fn(geom, |x, _, _| if x == 4 { 100.0 } else { 0.0 }).unwrap();
+    let cells = Macrocells::build(&g, 4).unwrap();
+    assert_eq!(cells.min_max([0, 0, 0]).1, 100.0);
+    assert_eq!(cells.min_max([1, 0, 0]).1, 100.0);
+    assert!(Macrocells::build(&g, 0).is_err());
+}
+
+#[test]
+fn macrocells_are_identical_on_one_and_many_threads() {
+    let g = noisy_grid([33, 30, 29], 5);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| Macrocells::build(&g, 4).unwrap());
+    let many = rayon::ThreadPoolBuilder::new()
+        .num_threads(4)
+        .build()
+        .unwrap()
+        .install(|| Macrocells::build(&g, 4).unwrap());
+    assert_eq!(one, many);
+}
+
+#[test]
+fn ray_intervals_are_contiguous_and_bound_the_samples_on_them() {
+    let g = noisy_grid([20, 17, 13], 9);
+    let geom = *g.geometry();
+    let cells = Macrocells::build(&g, 4).unwrap();
+    let (lo, hi) = geom.world_bounds();
+    let mut rng = Lcg(21);
+    let mut crossed = 0;
+    for _ in 0..300 {
+        let a = lo - Vec3::splat(2.0)
+            + (hi - lo + Vec3::splat(4.0))
+                * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let b = lo + (hi - lo) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let dir = (b - a).normalize();
+        let ivs: Vec<_> = cells.intervals(a, dir, 0.0..f32::INFINITY).collect();
+        assert!(
+            !ivs.is_empty(),
+            "a ray through an interior point must cross the grid"
+        );
+        for w in ivs.windows(2) {
+            assert_eq!(w[0].t.end, w[1].t.start, "intervals must be contiguous");
+        }
+        for iv in &ivs {
+            crossed += 1;
+            for f in [0.1f32, 0.5, 0.9] {
+                let t = iv.t.start + f * (iv.t.end - iv.t.start);
+                let v = g.sample_trilinear(a + t * dir);
+                assert!(
+                    v >= iv.value.start && v <= iv.value.end,
+                    "sample {v} outside {:?} in cell {:?}",
+                    iv.value,
+                    iv.cell
+                );
+            }
+        }
+    }
+    assert!(crossed > 1000, "only {crossed} intervals checked");
+    // A ray that misses the box yields nothing.
+    assert_eq!(
+        cells
+            .intervals(hi + Vec3::splat(5.0), Vec3::X, 0.0..100.0)
+            .count(),
+        0
+    );
+}
+
+#[test]
+fn lod_levels_are_box_means_and_halve_the_size() {
+    let geom = Geometry {
+        dims: [5, 4, 3],
+        origin: Vec3::ZERO,
+        spacing: Vec3::ONE,
+    };
+    let g = Grid::from_fn(geom, |x, y, z| (x * x + 3 * y + 7 * z) as f32).unwrap();
+    let c = lod::downsample(&g).unwrap();
+    assert_eq!(c.dims(), [3, 2, 2]);
+    // Coarse voxel [1, 0, 0] is the mean of x in {2, 3}, y in {0, 1}, z in {0, 1}.
+    let mut s = 0.0;
+    for (x, y, z) in [
+        (2, 0, 0),
+        (3, 0, 0),
+        (2, 1, 0),
+        (3, 1, 0),
+        (2, 0, 1),
+        (3, 0, 1),
+        (2, 1, 1),
+        (3, 1, 1),
+    ] {
+        s += g.get(x, y, z).unwrap();
+    }
+    assert_eq!(c.get(1, 0, 0).unwrap(), s / 8.0);
+    // The last coarse x voxel of an odd size repeats the edge voxel: mean over x = 4 only.
+    assert_eq!(
+        c.get(2, 0, 0).unwrap(),
+        (16.0 + 16.0 + 19.0 + 19.0 + 23.0 + 23.0 + 26.0 + 26.0) / 8.0
+    );
+    // A linear field stays linear across levels in world space (origin shift + spacing).
+    let gl = Grid::from_fn(Geometry::unit([16, 16, 16]), |x, y, z| {
+        linear(Vec3::new(x as f32, y as f32, z as f32))
+    })
+    .unwrap();
+    let cl = lod::downsample(&gl).unwrap();
+    let w = Vec3::new(5.3, 7.1, 2.9);
+    assert!((cl.sample_trilinear(w) - linear(w)).abs() < 1e-4);
+    let p = lod::Pyramid::build(&AnyGrid::F32(gl), 4).unwrap();
+    let dims: Vec<_> = p.levels().iter().map(|l| l.dims()).collect();
+    assert_eq!(dims, vec![[16; 3], [8; 3], [4; 3]]);
+}
+
+#[test]
+fn out_of_core_sampling_equals_in_core_sampling_voxel_for_voxel() {
+    let dims = [37, 21, 19];
+    let g = noisy_grid(dims, 13);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v.bsv");
+    let layout = BrickLayout { brick: 8, apron: 1 };
+    let mut calls = 0;
+    ooc::convert(
+        &mut GridSource(&g),
+        &path,
+        "density",
+        layout,
+        &mut |_, _| calls += 1,
+    )
+    .unwrap();
+    assert!(calls >= 3, "progress reported {calls} times");
+    // A cache of 4 bricks, far fewer than the 5 x 3 x 3 bricks of level 0, forces eviction.
+    let f = BrickedFile::open(&path, 4).unwrap();
+    assert_eq!(f.channel_name(), "density");
+    let l0 = f.level(0).unwrap();
+    assert_eq!(Sampler::geometry(&l0), *g.geometry());
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let p = Vec3::new(x as f32, y as f32, z as f32);
+                assert_eq!(
+                    l0.sample_index(p).unwrap(),
+                    g.sample_trilinear_index(p),
+                    "voxel {p}"
+                );
+            }
+        }
+    }
+    let mut rng = Lcg(17);
+    for _ in 0..5000 {
+        let p = Vec3::new(
+            rng.next_f32() * 40.0 - 1.0,
+            rng.next_f32() * 23.0 - 1.0,
+            rng.next_f32() * 21.0 - 1.0,
+        );
+        assert_eq!(
+            l0.sample_index(p).unwrap(),
+            g.sample_trilinear_index(p),
+            "at {p}"
+        );
+    }
+    assert!(
+        f.resident_bricks() <= 4,
+        "cache exceeded its bound: {}",
+        f.resident_bricks()
+    );
+    // Every coarser level equals the in-core pyramid.
+    let pyr = lod::Pyramid::build(&AnyGrid::F32(g.clone()), 8).unwrap();
+    assert_eq!(f.levels(), pyr.levels().len());
+    for (l, lv) in pyr.levels().iter().enumerate() {
+        let AnyGrid::F32(loaded) = f.load_level(l, &Default::default()).unwrap() else {
+            unreachable!()
+        };
+        assert_eq!(&loaded, lv, "level {l}");
+    }
+    // Progressive refinement: after touching only the coarsest level, that level is the
+    // finest resident one.
+    f.clear_cache();
+    let top = f.levels() - 1;
+    let w = Vec3::new(5.0, 2.0, 3.0);
+    assert_eq!(f.finest_resident_level(w), None);
+    f.level(top).unwrap().sample_world(w).unwrap();
+    assert_eq!(f.finest_resident_level(w), Some(top));
+    l0.sample_world(w).unwrap();
+    assert_eq!(f.finest_resident_level(w), Some(0));
+}
+
+#[test]
+fn streaming_conversion_from_a_raw_file_matches_in_core() {
+    // i16 big-endian raw file, streamed slice by slice.
+    let dims = [19, 11, 23];
+    let geom = Geometry::unit(dims);
+    let g = Grid::from_fn(geom, |x, y, z| {
+        ((x * 37 + y * 11 + z * 5) % 601) as f32 - 300.0
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("in.raw");
+    let mut bytes = vec![0u8; 7]; // a 7-byte header to skip
+    for v in g.data() {
+        bytes.extend_from_slice(&(*v as i16).to_be_bytes());
+    }
+    std::fs::write(&raw, &bytes).unwrap();
+    let mut src = RawFileSource::new(
+        &raw,
+        7,
+        DiskType::I16,
+        blueshift_volume::io::Endian::Big,
+        geom,
+    )
+    .unwrap();
+    let out = dir.path().join("o.bsv");
+    ooc::convert(
+        &mut src,
+        &out,
+        "ct",
+        BrickLayout { brick: 4, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let f = BrickedFile::open(&out, 2).unwrap();
+    let AnyGrid::F32(back) = f.load_level(0, &Default::default()).unwrap() else {
+        unreachable!()
+    };
+    assert_eq!(back.data(), g.data());
+    let l1 = f.level(1).unwrap();
+    let c = lod::downsample(&g).unwrap();
+    for p in [Vec3::new(1.5, 2.25, 3.0), Vec3::new(8.0, 0.0, 10.9)] {
+        assert_eq!(l1.sample_index(p).unwrap(), c.sample_trilinear_index(p));
+    }
+    // A truncated raw file is refused before anything is written.
+    std::fs::write(&raw, &bytes[..100]).unwrap();
+    assert!(
+        RawFileSource::new(
+            &raw,
+            7,
+            DiskType::I16,
+            blueshift_volume::io::Endian::Big,
+            geom
+        )
+        .is_err()
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    #[test]
+    fn mutated_bricked_files_error_without_panic(pos in 0usize..80, val in any::<u8>(), cut in 0.0f64..1.0) {
+        let g = noisy_grid([9, 9, 9], 1);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("v.bsv");
+        ooc::convert(&mut GridSource(&g), &path, "d", BrickLayout { brick: 4, apron: 1 }, &mut |_, _| {}).unwrap();
+        let mut b = std::fs::read(&path).unwrap();
+        b[pos] = val;
+        let n = if cut > 0.5 { b.len() } else { (b.len() as f64 * cut * 2.0) as usize };
+        std::fs::write(&path, &b[..n]).unwrap();
+        if let Ok(f) = BrickedFile::open(&path, 2) {
+            for l in 0..f.levels() {
+                let _ = f.level(l).unwrap().sample_index(Vec3::splat(3.5));
+            }
+        }
+    }
+}
+
+#[test]
+fn a_diagonal_ray_through_cell_corners_visits_each_diagonal_cell_once() {
+    // 17^3 voxels, k = 4: 4 cells per axis; the main diagonal passes exactly through corners.
+    let g = Grid::from_fn(Geometry::unit([17, 17, 17]), |x, y, z| (x + y + z) as f32).unwrap();
+    let cells = Macrocells::build(&g, 4).unwrap();
+    let ivs: Vec<_> = cells.intervals(Vec3::splat(-2.0), Vec3::ONE, 0.0..100.0).collect();
+    let visited: Vec<_> = ivs.iter().map(|iv| iv.cell).collect();
+    assert_eq!(visited, vec![[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]]);
+    assert!(ivs.iter().all(|iv| iv.t.end > iv.t.start), "{ivs:?}");
+    assert_eq!((ivs[0].t.start, ivs[3].t.end), (2.0, 18.0), "clipped to the voxel-centre box 0..=16");
+}
