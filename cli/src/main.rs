@@ -30,6 +30,8 @@ enum Command {
     Convert(commands::convert::Args),
     /// Write a synthetic dataset (galaxy, hydrogen-shell, three-cubes, ...) as NRRD.
     Synth(commands::synth::Args),
+    /// Transfer functions: draw the editor view, convert ParaView presets, write lookup tables.
+    Tf(commands::tf::Args),
 }
 
 fn main() -> ExitCode {
@@ -47,6 +49,7 @@ fn main() -> ExitCode {
         Command::Info(args) => commands::info::run(args),
         Command::Convert(args) => commands::convert::run(args),
         Command::Synth(args) => commands::synth::run(args),
+        Command::Tf(args) => commands::tf::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

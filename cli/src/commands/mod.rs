@@ -5,3 +5,4 @@ pub mod info;
 pub mod spectrum;
 pub mod synth;
 mod volume_common;
+pub mod tf;
