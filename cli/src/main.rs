@@ -32,6 +32,8 @@ enum Command {
     Synth(commands::synth::Args),
     /// Transfer functions: draw the editor view, convert ParaView presets, write lookup tables.
     Tf(commands::tf::Args),
+    /// Render a volume scene (Woodcock, multi-density Woodcock N-DDA/1-DDA, ray marcher) to EXR.
+    Render(Box<commands::render::Args>),
 }
 
 fn main() -> ExitCode {
@@ -50,6 +52,7 @@ fn main() -> ExitCode {
         Command::Convert(args) => commands::convert::run(args),
         Command::Synth(args) => commands::synth::run(args),
         Command::Tf(args) => commands::tf::run(args),
+        Command::Render(args) => commands::render::run(*args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,6 +2,7 @@
 
 pub mod convert;
 pub mod info;
+pub mod render;
 pub mod spectrum;
 pub mod synth;
 mod volume_common;
