@@ -12,9 +12,7 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use blueshift_benches::{channel_scene, memory_table, out_dir};
-use blueshift_tracking::{
-    Blend, DdaMode, Integrator, RayMarcher, RenderSettings, Scene, render,
-};
+use blueshift_tracking::{Blend, DdaMode, Integrator, RayMarcher, RenderSettings, Scene, render};
 use criterion::{BenchmarkId, Criterion};
 
 const RES: usize = 64;
@@ -29,15 +27,30 @@ fn settings(scene: &Scene) -> RenderSettings {
 
 fn methods() -> [(&'static str, Integrator); 3] {
     [
-        ("ndda", Integrator::Mdwt { dda: DdaMode::NDda, blend: Blend::Density }),
-        ("1dda", Integrator::Mdwt { dda: DdaMode::OneDda, blend: Blend::Density }),
+        (
+            "ndda",
+            Integrator::Mdwt {
+                dda: DdaMode::NDda,
+                blend: Blend::Density,
+            },
+        ),
+        (
+            "1dda",
+            Integrator::Mdwt {
+                dda: DdaMode::OneDda,
+                blend: Blend::Density,
+            },
+        ),
         ("marcher", Integrator::Marcher(RayMarcher::default())),
     ]
 }
 
 /// Median seconds of `reps` single-threaded renders.
 fn time_render(scene: &Scene, integ: &Integrator, s: &RenderSettings, reps: usize) -> f64 {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("pool");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
     let mut t: Vec<f64> = (0..reps)
         .map(|_| {
             let start = Instant::now();
@@ -53,7 +66,8 @@ fn write_tables() {
     let dir = out_dir();
     let px = f64::from(SIZE * SIZE);
     // Fig. 8: macrocell edge k = 1, 2, 4, 8 -> 1, 8, 64, 512 cells per macrocell.
-    let mut csv = String::from("cells_per_macrocell,k,seconds,ratio_to_k1,samples_per_s_per_core\n");
+    let mut csv =
+        String::from("cells_per_macrocell,k,seconds,ratio_to_k1,samples_per_s_per_core\n");
     let mut base = 0.0;
     for k in [1usize, 2, 4, 8] {
         let scene = channel_scene(4, RES, k, DENSITY).expect("scene");
@@ -62,13 +76,22 @@ fn write_tables() {
         if k == 1 {
             base = t;
         }
-        let _ = writeln!(csv, "{},{k},{t:.6},{:.3},{:.0}", k * k * k, t / base, px / t);
+        let _ = writeln!(
+            csv,
+            "{},{k},{t:.6},{:.3},{:.0}",
+            k * k * k,
+            t / base,
+            px / t
+        );
     }
     let _ = std::fs::write(dir.join("fig8_macrocell.csv"), &csv);
     eprintln!("fig8 (1-DDA, 4 channels):\n{csv}");
     // Fig. 9: channel count.
-    let mut csv = String::from("channels,method,seconds,ratio_to_1_channel,samples_per_s_per_core\n");
-    let mut mem = String::from("channels,data_bytes,macrocell_bytes,majorant_bytes,macrocell_ratio,majorant_ratio\n");
+    let mut csv =
+        String::from("channels,method,seconds,ratio_to_1_channel,samples_per_s_per_core\n");
+    let mut mem = String::from(
+        "channels,data_bytes,macrocell_bytes,majorant_bytes,macrocell_ratio,majorant_ratio\n",
+    );
     let mut base = [0.0f64; 3];
     for n in 1..=12usize {
         let scene = channel_scene(n, RES, 4, DENSITY).expect("scene");
@@ -81,7 +104,12 @@ fn write_tables() {
             let _ = writeln!(csv, "{n},{name},{t:.6},{:.3},{:.0}", t / base[i], px / t);
         }
         let (c, d, m, j) = memory_table(&scene);
-        let _ = writeln!(mem, "{c},{d},{m},{j},{:.4},{:.4}", m as f64 / d as f64, j as f64 / d as f64);
+        let _ = writeln!(
+            mem,
+            "{c},{d},{m},{j},{:.4},{:.4}",
+            m as f64 / d as f64,
+            j as f64 / d as f64
+        );
     }
     let _ = std::fs::write(dir.join("fig9_channels.csv"), &csv);
     let _ = std::fs::write(dir.join("table1_memory.csv"), &mem);

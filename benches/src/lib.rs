@@ -28,7 +28,11 @@ pub fn ramp_tf(rgb: [f32; 3]) -> Result<TransferFunction> {
     Ok(TransferFunction::new(
         [0.0, 1.0],
         vec![ColorKnot { x: 0.0, rgb }, ColorKnot { x: 1.0, rgb }],
-        vec![OpacityKnot::new(0.0, 0.0), OpacityKnot::new(0.05, 0.0), OpacityKnot::new(1.0, 1.0)],
+        vec![
+            OpacityKnot::new(0.0, 0.0),
+            OpacityKnot::new(0.05, 0.0),
+            OpacityKnot::new(1.0, 1.0),
+        ],
     )?)
 }
 
@@ -40,9 +44,9 @@ pub fn channel_scene(n: usize, res: usize, k: usize, density_scale: f32) -> Resu
     for (i, ch) in vol.channels().iter().take(n.clamp(1, 12)).enumerate() {
         let h = i as f32 / 12.0;
         let rgb = [
-            0.5 + 0.5 * (6.283 * h).cos(),
-            0.5 + 0.5 * (6.283 * (h + 0.33)).cos(),
-            0.5 + 0.5 * (6.283 * (h + 0.67)).cos(),
+            0.5 + 0.5 * (std::f32::consts::TAU * h).cos(),
+            0.5 + 0.5 * (std::f32::consts::TAU * (h + 0.33)).cos(),
+            0.5 + 0.5 * (std::f32::consts::TAU * (h + 0.67)).cos(),
         ];
         triples.push((ch.name.clone(), ch.grid.clone(), ramp_tf(rgb)?));
     }
@@ -61,7 +65,11 @@ pub fn memory_table(scene: &Scene) -> (usize, usize, usize, usize) {
         .sum();
     let cells = scene.layout().len();
     let macro_bytes = n * cells * 2 * std::mem::size_of::<f32>();
-    let maj: usize = scene.channels().iter().map(|c| c.majorant().memory_bytes()).sum();
+    let maj: usize = scene
+        .channels()
+        .iter()
+        .map(|c| c.majorant().memory_bytes())
+        .sum();
     (n, data, macro_bytes, maj)
 }
 

@@ -34,7 +34,11 @@ fn read_exr(p: &Path) -> image::Rgba32FImage {
 }
 
 fn ok(out: &Output) {
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]
@@ -46,9 +50,28 @@ fn homogeneous_slab_matches_beer_lambert_for_every_method() {
     for method in ["woodcock", "mdwt-ndda", "mdwt-1dda", "marcher"] {
         let out = blueshift(
             &[
-                "--volume", "slab.nrrd", "--tf", "tf.json", "--method", method, "--camera", "ortho",
-                "--spp", "64", "--width", "16", "--height", "16", "--density-scale", "0.2",
-                "--background", "0,0,0", "--out", "o.exr", "--png", "o.png",
+                "--volume",
+                "slab.nrrd",
+                "--tf",
+                "tf.json",
+                "--method",
+                method,
+                "--camera",
+                "ortho",
+                "--spp",
+                "64",
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--density-scale",
+                "0.2",
+                "--background",
+                "0,0,0",
+                "--out",
+                "o.exr",
+                "--png",
+                "o.png",
             ],
             dir.path(),
         );
@@ -57,7 +80,10 @@ fn homogeneous_slab_matches_beer_lambert_for_every_method() {
         let n = f64::from(img.width() * img.height());
         let mean: f64 = img.pixels().map(|p| f64::from(p.0[0])).sum::<f64>() / n;
         // 16 x 16 x 64 Bernoulli samples: standard error about 0.002.
-        assert!((mean - expected).abs() < 0.01, "{method}: {mean} vs {expected}");
+        assert!(
+            (mean - expected).abs() < 0.01,
+            "{method}: {mean} vs {expected}"
+        );
         assert!(dir.path().join("o.png").exists());
     }
 }
@@ -65,8 +91,24 @@ fn homogeneous_slab_matches_beer_lambert_for_every_method() {
 #[test]
 fn same_seed_same_image_on_any_thread_count() {
     let dir = tempfile::tempdir().unwrap();
-    let common = ["--synth", "three-cubes", "--res", "16", "--tf", "builtin:viridis", "--spp", "4",
-        "--width", "20", "--height", "12", "--density-scale", "5", "--seed", "3"];
+    let common = [
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--tf",
+        "builtin:viridis",
+        "--spp",
+        "4",
+        "--width",
+        "20",
+        "--height",
+        "12",
+        "--density-scale",
+        "5",
+        "--seed",
+        "3",
+    ];
     let mut a = common.to_vec();
     a.extend(["--threads", "1", "--out", "a.exr"]);
     let mut b = common.to_vec();
@@ -103,7 +145,10 @@ fn scene_file_and_paraview_preset_render() {
     let out = blueshift(&["s/scene.json", "--out", "x.exr"], dir.path());
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("channels[1]") && err.trim().lines().count() == 1, "{err}");
+    assert!(
+        err.contains("channels[1]") && err.trim().lines().count() == 1,
+        "{err}"
+    );
     assert!(!dir.path().join("x.exr").exists());
     // With the slab alone it renders; flags override the file.
     std::fs::write(
@@ -112,7 +157,10 @@ fn scene_file_and_paraview_preset_render() {
              "method": "mdwt-ndda", "spp": 2, "width": 8, "height": 8, "density_scale": 0.1 }"#,
     )
     .unwrap();
-    ok(&blueshift(&["s/one.json", "--spp", "3", "--json", "--out", "x.exr"], dir.path()));
+    ok(&blueshift(
+        &["s/one.json", "--spp", "3", "--json", "--out", "x.exr"],
+        dir.path(),
+    ));
     let img = read_exr(&dir.path().join("x.exr"));
     assert_eq!(img.dimensions(), (8, 8));
     // Red only: the preset's colour.
@@ -124,13 +172,41 @@ fn bad_input_gets_one_line_errors_naming_the_field() {
     let dir = tempfile::tempdir().unwrap();
     write_slab(dir.path());
     let cases: &[(&str, &[&str], &str)] = &[
-        (r#"{ "channels": [], "colour": 1 }"#, &[], "unknown field `colour`"),
-        (r#"{ "channels": [ { "volume": "nope.nrrd", "tf": "tf.json" } ] }"#, &[], "channels[0].volume"),
-        (r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "spp": 0 }"#, &[], "spp"),
-        (r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "missing.json" } ] }"#, &[], "channels[0].tf"),
-        (r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "method": "x" }"#, &[], "method"),
-        (r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ] }"#, &["--width", "0"], "image size"),
-        (r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "blend": "mix", "weights": [1, 2] }"#, &[], "weights"),
+        (
+            r#"{ "channels": [], "colour": 1 }"#,
+            &[],
+            "unknown field `colour`",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "nope.nrrd", "tf": "tf.json" } ] }"#,
+            &[],
+            "channels[0].volume",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "spp": 0 }"#,
+            &[],
+            "spp",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "missing.json" } ] }"#,
+            &[],
+            "channels[0].tf",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "method": "x" }"#,
+            &[],
+            "method",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ] }"#,
+            &["--width", "0"],
+            "image size",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "blend": "mix", "weights": [1, 2] }"#,
+            &[],
+            "weights",
+        ),
     ];
     for (i, (json, extra, needle)) in cases.iter().enumerate() {
         let f = format!("bad{i}.json");

@@ -98,13 +98,17 @@ impl Camera {
     /// parallel to the view direction, a field of view in (0, 180) or a positive height.
     pub fn validate(&self) -> Result<()> {
         if !(self.eye.is_finite() && self.target.is_finite() && self.up.is_finite()) {
-            return Err(Error::parameter("camera: eye, target and up must be finite"));
+            return Err(Error::parameter(
+                "camera: eye, target and up must be finite",
+            ));
         }
         let f = (self.target - self.eye)
             .try_normalize()
             .ok_or_else(|| Error::parameter("camera: eye and target coincide"))?;
         if f.cross(self.up).length_squared() < 1e-12 {
-            return Err(Error::parameter("camera: up is parallel to the view direction"));
+            return Err(Error::parameter(
+                "camera: up is parallel to the view direction",
+            ));
         }
         match self.projection {
             Projection::Perspective { fov_y_deg } if !(fov_y_deg > 0.0 && fov_y_deg < 180.0) => {
@@ -112,9 +116,11 @@ impl Camera {
                     "camera: field of view {fov_y_deg} must be in (0, 180) degrees"
                 )))
             }
-            Projection::Orthographic { height } if !(height > 0.0 && height.is_finite()) => Err(
-                Error::parameter(format!("camera: orthographic height {height} must be positive")),
-            ),
+            Projection::Orthographic { height } if !(height > 0.0 && height.is_finite()) => {
+                Err(Error::parameter(format!(
+                    "camera: orthographic height {height} must be positive"
+                )))
+            }
             _ => Ok(()),
         }
     }
@@ -127,7 +133,11 @@ impl Camera {
     pub fn default_view(lo: Vec3, hi: Vec3, aspect: f32, orthographic: bool) -> Camera {
         let centre = 0.5 * (lo + hi);
         let ext = (hi - lo).max(Vec3::splat(1e-6));
-        let aspect = if aspect > 0.0 && aspect.is_finite() { aspect } else { 1.0 };
+        let aspect = if aspect > 0.0 && aspect.is_finite() {
+            aspect
+        } else {
+            1.0
+        };
         let frame_h = ext.y.max(ext.x / aspect);
         if orthographic {
             let eye = Vec3::new(centre.x, centre.y, lo.z - ext.z - 1.0);

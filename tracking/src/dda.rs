@@ -119,7 +119,7 @@ impl Dda {
             return dda;
         };
         let t1 = t1.min(t_max);
-        if !(t0 <= t1) {
+        if t0 > t1 {
             return dda;
         }
         let p = (o + d * t0).clamp(Vec3::ZERO, n);
@@ -174,8 +174,8 @@ impl Iterator for Dda {
         };
         let t_exit = t_cross.max(self.t).min(self.t_end);
         let d = &self.layout_dims;
-        let cell = self.cell[0] as usize
-            + d[0] * (self.cell[1] as usize + d[1] * self.cell[2] as usize);
+        let cell =
+            self.cell[0] as usize + d[0] * (self.cell[1] as usize + d[1] * self.cell[2] as usize);
         let out = DdaCell {
             cell,
             t_min: self.t,

@@ -123,7 +123,7 @@ fn normalised(weights: &[f32], n: usize, what: &str) -> Result<Vec<f32>> {
         )));
     }
     let sum: f32 = weights.iter().sum();
-    if weights.iter().any(|w| !(*w >= 0.0 && w.is_finite())) || !(sum > 0.0) {
+    if weights.iter().any(|w| !(*w >= 0.0 && w.is_finite())) || sum.is_nan() || sum <= 0.0 {
         return Err(Error::parameter(format!(
             "{what}: weights must be finite, non-negative and not all zero"
         )));
@@ -202,23 +202,31 @@ impl Integrator {
         match self {
             Integrator::Woodcock { channel } => woodcock(scene, *channel, ray, rng),
             Integrator::Mdwt { dda, blend } => match blend {
-                Blend::Composite { weights } => composite(weights, |n, rng| {
-                    woodcock(scene, n, ray, rng)
-                }, rng),
+                Blend::Composite { weights } => {
+                    composite(weights, |n, rng| woodcock(scene, n, ray, rng), rng)
+                }
                 _ => mdwt(scene, *dda, blend, ray, rng),
             },
             Integrator::Marcher(m) => match &m.blend {
-                Blend::Composite { weights } => composite(weights, |n, rng| {
-                    let b = Blend::Density;
-                    march(scene, m, &b, Some(n), ray, rng)
-                }, rng),
+                Blend::Composite { weights } => composite(
+                    weights,
+                    |n, rng| {
+                        let b = Blend::Density;
+                        march(scene, m, &b, Some(n), ray, rng)
+                    },
+                    rng,
+                ),
                 b => march(scene, m, b, None, ray, rng),
             },
         }
     }
 }
 
-fn composite(weights: &[f32], mut f: impl FnMut(usize, &mut Rng) -> [f32; 4], rng: &mut Rng) -> [f32; 4] {
+fn composite(
+    weights: &[f32],
+    mut f: impl FnMut(usize, &mut Rng) -> [f32; 4],
+    rng: &mut Rng,
+) -> [f32; 4] {
     let mut acc = [0.0f32; 4];
     for (n, &w) in weights.iter().enumerate() {
         let v = f(n, rng);
@@ -300,7 +308,7 @@ fn blended(scene: &Scene, blend: &Blend, n: usize, p: Vec3) -> (f32, [f32; 3]) {
                     }
                 }
             }
-            if best != n || !(best_s > 0.0) {
+            if best != n || best_s.is_nan() || best_s <= 0.0 {
                 return (0.0, own);
             }
             match blend {
@@ -317,7 +325,9 @@ fn total_sigma(scene: &Scene, blend: &Blend, p: Vec3) -> f32 {
         Blend::Max | Blend::Mix { .. } => (0..scene.channel_count())
             .map(|m| scene.sample(m, p).0)
             .fold(0.0, f32::max),
-        _ => (0..scene.channel_count()).map(|m| scene.sample(m, p).0).sum(),
+        _ => (0..scene.channel_count())
+            .map(|m| scene.sample(m, p).0)
+            .sum(),
     }
 }
 
@@ -462,6 +472,48 @@ fn quantise(v: f32, precision: Precision) -> f32 {
     }
 }
 
+/// Total effective extinction and emission `sum_n s_n c_n` over `channels` at `p`, with
+/// each channel sampled once (max and mix need all channels at once).
+fn point_emission(scene: &Scene, blend: &Blend, channels: &[usize], p: Vec3) -> (f32, [f32; 3]) {
+    match blend {
+        Blend::Max | Blend::Mix { .. } if channels.len() > 1 => {
+            let mut best_s = 0.0f32;
+            let mut best_c = [0.0f32; 3];
+            let mut mix = [0.0f32; 3];
+            for &m in channels {
+                let (s, c) = scene.sample(m, p);
+                if s > best_s {
+                    best_s = s;
+                    best_c = c;
+                }
+                if let Blend::Mix { weights } = blend {
+                    for i in 0..3 {
+                        mix[i] += c[i] * s * weights[m];
+                    }
+                }
+            }
+            // Emission s c with s = max sigma: max keeps the winner's colour; mix's colour is
+            // sum f sigma w / max sigma, so s c = sum f sigma w.
+            match blend {
+                Blend::Mix { .. } => (best_s, mix),
+                _ => (best_s, best_c.map(|v| v * best_s)),
+            }
+        }
+        _ => {
+            let mut sigma = 0.0f32;
+            let mut emit = [0.0f32; 3];
+            for &n in channels {
+                let (s, col) = blended(scene, blend, n, p);
+                sigma += s;
+                for k in 0..3 {
+                    emit[k] += s * col[k];
+                }
+            }
+            (sigma, emit)
+        }
+    }
+}
+
 /// Front-to-back emission-absorption marching; `only` restricts to one channel (composite).
 fn march(
     scene: &Scene,
@@ -491,15 +543,7 @@ fn march(
                 break;
             }
             let p = ray.at(ta + jitter * len);
-            let mut sigma = 0.0f32;
-            let mut emit = [0.0f32; 3];
-            for &n in &channels {
-                let (s, col) = blended(scene, blend, n, p);
-                sigma += s;
-                for k in 0..3 {
-                    emit[k] += s * col[k];
-                }
-            }
+            let (sigma, emit) = point_emission(scene, blend, &channels, p);
             if sigma <= 0.0 {
                 continue;
             }
@@ -517,5 +561,10 @@ fn march(
         }
     }
     let bg = scene.background;
-    [c[0] + (1.0 - a) * bg[0], c[1] + (1.0 - a) * bg[1], c[2] + (1.0 - a) * bg[2], a]
+    [
+        c[0] + (1.0 - a) * bg[0],
+        c[1] + (1.0 - a) * bg[1],
+        c[2] + (1.0 - a) * bg[2],
+        a,
+    ]
 }

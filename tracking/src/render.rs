@@ -165,11 +165,7 @@ impl Progressive {
     /// The mean image.
     #[must_use]
     pub fn mean_image(&self) -> Rgba32FImage {
-        let data = self
-            .mean
-            .iter()
-            .flat_map(|p| p.map(|v| v as f32))
-            .collect();
+        let data = self.mean.iter().flat_map(|p| p.map(|v| v as f32)).collect();
         Rgba32FImage::from_raw(self.width, self.height, data).unwrap_or_default()
     }
 

@@ -39,7 +39,10 @@ impl Rng {
     #[inline]
     #[must_use]
     pub fn at(&self, dim: u64) -> u64 {
-        mix64(self.key.wrapping_add(dim.wrapping_add(1).wrapping_mul(GOLDEN)))
+        mix64(
+            self.key
+                .wrapping_add(dim.wrapping_add(1).wrapping_mul(GOLDEN)),
+        )
     }
 
     /// The next 64 random bits.

@@ -225,7 +225,9 @@ impl Scene {
     #[must_use]
     pub fn sample(&self, n: usize, p: Vec3) -> (f32, [f32; 3]) {
         let ch = &self.channels[n];
-        let v = ch.grid.sample_scalar_index(self.layout.geometry.world_to_index(p));
+        let v = ch
+            .grid
+            .sample_scalar_index(self.layout.geometry.world_to_index(p));
         let [r, g, b, a] = ch.tf.eval(f64::from(v));
         (a * self.density_scale, [r, g, b])
     }

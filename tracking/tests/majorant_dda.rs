@@ -10,13 +10,32 @@ use glam::Vec3;
 
 fn random_tf(rng: &mut Rng) -> TransferFunction {
     let n = 1 + (rng.next_u64() % 6) as usize;
-    let mut xs: Vec<f64> = (0..n).map(|_| f64::from(rng.uniform()) * 2.0 - 0.5).collect();
+    let mut xs: Vec<f64> = (0..n)
+        .map(|_| f64::from(rng.uniform()) * 2.0 - 0.5)
+        .collect();
     xs.sort_by(f64::total_cmp);
     let op = xs
         .iter()
-        .map(|&x| OpacityKnot::new(x, if rng.uniform() < 0.3 { 0.0 } else { rng.uniform() }))
+        .map(|&x| {
+            OpacityKnot::new(
+                x,
+                if rng.uniform() < 0.3 {
+                    0.0
+                } else {
+                    rng.uniform()
+                },
+            )
+        })
         .collect();
-    TransferFunction::new([-0.5, 1.5], vec![ColorKnot { x: 0.0, rgb: [1.0; 3] }], op).unwrap()
+    TransferFunction::new(
+        [-0.5, 1.5],
+        vec![ColorKnot {
+            x: 0.0,
+            rgb: [1.0; 3],
+        }],
+        op,
+    )
+    .unwrap()
 }
 
 fn random_scene(rng: &mut Rng) -> Scene {
@@ -24,16 +43,31 @@ fn random_scene(rng: &mut Rng) -> Scene {
     let geom = Geometry {
         dims,
         origin: Vec3::new(rng.uniform() - 0.5, rng.uniform(), -rng.uniform()),
-        spacing: Vec3::new(0.5 + rng.uniform(), 0.5 + rng.uniform(), 0.5 + rng.uniform()),
+        spacing: Vec3::new(
+            0.5 + rng.uniform(),
+            0.5 + rng.uniform(),
+            0.5 + rng.uniform(),
+        ),
     };
     let n = geom.voxel_count();
     let smooth = rng.uniform() < 0.5;
     let data: Vec<f32> = (0..n)
-        .map(|i| if smooth { (i as f32 * 0.37).sin() * 0.5 + 0.5 } else { rng.uniform() })
+        .map(|i| {
+            if smooth {
+                (i as f32 * 0.37).sin() * 0.5 + 0.5
+            } else {
+                rng.uniform()
+            }
+        })
         .collect();
     let g = AnyGrid::F32(Grid::from_vec(geom, data).unwrap());
     let k = 1 + (rng.next_u64() % 5) as usize;
-    Scene::new(vec![("r".into(), g, random_tf(rng))], 0.5 + 3.0 * rng.uniform(), k).unwrap()
+    Scene::new(
+        vec![("r".into(), g, random_tf(rng))],
+        0.5 + 3.0 * rng.uniform(),
+        k,
+    )
+    .unwrap()
 }
 
 fn random_ray(rng: &mut Rng, lo: Vec3, hi: Vec3) -> Ray {
@@ -41,7 +75,11 @@ fn random_ray(rng: &mut Rng, lo: Vec3, hi: Vec3) -> Ray {
     let ext = hi - lo;
     let kind = rng.next_u64() % 4;
     let axis = (rng.next_u64() % 3) as usize;
-    let mut dir = Vec3::new(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5);
+    let mut dir = Vec3::new(
+        rng.uniform() - 0.5,
+        rng.uniform() - 0.5,
+        rng.uniform() - 0.5,
+    );
     if kind == 0 {
         // Along an axis, possibly on a face or a cell boundary.
         dir = Vec3::ZERO;
@@ -55,7 +93,11 @@ fn random_ray(rng: &mut Rng, lo: Vec3, hi: Vec3) -> Ray {
         let mut target = target;
         if kind == 2 {
             // Grazing: the target on a face of the box.
-            target[axis] = if rng.uniform() < 0.5 { lo[axis] } else { hi[axis] };
+            target[axis] = if rng.uniform() < 0.5 {
+                lo[axis]
+            } else {
+                hi[axis]
+            };
         }
         if kind == 0 {
             let mut o = target;
@@ -78,14 +120,27 @@ fn majorant_never_underestimates_and_segments_tile_the_ray() {
         for _ in 0..20 {
             let ray = random_ray(&mut rng, lo, hi);
             let segs: Vec<_> = DdaMajorantIterator::new(grid, &ray, f32::INFINITY).collect();
-            if let Some((t0, t1)) = ray.clip_box(lo, hi) {
-                if t1 - t0 > 1e-3 * (hi - lo).length() {
-                    assert!(!segs.is_empty(), "ray {ray:?} crosses the box but got no cells");
+            if let Some((t0, t1)) = ray.clip_box(lo, hi)
+                && t1 - t0 > 1e-3 * (hi - lo).length()
+            {
+                {
+                    assert!(
+                        !segs.is_empty(),
+                        "ray {ray:?} crosses the box but got no cells"
+                    );
                     let first = segs.first().unwrap();
                     let last = segs.last().unwrap();
                     let tol = 1e-4 * (1.0 + t1.abs());
-                    assert!((first.t_min - t0).abs() <= tol, "entry {} vs {t0}", first.t_min);
-                    assert!((last.t_max - t1).abs() <= tol, "exit {} vs {t1}", last.t_max);
+                    assert!(
+                        (first.t_min - t0).abs() <= tol,
+                        "entry {} vs {t0}",
+                        first.t_min
+                    );
+                    assert!(
+                        (last.t_max - t1).abs() <= tol,
+                        "exit {} vs {t1}",
+                        last.t_max
+                    );
                 }
             }
             for w in segs.windows(2) {
@@ -113,7 +168,12 @@ fn majorant_never_underestimates_and_segments_tile_the_ray() {
 fn dda_visits_every_cell_once_along_an_axis() {
     // 17 voxels, k = 4: 4 cells per axis; a ray along x through the middle visits 4 cells.
     let g = common::grid([17, 17, 17], |_, _, _| 0.0);
-    let scene = Scene::new(vec![("z".into(), g, common::tf([1.0; 3], &[(0.0, 1.0)]))], 1.0, 4).unwrap();
+    let scene = Scene::new(
+        vec![("z".into(), g, common::tf([1.0; 3], &[(0.0, 1.0)]))],
+        1.0,
+        4,
+    )
+    .unwrap();
     for (o, d) in [
         (Vec3::new(-1.0, 8.0, 8.0), Vec3::X),
         (Vec3::new(20.0, 8.0, 8.0), -Vec3::X),
@@ -121,7 +181,8 @@ fn dda_visits_every_cell_once_along_an_axis() {
         (Vec3::new(-1.0, 8.0, 0.0), Vec3::X),
         (Vec3::new(-1.0, 16.0, 16.0), Vec3::X),
     ] {
-        let cells: Vec<_> = Dda::new(scene.layout(), &Ray::new(o, d).unwrap(), f32::INFINITY).collect();
+        let cells: Vec<_> =
+            Dda::new(scene.layout(), &Ray::new(o, d).unwrap(), f32::INFINITY).collect();
         assert_eq!(cells.len(), 4, "{o} {d}: {cells:?}");
         let total: f32 = cells.iter().map(|c| c.t_max - c.t_min).sum();
         assert!((total - 16.0).abs() < 1e-4);
@@ -130,23 +191,54 @@ fn dda_visits_every_cell_once_along_an_axis() {
         assert_eq!(ids.len(), 4);
     }
     // Starting inside at x = 9.5 going +x: cells 2 and 3, length 6.5.
-    let cells: Vec<_> =
-        Dda::new(scene.layout(), &Ray::new(Vec3::new(9.5, 3.0, 3.0), Vec3::X).unwrap(), f32::INFINITY).collect();
+    let cells: Vec<_> = Dda::new(
+        scene.layout(),
+        &Ray::new(Vec3::new(9.5, 3.0, 3.0), Vec3::X).unwrap(),
+        f32::INFINITY,
+    )
+    .collect();
     assert_eq!(cells.len(), 2);
     assert!((cells[0].t_min).abs() < 1e-6 && (cells[1].t_max - 6.5).abs() < 1e-5);
     // Missing the box, and pointing away from it.
-    assert_eq!(Dda::new(scene.layout(), &Ray::new(Vec3::new(-1.0, 20.0, 8.0), Vec3::X).unwrap(), f32::INFINITY).count(), 0);
-    assert_eq!(Dda::new(scene.layout(), &Ray::new(Vec3::new(-1.0, 8.0, 8.0), -Vec3::X).unwrap(), f32::INFINITY).count(), 0);
+    assert_eq!(
+        Dda::new(
+            scene.layout(),
+            &Ray::new(Vec3::new(-1.0, 20.0, 8.0), Vec3::X).unwrap(),
+            f32::INFINITY
+        )
+        .count(),
+        0
+    );
+    assert_eq!(
+        Dda::new(
+            scene.layout(),
+            &Ray::new(Vec3::new(-1.0, 8.0, 8.0), -Vec3::X).unwrap(),
+            f32::INFINITY
+        )
+        .count(),
+        0
+    );
 }
 
 #[test]
 fn majorant_grid_follows_a_transfer_function_change() {
     let g = common::grid([9, 9, 9], |x, _, _| x as f32 / 8.0);
-    let mut scene =
-        Scene::new(vec![("x".into(), g, common::tf([1.0; 3], &[(0.0, 0.0), (1.0, 1.0)]))], 2.0, 4).unwrap();
+    let mut scene = Scene::new(
+        vec![(
+            "x".into(),
+            g,
+            common::tf([1.0; 3], &[(0.0, 0.0), (1.0, 1.0)]),
+        )],
+        2.0,
+        4,
+    )
+    .unwrap();
     // Cells along x cover [0, 0.5] and [0.5, 1]: majorants 1.0 and 2.0 (opacity x scale 2).
     let v = scene.channels()[0].majorant().values().to_vec();
-    assert!((v[0] - 1.0).abs() < 1e-4 && (v[1] - 2.0).abs() < 1e-4, "{v:?}");
+    assert!(
+        (v[0] - 1.0).abs() < 1e-4 && (v[1] - 2.0).abs() < 1e-4,
+        "{v:?}"
+    );
     scene
         .set_transfer_function(0, common::tf([1.0; 3], &[(0.0, 0.5), (0.5, 0.0)]))
         .unwrap();

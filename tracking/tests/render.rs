@@ -16,7 +16,10 @@ use glam::Vec3;
 fn three_cubes(res: usize, scale: f32) -> Scene {
     let vol = synth::three_cubes(res).unwrap();
     let cols = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let tfs: Vec<TransferFunction> = cols.iter().map(|&c| tf(c, &[(0.0, 0.0), (1.0, 1.0)])).collect();
+    let tfs: Vec<TransferFunction> = cols
+        .iter()
+        .map(|&c| tf(c, &[(0.0, 0.0), (1.0, 1.0)]))
+        .collect();
     Scene::from_volume(&vol, tfs, scale, 4).unwrap()
 }
 
@@ -26,7 +29,10 @@ fn image_is_identical_for_any_thread_count() {
     let mut s = RenderSettings::default_for(&scene, 24, 16, false);
     s.spp = 3;
     s.seed = 99;
-    let m = Integrator::Mdwt { dda: DdaMode::OneDda, blend: Blend::Density };
+    let m = Integrator::Mdwt {
+        dda: DdaMode::OneDda,
+        blend: Blend::Density,
+    };
     let run = |threads| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -39,7 +45,11 @@ fn image_is_identical_for_any_thread_count() {
     assert_eq!(a.as_raw(), b.as_raw());
     // A different seed gives a different image.
     s.seed = 100;
-    let c = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap().install(|| render(&scene, &m, &s).unwrap());
+    let c = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap()
+        .install(|| render(&scene, &m, &s).unwrap());
     assert_ne!(a.as_raw(), c.as_raw());
 }
 
@@ -65,8 +75,15 @@ fn compare(p: &Progressive, reference: &image::Rgba32FImage, what: &str) {
             }
         }
     }
-    assert!(worst < 5.5, "{what}: worst pixel {worst:.2} standard errors off");
-    assert!(sum_z2 / count < 3.0, "{what}: mean squared z {:.2}", sum_z2 / count);
+    assert!(
+        worst < 5.5,
+        "{what}: worst pixel {worst:.2} standard errors off"
+    );
+    assert!(
+        sum_z2 / count < 3.0,
+        "{what}: mean squared z {:.2}",
+        sum_z2 / count
+    );
 }
 
 #[test]
@@ -78,20 +95,35 @@ fn three_cubes_mdwt_converges_to_the_marcher_for_every_blend() {
     let blends = [
         Blend::Density,
         Blend::Max,
-        Blend::Mix { weights: vec![1.0, 1.0, 1.0] },
-        Blend::Composite { weights: vec![1.0, 1.0, 1.0] },
+        Blend::Mix {
+            weights: vec![1.0, 1.0, 1.0],
+        },
+        Blend::Composite {
+            weights: vec![1.0, 1.0, 1.0],
+        },
     ];
     let mut s = RenderSettings::default_for(&scene, 12, 12, true);
     s.jitter_pixels = false;
     for blend in blends {
-        let marcher = RayMarcher { step: Some(0.005), blend: blend.clone(), ..RayMarcher::default() };
+        let marcher = RayMarcher {
+            step: Some(0.005),
+            blend: blend.clone(),
+            ..RayMarcher::default()
+        };
         s.spp = 2;
         let reference = render(&scene, &Integrator::Marcher(marcher), &s).unwrap();
         // The reference is not empty: the cubes absorb in the middle of the image.
-        assert!(reference.get_pixel(6, 6).0[3] > 0.3, "{blend:?}: {:?}", reference.get_pixel(6, 6));
+        assert!(
+            reference.get_pixel(6, 6).0[3] > 0.3,
+            "{blend:?}: {:?}",
+            reference.get_pixel(6, 6)
+        );
         s.spp = 400;
         for dda in [DdaMode::NDda, DdaMode::OneDda] {
-            let integ = Integrator::Mdwt { dda, blend: blend.clone() };
+            let integ = Integrator::Mdwt {
+                dda,
+                blend: blend.clone(),
+            };
             let p = blueshift_tracking::render_progressive(&scene, &integ, &s, |_, _| {}).unwrap();
             compare(&p, &reference, &format!("{blend:?} {dda:?}"));
         }
@@ -103,7 +135,11 @@ fn progressive_variance_is_bernoulli_and_noise_target_stops_early() {
     // Homogeneous slab, colour 1: each Woodcock sample is 1 (collision) or 0, so the pixel
     // variance is p (1 - p) with p = 1 - T.
     let scene = Scene::new(
-        vec![("a".into(), grid([9, 9, 9], |_, _, _| 0.5), tf([1.0; 3], &[(0.0, 0.1)]))],
+        vec![(
+            "a".into(),
+            grid([9, 9, 9], |_, _, _| 0.5),
+            tf([1.0; 3], &[(0.0, 0.1)]),
+        )],
         1.0,
         4,
     )
@@ -111,7 +147,13 @@ fn progressive_variance_is_bernoulli_and_noise_target_stops_early() {
     let mut s = RenderSettings::default_for(&scene, 8, 8, true);
     s.spp = 300;
     s.jitter_pixels = false;
-    let p = blueshift_tracking::render_progressive(&scene, &Integrator::Woodcock { channel: 0 }, &s, |_, _| {}).unwrap();
+    let p = blueshift_tracking::render_progressive(
+        &scene,
+        &Integrator::Woodcock { channel: 0 },
+        &s,
+        |_, _| {},
+    )
+    .unwrap();
     let q = 1.0 - (-0.8f64).exp();
     let mut var = 0.0;
     for y in 0..8 {
@@ -121,12 +163,26 @@ fn progressive_variance_is_bernoulli_and_noise_target_stops_early() {
     }
     var /= 64.0;
     // 64 x 300 Bernoulli samples: the variance estimate is good to about 1 %.
-    assert!((var - q * (1.0 - q)).abs() < 0.02, "variance {var} vs {}", q * (1.0 - q));
+    assert!(
+        (var - q * (1.0 - q)).abs() < 0.02,
+        "variance {var} vs {}",
+        q * (1.0 - q)
+    );
     // Standard error of the mean ~ sqrt(p(1-p)/n): a target of 0.1 is met after ~25 passes.
     s.noise_target = Some(0.1);
     let mut passes = 0;
-    let p = blueshift_tracking::render_progressive(&scene, &Integrator::Woodcock { channel: 0 }, &s, |n, _| passes = n).unwrap();
-    assert!(p.noise() <= 0.1 && passes < 60 && passes >= 15, "passes {passes}, noise {}", p.noise());
+    let p = blueshift_tracking::render_progressive(
+        &scene,
+        &Integrator::Woodcock { channel: 0 },
+        &s,
+        |n, _| passes = n,
+    )
+    .unwrap();
+    assert!(
+        p.noise() <= 0.1 && (15..60).contains(&passes),
+        "passes {passes}, noise {}",
+        p.noise()
+    );
 }
 
 #[test]
@@ -134,24 +190,52 @@ fn hdr_fig3_eight_bit_compositing_loses_what_f32_keeps() {
     // A deep homogeneous volume with alpha_g = 0.005: each step's contribution is far below
     // 1/255, so 8-bit compositing rounds it away; f32 keeps the analytic result.
     let alpha_g = 0.005f32;
-    let t = tf([1.0, 0.8, 0.6], &[(0.0, 1.0)]).with_alpha_g(alpha_g).unwrap();
-    let scene = Scene::new(vec![("d".into(), grid([4, 4, 257], |_, _, _| 0.5), t)], 1.0, 4).unwrap();
+    let t = tf([1.0, 0.8, 0.6], &[(0.0, 1.0)])
+        .with_alpha_g(alpha_g)
+        .unwrap();
+    let scene = Scene::new(
+        vec![("d".into(), grid([4, 4, 257], |_, _, _| 0.5), t)],
+        1.0,
+        4,
+    )
+    .unwrap();
     let ray = ray_z(1.5, 1.5);
     let expected = 1.0 - (-f64::from(alpha_g) * 256.0).exp(); // about 0.72
     let get = |precision| {
-        let m = RayMarcher { precision, ..RayMarcher::default() };
+        let m = RayMarcher {
+            precision,
+            ..RayMarcher::default()
+        };
         estimate(&scene, &Integrator::Marcher(m), &ray, 1, 0).0
     };
     let f32v = get(Precision::F32);
     let f16v = get(Precision::F16);
     let u8v = get(Precision::U8);
-    assert!((f32v[0] - expected).abs() < 1e-3, "f32 {} vs {expected}", f32v[0]);
+    assert!(
+        (f32v[0] - expected).abs() < 1e-3,
+        "f32 {} vs {expected}",
+        f32v[0]
+    );
     // Each step adds about 0.64/255 while the remaining transparency is high (rounded up to
     // 1/255), then less than half a level (rounded to nothing): 8-bit stalls near 0.22.
-    assert!(u8v[0] < 0.4 * expected, "8-bit keeps {} of {expected}", u8v[0]);
-    assert!((f16v[0] - expected).abs() < (u8v[0] - expected).abs(), "f16 {}", f16v[0]);
+    assert!(
+        u8v[0] < 0.4 * expected,
+        "8-bit keeps {} of {expected}",
+        u8v[0]
+    );
+    assert!(
+        (f16v[0] - expected).abs() < (u8v[0] - expected).abs(),
+        "f16 {}",
+        f16v[0]
+    );
     // The Woodcock estimate agrees with f32 compositing.
-    let (m, se) = estimate(&scene, &Integrator::Woodcock { channel: 0 }, &ray, 10_000, 3);
+    let (m, se) = estimate(
+        &scene,
+        &Integrator::Woodcock { channel: 0 },
+        &ray,
+        10_000,
+        3,
+    );
     assert_close("woodcock", m[0], se[0], expected, 4.5, 0.0);
 }
 
@@ -161,24 +245,38 @@ fn shadows_darken_by_the_ratio_tracked_transmittance() {
     // sees the light through (8 - x) of medium. Ratio tracking is unbiased for T.
     let sigma = 0.1f32;
     let mut scene = Scene::new(
-        vec![("a".into(), grid([9, 9, 9], |_, _, _| 0.5), tf([1.0; 3], &[(0.0, sigma)]))],
+        vec![(
+            "a".into(),
+            grid([9, 9, 9], |_, _, _| 0.5),
+            tf([1.0; 3], &[(0.0, sigma)]),
+        )],
         1.0,
         4,
     )
     .unwrap();
-    scene.light = Some(DirectionalLight { direction: Vec3::X, radiance: [1.0; 3], ambient: 0.0 });
+    scene.light = Some(DirectionalLight {
+        direction: Vec3::X,
+        radiance: [1.0; 3],
+        ambient: 0.0,
+    });
     let x = 2.0f64;
     let ray = ray_z(x as f32, 4.0);
     let expected = (1.0 - (-0.8f64).exp()) * (-0.1 * (8.0 - x)).exp();
     for m in [
         Integrator::Woodcock { channel: 0 },
-        Integrator::Mdwt { dda: DdaMode::OneDda, blend: Blend::Density },
+        Integrator::Mdwt {
+            dda: DdaMode::OneDda,
+            blend: Blend::Density,
+        },
     ] {
         let (mean, se) = estimate(&scene, &m, &ray, 20_000, 8);
         assert_close(&format!("{m:?}"), mean[0], se[0], expected, 4.5, 0.0);
     }
     // The marcher refuses a light instead of ignoring it.
-    assert!(matches!(Integrator::Marcher(RayMarcher::default()).prepared(&scene), Err(Error::Parameter(_))));
+    assert!(matches!(
+        Integrator::Marcher(RayMarcher::default()).prepared(&scene),
+        Err(Error::Parameter(_))
+    ));
 }
 
 #[test]
@@ -206,11 +304,25 @@ fn bad_input_gets_typed_errors() {
     let a = grid([5, 5, 5], |_, _, _| 0.0);
     let b = grid([5, 5, 6], |_, _, _| 0.0);
     let t = tf([1.0; 3], &[(0.0, 1.0)]);
-    let e = Scene::new(vec![("a".into(), a.clone(), t.clone()), ("b".into(), b, t.clone())], 1.0, 4).unwrap_err();
-    assert!(matches!(e, Error::Scene(_)) && e.to_string().contains("channels[1]"), "{e}");
+    let e = Scene::new(
+        vec![
+            ("a".into(), a.clone(), t.clone()),
+            ("b".into(), b, t.clone()),
+        ],
+        1.0,
+        4,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(e, Error::Scene(_)) && e.to_string().contains("channels[1]"),
+        "{e}"
+    );
     assert!(Scene::new(vec![], 1.0, 4).is_err());
     assert!(Scene::new(vec![("a".into(), a.clone(), t.clone())], f32::NAN, 4).is_err());
-    assert!(matches!(Scene::new(vec![("a".into(), a.clone(), t.clone())], 1.0, 0), Err(Error::Volume(_))));
+    assert!(matches!(
+        Scene::new(vec![("a".into(), a.clone(), t.clone())], 1.0, 0),
+        Err(Error::Volume(_))
+    ));
     let scene = Scene::new(vec![("a".into(), a, t)], 1.0, 4).unwrap();
     let mut s = RenderSettings::default_for(&scene, 4, 4, true);
     s.spp = 0;
@@ -218,13 +330,21 @@ fn bad_input_gets_typed_errors() {
     assert!(e.to_string().contains("spp"), "{e}");
     s.spp = 1;
     assert!(render(&scene, &Integrator::Woodcock { channel: 1 }, &s).is_err());
-    let mix = Integrator::Mdwt { dda: DdaMode::NDda, blend: Blend::Mix { weights: vec![0.5, 0.5] } };
+    let mix = Integrator::Mdwt {
+        dda: DdaMode::NDda,
+        blend: Blend::Mix {
+            weights: vec![0.5, 0.5],
+        },
+    };
     assert!(render(&scene, &mix, &s).is_err());
     s.width = 0;
     assert!(render(&scene, &Integrator::Woodcock { channel: 0 }, &s).is_err());
     s.width = 100_000;
     assert!(render(&scene, &Integrator::Woodcock { channel: 0 }, &s).is_err());
-    let m = RayMarcher { step: Some(0.0), ..RayMarcher::default() };
+    let m = RayMarcher {
+        step: Some(0.0),
+        ..RayMarcher::default()
+    };
     s.width = 4;
     assert!(render(&scene, &Integrator::Marcher(m), &s).is_err());
 }

@@ -5,5 +5,5 @@ pub mod info;
 pub mod render;
 pub mod spectrum;
 pub mod synth;
-mod volume_common;
 pub mod tf;
+mod volume_common;

@@ -233,8 +233,8 @@ fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
             });
         }
         if let Some(name) = &args.synth {
-            let vol = synth::by_name(name, args.res, 1)
-                .with_context(|| format!("--synth {name}"))?;
+            let vol =
+                synth::by_name(name, args.res, 1).with_context(|| format!("--synth {name}"))?;
             for c in vol.channels() {
                 if c.grid.is_vector() {
                     continue;
@@ -264,7 +264,11 @@ fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
         f.channels = chans;
     } else if !args.tfs.is_empty() {
         if args.tfs.len() != f.channels.len() {
-            bail!("--tf: {} transfer functions for {} channels", args.tfs.len(), f.channels.len());
+            bail!(
+                "--tf: {} transfer functions for {} channels",
+                args.tfs.len(),
+                f.channels.len()
+            );
         }
         for (c, t) in f.channels.iter_mut().zip(&args.tfs) {
             c.tf = t.clone();
@@ -308,9 +312,15 @@ fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
         });
     }
     if f.channels.is_empty() {
-        bail!("channels: none given (use a scene file, --volume FILE --tf TF, or --synth NAME --tf TF)");
+        bail!(
+            "channels: none given (use a scene file, --volume FILE --tf TF, or --synth NAME --tf TF)"
+        );
     }
-    let base = if args.volumes.is_empty() && args.synth.is_none() { base } else { None };
+    let base = if args.volumes.is_empty() && args.synth.is_none() {
+        base
+    } else {
+        None
+    };
     Ok((f, base))
 }
 
@@ -342,7 +352,9 @@ fn load_channel(i: usize, c: &ChannelSpec, base: Option<&Path>) -> Result<(Strin
 fn load_tf(i: usize, spec: &str, grid: &AnyGrid, base: Option<&Path>) -> Result<TransferFunction> {
     let what = || format!("channels[{i}].tf '{spec}'");
     if let Some(name) = spec.strip_prefix("builtin:") {
-        let (lo, hi) = grid.finite_range().ok_or_else(|| anyhow!("{}: no finite values", what()))?;
+        let (lo, hi) = grid
+            .finite_range()
+            .ok_or_else(|| anyhow!("{}: no finite values", what()))?;
         let hi = if hi > lo { hi } else { lo + 1.0 };
         return blueshift_tfedit::builtin_over(name, [f64::from(lo), f64::from(hi)])
             .with_context(what);
@@ -357,7 +369,7 @@ fn load_tf(i: usize, spec: &str, grid: &AnyGrid, base: Option<&Path>) -> Result<
                 hi = hi.max(v);
             }
         }
-        if !(hi > 0.0) {
+        if hi <= 0.0 {
             bail!("{}: no positive values for a logarithmic axis", what());
         }
         let (lo, hi) = (f64::from(lo), f64::from(hi.max(lo * 1.0001)));
@@ -434,7 +446,11 @@ fn run_inner(args: &Args) -> Result<()> {
             ambient: l.ambient,
         });
     }
-    let blend = parse_blend(f.blend.as_deref().unwrap_or("density"), f.weights.clone(), n)?;
+    let blend = parse_blend(
+        f.blend.as_deref().unwrap_or("density"),
+        f.weights.clone(),
+        n,
+    )?;
     let method = f.method.as_deref().unwrap_or("mdwt-1dda");
     let precision = match f.precision.as_deref().unwrap_or("f32") {
         "f32" => Precision::F32,
@@ -446,8 +462,14 @@ fn run_inner(args: &Args) -> Result<()> {
         "woodcock" => Integrator::Woodcock {
             channel: f.woodcock_channel.unwrap_or(0),
         },
-        "mdwt-ndda" => Integrator::Mdwt { dda: DdaMode::NDda, blend },
-        "mdwt-1dda" => Integrator::Mdwt { dda: DdaMode::OneDda, blend },
+        "mdwt-ndda" => Integrator::Mdwt {
+            dda: DdaMode::NDda,
+            blend,
+        },
+        "mdwt-1dda" => Integrator::Mdwt {
+            dda: DdaMode::OneDda,
+            blend,
+        },
         "marcher" => Integrator::Marcher(RayMarcher {
             step: f.step,
             precision,
@@ -506,7 +528,11 @@ fn run_inner(args: &Args) -> Result<()> {
         let gain = 2f32.powf(args.exposure);
         let enc = |v: f32| {
             let v = (v * gain).clamp(0.0, 1.0);
-            let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+            let s = if v <= 0.003_130_8 {
+                12.92 * v
+            } else {
+                1.055 * v.powf(1.0 / 2.4) - 0.055
+            };
             (s * 255.0).round() as u8
         };
         let rgb = image::RgbImage::from_fn(img.width(), img.height(), |x, y| {

@@ -22,7 +22,13 @@ pub fn grid(n: [usize; 3], f: impl Fn(usize, usize, usize) -> f32 + Sync) -> Any
 }
 
 /// Mean and standard error of each RGBA component of `n` samples of `integrator` on `ray`.
-pub fn estimate(scene: &Scene, integ: &Integrator, ray: &Ray, n: u64, seed: u64) -> ([f64; 4], [f64; 4]) {
+pub fn estimate(
+    scene: &Scene,
+    integ: &Integrator,
+    ray: &Ray,
+    n: u64,
+    seed: u64,
+) -> ([f64; 4], [f64; 4]) {
     let integ = integ.prepared(scene).unwrap();
     let mut s = [0.0f64; 4];
     let mut s2 = [0.0f64; 4];
