@@ -11,7 +11,7 @@ use std::fmt::Write as _;
 use std::hint::black_box;
 use std::time::Instant;
 
-use blueshift_benches::{channel_scene, memory_table, out_dir};
+use blueshift_benches::{Curve, channel_scene, line_plot, memory_table, out_dir};
 use blueshift_tracking::{Blend, DdaMode, Integrator, RayMarcher, RenderSettings, Scene, render};
 use criterion::{BenchmarkId, Criterion};
 
@@ -69,6 +69,11 @@ fn write_tables() {
     let mut csv =
         String::from("cells_per_macrocell,k,seconds,ratio_to_k1,samples_per_s_per_core\n");
     let mut base = 0.0;
+    let mut fig8 = Curve {
+        label: "1-DDA, 4 channels".into(),
+        points: Vec::new(),
+        rgb: (40, 120, 200),
+    };
     for k in [1usize, 2, 4, 8] {
         let scene = channel_scene(4, RES, k, DENSITY).expect("scene");
         let s = settings(&scene);
@@ -83,8 +88,18 @@ fn write_tables() {
             t / base,
             px / t
         );
+        fig8.points.push((k as f64, t / base));
     }
     let _ = std::fs::write(dir.join("fig8_macrocell.csv"), &csv);
+    if let Err(e) = line_plot(
+        &dir.join("fig8_macrocell.png"),
+        "MDWT Fig. 8 (CPU, 1 thread): time vs macrocell edge k",
+        "macrocell edge k (k^3 cells per macrocell)",
+        "time / time with k = 1",
+        &[fig8],
+    ) {
+        eprintln!("fig8 plot: {e}");
+    }
     eprintln!("fig8 (1-DDA, 4 channels):\n{csv}");
     // Fig. 9: channel count.
     let mut csv =
@@ -93,6 +108,15 @@ fn write_tables() {
         "channels,data_bytes,macrocell_bytes,majorant_bytes,macrocell_ratio,majorant_ratio\n",
     );
     let mut base = [0.0f64; 3];
+    let mut curves: Vec<Curve> = methods()
+        .iter()
+        .zip([(200, 60, 40), (40, 120, 200), (60, 160, 60)])
+        .map(|((name, _), rgb)| Curve {
+            label: (*name).to_string(),
+            points: Vec::new(),
+            rgb,
+        })
+        .collect();
     for n in 1..=12usize {
         let scene = channel_scene(n, RES, 4, DENSITY).expect("scene");
         let s = settings(&scene);
@@ -102,6 +126,7 @@ fn write_tables() {
                 base[i] = t;
             }
             let _ = writeln!(csv, "{n},{name},{t:.6},{:.3},{:.0}", t / base[i], px / t);
+            curves[i].points.push((n as f64, t / base[i]));
         }
         let (c, d, m, j) = memory_table(&scene);
         let _ = writeln!(
@@ -112,6 +137,15 @@ fn write_tables() {
         );
     }
     let _ = std::fs::write(dir.join("fig9_channels.csv"), &csv);
+    if let Err(e) = line_plot(
+        &dir.join("fig9_channels.png"),
+        "MDWT Fig. 9 (CPU, 1 thread): time vs channels",
+        "channels",
+        "time / time with 1 channel",
+        &curves,
+    ) {
+        eprintln!("fig9 plot: {e}");
+    }
     let _ = std::fs::write(dir.join("table1_memory.csv"), &mem);
     eprintln!("fig9:\n{csv}\ntable1:\n{mem}\nwritten to {}", dir.display());
 }
