@@ -72,6 +72,9 @@ pub enum Precision {
     U8,
 }
 
+/// Most steps the marcher may take across the volume's diagonal.
+pub const MAX_MARCH_STEPS: f32 = 1e6;
+
 /// The emission-absorption ray marcher's settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RayMarcher {
@@ -182,6 +185,16 @@ impl Integrator {
                         "marcher: early termination alpha must be in (0, 1]",
                     ));
                 }
+                let step = m
+                    .step
+                    .unwrap_or(0.5 * scene.geometry().spacing.min_element());
+                let (lo, hi) = scene.bounds();
+                let steps = (hi - lo).length() / step;
+                if steps > MAX_MARCH_STEPS {
+                    return Err(Error::parameter(format!(
+                        "marcher: step {step} needs {steps:.0} steps across the volume (at most {MAX_MARCH_STEPS})"
+                    )));
+                }
                 if scene.light.is_some() {
                     return Err(Error::parameter(
                         "marcher: shadows (a light) are supported by the tracking methods only",
@@ -237,6 +250,14 @@ fn composite(
     acc
 }
 
+/// `t + step`, but at least the next float after `t`: far from the origin a tiny step would
+/// otherwise not move `t` and a run of null collisions would never end.
+#[inline]
+fn advance(t: f32, step: f32) -> f32 {
+    let next = t + step;
+    if next > t { next } else { t.next_up() }
+}
+
 /// A tentative collision handed to the [`sample_t_maj`] callback.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TentativeCollision {
@@ -266,7 +287,7 @@ pub fn sample_t_maj(
         }
         let mut t = seg.t_min;
         loop {
-            t += rng.exponential(seg.sigma_maj);
+            t = advance(t, rng.exponential(seg.sigma_maj));
             if t >= seg.t_max {
                 break;
             }
@@ -435,7 +456,7 @@ fn mdwt(scene: &Scene, dda: DdaMode, blend: &Blend, ray: &Ray, rng: &mut Rng) ->
                     }
                     let mut t = cell.t_min;
                     loop {
-                        t += rng.exponential(maj);
+                        t = advance(t, rng.exponential(maj));
                         if t > hit_t || t >= cell.t_max {
                             break;
                         }

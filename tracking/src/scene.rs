@@ -121,6 +121,7 @@ impl Scene {
         }
         let layout = CellLayout::of(&out[0].macrocells);
         let total_majorant = total(&out);
+        check_optical_depth(&total_majorant, &geometry)?;
         Ok(Scene {
             channels: out,
             layout,
@@ -175,7 +176,7 @@ impl Scene {
             ch.majorant = MajorantGrid::build(&ch.macrocells, &ch.tf, density_scale);
         }
         self.total_majorant = total(&self.channels);
-        Ok(())
+        check_optical_depth(&self.total_majorant, &self.layout.geometry)
     }
 
     /// The channels.
@@ -237,6 +238,25 @@ fn check_density_scale(s: f32) -> Result<()> {
     if !(s >= 0.0 && s.is_finite()) {
         return Err(Error::scene(format!(
             "density_scale: {s} must be finite and non-negative"
+        )));
+    }
+    Ok(())
+}
+
+/// Largest majorant optical depth across the volume's diagonal that a scene may have. Beyond
+/// it the volume is opaque to any precision, and tracking would take absurdly many steps.
+pub const MAX_OPTICAL_DEPTH: f32 = 1e6;
+
+fn check_optical_depth(total: &MajorantGrid, g: &Geometry) -> Result<()> {
+    let (lo, hi) = g.world_bounds();
+    let diag = (hi - lo).length().max(g.spacing.min_element());
+    let max = total.values().iter().copied().fold(0.0f32, f32::max);
+    let depth = max * diag;
+    if !depth.is_finite() || depth > MAX_OPTICAL_DEPTH {
+        return Err(Error::scene(format!(
+            "density_scale: the largest extinction {max} per unit length over the volume's \
+             diagonal {diag} is an optical depth of {depth}, above {MAX_OPTICAL_DEPTH}; \
+             lower the density scale"
         )));
     }
     Ok(())

@@ -323,6 +323,9 @@ fn bad_input_gets_typed_errors() {
         Scene::new(vec![("a".into(), a.clone(), t.clone())], 1.0, 0),
         Err(Error::Volume(_))
     ));
+    // An absurd density scale would make tracking crawl: refused with the field named.
+    let e = Scene::new(vec![("a".into(), a.clone(), t.clone())], 1e30, 4).unwrap_err();
+    assert!(e.to_string().contains("density_scale"), "{e}");
     let scene = Scene::new(vec![("a".into(), a, t)], 1.0, 4).unwrap();
     let mut s = RenderSettings::default_for(&scene, 4, 4, true);
     s.spp = 0;
@@ -346,5 +349,10 @@ fn bad_input_gets_typed_errors() {
         ..RayMarcher::default()
     };
     s.width = 4;
+    assert!(render(&scene, &Integrator::Marcher(m), &s).is_err());
+    let m = RayMarcher {
+        step: Some(1e-9),
+        ..RayMarcher::default()
+    };
     assert!(render(&scene, &Integrator::Marcher(m), &s).is_err());
 }
