@@ -13,7 +13,7 @@
 //!   `blueshift_volume::Volume` ([`Scene::from_volume`]).
 //! - Pick an [`Integrator`]: `Woodcock { channel }`, `Mdwt { dda, blend }` or
 //!   `Marcher(RayMarcher)`.
-//! - [`RenderSettings::default_for`] gives the default view; [`render`] returns an
+//! - [`RenderSettings::default_for`] gives the default view; [`render()`] returns an
 //!   `image::Rgba32FImage` (linear HDR RGB, alpha = 1 - transmittance);
 //!   [`render_progressive`] reports passes and the noise estimate.
 //!
