@@ -209,19 +209,28 @@ impl Integrator {
     }
 
     /// Estimates the radiance (RGB) and alpha along `ray` with random numbers from `rng`.
-    /// Call [`Integrator::prepared`] once first (it normalises weights).
+    /// Call [`Integrator::prepared`] once first (it checks the channel index and normalises
+    /// weights); without it, a channel index out of range gives the background and missing
+    /// weights count as 0.
     #[must_use]
     pub fn li(&self, scene: &Scene, ray: &Ray, rng: &mut Rng) -> [f32; 4] {
         match self {
+            Integrator::Woodcock { channel } if *channel >= scene.channel_count() => {
+                background(scene)
+            }
             Integrator::Woodcock { channel } => woodcock(scene, *channel, ray, rng),
             Integrator::Mdwt { dda, blend } => match blend {
-                Blend::Composite { weights } => {
-                    composite(weights, |n, rng| woodcock(scene, n, ray, rng), rng)
-                }
+                Blend::Composite { weights } => composite(
+                    scene.channel_count(),
+                    weights,
+                    |n, rng| woodcock(scene, n, ray, rng),
+                    rng,
+                ),
                 _ => mdwt(scene, *dda, blend, ray, rng),
             },
             Integrator::Marcher(m) => match &m.blend {
                 Blend::Composite { weights } => composite(
+                    scene.channel_count(),
                     weights,
                     |n, rng| {
                         let b = Blend::Density;
@@ -236,12 +245,13 @@ impl Integrator {
 }
 
 fn composite(
+    n_channels: usize,
     weights: &[f32],
     mut f: impl FnMut(usize, &mut Rng) -> [f32; 4],
     rng: &mut Rng,
 ) -> [f32; 4] {
     let mut acc = [0.0f32; 4];
-    for (n, &w) in weights.iter().enumerate() {
+    for (n, &w) in weights.iter().enumerate().take(n_channels) {
         let v = f(n, rng);
         for i in 0..4 {
             acc[i] += w * v[i];
@@ -325,7 +335,7 @@ fn blended(scene: &Scene, blend: &Blend, n: usize, p: Vec3) -> (f32, [f32; 3]) {
                 }
                 if let Blend::Mix { weights } = blend {
                     for i in 0..3 {
-                        mix[i] += c[i] * s * weights[m];
+                        mix[i] += c[i] * s * weights.get(m).copied().unwrap_or(0.0);
                     }
                 }
             }
@@ -443,14 +453,14 @@ fn mdwt(scene: &Scene, dda: DdaMode, blend: &Blend, ray: &Ray, rng: &mut Rng) ->
             }
         }
         DdaMode::OneDda => {
-            let majs: Vec<&[f32]> = scene
-                .channels()
-                .iter()
-                .map(|c| c.majorant().values())
-                .collect();
+            let total = scene.total_majorant().values();
             for cell in Dda::new(scene.layout(), ray, f32::INFINITY) {
-                for (n, m) in majs.iter().enumerate() {
-                    let maj = m[cell.cell];
+                // Empty for every channel: skip the cell without touching N majorants.
+                if total[cell.cell] <= 0.0 {
+                    continue;
+                }
+                for (n, ch) in scene.channels().iter().enumerate() {
+                    let maj = ch.majorant().values()[cell.cell];
                     if maj <= 0.0 {
                         continue;
                     }
@@ -509,7 +519,7 @@ fn point_emission(scene: &Scene, blend: &Blend, channels: &[usize], p: Vec3) -> 
                 }
                 if let Blend::Mix { weights } = blend {
                     for i in 0..3 {
-                        mix[i] += c[i] * s * weights[m];
+                        mix[i] += c[i] * s * weights.get(m).copied().unwrap_or(0.0);
                     }
                 }
             }

@@ -221,7 +221,9 @@ impl Scene {
         &self.total_majorant
     }
 
-    /// Extinction (per unit world length) and emitted colour of channel `n` at world point `p`.
+    /// Extinction (per unit world length) and emitted colour of channel `n` at world point `p`
+    /// (trilinear sample, clamped to the grid). Panics if `n >= channel_count()`, like
+    /// slice indexing.
     #[inline]
     #[must_use]
     pub fn sample(&self, n: usize, p: Vec3) -> (f32, [f32; 3]) {
