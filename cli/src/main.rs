@@ -36,6 +36,8 @@ enum Command {
     Convert(commands::convert::Args),
     /// Write a synthetic dataset (galaxy, hydrogen-shell, three-cubes, ...) as NRRD.
     Synth(commands::synth::Args),
+    /// Render a volume scene (Woodcock, multi-density Woodcock N-DDA/1-DDA, ray marcher) to EXR.
+    Render(Box<commands::render::Args>),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +58,7 @@ fn main() -> ExitCode {
         Command::Info(args) => commands::info::run(args),
         Command::Convert(args) => commands::convert::run(args),
         Command::Synth(args) => commands::synth::run(args),
+        Command::Render(args) => commands::render::run(*args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

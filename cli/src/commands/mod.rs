@@ -3,6 +3,7 @@
 pub mod convert;
 pub mod info;
 pub mod relativity;
+pub mod render;
 pub mod spectrum;
 pub mod synth;
 pub mod tf;

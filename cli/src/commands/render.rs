@@ -1,0 +1,570 @@
+//! `blueshift render`: renders a volume scene with Woodcock tracking, multi-density Woodcock
+//! tracking (N-DDA or 1-DDA) or the emission-absorption ray marcher, writing an OpenEXR
+//! image (linear HDR RGBA, alpha = 1 - transmittance) and optionally a PNG preview.
+//!
+//! The scene comes from a JSON file (`blueshift render scene.json`), from inline flags, or
+//! both (flags override the file). Extinction per unit world length (the volume's spacing
+//! unit) is the transfer function's opacity, times its alpha_g, times `--density-scale`; all
+//! methods use this definition, so images compare across methods at the same scale.
+//!
+//! Scene file (unknown keys are refused; paths are relative to the file):
+//! ```json
+//! { "channels": [ { "volume": "head.nhdr", "tf": "bone.json" } ],
+//!   "method": "mdwt-1dda", "blend": "density", "weights": null,
+//!   "spp": 64, "seed": 1, "width": 512, "height": 512,
+//!   "camera": "perspective", "fov_y_deg": 30, "eye": null, "target": null, "up": null,
+//!   "background": [0, 0, 0], "density_scale": 1.0, "macrocell": 4,
+//!   "precision": "f32", "step": null, "alpha_g": null, "noise_target": null,
+//!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 } }
+//! ```
+//! A channel is `{ "volume": FILE, "channel": NAME?, "tf": SPEC }` or
+//! `{ "synth": NAME, "res": N?, "seed": S?, "channel": NAME?, "tf": SPEC }`. A TF SPEC is a
+//! blueshift or ParaView JSON file, `builtin:NAME` (a built-in map stretched over the
+//! channel's value range) or `log:NAME` (the same on a logarithmic data axis over the
+//! channel's positive values, for data spanning decades).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow, bail};
+use blueshift_tfedit::{ColorKnot, DataAxis, OpacityKnot, TransferFunction};
+use blueshift_tracking::{
+    Blend, Camera, DdaMode, DirectionalLight, Integrator, Precision, Projection, RayMarcher,
+    RenderSettings, Scene, render_progressive,
+};
+use blueshift_volume::{AnyGrid, synth};
+use glam::Vec3;
+use serde::Deserialize;
+
+use crate::output::write_via_temp_path;
+
+/// Arguments of `blueshift render`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Scene file (JSON); flags below override its fields.
+    pub scene: Option<PathBuf>,
+    /// Volume file of a channel (repeat; pairs with --tf in order). Its first channel is used.
+    #[arg(long = "volume")]
+    pub volumes: Vec<PathBuf>,
+    /// Synthetic dataset whose channels are all rendered (three-cubes, galaxy, channels12, ...).
+    #[arg(long)]
+    pub synth: Option<String>,
+    /// Resolution of --synth (voxels per edge).
+    #[arg(long, default_value_t = 64)]
+    pub res: usize,
+    /// Transfer function per channel (repeat), or one for all: JSON file (blueshift or
+    /// ParaView preset with opacity Points), builtin:NAME or log:NAME.
+    #[arg(long = "tf")]
+    pub tfs: Vec<String>,
+    /// woodcock | mdwt-ndda | mdwt-1dda | marcher.
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Channel index tracked by --method woodcock.
+    #[arg(long)]
+    pub channel: Option<usize>,
+    /// density | max | mix | composite.
+    #[arg(long)]
+    pub blend: Option<String>,
+    /// Weights for mix/composite, comma-separated, one per channel (default equal).
+    #[arg(long, value_delimiter = ',')]
+    pub weights: Option<Vec<f32>>,
+    /// Samples per pixel (the maximum with --noise-target).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Seed of the random numbers (same seed, same image, any thread count).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Image width in pixels.
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height in pixels.
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// ortho | perspective (default view along +z through the volume centre).
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Vertical field of view of the perspective camera, degrees.
+    #[arg(long)]
+    pub fov: Option<f32>,
+    /// Background colour R,G,B (linear).
+    #[arg(long, value_delimiter = ',')]
+    pub background: Option<Vec<f32>>,
+    /// Extinction per unit world length = opacity x this.
+    #[arg(long)]
+    pub density_scale: Option<f32>,
+    /// Macrocell edge in voxels.
+    #[arg(long)]
+    pub macrocell: Option<usize>,
+    /// Marcher compositing precision: f32 | f16 | u8.
+    #[arg(long)]
+    pub precision: Option<String>,
+    /// Marcher step in world units (default half the smallest spacing).
+    #[arg(long)]
+    pub step: Option<f32>,
+    /// Global opacity alpha_g applied to every transfer function.
+    #[arg(long)]
+    pub alpha_g: Option<f32>,
+    /// Direction towards a directional light X,Y,Z (enables shadows; tracking methods only).
+    #[arg(long, value_delimiter = ',')]
+    pub light_dir: Option<Vec<f32>>,
+    /// Light radiance R,G,B (default 1,1,1).
+    #[arg(long, value_delimiter = ',')]
+    pub light_radiance: Option<Vec<f32>>,
+    /// Unshadowed ambient light with --light-dir (default 0.2).
+    #[arg(long)]
+    pub ambient: Option<f32>,
+    /// Stop once the RMS standard error of the pixels falls to this.
+    #[arg(long)]
+    pub noise_target: Option<f64>,
+    /// Output OpenEXR file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also write a PNG preview (exposure, clamp, sRGB).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Exposure of the PNG preview in stops.
+    #[arg(long, default_value_t = 0.0)]
+    pub exposure: f32,
+    /// Worker threads (default: all cores); the image does not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One channel of a scene file.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelSpec {
+    /// Volume file.
+    pub volume: Option<PathBuf>,
+    /// Synthetic dataset name.
+    pub synth: Option<String>,
+    /// Resolution of the synthetic dataset.
+    pub res: Option<usize>,
+    /// Seed of the synthetic dataset.
+    pub seed: Option<u64>,
+    /// Channel name inside the file or dataset (default: the first).
+    pub channel: Option<String>,
+    /// Transfer function spec.
+    pub tf: String,
+}
+
+/// Light of a scene file.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightSpec {
+    direction: [f32; 3],
+    #[serde(default = "ones")]
+    radiance: [f32; 3],
+    #[serde(default = "ambient_default")]
+    ambient: f32,
+}
+
+fn ones() -> [f32; 3] {
+    [1.0; 3]
+}
+fn ambient_default() -> f32 {
+    0.2
+}
+
+/// A scene file (see the module docs).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    channels: Vec<ChannelSpec>,
+    method: Option<String>,
+    woodcock_channel: Option<usize>,
+    blend: Option<String>,
+    weights: Option<Vec<f32>>,
+    spp: Option<u32>,
+    seed: Option<u64>,
+    width: Option<u32>,
+    height: Option<u32>,
+    camera: Option<String>,
+    fov_y_deg: Option<f32>,
+    eye: Option<[f32; 3]>,
+    target: Option<[f32; 3]>,
+    up: Option<[f32; 3]>,
+    background: Option<[f32; 3]>,
+    density_scale: Option<f32>,
+    macrocell: Option<usize>,
+    precision: Option<String>,
+    step: Option<f32>,
+    alpha_g: Option<f32>,
+    noise_target: Option<f64>,
+    light: Option<LightSpec>,
+}
+
+fn triple(v: &[f32], what: &str) -> Result<[f32; 3]> {
+    match v {
+        [a, b, c] if v.iter().all(|x| x.is_finite()) => Ok([*a, *b, *c]),
+        _ => bail!("{what}: expected three finite numbers, got {v:?}"),
+    }
+}
+
+/// Resolves `p` against the scene file's folder.
+fn resolve(base: Option<&Path>, p: &Path) -> PathBuf {
+    match base {
+        Some(b) if p.is_relative() => b.join(p),
+        _ => p.to_path_buf(),
+    }
+}
+
+fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
+    let (mut f, base) = match &args.scene {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read scene file {}", path.display()))?;
+            let f: SceneFile = serde_json::from_str(&text)
+                .with_context(|| format!("scene file {}", path.display()))?;
+            (f, path.parent().map(Path::to_path_buf))
+        }
+        None => (SceneFile::default(), None),
+    };
+    // Inline channels replace the file's.
+    if !args.volumes.is_empty() || args.synth.is_some() {
+        let mut chans = Vec::new();
+        for v in &args.volumes {
+            chans.push(ChannelSpec {
+                volume: Some(v.clone()),
+                ..ChannelSpec::default()
+            });
+        }
+        if let Some(name) = &args.synth {
+            let vol =
+                synth::by_name(name, args.res, 1).with_context(|| format!("--synth {name}"))?;
+            for c in vol.channels() {
+                if c.grid.is_vector() {
+                    continue;
+                }
+                chans.push(ChannelSpec {
+                    synth: Some(name.clone()),
+                    res: Some(args.res),
+                    channel: Some(c.name.clone()),
+                    ..ChannelSpec::default()
+                });
+            }
+        }
+        let tfs = &args.tfs;
+        if tfs.is_empty() {
+            bail!("--tf: give one transfer function per channel (or one for all)");
+        }
+        if tfs.len() != 1 && tfs.len() != chans.len() {
+            bail!(
+                "--tf: {} transfer functions for {} channels (give one per channel or one for all)",
+                tfs.len(),
+                chans.len()
+            );
+        }
+        for (i, c) in chans.iter_mut().enumerate() {
+            c.tf = tfs[if tfs.len() == 1 { 0 } else { i }].clone();
+        }
+        f.channels = chans;
+    } else if !args.tfs.is_empty() {
+        if args.tfs.len() != f.channels.len() {
+            bail!(
+                "--tf: {} transfer functions for {} channels",
+                args.tfs.len(),
+                f.channels.len()
+            );
+        }
+        for (c, t) in f.channels.iter_mut().zip(&args.tfs) {
+            c.tf = t.clone();
+        }
+    }
+    macro_rules! over {
+        ($field:ident, $arg:expr) => {
+            if let Some(v) = $arg.clone() {
+                f.$field = Some(v);
+            }
+        };
+    }
+    over!(method, args.method);
+    over!(woodcock_channel, args.channel);
+    over!(blend, args.blend);
+    over!(weights, args.weights);
+    over!(spp, args.spp);
+    over!(seed, args.seed);
+    over!(width, args.width);
+    over!(height, args.height);
+    over!(camera, args.camera);
+    over!(fov_y_deg, args.fov);
+    over!(density_scale, args.density_scale);
+    over!(macrocell, args.macrocell);
+    over!(precision, args.precision);
+    over!(step, args.step);
+    over!(alpha_g, args.alpha_g);
+    over!(noise_target, args.noise_target);
+    if let Some(b) = &args.background {
+        f.background = Some(triple(b, "--background")?);
+    }
+    if let Some(d) = &args.light_dir {
+        let radiance = match &args.light_radiance {
+            Some(r) => triple(r, "--light-radiance")?,
+            None => ones(),
+        };
+        f.light = Some(LightSpec {
+            direction: triple(d, "--light-dir")?,
+            radiance,
+            ambient: args.ambient.unwrap_or(ambient_default()),
+        });
+    }
+    if f.channels.is_empty() {
+        bail!(
+            "channels: none given (use a scene file, --volume FILE --tf TF, or --synth NAME --tf TF)"
+        );
+    }
+    let base = if args.volumes.is_empty() && args.synth.is_none() {
+        base
+    } else {
+        None
+    };
+    Ok((f, base))
+}
+
+fn load_channel(i: usize, c: &ChannelSpec, base: Option<&Path>) -> Result<(String, AnyGrid)> {
+    let vol = match (&c.volume, &c.synth) {
+        (Some(p), None) => {
+            let p = resolve(base, p);
+            blueshift_volume::read(&p)
+                .with_context(|| format!("channels[{i}].volume: cannot read {}", p.display()))?
+        }
+        (None, Some(name)) => synth::by_name(name, c.res.unwrap_or(64), c.seed.unwrap_or(1))
+            .with_context(|| format!("channels[{i}].synth"))?,
+        _ => bail!("channels[{i}]: give exactly one of \"volume\" and \"synth\""),
+    };
+    let ch = match &c.channel {
+        Some(name) => vol
+            .channel(name)
+            .ok_or_else(|| anyhow!("channels[{i}].channel: no channel named '{name}'"))?,
+        None => vol
+            .channels()
+            .iter()
+            .find(|c| !c.grid.is_vector())
+            .ok_or_else(|| anyhow!("channels[{i}].volume: no scalar channel"))?,
+    };
+    Ok((ch.name.clone(), ch.grid.clone()))
+}
+
+/// Builds a transfer function from a spec for a channel's grid.
+fn load_tf(i: usize, spec: &str, grid: &AnyGrid, base: Option<&Path>) -> Result<TransferFunction> {
+    let what = || format!("channels[{i}].tf '{spec}'");
+    if let Some(name) = spec.strip_prefix("builtin:") {
+        let (lo, hi) = grid
+            .finite_range()
+            .ok_or_else(|| anyhow!("{}: no finite values", what()))?;
+        let hi = if hi > lo { hi } else { lo + 1.0 };
+        return blueshift_tfedit::builtin_over(name, [f64::from(lo), f64::from(hi)])
+            .with_context(what);
+    }
+    if let Some(name) = spec.strip_prefix("log:") {
+        let g = *grid.geometry();
+        let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
+        for k in 0..g.voxel_count() {
+            let v = grid.scalar_at(k);
+            if v.is_finite() && v > 0.0 {
+                lo = lo.min(v);
+                hi = hi.max(v);
+            }
+        }
+        if hi <= 0.0 {
+            bail!("{}: no positive values for a logarithmic axis", what());
+        }
+        let (lo, hi) = (f64::from(lo), f64::from(hi.max(lo * 1.0001)));
+        let b = blueshift_tfedit::builtin(name).with_context(what)?;
+        let map = |x: f64| lo * (hi / lo).powf(x);
+        let color: Vec<ColorKnot> = b
+            .color_knots()
+            .iter()
+            .map(|k| ColorKnot { x: map(k.x), ..*k })
+            .collect();
+        let opacity: Vec<OpacityKnot> = b
+            .opacity_knots()
+            .iter()
+            .map(|k| OpacityKnot { x: map(k.x), ..*k })
+            .collect();
+        return TransferFunction::new([lo, hi], color, opacity)
+            .and_then(|t| t.with_data_axis(DataAxis::Log))
+            .map(|t| t.with_color_space(b.color_space()))
+            .with_context(what);
+    }
+    let p = resolve(base, Path::new(spec));
+    blueshift_tfedit::load(&p).with_context(what)
+}
+
+fn parse_blend(name: &str, weights: Option<Vec<f32>>, n: usize) -> Result<Blend> {
+    let w = weights.unwrap_or_else(|| Blend::equal_weights(n));
+    Ok(match name {
+        "density" => Blend::Density,
+        "max" => Blend::Max,
+        "mix" => Blend::Mix { weights: w },
+        "composite" => Blend::Composite { weights: w },
+        other => bail!("blend: unknown '{other}' (density, max, mix, composite)"),
+    })
+}
+
+/// Runs `blueshift render`.
+pub fn run(args: Args) -> Result<()> {
+    match args.threads {
+        Some(0) => bail!("--threads: must be at least 1"),
+        Some(t) => rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build()
+            .context("cannot start worker threads")?
+            .install(|| run_inner(&args)),
+        None => run_inner(&args),
+    }
+}
+
+fn run_inner(args: &Args) -> Result<()> {
+    let (f, base) = merge(args)?;
+    let base = base.as_deref();
+    let mut triples = Vec::new();
+    for (i, c) in f.channels.iter().enumerate() {
+        let (name, grid) = load_channel(i, c, base)?;
+        let mut tf = load_tf(i, &c.tf, &grid, base)?;
+        if let Some(a) = f.alpha_g {
+            tf = tf.with_alpha_g(a).context("alpha_g")?;
+        }
+        triples.push((name, grid, tf));
+    }
+    let n = triples.len();
+    let k = f.macrocell.unwrap_or(blueshift_volume::DEFAULT_K);
+    let mut scene = Scene::new(triples, f.density_scale.unwrap_or(1.0), k)?;
+    if let Some(b) = f.background {
+        scene.background = b;
+    }
+    if let Some(l) = &f.light {
+        if Vec3::from(l.direction).try_normalize().is_none() {
+            bail!("light.direction: must be a non-zero finite vector");
+        }
+        scene.light = Some(DirectionalLight {
+            direction: Vec3::from(l.direction),
+            radiance: l.radiance,
+            ambient: l.ambient,
+        });
+    }
+    let blend = parse_blend(
+        f.blend.as_deref().unwrap_or("density"),
+        f.weights.clone(),
+        n,
+    )?;
+    let method = f.method.as_deref().unwrap_or("mdwt-1dda");
+    let precision = match f.precision.as_deref().unwrap_or("f32") {
+        "f32" => Precision::F32,
+        "f16" => Precision::F16,
+        "u8" => Precision::U8,
+        other => bail!("precision: unknown '{other}' (f32, f16, u8)"),
+    };
+    let integrator = match method {
+        "woodcock" => Integrator::Woodcock {
+            channel: f.woodcock_channel.unwrap_or(0),
+        },
+        "mdwt-ndda" => Integrator::Mdwt {
+            dda: DdaMode::NDda,
+            blend,
+        },
+        "mdwt-1dda" => Integrator::Mdwt {
+            dda: DdaMode::OneDda,
+            blend,
+        },
+        "marcher" => Integrator::Marcher(RayMarcher {
+            step: f.step,
+            precision,
+            blend,
+            ..RayMarcher::default()
+        }),
+        other => bail!("method: unknown '{other}' (woodcock, mdwt-ndda, mdwt-1dda, marcher)"),
+    };
+    let width = f.width.unwrap_or(512);
+    let height = f.height.unwrap_or(512);
+    let ortho = match f.camera.as_deref().unwrap_or("perspective") {
+        "ortho" | "orthographic" => true,
+        "perspective" => false,
+        other => bail!("camera: unknown '{other}' (ortho, perspective)"),
+    };
+    let mut settings = RenderSettings::default_for(&scene, width, height, ortho);
+    settings.spp = f.spp.unwrap_or(16);
+    settings.seed = f.seed.unwrap_or(0);
+    settings.noise_target = f.noise_target;
+    let cam: &mut Camera = &mut settings.camera;
+    if let (Some(fov), Projection::Perspective { fov_y_deg }) = (f.fov_y_deg, &mut cam.projection) {
+        *fov_y_deg = fov;
+    }
+    if let Some(e) = f.eye {
+        cam.eye = Vec3::from(e);
+    }
+    if let Some(t) = f.target {
+        cam.target = Vec3::from(t);
+    }
+    if let Some(u) = f.up {
+        cam.up = Vec3::from(u);
+    }
+    settings.validate()?;
+    integrator.prepared(&scene)?;
+
+    let bar = indicatif::ProgressBar::new(u64::from(settings.spp));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let start = Instant::now();
+    let acc = render_progressive(&scene, &integrator, &settings, |pass, noise| {
+        bar.set_position(u64::from(pass));
+        if noise.is_finite() {
+            bar.set_message(format!("noise {noise:.4}"));
+        }
+    })?;
+    bar.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    let img = acc.mean_image();
+    write_via_temp_path(&args.out, |p| {
+        img.save_with_format(p, image::ImageFormat::OpenExr)
+            .with_context(|| format!("cannot write {}", args.out.display()))
+    })?;
+    if let Some(png) = &args.png {
+        let gain = 2f32.powf(args.exposure);
+        let enc = |v: f32| {
+            let v = (v * gain).clamp(0.0, 1.0);
+            let s = if v <= 0.003_130_8 {
+                12.92 * v
+            } else {
+                1.055 * v.powf(1.0 / 2.4) - 0.055
+            };
+            (s * 255.0).round() as u8
+        };
+        let rgb = image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
+            let p = img.get_pixel(x, y).0;
+            image::Rgb([enc(p[0]), enc(p[1]), enc(p[2])])
+        });
+        write_via_temp_path(png, |p| {
+            rgb.save_with_format(p, image::ImageFormat::Png)
+                .with_context(|| format!("cannot write {}", png.display()))
+        })?;
+    }
+    if args.json {
+        let summary = serde_json::json!({
+            "out": args.out,
+            "png": args.png,
+            "method": method,
+            "channels": n,
+            "width": width,
+            "height": height,
+            "spp": acc.samples(),
+            "noise": if acc.noise().is_finite() { Some(acc.noise()) } else { None },
+            "seconds": seconds,
+        });
+        println!("{summary}");
+    } else {
+        eprintln!(
+            "wrote {} ({} spp, noise {:.4}, {:.2} s)",
+            args.out.display(),
+            acc.samples(),
+            acc.noise(),
+            seconds
+        );
+    }
+    Ok(())
+}

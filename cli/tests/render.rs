@@ -1,0 +1,223 @@
+//! `blueshift render`: an analytic homogeneous slab through the CLI, thread-count
+//! determinism, scene files, ParaView presets, and one-line errors naming the field.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn blueshift(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .arg("render")
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap()
+}
+
+/// A 9^3 NRRD of constant 0.5 with unit spacing: the box is [0, 8]^3.
+fn write_slab(dir: &Path) {
+    let mut bytes = b"NRRD0004\ntype: float\ndimension: 3\nsizes: 9 9 9\nspacings: 1 1 1\nendian: little\nencoding: raw\n\n".to_vec();
+    for _ in 0..729 {
+        bytes.extend_from_slice(&0.5f32.to_le_bytes());
+    }
+    std::fs::write(dir.join("slab.nrrd"), bytes).unwrap();
+    std::fs::write(
+        dir.join("tf.json"),
+        r#"{ "format": "blueshift-transfer-function", "version": 1, "domain": [0, 1],
+            "color": [ { "x": 0, "rgb": [1, 1, 1] } ],
+            "opacity": [ { "x": 0, "alpha": 0.5 } ] }"#,
+    )
+    .unwrap();
+}
+
+fn read_exr(p: &Path) -> image::Rgba32FImage {
+    image::open(p).unwrap().to_rgba32f()
+}
+
+fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn homogeneous_slab_matches_beer_lambert_for_every_method() {
+    // sigma = 0.5 x density scale 0.2 = 0.1 per unit, L = 8: alpha = 1 - exp(-0.8).
+    let dir = tempfile::tempdir().unwrap();
+    write_slab(dir.path());
+    let expected = 1.0 - (-0.8f64).exp();
+    for method in ["woodcock", "mdwt-ndda", "mdwt-1dda", "marcher"] {
+        let out = blueshift(
+            &[
+                "--volume",
+                "slab.nrrd",
+                "--tf",
+                "tf.json",
+                "--method",
+                method,
+                "--camera",
+                "ortho",
+                "--spp",
+                "64",
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--density-scale",
+                "0.2",
+                "--background",
+                "0,0,0",
+                "--out",
+                "o.exr",
+                "--png",
+                "o.png",
+            ],
+            dir.path(),
+        );
+        ok(&out);
+        let img = read_exr(&dir.path().join("o.exr"));
+        let n = f64::from(img.width() * img.height());
+        let mean: f64 = img.pixels().map(|p| f64::from(p.0[0])).sum::<f64>() / n;
+        // 16 x 16 x 64 Bernoulli samples: standard error about 0.002.
+        assert!(
+            (mean - expected).abs() < 0.01,
+            "{method}: {mean} vs {expected}"
+        );
+        assert!(dir.path().join("o.png").exists());
+    }
+}
+
+#[test]
+fn same_seed_same_image_on_any_thread_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let common = [
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--tf",
+        "builtin:viridis",
+        "--spp",
+        "4",
+        "--width",
+        "20",
+        "--height",
+        "12",
+        "--density-scale",
+        "5",
+        "--seed",
+        "3",
+    ];
+    let mut a = common.to_vec();
+    a.extend(["--threads", "1", "--out", "a.exr"]);
+    let mut b = common.to_vec();
+    b.extend(["--threads", "2", "--out", "b.exr"]);
+    ok(&blueshift(&a, dir.path()));
+    ok(&blueshift(&b, dir.path()));
+    let ia = read_exr(&dir.path().join("a.exr"));
+    let ib = read_exr(&dir.path().join("b.exr"));
+    assert_eq!(ia.as_raw(), ib.as_raw());
+    assert!(ia.pixels().any(|p| p.0[3] > 0.1));
+}
+
+#[test]
+fn scene_file_and_paraview_preset_render() {
+    let dir = tempfile::tempdir().unwrap();
+    write_slab(dir.path());
+    std::fs::write(
+        dir.path().join("pv.json"),
+        r#"[{ "Name": "flat", "ColorSpace": "RGB", "RGBPoints": [0, 1, 0, 0, 1, 1, 0, 0],
+             "Points": [0, 0.5, 0.5, 0, 1, 0.5, 0.5, 0] }]"#,
+    )
+    .unwrap();
+    std::fs::create_dir(dir.path().join("s")).unwrap();
+    std::fs::write(
+        dir.path().join("s/scene.json"),
+        r#"{ "channels": [ { "volume": "../slab.nrrd", "tf": "../pv.json" },
+                           { "synth": "three-cubes", "res": 9, "channel": "red", "tf": "builtin:grey" } ],
+             "method": "mdwt-ndda", "blend": "max", "spp": 2, "width": 8, "height": 8,
+             "camera": "perspective", "density_scale": 0.1,
+             "light": { "direction": [1, 0, 0] } }"#,
+    )
+    .unwrap();
+    // The two channels have different geometry: a one-line error naming channels[1].
+    let out = blueshift(&["s/scene.json", "--out", "x.exr"], dir.path());
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("channels[1]") && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert!(!dir.path().join("x.exr").exists());
+    // With the slab alone it renders; flags override the file.
+    std::fs::write(
+        dir.path().join("s/one.json"),
+        r#"{ "channels": [ { "volume": "../slab.nrrd", "tf": "../pv.json" } ],
+             "method": "mdwt-ndda", "spp": 2, "width": 8, "height": 8, "density_scale": 0.1 }"#,
+    )
+    .unwrap();
+    ok(&blueshift(
+        &["s/one.json", "--spp", "3", "--json", "--out", "x.exr"],
+        dir.path(),
+    ));
+    let img = read_exr(&dir.path().join("x.exr"));
+    assert_eq!(img.dimensions(), (8, 8));
+    // Red only: the preset's colour.
+    assert!(img.pixels().all(|p| p.0[1] == 0.0 && p.0[2] == 0.0));
+}
+
+#[test]
+fn bad_input_gets_one_line_errors_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    write_slab(dir.path());
+    let cases: &[(&str, &[&str], &str)] = &[
+        (
+            r#"{ "channels": [], "colour": 1 }"#,
+            &[],
+            "unknown field `colour`",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "nope.nrrd", "tf": "tf.json" } ] }"#,
+            &[],
+            "channels[0].volume",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "spp": 0 }"#,
+            &[],
+            "spp",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "missing.json" } ] }"#,
+            &[],
+            "channels[0].tf",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "method": "x" }"#,
+            &[],
+            "method",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ] }"#,
+            &["--width", "0"],
+            "image size",
+        ),
+        (
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ], "blend": "mix", "weights": [1, 2] }"#,
+            &[],
+            "weights",
+        ),
+    ];
+    for (i, (json, extra, needle)) in cases.iter().enumerate() {
+        let f = format!("bad{i}.json");
+        std::fs::write(dir.path().join(&f), json).unwrap();
+        let mut args = vec![f.as_str(), "--out", "bad.exr"];
+        args.extend_from_slice(extra);
+        let out = blueshift(&args, dir.path());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "case {i}: {err}");
+        assert!(err.contains(needle), "case {i}: '{err}' lacks '{needle}'");
+        assert_eq!(err.trim().lines().count(), 1, "case {i}: {err}");
+        assert!(!dir.path().join("bad.exr").exists());
+    }
+}

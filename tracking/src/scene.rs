@@ -1,0 +1,270 @@
+//! Scenes: N scalar channels sharing one geometry, each with its own transfer function and
+//! majorant grid, a background colour, a density scale and an optional directional light.
+
+use blueshift_tfedit::TransferFunction;
+use blueshift_volume::{AnyGrid, Geometry, Macrocells, Volume};
+use glam::Vec3;
+
+use crate::dda::CellLayout;
+use crate::majorant::MajorantGrid;
+use crate::{Error, Result};
+
+/// One channel of a [`Scene`]: a scalar grid, its transfer function, its macrocells and
+/// the majorant grid derived from both.
+#[derive(Clone, Debug)]
+pub struct SceneChannel {
+    name: String,
+    grid: AnyGrid,
+    tf: TransferFunction,
+    macrocells: Macrocells,
+    majorant: MajorantGrid,
+}
+
+impl SceneChannel {
+    /// Channel name.
+    #[must_use]
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+    /// The scalar grid.
+    #[must_use]
+    pub fn grid(&self) -> &AnyGrid {
+        &self.grid
+    }
+    /// The transfer function.
+    #[must_use]
+    pub fn transfer_function(&self) -> &TransferFunction {
+        &self.tf
+    }
+    /// The macrocells (value ranges) of the grid.
+    #[must_use]
+    pub fn macrocells(&self) -> &Macrocells {
+        &self.macrocells
+    }
+    /// The majorant grid (extinction per unit world length).
+    #[must_use]
+    pub fn majorant(&self) -> &MajorantGrid {
+        &self.majorant
+    }
+}
+
+/// A directional light for volumetric shadows: radiance arriving from `direction`
+/// (pointing from the volume towards the light), attenuated by the volume's transmittance,
+/// plus an unshadowed ambient term.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DirectionalLight {
+    /// Direction towards the light (normalised when used).
+    pub direction: Vec3,
+    /// Radiance of the light per RGB channel (linear, no unit beyond the colour map's).
+    pub radiance: [f32; 3],
+    /// Ambient light added without shadowing (0 = light only).
+    pub ambient: f32,
+}
+
+/// A scene of N channels sharing one geometry.
+///
+/// Extinction per unit world length of channel n at a point is
+/// `sigma_n = tf_n.eval(value)[3] * density_scale` (the opacity, which already includes the
+/// transfer function's alpha_g, times the density scale); its emitted colour is the transfer
+/// function's RGB. Every method (Woodcock, MDWT, marcher) uses this same definition, so
+/// their images can be compared for the same density scale.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    channels: Vec<SceneChannel>,
+    layout: CellLayout,
+    total_majorant: MajorantGrid,
+    density_scale: f32,
+    /// Colour seen where the ray leaves the volume, weighted by its transmittance.
+    pub background: [f32; 3],
+    /// Optional light; `None` means emission only (the collision colour is returned as is).
+    pub light: Option<DirectionalLight>,
+}
+
+impl Scene {
+    /// Builds a scene from `(name, grid, transfer function)` triples with macrocells of `k`
+    /// voxels per edge. Refuses an empty list, vector grids, channels whose geometry differs
+    /// from the first, and a negative or non-finite density scale.
+    pub fn new(
+        channels: Vec<(String, AnyGrid, TransferFunction)>,
+        density_scale: f32,
+        k: usize,
+    ) -> Result<Self> {
+        if channels.is_empty() {
+            return Err(Error::scene("channels: at least one channel is needed"));
+        }
+        check_density_scale(density_scale)?;
+        let geometry = *channels[0].1.geometry();
+        geometry.validate()?;
+        let mut out = Vec::with_capacity(channels.len());
+        for (i, (name, grid, tf)) in channels.into_iter().enumerate() {
+            if grid.is_vector() {
+                return Err(Error::scene(format!(
+                    "channels[{i}] ('{name}'): vector channels cannot be rendered; pick a scalar"
+                )));
+            }
+            if *grid.geometry() != geometry {
+                return Err(Error::scene(format!(
+                    "channels[{i}] ('{name}'): geometry {:?} differs from channel 0's {:?}",
+                    grid.geometry(),
+                    geometry
+                )));
+            }
+            let macrocells = Macrocells::build_any(&grid, k)?;
+            let majorant = MajorantGrid::build(&macrocells, &tf, density_scale);
+            out.push(SceneChannel {
+                name,
+                grid,
+                tf,
+                macrocells,
+                majorant,
+            });
+        }
+        let layout = CellLayout::of(&out[0].macrocells);
+        let total_majorant = total(&out);
+        check_optical_depth(&total_majorant, &geometry)?;
+        Ok(Scene {
+            channels: out,
+            layout,
+            total_majorant,
+            density_scale,
+            background: [0.0; 3],
+            light: None,
+        })
+    }
+
+    /// A scene from a volume's scalar channels (in order), one transfer function each.
+    pub fn from_volume(
+        volume: &Volume,
+        tfs: Vec<TransferFunction>,
+        density_scale: f32,
+        k: usize,
+    ) -> Result<Self> {
+        let chans = volume.channels();
+        if chans.len() != tfs.len() {
+            return Err(Error::scene(format!(
+                "tfs: {} transfer functions for {} channels",
+                tfs.len(),
+                chans.len()
+            )));
+        }
+        let triples = chans
+            .iter()
+            .zip(tfs)
+            .map(|(c, tf)| (c.name.clone(), c.grid.clone(), tf))
+            .collect();
+        Scene::new(triples, density_scale, k)
+    }
+
+    /// Replaces channel `i`'s transfer function and rebuilds its majorant grid (in parallel).
+    pub fn set_transfer_function(&mut self, i: usize, tf: TransferFunction) -> Result<()> {
+        let n = self.channels.len();
+        let ch = self
+            .channels
+            .get_mut(i)
+            .ok_or_else(|| Error::parameter(format!("channel {i} out of range (0..{n})")))?;
+        ch.majorant = MajorantGrid::build(&ch.macrocells, &tf, self.density_scale);
+        ch.tf = tf;
+        self.total_majorant = total(&self.channels);
+        Ok(())
+    }
+
+    /// Changes the density scale and rebuilds all majorant grids.
+    pub fn set_density_scale(&mut self, density_scale: f32) -> Result<()> {
+        check_density_scale(density_scale)?;
+        self.density_scale = density_scale;
+        for ch in &mut self.channels {
+            ch.majorant = MajorantGrid::build(&ch.macrocells, &ch.tf, density_scale);
+        }
+        self.total_majorant = total(&self.channels);
+        check_optical_depth(&self.total_majorant, &self.layout.geometry)
+    }
+
+    /// The channels.
+    #[must_use]
+    pub fn channels(&self) -> &[SceneChannel] {
+        &self.channels
+    }
+
+    /// Number of channels.
+    #[must_use]
+    pub fn channel_count(&self) -> usize {
+        self.channels.len()
+    }
+
+    /// The shared voxel geometry.
+    #[must_use]
+    pub fn geometry(&self) -> &Geometry {
+        &self.layout.geometry
+    }
+
+    /// The macrocell layout shared by all majorant grids.
+    #[must_use]
+    pub fn layout(&self) -> &CellLayout {
+        &self.layout
+    }
+
+    /// World bounds `(min, max)` of the voxel centres.
+    #[must_use]
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        self.layout.geometry.world_bounds()
+    }
+
+    /// The density scale: extinction per unit world length = opacity x density scale.
+    #[must_use]
+    pub fn density_scale(&self) -> f32 {
+        self.density_scale
+    }
+
+    /// Cell-wise sum of all channels' majorants (bounds the total extinction of every blend).
+    #[must_use]
+    pub fn total_majorant(&self) -> &MajorantGrid {
+        &self.total_majorant
+    }
+
+    /// Extinction (per unit world length) and emitted colour of channel `n` at world point `p`
+    /// (trilinear sample, clamped to the grid). Panics if `n >= channel_count()`, like
+    /// slice indexing.
+    #[inline]
+    #[must_use]
+    pub fn sample(&self, n: usize, p: Vec3) -> (f32, [f32; 3]) {
+        let ch = &self.channels[n];
+        let v = ch
+            .grid
+            .sample_scalar_index(self.layout.geometry.world_to_index(p));
+        let [r, g, b, a] = ch.tf.eval(f64::from(v));
+        (a * self.density_scale, [r, g, b])
+    }
+}
+
+fn check_density_scale(s: f32) -> Result<()> {
+    if !(s >= 0.0 && s.is_finite()) {
+        return Err(Error::scene(format!(
+            "density_scale: {s} must be finite and non-negative"
+        )));
+    }
+    Ok(())
+}
+
+/// Largest majorant optical depth across the volume's diagonal that a scene may have. Beyond
+/// it the volume is opaque to any precision, and tracking would take absurdly many steps.
+pub const MAX_OPTICAL_DEPTH: f32 = 1e6;
+
+fn check_optical_depth(total: &MajorantGrid, g: &Geometry) -> Result<()> {
+    let (lo, hi) = g.world_bounds();
+    let diag = (hi - lo).length().max(g.spacing.min_element());
+    let max = total.values().iter().copied().fold(0.0f32, f32::max);
+    let depth = max * diag;
+    if !depth.is_finite() || depth > MAX_OPTICAL_DEPTH {
+        return Err(Error::scene(format!(
+            "density_scale: the largest extinction {max} per unit length over the volume's \
+             diagonal {diag} is an optical depth of {depth}, above {MAX_OPTICAL_DEPTH}; \
+             lower the density scale"
+        )));
+    }
+    Ok(())
+}
+
+fn total(chs: &[SceneChannel]) -> MajorantGrid {
+    let grids: Vec<&MajorantGrid> = chs.iter().map(|c| &c.majorant).collect();
+    MajorantGrid::combined(&grids, |a, b| a + b)
+}
