@@ -284,7 +284,8 @@ fn recolour_by(
                         continue;
                     }
                     let lout = lum_out(row0 + x, lin);
-                    if !(lout > 0.0) {
+                    // `lout > 0` is false for NaN too: such a pixel comes out black.
+                    if lout.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                         o.fill(0.0);
                         continue;
                     }
