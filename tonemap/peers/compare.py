@@ -14,7 +14,7 @@ time of each command (one run, same machine). Usage:
     python3 tonemap/peers/compare.py [--blueshift target/release/blueshift] [--data DIR]
                                      [--big]   # adds an 8-megapixel synthetic image
 """
-import argparse, os, shutil, subprocess, sys, tempfile, time
+import argparse, math, os, shutil, subprocess, sys, tempfile, time
 import numpy as np
 
 def read_pfm(path):
@@ -64,8 +64,15 @@ OPS = {
     "reinhard": (["--op", "reinhard", "--key", "0.18"], ["pfstmo_reinhard02", "--key", "0.18"]),
     "reinhard-local": (["--op", "reinhard-local", "--key", "0.18", "--phi", "8", "--epsilon", "0.05"],
                        ["pfstmo_reinhard02", "--scales", "--key", "0.18", "--phi", "8", "--range", "8", "--lower", "1", "--upper", "43"]),
+    # pfstmo_durand02 works in natural log: its sigma_r is in ln units and its base contrast
+    # is the target base range in ln units (5 means e^5 = 148:1, not 5:1); its default
+    # sigma_s is a fixed 40 px and it applies a colour-correction exponent unless
+    # --original. The paper's settings (log10 sigma_r 0.4, base contrast 5:1, sigma_s 2 %
+    # of the image size, colour ratios kept) are therefore passed as ln(10) * 0.4, ln(5),
+    # 0.02 * max(w, h) and --original; "{sigma_s}" is filled in per image.
     "durand": (["--op", "durand", "--sigma-r", "0.4", "--contrast", "5"],
-               ["pfstmo_durand02", "--sigma-r", "0.4", "--base-contrast", "5"]),
+               ["pfstmo_durand02", "--sigma-s", "{sigma_s}", "--sigma-r", f"{0.4 * math.log(10):.6f}",
+                "--base-contrast", f"{math.log(5):.6f}", "--original"]),
     "fattal": (["--op", "fattal", "--alpha", "0.1", "--beta", "0.85", "--saturation", "0.5"],
                ["pfstmo_fattal02", "--alpha", "0.1", "--beta", "0.85", "--saturation", "0.5", "--gamma", "1", "--detail-level", "0"]),
 }
@@ -101,6 +108,7 @@ def main():
             with open(pfs_in, "wb") as f:
                 subprocess.run(["pfsinpfm", pfm_in], check=True, stdout=f)
         hdr = read_pfm(pfm_in).astype(np.float32)
+        sigma_s = f"{0.02 * max(hdr.shape[0], hdr.shape[1]):.3f}"
         for op, (bargs, pargs) in OPS.items():
             out_b = os.path.join(tmp, "b.pfm")
             tb = timed([a.blueshift, "tonemap", pfm_in, *bargs, "--out", out_b])
@@ -109,7 +117,8 @@ def main():
             if have_pfs:
                 out_p = os.path.join(tmp, "p.pfs"); out_pp = os.path.join(tmp, "p.pfm")
                 with open(pfs_in, "rb") as fi, open(out_p, "wb") as fo:
-                    t = time.perf_counter(); subprocess.run(pargs, stdin=fi, stdout=fo, stderr=subprocess.DEVNULL, check=True); t_p = time.perf_counter() - t
+                    cmd = [x.replace("{sigma_s}", sigma_s) for x in pargs]
+                    t = time.perf_counter(); subprocess.run(cmd, stdin=fi, stdout=fo, stderr=subprocess.DEVNULL, check=True); t_p = time.perf_counter() - t
                 with open(out_p, "rb") as fi:
                     subprocess.run(["pfsoutpfm", out_pp], stdin=fi, check=True)
                 s_p = ssim(yb, display(read_pfm(out_pp)))

@@ -166,8 +166,42 @@ impl GlobalCurve {
             let data = img.as_raw().par_iter().map(|v| v * s).collect();
             return Rgb32FImage::from_raw(img.width(), img.height(), data).expect("same size");
         }
-        let out = lum.map(|l| self.map_luminance(f64::from(l)) as f32);
-        crate::plane::recolour(img, lum, &out, self.saturation())
+        // One fused row-parallel pass: the curve and the recolouring per pixel. The
+        // per-image constants are resolved once in f64; the per-pixel arithmetic runs in
+        // f32 (the output precision), which halves the cost of `ln`/`powf` against f64
+        // (agreement with `map_luminance` is tested to 1e-5 relative).
+        let sat = self.saturation();
+        match *self {
+            GlobalCurve::Drago {
+                adaptation,
+                scaled_max,
+                bias,
+                max_display_luminance,
+                ..
+            } => {
+                let inv_adapt = (1.0 / adaptation) as f32;
+                let inv_max = (1.0 / scaled_max) as f32;
+                let exponent = (bias.ln() / 0.5f64.ln()) as f32;
+                let coef = (max_display_luminance * 0.01 / (scaled_max + 1.0).log10()) as f32;
+                crate::plane::recolour_with(img, lum, sat, move |l| {
+                    let x = l * inv_adapt;
+                    coef * x.ln_1p() / (2.0 + 8.0 * (x * inv_max).powf(exponent)).ln()
+                })
+            }
+            GlobalCurve::Reinhard { scale, white, .. } => {
+                let scale = scale as f32;
+                let inv_w2 = if white.is_finite() {
+                    (1.0 / (white * white)) as f32
+                } else {
+                    0.0
+                };
+                crate::plane::recolour_with(img, lum, sat, move |l| {
+                    let x = l * scale;
+                    x * (1.0 + x * inv_w2) / (1.0 + x)
+                })
+            }
+            GlobalCurve::Linear { .. } => unreachable!("handled above"),
+        }
     }
 
     /// Recovers HDR values from a display-linear image made by this curve.

@@ -217,25 +217,52 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
 /// # Errors
 /// As [`read_hdr_image_with`]; the data length must match the header exactly.
 pub fn read_pfm(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io("cannot read", path, e))?;
+    let file = File::open(path).map_err(|e| Error::io("cannot read", path, e))?;
+    let file_len = file
+        .metadata()
+        .map_err(|e| Error::io("cannot read", path, e))?
+        .len();
+    // The header is at most 4 tokens of 64 bytes plus whitespace; the pixel data is then
+    // streamed row by row (no whole-file buffer).
+    let mut rd = std::io::BufReader::with_capacity(1 << 20, file);
     let bad = |m: &str| Error::invalid("PFM", m, path);
+    let mut next_byte = || -> Result<Option<u8>> {
+        let mut b = [0u8; 1];
+        match rd.read(&mut b) {
+            Ok(0) => Ok(None),
+            Ok(_) => Ok(Some(b[0])),
+            Err(e) => Err(Error::io("cannot read", path, e)),
+        }
+    };
     // Three whitespace-separated tokens after the magic, then exactly one whitespace byte.
-    let mut pos = 0;
+    let mut pos: u64 = 0;
     let mut tokens = Vec::new();
+    let mut pending = next_byte()?;
     while tokens.len() < 4 {
-        while pos < bytes.len() && bytes[pos].is_ascii_whitespace() {
+        while let Some(b) = pending
+            && b.is_ascii_whitespace()
+        {
             pos += 1;
+            pending = next_byte()?;
         }
-        let start = pos;
-        while pos < bytes.len() && !bytes[pos].is_ascii_whitespace() {
+        let mut tok = Vec::new();
+        while let Some(b) = pending
+            && !b.is_ascii_whitespace()
+        {
+            if tok.len() >= 64 {
+                return Err(bad("truncated or malformed header"));
+            }
+            tok.push(b);
             pos += 1;
+            pending = next_byte()?;
         }
-        if start == pos || pos - start > 64 {
+        if tok.is_empty() {
             return Err(bad("truncated or malformed header"));
         }
-        tokens.push(String::from_utf8_lossy(&bytes[start..pos]).into_owned());
+        tokens.push(String::from_utf8_lossy(&tok).into_owned());
     }
-    pos += 1; // the single whitespace byte after the scale
+    // `pending` is the single whitespace byte after the scale (already consumed).
+    pos += 1;
     let channels = match tokens[0].as_str() {
         "PF" => 3,
         "Pf" => 1,
@@ -258,7 +285,7 @@ pub fn read_pfm(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     }
     limits.check(w, h)?;
     let need = w * h * channels * 4;
-    let have = bytes.len().saturating_sub(pos) as u64;
+    let have = file_len.saturating_sub(pos);
     if have < need {
         return Err(bad(&format!(
             "truncated: {have} data bytes, header needs {need}"
@@ -267,14 +294,17 @@ pub fn read_pfm(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     let little = scale < 0.0;
     let (w, h, ch) = (w as usize, h as usize, channels as usize);
     let mut data = vec![0.0f32; w * h * 3];
-    for y in 0..h {
-        let src_row = h - 1 - y; // bottom row first in the file
-        for x in 0..w {
-            for c in 0..3 {
+    let mut src = vec![0u8; w * ch * 4];
+    // Bottom row first in the file.
+    for row in data.chunks_exact_mut(w * 3).rev() {
+        rd.read_exact(&mut src)
+            .map_err(|e| Error::io("cannot read", path, e))?;
+        for (x, px) in row.chunks_exact_mut(3).enumerate() {
+            for (c, v) in px.iter_mut().enumerate() {
                 let sc = if ch == 1 { 0 } else { c };
-                let o = pos + ((src_row * w + x) * ch + sc) * 4;
-                let b4 = [bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]];
-                data[(y * w + x) * 3 + c] = if little {
+                let o = (x * ch + sc) * 4;
+                let b4 = [src[o], src[o + 1], src[o + 2], src[o + 3]];
+                *v = if little {
                     f32::from_le_bytes(b4)
                 } else {
                     f32::from_be_bytes(b4)
@@ -391,16 +421,23 @@ pub fn write_pfm(path: impl AsRef<Path>, img: &Rgb32FImage) -> Result<()> {
     }
     let (w, h) = (img.width() as usize, img.height() as usize);
     let raw = img.as_raw();
-    let mut bytes = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
-    bytes.reserve(w * h * 12);
-    for y in (0..h).rev() {
-        for v in &raw[y * w * 3..(y + 1) * w * 3] {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
-    }
+    let header = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
+    // Streamed row by row (bottom row first in the file): no whole-image byte buffer.
     write_atomic(path, |wr| {
-        wr.write_all(&bytes)
-            .map_err(|e| Error::io("cannot write", path, e))
+        let mut row_bytes = vec![0u8; w * 12];
+        wr.write_all(&header)
+            .map_err(|e| Error::io("cannot write", path, e))?;
+        for y in (0..h).rev() {
+            for (o, v) in row_bytes
+                .chunks_exact_mut(4)
+                .zip(&raw[y * w * 3..(y + 1) * w * 3])
+            {
+                o.copy_from_slice(&v.to_le_bytes());
+            }
+            wr.write_all(&row_bytes)
+                .map_err(|e| Error::io("cannot write", path, e))?;
+        }
+        Ok(())
     })
 }
 

@@ -70,4 +70,6 @@ pub use ops::{
 };
 pub use plane::{LUMINANCE_WEIGHTS, Plane, luminance};
 pub use pseudocolour::{Palette, PseudocolourParams, pseudocolour};
-pub use sanitize::{DynamicRange, SanitizeReport, dynamic_range, sanitize};
+pub use sanitize::{
+    CleanImage, DynamicRange, SanitizeReport, dynamic_range, sanitize, sanitize_in_place,
+};

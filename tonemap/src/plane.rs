@@ -241,6 +241,27 @@ pub fn recolour(
     lum_out: &Plane,
     saturation: f32,
 ) -> Rgb32FImage {
+    recolour_by(img, lum_in, saturation, |i, _| lum_out.data[i])
+}
+
+/// [`recolour`] with the output luminance given by a global curve `L_out = curve(L_in)`,
+/// evaluated in the same row-parallel pass (no intermediate plane).
+#[must_use]
+pub fn recolour_with(
+    img: &Rgb32FImage,
+    lum_in: &Plane,
+    saturation: f32,
+    curve: impl Fn(f32) -> f32 + Sync,
+) -> Rgb32FImage {
+    recolour_by(img, lum_in, saturation, |_, l| curve(l))
+}
+
+fn recolour_by(
+    img: &Rgb32FImage,
+    lum_in: &Plane,
+    saturation: f32,
+    lum_out: impl Fn(usize, f32) -> f32 + Sync,
+) -> Rgb32FImage {
     let (w, h) = (img.width(), img.height());
     let src = img.as_raw();
     let mut out = vec![0.0f32; src.len()];
@@ -249,21 +270,31 @@ pub fn recolour(
         out.par_chunks_mut(wu * 3)
             .enumerate()
             .for_each(|(y, orow)| {
-                for x in 0..wu {
-                    let i = y * wu + x;
-                    let lin = lum_in.data[i];
-                    let lout = lum_out.data[i];
+                let row0 = y * wu;
+                let srow = &src[row0 * 3..(row0 + wu) * 3];
+                let lrow = &lum_in.data[row0..row0 + wu];
+                for (x, ((o, s), &lin)) in orow
+                    .chunks_exact_mut(3)
+                    .zip(srow.chunks_exact(3))
+                    .zip(lrow)
+                    .enumerate()
+                {
+                    if lin <= 0.0 {
+                        o.fill(0.0);
+                        continue;
+                    }
+                    let lout = lum_out(row0 + x, lin);
+                    // `lout > 0` is false for NaN too: such a pixel comes out black.
+                    if lout.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                        o.fill(0.0);
+                        continue;
+                    }
                     for c in 0..3 {
-                        let v = src[3 * i + c];
-                        orow[3 * x + c] = if lin > 0.0 && lout > 0.0 {
-                            let ratio = v / lin;
-                            if saturation == 1.0 {
-                                ratio * lout
-                            } else {
-                                ratio.powf(saturation) * lout
-                            }
+                        let ratio = s[c] / lin;
+                        o[c] = if saturation == 1.0 {
+                            ratio * lout
                         } else {
-                            0.0
+                            ratio.powf(saturation) * lout
                         };
                     }
                 }
@@ -271,7 +302,6 @@ pub fn recolour(
     }
     Rgb32FImage::from_raw(w, h, out).expect("buffer size matches dimensions")
 }
-
 /// Log-average (geometric mean) of the positive values inside an optional circle
 /// `(cx, cy, r)` in pixels. Zero pixels (a render's empty background) are left out, so
 /// they cannot drag the adaptation level down. Summed in `f64` per row, then over rows
@@ -298,7 +328,8 @@ pub fn log_average(lum: &Plane, circle: Option<(f32, f32, f32)>) -> Option<f64> 
                     }
                 }
                 if v > 0.0 {
-                    s += f64::from(v).ln();
+                    // ln in f32 (the data's precision), summed in f64.
+                    s += f64::from(v.ln());
                     n += 1;
                 }
             }

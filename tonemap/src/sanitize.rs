@@ -42,46 +42,155 @@ impl SanitizeReport {
 /// Applies the dirty-input rule (see the module docs) and reports what it changed.
 #[must_use]
 pub fn sanitize(img: &Rgb32FImage) -> (Rgb32FImage, SanitizeReport) {
-    let raw = img.as_raw();
-    // Largest finite value per channel (max is order-independent, so deterministic).
-    let max_finite: [f32; 3] = std::array::from_fn(|c| {
-        raw.par_iter()
-            .skip(c)
-            .step_by(3)
-            .copied()
-            .filter(|v| v.is_finite())
-            .reduce(|| 0.0, f32::max)
-    });
+    let mut out = img.clone();
+    let report = sanitize_in_place(&mut out);
+    (out, report)
+}
+
+/// [`sanitize()`] without a copy: applies the dirty-input rule to `img` itself. One
+/// row-parallel pass; a second one only when the image holds +Inf (whose replacement, the
+/// channel's largest finite value, is known only after the first pass).
+pub fn sanitize_in_place(img: &mut Rgb32FImage) -> SanitizeReport {
     let chunk = (img.width() as usize * 3).max(3);
-    let mut out = raw.to_vec();
-    let reports: Vec<SanitizeReport> = out
-        .par_chunks_mut(chunk)
-        .map(|row| {
-            let mut r = SanitizeReport::default();
-            for (i, v) in row.iter_mut().enumerate() {
-                if v.is_nan() {
-                    *v = 0.0;
-                    r.nan += 1;
-                } else if *v < 0.0 {
-                    *v = 0.0;
-                    r.negative += 1;
-                } else if v.is_infinite() {
-                    *v = max_finite[i % 3];
-                    r.positive_infinite += 1;
+    let rows: Vec<_> = img.par_chunks_mut(chunk).map(clean_row).collect();
+    let (report, max_finite) = merge_rows(&rows);
+    if report.positive_infinite > 0 {
+        replace_infinities(img, chunk, max_finite);
+    }
+    report
+}
+
+/// The dirty-input rule on one row: NaN and negatives become 0, +Inf is counted and left
+/// for [`replace_infinities`]. Returns the row's report and largest finite value per
+/// channel.
+fn clean_row(row: &mut [f32]) -> (SanitizeReport, [f32; 3]) {
+    let mut r = SanitizeReport::default();
+    let mut mx = [0.0f32; 3];
+    for px in row.chunks_exact_mut(3) {
+        for (c, v) in px.iter_mut().enumerate() {
+            if v.is_nan() {
+                *v = 0.0;
+                r.nan += 1;
+            } else if *v < 0.0 {
+                *v = 0.0;
+                r.negative += 1;
+            } else if v.is_infinite() {
+                r.positive_infinite += 1;
+            } else {
+                mx[c] = mx[c].max(*v);
+            }
+        }
+    }
+    (r, mx)
+}
+
+/// Sums the per-row reports and takes the maximum of the per-row maxima, in row order
+/// (max is order-independent, so the result does not depend on the thread count).
+fn merge_rows(rows: &[(SanitizeReport, [f32; 3])]) -> (SanitizeReport, [f32; 3]) {
+    rows.iter().fold(
+        (SanitizeReport::default(), [0.0f32; 3]),
+        |(a, m), (b, mb)| {
+            (
+                SanitizeReport {
+                    nan: a.nan + b.nan,
+                    negative: a.negative + b.negative,
+                    positive_infinite: a.positive_infinite + b.positive_infinite,
+                },
+                std::array::from_fn(|c| m[c].max(mb[c])),
+            )
+        },
+    )
+}
+
+fn replace_infinities(img: &mut Rgb32FImage, chunk: usize, max_finite: [f32; 3]) {
+    img.par_chunks_mut(chunk).for_each(|row| {
+        for px in row.chunks_exact_mut(3) {
+            for (c, v) in px.iter_mut().enumerate() {
+                if v.is_infinite() {
+                    *v = max_finite[c];
                 }
             }
-            r
+        }
+    });
+}
+
+/// A sanitized image with its luminance and statistics, computed in one pass, so that the
+/// CLI and the operators never clean the same image twice.
+#[derive(Clone, Debug)]
+pub struct CleanImage {
+    /// The image after the dirty-input rule.
+    pub image: Rgb32FImage,
+    /// Its luminance (Rec. 709 weights, [`crate::LUMINANCE_WEIGHTS`]).
+    pub luminance: Plane,
+    /// What the dirty-input rule changed.
+    pub report: SanitizeReport,
+    /// Smallest positive and largest luminance (`None` if no pixel is lit).
+    pub positive_range: Option<(f32, f32)>,
+    /// Number of pixels of zero luminance.
+    pub zero_pixels: u64,
+}
+
+impl CleanImage {
+    /// Cleans a copy of `img`.
+    #[must_use]
+    pub fn new(img: &Rgb32FImage) -> Self {
+        Self::from_image(img.clone())
+    }
+
+    /// Cleans `img` in place (no copy), computing its luminance in the same pass.
+    #[must_use]
+    pub fn from_image(mut img: Rgb32FImage) -> Self {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let chunk = (w * 3).max(3);
+        let mut lum = Plane::filled(w, h, 0.0);
+        let rows: Vec<_> = img
+            .par_chunks_mut(chunk)
+            .zip(lum.data.par_chunks_mut(w.max(1)))
+            .map(|(row, out)| {
+                let r = clean_row(row);
+                fill_luminance(row, out);
+                r
+            })
+            .collect();
+        let (report, max_finite) = merge_rows(&rows);
+        if report.positive_infinite > 0 {
+            replace_infinities(&mut img, chunk, max_finite);
+            lum = Plane::luminance_of(&img);
+        }
+        let positive_range = positive_range(&lum);
+        let zero_pixels = lum
+            .data
+            .par_chunks(w.max(1))
+            .map(|row| row.iter().filter(|&&v| v <= 0.0).count() as u64)
+            .sum();
+        Self {
+            image: img,
+            luminance: lum,
+            report,
+            positive_range,
+            zero_pixels,
+        }
+    }
+
+    /// The dynamic range (`None` if no pixel has positive luminance).
+    #[must_use]
+    pub fn dynamic_range(&self) -> Option<DynamicRange> {
+        let (lo, hi) = self.positive_range?;
+        let ratio = f64::from(hi) / f64::from(lo);
+        Some(DynamicRange {
+            min_positive: lo,
+            max: hi,
+            ratio,
+            orders_of_magnitude: ratio.log10(),
+            zero_pixels: self.zero_pixels,
         })
-        .collect();
-    let report = reports
-        .iter()
-        .fold(SanitizeReport::default(), |a, b| SanitizeReport {
-            nan: a.nan + b.nan,
-            negative: a.negative + b.negative,
-            positive_infinite: a.positive_infinite + b.positive_infinite,
-        });
-    let img = Rgb32FImage::from_raw(img.width(), img.height(), out).expect("same size");
-    (img, report)
+    }
+}
+
+fn fill_luminance(rgb_row: &[f32], out: &mut [f32]) {
+    for (o, px) in out.iter_mut().zip(rgb_row.chunks_exact(3)) {
+        *o = crate::plane::luminance([px[0], px[1], px[2]]);
+    }
 }
 
 /// The dynamic range of an image as the HDR VolVis paper reports it: the ratio of the
@@ -104,16 +213,5 @@ pub struct DynamicRange {
 /// Dynamic range of `img` (`None` if no pixel has positive luminance).
 #[must_use]
 pub fn dynamic_range(img: &Rgb32FImage) -> Option<DynamicRange> {
-    let (clean, _) = sanitize(img);
-    let lum = Plane::luminance_of(&clean);
-    let (lo, hi) = positive_range(&lum)?;
-    let ratio = f64::from(hi) / f64::from(lo);
-    let zero_pixels = lum.data.iter().filter(|&&v| v <= 0.0).count() as u64;
-    Some(DynamicRange {
-        min_positive: lo,
-        max: hi,
-        ratio,
-        orders_of_magnitude: ratio.log10(),
-        zero_pixels,
-    })
+    CleanImage::new(img).dynamic_range()
 }

@@ -520,3 +520,70 @@ fn pseudocolour_maps_min_to_blue_max_to_red_and_adds_a_bar() {
     let mid = pic.get_pixel(19, 10).0;
     assert!(mid[1] > 200 && mid[0] < 60, "{mid:?}");
 }
+
+#[test]
+fn global_operator_pixels_follow_their_f64_curve_to_1e_5() {
+    // `apply` evaluates the global curves per pixel in f32; the reference is the
+    // documented f64 curve (`GlobalCurve::map_luminance`) times the colour ratio.
+    let img = scene(64, 48);
+    for op in global_operators() {
+        let curve = op.global_curve(&img).unwrap();
+        let s = curve.saturation();
+        let out = op.apply(&img).unwrap();
+        for (x, y, px) in img.enumerate_pixels() {
+            let c = px.0.map(f64::from);
+            let l = 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+            let ld = curve.map_luminance(l);
+            for k in 0..3 {
+                let want = (c[k] / l).powf(f64::from(s)) * ld;
+                let got = f64::from(out.get_pixel(x, y).0[k]);
+                assert!(
+                    (got - want).abs() <= 1e-5 * want.abs().max(1e-3),
+                    "{} at ({x},{y}) channel {k}: {got} vs {want}",
+                    op.name()
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn clean_image_matches_sanitize_and_dynamic_range_and_apply() {
+    let mut img = scene(40, 30);
+    img.put_pixel(1, 1, Rgb([f32::NAN, 1.0, 1.0]));
+    img.put_pixel(2, 1, Rgb([-0.5, -1.0, 0.2]));
+    img.put_pixel(3, 1, Rgb([f32::INFINITY, 2.0, 1.0]));
+    img.put_pixel(0, 0, Rgb([0.0, 0.0, 0.0]));
+    let clean = CleanImage::new(&img);
+    let (reference, report) = sanitize(&img);
+    assert_eq!(clean.report, report);
+    assert_eq!(clean.image.as_raw(), reference.as_raw());
+    // +Inf became the channel's largest finite value (the 500 cd/m^2 disc, tinted).
+    let red_max = img
+        .as_raw()
+        .iter()
+        .step_by(3)
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0f32, f32::max);
+    assert_eq!(clean.image.get_pixel(3, 1).0[0], red_max);
+    assert_eq!(
+        clean.luminance.data,
+        Plane::luminance_of(&reference).data,
+        "luminance is that of the cleaned image"
+    );
+    let dr = clean.dynamic_range().unwrap();
+    assert_eq!(Some(dr), dynamic_range(&img));
+    assert_eq!(dr.zero_pixels, 1);
+    let mut in_place = img.clone();
+    assert_eq!(sanitize_in_place(&mut in_place), report);
+    assert_eq!(in_place.as_raw(), reference.as_raw());
+    for op in all_operators() {
+        assert_eq!(
+            op.apply_clean(&clean).unwrap().as_raw(),
+            op.apply(&img).unwrap().as_raw(),
+            "{}",
+            op.name()
+        );
+    }
+}

@@ -225,8 +225,12 @@ pub fn run(args: Args) -> Result<()> {
     let hdr = io::read_hdr_image(&args.input)
         .with_context(|| "cannot read the input image".to_string())?;
     let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let (_, report) = blueshift_tonemap::sanitize(&hdr);
-    let dr = blueshift_tonemap::dynamic_range(&hdr);
+    // One cleaning pass (dirty-input rule + luminance + range) shared by the dynamic-range
+    // report and the operator.
+    let clean = blueshift_tonemap::CleanImage::from_image(hdr);
+    let report = clean.report;
+    let dr = clean.dynamic_range();
+    let hdr = &clean.image;
     let op = operator(&args);
     let mut outputs = Vec::new();
     let t1 = Instant::now();
@@ -236,16 +240,16 @@ pub fn run(args: Args) -> Result<()> {
         if ext != "png" {
             bail!("--pseudocolor writes a PNG: {}", args.out.display());
         }
-        let pic = blueshift_tonemap::pseudocolour(&hdr, &PseudocolourParams::default())?;
+        let pic = blueshift_tonemap::pseudocolour(hdr, &PseudocolourParams::default())?;
         io::write_rgb8_png(&args.out, &pic)?;
         outputs.push(args.out.clone());
     } else if let Some(n) = args.exposure_series {
         kind = "exposure-series";
-        let mut series = ExposureSeries::spanning(&hdr, n);
+        let mut series = ExposureSeries::spanning(hdr, n);
         if let Some(step) = args.stops_step {
             series.step_stops = step;
         }
-        let images = blueshift_tonemap::exposure_series(&hdr, &series)?;
+        let images = blueshift_tonemap::exposure_series(hdr, &series)?;
         let stem = args.out.with_extension("");
         for (i, img) in images.iter().enumerate() {
             let path = PathBuf::from(format!("{}-{i:02}.{ext}", stem.display()));
@@ -254,7 +258,7 @@ pub fn run(args: Args) -> Result<()> {
         }
     } else {
         kind = op.name();
-        let display = op.apply(&hdr)?;
+        let display = op.apply_clean(&clean)?;
         write_display(&args.out, &display, args.depth)?;
         outputs.push(args.out.clone());
     }

@@ -1,6 +1,11 @@
 //! Durand and Dorsey 2002, "Fast bilateral filtering for the display of high-dynamic-range
 //! images" (HDR VolVis reference [7]): base/detail decomposition of log luminance by a fast
 //! bilateral filter, contrast reduction of the base only.
+//!
+//! Units follow the paper: log10 luminance, `sigma_r` in log10 units, the base contrast as
+//! a ratio (5:1), the maximum of the base mapped to display 1. `pfstmo_durand02` works in
+//! natural log and takes its base contrast as a log-unit range, so the same settings there
+//! read `--sigma-r 0.921 --base-contrast 1.609 --original` (see `tonemap/peers/RESULTS.md`).
 
 use rayon::prelude::*;
 

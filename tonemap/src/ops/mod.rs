@@ -10,8 +10,8 @@ use image::Rgb32FImage;
 
 use crate::error::{Error, Result};
 use crate::inverse::GlobalCurve;
-use crate::plane::{Plane, log_average, positive_range, recolour};
-use crate::sanitize::sanitize;
+use crate::plane::{log_average, recolour};
+use crate::sanitize::CleanImage;
 
 pub use drago::{DragoParams, Roi};
 pub use durand::DurandParams;
@@ -46,12 +46,6 @@ impl Default for Operator {
     }
 }
 
-/// A sanitized image and its luminance.
-pub(crate) struct Prepared {
-    pub img: Rgb32FImage,
-    pub lum: Plane,
-}
-
 pub(crate) fn check_finite(name: &str, v: f32) -> Result<()> {
     if v.is_finite() {
         Ok(())
@@ -70,13 +64,12 @@ pub(crate) fn check_saturation(s: f32) -> Result<()> {
     }
 }
 
-fn prepare(img: &Rgb32FImage) -> Result<Prepared> {
+fn check_not_empty(img: &Rgb32FImage) -> Result<()> {
     if img.width() == 0 || img.height() == 0 {
-        return Err(Error::EmptyImage);
+        Err(Error::EmptyImage)
+    } else {
+        Ok(())
     }
-    let (clean, _) = sanitize(img);
-    let lum = Plane::luminance_of(&clean);
-    Ok(Prepared { img: clean, lum })
 }
 
 impl Operator {
@@ -127,38 +120,50 @@ impl Operator {
     /// pixel), [`Error::EmptyImage`] for a 0-pixel image.
     pub fn apply(&self, img: &Rgb32FImage) -> Result<Rgb32FImage> {
         self.validate()?;
-        let p = prepare(img)?;
-        if positive_range(&p.lum).is_none() {
+        check_not_empty(img)?;
+        self.apply_clean(&CleanImage::new(img))
+    }
+
+    /// [`Operator::apply`] on an image already cleaned by [`CleanImage`] (whose luminance
+    /// and statistics are reused, so a caller that also reports the dynamic range cleans
+    /// the image once).
+    ///
+    /// # Errors
+    /// As [`Operator::apply`].
+    pub fn apply_clean(&self, clean: &CleanImage) -> Result<Rgb32FImage> {
+        self.validate()?;
+        check_not_empty(&clean.image)?;
+        let p = clean;
+        let Some((floor, _)) = p.positive_range else {
             // All black: every operator maps black to black.
-            return Ok(Rgb32FImage::new(img.width(), img.height()));
-        }
+            return Ok(Rgb32FImage::new(p.image.width(), p.image.height()));
+        };
         if self.is_global() {
-            let curve = self.curve_of(&p)?;
-            return Ok(curve.apply_clean(&p.img, &p.lum));
+            let curve = self.curve_of(p)?;
+            return Ok(curve.apply_clean(&p.image, &p.luminance));
         }
-        let (w, h) = (p.lum.width, p.lum.height);
-        let (floor, _) = positive_range(&p.lum).expect("checked above");
+        let (w, h) = (p.luminance.width, p.luminance.height);
         let (lum_out, saturation) = match self {
             Operator::ReinhardLocal(params) => {
-                let lavg = log_average(&p.lum, None).expect("has positive pixels");
+                let lavg = log_average(&p.luminance, None).expect("has positive pixels");
                 let scale = (f64::from(params.key) / lavg) as f32;
-                let scaled = p.lum.map(|v| v * scale);
+                let scaled = p.luminance.map(|v| v * scale);
                 (reinhard::dodge_and_burn(&scaled, params), params.saturation)
             }
             Operator::Durand(params) => {
-                let log_l = p.lum.map(|v| v.max(floor).log10());
+                let log_l = p.luminance.map(|v| v.max(floor).log10());
                 let out = durand::durand_log(&log_l, params);
                 (out.map(|v| 10f32.powf(v)), params.saturation)
             }
             Operator::Fattal(params) => {
-                let h_log = p.lum.map(|v| v.max(floor).ln());
+                let h_log = p.luminance.map(|v| v.max(floor).ln());
                 let i = fattal::compressed_log_luminance(&h_log, params)?;
                 let l_out = i.map(f32::exp);
                 // Scale to the display, clipping the given percentages (lit pixels only).
                 let lit: Vec<f32> = l_out
                     .data
                     .iter()
-                    .zip(&p.lum.data)
+                    .zip(&p.luminance.data)
                     .filter(|(_, l)| **l > 0.0)
                     .map(|(v, _)| *v)
                     .collect();
@@ -170,7 +175,7 @@ impl Operator {
             _ => unreachable!("global operators handled above"),
         };
         debug_assert_eq!((lum_out.width, lum_out.height), (w, h));
-        Ok(recolour(&p.img, &p.lum, &lum_out, saturation))
+        Ok(recolour(&p.image, &p.luminance, &lum_out, saturation))
     }
 
     /// The resolved global curve of this operator for `img`: the operator's parameters plus
@@ -183,13 +188,14 @@ impl Operator {
     /// [`Operator::apply`].
     pub fn global_curve(&self, img: &Rgb32FImage) -> Result<GlobalCurve> {
         self.validate()?;
-        let p = prepare(img)?;
-        self.curve_of(&p)
+        check_not_empty(img)?;
+        self.curve_of(&CleanImage::new(img))
     }
 
-    fn curve_of(&self, p: &Prepared) -> Result<GlobalCurve> {
-        let max = positive_range(&p.lum).map_or(1.0, |(_, hi)| hi);
-        let lavg = log_average(&p.lum, None).unwrap_or(1.0);
+    fn curve_of(&self, p: &CleanImage) -> Result<GlobalCurve> {
+        let max = p.positive_range.map_or(1.0, |(_, hi)| hi);
+        // Only the operators that use it pay for the log-average pass.
+        let lavg = || log_average(&p.luminance, None).unwrap_or(1.0);
         match self {
             Operator::Linear(params) => Ok(GlobalCurve::Linear {
                 scale: f64::from(params.scale(p)),
@@ -197,13 +203,13 @@ impl Operator {
             Operator::Drago(params) => {
                 let circle = params.roi.map(|r| (r.x_px, r.y_px, r.radius_px));
                 let lwa = match circle {
-                    Some(c) => log_average(&p.lum, Some(c)).ok_or_else(|| {
+                    Some(c) => log_average(&p.luminance, Some(c)).ok_or_else(|| {
                         Error::parameter(format!(
                             "the region of interest {:?} contains no lit pixel",
                             params.roi.expect("some")
                         ))
                     })?,
-                    None => lavg,
+                    None => lavg(),
                 };
                 let adaptation = lwa / f64::from(params.exposure_stops).exp2();
                 Ok(GlobalCurve::Drago {
@@ -215,7 +221,7 @@ impl Operator {
                 })
             }
             Operator::Reinhard(params) => {
-                let scale = f64::from(params.key) / lavg;
+                let scale = f64::from(params.key) / lavg();
                 let white = params.white.map_or(f64::from(max) * scale, f64::from);
                 Ok(GlobalCurve::Reinhard {
                     scale,
