@@ -44,14 +44,19 @@ pub mod majorant;
 pub mod render;
 pub mod rng;
 pub mod scene;
+pub mod shading;
 
 pub use camera::{Camera, Projection, Ray};
 pub use dda::{CellLayout, Dda, DdaCell, DdaMajorantIterator, MajorantSegment};
 pub use error::{Error, Result};
 pub use integrator::{
-    Blend, DdaMode, Integrator, Precision, RayMarcher, TentativeCollision, sample_t_maj,
+    Blend, DdaMode, Integrator, Precision, RayMarcher, RayStats, TentativeCollision,
+    sample_t_maj,
 };
 pub use majorant::MajorantGrid;
-pub use render::{Progressive, RenderSettings, render, render_progressive};
+pub use render::{
+    FrameTimes, HeatMap, Progressive, RenderSettings, render, render_progressive, render_timed,
+};
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};
+pub use shading::{Material, Shading};
