@@ -50,8 +50,7 @@ pub use camera::{Camera, Projection, Ray};
 pub use dda::{CellLayout, Dda, DdaCell, DdaMajorantIterator, MajorantSegment};
 pub use error::{Error, Result};
 pub use integrator::{
-    Blend, DdaMode, Integrator, Precision, RayMarcher, RayStats, TentativeCollision,
-    sample_t_maj,
+    Blend, DdaMode, Integrator, Precision, RayMarcher, RayStats, TentativeCollision, sample_t_maj,
 };
 pub use majorant::MajorantGrid;
 pub use render::{

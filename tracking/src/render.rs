@@ -389,7 +389,9 @@ pub fn render_timed(
 ) -> Result<(Progressive, FrameTimes)> {
     settings.validate()?;
     if frames == 0 {
-        return Err(Error::parameter("frames: at least one timed frame is needed"));
+        return Err(Error::parameter(
+            "frames: at least one timed frame is needed",
+        ));
     }
     let integrator = integrator.prepared(scene)?;
     if warmup > 0 {

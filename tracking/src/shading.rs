@@ -172,8 +172,5 @@ pub(crate) fn blinn_phong(
     } else {
         0.0
     };
-    (
-        c.map(|v| v * m.ambient),
-        c.map(|v| kd * v * nl + spec),
-    )
+    (c.map(|v| v * m.ambient), c.map(|v| kd * v * nl + spec))
 }

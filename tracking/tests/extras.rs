@@ -28,7 +28,12 @@ fn z_stats(a: &Progressive, b: &Progressive, w: u32, h: u32) -> (f64, f64) {
     let (mut worst, mut sum, mut count) = (0.0f64, 0.0f64, 0.0f64);
     for y in 0..h {
         for x in 0..w {
-            let (ma, va, mb, vb) = (a.mean(x, y), a.variance(x, y), b.mean(x, y), b.variance(x, y));
+            let (ma, va, mb, vb) = (
+                a.mean(x, y),
+                a.variance(x, y),
+                b.mean(x, y),
+                b.variance(x, y),
+            );
             for c in 0..4 {
                 let se = (va[c] / f64::from(a.samples()) + vb[c] / f64::from(b.samples())).sqrt();
                 let d = (ma[c] - mb[c]).abs();
@@ -53,7 +58,13 @@ fn summed_majorant_converges_to_the_same_image_as_ndda_and_1dda() {
     let mut s = RenderSettings::default_for(&scene, 12, 12, true);
     s.jitter_pixels = false;
     s.spp = 300;
-    for blend in [Blend::Density, Blend::Max, Blend::Mix { weights: vec![1.0, 2.0, 1.0] }] {
+    for blend in [
+        Blend::Density,
+        Blend::Max,
+        Blend::Mix {
+            weights: vec![1.0, 2.0, 1.0],
+        },
+    ] {
         s.seed = 1;
         let summed = Integrator::Mdwt {
             dda: DdaMode::Summed,
@@ -68,7 +79,10 @@ fn summed_majorant_converges_to_the_same_image_as_ndda_and_1dda() {
             };
             let b = render_progressive(&scene, &integ, &s, |_, _| {}).unwrap();
             let (worst, mz2) = z_stats(&a, &b, 12, 12);
-            assert!(worst < 5.0, "{blend:?} summed vs {dda:?}: worst z {worst:.2}");
+            assert!(
+                worst < 5.0,
+                "{blend:?} summed vs {dda:?}: worst z {worst:.2}"
+            );
             assert!(mz2 < 1.6, "{blend:?} summed vs {dda:?}: mean z^2 {mz2:.2}");
         }
     }
@@ -79,7 +93,11 @@ fn summed_majorant_converges_to_the_same_image_as_ndda_and_1dda() {
 /// 0.25 x scale.
 fn loose_slab(k: usize) -> Scene {
     let g = grid([8, 8, 40], |x, y, z| {
-        if x == 0 && y == 0 && z == 39 { 1.0 } else { 0.0 }
+        if x == 0 && y == 0 && z == 39 {
+            1.0
+        } else {
+            0.0
+        }
     });
     let t = tf([1.0, 1.0, 1.0], &[(0.0, 0.25), (1.0, 1.0)]);
     Scene::new(vec![("slab".into(), g, t)], 0.1, k).unwrap()
@@ -126,8 +144,22 @@ fn tentative_collisions_per_ray_follow_delta_tracking_theory() {
         let (mt, mr) = (s / nf, r / nf);
         let se_t = ((s2 / nf - mt * mt) / nf).sqrt();
         let se_r = ((r2 / nf - mr * mr) / nf).sqrt();
-        assert_close(&format!("{integ:?} tentative"), mt, se_t, expect_tent, 4.0, 0.0);
-        assert_close(&format!("{integ:?} rejections"), mr, se_r, expect_rej, 4.0, 0.0);
+        assert_close(
+            &format!("{integ:?} tentative"),
+            mt,
+            se_t,
+            expect_tent,
+            4.0,
+            0.0,
+        );
+        assert_close(
+            &format!("{integ:?} rejections"),
+            mr,
+            se_r,
+            expect_rej,
+            4.0,
+            0.0,
+        );
     }
 }
 
@@ -150,7 +182,10 @@ fn heat_maps_of_a_tight_homogeneous_slab_and_tighter_grids_reject_less() {
         p.add_pass(&scene, &integ, &s).unwrap();
     }
     let rej = p.heatmap(HeatMap::Rejections).unwrap();
-    assert!(rej.iter().all(|&v| v == 0.0), "tight majorant rejects nothing");
+    assert!(
+        rej.iter().all(|&v| v == 0.0),
+        "tight majorant rejects nothing"
+    );
     let col = p.heatmap(HeatMap::Collisions).unwrap();
     let mean = col.iter().map(|&v| f64::from(v)).sum::<f64>() / col.len() as f64;
     let expect = 1.0 - (-0.05f64 * 39.0).exp();
@@ -196,7 +231,10 @@ fn sphere_scene() -> Scene {
         Vec3::new(x as f32 - c, y as f32 - c, z as f32 - c).length() / 48.0
     });
     let r = 16.0 / 48.0;
-    let t = tf([1.0, 1.0, 1.0], &[(0.0, 1.0), (r - 0.5 / 48.0, 1.0), (r, 0.0), (1.0, 0.0)]);
+    let t = tf(
+        [1.0, 1.0, 1.0],
+        &[(0.0, 1.0), (r - 0.5 / 48.0, 1.0), (r, 0.0), (1.0, 0.0)],
+    );
     Scene::new(vec![("sphere".into(), g, t)], 200.0, 4).unwrap()
 }
 
@@ -218,7 +256,13 @@ fn shaded_sphere_matches_the_lambert_term() {
         dda: DdaMode::OneDda,
         blend: Blend::Density,
     };
-    for (dx, dy) in [(0.0f32, 0.0f32), (6.0, 0.0), (0.0, -8.0), (5.0, 5.0), (-9.0, 3.0)] {
+    for (dx, dy) in [
+        (0.0f32, 0.0f32),
+        (6.0, 0.0),
+        (0.0, -8.0),
+        (5.0, 5.0),
+        (-9.0, 3.0),
+    ] {
         // The opaque shell sits between radius 15.5 and 16: collisions happen at its outside.
         let r = 15.9f32;
         let z = -(r * r - dx * dx - dy * dy).sqrt();
@@ -226,7 +270,14 @@ fn shaded_sphere_matches_the_lambert_term() {
         let expect = f64::from(n.dot(l).max(0.0));
         let (mean, se) = estimate(&scene, &integ, &ray_z(c.x + dx, c.y + dy), 400, 5);
         for ch in 0..3 {
-            assert_close(&format!("({dx}, {dy})"), mean[ch], se[ch], expect, 4.0, 0.02);
+            assert_close(
+                &format!("({dx}, {dy})"),
+                mean[ch],
+                se[ch],
+                expect,
+                4.0,
+                0.02,
+            );
         }
         assert!((mean[3] - 1.0).abs() < 1e-9, "opaque");
     }
@@ -259,7 +310,13 @@ fn shadowed_shaded_hits_keep_only_their_ambient_part() {
     // Two channels: a thin opaque wall (channel 1) between the light and a lit plane
     // (channel 0) facing the camera. Behind the wall's shadow only ambient remains.
     let g0 = grid([32, 32, 32], |_, _, z| if z >= 20 { 1.0 } else { 0.0 });
-    let g1 = grid([32, 32, 32], |x, _, z| if x < 16 && (8..=10).contains(&z) { 1.0 } else { 0.0 });
+    let g1 = grid([32, 32, 32], |x, _, z| {
+        if x < 16 && (8..=10).contains(&z) {
+            1.0
+        } else {
+            0.0
+        }
+    });
     let t = tf([1.0, 1.0, 1.0], &[(0.0, 0.0), (0.5, 0.0), (1.0, 1.0)]);
     let mut scene = Scene::new(
         vec![("plane".into(), g0, t.clone()), ("wall".into(), g1, t)],
@@ -312,13 +369,19 @@ fn weighted_blend_equals_density_with_scaled_opacities() {
     let tb = tf([0.0, 0.0, 1.0], &[(0.0, 0.0), (1.0, 0.8)]);
     let tb_half = tf([0.0, 0.0, 1.0], &[(0.0, 0.0), (1.0, 0.4)]);
     let two = Scene::new(
-        vec![("a".into(), g(false), ta.clone()), ("b".into(), g(true), tb)],
+        vec![
+            ("a".into(), g(false), ta.clone()),
+            ("b".into(), g(true), tb),
+        ],
         0.2,
         4,
     )
     .unwrap();
     let w = Blend::majorant_weights(&two);
-    assert!((w[0] - 1.0).abs() < 1e-6 && (w[1] - 0.5).abs() < 1e-6, "{w:?}");
+    assert!(
+        (w[0] - 1.0).abs() < 1e-6 && (w[1] - 0.5).abs() < 1e-6,
+        "{w:?}"
+    );
     let halved = Scene::new(
         vec![("a".into(), g(false), ta), ("b".into(), g(true), tb_half)],
         0.2,
@@ -390,7 +453,10 @@ fn bad_settings_get_clear_errors() {
     let e = integ.prepared(&scene).unwrap_err().to_string();
     assert!(e.contains("shininess"), "{e}");
     let e = "heat".parse::<HeatMap>().unwrap_err().to_string();
-    assert!(e.contains("unknown 'heat'") && e.contains("rejections"), "{e}");
+    assert!(
+        e.contains("unknown 'heat'") && e.contains("rejections"),
+        "{e}"
+    );
     assert_eq!("time".parse::<HeatMap>().unwrap(), HeatMap::Time);
     // Shading is for the trackers; the marcher refuses it.
     scene.shading = Some(Shading::default());

@@ -106,13 +106,18 @@ pub struct Args {
     #[arg(long)]
     pub alpha_g: Option<f32>,
     /// Direction towards a directional light X,Y,Z (enables shadows; tracking methods only).
-    #[arg(long, alias = "light", value_delimiter = ',', allow_hyphen_values = true)]
+    #[arg(
+        long,
+        alias = "light",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     pub light_dir: Option<Vec<f32>>,
     /// Light radiance R,G,B (default 1,1,1).
     #[arg(long, value_delimiter = ',')]
     pub light_radiance: Option<Vec<f32>>,
     /// Light intensity (grey radiance; --light-radiance wins if both are given).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub light_intensity: Option<f32>,
     /// Gradient shading at real collisions with the channels' Blinn-Phong materials (scene
     /// file "material" per channel); lit by --light (shadowed) or a headlight.

@@ -85,7 +85,11 @@ fn colour(x: f32) -> RGBColor {
         [249.0, 142.0, 9.0],
         [252.0, 255.0, 164.0],
     ];
-    let x = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 } * 4.0;
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
     let i = (x.floor() as usize).min(3);
     let f = x - i as f32;
     let c = |k: usize| (STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])).round() as u8;
@@ -120,23 +124,30 @@ fn colour_mapped_png(
         let (x0, y0, y1) = (w as i32 + 12, 20i32, height as i32 - 20);
         for y in y0..=y1 {
             let t = (y1 - y) as f32 / (y1 - y0).max(1) as f32;
-            root.draw(&Rectangle::new([(x0, y), (x0 + 16, y + 1)], colour(t).filled()))
-                .map_err(err)?;
+            root.draw(&Rectangle::new(
+                [(x0, y), (x0 + 16, y + 1)],
+                colour(t).filled(),
+            ))
+            .map_err(err)?;
         }
         let style = (FONT, 12).into_font().color(&BLACK);
         for (t, y) in [(1.0f32, y0), (0.5, (y0 + y1) / 2), (0.0, y1)] {
-            root.draw(&Text::new(format!("{:.3}", max * t), (x0 + 20, y - 6), style.clone()))
-                .map_err(err)?;
+            root.draw(&Text::new(
+                format!("{:.3}", max * t),
+                (x0 + 20, y - 6),
+                style.clone(),
+            ))
+            .map_err(err)?;
         }
+        root.draw(&Text::new(m.name().to_string(), (x0, 4), style.clone()))
+            .map_err(err)?;
+        let unit = m.unit();
         root.draw(&Text::new(
-            m.name().to_string(),
-            (x0, 4),
-            style.clone(),
+            unit.to_string(),
+            (x0 - 4, y1 + 4),
+            (FONT, 9).into_font().color(&BLACK),
         ))
         .map_err(err)?;
-        let unit = m.unit();
-        root.draw(&Text::new(unit.to_string(), (x0 - 4, y1 + 4), (FONT, 9).into_font().color(&BLACK)))
-            .map_err(err)?;
         root.present().map_err(err)?;
     }
     let img = image::RgbImage::from_raw(iw, ih, buf).ok_or_else(|| anyhow!("heat map buffer"))?;
