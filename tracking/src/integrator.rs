@@ -12,6 +12,8 @@
 //!   compares the raw fields theta_n; channels with different units are compared here after
 //!   their transfer functions, which is what the user sees.)
 //! - [`Blend::Mix`] (Eq. 10): `s_n` as for max; `c_n = sum_m f_m sigma_m w_m / max_m sigma_m`.
+//! - [`Blend::Weighted`]: `s_n = w_n sigma_n` (weights normalised to a largest of 1),
+//!   `c_n = f_n`.
 //! - [`Blend::Composite`]: each channel rendered alone (density model), images summed with
 //!   weights (post-render compositing; no depth order between channels).
 //!

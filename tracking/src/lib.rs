@@ -35,6 +35,10 @@
 //! | accumulation buffer | [`Progressive`] |
 //! | alpha_g (HDR VolVis §3) | `blueshift_tfedit::TransferFunction::with_alpha_g` |
 //! | 8-bit / half / float compositing (HDR VolVis Fig. 3) | [`Precision`] |
+//! | summed-majorant third method (MDWT section 6) | [`DdaMode::Summed`] |
+//! | heat maps (MDWT Fig. 1g) | [`RayStats`], [`HeatMap`], [`Progressive::heatmap`] |
+//! | timing protocol (warm-up, timed frames) | [`render_timed`], [`FrameTimes`] |
+//! | gradient shading, materials | [`Shading`], [`Material`] |
 
 pub mod camera;
 pub mod dda;

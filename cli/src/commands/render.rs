@@ -15,13 +15,15 @@
 //!   "camera": "perspective", "fov_y_deg": 30, "eye": null, "target": null, "up": null,
 //!   "background": [0, 0, 0], "density_scale": 1.0, "macrocell": 4,
 //!   "precision": "f32", "step": null, "alpha_g": null, "noise_target": null,
-//!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 } }
+//!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 },
+//!   "shading": false, "heatmaps": ["steps"], "warmup": null, "frames": null }
 //! ```
-//! A channel is `{ "volume": FILE, "channel": NAME?, "tf": SPEC }` or
+//! A channel is `{ "volume": FILE, "channel": NAME?, "tf": SPEC, "material": M? }` or
 //! `{ "synth": NAME, "res": N?, "seed": S?, "channel": NAME?, "tf": SPEC }`. A TF SPEC is a
 //! blueshift or ParaView JSON file, `builtin:NAME` (a built-in map stretched over the
 //! channel's value range) or `log:NAME` (the same on a logarithmic data axis over the
-//! channel's positive values, for data spanning decades).
+//! channel's positive values, for data spanning decades). A material `M` for `shading` is
+//! `{ "ambient": 1, "diffuse": 0.8, "specular": 0.2, "shininess": 32 }` (any may be left out).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
