@@ -221,3 +221,132 @@ fn bad_input_gets_one_line_errors_naming_the_field() {
         assert!(!dir.path().join("bad.exr").exists());
     }
 }
+
+#[test]
+fn summed_method_heat_maps_and_timing_protocol() {
+    // Slab: sigma = 0.1 per unit over L = 8 with a tight majorant: no rejections, and the
+    // mean tentative collisions per ray is 1 - exp(-0.8) (the ray stops at its first).
+    let dir = tempfile::tempdir().unwrap();
+    write_slab(dir.path());
+    let out = blueshift(
+        &[
+            "--volume",
+            "slab.nrrd",
+            "--tf",
+            "tf.json",
+            "--method",
+            "mdwt-summed",
+            "--camera",
+            "ortho",
+            "--density-scale",
+            "0.2",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--heatmap",
+            "collisions",
+            "--heatmap",
+            "rejections",
+            "--heatmap",
+            "steps",
+            "--warmup",
+            "2",
+            "--frames",
+            "30",
+            "--macrocell",
+            "4",
+            "--json",
+            "--out",
+            "s.exr",
+        ],
+        dir.path(),
+    );
+    ok(&out);
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(j["spp"], 30);
+    assert_eq!(j["timings"]["frames"], 30);
+    assert_eq!(j["timings"]["warmup"], 2);
+    assert!(j["timings"]["median_s"].as_f64().unwrap() > 0.0);
+    let expected = 1.0 - (-0.8f64).exp();
+    let mean = j["heatmaps"]["collisions"]["mean"].as_f64().unwrap();
+    let se = (expected * (1.0 - expected) / (256.0 * 30.0)).sqrt();
+    assert!((mean - expected).abs() < 4.0 * se, "{mean} vs {expected}");
+    assert_eq!(j["heatmaps"]["rejections"]["max"].as_f64().unwrap(), 0.0);
+    // The image: alpha = 1 - exp(-0.8) within the noise.
+    let img = read_exr(&dir.path().join("s.exr"));
+    let a: f64 = img.pixels().map(|p| f64::from(p.0[3])).sum::<f64>() / 256.0;
+    assert!((a - expected).abs() < 4.0 * se, "{a}");
+    // The heat EXR has named channels; the PNGs exist with a colour bar beside the map.
+    let heat = std::fs::read(dir.path().join("s.heat.exr")).unwrap();
+    for name in ["collisions", "rejections", "steps"] {
+        assert!(
+            heat.windows(name.len()).any(|w| w == name.as_bytes()),
+            "{name}"
+        );
+        let png = image::open(dir.path().join(format!("s.heat-{name}.png"))).unwrap();
+        assert!(png.width() > 16);
+    }
+}
+
+#[test]
+fn shading_blends_and_bad_settings() {
+    let dir = tempfile::tempdir().unwrap();
+    write_slab(dir.path());
+    let run = |extra: &[&str]| {
+        let mut a = vec![
+            "--volume",
+            "slab.nrrd",
+            "--tf",
+            "tf.json",
+            "--camera",
+            "ortho",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--spp",
+            "4",
+            "--out",
+            "o.exr",
+        ];
+        a.extend_from_slice(extra);
+        blueshift(&a, dir.path())
+    };
+    ok(&run(&[
+        "--shading",
+        "--light",
+        "1,1,-1",
+        "--light-intensity",
+        "2",
+    ]));
+    ok(&run(&["--method", "marcher", "--blend", "max"]));
+    ok(&run(&["--method", "marcher", "--blend", "weighted"]));
+    for (extra, needle) in [
+        (vec!["--light", "0,0,0"], "light.direction"),
+        (vec!["--light", "nan,0,1"], "light"),
+        (vec!["--heatmap", "heat"], "unknown 'heat'"),
+        (
+            vec!["--light-intensity", "-1", "--light", "0,0,1"],
+            "light-intensity",
+        ),
+        (vec!["--method", "marcher", "--shading"], "shading"),
+        (vec!["--warmup", "2"], "--frames"),
+    ] {
+        let out = run(&extra);
+        assert!(!out.status.success(), "{extra:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(needle), "{extra:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+    }
+    // Shininess < 0 in a scene file's material.
+    std::fs::write(
+        dir.path().join("scene.json"),
+        r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json",
+             "material": { "shininess": -2 } } ], "shading": true, "width": 4, "height": 4 }"#,
+    )
+    .unwrap();
+    let out = blueshift(&["scene.json", "--out", "o.exr"], dir.path());
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("shininess"));
+}

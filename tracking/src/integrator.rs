@@ -12,6 +12,8 @@
 //!   compares the raw fields theta_n; channels with different units are compared here after
 //!   their transfer functions, which is what the user sees.)
 //! - [`Blend::Mix`] (Eq. 10): `s_n` as for max; `c_n = sum_m f_m sigma_m w_m / max_m sigma_m`.
+//! - [`Blend::Weighted`]: `s_n = w_n sigma_n` (weights normalised to a largest of 1),
+//!   `c_n = f_n`.
 //! - [`Blend::Composite`]: each channel rendered alone (density model), images summed with
 //!   weights (post-render compositing; no depth order between channels).
 //!
@@ -44,6 +46,14 @@ pub enum Blend {
         /// One weight per channel, non-negative, not all zero.
         weights: Vec<f32>,
     },
+    /// Weighted density blending: channel n's extinction is `w_n sigma_n` with the weights
+    /// normalised to a largest weight of 1 (so every majorant stays valid), colours as
+    /// density. [`Blend::majorant_weights`] gives the majorant-weighted choice
+    /// `w_n ~ 1 / M_n`, which equalises the channels' peak extinctions.
+    Weighted {
+        /// One weight per channel, non-negative, not all zero.
+        weights: Vec<f32>,
+    },
     /// Post-render compositing: channels rendered separately, summed with normalised weights.
     Composite {
         /// One weight per channel, non-negative, not all zero.
@@ -58,6 +68,11 @@ pub enum DdaMode {
     NDda,
     /// One synchronised traversal, all channels stepped per cell (MDWT Listing 4).
     OneDda,
+    /// One traversal and one free-flight stream against the cell-wise sum of the channels'
+    /// majorants, the channel chosen by its share of the extinction at a real collision
+    /// (the paper's discarded third method, section 6; Fong et al. 2017's overlapping
+    /// volumes).
+    Summed,
 }
 
 /// Compositing precision of the ray marcher: the accumulated colour and alpha are rounded
@@ -151,7 +166,35 @@ impl Blend {
             Blend::Composite { weights } => Blend::Composite {
                 weights: normalised(weights, n, "composite")?,
             },
+            Blend::Weighted { weights } => {
+                let w = normalised(weights, n, "weighted")?;
+                let top = w.iter().copied().fold(0.0, f32::max);
+                Blend::Weighted {
+                    weights: w.iter().map(|v| v / top).collect(),
+                }
+            }
         })
+    }
+
+    /// The majorant weights of `scene`'s channels: `w_n = (1 / M_n) / max_m (1 / M_m)` with
+    /// `M_n` channel n's largest majorant (0 for an empty channel), for [`Blend::Weighted`]:
+    /// every channel's peak extinction is then the weakest channel's.
+    #[must_use]
+    pub fn majorant_weights(scene: &Scene) -> Vec<f32> {
+        let inv: Vec<f32> = scene
+            .channels()
+            .iter()
+            .map(|ch| {
+                let m = ch.majorant().values().iter().copied().fold(0.0, f32::max);
+                if m > 0.0 { 1.0 / m } else { 0.0 }
+            })
+            .collect();
+        let top = inv.iter().copied().fold(0.0, f32::max);
+        if top > 0.0 {
+            inv.iter().map(|v| v / top).collect()
+        } else {
+            vec![1.0; inv.len()]
+        }
     }
 }
 
@@ -159,6 +202,12 @@ impl Integrator {
     /// Checks the integrator against a scene and normalises blend weights.
     pub fn prepared(&self, scene: &Scene) -> Result<Integrator> {
         let n = scene.channel_count();
+        if let Some(sh) = &scene.shading {
+            sh.validate()?;
+        }
+        if let Some(l) = &scene.light {
+            crate::scene::check_light(l)?;
+        }
         Ok(match self {
             Integrator::Woodcock { channel } => {
                 if *channel >= n {
@@ -195,9 +244,9 @@ impl Integrator {
                         "marcher: step {step} needs {steps:.0} steps across the volume (at most {MAX_MARCH_STEPS})"
                     )));
                 }
-                if scene.light.is_some() {
+                if scene.light.is_some() || scene.shading.is_some() {
                     return Err(Error::parameter(
-                        "marcher: shadows (a light) are supported by the tracking methods only",
+                        "marcher: shadows (a light) and shading are supported by the tracking methods only",
                     ));
                 }
                 Integrator::Marcher(RayMarcher {
@@ -214,19 +263,31 @@ impl Integrator {
     /// weights count as 0.
     #[must_use]
     pub fn li(&self, scene: &Scene, ray: &Ray, rng: &mut Rng) -> [f32; 4] {
+        self.li_with_stats(scene, ray, rng, &mut RayStats::default())
+    }
+
+    /// [`Integrator::li`], adding the ray's work (cells, tentative collisions, rejections)
+    /// to `stats`. The estimate is the same as `li`'s for the same random numbers.
+    pub fn li_with_stats(
+        &self,
+        scene: &Scene,
+        ray: &Ray,
+        rng: &mut Rng,
+        stats: &mut RayStats,
+    ) -> [f32; 4] {
         match self {
             Integrator::Woodcock { channel } if *channel >= scene.channel_count() => {
                 background(scene)
             }
-            Integrator::Woodcock { channel } => woodcock(scene, *channel, ray, rng),
+            Integrator::Woodcock { channel } => woodcock(scene, *channel, ray, rng, stats),
             Integrator::Mdwt { dda, blend } => match blend {
                 Blend::Composite { weights } => composite(
                     scene.channel_count(),
                     weights,
-                    |n, rng| woodcock(scene, n, ray, rng),
+                    |n, rng| woodcock(scene, n, ray, rng, stats),
                     rng,
                 ),
-                _ => mdwt(scene, *dda, blend, ray, rng),
+                _ => mdwt(scene, *dda, blend, ray, rng, stats),
             },
             Integrator::Marcher(m) => match &m.blend {
                 Blend::Composite { weights } => composite(
@@ -234,11 +295,11 @@ impl Integrator {
                     weights,
                     |n, rng| {
                         let b = Blend::Density;
-                        march(scene, m, &b, Some(n), ray, rng)
+                        march(scene, m, &b, Some(n), ray, rng, stats)
                     },
                     rng,
                 ),
-                b => march(scene, m, b, None, ray, rng),
+                b => march(scene, m, b, None, ray, rng, stats),
             },
         }
     }
@@ -279,6 +340,19 @@ pub struct TentativeCollision {
     pub sigma_maj: f32,
 }
 
+/// Work counters of one ray, for heat maps: DDA cells visited, tentative collisions and
+/// null-collision rejections of the primary tracking walk (shadow rays are not counted).
+/// The ray marcher counts its samples as `cells` and has no collisions.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RayStats {
+    /// DDA cells visited (every cell entered, empty ones included).
+    pub cells: u32,
+    /// Tentative collisions sampled against the majorant.
+    pub tentative: u32,
+    /// Tentative collisions rejected as null collisions.
+    pub rejections: u32,
+}
+
 /// Samples tentative collisions along `ray` up to `t_max` against the majorant `grid` with
 /// exponential steps (delta tracking), handing each to `callback` with the random stream;
 /// `ControlFlow::Break` stops the walk (CONVENTIONS C6, pbrt's `SampleT_maj`). Returns
@@ -289,9 +363,22 @@ pub fn sample_t_maj(
     ray: &Ray,
     t_max: f32,
     rng: &mut Rng,
+    callback: impl FnMut(&mut Rng, TentativeCollision) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    sample_t_maj_counted(grid, ray, t_max, rng, &mut RayStats::default(), callback)
+}
+
+/// [`sample_t_maj`] counting cells and tentative collisions into `stats`.
+fn sample_t_maj_counted(
+    grid: &MajorantGrid,
+    ray: &Ray,
+    t_max: f32,
+    rng: &mut Rng,
+    stats: &mut RayStats,
     mut callback: impl FnMut(&mut Rng, TentativeCollision) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
     for seg in DdaMajorantIterator::new(grid, ray, t_max) {
+        stats.cells += 1;
         if seg.sigma_maj <= 0.0 {
             continue;
         }
@@ -301,6 +388,7 @@ pub fn sample_t_maj(
             if t >= seg.t_max {
                 break;
             }
+            stats.tentative += 1;
             callback(
                 rng,
                 TentativeCollision {
@@ -314,37 +402,54 @@ pub fn sample_t_maj(
     ControlFlow::Continue(())
 }
 
+/// The channel with the largest extinction at `p` (first on ties), its extinction, and the
+/// colour max (`mix = false`) or mix (`mix = true`, weights `w`) assigns to it.
+fn winner(scene: &Scene, weights: Option<&[f32]>, p: Vec3) -> (usize, f32, [f32; 3]) {
+    let mut best = 0usize;
+    let mut best_s = f32::NEG_INFINITY;
+    let mut best_c = [0.0f32; 3];
+    let mut mix = [0.0f32; 3];
+    for m in 0..scene.channel_count() {
+        let (s, c) = scene.sample(m, p);
+        if s > best_s {
+            best_s = s;
+            best = m;
+            best_c = c;
+        }
+        if let Some(w) = weights {
+            for i in 0..3 {
+                mix[i] += c[i] * s * w.get(m).copied().unwrap_or(0.0);
+            }
+        }
+    }
+    if best_s.is_nan() || best_s <= 0.0 {
+        return (best, 0.0, best_c);
+    }
+    match weights {
+        Some(_) => (best, best_s, mix.map(|v| v / best_s)),
+        None => (best, best_s, best_c),
+    }
+}
+
 /// Effective extinction and colour of channel `n` at `p` under `blend` (see module docs).
 #[inline]
 fn blended(scene: &Scene, blend: &Blend, n: usize, p: Vec3) -> (f32, [f32; 3]) {
     match blend {
         Blend::Density | Blend::Composite { .. } => scene.sample(n, p),
+        Blend::Weighted { weights } => {
+            let (s, c) = scene.sample(n, p);
+            (s * weights.get(n).copied().unwrap_or(0.0), c)
+        }
         Blend::Max | Blend::Mix { .. } => {
-            let mut best = 0usize;
-            let mut best_s = f32::NEG_INFINITY;
-            let mut mix = [0.0f32; 3];
-            let mut own = [0.0f32; 3];
-            for m in 0..scene.channel_count() {
-                let (s, c) = scene.sample(m, p);
-                if s > best_s {
-                    best_s = s;
-                    best = m;
-                }
-                if m == n {
-                    own = c;
-                }
-                if let Blend::Mix { weights } = blend {
-                    for i in 0..3 {
-                        mix[i] += c[i] * s * weights.get(m).copied().unwrap_or(0.0);
-                    }
-                }
-            }
-            if best != n || best_s.is_nan() || best_s <= 0.0 {
-                return (0.0, own);
-            }
-            match blend {
-                Blend::Mix { .. } => (best_s, mix.map(|v| v / best_s)),
-                _ => (best_s, own),
+            let w = match blend {
+                Blend::Mix { weights } => Some(weights.as_slice()),
+                _ => None,
+            };
+            let (best, s, c) = winner(scene, w, p);
+            if best != n || s <= 0.0 {
+                (0.0, scene.sample(n, p).1)
+            } else {
+                (s, c)
             }
         }
     }
@@ -357,7 +462,7 @@ fn total_sigma(scene: &Scene, blend: &Blend, p: Vec3) -> f32 {
             .map(|m| scene.sample(m, p).0)
             .fold(0.0, f32::max),
         _ => (0..scene.channel_count())
-            .map(|m| scene.sample(m, p).0)
+            .map(|m| blended(scene, blend, m, p).0)
             .sum(),
     }
 }
@@ -386,23 +491,57 @@ fn shadow_transmittance(
     tr
 }
 
-/// The radiance returned at a real collision: the emitted colour, lit by the light if any.
+/// A real collision: where, with which channel, and the colour it emits.
+struct Hit {
+    p: Vec3,
+    channel: usize,
+    colour: [f32; 3],
+}
+
+/// The radiance returned at a real collision: the emitted colour, lit by the light if any;
+/// with [`Scene::shading`], the Blinn-Phong shading of the collided channel's gradient.
 fn shade(
     scene: &Scene,
-    colour: [f32; 3],
-    p: Vec3,
+    hit: &Hit,
+    ray: &Ray,
     rng: &mut Rng,
     grid: &MajorantGrid,
     sigma: impl Fn(Vec3) -> f32,
 ) -> [f32; 3] {
-    match &scene.light {
-        None => colour,
-        Some(light) => {
-            let t = shadow_transmittance(grid, p, light.direction, rng, sigma);
+    let colour = hit.colour;
+    match (&scene.shading, &scene.light) {
+        (None, None) => colour,
+        (None, Some(light)) => {
+            let t = shadow_transmittance(grid, hit.p, light.direction, rng, sigma);
             [0, 1, 2].map(|i| colour[i] * (light.ambient + light.radiance[i] * t))
+        }
+        (Some(sh), light) => {
+            let view = -ray.dir;
+            let (dir, radiance, ambient, shadows) = match light {
+                Some(l) => (
+                    l.direction.try_normalize().unwrap_or(view),
+                    l.radiance,
+                    l.ambient,
+                    sh.shadows,
+                ),
+                None => (view, [1.0; 3], HEADLIGHT_AMBIENT, false),
+            };
+            let m = sh.material(hit.channel);
+            let normal = crate::shading::gradient(scene, hit.channel, hit.p);
+            let (amb, direct) = crate::shading::blinn_phong(&m, colour, normal, dir, view);
+            let lit = direct.iter().any(|v| *v > 0.0);
+            let t = if shadows && lit {
+                shadow_transmittance(grid, hit.p, dir, rng, sigma)
+            } else {
+                1.0
+            };
+            [0, 1, 2].map(|i| ambient * amb[i] + t * radiance[i] * direct[i])
         }
     }
 }
+
+/// Ambient light of the headlight used by shading when the scene has no light.
+pub const HEADLIGHT_AMBIENT: f32 = 0.1;
 
 fn background(scene: &Scene) -> [f32; 4] {
     let [r, g, b] = scene.background;
@@ -410,41 +549,57 @@ fn background(scene: &Scene) -> [f32; 4] {
 }
 
 /// Woodcock tracking of channel `n` alone (MDWT Listings 1-2).
-fn woodcock(scene: &Scene, n: usize, ray: &Ray, rng: &mut Rng) -> [f32; 4] {
+fn woodcock(scene: &Scene, n: usize, ray: &Ray, rng: &mut Rng, stats: &mut RayStats) -> [f32; 4] {
     let grid = scene.channels()[n].majorant();
-    let mut hit: Option<(Vec3, [f32; 3])> = None;
-    let _ = sample_t_maj(grid, ray, f32::INFINITY, rng, |rng, ev| {
+    let mut hit: Option<Hit> = None;
+    let t0 = stats.tentative;
+    let _ = sample_t_maj_counted(grid, ray, f32::INFINITY, rng, stats, |rng, ev| {
         let (s, c) = scene.sample(n, ev.p);
         if rng.uniform() * ev.sigma_maj < s {
-            hit = Some((ev.p, c));
+            hit = Some(Hit {
+                p: ev.p,
+                channel: n,
+                colour: c,
+            });
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
         }
     });
+    stats.rejections += stats.tentative - t0 - u32::from(hit.is_some());
     match hit {
         None => background(scene),
-        Some((p, c)) => {
-            let [r, g, b] = shade(scene, c, p, rng, grid, |q| scene.sample(n, q).0);
+        Some(h) => {
+            let [r, g, b] = shade(scene, &h, ray, rng, grid, |q| scene.sample(n, q).0);
             [r, g, b, 1.0]
         }
     }
 }
 
-/// Multi-density Woodcock tracking (MDWT Listings 3 and 4) for the density, max and mix
-/// blends.
-fn mdwt(scene: &Scene, dda: DdaMode, blend: &Blend, ray: &Ray, rng: &mut Rng) -> [f32; 4] {
+/// Multi-density Woodcock tracking (MDWT Listings 3 and 4, and the summed-majorant variant)
+/// for the density, weighted, max and mix blends.
+fn mdwt(
+    scene: &Scene,
+    dda: DdaMode,
+    blend: &Blend,
+    ray: &Ray,
+    rng: &mut Rng,
+    stats: &mut RayStats,
+) -> [f32; 4] {
     let mut hit_t = f32::INFINITY;
     let mut hit_c = [0.0f32; 3];
+    let mut hit_n = 0usize;
+    let t0 = stats.tentative;
     match dda {
         DdaMode::NDda => {
             for n in 0..scene.channel_count() {
                 let grid = scene.channels()[n].majorant();
-                let _ = sample_t_maj(grid, ray, hit_t, rng, |rng, ev| {
+                let _ = sample_t_maj_counted(grid, ray, hit_t, rng, stats, |rng, ev| {
                     let (s, c) = blended(scene, blend, n, ev.p);
                     if rng.uniform() * ev.sigma_maj < s {
                         hit_t = ev.t;
                         hit_c = c;
+                        hit_n = n;
                         ControlFlow::Break(())
                     } else {
                         ControlFlow::Continue(())
@@ -455,6 +610,7 @@ fn mdwt(scene: &Scene, dda: DdaMode, blend: &Blend, ray: &Ray, rng: &mut Rng) ->
         DdaMode::OneDda => {
             let total = scene.total_majorant().values();
             for cell in Dda::new(scene.layout(), ray, f32::INFINITY) {
+                stats.cells += 1;
                 // Empty for every channel: skip the cell without touching N majorants.
                 if total[cell.cell] <= 0.0 {
                     continue;
@@ -470,10 +626,12 @@ fn mdwt(scene: &Scene, dda: DdaMode, blend: &Blend, ray: &Ray, rng: &mut Rng) ->
                         if t > hit_t || t >= cell.t_max {
                             break;
                         }
+                        stats.tentative += 1;
                         let (s, c) = blended(scene, blend, n, ray.at(t));
                         if rng.uniform() * maj < s {
                             hit_t = t;
                             hit_c = c;
+                            hit_n = n;
                             break;
                         }
                     }
@@ -483,12 +641,52 @@ fn mdwt(scene: &Scene, dda: DdaMode, blend: &Blend, ray: &Ray, rng: &mut Rng) ->
                 }
             }
         }
+        DdaMode::Summed => {
+            // One free-flight stream against the summed majorant; a tentative collision is
+            // real with probability sum_n s_n / m, and then belongs to channel n with
+            // probability s_n / sum s (one uniform number decides both).
+            let grid = scene.total_majorant();
+            let mix = match blend {
+                Blend::Mix { weights } => Some(weights.as_slice()),
+                _ => None,
+            };
+            let _ = sample_t_maj_counted(grid, ray, f32::INFINITY, rng, stats, |rng, ev| {
+                let u = rng.uniform() * ev.sigma_maj;
+                match blend {
+                    Blend::Max | Blend::Mix { .. } => {
+                        let (n, s, c) = winner(scene, mix, ev.p);
+                        if u < s {
+                            (hit_t, hit_c, hit_n) = (ev.t, c, n);
+                            return ControlFlow::Break(());
+                        }
+                    }
+                    _ => {
+                        let mut acc = 0.0f32;
+                        for n in 0..scene.channel_count() {
+                            let (s, c) = blended(scene, blend, n, ev.p);
+                            acc += s;
+                            if u < acc {
+                                (hit_t, hit_c, hit_n) = (ev.t, c, n);
+                                return ControlFlow::Break(());
+                            }
+                        }
+                    }
+                }
+                ControlFlow::Continue(())
+            });
+        }
     }
+    let real = u32::from(hit_t.is_finite());
+    stats.rejections += (stats.tentative - t0).saturating_sub(real);
     if !hit_t.is_finite() {
         return background(scene);
     }
-    let p = ray.at(hit_t);
-    let [r, g, b] = shade(scene, hit_c, p, rng, scene.total_majorant(), |q| {
+    let hit = Hit {
+        p: ray.at(hit_t),
+        channel: hit_n,
+        colour: hit_c,
+    };
+    let [r, g, b] = shade(scene, &hit, ray, rng, scene.total_majorant(), |q| {
         total_sigma(scene, blend, q)
     });
     [r, g, b, 1.0]
@@ -553,6 +751,7 @@ fn march(
     only: Option<usize>,
     ray: &Ray,
     rng: &mut Rng,
+    stats: &mut RayStats,
 ) -> [f32; 4] {
     let (lo, hi) = scene.bounds();
     let sp = scene.geometry().spacing;
@@ -573,6 +772,7 @@ fn march(
             if len <= 0.0 {
                 break;
             }
+            stats.cells += 1;
             let p = ray.at(ta + jitter * len);
             let (sigma, emit) = point_emission(scene, blend, &channels, p);
             if sigma <= 0.0 {

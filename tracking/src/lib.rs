@@ -35,6 +35,10 @@
 //! | accumulation buffer | [`Progressive`] |
 //! | alpha_g (HDR VolVis §3) | `blueshift_tfedit::TransferFunction::with_alpha_g` |
 //! | 8-bit / half / float compositing (HDR VolVis Fig. 3) | [`Precision`] |
+//! | summed-majorant third method (MDWT section 6) | [`DdaMode::Summed`] |
+//! | heat maps (MDWT Fig. 1g) | [`RayStats`], [`HeatMap`], [`Progressive::heatmap`] |
+//! | timing protocol (warm-up, timed frames) | [`render_timed`], [`FrameTimes`] |
+//! | gradient shading, materials | [`Shading`], [`Material`] |
 
 pub mod camera;
 pub mod dda;
@@ -44,14 +48,18 @@ pub mod majorant;
 pub mod render;
 pub mod rng;
 pub mod scene;
+pub mod shading;
 
 pub use camera::{Camera, Projection, Ray};
 pub use dda::{CellLayout, Dda, DdaCell, DdaMajorantIterator, MajorantSegment};
 pub use error::{Error, Result};
 pub use integrator::{
-    Blend, DdaMode, Integrator, Precision, RayMarcher, TentativeCollision, sample_t_maj,
+    Blend, DdaMode, Integrator, Precision, RayMarcher, RayStats, TentativeCollision, sample_t_maj,
 };
 pub use majorant::MajorantGrid;
-pub use render::{Progressive, RenderSettings, render, render_progressive};
+pub use render::{
+    FrameTimes, HeatMap, Progressive, RenderSettings, render, render_progressive, render_timed,
+};
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};
+pub use shading::{Material, Shading};

@@ -5,7 +5,9 @@ use image::Rgba32FImage;
 use rayon::prelude::*;
 
 use crate::camera::Camera;
-use crate::integrator::Integrator;
+use std::time::Instant;
+
+use crate::integrator::{Integrator, RayStats};
 use crate::rng::Rng;
 use crate::scene::Scene;
 use crate::{Error, Result};
@@ -89,8 +91,70 @@ pub struct Progressive {
     width: u32,
     height: u32,
     samples: u32,
+    heat_samples: u32,
     mean: Vec<[f64; 4]>,
     m2: Vec<[f64; 4]>,
+    /// Per pixel sums of cells, tentative collisions, rejections and seconds (heat maps).
+    heat: Option<Vec<[f64; 4]>>,
+}
+
+/// A per-pixel heat map of the work done ([`Progressive::enable_heatmaps`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HeatMap {
+    /// Mean DDA cells visited per sample (marcher: samples taken).
+    Steps,
+    /// Mean tentative collisions per sample.
+    Collisions,
+    /// Mean null-collision rejections per sample.
+    Rejections,
+    /// Mean time per sample, microseconds (measured, so not reproducible).
+    Time,
+}
+
+impl HeatMap {
+    /// All heat maps, in channel order.
+    pub const ALL: [HeatMap; 4] = [
+        HeatMap::Steps,
+        HeatMap::Collisions,
+        HeatMap::Rejections,
+        HeatMap::Time,
+    ];
+
+    /// Its name (`steps`, `collisions`, `rejections`, `time`).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            HeatMap::Steps => "steps",
+            HeatMap::Collisions => "collisions",
+            HeatMap::Rejections => "rejections",
+            HeatMap::Time => "time",
+        }
+    }
+
+    /// Its unit, for colour bars.
+    #[must_use]
+    pub fn unit(self) -> &'static str {
+        match self {
+            HeatMap::Steps => "DDA cells / sample",
+            HeatMap::Collisions => "tentative collisions / sample",
+            HeatMap::Rejections => "null collisions / sample",
+            HeatMap::Time => "microseconds / sample",
+        }
+    }
+}
+
+impl std::str::FromStr for HeatMap {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        HeatMap::ALL
+            .into_iter()
+            .find(|h| h.name() == s)
+            .ok_or_else(|| {
+                Error::parameter(format!(
+                    "heat map: unknown '{s}' (steps, collisions, rejections, time)"
+                ))
+            })
+    }
 }
 
 impl Progressive {
@@ -102,9 +166,29 @@ impl Progressive {
             width,
             height,
             samples: 0,
+            heat_samples: 0,
             mean: vec![[0.0; 4]; n],
             m2: vec![[0.0; 4]; n],
+            heat: None,
         })
+    }
+
+    /// Starts counting the work per pixel for [`Progressive::heatmap`] (from the next pass
+    /// on; the means are over the passes counted). Timing each sample costs a little.
+    pub fn enable_heatmaps(&mut self) {
+        if self.heat.is_none() {
+            self.heat = Some(vec![[0.0; 4]; self.mean.len()]);
+        }
+    }
+
+    /// The per-pixel mean of `map` over the samples counted (row-major), or `None` if heat
+    /// maps were not enabled.
+    #[must_use]
+    pub fn heatmap(&self, map: HeatMap) -> Option<Vec<f32>> {
+        let heat = self.heat.as_ref()?;
+        let n = f64::from(self.heat_samples.max(1));
+        let i = HeatMap::ALL.iter().position(|h| *h == map).unwrap_or(0);
+        Some(heat.iter().map(|h| (h[i] / n) as f32).collect())
     }
 
     /// Samples per pixel accumulated so far.
@@ -133,12 +217,22 @@ impl Progressive {
         let sample = self.samples;
         let count = f64::from(sample + 1);
         let (width, height) = (self.width, self.height);
+        let mut no_heat = Vec::new();
+        let counting = self.heat.is_some();
+        let heat = self.heat.as_mut().unwrap_or(&mut no_heat);
+        let mut heat_rows: Vec<&mut [[f64; 4]]> = if counting {
+            heat.chunks_mut(w).collect()
+        } else {
+            (0..height).map(|_| &mut [][..]).collect()
+        };
         self.mean
             .par_chunks_mut(w)
             .zip(self.m2.par_chunks_mut(w))
+            .zip(heat_rows.par_iter_mut())
             .enumerate()
-            .for_each(|(y, (mean_row, m2_row))| {
+            .for_each(|(y, ((mean_row, m2_row), heat_row))| {
                 for x in 0..w {
+                    let start = counting.then(Instant::now);
                     let pixel = (y * w + x) as u64;
                     let mut rng = Rng::new(settings.seed, pixel, u64::from(sample));
                     let (jx, jy) = if settings.jitter_pixels {
@@ -149,7 +243,15 @@ impl Progressive {
                     let ray = settings
                         .camera
                         .ray(x as f32 + jx, y as f32 + jy, width, height);
-                    let v = integrator.li(scene, &ray, &mut rng);
+                    let mut stats = RayStats::default();
+                    let v = integrator.li_with_stats(scene, &ray, &mut rng, &mut stats);
+                    if let Some(start) = start {
+                        let h = &mut heat_row[x];
+                        h[0] += f64::from(stats.cells);
+                        h[1] += f64::from(stats.tentative);
+                        h[2] += f64::from(stats.rejections);
+                        h[3] += start.elapsed().as_secs_f64() * 1e6;
+                    }
                     for c in 0..4 {
                         let v = f64::from(v[c]);
                         let d = v - mean_row[x][c];
@@ -159,6 +261,9 @@ impl Progressive {
                 }
             });
         self.samples += 1;
+        if counting {
+            self.heat_samples += 1;
+        }
         Ok(())
     }
 
@@ -236,4 +341,80 @@ pub fn render(
     settings: &RenderSettings,
 ) -> Result<Rgba32FImage> {
     Ok(render_progressive(scene, integrator, settings, |_, _| {})?.mean_image())
+}
+
+/// Frame times of the timing protocol ([`render_timed`]), seconds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameTimes {
+    /// Warm-up frames rendered (and discarded) before timing.
+    pub warmup: u32,
+    /// Wall time of each timed frame (1 spp each), in order.
+    pub frames: Vec<f64>,
+}
+
+impl FrameTimes {
+    /// Mean frame time (0 without frames).
+    #[must_use]
+    pub fn mean(&self) -> f64 {
+        if self.frames.is_empty() {
+            return 0.0;
+        }
+        self.frames.iter().sum::<f64>() / self.frames.len() as f64
+    }
+
+    /// Median frame time (mean of the middle two for an even count; 0 without frames).
+    #[must_use]
+    pub fn median(&self) -> f64 {
+        let mut v = self.frames.clone();
+        v.sort_by(f64::total_cmp);
+        match v.len() {
+            0 => 0.0,
+            n if n % 2 == 1 => v[n / 2],
+            n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+        }
+    }
+}
+
+/// The timing protocol of MDWT section 6: `warmup` frames of 1 spp rendered and thrown
+/// away, then `frames` timed frames of 1 spp each accumulated progressively (the image is
+/// the accumulation of the timed frames). `heatmaps` turns on the per-pixel counters for the
+/// timed frames. `settings.spp` and the noise target are ignored.
+pub fn render_timed(
+    scene: &Scene,
+    integrator: &Integrator,
+    settings: &RenderSettings,
+    warmup: u32,
+    frames: u32,
+    heatmaps: bool,
+) -> Result<(Progressive, FrameTimes)> {
+    settings.validate()?;
+    if frames == 0 {
+        return Err(Error::parameter(
+            "frames: at least one timed frame is needed",
+        ));
+    }
+    let integrator = integrator.prepared(scene)?;
+    if warmup > 0 {
+        let mut scratch = Progressive::new(settings.width, settings.height)?;
+        for _ in 0..warmup {
+            scratch.add_pass(scene, &integrator, settings)?;
+        }
+    }
+    let mut acc = Progressive::new(settings.width, settings.height)?;
+    if heatmaps {
+        acc.enable_heatmaps();
+    }
+    let mut times = Vec::with_capacity(frames.min(1 << 20) as usize);
+    for _ in 0..frames {
+        let start = Instant::now();
+        acc.add_pass(scene, &integrator, settings)?;
+        times.push(start.elapsed().as_secs_f64());
+    }
+    Ok((
+        acc,
+        FrameTimes {
+            warmup,
+            frames: times,
+        },
+    ))
 }

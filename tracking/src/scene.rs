@@ -7,6 +7,7 @@ use glam::Vec3;
 
 use crate::dda::CellLayout;
 use crate::majorant::MajorantGrid;
+use crate::shading::Shading;
 use crate::{Error, Result};
 
 /// One channel of a [`Scene`]: a scalar grid, its transfer function, its macrocells and
@@ -78,6 +79,8 @@ pub struct Scene {
     pub background: [f32; 3],
     /// Optional light; `None` means emission only (the collision colour is returned as is).
     pub light: Option<DirectionalLight>,
+    /// Gradient shading at real collisions (`None`, the default: emission-absorption).
+    pub shading: Option<Shading>,
 }
 
 impl Scene {
@@ -129,6 +132,7 @@ impl Scene {
             density_scale,
             background: [0.0; 3],
             light: None,
+            shading: None,
         })
     }
 
@@ -234,6 +238,29 @@ impl Scene {
         let [r, g, b, a] = ch.tf.eval(f64::from(v));
         (a * self.density_scale, [r, g, b])
     }
+}
+
+/// Checks a light: a finite non-zero direction, finite non-negative radiance and ambient.
+pub(crate) fn check_light(l: &DirectionalLight) -> Result<()> {
+    if !l.direction.is_finite() || l.direction.try_normalize().is_none() {
+        return Err(Error::parameter(format!(
+            "light.direction: {:?} must be a finite non-zero vector",
+            l.direction
+        )));
+    }
+    if !l.radiance.iter().all(|v| v.is_finite() && *v >= 0.0) {
+        return Err(Error::parameter(format!(
+            "light.radiance: {:?} must be finite and non-negative",
+            l.radiance
+        )));
+    }
+    if !(l.ambient.is_finite() && l.ambient >= 0.0) {
+        return Err(Error::parameter(format!(
+            "light.ambient: {} must be finite and non-negative",
+            l.ambient
+        )));
+    }
+    Ok(())
 }
 
 fn check_density_scale(s: f32) -> Result<()> {

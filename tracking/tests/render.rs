@@ -101,6 +101,9 @@ fn three_cubes_mdwt_converges_to_the_marcher_for_every_blend() {
         Blend::Composite {
             weights: vec![1.0, 1.0, 1.0],
         },
+        Blend::Weighted {
+            weights: vec![1.0, 0.3, 0.6],
+        },
     ];
     let mut s = RenderSettings::default_for(&scene, 12, 12, true);
     s.jitter_pixels = false;
@@ -119,7 +122,7 @@ fn three_cubes_mdwt_converges_to_the_marcher_for_every_blend() {
             reference.get_pixel(6, 6)
         );
         s.spp = 400;
-        for dda in [DdaMode::NDda, DdaMode::OneDda] {
+        for dda in [DdaMode::NDda, DdaMode::OneDda, DdaMode::Summed] {
             let integ = Integrator::Mdwt {
                 dda,
                 blend: blend.clone(),

@@ -4,6 +4,7 @@ pub mod convert;
 pub mod info;
 pub mod relativity;
 pub mod render;
+pub mod render_heat;
 pub mod spectrum;
 pub mod synth;
 pub mod tf;

@@ -15,13 +15,15 @@
 //!   "camera": "perspective", "fov_y_deg": 30, "eye": null, "target": null, "up": null,
 //!   "background": [0, 0, 0], "density_scale": 1.0, "macrocell": 4,
 //!   "precision": "f32", "step": null, "alpha_g": null, "noise_target": null,
-//!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 } }
+//!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 },
+//!   "shading": false, "heatmaps": ["steps"], "warmup": null, "frames": null }
 //! ```
-//! A channel is `{ "volume": FILE, "channel": NAME?, "tf": SPEC }` or
+//! A channel is `{ "volume": FILE, "channel": NAME?, "tf": SPEC, "material": M? }` or
 //! `{ "synth": NAME, "res": N?, "seed": S?, "channel": NAME?, "tf": SPEC }`. A TF SPEC is a
 //! blueshift or ParaView JSON file, `builtin:NAME` (a built-in map stretched over the
 //! channel's value range) or `log:NAME` (the same on a logarithmic data axis over the
-//! channel's positive values, for data spanning decades).
+//! channel's positive values, for data spanning decades). A material `M` for `shading` is
+//! `{ "ambient": 1, "diffuse": 0.8, "specular": 0.2, "shininess": 32 }` (any may be left out).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -29,8 +31,8 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow, bail};
 use blueshift_tfedit::{ColorKnot, DataAxis, OpacityKnot, TransferFunction};
 use blueshift_tracking::{
-    Blend, Camera, DdaMode, DirectionalLight, Integrator, Precision, Projection, RayMarcher,
-    RenderSettings, Scene, render_progressive,
+    Blend, Camera, DdaMode, DirectionalLight, HeatMap, Integrator, Material, Precision,
+    Progressive, Projection, RayMarcher, RenderSettings, Scene, Shading, render_timed,
 };
 use blueshift_volume::{AnyGrid, synth};
 use glam::Vec3;
@@ -56,13 +58,14 @@ pub struct Args {
     /// ParaView preset with opacity Points), builtin:NAME or log:NAME.
     #[arg(long = "tf")]
     pub tfs: Vec<String>,
-    /// woodcock | mdwt-ndda | mdwt-1dda | marcher.
+    /// woodcock | mdwt-ndda | mdwt-1dda | mdwt-summed | marcher.
     #[arg(long)]
     pub method: Option<String>,
     /// Channel index tracked by --method woodcock.
     #[arg(long)]
     pub channel: Option<usize>,
-    /// density | max | mix | composite.
+    /// density | max | mix | weighted | composite (weighted without --weights: majorant
+    /// weights, every channel peaking at the weakest channel's extinction).
     #[arg(long)]
     pub blend: Option<String>,
     /// Weights for mix/composite, comma-separated, one per channel (default equal).
@@ -105,11 +108,34 @@ pub struct Args {
     #[arg(long)]
     pub alpha_g: Option<f32>,
     /// Direction towards a directional light X,Y,Z (enables shadows; tracking methods only).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(
+        long,
+        alias = "light",
+        value_delimiter = ',',
+        allow_hyphen_values = true
+    )]
     pub light_dir: Option<Vec<f32>>,
     /// Light radiance R,G,B (default 1,1,1).
     #[arg(long, value_delimiter = ',')]
     pub light_radiance: Option<Vec<f32>>,
+    /// Light intensity (grey radiance; --light-radiance wins if both are given).
+    #[arg(long, allow_hyphen_values = true)]
+    pub light_intensity: Option<f32>,
+    /// Gradient shading at real collisions with the channels' Blinn-Phong materials (scene
+    /// file "material" per channel); lit by --light (shadowed) or a headlight.
+    #[arg(long)]
+    pub shading: bool,
+    /// Write a heat map (repeat): steps | collisions | rejections | time. All go as channels
+    /// into OUT.heat.exr, each as a colour-mapped PNG with a colour bar OUT.heat-NAME.png.
+    #[arg(long = "heatmap")]
+    pub heatmaps: Vec<String>,
+    /// Timing protocol: warm-up frames (1 spp each, discarded) before the timed frames.
+    #[arg(long)]
+    pub warmup: Option<u32>,
+    /// Timing protocol: timed frames of 1 spp each, accumulated (replaces --spp); --json
+    /// prints the frame times.
+    #[arg(long)]
+    pub frames: Option<u32>,
     /// Unshadowed ambient light with --light-dir (default 0.2).
     #[arg(long)]
     pub ambient: Option<f32>,
@@ -149,6 +175,19 @@ pub struct ChannelSpec {
     pub channel: Option<String>,
     /// Transfer function spec.
     pub tf: String,
+    /// Blinn-Phong material for --shading.
+    pub material: Option<MaterialSpec>,
+}
+
+/// A channel's material in a scene file (defaults: ambient 1, diffuse 0.8, specular 0.2,
+/// shininess 32).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSpec {
+    ambient: Option<f32>,
+    diffuse: Option<f32>,
+    specular: Option<f32>,
+    shininess: Option<f32>,
 }
 
 /// Light of a scene file.
@@ -195,6 +234,10 @@ pub struct SceneFile {
     alpha_g: Option<f32>,
     noise_target: Option<f64>,
     light: Option<LightSpec>,
+    shading: Option<bool>,
+    heatmaps: Option<Vec<String>>,
+    warmup: Option<u32>,
+    frames: Option<u32>,
 }
 
 fn triple(v: &[f32], what: &str) -> Result<[f32; 3]> {
@@ -297,13 +340,23 @@ fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
     over!(step, args.step);
     over!(alpha_g, args.alpha_g);
     over!(noise_target, args.noise_target);
+    over!(warmup, args.warmup);
+    over!(frames, args.frames);
+    if args.shading {
+        f.shading = Some(true);
+    }
+    if !args.heatmaps.is_empty() {
+        f.heatmaps = Some(args.heatmaps.clone());
+    }
     if let Some(b) = &args.background {
         f.background = Some(triple(b, "--background")?);
     }
     if let Some(d) = &args.light_dir {
-        let radiance = match &args.light_radiance {
-            Some(r) => triple(r, "--light-radiance")?,
-            None => ones(),
+        let radiance = match (&args.light_radiance, args.light_intensity) {
+            (Some(r), _) => triple(r, "--light-radiance")?,
+            (None, Some(i)) if i.is_finite() && i >= 0.0 => [i; 3],
+            (None, Some(i)) => bail!("--light-intensity: {i} must be finite and non-negative"),
+            (None, None) => ones(),
         };
         f.light = Some(LightSpec {
             direction: triple(d, "--light-dir")?,
@@ -401,7 +454,8 @@ fn parse_blend(name: &str, weights: Option<Vec<f32>>, n: usize) -> Result<Blend>
         "max" => Blend::Max,
         "mix" => Blend::Mix { weights: w },
         "composite" => Blend::Composite { weights: w },
-        other => bail!("blend: unknown '{other}' (density, max, mix, composite)"),
+        "weighted" => Blend::Weighted { weights: w },
+        other => bail!("blend: unknown '{other}' (density, max, mix, weighted, composite)"),
     })
 }
 
@@ -438,7 +492,10 @@ fn run_inner(args: &Args) -> Result<()> {
     }
     if let Some(l) = &f.light {
         if Vec3::from(l.direction).try_normalize().is_none() {
-            bail!("light.direction: must be a non-zero finite vector");
+            bail!(
+                "light.direction: {:?} must be a non-zero finite vector",
+                l.direction
+            );
         }
         scene.light = Some(DirectionalLight {
             direction: Vec3::from(l.direction),
@@ -446,11 +503,35 @@ fn run_inner(args: &Args) -> Result<()> {
             ambient: l.ambient,
         });
     }
-    let blend = parse_blend(
-        f.blend.as_deref().unwrap_or("density"),
-        f.weights.clone(),
-        n,
-    )?;
+    if f.shading.unwrap_or(false) {
+        let mut materials = Vec::with_capacity(n);
+        for (i, c) in f.channels.iter().enumerate() {
+            let d = Material::default();
+            let m = c.material.as_ref().map_or(d, |m| Material {
+                ambient: m.ambient.unwrap_or(d.ambient),
+                diffuse: m.diffuse.unwrap_or(d.diffuse),
+                specular: m.specular.unwrap_or(d.specular),
+                shininess: m.shininess.unwrap_or(d.shininess),
+            });
+            m.validate(&format!("channels[{i}].material"))?;
+            materials.push(m);
+        }
+        scene.shading = Some(Shading {
+            materials,
+            shadows: true,
+        });
+    }
+    let heatmaps = f
+        .heatmaps
+        .iter()
+        .flatten()
+        .map(|h| h.parse::<HeatMap>().context("--heatmap"))
+        .collect::<Result<Vec<_>>>()?;
+    let weights = match (f.blend.as_deref(), &f.weights) {
+        (Some("weighted"), None) => Some(Blend::majorant_weights(&scene)),
+        _ => f.weights.clone(),
+    };
+    let blend = parse_blend(f.blend.as_deref().unwrap_or("density"), weights, n)?;
     let method = f.method.as_deref().unwrap_or("mdwt-1dda");
     let precision = match f.precision.as_deref().unwrap_or("f32") {
         "f32" => Precision::F32,
@@ -470,13 +551,19 @@ fn run_inner(args: &Args) -> Result<()> {
             dda: DdaMode::OneDda,
             blend,
         },
+        "mdwt-summed" => Integrator::Mdwt {
+            dda: DdaMode::Summed,
+            blend,
+        },
         "marcher" => Integrator::Marcher(RayMarcher {
             step: f.step,
             precision,
             blend,
             ..RayMarcher::default()
         }),
-        other => bail!("method: unknown '{other}' (woodcock, mdwt-ndda, mdwt-1dda, marcher)"),
+        other => bail!(
+            "method: unknown '{other}' (woodcock, mdwt-ndda, mdwt-1dda, mdwt-summed, marcher)"
+        ),
     };
     let width = f.width.unwrap_or(512);
     let height = f.height.unwrap_or(512);
@@ -511,14 +598,45 @@ fn run_inner(args: &Args) -> Result<()> {
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let start = Instant::now();
-    let acc = render_progressive(&scene, &integrator, &settings, |pass, noise| {
-        bar.set_position(u64::from(pass));
-        if noise.is_finite() {
-            bar.set_message(format!("noise {noise:.4}"));
+    let (acc, times) = match f.frames {
+        Some(frames) => {
+            let warmup = f.warmup.unwrap_or(0);
+            let (acc, t) = render_timed(
+                &scene,
+                &integrator,
+                &settings,
+                warmup,
+                frames,
+                !heatmaps.is_empty(),
+            )?;
+            (acc, Some(t))
         }
-    })?;
+        None => {
+            if f.warmup.is_some() {
+                bail!("--warmup: needs --frames N (the timed frames)");
+            }
+            let mut acc = Progressive::new(settings.width, settings.height)?;
+            if !heatmaps.is_empty() {
+                acc.enable_heatmaps();
+            }
+            let integ = integrator.prepared(&scene)?;
+            for _ in 0..settings.spp {
+                acc.add_pass(&scene, &integ, &settings)?;
+                let noise = acc.noise();
+                bar.set_position(u64::from(acc.samples()));
+                if noise.is_finite() {
+                    bar.set_message(format!("noise {noise:.4}"));
+                }
+                if settings.noise_target.is_some_and(|t| noise <= t) {
+                    break;
+                }
+            }
+            (acc, None)
+        }
+    };
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
+    let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
     write_via_temp_path(&args.out, |p| {
         img.save_with_format(p, image::ImageFormat::OpenExr)
@@ -555,6 +673,14 @@ fn run_inner(args: &Args) -> Result<()> {
             "spp": acc.samples(),
             "noise": if acc.noise().is_finite() { Some(acc.noise()) } else { None },
             "seconds": seconds,
+            "heatmaps": heat_files,
+            "timings": times.as_ref().map(|t| serde_json::json!({
+                "warmup": t.warmup,
+                "frames": t.frames.len(),
+                "mean_s": t.mean(),
+                "median_s": t.median(),
+                "frame_s": t.frames,
+            })),
         });
         println!("{summary}");
     } else {

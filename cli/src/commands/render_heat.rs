@@ -1,0 +1,158 @@
+//! Heat maps of `blueshift render --heatmap`: the per-pixel work counters of the tracking
+//! (DDA cells, tentative collisions, null-collision rejections, time) as named channels of
+//! one OpenEXR file `OUT.heat.exr`, and each as a colour-mapped PNG `OUT.heat-NAME.png`
+//! with a colour bar labelled in data units.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, anyhow};
+use blueshift_tracking::{HeatMap, Progressive};
+use plotters::prelude::*;
+
+use crate::output::write_via_temp_path;
+use crate::plot::{FONT, register_font};
+
+/// `OUT` with its extension replaced by `suffix` (`img.exr` -> `img.heat.exr`).
+fn beside(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or_else(|| "render".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.{suffix}"))
+}
+
+/// Writes the requested heat maps (none: nothing) and returns a JSON summary of the files,
+/// means and maxima.
+pub fn write_heatmaps(
+    out: &Path,
+    acc: &Progressive,
+    maps: &[HeatMap],
+) -> Result<serde_json::Value> {
+    if maps.is_empty() {
+        return Ok(serde_json::Value::Null);
+    }
+    let mut maps: Vec<HeatMap> = maps.to_vec();
+    maps.dedup();
+    let (w, h) = {
+        let img = acc.mean_image();
+        (img.width() as usize, img.height() as usize)
+    };
+    let mut layers = Vec::new();
+    for &m in &maps {
+        let v = acc
+            .heatmap(m)
+            .ok_or_else(|| anyhow!("heat maps were not recorded"))?;
+        layers.push((m, v));
+    }
+    let exr_path = beside(out, "heat.exr");
+    write_via_temp_path(&exr_path, |p| {
+        use exr::prelude::*;
+        let channels: SmallVec<[AnyChannel<FlatSamples>; 4]> = layers
+            .iter()
+            .map(|(m, v)| AnyChannel::new(m.name(), FlatSamples::F32(v.clone())))
+            .collect();
+        let layer = Layer::new(
+            (w, h),
+            LayerAttributes::named("heat"),
+            Encoding::FAST_LOSSLESS,
+            AnyChannels::sort(channels),
+        );
+        Image::from_layer(layer)
+            .write()
+            .to_file(p)
+            .with_context(|| format!("cannot write {}", exr_path.display()))
+    })?;
+    let mut summary = serde_json::Map::new();
+    summary.insert("exr".into(), serde_json::json!(exr_path));
+    for (m, v) in &layers {
+        let png = beside(out, &format!("heat-{}.png", m.name()));
+        let max = v.iter().copied().fold(0.0f32, f32::max);
+        let mean = v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len().max(1) as f64;
+        colour_mapped_png(&png, v, w, h, max, *m)?;
+        summary.insert(
+            m.name().into(),
+            serde_json::json!({ "png": png, "mean": mean, "max": max }),
+        );
+    }
+    Ok(serde_json::Value::Object(summary))
+}
+
+/// Inferno-like colour map (sRGB 8-bit) at `x` in [0, 1].
+fn colour(x: f32) -> RGBColor {
+    const STOPS: [[f32; 3]; 5] = [
+        [0.0, 0.0, 4.0],
+        [87.0, 16.0, 110.0],
+        [188.0, 55.0, 84.0],
+        [249.0, 142.0, 9.0],
+        [252.0, 255.0, 164.0],
+    ];
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
+    let i = (x.floor() as usize).min(3);
+    let f = x - i as f32;
+    let c = |k: usize| (STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])).round() as u8;
+    RGBColor(c(0), c(1), c(2))
+}
+
+/// The heat map scaled 0..`max`, with a colour bar on the right labelled in data units.
+fn colour_mapped_png(
+    path: &Path,
+    v: &[f32],
+    w: usize,
+    h: usize,
+    max: f32,
+    m: HeatMap,
+) -> Result<()> {
+    register_font();
+    let bar_w = 150usize;
+    let height = h.max(160);
+    let (iw, ih) = ((w + bar_w) as u32, height as u32);
+    let mut buf = vec![0u8; iw as usize * ih as usize * 3];
+    let scale = if max > 0.0 { 1.0 / max } else { 0.0 };
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (iw, ih)).into_drawing_area();
+        let err = |e| anyhow!("heat map plot: {e:?}");
+        root.fill(&WHITE).map_err(err)?;
+        for y in 0..h {
+            for x in 0..w {
+                root.draw_pixel((x as i32, y as i32), &colour(v[y * w + x] * scale))
+                    .map_err(err)?;
+            }
+        }
+        let (x0, y0, y1) = (w as i32 + 12, 20i32, height as i32 - 20);
+        for y in y0..=y1 {
+            let t = (y1 - y) as f32 / (y1 - y0).max(1) as f32;
+            root.draw(&Rectangle::new(
+                [(x0, y), (x0 + 16, y + 1)],
+                colour(t).filled(),
+            ))
+            .map_err(err)?;
+        }
+        let style = (FONT, 12).into_font().color(&BLACK);
+        for (t, y) in [(1.0f32, y0), (0.5, (y0 + y1) / 2), (0.0, y1)] {
+            root.draw(&Text::new(
+                format!("{:.3}", max * t),
+                (x0 + 20, y - 6),
+                style.clone(),
+            ))
+            .map_err(err)?;
+        }
+        root.draw(&Text::new(m.name().to_string(), (x0, 4), style.clone()))
+            .map_err(err)?;
+        let unit = m.unit();
+        root.draw(&Text::new(
+            unit.to_string(),
+            (x0 - 4, y1 + 4),
+            (FONT, 9).into_font().color(&BLACK),
+        ))
+        .map_err(err)?;
+        root.present().map_err(err)?;
+    }
+    let img = image::RgbImage::from_raw(iw, ih, buf).ok_or_else(|| anyhow!("heat map buffer"))?;
+    write_via_temp_path(path, |p| {
+        img.save_with_format(p, image::ImageFormat::Png)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
+}
