@@ -57,7 +57,7 @@ pub struct Args {
     #[arg(long)]
     pub subtract_mean_velocity: bool,
     /// Merge tolerance relative to a spectrum's maximum.
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = 1e-4)]
     pub merge_tol: f64,
     /// Per-ray piece budget (coarser merges beyond it).
     #[arg(long, default_value_t = 4096)]

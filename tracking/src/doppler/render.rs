@@ -103,7 +103,7 @@ pub struct DopplerSettings {
 impl DopplerSettings {
     /// Defaults for a scene: `width x height`, the orthographic view along +z through the
     /// volume's centre framing its x-y extent, step half a voxel, classical Doppler,
-    /// piecewise-linear, 380-780 nm, lines 1 nm wide, 32 black-body samples, merge 1e-3,
+    /// piecewise-linear, 380-780 nm, lines 1 nm wide, 32 black-body samples, merge 1e-4,
     /// budget 4096 pieces.
     #[must_use]
     pub fn default_for(scene: &DopplerScene, width: u32, height: u32) -> Self {
@@ -120,7 +120,7 @@ impl DopplerSettings {
             range_nm: (380.0, 780.0),
             line_width_nm: 1.0,
             blackbody_samples: 32,
-            merge_tolerance: 1e-3,
+            merge_tolerance: 1e-4,
             piece_budget: 4096,
             max_depth_step: 0.1,
         }
