@@ -38,6 +38,10 @@ enum Command {
     Synth(commands::synth::Args),
     /// Render a volume scene (Woodcock, multi-density Woodcock N-DDA/1-DDA, ray marcher) to EXR.
     Render(Box<commands::render::Args>),
+    /// Doppler volume rendering (banded or piecewise-linear spectra) of a synthetic dataset.
+    Doppler(Box<commands::doppler::Args>),
+    /// Render the galaxy with Doppler on and off side by side, with picked spectra.
+    Demo(commands::doppler::DemoArgs),
 }
 
 fn main() -> ExitCode {
@@ -59,6 +63,8 @@ fn main() -> ExitCode {
         Command::Convert(args) => commands::convert::run(args),
         Command::Synth(args) => commands::synth::run(args),
         Command::Render(args) => commands::render::run(*args),
+        Command::Doppler(args) => commands::doppler::run(*args),
+        Command::Demo(args) => commands::doppler::run_demo(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

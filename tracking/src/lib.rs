@@ -42,6 +42,7 @@
 
 pub mod camera;
 pub mod dda;
+pub mod doppler;
 mod error;
 pub mod integrator;
 pub mod majorant;

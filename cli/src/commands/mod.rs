@@ -1,6 +1,7 @@
 //! One module per `blueshift` verb.
 
 pub mod convert;
+pub mod doppler;
 pub mod info;
 pub mod relativity;
 pub mod render;

@@ -1,0 +1,234 @@
+//! Doppler paper reproductions on the CPU: Table 1 (render time per configuration, with and
+//! without Doppler), Fig. 13 (piecewise-linear against banded N = 40, 400, 4000: time and XYZ
+//! error against a converged reference) and Fig. 18 (merge tolerance against piece count,
+//! time and error). Tables go to `target/blueshift-benches/doppler_*.csv` (single-threaded
+//! timings, ratios against a baseline of the same run), Fig. 13 and 18 also as PNG plots.
+
+use std::fmt::Write as _;
+use std::time::Instant;
+
+use blueshift_benches::{Curve, line_plot, out_dir};
+use blueshift_tracking::Projection;
+use blueshift_tracking::doppler::{
+    BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
+};
+use blueshift_volume::{Volume, synth};
+use criterion::Criterion;
+use glam::Vec3;
+
+/// The galaxy seen at 60 degrees inclination (face-on, its rotation is transverse).
+fn inclined(scene: &DopplerScene, st: &mut DopplerSettings) {
+    let (lo, hi) = scene.geometry().world_bounds();
+    let (c, r) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
+    let (si, ci) = 60f32.to_radians().sin_cos();
+    let d = Vec3::new(0.0, si, ci);
+    st.camera.target = c;
+    st.camera.eye = c - d * (r + 1.0);
+    st.camera.up = Vec3::new(0.0, ci, -si);
+    st.camera.projection = Projection::Orthographic { height: 30.0 };
+}
+
+fn scene(vol: &Volume, species: &[&str], vf: f64, absorption: f64) -> DopplerScene {
+    let mut s = DopplerScene::from_volume(vol, species).expect("scene");
+    s.factors.velocity = vf;
+    s.factors.absorption = absorption;
+    s.factors.blackbody = 0.1;
+    s
+}
+
+fn timed(scene: &DopplerScene, st: &DopplerSettings) -> (f64, DopplerImage) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let t = Instant::now();
+    let img = pool.install(|| render_doppler(scene, st, &|| {}).expect("render"));
+    (t.elapsed().as_secs_f64(), img)
+}
+
+/// Mean over pixels of |XYZ - ref| / |ref| (pixels with a non-negligible reference).
+fn xyz_error(a: &DopplerImage, r: &DopplerImage) -> f64 {
+    let peak = r.xyz.iter().map(|x| x[1]).fold(0.0, f64::max);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (p, q) in a.xyz.iter().zip(&r.xyz) {
+        if q[1] > 1e-3 * peak {
+            let d = (0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f64>().sqrt();
+            let m = (0..3).map(|i| q[i] * q[i]).sum::<f64>().sqrt();
+            sum += d / m;
+            n += 1;
+        }
+    }
+    sum / n.max(1) as f64
+}
+
+fn table1() {
+    let galaxy = synth::galaxy(128, 1).expect("galaxy");
+    let shell = synth::hydrogen_shell(64, 1).expect("shell");
+    let size = 64;
+    let configs: [(&str, &Volume, &[&str]); 5] = [
+        ("synthetic shell (H)", &shell, &["H"]),
+        ("galaxy black body", &galaxy, &["bb"]),
+        ("galaxy hydrogen", &galaxy, &["H"]),
+        ("galaxy black body + H I + C I", &galaxy, &["bb", "H", "C"]),
+        ("galaxy H I + C I + He I", &galaxy, &["H", "C", "He"]),
+    ];
+    let mut csv = String::from(
+        "configuration,doppler,velocity_factor,width,height,seconds_1_thread,ratio_to_no_doppler,pieces_mean,pieces_max\n",
+    );
+    for (name, vol, sp) in configs {
+        let mut base = 0.0;
+        for (doppler, vf) in [("off", 0.0), ("on", 30.0)] {
+            let s = scene(vol, sp, vf, 0.0);
+            let mut st = DopplerSettings::default_for(&s, size, size);
+            if !name.starts_with("synthetic") {
+                inclined(&s, &mut st);
+            }
+            let (t, img) = timed(&s, &st);
+            if vf == 0.0 {
+                base = t;
+            }
+            let _ = writeln!(
+                csv,
+                "{name},{doppler},{vf},{size},{size},{t:.4},{:.3},{:.1},{}",
+                t / base,
+                img.pieces.mean,
+                img.pieces.max
+            );
+        }
+    }
+    std::fs::write(out_dir().join("doppler_table1.csv"), csv).expect("write");
+}
+
+fn fig13() {
+    let galaxy = synth::galaxy(64, 1).expect("galaxy");
+    let size = 32;
+    let mut csv = String::from(
+        "scene,integrator,bands,seconds_1_thread,xyz_rel_error,time_ratio_to_pwl,pieces_mean,pieces_max\n",
+    );
+    let mut curves = Vec::new();
+    for (label, absorption) in [("emission", 0.0), ("absorption", 5.0)] {
+        let s = scene(&galaxy, &["bb", "H", "C"], 30.0, absorption);
+        let mut st = DopplerSettings::default_for(&s, size, size);
+        inclined(&s, &mut st);
+        let mut reference = st.clone();
+        reference.blackbody_samples = 1601;
+        reference.merge_tolerance = 0.0;
+        reference.piece_budget = 1 << 20;
+        let (_, r) = timed(&s, &reference);
+        let (t_pwl, pwl) = timed(&s, &st);
+        let e_pwl = xyz_error(&pwl, &r);
+        let _ = writeln!(
+            csv,
+            "{label},pwl,0,{t_pwl:.4},{e_pwl:.3e},1,{:.1},{}",
+            pwl.pieces.mean, pwl.pieces.max
+        );
+        for (shift, sname) in [
+            (BandShift::Nearest, "banded"),
+            (BandShift::EnergyConserving, "banded-ec"),
+        ] {
+            let mut pts = Vec::new();
+            for n in [40usize, 400, 4000] {
+                let mut b = st.clone();
+                b.integrator = SpectralIntegrator::Banded { bands: n, shift };
+                let (t, img) = timed(&s, &b);
+                let e = xyz_error(&img, &r);
+                pts.push((t, e));
+                let _ = writeln!(
+                    csv,
+                    "{label},{sname},{n},{t:.4},{e:.3e},{:.2},0,0",
+                    t / t_pwl
+                );
+            }
+            curves.push(Curve {
+                label: format!("{label} {sname} N=40/400/4000"),
+                points: pts,
+                rgb: if shift == BandShift::Nearest {
+                    (200, 40, 40)
+                } else {
+                    (40, 40, 200)
+                },
+            });
+        }
+        curves.push(Curve {
+            label: format!("{label} pwl"),
+            points: vec![(t_pwl, e_pwl), (t_pwl * 1.001, e_pwl)],
+            rgb: (20, 150, 20),
+        });
+    }
+    std::fs::write(out_dir().join("doppler_fig13.csv"), csv).expect("write");
+    let _ = line_plot(
+        &out_dir().join("doppler_fig13.png"),
+        "Fig. 13: XYZ error against time (1 thread)",
+        "seconds",
+        "mean relative XYZ error",
+        &curves,
+    );
+}
+
+fn fig18() {
+    let galaxy = synth::galaxy(64, 1).expect("galaxy");
+    let s = scene(&galaxy, &["bb", "H", "C", "He"], 30.0, 5.0);
+    let mut st = DopplerSettings::default_for(&s, 32, 32);
+    inclined(&s, &mut st);
+    let mut csv =
+        String::from("merge_tolerance,seconds_1_thread,pieces_mean,pieces_max,xyz_rel_error\n");
+    st.merge_tolerance = 0.0;
+    st.piece_budget = 1 << 20;
+    let (_, r) = timed(&s, &st);
+    let mut pts = Vec::new();
+    for tol in [0.0, 1e-4, 1e-3, 1e-2, 1e-1] {
+        st.merge_tolerance = tol;
+        let (t, img) = timed(&s, &st);
+        let e = xyz_error(&img, &r);
+        pts.push((img.pieces.mean, e));
+        let _ = writeln!(
+            csv,
+            "{tol:e},{t:.4},{:.1},{},{e:.3e}",
+            img.pieces.mean, img.pieces.max
+        );
+    }
+    std::fs::write(out_dir().join("doppler_fig18.csv"), csv).expect("write");
+    let _ = line_plot(
+        &out_dir().join("doppler_fig18.png"),
+        "Fig. 18: merge tolerance, error against mean pieces per ray",
+        "mean pieces per ray",
+        "mean relative XYZ error",
+        &[Curve {
+            label: "tol 0, 1e-4, 1e-3, 1e-2, 1e-1".into(),
+            points: pts,
+            rgb: (40, 40, 200),
+        }],
+    );
+}
+
+fn bench(c: &mut Criterion) {
+    let galaxy = synth::galaxy(32, 1).expect("galaxy");
+    let s = scene(&galaxy, &["bb", "H"], 30.0, 0.0);
+    let mut st = DopplerSettings::default_for(&s, 16, 16);
+    inclined(&s, &mut st);
+    let mut g = c.benchmark_group("doppler_galaxy32_16x16");
+    g.sample_size(10);
+    g.bench_function("pwl", |b| {
+        b.iter(|| render_doppler(&s, &st, &|| {}).expect("r"))
+    });
+    let mut b4 = st.clone();
+    b4.integrator = SpectralIntegrator::Banded {
+        bands: 4000,
+        shift: BandShift::Nearest,
+    };
+    g.bench_function("banded_4000", |b| {
+        b.iter(|| render_doppler(&s, &b4, &|| {}).expect("r"));
+    });
+    g.finish();
+}
+
+fn main() {
+    if std::env::var_os("BLUESHIFT_SKIP_TABLES").is_none() {
+        table1();
+        fig13();
+        fig18();
+    }
+    let mut c = Criterion::default().configure_from_args();
+    bench(&mut c);
+    c.final_summary();
+}

@@ -1,0 +1,197 @@
+//! The banded integrator (Algorithm 1) with the nearest-band or energy-conserving shift.
+
+use blueshift_spectrum::{BandLayout, BandWeights, Banded, Blackbody};
+
+use super::DopplerScene;
+use super::render::{BandShift, Context, RayOut, RaySamples, TraceStep, Want};
+use crate::{Error, Result};
+
+/// Per-render tables.
+#[derive(Debug)]
+pub(crate) struct BandTables {
+    layout: BandLayout,
+    weights: BandWeights,
+    centres: Vec<f64>,
+    shift: BandShift,
+    /// Rest-frame emission per species per unit density (sparse band, value).
+    rest_emission: Vec<Vec<(usize, f64)>>,
+    /// Rest-frame absorption per species per unit density.
+    rest_absorption: Vec<Vec<(usize, f64)>>,
+}
+
+/// Adds a box of `area` over `[lo, hi)` to the bands as band means.
+fn deposit(layout: &BandLayout, lo: f64, hi: f64, area: f64, mut add: impl FnMut(usize, f64)) {
+    let (a, b) = layout.range_nm();
+    let bw = layout.width_nm();
+    let (l, h) = (lo.max(a), hi.min(b));
+    if h <= l || hi <= lo {
+        return;
+    }
+    let height = area / (hi - lo);
+    let n = layout.bands();
+    let first = (((l - a) / bw).floor() as usize).min(n - 1);
+    for i in first..n {
+        let s = a + i as f64 * bw;
+        if s >= h {
+            break;
+        }
+        let ov = h.min(s + bw) - l.max(s);
+        if ov > 0.0 {
+            add(i, height * ov / bw);
+        }
+    }
+}
+
+impl BandTables {
+    pub fn new(
+        scene: &DopplerScene,
+        settings: &super::DopplerSettings,
+        bands: usize,
+        shift: BandShift,
+    ) -> Result<Self> {
+        let (a, b) = settings.range_nm;
+        let layout = BandLayout::new(a, b, bands).map_err(|e| Error::parameter(e.to_string()))?;
+        let w = settings.line_width_nm;
+        let rest = |lines: &[blueshift_spectrum::EmissionLine], factor: f64| {
+            let mut v = vec![0.0; bands];
+            for l in lines {
+                deposit(
+                    &layout,
+                    l.centre_nm - 0.5 * w,
+                    l.centre_nm + 0.5 * w,
+                    l.strength * factor,
+                    |i, x| v[i] += x,
+                );
+            }
+            v.into_iter()
+                .enumerate()
+                .filter(|(_, x)| *x > 0.0)
+                .collect::<Vec<_>>()
+        };
+        let f = scene.factors;
+        Ok(Self {
+            layout,
+            weights: BandWeights::new(layout, blueshift_spectrum::Cmf::cie1931_2deg()),
+            centres: (0..bands).map(|i| layout.band_centre_nm(i)).collect(),
+            shift,
+            rest_emission: scene
+                .species
+                .iter()
+                .map(|s| rest(&s.emission_lines, f.emission))
+                .collect(),
+            rest_absorption: scene
+                .species
+                .iter()
+                .map(|s| rest(&s.absorption_lines, f.absorption))
+                .collect(),
+        })
+    }
+}
+
+pub(crate) fn integrate(
+    ctx: &Context<'_>,
+    t: &BandTables,
+    s: &RaySamples,
+    want: Want,
+) -> Result<RayOut> {
+    let scene = ctx.scene;
+    let f = scene.factors;
+    let w = ctx.settings.line_width_nm;
+    let nsp = scene.species.len();
+    let n = s.len();
+    let nb = t.layout.bands();
+    let mut v = vec![0.0; nb];
+    let mut out = RayOut::default();
+    for j in 0..n {
+        // Trapezoid-rule weight of sample j along the ray.
+        let d_prev = if j > 0 {
+            f64::from(s.t[j - 1] - s.t[j]).abs()
+        } else {
+            0.0
+        };
+        let d_next = if j + 1 < n {
+            f64::from(s.t[j] - s.t[j + 1]).abs()
+        } else {
+            0.0
+        };
+        let wt = 0.5 * (d_prev + d_next);
+        let sh = s.shift[j];
+        let g = ctx.value_factor(sh) * sh;
+        for (m, sp) in scene.species.iter().enumerate() {
+            let rho = s.rho[j * nsp + m];
+            if rho <= 0.0 {
+                continue;
+            }
+            if f.absorption > 0.0 {
+                match t.shift {
+                    BandShift::Nearest => {
+                        for &(i, k) in &t.rest_absorption[m] {
+                            if let Some(d) = t.layout.band_of(t.centres[i] * sh) {
+                                v[d] *= (-wt * rho * k).exp();
+                            }
+                        }
+                    }
+                    BandShift::EnergyConserving => {
+                        for l in &sp.absorption_lines {
+                            let c = l.centre_nm;
+                            deposit(
+                                &t.layout,
+                                sh * (c - 0.5 * w),
+                                sh * (c + 0.5 * w),
+                                l.strength * f.absorption,
+                                |i, k| v[i] *= (-wt * rho * k).exp(),
+                            );
+                        }
+                    }
+                }
+            }
+            match t.shift {
+                BandShift::Nearest => {
+                    for &(i, e) in &t.rest_emission[m] {
+                        if let Some(d) = t.layout.band_of(t.centres[i] * sh) {
+                            v[d] += wt * rho * g * e;
+                        }
+                    }
+                }
+                BandShift::EnergyConserving => {
+                    for l in &sp.emission_lines {
+                        let c = l.centre_nm;
+                        deposit(
+                            &t.layout,
+                            sh * (c - 0.5 * w),
+                            sh * (c + 0.5 * w),
+                            wt * rho * g * l.strength * f.emission,
+                            |i, e| v[i] += e,
+                        );
+                    }
+                }
+            }
+        }
+        let (rho, temp) = (s.bb[j], s.temp[j]);
+        if rho > 0.0 && temp > 0.0 {
+            let bb = Blackbody::new(temp).map_err(|e| Error::parameter(e.to_string()))?;
+            let k = wt * rho * ctx.value_factor(sh);
+            for (x, &c) in v.iter_mut().zip(&t.centres) {
+                *x += k * bb.eval(c / sh);
+            }
+        }
+        if want == Want::Trace && j > 0 {
+            let b = Banded::from_values(t.layout, v.clone())
+                .map_err(|e| Error::parameter(e.to_string()))?;
+            out.trace.push(TraceStep {
+                t: s.t[j],
+                radial_velocity_m_per_s: s.v_r[j],
+                spectrum: b.to_piecewise(),
+            });
+        }
+    }
+    let b = Banded::from_values(t.layout, v).map_err(|e| Error::parameter(e.to_string()))?;
+    out.xyz = t
+        .weights
+        .xyz(&b)
+        .map_err(|e| Error::parameter(e.to_string()))?;
+    if want != Want::Xyz {
+        out.spectrum = Some(b.to_piecewise());
+    }
+    Ok(out)
+}

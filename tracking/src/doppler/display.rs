@@ -1,0 +1,97 @@
+//! From XYZ to a display image: colour matrix and luminance scaling (paper Fig. 4, Eq. 10/11).
+
+use blueshift_spectrum::{XYZ_TO_CIE_RGB_EQ10, mat_mul, srgb_encode, xyz_to_linear_srgb_matrix};
+
+use super::DopplerImage;
+
+/// Which RGB primaries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ColourMatrix {
+    /// Linear sRGB (D65).
+    #[default]
+    Srgb,
+    /// The paper's CIE RGB matrix (Eq. 10).
+    CieRgbEq10,
+}
+
+/// How luminance is scaled before the matrix.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Exposure {
+    /// The given percentile (0-100) of the non-zero pixel luminances Y maps to Y = 1.
+    Percentile(f64),
+    /// XYZ multiplied by this constant (Fig. 4b: one reference for all pixels).
+    Fixed(f64),
+    /// Each pixel divided by its own Y (Fig. 4a: chromaticity only).
+    PerPixel,
+}
+
+/// Display options.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DisplayOptions {
+    /// Primaries.
+    pub matrix: ColourMatrix,
+    /// Luminance scaling.
+    pub exposure: Exposure,
+}
+
+impl Default for DisplayOptions {
+    fn default() -> Self {
+        Self {
+            matrix: ColourMatrix::Srgb,
+            exposure: Exposure::Percentile(99.0),
+        }
+    }
+}
+
+impl DisplayOptions {
+    /// The scale factor `Exposure::Percentile` or `Fixed` gives for an image (1 for
+    /// `PerPixel`).
+    #[must_use]
+    pub fn scale_for(&self, image: &DopplerImage) -> f64 {
+        match self.exposure {
+            Exposure::Fixed(k) => k,
+            Exposure::PerPixel => 1.0,
+            Exposure::Percentile(p) => {
+                let mut ys: Vec<f64> = image
+                    .xyz
+                    .iter()
+                    .map(|x| x[1])
+                    .filter(|y| y.is_finite() && *y > 0.0)
+                    .collect();
+                if ys.is_empty() {
+                    return 1.0;
+                }
+                ys.sort_by(f64::total_cmp);
+                let i = ((p.clamp(0.0, 100.0) / 100.0) * (ys.len() - 1) as f64).round() as usize;
+                1.0 / ys[i]
+            }
+        }
+    }
+
+    /// 8-bit sRGB-encoded RGB, row-major, clamped to [0, 1] after scaling.
+    #[must_use]
+    pub fn to_rgb8(&self, image: &DopplerImage) -> Vec<u8> {
+        let k = self.scale_for(image);
+        let m = match self.matrix {
+            ColourMatrix::Srgb => xyz_to_linear_srgb_matrix(),
+            ColourMatrix::CieRgbEq10 => XYZ_TO_CIE_RGB_EQ10,
+        };
+        let mut out = Vec::with_capacity(image.xyz.len() * 3);
+        for x in &image.xyz {
+            let kk = match self.exposure {
+                Exposure::PerPixel if x[1] > 0.0 => 1.0 / x[1],
+                _ => k,
+            };
+            let rgb = mat_mul(&m, [x[0] * kk, x[1] * kk, x[2] * kk]);
+            for c in rgb {
+                let v = if c.is_finite() {
+                    c.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                out.push((srgb_encode(v) * 255.0).round() as u8);
+            }
+        }
+        out
+    }
+}

@@ -1,0 +1,201 @@
+//! The emission-absorption model of Eq. 8: species, black body, velocity and factors.
+
+use blueshift_spectrum::{Catalogue, EmissionLine};
+use blueshift_volume::{AnyGrid, Geometry, Grid, Volume};
+use glam::Vec3;
+
+use crate::{Error, Result};
+
+/// Black-body radiance unit: `B(lambda, T)` (W sr^-1 m^-2 nm^-1) is multiplied by this, so a
+/// 5800 K black body peaks near 2.6 (in units of 1e13 W sr^-1 m^-2 nm^-1).
+pub const BB_UNIT: f64 = 1e-13;
+
+/// User multipliers of the paper's Table 1.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Factors {
+    /// Multiplies every velocity before the Doppler shift (0 turns Doppler off).
+    pub velocity: f64,
+    /// Multiplies every temperature.
+    pub temperature: f64,
+    /// Multiplies line emission.
+    pub emission: f64,
+    /// Multiplies line absorption (0: emission only).
+    pub absorption: f64,
+    /// Multiplies black-body emission.
+    pub blackbody: f64,
+}
+
+impl Default for Factors {
+    fn default() -> Self {
+        Self {
+            velocity: 1.0,
+            temperature: 1.0,
+            emission: 1.0,
+            absorption: 0.0,
+            blackbody: 1.0,
+        }
+    }
+}
+
+/// One species of Eq. 8: a density channel with emission lines (`E_m`) and absorption lines
+/// (`A_m`, optical depth per unit density and world length, per nm of line area).
+#[derive(Clone, Debug)]
+pub struct Species {
+    /// Name (for messages).
+    pub name: String,
+    /// Number density, on the scene's geometry.
+    pub density: AnyGrid,
+    /// Emission lines (strength = line area per unit density and length).
+    pub emission_lines: Vec<EmissionLine>,
+    /// Absorption lines (strength = optical-depth area per unit density and length).
+    pub absorption_lines: Vec<EmissionLine>,
+}
+
+/// The scene: species, an optional black body and an optional velocity field, all on one
+/// geometry.
+#[derive(Clone, Debug)]
+pub struct DopplerScene {
+    pub(crate) geometry: Geometry,
+    pub(crate) species: Vec<Species>,
+    pub(crate) blackbody: Option<(AnyGrid, AnyGrid)>,
+    pub(crate) velocity: Option<Grid<Vec3>>,
+    /// User factors.
+    pub factors: Factors,
+}
+
+fn check_geometry(what: &str, g: &Geometry, want: &Geometry) -> Result<()> {
+    if g.dims != want.dims {
+        return Err(Error::scene(format!(
+            "{what}: dims {:?} differ from the scene's {:?}",
+            g.dims, want.dims
+        )));
+    }
+    Ok(())
+}
+
+fn scalar(what: &str, g: &AnyGrid) -> Result<()> {
+    if g.is_vector() {
+        return Err(Error::scene(format!("{what} must be a scalar channel")));
+    }
+    g.reject_non_finite()?;
+    Ok(())
+}
+
+impl DopplerScene {
+    /// An empty scene on `geometry`.
+    pub fn new(geometry: Geometry) -> Result<Self> {
+        geometry.validate()?;
+        Ok(Self {
+            geometry,
+            species: Vec::new(),
+            blackbody: None,
+            velocity: None,
+            factors: Factors::default(),
+        })
+    }
+
+    /// The scene's geometry.
+    #[must_use]
+    pub fn geometry(&self) -> &Geometry {
+        &self.geometry
+    }
+
+    /// The species.
+    #[must_use]
+    pub fn species(&self) -> &[Species] {
+        &self.species
+    }
+
+    /// Adds a species (scalar density on the scene's dims, finite, non-negative lines).
+    pub fn add_species(&mut self, species: Species) -> Result<()> {
+        scalar(&species.name, &species.density)?;
+        check_geometry(&species.name, species.density.geometry(), &self.geometry)?;
+        self.species.push(species);
+        Ok(())
+    }
+
+    /// Black-body emission `density * B(lambda, temperature_k)`.
+    pub fn set_blackbody(&mut self, density: AnyGrid, temperature_k: AnyGrid) -> Result<()> {
+        scalar("black-body density", &density)?;
+        scalar("temperature", &temperature_k)?;
+        check_geometry("black-body density", density.geometry(), &self.geometry)?;
+        check_geometry("temperature", temperature_k.geometry(), &self.geometry)?;
+        self.blackbody = Some((density, temperature_k));
+        Ok(())
+    }
+
+    /// The velocity field, m/s.
+    pub fn set_velocity(&mut self, velocity_m_per_s: Grid<Vec3>) -> Result<()> {
+        check_geometry("velocity", velocity_m_per_s.geometry(), &self.geometry)?;
+        if velocity_m_per_s.data().iter().any(|v| !v.is_finite()) {
+            return Err(Error::scene("velocity has non-finite values"));
+        }
+        self.velocity = Some(velocity_m_per_s);
+        Ok(())
+    }
+
+    /// Subtracts the mean velocity (the bulk motion) from the velocity field.
+    pub fn subtract_mean_velocity(&mut self) {
+        if let Some(v) = &mut self.velocity {
+            let n = v.data().len().max(1) as f64;
+            let mut sum = [0.0f64; 3];
+            for x in v.data() {
+                sum[0] += f64::from(x.x);
+                sum[1] += f64::from(x.y);
+                sum[2] += f64::from(x.z);
+            }
+            let mean = Vec3::new(
+                (sum[0] / n) as f32,
+                (sum[1] / n) as f32,
+                (sum[2] / n) as f32,
+            );
+            for x in v.data_mut() {
+                *x -= mean;
+            }
+        }
+    }
+
+    /// A scene from a volume with the synthetic datasets' channel names: species tokens `bb`
+    /// (black body: `hi_density` x `temperature_k`), `H` (`hi_density`, H I Balmer), `He`
+    /// (`he_density`, He I), `C` (`c_density`, C I). Emission lines double as absorption
+    /// lines (scaled by [`Factors::absorption`]). The velocity is `velocity_m_per_s` if present.
+    pub fn from_volume(volume: &Volume, tokens: &[&str]) -> Result<Self> {
+        let mut scene = Self::new(*volume.geometry())?;
+        if tokens.is_empty() {
+            return Err(Error::parameter("no species given"));
+        }
+        let need = |name: &str| -> Result<AnyGrid> {
+            volume
+                .channel(name)
+                .map(|c| c.grid.clone())
+                .ok_or_else(|| Error::scene(format!("the volume has no channel '{name}'")))
+        };
+        for t in tokens {
+            let t = t.trim();
+            if t.eq_ignore_ascii_case("bb") || t.eq_ignore_ascii_case("blackbody") {
+                scene.set_blackbody(need("hi_density")?, need("temperature_k")?)?;
+                continue;
+            }
+            let cat = Catalogue::parse(t).map_err(|e| Error::parameter(e.to_string()))?;
+            let channel = match cat {
+                Catalogue::HydrogenBalmer => "hi_density",
+                Catalogue::HeliumI => "he_density",
+                Catalogue::CarbonI => "c_density",
+            };
+            let lines = cat.lines();
+            scene.add_species(Species {
+                name: cat.short_name().to_owned(),
+                density: need(channel)?,
+                emission_lines: lines.clone(),
+                absorption_lines: lines,
+            })?;
+        }
+        if let Some(c) = volume.channel("velocity_m_per_s") {
+            match &c.grid {
+                AnyGrid::Vec3(g) => scene.set_velocity(g.clone())?,
+                _ => return Err(Error::scene("velocity_m_per_s must be a vector channel")),
+            }
+        }
+        Ok(scene)
+    }
+}

@@ -1,0 +1,230 @@
+//! The piecewise-linear integrator (Algorithm 2, without its energy error).
+
+use blueshift_spectrum::{Blackbody, Cmf, PiecewiseLinear, Xyz};
+
+use super::render::{Context, RayOut, RaySamples, TraceStep, Want};
+use crate::{Error, Result};
+
+/// Per-render tables: the black-body wavelength grid and the XYZ of each grid hat function.
+#[derive(Debug)]
+pub(crate) struct PwlTables {
+    lambdas: Vec<f64>,
+    hat_xyz: Vec<Xyz>,
+}
+
+impl PwlTables {
+    pub fn new(settings: &super::DopplerSettings) -> Self {
+        let (a, b) = settings.range_nm;
+        let k = settings.blackbody_samples;
+        let lambdas: Vec<f64> = (0..k)
+            .map(|i| a + (b - a) * i as f64 / (k - 1) as f64)
+            .collect();
+        let cmf = Cmf::cie1931_2deg();
+        let hat_xyz = (0..k)
+            .map(|i| {
+                let mut x = Xyz::ZERO;
+                if i > 0 {
+                    x += cmf.trapezoid_xyz(lambdas[i - 1], lambdas[i], 0.0, 1.0);
+                }
+                if i + 1 < k {
+                    x += cmf.trapezoid_xyz(lambdas[i], lambdas[i + 1], 1.0, 0.0);
+                }
+                x
+            })
+            .collect();
+        Self { lambdas, hat_xyz }
+    }
+}
+
+/// The trapezoid a delta line at `centre` emits over a segment whose ends see shifts `sa`, `sb`
+/// and line areas `area_a`, `area_b`: between the shifted positions (at least `min_width`
+/// wide, centred), heights linear in the ends' areas, total area `(area_a + area_b) / 2`.
+pub(crate) fn line_trapezoid(
+    centre: f64,
+    sa: f64,
+    sb: f64,
+    area_a: f64,
+    area_b: f64,
+    min_width: f64,
+) -> (f64, f64, f64, f64) {
+    let (la, lb) = (sa * centre, sb * centre);
+    let w = (lb - la).abs().max(min_width);
+    let m = 0.5 * (la + lb);
+    let (lo, hi) = (m - 0.5 * w, m + 0.5 * w);
+    if la <= lb {
+        (lo, hi, area_a / w, area_b / w)
+    } else {
+        (lo, hi, area_b / w, area_a / w)
+    }
+}
+
+fn spectrum_err(e: blueshift_spectrum::Error) -> Error {
+    Error::parameter(format!("spectrum: {e}"))
+}
+
+fn bb_row(
+    ctx: &Context<'_>,
+    t: &PwlTables,
+    s: &RaySamples,
+    j: usize,
+    out: &mut [f64],
+) -> Result<bool> {
+    let (rho, temp) = (s.bb[j], s.temp[j]);
+    if rho <= 0.0 || temp <= 0.0 {
+        out.iter_mut().for_each(|v| *v = 0.0);
+        return Ok(false);
+    }
+    let sh = s.shift[j];
+    let k = ctx.value_factor(sh) * rho;
+    let bb = Blackbody::new(temp).map_err(spectrum_err)?;
+    for (o, &l) in out.iter_mut().zip(&t.lambdas) {
+        *o = k * bb.eval(l / sh);
+    }
+    Ok(true)
+}
+
+pub(crate) fn integrate(
+    ctx: &Context<'_>,
+    t: &PwlTables,
+    s: &RaySamples,
+    want: Want,
+) -> Result<RayOut> {
+    let scene = ctx.scene;
+    let st = ctx.settings;
+    let f = scene.factors;
+    let cmf = Cmf::cie1931_2deg();
+    let nsp = scene.species.len();
+    let n = s.len();
+    let absorbing = f.absorption > 0.0
+        && scene
+            .species
+            .iter()
+            .any(|sp| !sp.absorption_lines.is_empty());
+    let keep = absorbing || want != Want::Xyz;
+    let direct_bb = absorbing || want == Want::Trace;
+    let (range_lo, range_hi) = st.range_nm;
+    let k = t.lambdas.len();
+    let mut acc = vec![0.0; k];
+    let mut fa = vec![0.0; k];
+    let mut fb = vec![0.0; k];
+    let mut has_a = bb_row(ctx, t, s, 0, &mut fa)?;
+    let mut spec = PiecewiseLinear::new();
+    let mut xyz = Xyz::ZERO;
+    let mut out = RayOut::default();
+    let mut tol_scale = 1.0;
+    for j in 0..n - 1 {
+        let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
+        let (sa, sb) = (s.shift[j], s.shift[j + 1]);
+        if absorbing {
+            let mut tau = PiecewiseLinear::new();
+            for (m, sp) in scene.species.iter().enumerate() {
+                let (ra, rb) = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
+                if ra <= 0.0 && rb <= 0.0 {
+                    continue;
+                }
+                for l in &sp.absorption_lines {
+                    let base = dt * l.strength * f.absorption;
+                    let (lo, hi, h0, h1) =
+                        line_trapezoid(l.centre_nm, sa, sb, base * ra, base * rb, st.line_width_nm);
+                    if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
+                        continue;
+                    }
+                    tau.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)?;
+                }
+            }
+            if !tau.is_empty() && !spec.is_empty() {
+                spec = spec
+                    .attenuated(&tau, st.max_depth_step)
+                    .map_err(spectrum_err)?;
+            }
+        }
+        // Line emission.
+        let (ga, gb) = (ctx.value_factor(sa) * sa, ctx.value_factor(sb) * sb);
+        for (m, sp) in scene.species.iter().enumerate() {
+            let (ra, rb) = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
+            if ra <= 0.0 && rb <= 0.0 {
+                continue;
+            }
+            for l in &sp.emission_lines {
+                let base = dt * l.strength * f.emission;
+                let (lo, hi, h0, h1) = line_trapezoid(
+                    l.centre_nm,
+                    sa,
+                    sb,
+                    base * ra * ga,
+                    base * rb * gb,
+                    st.line_width_nm,
+                );
+                if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
+                    continue;
+                }
+                if keep {
+                    spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)?;
+                } else {
+                    xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
+                }
+            }
+        }
+        // Black body: trapezoid rule along the ray on the fixed wavelength grid.
+        let has_b = bb_row(ctx, t, s, j + 1, &mut fb)?;
+        if has_a || has_b {
+            if direct_bb {
+                for i in 0..k - 1 {
+                    let v0 = 0.5 * dt * (fa[i] + fb[i]);
+                    let v1 = 0.5 * dt * (fa[i + 1] + fb[i + 1]);
+                    if v0 > 0.0 || v1 > 0.0 {
+                        spec.add_trapezoid(t.lambdas[i], t.lambdas[i + 1], v0, v1)
+                            .map_err(spectrum_err)?;
+                    }
+                }
+            } else {
+                for i in 0..k {
+                    acc[i] += 0.5 * dt * (fa[i] + fb[i]);
+                }
+            }
+        }
+        std::mem::swap(&mut fa, &mut fb);
+        has_a = has_b;
+        if keep {
+            if absorbing && st.merge_tolerance > 0.0 && spec.piece_count() > 64 {
+                spec = spec
+                    .merged(st.merge_tolerance * tol_scale * spec.max_value())
+                    .map_err(spectrum_err)?;
+            }
+            // Budget fallback: coarser merges until the spectrum fits (the preview strategy).
+            let mut guard = 0;
+            while spec.piece_count() > st.piece_budget && guard < 40 {
+                tol_scale *= 4.0;
+                let tol = st.merge_tolerance.max(1e-6) * tol_scale * spec.max_value();
+                spec = spec.merged(tol).map_err(spectrum_err)?;
+                out.fallback = true;
+                guard += 1;
+            }
+            out.max_pieces = out.max_pieces.max(spec.piece_count());
+            if want == Want::Trace {
+                out.trace.push(TraceStep {
+                    t: s.t[j + 1],
+                    radial_velocity_m_per_s: s.v_r[j + 1],
+                    spectrum: spec.clone(),
+                });
+            }
+        }
+    }
+    for i in 0..k {
+        xyz += t.hat_xyz[i].scaled(acc[i]);
+    }
+    if keep {
+        xyz += cmf.xyz_of(&spec);
+        if want != Want::Xyz && acc.iter().any(|&v| v > 0.0) {
+            for i in 0..k - 1 {
+                if acc[i] > 0.0 || acc[i + 1] > 0.0 {
+                    spec.add_trapezoid(t.lambdas[i], t.lambdas[i + 1], acc[i], acc[i + 1])
+                        .map_err(spectrum_err)?;
+                }
+            }
+        }
+        out.spectrum = Some(spec);
+    }
+    out.xyz = xyz;
+    Ok(out)
+}

@@ -1,0 +1,468 @@
+//! Settings, ray sampling and the image loop shared by both integrators.
+
+use blueshift_spectrum::{DopplerModel, PiecewiseLinear, WavelengthShift, Xyz};
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::model::{BB_UNIT, DopplerScene};
+use super::{banded, pwl};
+use crate::{Camera, Error, Ray, Result};
+
+/// How the banded integrator moves band values under a Doppler shift.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BandShift {
+    /// The paper's Algorithm 1: each rest-frame band value moves whole into the band holding
+    /// `s` times its centre (apparent lines, a velocity threshold that depends on N).
+    Nearest,
+    /// Each line's shifted box is spread over the bands it overlaps (energy-conserving).
+    EnergyConserving,
+}
+
+/// The spectral representation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SpectralIntegrator {
+    /// Algorithm 2: exact piecewise-linear spectra (emission-only rays accumulate XYZ
+    /// directly in closed form).
+    PiecewiseLinear,
+    /// Algorithm 1: `bands` equal bands over the wavelength range.
+    Banded {
+        /// Number of bands (>= 1).
+        bands: usize,
+        /// Shift rule.
+        shift: BandShift,
+    },
+}
+
+impl std::str::FromStr for SpectralIntegrator {
+    type Err = Error;
+    /// `pwl`, `banded:N` (nearest shift, the paper's) or `banded-ec:N` (energy-conserving).
+    fn from_str(s: &str) -> Result<Self> {
+        let s = s.trim();
+        if s.eq_ignore_ascii_case("pwl") {
+            return Ok(Self::PiecewiseLinear);
+        }
+        let (kind, n) = s.split_once(':').ok_or_else(|| {
+            Error::parameter(format!(
+                "integrator '{s}': use pwl, banded:N or banded-ec:N"
+            ))
+        })?;
+        let bands: usize = n
+            .parse()
+            .map_err(|_| Error::parameter(format!("integrator '{s}': N must be an integer")))?;
+        if !(1..=1_000_000).contains(&bands) {
+            return Err(Error::parameter(format!(
+                "integrator '{s}': N must be 1..=1000000"
+            )));
+        }
+        let shift = match kind {
+            "banded" => BandShift::Nearest,
+            "banded-ec" => BandShift::EnergyConserving,
+            _ => {
+                return Err(Error::parameter(format!(
+                    "integrator '{s}': use pwl, banded:N or banded-ec:N"
+                )));
+            }
+        };
+        Ok(Self::Banded { bands, shift })
+    }
+}
+
+/// Render settings.
+#[derive(Clone, Debug)]
+pub struct DopplerSettings {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// The camera (orthographic along +z by default).
+    pub camera: Camera,
+    /// Ray step in world units; `None`: half the smallest voxel spacing.
+    pub step: Option<f32>,
+    /// Doppler formula.
+    pub model: DopplerModel,
+    /// Use the relativistic radiance transform (`I_nu / nu^3` invariant) instead of the
+    /// energy-conserving `k = 1 / s`.
+    pub invariant: bool,
+    /// The integrator.
+    pub integrator: SpectralIntegrator,
+    /// Wavelength range, nm.
+    pub range_nm: (f64, f64),
+    /// Minimum (rest) width of a line, nm.
+    pub line_width_nm: f64,
+    /// Wavelength samples of black bodies (piecewise-linear integrator), >= 2.
+    pub blackbody_samples: usize,
+    /// Merge tolerance relative to the spectrum's maximum (piecewise-linear with absorption).
+    pub merge_tolerance: f64,
+    /// Per-ray piece budget: when a spectrum exceeds it, the merge tolerance is multiplied
+    /// by 4 until it fits (the preview fallback; the ray's fallback count is reported).
+    pub piece_budget: usize,
+    /// Largest optical-depth change inside one attenuated sub-piece.
+    pub max_depth_step: f64,
+}
+
+impl DopplerSettings {
+    /// Defaults for a scene: `width x height`, the orthographic view along +z through the
+    /// volume's centre framing its x-y extent, step half a voxel, classical Doppler,
+    /// piecewise-linear, 380-780 nm, lines 1 nm wide, 32 black-body samples, merge 1e-4,
+    /// budget 4096 pieces.
+    #[must_use]
+    pub fn default_for(scene: &DopplerScene, width: u32, height: u32) -> Self {
+        let (lo, hi) = scene.geometry.world_bounds();
+        let aspect = width as f32 / height.max(1) as f32;
+        Self {
+            width,
+            height,
+            camera: Camera::default_view(lo, hi, aspect, true),
+            step: None,
+            model: DopplerModel::Classical,
+            invariant: false,
+            integrator: SpectralIntegrator::PiecewiseLinear,
+            range_nm: (380.0, 780.0),
+            line_width_nm: 1.0,
+            blackbody_samples: 32,
+            merge_tolerance: 1e-4,
+            piece_budget: 4096,
+            max_depth_step: 0.1,
+        }
+    }
+
+    fn validate(&self, scene: &DopplerScene) -> Result<f32> {
+        if self.width == 0
+            || self.height == 0
+            || u64::from(self.width) * u64::from(self.height) > 1 << 26
+        {
+            return Err(Error::parameter(format!(
+                "image size {}x{} must be non-zero and at most 2^26 pixels",
+                self.width, self.height
+            )));
+        }
+        self.camera.validate()?;
+        let (a, b) = self.range_nm;
+        if !(a.is_finite() && b.is_finite() && a > 0.0 && a < b) {
+            return Err(Error::parameter(format!("wavelength range {a}-{b} nm")));
+        }
+        if !(self.line_width_nm.is_finite() && self.line_width_nm > 0.0) {
+            return Err(Error::parameter("line width must be finite and > 0"));
+        }
+        if !(2..=100_000).contains(&self.blackbody_samples) {
+            return Err(Error::parameter("black-body samples must be 2..=100000"));
+        }
+        if !(self.merge_tolerance.is_finite() && self.merge_tolerance >= 0.0) {
+            return Err(Error::parameter("merge tolerance must be finite and >= 0"));
+        }
+        if self.piece_budget < 8 {
+            return Err(Error::parameter("piece budget must be >= 8"));
+        }
+        if !(self.max_depth_step.is_finite() && self.max_depth_step > 0.0) {
+            return Err(Error::parameter(
+                "max optical-depth step must be finite and > 0",
+            ));
+        }
+        let f = scene.factors;
+        for (n, v) in [
+            ("velocity factor", f.velocity),
+            ("temperature factor", f.temperature),
+            ("emission factor", f.emission),
+            ("absorption factor", f.absorption),
+            ("black-body factor", f.blackbody),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::parameter(format!("{n} {v} must be finite and >= 0")));
+            }
+        }
+        let sp = scene.geometry.spacing;
+        let step = self.step.unwrap_or(0.5 * sp.min_element());
+        if !(step.is_finite() && step > 0.0) {
+            return Err(Error::parameter(format!(
+                "step {step} must be finite and > 0"
+            )));
+        }
+        let (lo, hi) = scene.geometry.world_bounds();
+        let diag = (hi - lo).length();
+        if diag / step > 1.0e6 {
+            return Err(Error::parameter(format!(
+                "step {step} gives more than 1e6 steps per ray"
+            )));
+        }
+        Ok(step)
+    }
+}
+
+/// The samples of one ray, far to near (the light's direction).
+#[derive(Debug, Default)]
+pub(crate) struct RaySamples {
+    /// Path position of each sample (distance from the ray's entry), far first.
+    pub t: Vec<f32>,
+    /// Densities, `species.len()` per sample.
+    pub rho: Vec<f64>,
+    /// Black-body density x factor x BB_UNIT.
+    pub bb: Vec<f64>,
+    /// Temperature x factor, K.
+    pub temp: Vec<f64>,
+    /// Wavelength shift s.
+    pub shift: Vec<f64>,
+    /// Radial velocity (scaled), m/s.
+    pub v_r: Vec<f64>,
+}
+
+impl RaySamples {
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+}
+
+/// Everything precomputed once per render.
+#[derive(Debug)]
+pub(crate) struct Context<'a> {
+    pub scene: &'a DopplerScene,
+    pub settings: &'a DopplerSettings,
+    pub step: f32,
+    pub pwl: Option<pwl::PwlTables>,
+    pub banded: Option<banded::BandTables>,
+}
+
+impl<'a> Context<'a> {
+    pub fn new(scene: &'a DopplerScene, settings: &'a DopplerSettings) -> Result<Self> {
+        let step = settings.validate(scene)?;
+        let (pwl, banded) = match settings.integrator {
+            SpectralIntegrator::PiecewiseLinear => (Some(pwl::PwlTables::new(settings)), None),
+            SpectralIntegrator::Banded { bands, shift } => (
+                None,
+                Some(banded::BandTables::new(scene, settings, bands, shift)?),
+            ),
+        };
+        Ok(Self {
+            scene,
+            settings,
+            step,
+            pwl,
+            banded,
+        })
+    }
+
+    /// The shift factor `k(s)` applied to observed values.
+    pub fn value_factor(&self, s: f64) -> f64 {
+        if self.settings.invariant {
+            s.powi(-5)
+        } else {
+            1.0 / s
+        }
+    }
+
+    /// Samples a ray back to front. Returns an empty set if the ray misses the volume.
+    pub fn sample(&self, ray: &Ray) -> Result<RaySamples> {
+        let g = &self.scene.geometry;
+        let (lo, hi) = g.world_bounds();
+        let mut out = RaySamples::default();
+        let Some((t0, t1)) = ray.clip_box(lo, hi) else {
+            return Ok(out);
+        };
+        let len = t1 - t0;
+        if len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return Ok(out);
+        }
+        let n_seg = (len / self.step).ceil().max(1.0) as usize;
+        let f = self.scene.factors;
+        let nsp = self.scene.species.len();
+        let dir = ray.dir.normalize();
+        let los = [f64::from(dir.x), f64::from(dir.y), f64::from(dir.z)];
+        for i in (0..=n_seg).rev() {
+            let t = if i == n_seg {
+                len
+            } else {
+                (i as f32 * self.step).min(len)
+            };
+            let p = g.world_to_index(ray.at(t0 + t));
+            out.t.push(t);
+            for sp in &self.scene.species {
+                out.rho
+                    .push(f64::from(sp.density.sample_scalar_index(p)).max(0.0));
+            }
+            let _ = nsp;
+            match &self.scene.blackbody {
+                Some((d, temp)) => {
+                    out.bb
+                        .push(f64::from(d.sample_scalar_index(p)).max(0.0) * f.blackbody * BB_UNIT);
+                    out.temp
+                        .push(f64::from(temp.sample_scalar_index(p)).max(0.0) * f.temperature);
+                }
+                None => {
+                    out.bb.push(0.0);
+                    out.temp.push(0.0);
+                }
+            }
+            let v = match &self.scene.velocity {
+                Some(vg) => vg.sample_trilinear_index(p) * f.velocity as f32,
+                None => Vec3::ZERO,
+            };
+            let v = [f64::from(v.x), f64::from(v.y), f64::from(v.z)];
+            let s = WavelengthShift::from_velocity(self.settings.model, v, los)
+                .map_err(|e| Error::parameter(format!("Doppler shift: {e}")))?;
+            out.shift.push(s.value());
+            out.v_r.push(v[0] * los[0] + v[1] * los[1] + v[2] * los[2]);
+        }
+        Ok(out)
+    }
+}
+
+/// Piece counts per ray (piecewise-linear spectra kept by rays with absorption, picks and
+/// traces; emission-only rays keep none and count 0).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PieceStats {
+    /// Mean over rays of the largest piece count a ray held.
+    pub mean: f64,
+    /// Largest piece count any ray held.
+    pub max: usize,
+    /// Rays that needed the piece-budget fallback.
+    pub fallback_rays: usize,
+}
+
+/// An XYZ image (row 0 at the top) and the render's statistics.
+#[derive(Clone, Debug)]
+pub struct DopplerImage {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// CIE 1931 XYZ per pixel, row-major.
+    pub xyz: Vec<[f64; 3]>,
+    /// Piece statistics.
+    pub pieces: PieceStats,
+}
+
+/// One step of a traced ray: the spectrum after the segment ending at path position `t`.
+#[derive(Clone, Debug)]
+pub struct TraceStep {
+    /// Distance (world units) of the segment's near end from the ray's entry.
+    pub t: f32,
+    /// Radial velocity at that end, m/s.
+    pub radial_velocity_m_per_s: f64,
+    /// The spectrum reaching that point (after this segment).
+    pub spectrum: PiecewiseLinear,
+}
+
+/// Result of one ray.
+#[derive(Debug, Default)]
+pub(crate) struct RayOut {
+    pub xyz: Xyz,
+    pub max_pieces: usize,
+    pub fallback: bool,
+    pub spectrum: Option<PiecewiseLinear>,
+    pub trace: Vec<TraceStep>,
+}
+
+/// What a ray must return besides XYZ.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Want {
+    Xyz,
+    Spectrum,
+    Trace,
+}
+
+fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayOut> {
+    let samples = ctx.sample(ray)?;
+    if samples.len() < 2 {
+        return Ok(RayOut {
+            spectrum: (want != Want::Xyz).then(PiecewiseLinear::new),
+            ..RayOut::default()
+        });
+    }
+    match (&ctx.pwl, &ctx.banded) {
+        (Some(t), _) => pwl::integrate(ctx, t, &samples, want),
+        (_, Some(t)) => banded::integrate(ctx, t, &samples, want),
+        _ => Err(Error::parameter("no integrator tables")),
+    }
+}
+
+fn pixel_ray(settings: &DopplerSettings, x: u32, y: u32) -> Result<Ray> {
+    if x >= settings.width || y >= settings.height {
+        return Err(Error::parameter(format!(
+            "pixel ({x}, {y}) outside the {}x{} image",
+            settings.width, settings.height
+        )));
+    }
+    Ok(settings.camera.ray(
+        x as f32 + 0.5,
+        y as f32 + 0.5,
+        settings.width,
+        settings.height,
+    ))
+}
+
+/// Renders the XYZ image; rows in parallel, each pixel independent (deterministic on any
+/// thread count). `progress` is called once per finished row.
+pub fn render_doppler(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    progress: &(dyn Fn() + Sync),
+) -> Result<DopplerImage> {
+    let ctx = Context::new(scene, settings)?;
+    let (w, h) = (settings.width, settings.height);
+    let rows: Vec<Result<Vec<RayOut>>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            let row = (0..w)
+                .map(|x| integrate(&ctx, &pixel_ray(settings, x, y)?, Want::Xyz))
+                .collect::<Result<Vec<_>>>();
+            progress();
+            row
+        })
+        .collect();
+    let mut xyz = Vec::with_capacity(w as usize * h as usize);
+    let (mut sum, mut max, mut fb) = (0.0f64, 0usize, 0usize);
+    for row in rows {
+        for r in row? {
+            xyz.push(r.xyz.to_array());
+            sum += r.max_pieces as f64;
+            max = max.max(r.max_pieces);
+            fb += usize::from(r.fallback);
+        }
+    }
+    let n = xyz.len().max(1) as f64;
+    Ok(DopplerImage {
+        width: w,
+        height: h,
+        xyz,
+        pieces: PieceStats {
+            mean: sum / n,
+            max,
+            fallback_rays: fb,
+        },
+    })
+}
+
+/// The final spectrum of pixel `(x, y)` (banded integrators give their step function).
+pub fn pixel_spectrum(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    x: u32,
+    y: u32,
+) -> Result<PiecewiseLinear> {
+    let ctx = Context::new(scene, settings)?;
+    let out = integrate(&ctx, &pixel_ray(settings, x, y)?, Want::Spectrum)?;
+    Ok(out.spectrum.unwrap_or_default())
+}
+
+/// The step-by-step accumulation of pixel `(x, y)`'s ray: the spectrum after each segment,
+/// back to front.
+pub fn trace_ray(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    x: u32,
+    y: u32,
+) -> Result<Vec<TraceStep>> {
+    let ctx = Context::new(scene, settings)?;
+    Ok(integrate(&ctx, &pixel_ray(settings, x, y)?, Want::Trace)?.trace)
+}
+
+/// Integrates one given ray (for tests and benches that build their own rays).
+#[cfg(test)]
+pub(crate) fn ray_spectrum(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    ray: &Ray,
+) -> Result<(Xyz, PiecewiseLinear)> {
+    let ctx = Context::new(scene, settings)?;
+    let o = integrate(&ctx, ray, Want::Spectrum)?;
+    Ok((o.xyz, o.spectrum.unwrap_or_default()))
+}

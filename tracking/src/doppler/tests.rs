@@ -1,0 +1,201 @@
+//! Tests against independent truths (analytic spectra, conservation, Planck's law).
+
+use blueshift_spectrum::{DopplerModel, EmissionLine, SPEED_OF_LIGHT_M_PER_S as C, planck};
+use blueshift_volume::{AnyGrid, Geometry, Grid, synth};
+use glam::Vec3;
+
+use super::render::ray_spectrum;
+use super::*;
+use crate::Ray;
+
+fn ramp_scene(line_nm: f64) -> DopplerScene {
+    let geom = Geometry::unit([2, 2, 16]);
+    let rho = Grid::from_fn(geom, |_, _, z| 1.0 + z as f32 / 15.0).unwrap();
+    let vel = Grid::from_fn(geom, |_, _, z| {
+        Vec3::new(0.0, 0.0, -3.0e6 + 6.0e6 * z as f32 / 15.0)
+    })
+    .unwrap();
+    let mut s = DopplerScene::new(geom).unwrap();
+    s.add_species(Species {
+        name: "x".into(),
+        density: AnyGrid::F32(rho),
+        emission_lines: vec![EmissionLine::new(line_nm, 1.0).unwrap()],
+        absorption_lines: vec![],
+    })
+    .unwrap();
+    s.set_velocity(vel).unwrap();
+    s
+}
+
+#[test]
+fn linear_density_and_velocity_give_the_analytic_spectrum() {
+    let scene = ramp_scene(500.0);
+    let mut st = DopplerSettings::default_for(&scene, 4, 4);
+    st.line_width_nm = 0.05;
+    let ray = Ray::new(Vec3::new(0.5, 0.5, -1.0), Vec3::Z).unwrap();
+    let (_, spec) = ray_spectrum(&scene, &st, &ray).unwrap();
+    // Truth: I(lambda) = S rho(z) / |d lambda / dz| at the z where 500 s(z) = lambda.
+    let dsdz = 6.0e6 / 15.0 / C;
+    let mut checked = 0;
+    for i in 1..40 {
+        let lambda = 495.0 + 10.0 * f64::from(i) / 40.0;
+        let v = (lambda / 500.0 - 1.0) * C;
+        let z = (v + 3.0e6) * 15.0 / 6.0e6;
+        if !(0.01..14.99).contains(&z) {
+            continue;
+        }
+        let truth = (1.0 + z / 15.0) / (500.0 * dsdz);
+        let got = spec.eval(lambda);
+        assert!(
+            (got - truth).abs() <= 1e-6 * truth,
+            "lambda {lambda}: {got} vs {truth}"
+        );
+        checked += 1;
+    }
+    assert!(checked > 30);
+    // Energy: integral of rho along the ray, S = 1.
+    assert!((spec.total() - 15.0 * 1.5).abs() < 1e-6 * 22.5);
+}
+
+fn shell(res: usize) -> DopplerScene {
+    let v = synth::hydrogen_shell(res, 7).unwrap();
+    DopplerScene::from_volume(&v, &["H"]).unwrap()
+}
+
+#[test]
+fn shell_sides_shift_by_their_radial_velocity() {
+    let scene = shell(32);
+    let st = DopplerSettings::default_for(&scene, 32, 32);
+    let ha = 656.28;
+    let mut signs = [false; 2];
+    for x in [4u32, 27] {
+        let ray = st.camera.ray(x as f32 + 0.5, 16.5, 32, 32);
+        let spec = pixel_spectrum(&scene, &st, x, 16).unwrap();
+        // Centroid of H-alpha.
+        let (mut m0, mut m1) = (0.0, 0.0);
+        for i in 0..4000 {
+            let l = 640.0 + 35.0 * (f64::from(i) + 0.5) / 4000.0;
+            let v = spec.eval(l);
+            m0 += v;
+            m1 += v * l;
+        }
+        let centroid = m1 / m0;
+        // Truth: v = omega x r has v_z = -omega x along the whole ray (camera looks along +z).
+        let omega = f64::from(synth::SHELL_SPEED_M_PER_S / synth::SHELL_RADIUS);
+        let v_r = -omega * f64::from(ray.origin.x);
+        let want = v_r / C;
+        let got = centroid / ha - 1.0;
+        assert!(
+            (got - want).abs() < 0.03 * want.abs(),
+            "pixel {x}: shift {got} vs {want}"
+        );
+        signs[usize::from(got > 0.0)] = true;
+    }
+    assert!(signs[0] && signs[1], "one side blue, the other red");
+}
+
+#[test]
+fn broadening_conserves_line_energy() {
+    let mut scene = shell(24);
+    let mut st = DopplerSettings::default_for(&scene, 24, 24);
+    st.range_nm = (300.0, 900.0);
+    for vf in [1.0, 30.0] {
+        let max_vr = f64::from(synth::SHELL_SPEED_M_PER_S) * vf * 1.2;
+        for x in [3u32, 8, 12, 20] {
+            scene.factors.velocity = vf;
+            let moving = pixel_spectrum(&scene, &st, x, 12).unwrap().total();
+            scene.factors.velocity = 0.0;
+            let rest = pixel_spectrum(&scene, &st, x, 12).unwrap().total();
+            if rest > 0.0 {
+                assert!(
+                    ((moving - rest) / rest).abs() <= max_vr / C,
+                    "x {x} factor {vf}: {moving} vs {rest}"
+                );
+            }
+        }
+    }
+}
+
+fn uniform_bb(v: Vec3) -> DopplerScene {
+    let geom = Geometry::unit([2, 2, 4]);
+    let mut s = DopplerScene::new(geom).unwrap();
+    let one = Grid::from_fn(geom, |_, _, _| 1.0f32).unwrap();
+    let t = Grid::from_fn(geom, |_, _, _| 6000.0f32).unwrap();
+    s.set_blackbody(AnyGrid::F32(one), AnyGrid::F32(t)).unwrap();
+    s.set_velocity(Grid::from_fn(geom, |_, _, _| v).unwrap())
+        .unwrap();
+    s
+}
+
+#[test]
+fn shifted_black_body_is_the_black_body_at_t_over_s() {
+    let beta = 0.1;
+    let gamma = 1.0 / (1.0f64 - beta * beta).sqrt();
+    for (v, s) in [
+        (Vec3::Z, ((1.0 + beta) / (1.0 - beta)).sqrt()),
+        (-Vec3::Z, ((1.0 - beta) / (1.0 + beta)).sqrt()),
+        (Vec3::X, gamma),
+    ] {
+        let scene = uniform_bb(v * (beta * C) as f32);
+        let mut st = DopplerSettings::default_for(&scene, 2, 2);
+        st.model = DopplerModel::Relativistic;
+        st.invariant = true;
+        let ray = Ray::new(Vec3::new(0.5, 0.5, -1.0), Vec3::Z).unwrap();
+        let (_, spec) = ray_spectrum(&scene, &st, &ray).unwrap();
+        // Grid points (the last piece is half-open, so its end is left out).
+        for i in 0..31 {
+            let l = 380.0 + 400.0 * f64::from(i) / 31.0;
+            let truth = 3.0 * BB_UNIT * planck(l, 6000.0 / s).unwrap();
+            let got = spec.eval(l);
+            assert!((got - truth).abs() <= 1e-6 * truth, "{l}: {got} vs {truth}");
+        }
+    }
+}
+
+fn rel_err(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let n = b.iter().map(|x| x * x).sum::<f64>().sqrt();
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt() / n
+}
+
+#[test]
+fn banded_converges_to_piecewise_linear() {
+    let scene = shell(24);
+    let mut st = DopplerSettings::default_for(&scene, 12, 12);
+    let pwl = render_doppler(&scene, &st, &|| {}).unwrap();
+    let mut errs = Vec::new();
+    for n in [40, 400, 4000] {
+        st.integrator = SpectralIntegrator::Banded {
+            bands: n,
+            shift: BandShift::EnergyConserving,
+        };
+        let b = render_doppler(&scene, &st, &|| {}).unwrap();
+        let e: f64 = (0..pwl.xyz.len())
+            .filter(|&i| pwl.xyz[i][1] > 1e-3 * 1.0)
+            .map(|i| rel_err(b.xyz[i], pwl.xyz[i]))
+            .fold(0.0, f64::max);
+        errs.push(e);
+    }
+    assert!(errs[2] < errs[0] && errs[2] < 0.01, "{errs:?}");
+}
+
+#[test]
+fn absorption_never_brightens_and_render_is_thread_independent() {
+    let mut scene = shell(16);
+    let st = DopplerSettings::default_for(&scene, 8, 8);
+    let clear = render_doppler(&scene, &st, &|| {}).unwrap();
+    scene.factors.absorption = 50.0;
+    let absorbed = render_doppler(&scene, &st, &|| {}).unwrap();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| render_doppler(&scene, &st, &|| {}).unwrap());
+    assert_eq!(one.xyz, absorbed.xyz);
+    let mut darker = 0;
+    for (a, c) in absorbed.xyz.iter().zip(&clear.xyz) {
+        assert!(a[1] <= c[1] * (1.0 + 1e-9));
+        darker += usize::from(a[1] < 0.99 * c[1]);
+    }
+    assert!(darker > 0);
+    assert!(absorbed.pieces.max > 0);
+}
