@@ -350,3 +350,55 @@ fn shading_blends_and_bad_settings() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("shininess"));
 }
+
+#[test]
+fn png_preview_through_tone_mapping_operators() {
+    let dir = tempfile::tempdir().unwrap();
+    write_slab(dir.path());
+    let base = [
+        "--volume",
+        "slab.nrrd",
+        "--tf",
+        "tf.json",
+        "--density-scale",
+        "0.2",
+        "--spp",
+        "4",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--out",
+        "x.exr",
+    ];
+    for op in [
+        "exposure",
+        "linear",
+        "drago",
+        "reinhard",
+        "reinhard-local",
+        "durand",
+        "fattal",
+    ] {
+        let mut args = base.to_vec();
+        args.extend(["--png", "x.png", "--tonemap", op]);
+        ok(&blueshift(&args, dir.path()));
+        let png = image::open(dir.path().join("x.png")).unwrap().to_rgb8();
+        assert_eq!(png.dimensions(), (8, 8));
+        // The slab glows white in the middle: the preview is not black.
+        assert!(png.pixels().any(|p| p.0[0] > 50), "{op}");
+        std::fs::remove_file(dir.path().join("x.png")).unwrap();
+    }
+    let mut args = base.to_vec();
+    let last = args.len() - 1;
+    args[last] = "y.exr";
+    args.extend(["--png", "y.png", "--tonemap", "gamma"]);
+    let out = blueshift(&args, dir.path());
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--tonemap"));
+    assert!(!dir.path().join("y.png").exists());
+    assert!(
+        !dir.path().join("y.exr").exists(),
+        "refused before rendering"
+    );
+}

@@ -145,9 +145,14 @@ pub struct Args {
     /// Output OpenEXR file.
     #[arg(long)]
     pub out: PathBuf,
-    /// Also write a PNG preview (exposure, clamp, sRGB).
+    /// Also write a PNG preview (exposure, clamp, sRGB; or a tone-mapping operator).
     #[arg(long)]
     pub png: Option<PathBuf>,
+    /// Tone mapping of the PNG preview: `exposure` (exposure, clamp, sRGB) or an operator of
+    /// blueshift-tonemap with its paper's default parameters: linear, drago, reinhard,
+    /// reinhard-local, durand, fattal.
+    #[arg(long, default_value = "exposure")]
+    pub tonemap: String,
     /// Exposure of the PNG preview in stops.
     #[arg(long, default_value_t = 0.0)]
     pub exposure: f32,
@@ -461,6 +466,14 @@ fn parse_blend(name: &str, weights: Option<Vec<f32>>, n: usize) -> Result<Blend>
 
 /// Runs `blueshift render`.
 pub fn run(args: Args) -> Result<()> {
+    // Refuse a bad preview operator before spending time on the render.
+    if !TONEMAPS.contains(&args.tonemap.as_str()) {
+        bail!(
+            "--tonemap {:?}: expected one of {}",
+            args.tonemap,
+            TONEMAPS.join(", ")
+        );
+    }
     match args.threads {
         Some(0) => bail!("--threads: must be at least 1"),
         Some(t) => rayon::ThreadPoolBuilder::new()
@@ -643,24 +656,7 @@ fn run_inner(args: &Args) -> Result<()> {
             .with_context(|| format!("cannot write {}", args.out.display()))
     })?;
     if let Some(png) = &args.png {
-        let gain = 2f32.powf(args.exposure);
-        let enc = |v: f32| {
-            let v = (v * gain).clamp(0.0, 1.0);
-            let s = if v <= 0.003_130_8 {
-                12.92 * v
-            } else {
-                1.055 * v.powf(1.0 / 2.4) - 0.055
-            };
-            (s * 255.0).round() as u8
-        };
-        let rgb = image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
-            let p = img.get_pixel(x, y).0;
-            image::Rgb([enc(p[0]), enc(p[1]), enc(p[2])])
-        });
-        write_via_temp_path(png, |p| {
-            rgb.save_with_format(p, image::ImageFormat::Png)
-                .with_context(|| format!("cannot write {}", png.display()))
-        })?;
+        write_png_preview(&img, png, &args.tonemap, args.exposure)?;
     }
     if args.json {
         let summary = serde_json::json!({
@@ -693,4 +689,60 @@ fn run_inner(args: &Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The names `--tonemap` accepts.
+const TONEMAPS: [&str; 7] = [
+    "exposure",
+    "linear",
+    "drago",
+    "reinhard",
+    "reinhard-local",
+    "durand",
+    "fattal",
+];
+
+/// Writes the PNG preview of an HDR render: plain exposure + clamp + sRGB, or a tone-mapping
+/// operator of blueshift-tonemap (the alpha channel is dropped; the background shows).
+fn write_png_preview(
+    img: &image::Rgba32FImage,
+    png: &Path,
+    tonemap: &str,
+    exposure: f32,
+) -> Result<()> {
+    use blueshift_tonemap::{
+        DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
+        ReinhardParams,
+    };
+    let op = match tonemap {
+        "exposure" => None,
+        "linear" => Some(Operator::Linear(LinearParams {
+            exposure_stops: exposure,
+            ..LinearParams::default()
+        })),
+        "drago" => Some(Operator::Drago(DragoParams::default())),
+        "reinhard" => Some(Operator::Reinhard(ReinhardParams::default())),
+        "reinhard-local" => Some(Operator::ReinhardLocal(ReinhardLocalParams::default())),
+        "durand" => Some(Operator::Durand(DurandParams::default())),
+        "fattal" => Some(Operator::Fattal(FattalParams::default())),
+        other => bail!(
+            "--tonemap {other:?}: expected exposure, linear, drago, reinhard, reinhard-local, durand or fattal"
+        ),
+    };
+    let gain = 2f32.powf(exposure);
+    let rgb = image::Rgb32FImage::from_fn(img.width(), img.height(), |x, y| {
+        let p = img.get_pixel(x, y).0;
+        image::Rgb([p[0], p[1], p[2]])
+    });
+    let display = match op {
+        Some(op) => op
+            .apply(&rgb)
+            .with_context(|| format!("--tonemap {tonemap}"))?,
+        None => image::Rgb32FImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+            let p = rgb.get_pixel(x, y).0;
+            image::Rgb(p.map(|v| (v * gain).clamp(0.0, 1.0)))
+        }),
+    };
+    blueshift_tonemap::io::write_png(png, &display, blueshift_tonemap::io::PngDepth::Eight)
+        .with_context(|| format!("cannot write {}", png.display()))
 }
