@@ -251,33 +251,9 @@ impl SlabSource for RawFileSource {
         self.file.read_exact(&mut self.buf)?;
         let big = self.endian == Endian::Big;
         for (o, c) in out.iter_mut().zip(self.buf.chunks_exact(size)) {
-            *o = decode_one(c, self.disk, big);
+            *o = crate::io::component(c, self.disk, big);
         }
         Ok(())
-    }
-}
-
-fn decode_one(b: &[u8], disk: DiskType, big: bool) -> f32 {
-    macro_rules! num {
-        ($t:ty, $n:literal) => {{
-            let mut a = [0u8; $n];
-            a.copy_from_slice(b);
-            if big {
-                <$t>::from_be_bytes(a)
-            } else {
-                <$t>::from_le_bytes(a)
-            }
-        }};
-    }
-    match disk {
-        DiskType::U8 => f32::from(b[0]),
-        DiskType::I8 => f32::from(b[0] as i8),
-        DiskType::U16 => f32::from(num!(u16, 2)),
-        DiskType::I16 => f32::from(num!(i16, 2)),
-        DiskType::U32 => num!(u32, 4) as f32,
-        DiskType::I32 => num!(i32, 4) as f32,
-        DiskType::F32 => num!(f32, 4),
-        DiskType::F64 => num!(f64, 8) as f32,
     }
 }
 

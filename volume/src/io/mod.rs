@@ -274,7 +274,7 @@ pub(crate) fn decode(bytes: &[u8], layout: &Layout, geometry: Geometry) -> Resul
 
 /// One on-disk component as f32 (the module's conversion table).
 #[inline]
-fn component(b: &[u8], disk: DiskType, big: bool) -> f32 {
+pub(crate) fn component(b: &[u8], disk: DiskType, big: bool) -> f32 {
     macro_rules! num {
         ($t:ty, $n:literal) => {{
             let mut a = [0u8; $n];
