@@ -1,7 +1,8 @@
 //! Doppler paper reproductions on the CPU: Table 1 (render time per configuration, with and
 //! without Doppler), Fig. 13 (piecewise-linear against banded N = 40, 400, 4000: time and XYZ
 //! error against a converged reference) and Fig. 18 (merge tolerance against piece count,
-//! time and error). Tables go to `target/blueshift-benches/doppler_*.csv` (single-threaded
+//! time and error; with absorption the image path keeps only the optical depth in front,
+//! so the pieces counted are those of `tau_front`). Tables go to `target/blueshift-benches/doppler_*.csv` (single-threaded
 //! timings, ratios against a baseline of the same run), Fig. 13 and 18 also as PNG plots.
 
 use std::fmt::Write as _;
@@ -110,6 +111,8 @@ fn fig13() {
         let s = scene(&galaxy, &["bb", "H", "C"], 30.0, absorption);
         let mut st = DopplerSettings::default_for(&s, size, size);
         inclined(&s, &mut st);
+        // Reference: 1601 black-body samples, merge tolerance 0 (with absorption: the
+        // front-to-back path at its floor tolerance 1e-6, i.e. XYZ within 2e-6).
         let mut reference = st.clone();
         reference.blackbody_samples = 1601;
         reference.merge_tolerance = 0.0;
@@ -122,6 +125,24 @@ fn fig13() {
             "{label},pwl,0,{t_pwl:.4},{e_pwl:.3e},1,{:.1},{}",
             pwl.pieces.mean, pwl.pieces.max
         );
+        let mut pwl_pts = vec![(t_pwl, e_pwl)];
+        if absorption > 0.0 {
+            // The merge tolerance trade (the default is 1e-4).
+            for tol in [1e-3, 1e-2] {
+                let mut p = st.clone();
+                p.merge_tolerance = tol;
+                let (t, img) = timed(&s, &p);
+                let e = xyz_error(&img, &r);
+                pwl_pts.push((t, e));
+                let _ = writeln!(
+                    csv,
+                    "{label},pwl-tol-{tol:e},0,{t:.4},{e:.3e},{:.2},{:.1},{}",
+                    t / t_pwl,
+                    img.pieces.mean,
+                    img.pieces.max
+                );
+            }
+        }
         for (shift, sname) in [
             (BandShift::Nearest, "banded"),
             (BandShift::EnergyConserving, "banded-ec"),
@@ -149,9 +170,13 @@ fn fig13() {
                 },
             });
         }
+        if pwl_pts.len() == 1 {
+            pwl_pts.push((t_pwl * 1.001, e_pwl));
+        }
+        pwl_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
         curves.push(Curve {
-            label: format!("{label} pwl"),
-            points: vec![(t_pwl, e_pwl), (t_pwl * 1.001, e_pwl)],
+            label: format!("{label} pwl (tol 1e-2/1e-3/1e-4 with absorption)"),
+            points: pwl_pts,
             rgb: (20, 150, 20),
         });
     }
@@ -190,7 +215,7 @@ fn fig18() {
     std::fs::write(out_dir().join("doppler_fig18.csv"), csv).expect("write");
     let _ = line_plot(
         &out_dir().join("doppler_fig18.png"),
-        "Fig. 18: merge tolerance, error against mean pieces per ray",
+        "Fig. 18: merge tolerance, error against mean optical-depth pieces per ray",
         "mean pieces per ray",
         "mean relative XYZ error",
         &[Curve {
@@ -219,14 +244,31 @@ fn bench(c: &mut Criterion) {
     g.bench_function("banded_4000", |b| {
         b.iter(|| render_doppler(&s, &b4, &|| {}).expect("r"));
     });
+    let mut sa = s.clone();
+    sa.factors.absorption = 5.0;
+    g.bench_function("pwl_absorption", |b| {
+        b.iter(|| render_doppler(&sa, &st, &|| {}).expect("r"));
+    });
+    g.bench_function("banded_4000_absorption", |b| {
+        b.iter(|| render_doppler(&sa, &b4, &|| {}).expect("r"));
+    });
     g.finish();
 }
 
 fn main() {
     if std::env::var_os("BLUESHIFT_SKIP_TABLES").is_none() {
-        table1();
-        fig13();
-        fig18();
+        // BLUESHIFT_DOPPLER_TABLES=fig13,fig18 runs only the named ones (default: all).
+        let only = std::env::var("BLUESHIFT_DOPPLER_TABLES").unwrap_or_default();
+        let run = |name: &str| only.is_empty() || only.split(',').any(|x| x.trim() == name);
+        if run("table1") {
+            table1();
+        }
+        if run("fig13") {
+            fig13();
+        }
+        if run("fig18") {
+            fig18();
+        }
     }
     let mut c = Criterion::default().configure_from_args();
     bench(&mut c);

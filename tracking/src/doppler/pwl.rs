@@ -1,6 +1,6 @@
 //! The piecewise-linear integrator (Algorithm 2, without its energy error).
 
-use blueshift_spectrum::{Blackbody, Cmf, PiecewiseLinear, Xyz};
+use blueshift_spectrum::{Blackbody, Cmf, Piece, PiecewiseLinear, Xyz};
 
 use super::render::{Context, RayOut, RaySamples, TraceStep, Want};
 use crate::{Error, Result};
@@ -10,6 +10,8 @@ use crate::{Error, Result};
 pub(crate) struct PwlTables {
     lambdas: Vec<f64>,
     hat_xyz: Vec<Xyz>,
+    /// Spacing of the CMF table, nm.
+    cmf_step: f64,
 }
 
 impl PwlTables {
@@ -32,7 +34,13 @@ impl PwlTables {
                 x
             })
             .collect();
-        Self { lambdas, hat_xyz }
+        let (c_lo, c_hi) = cmf.range_nm();
+        let cmf_step = (c_hi - c_lo) / (cmf.samples().count().max(2) - 1) as f64;
+        Self {
+            lambdas,
+            hat_xyz,
+            cmf_step,
+        }
     }
 }
 
@@ -100,6 +108,9 @@ pub(crate) fn integrate(
             .species
             .iter()
             .any(|sp| !sp.absorption_lines.is_empty());
+    if absorbing && want == Want::Xyz {
+        return front_to_back(ctx, t, s);
+    }
     let keep = absorbing || want != Want::Xyz;
     let direct_bb = absorbing || want == Want::Trace;
     let (range_lo, range_hi) = st.range_nm;
@@ -112,6 +123,8 @@ pub(crate) fn integrate(
     let mut xyz = Xyz::ZERO;
     let mut out = RayOut::default();
     let mut tol_scale = 1.0;
+    let mut half_tau = PiecewiseLinear::new();
+    let segments = (n - 1) as f64;
     for j in 0..n - 1 {
         let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
         let (sa, sb) = (s.shift[j], s.shift[j + 1]);
@@ -123,7 +136,9 @@ pub(crate) fn integrate(
                     continue;
                 }
                 for l in &sp.absorption_lines {
-                    let base = dt * l.strength * f.absorption;
+                    // Half the segment's optical depth: the light from behind crosses one
+                    // half before and one half after the segment's emission is added.
+                    let base = 0.5 * dt * l.strength * f.absorption;
                     let (lo, hi, h0, h1) =
                         line_trapezoid(l.centre_nm, sa, sb, base * ra, base * rb, st.line_width_nm);
                     if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
@@ -137,6 +152,7 @@ pub(crate) fn integrate(
                     .attenuated(&tau, st.max_depth_step)
                     .map_err(spectrum_err)?;
             }
+            half_tau = tau;
         }
         // Line emission.
         let (ga, gb) = (ctx.value_factor(sa) * sa, ctx.value_factor(sb) * sb);
@@ -185,10 +201,19 @@ pub(crate) fn integrate(
         }
         std::mem::swap(&mut fa, &mut fb);
         has_a = has_b;
+        if !half_tau.is_empty() {
+            spec = spec
+                .attenuated(&half_tau, st.max_depth_step)
+                .map_err(spectrum_err)?;
+            half_tau = PiecewiseLinear::new();
+        }
         if keep {
+            // Merging against the ray's total: each merge may add `tol / segments` (relative
+            // to the spectrum's maximum then); later attenuation only shrinks earlier errors,
+            // so the sup error of the final spectrum stays below `tol` x the largest maximum.
             if absorbing && st.merge_tolerance > 0.0 && spec.piece_count() > 64 {
                 spec = spec
-                    .merged(st.merge_tolerance * tol_scale * spec.max_value())
+                    .merged(st.merge_tolerance * tol_scale * spec.max_value() / segments)
                     .map_err(spectrum_err)?;
             }
             // Budget fallback: coarser merges until the spectrum fits (the preview strategy).
@@ -226,5 +251,288 @@ pub(crate) fn integrate(
         out.spectrum = Some(spec);
     }
     out.xyz = xyz;
+    Ok(out)
+}
+
+/// The line trapezoids (`lo, hi, h_lo, h_hi`) of one segment: emission (`emission = true`,
+/// values include the shift factor) or full-segment optical depth.
+fn segment_lines(
+    ctx: &Context<'_>,
+    s: &RaySamples,
+    j: usize,
+    emission: bool,
+    out: &mut Vec<(f64, f64, f64, f64)>,
+) {
+    let scene = ctx.scene;
+    let st = ctx.settings;
+    let f = scene.factors;
+    let nsp = scene.species.len();
+    let (range_lo, range_hi) = st.range_nm;
+    let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
+    let (sa, sb) = (s.shift[j], s.shift[j + 1]);
+    let (ga, gb) = if emission {
+        (ctx.value_factor(sa) * sa, ctx.value_factor(sb) * sb)
+    } else {
+        (1.0, 1.0)
+    };
+    out.clear();
+    for (m, sp) in scene.species.iter().enumerate() {
+        let (ra, rb) = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
+        if ra <= 0.0 && rb <= 0.0 {
+            continue;
+        }
+        let (lines, factor) = if emission {
+            (&sp.emission_lines, f.emission)
+        } else {
+            (&sp.absorption_lines, f.absorption)
+        };
+        for l in lines {
+            let base = dt * l.strength * factor;
+            let tr = line_trapezoid(
+                l.centre_nm,
+                sa,
+                sb,
+                base * ra * ga,
+                base * rb * gb,
+                st.line_width_nm,
+            );
+            if tr.1 < range_lo || tr.0 > range_hi || (tr.2 <= 0.0 && tr.3 <= 0.0) {
+                continue;
+            }
+            out.push(tr);
+        }
+    }
+}
+
+/// The piece of `pieces` (sorted, disjoint) holding `x`, advancing the cursor `i`.
+fn piece_at(pieces: &[Piece], i: &mut usize, x: f64) -> Option<Piece> {
+    while *i < pieces.len() && pieces[*i].end_nm <= x {
+        *i += 1;
+    }
+    pieces.get(*i).copied().filter(|p| p.start_nm <= x)
+}
+
+/// What the optical depth in front, `tau`, takes from a segment's emission (black body on
+/// the uniform grid `t.lambdas` with values `bb`, lines `lines`):
+/// `integral E(lambda) (1 - exp(-tau(lambda))) cmf(lambda) d lambda`, over `tau`'s support.
+///
+/// The support is cut at every breakpoint of `E`, of `tau` and of the (piecewise-linear)
+/// CMFs, and further so that `tau` changes by at most `sqrt(8 chord_tol exp(tau_min))` on a
+/// sub-interval; there `1 - exp(-tau)` is replaced by its chord, which is within `chord_tol`
+/// of it (the second-derivative bound `d^2 exp(-tau_min) / 8` for a change `d`). With `E`,
+/// the chord and the CMFs all linear on a sub-interval, their cubic product is integrated
+/// exactly by Simpson's rule. The error of the result is thus at most `chord_tol` times the
+/// XYZ of `E` over the support.
+fn absorbed_xyz(
+    t: &PwlTables,
+    tau: &[Piece],
+    bb: Option<&[f64]>,
+    lines: &[Piece],
+    chord_tol: f64,
+) -> Xyz {
+    let cmf = Cmf::cie1931_2deg();
+    let (c_lo, c_hi) = cmf.range_nm();
+    let c_step = t.cmf_step;
+    let mut out = [0.0f64; 3];
+    let k = t.lambdas.len();
+    let (g0, g1) = (t.lambdas[0], t.lambdas[k - 1]);
+    let gstep = (g1 - g0) / (k - 1) as f64;
+    let bb_at = |x: f64| -> f64 {
+        match bb {
+            Some(v) if x >= g0 && x <= g1 => {
+                let u = (x - g0) / gstep;
+                let i = (u.floor() as usize).min(k - 2);
+                let f = u - i as f64;
+                v[i] + (v[i + 1] - v[i]) * f
+            }
+            _ => 0.0,
+        }
+    };
+    let mut li = 0usize;
+    for p in tau {
+        if p.value_start <= 0.0 && p.value_end <= 0.0 {
+            continue;
+        }
+        let (lo, hi) = (p.start_nm.max(c_lo), p.end_nm.min(c_hi));
+        if hi <= lo {
+            continue;
+        }
+        let slope = (p.value_end - p.value_start) / (p.end_nm - p.start_nm);
+        let tmin = p.value_start.min(p.value_end).max(0.0);
+        let allowed = (8.0 * chord_tol * tmin.min(700.0).exp()).sqrt();
+        let max_len = if (slope * (hi - lo)).abs() <= allowed {
+            f64::INFINITY
+        } else {
+            allowed / slope.abs()
+        };
+        let mut u = lo;
+        let mut a_u = -(-p.at(u).max(0.0)).exp_m1();
+        let mut c_u = cmf.eval(u);
+        while u < hi {
+            let mut w = hi.min(u + max_len);
+            // The next CMF node, black-body grid point and line break.
+            let node = c_lo + (((u - c_lo) / c_step).floor() + 1.0) * c_step;
+            if node > u {
+                w = w.min(node);
+            }
+            if bb.is_some() {
+                if u < g0 {
+                    w = w.min(g0);
+                } else if u < g1 {
+                    let next = g0 + (((u - g0) / gstep).floor() + 1.0) * gstep;
+                    if next > u {
+                        w = w.min(next);
+                    }
+                }
+            }
+            let line = piece_at(lines, &mut li, u);
+            match line {
+                Some(q) => w = w.min(q.end_nm),
+                None => {
+                    if let Some(q) = lines.get(li) {
+                        if q.start_nm > u {
+                            w = w.min(q.start_nm);
+                        }
+                    }
+                }
+            }
+            if w <= u {
+                // A breakpoint that rounding put at u.
+                w = hi.min(u + 1e-9 * u.abs().max(1.0));
+                if w <= u {
+                    break;
+                }
+            }
+            let a_w = -(-p.at(w).max(0.0)).exp_m1();
+            let c_w = cmf.eval(w);
+            let e_u = bb_at(u) + line.map_or(0.0, |q| q.at(u));
+            let e_w = bb_at(w) + line.map_or(0.0, |q| q.at(w));
+            if e_u > 0.0 || e_w > 0.0 {
+                let (f_u, f_w) = (e_u * a_u, e_w * a_w);
+                let f_m = 0.25 * (e_u + e_w) * (a_u + a_w);
+                let h6 = (w - u) / 6.0;
+                for c in 0..3 {
+                    let c_m = 0.5 * (c_u[c] + c_w[c]);
+                    out[c] += h6 * (f_u * c_u[c] + 4.0 * f_m * c_m + f_w * c_w[c]);
+                }
+            }
+            u = w;
+            a_u = a_w;
+            c_u = c_w;
+        }
+    }
+    Xyz::from_array(out)
+}
+
+/// The XYZ of a ray with absorption, front to back, without any emitted spectrum.
+///
+/// Marching from the eye, only the optical depth in front, `tau_front(lambda)`, is kept (a
+/// piecewise-linear function, non-zero only inside the shifted absorption lines). A segment's
+/// emission `E` reaches the eye as `E exp(-tau_front - tau_seg / 2)` (the light emitted in a
+/// segment crosses half of its own optical depth, the convention of the back-to-front path
+/// and of the banded integrator), so its XYZ is the closed-form XYZ of `E` minus
+/// [`absorbed_xyz`] over `tau`'s support.
+///
+/// Error bound (`tol = merge_tolerance`, floored at 1e-6): merges of `tau_front` use the
+/// tolerances `tol 6 / (pi^2 k^2)` for the `k`-th merge, so the optical depth is off by at
+/// most `tol` anywhere and the transmittance by at most `tol`; the chord of the absorption
+/// adds at most `tol`; so every XYZ channel is within `2 tol` x the channel of the
+/// unattenuated emission (for the whole ray, not per segment).
+fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<RayOut> {
+    let st = ctx.settings;
+    let cmf = Cmf::cie1931_2deg();
+    let n = s.len();
+    let k = t.lambdas.len();
+    let tol = st.merge_tolerance.max(1e-6);
+    let mut out = RayOut::default();
+    let mut acc = vec![0.0; k];
+    let mut row = vec![0.0; k];
+    let mut f_near = vec![0.0; k];
+    let mut f_far = vec![0.0; k];
+    let mut has_near = bb_row(ctx, t, s, n - 1, &mut f_near)?;
+    let mut tau = PiecewiseLinear::new();
+    let mut tau_pieces: Vec<Piece> = Vec::new();
+    let mut line_pieces: Vec<Piece> = Vec::new();
+    let mut emit = Vec::new();
+    let mut absorb = Vec::new();
+    let mut xyz = Xyz::ZERO;
+    let mut taken = Xyz::ZERO;
+    let mut merges = 0u32;
+    let mut merge_at = 64usize;
+    let mut budget_scale = 1.0;
+    for j in (0..n - 1).rev() {
+        let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
+        segment_lines(ctx, s, j, false, &mut absorb);
+        segment_lines(ctx, s, j, true, &mut emit);
+        let has_far = bb_row(ctx, t, s, j, &mut f_far)?;
+        let has_bb = has_near || has_far;
+        if has_bb {
+            for i in 0..k {
+                row[i] = 0.5 * dt * (f_near[i] + f_far[i]);
+                acc[i] += row[i];
+            }
+        }
+        for &(lo, hi, h0, h1) in &emit {
+            xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
+        }
+        // Half of the segment's own depth, then the correction, then the other half.
+        for &(lo, hi, h0, h1) in &absorb {
+            tau.add_trapezoid(lo, hi, 0.5 * h0, 0.5 * h1)
+                .map_err(spectrum_err)?;
+        }
+        if !tau.is_empty() && (has_bb || !emit.is_empty()) {
+            tau_pieces.clear();
+            tau_pieces.extend(tau.pieces());
+            line_pieces.clear();
+            if !emit.is_empty() {
+                let mut lines_pwl = PiecewiseLinear::new();
+                for &(lo, hi, h0, h1) in &emit {
+                    lines_pwl
+                        .add_trapezoid(lo, hi, h0, h1)
+                        .map_err(spectrum_err)?;
+                }
+                line_pieces.extend(lines_pwl.pieces());
+            }
+            taken += absorbed_xyz(
+                t,
+                &tau_pieces,
+                has_bb.then_some(&row[..]),
+                &line_pieces,
+                tol,
+            );
+        }
+        for &(lo, hi, h0, h1) in &absorb {
+            tau.add_trapezoid(lo, hi, 0.5 * h0, 0.5 * h1)
+                .map_err(spectrum_err)?;
+        }
+        if tau.piece_count() > merge_at {
+            merges += 1;
+            let share = 6.0 / (std::f64::consts::PI.powi(2) * f64::from(merges).powi(2));
+            tau = tau.merged(tol * share).map_err(spectrum_err)?;
+            merge_at = (2 * tau.piece_count()).max(64);
+        }
+        // Budget fallback: coarser merges until tau fits (the preview strategy; this breaks
+        // the error bound above and is counted).
+        let mut guard = 0;
+        while tau.piece_count() > st.piece_budget && guard < 40 {
+            budget_scale *= 4.0;
+            tau = tau.merged(tol * budget_scale).map_err(spectrum_err)?;
+            out.fallback = true;
+            guard += 1;
+        }
+        out.max_pieces = out.max_pieces.max(tau.piece_count());
+        std::mem::swap(&mut f_near, &mut f_far);
+        has_near = has_far;
+    }
+    for i in 0..k {
+        xyz += t.hat_xyz[i].scaled(acc[i]);
+    }
+    let a = xyz.to_array();
+    let b = taken.to_array();
+    out.xyz = Xyz::from_array([
+        (a[0] - b[0]).max(0.0),
+        (a[1] - b[1]).max(0.0),
+        (a[2] - b[2]).max(0.0),
+    ]);
     Ok(out)
 }
