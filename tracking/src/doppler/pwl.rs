@@ -10,8 +10,26 @@ use crate::{Error, Result};
 pub(crate) struct PwlTables {
     lambdas: Vec<f64>,
     hat_xyz: Vec<Xyz>,
-    /// Spacing of the CMF table, nm.
+    /// The CMF table (CIE 1931 2 degree): first wavelength, spacing (nm) and samples.
+    cmf_lo: f64,
     cmf_step: f64,
+    cmf: Vec<[f64; 3]>,
+}
+
+impl PwlTables {
+    /// The piecewise-linear CMFs at `x` (inside the table's range).
+    #[inline]
+    fn cmf_at(&self, x: f64) -> [f64; 3] {
+        let u = ((x - self.cmf_lo) / self.cmf_step).max(0.0);
+        let i = (u as usize).min(self.cmf.len() - 2);
+        let f = u - i as f64;
+        let (a, b) = (self.cmf[i], self.cmf[i + 1]);
+        [
+            a[0] + (b[0] - a[0]) * f,
+            a[1] + (b[1] - a[1]) * f,
+            a[2] + (b[2] - a[2]) * f,
+        ]
+    }
 }
 
 impl PwlTables {
@@ -35,11 +53,14 @@ impl PwlTables {
             })
             .collect();
         let (c_lo, c_hi) = cmf.range_nm();
-        let cmf_step = (c_hi - c_lo) / (cmf.samples().count().max(2) - 1) as f64;
+        let table: Vec<[f64; 3]> = cmf.samples().map(|(_, v)| v).collect();
+        let cmf_step = (c_hi - c_lo) / (table.len().max(2) - 1) as f64;
         Self {
             lambdas,
             hat_xyz,
+            cmf_lo: c_lo,
             cmf_step,
+            cmf: table,
         }
     }
 }
@@ -312,27 +333,48 @@ fn piece_at(pieces: &[Piece], i: &mut usize, x: f64) -> Option<Piece> {
     pieces.get(*i).copied().filter(|p| p.start_nm <= x)
 }
 
+/// `[int_0^h x^n exp(-s x) dx for n = 0, 1, 2]` (`s` may be 0 or negative), by recurrence,
+/// or by its series where `|s h|` is small (the recurrence cancels there).
+#[inline]
+fn exp_moments(s: f64, h: f64) -> [f64; 3] {
+    let z = s * h;
+    if z.abs() < 0.05 {
+        // sum_k (-z)^k / k! h^(n+1) / (n + k + 1); 8 terms: error < 0.05^8 / 8! ~ 1e-15.
+        let mut m = [0.0; 3];
+        let mut term = 1.0;
+        for k in 0..8 {
+            for (n, v) in m.iter_mut().enumerate() {
+                *v += term / (n + k + 1) as f64;
+            }
+            term *= -z / (k + 1) as f64;
+        }
+        [m[0] * h, m[1] * h * h, m[2] * h * h * h]
+    } else {
+        let e = (-z).exp();
+        let i0 = (1.0 - e) / s;
+        let i1 = (i0 - h * e) / s;
+        let i2 = (2.0 * i1 - h * h * e) / s;
+        [i0, i1, i2]
+    }
+}
+
 /// What the optical depth in front, `tau`, takes from a segment's emission (black body on
 /// the uniform grid `t.lambdas` with values `bb`, lines `lines`):
 /// `integral E(lambda) (1 - exp(-tau(lambda))) cmf(lambda) d lambda`, over `tau`'s support.
 ///
 /// The support is cut at every breakpoint of `E`, of `tau` and of the (piecewise-linear)
-/// CMFs, and further so that `tau` changes by at most `sqrt(8 chord_tol exp(tau_min))` on a
-/// sub-interval; there `1 - exp(-tau)` is replaced by its chord, which is within `chord_tol`
-/// of it (the second-derivative bound `d^2 exp(-tau_min) / 8` for a change `d`). With `E`,
-/// the chord and the CMFs all linear on a sub-interval, their cubic product is integrated
-/// exactly by Simpson's rule. The error of the result is thus at most `chord_tol` times the
-/// XYZ of `E` over the support.
+/// CMFs. On each sub-interval `E` and the CMFs are linear, so their product is a quadratic,
+/// and `tau` is linear, so `exp(-tau)` is an exponential of the wavelength: the integral
+/// has a closed form (the moments of [`exp_moments`]), exact up to rounding.
 fn absorbed_xyz(
     t: &PwlTables,
-    tau: &[Piece],
+    tau: impl Iterator<Item = Piece>,
     bb: Option<&[f64]>,
     lines: &[Piece],
-    chord_tol: f64,
 ) -> Xyz {
-    let cmf = Cmf::cie1931_2deg();
-    let (c_lo, c_hi) = cmf.range_nm();
+    let c_lo = t.cmf_lo;
     let c_step = t.cmf_step;
+    let c_hi = c_lo + c_step * (t.cmf.len() - 1) as f64;
     let mut out = [0.0f64; 3];
     let k = t.lambdas.len();
     let (g0, g1) = (t.lambdas[0], t.lambdas[k - 1]);
@@ -341,7 +383,7 @@ fn absorbed_xyz(
         match bb {
             Some(v) if x >= g0 && x <= g1 => {
                 let u = (x - g0) / gstep;
-                let i = (u.floor() as usize).min(k - 2);
+                let i = (u as usize).min(k - 2);
                 let f = u - i as f64;
                 v[i] + (v[i + 1] - v[i]) * f
             }
@@ -358,20 +400,13 @@ fn absorbed_xyz(
             continue;
         }
         let slope = (p.value_end - p.value_start) / (p.end_nm - p.start_nm);
-        let tmin = p.value_start.min(p.value_end).max(0.0);
-        let allowed = (8.0 * chord_tol * tmin.min(700.0).exp()).sqrt();
-        let max_len = if (slope * (hi - lo)).abs() <= allowed {
-            f64::INFINITY
-        } else {
-            allowed / slope.abs()
-        };
         let mut u = lo;
-        let mut a_u = -(-p.at(u).max(0.0)).exp_m1();
-        let mut c_u = cmf.eval(u);
+        let mut c_u = t.cmf_at(u);
+        let mut trans_u = (-p.at(u).max(0.0)).exp();
         while u < hi {
-            let mut w = hi.min(u + max_len);
+            let mut w = hi;
             // The next CMF node, black-body grid point and line break.
-            let node = c_lo + (((u - c_lo) / c_step).floor() + 1.0) * c_step;
+            let node = c_lo + (((u - c_lo) / c_step) as usize + 1) as f64 * c_step;
             if node > u {
                 w = w.min(node);
             }
@@ -379,7 +414,7 @@ fn absorbed_xyz(
                 if u < g0 {
                     w = w.min(g0);
                 } else if u < g1 {
-                    let next = g0 + (((u - g0) / gstep).floor() + 1.0) * gstep;
+                    let next = g0 + (((u - g0) / gstep) as usize + 1) as f64 * gstep;
                     if next > u {
                         w = w.min(next);
                     }
@@ -403,22 +438,30 @@ fn absorbed_xyz(
                     break;
                 }
             }
-            let a_w = -(-p.at(w).max(0.0)).exp_m1();
-            let c_w = cmf.eval(w);
+            let h = w - u;
+            let c_w = t.cmf_at(w);
             let e_u = bb_at(u) + line.map_or(0.0, |q| q.at(u));
             let e_w = bb_at(w) + line.map_or(0.0, |q| q.at(w));
+            let trans_w;
             if e_u > 0.0 || e_w > 0.0 {
-                let (f_u, f_w) = (e_u * a_u, e_w * a_w);
-                let f_m = 0.25 * (e_u + e_w) * (a_u + a_w);
-                let h6 = (w - u) / 6.0;
+                // tau(u + x) = tau(u) + slope x, clamped at 0 only where the piece is 0
+                // throughout (the pieces are non-negative, so the clamp never binds here).
+                let m = exp_moments(slope, h);
+                trans_w = trans_u * (-slope * h).exp();
+                let de = (e_w - e_u) / h;
                 for c in 0..3 {
-                    let c_m = 0.5 * (c_u[c] + c_w[c]);
-                    out[c] += h6 * (f_u * c_u[c] + 4.0 * f_m * c_m + f_w * c_w[c]);
+                    let dc = (c_w[c] - c_u[c]) / h;
+                    let (q0, q1, q2) = (e_u * c_u[c], e_u * dc + de * c_u[c], de * dc);
+                    // integral of E C minus integral of E C exp(-tau).
+                    let full = q0 * h + q1 * h * h / 2.0 + q2 * h * h * h / 3.0;
+                    out[c] += full - trans_u * (q0 * m[0] + q1 * m[1] + q2 * m[2]);
                 }
+            } else {
+                trans_w = (-p.at(w).max(0.0)).exp();
             }
             u = w;
-            a_u = a_w;
             c_u = c_w;
+            trans_u = trans_w;
         }
     }
     Xyz::from_array(out)
@@ -433,17 +476,18 @@ fn absorbed_xyz(
 /// and of the banded integrator), so its XYZ is the closed-form XYZ of `E` minus
 /// [`absorbed_xyz`] over `tau`'s support.
 ///
-/// Error bound (`tol = merge_tolerance`, floored at 1e-6): merges of `tau_front` use the
-/// tolerances `tol 6 / (pi^2 k^2)` for the `k`-th merge, so the optical depth is off by at
-/// most `tol` anywhere and the transmittance by at most `tol`; the chord of the absorption
-/// adds at most `tol`; so every XYZ channel is within `2 tol` x the channel of the
-/// unattenuated emission (for the whole ray, not per segment).
+/// Error bound (`tol = merge_tolerance`): the correction itself is exact (closed form per
+/// sub-interval); merges of `tau_front` use the tolerances `tol 6 / (pi^2 k^2)` for the
+/// `k`-th merge, so the optical depth is off by at most `tol` anywhere (the series sums to
+/// `tol`) and the transmittance by at most `tol`; so every XYZ channel is within `tol` x the
+/// same channel of the unattenuated emission, for the whole ray (not per segment). Only the
+/// piece-budget fallback (counted) can break this bound.
 fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<RayOut> {
     let st = ctx.settings;
     let cmf = Cmf::cie1931_2deg();
     let n = s.len();
     let k = t.lambdas.len();
-    let tol = st.merge_tolerance.max(1e-6);
+    let tol = st.merge_tolerance;
     let mut out = RayOut::default();
     let mut acc = vec![0.0; k];
     let mut row = vec![0.0; k];
@@ -451,7 +495,6 @@ fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<Ray
     let mut f_far = vec![0.0; k];
     let mut has_near = bb_row(ctx, t, s, n - 1, &mut f_near)?;
     let mut tau = PiecewiseLinear::new();
-    let mut tau_pieces: Vec<Piece> = Vec::new();
     let mut line_pieces: Vec<Piece> = Vec::new();
     let mut emit = Vec::new();
     let mut absorb = Vec::new();
@@ -481,8 +524,6 @@ fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<Ray
                 .map_err(spectrum_err)?;
         }
         if !tau.is_empty() && (has_bb || !emit.is_empty()) {
-            tau_pieces.clear();
-            tau_pieces.extend(tau.pieces());
             line_pieces.clear();
             if !emit.is_empty() {
                 let mut lines_pwl = PiecewiseLinear::new();
@@ -495,10 +536,9 @@ fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<Ray
             }
             taken += absorbed_xyz(
                 t,
-                &tau_pieces,
+                tau.pieces(),
                 has_bb.then_some(&row[..]),
                 &line_pieces,
-                tol,
             );
         }
         for &(lo, hi, h0, h1) in &absorb {
