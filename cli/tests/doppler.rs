@@ -173,7 +173,9 @@ fn demo_figure_has_images_marks_and_spectra_under_them() {
     let (top, bottom) = (36, 36 + 128 + 10);
     assert_eq!(fig.height(), bottom + 420);
     // Both images hold the rendered galaxy: the side-by-side PNG's pixels, enlarged.
-    let sbs = image::open(demo.join("side_by_side.png")).unwrap().to_rgb8();
+    let sbs = image::open(demo.join("side_by_side.png"))
+        .unwrap()
+        .to_rgb8();
     let (lx, rx) = (450 - 5 - 128, 455);
     for (x0, off) in [(lx, 0u32), (rx, 32)] {
         let (sx, sy) = (3u32, 3u32);
@@ -206,8 +208,22 @@ fn trace_writes_small_multiples_matching_the_pick() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("g.exr");
     let o = blueshift(&[
-        "doppler", "--synth", "shell", "--res", "16", "--width", "16", "--height", "16",
-        "--velocity-factor", "10", "--pick", "4,8", "--trace", "4,8", "--out",
+        "doppler",
+        "--synth",
+        "shell",
+        "--res",
+        "16",
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--velocity-factor",
+        "10",
+        "--pick",
+        "4,8",
+        "--trace",
+        "4,8",
+        "--out",
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -240,7 +256,10 @@ fn trace_writes_small_multiples_matching_the_pick() {
     for r in rows.iter().filter(|r| r[0] as usize == steps - 1) {
         let (l, v) = (r[3], r[4]);
         let p = pick.iter().find(|p| (p.0 - l).abs() < 1e-9).unwrap().1;
-        assert!((p - v).abs() <= 1e-9 * p.abs().max(1e-30), "{l}: {p} vs {v}");
+        assert!(
+            (p - v).abs() <= 1e-9 * p.abs().max(1e-30),
+            "{l}: {p} vs {v}"
+        );
         compared += 1;
     }
     assert!(compared > 100);
@@ -252,8 +271,21 @@ fn tonemap_operators_compress_what_the_clamp_saturates() {
     let saturated = |tonemap: &str, exposure: &str| -> (usize, usize) {
         let out = dir.path().join(format!("t_{tonemap}.exr"));
         let o = blueshift(&[
-            "doppler", "--synth", "galaxy", "--res", "16", "--width", "24", "--height", "24",
-            "--exposure", exposure, "--tonemap", tonemap, "--out", out.to_str().unwrap(),
+            "doppler",
+            "--synth",
+            "galaxy",
+            "--res",
+            "16",
+            "--width",
+            "24",
+            "--height",
+            "24",
+            "--exposure",
+            exposure,
+            "--tonemap",
+            tonemap,
+            "--out",
+            out.to_str().unwrap(),
         ]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let png = image::open(out.with_extension("png")).unwrap().to_rgb8();
@@ -271,11 +303,29 @@ fn tonemap_operators_compress_what_the_clamp_saturates() {
     // Per-pixel luminance (Fig. 4a) works too; bad names are refused without output.
     let (_, lit_pp) = saturated("none", "per-pixel");
     assert!(lit_pp > 0);
-    for (tm, ex) in [("gamma", "p99"), ("none", "p101"), ("none", "-1"), ("none", "bright")] {
+    for (tm, ex) in [
+        ("gamma", "p99"),
+        ("none", "p101"),
+        ("none", "-1"),
+        ("none", "bright"),
+    ] {
         let out = dir.path().join("bad.exr");
         let o = blueshift(&[
-            "doppler", "--synth", "shell", "--res", "8", "--width", "8", "--height", "8",
-            "--tonemap", tm, "--exposure", ex, "--out", out.to_str().unwrap(),
+            "doppler",
+            "--synth",
+            "shell",
+            "--res",
+            "8",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--tonemap",
+            tm,
+            "--exposure",
+            ex,
+            "--out",
+            out.to_str().unwrap(),
         ]);
         assert_eq!(o.status.code(), Some(1), "{tm} {ex}");
         assert!(!out.exists() && !out.with_extension("png").exists());

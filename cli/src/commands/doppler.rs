@@ -233,7 +233,11 @@ fn display_rgb8(
         .into_raw()
         .into_iter()
         .map(|v| {
-            let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+            let v = if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
             (blueshift_tonemap::io::srgb_encode(v) * 255.0).round() as u8
         })
         .collect())
@@ -322,7 +326,12 @@ pub fn run(args: Args) -> Result<()> {
     let secs = start.elapsed().as_secs_f64();
     write_exr(&args.out, &img)?;
     let png = args.out.with_extension("png");
-    write_png(&png, img.width, img.height, display_rgb8(&disp, op.as_ref(), &img)?)?;
+    write_png(
+        &png,
+        img.width,
+        img.height,
+        display_rgb8(&disp, op.as_ref(), &img)?,
+    )?;
     let mut series = Vec::new();
     for (i, &(x, y)) in args.pick.iter().enumerate() {
         let s = pixel_spectrum(&scene, &st, x, y)?;
@@ -402,7 +411,11 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
     if !(8..=2048).contains(&size) {
         bail!("--size {size} must be 8..=2048");
     }
-    let picks = [(size / 4, size / 2), (size / 2, size / 2), (3 * size / 4, size / 2)];
+    let picks = [
+        (size / 4, size / 2),
+        (size / 2, size / 2),
+        (3 * size / 4, size / 2),
+    ];
     let mut demo_picks: Vec<DemoPick> = picks
         .iter()
         .map(|&xy| DemoPick {
@@ -526,10 +539,7 @@ fn trace_panels(
         let panels = root.split_evenly((rows, cols));
         for ((area, &i), pts) in panels.iter().zip(&pick).zip(&curves) {
             let mut chart = ChartBuilder::on(area)
-                .caption(
-                    format!("step {i}, depth t = {:.3}", steps[i].t),
-                    (FONT, 14),
-                )
+                .caption(format!("step {i}, depth t = {:.3}", steps[i].t), (FONT, 14))
                 .margin(6)
                 .x_label_area_size(28)
                 .y_label_area_size(52)
@@ -620,10 +630,10 @@ fn demo_figure(path: &Path, size: u32, on: &[u8], off: &[u8], picks: &[DemoPick]
                 y1 = y1.max(y);
             }
         }
-        if !(x0 < x1) {
+        if x0.partial_cmp(&x1) != Some(std::cmp::Ordering::Less) {
             bail!("demo: no spectrum to plot");
         }
-        if !(y1 > 0.0) {
+        if y1.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             y1 = 1.0;
         }
         let mut chart = ChartBuilder::on(&plot)
@@ -644,7 +654,10 @@ fn demo_figure(path: &Path, size: u32, on: &[u8], off: &[u8], picks: &[DemoPick]
         for (k, p) in picks.iter().enumerate() {
             let c = COLOURS[k % COLOURS.len()];
             chart
-                .draw_series(LineSeries::new(p.off.iter().copied(), c.mix(0.6).stroke_width(1)))
+                .draw_series(LineSeries::new(
+                    p.off.iter().copied(),
+                    c.mix(0.6).stroke_width(1),
+                ))
                 .map_err(plot_err)?;
             chart
                 .draw_series(LineSeries::new(p.on.iter().copied(), c.stroke_width(2)))

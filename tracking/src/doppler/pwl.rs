@@ -424,10 +424,8 @@ fn absorbed_xyz(
             match line {
                 Some(q) => w = w.min(q.end_nm),
                 None => {
-                    if let Some(q) = lines.get(li) {
-                        if q.start_nm > u {
-                            w = w.min(q.start_nm);
-                        }
+                    if let Some(q) = lines.get(li).filter(|q| q.start_nm > u) {
+                        w = w.min(q.start_nm);
                     }
                 }
             }
@@ -534,12 +532,7 @@ fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<Ray
                 }
                 line_pieces.extend(lines_pwl.pieces());
             }
-            taken += absorbed_xyz(
-                t,
-                tau.pieces(),
-                has_bb.then_some(&row[..]),
-                &line_pieces,
-            );
+            taken += absorbed_xyz(t, tau.pieces(), has_bb.then_some(&row[..]), &line_pieces);
         }
         for &(lo, hi, h0, h1) in &absorb {
             tau.add_trapezoid(lo, hi, 0.5 * h0, 0.5 * h1)

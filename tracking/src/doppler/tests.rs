@@ -238,7 +238,10 @@ fn constant_medium_follows_beer_lambert_on_both_paths() {
     let (_, spec) = ray_spectrum(&scene, &st, &ray).unwrap();
     for l in [499.6, 500.0, 500.4] {
         let got = spec.eval(l);
-        assert!((got - discrete).abs() <= 1e-4 * discrete, "{l}: {got} vs {discrete}");
+        assert!(
+            (got - discrete).abs() <= 1e-4 * discrete,
+            "{l}: {got} vs {discrete}"
+        );
     }
     // Front to back (image path): the XYZ of that box, within the stated 2 tol bound.
     let img = render_doppler(&scene, &st, &|| {}).unwrap();
@@ -262,7 +265,10 @@ fn constant_medium_follows_beer_lambert_on_both_paths() {
     };
     let (bx, _) = ray_spectrum(&scene, &st, &ray).unwrap();
     let bx = bx.to_array();
-    assert!((bx[1] - want[1]).abs() <= 0.01 * want[1], "{bx:?} vs {want:?}");
+    assert!(
+        (bx[1] - want[1]).abs() <= 0.01 * want[1],
+        "{bx:?} vs {want:?}"
+    );
 }
 
 #[test]
