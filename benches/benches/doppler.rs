@@ -170,10 +170,11 @@ fn fig13() {
             curves.push(Curve {
                 label: format!("{label} {sname} N={ns:?}"),
                 points: pts,
-                rgb: if shift == BandShift::Nearest {
-                    (200, 40, 40)
-                } else {
-                    (40, 40, 200)
+                rgb: match (shift == BandShift::Nearest, absorption > 0.0) {
+                    (true, false) => (240, 130, 130),
+                    (true, true) => (200, 40, 40),
+                    (false, false) => (130, 130, 240),
+                    (false, true) => (40, 40, 200),
                 },
             });
         }
@@ -184,15 +185,25 @@ fn fig13() {
         curves.push(Curve {
             label: format!("{label} pwl (tol 1e-2/1e-3/1e-4 with absorption)"),
             points: pwl_pts,
-            rgb: (20, 150, 20),
+            rgb: if absorption > 0.0 {
+                (20, 150, 20)
+            } else {
+                (120, 200, 60)
+            },
         });
     }
     std::fs::write(out_dir().join("doppler_fig13.csv"), csv).expect("write");
+    // Log-log, as the errors and times span decades.
+    for c in &mut curves {
+        for p in &mut c.points {
+            *p = (p.0.max(1e-6).log10(), p.1.max(1e-12).log10());
+        }
+    }
     let _ = line_plot(
         &out_dir().join("doppler_fig13.png"),
-        "Fig. 13: XYZ error against time (1 thread)",
-        "seconds",
-        "mean relative XYZ error",
+        "Fig. 13: XYZ error against time (1 thread), log-log",
+        "log10 seconds",
+        "log10 mean relative XYZ error",
         &curves,
     );
 }

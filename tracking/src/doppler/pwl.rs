@@ -440,22 +440,30 @@ fn absorbed_xyz(
             let c_w = t.cmf_at(w);
             let e_u = bb_at(u) + line.map_or(0.0, |q| q.at(u));
             let e_w = bb_at(w) + line.map_or(0.0, |q| q.at(w));
-            let trans_w;
+            let trans_w = (-p.at(w).max(0.0)).exp();
             if e_u > 0.0 || e_w > 0.0 {
-                // tau(u + x) = tau(u) + slope x, clamped at 0 only where the piece is 0
-                // throughout (the pieces are non-negative, so the clamp never binds here).
-                let m = exp_moments(slope, h);
-                trans_w = trans_u * (-slope * h).exp();
+                // tau(u + x) = tau(u) + slope x. The exponential is taken from the end where
+                // tau is smaller (exp(-tau) there, decaying from it), so nothing overflows.
                 let de = (e_w - e_u) / h;
+                let (base, m, flip) = if slope >= 0.0 {
+                    (trans_u, exp_moments(slope, h), false)
+                } else {
+                    (trans_w, exp_moments(-slope, h), true)
+                };
                 for c in 0..3 {
                     let dc = (c_w[c] - c_u[c]) / h;
+                    // E C = q0 + q1 x + q2 x^2 in x = lambda - u.
                     let (q0, q1, q2) = (e_u * c_u[c], e_u * dc + de * c_u[c], de * dc);
-                    // integral of E C minus integral of E C exp(-tau).
                     let full = q0 * h + q1 * h * h / 2.0 + q2 * h * h * h / 3.0;
-                    out[c] += full - trans_u * (q0 * m[0] + q1 * m[1] + q2 * m[2]);
+                    // From the right end (y = h - x) when tau decreases.
+                    let (r0, r1, r2) = if flip {
+                        (q0 + q1 * h + q2 * h * h, -q1 - 2.0 * q2 * h, q2)
+                    } else {
+                        (q0, q1, q2)
+                    };
+                    // integral of E C minus integral of E C exp(-tau).
+                    out[c] += full - base * (r0 * m[0] + r1 * m[1] + r2 * m[2]);
                 }
-            } else {
-                trans_w = (-p.at(w).max(0.0)).exp();
             }
             u = w;
             c_u = c_w;

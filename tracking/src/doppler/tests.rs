@@ -319,3 +319,40 @@ fn front_to_back_xyz_equals_the_kept_spectrum_xyz() {
     }
     assert!(checked >= 4 && absorbed >= 2, "{checked} {absorbed}");
 }
+
+#[test]
+fn optically_thick_medium_stays_finite_and_dark() {
+    // Optical depth 100 per segment, 3000 along the ray: exp(+tau) would overflow.
+    let scene = slab(2.0, 200.0);
+    let st = DopplerSettings::default_for(&scene, 2, 2);
+    let img = render_doppler(&scene, &st, &|| {}).unwrap();
+    let cmf = blueshift_spectrum::Cmf::cie1931_2deg();
+    // Only the nearest half segment shines: e dt exp(-k dt / 2) ~ 2e-22 of the box.
+    let clear = cmf
+        .trapezoid_xyz(499.5, 500.5, 2.0 * 15.0, 2.0 * 15.0)
+        .to_array();
+    for px in &img.xyz {
+        for c in 0..3 {
+            assert!(
+                px[c].is_finite() && px[c] >= 0.0 && px[c] <= 1e-12 * clear[c],
+                "{px:?}"
+            );
+        }
+    }
+    // Moving gas with depths in the thousands, rising and falling across the lines.
+    let v = synth::galaxy(16, 5).unwrap();
+    let mut g = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
+    g.factors.velocity = 30.0;
+    let st = DopplerSettings::default_for(&g, 8, 8);
+    let clear = render_doppler(&g, &st, &|| {}).unwrap();
+    g.factors.absorption = 1e5;
+    let thick = render_doppler(&g, &st, &|| {}).unwrap();
+    let mut darker = 0;
+    for (a, c) in thick.xyz.iter().zip(&clear.xyz) {
+        for k in 0..3 {
+            assert!(a[k].is_finite() && a[k] >= 0.0 && a[k] <= c[k] * (1.0 + 1e-9), "{a:?}");
+        }
+        darker += usize::from(a[1] < 0.9 * c[1]);
+    }
+    assert!(darker > 0);
+}
