@@ -350,7 +350,10 @@ fn optically_thick_medium_stays_finite_and_dark() {
     let mut darker = 0;
     for (a, c) in thick.xyz.iter().zip(&clear.xyz) {
         for k in 0..3 {
-            assert!(a[k].is_finite() && a[k] >= 0.0 && a[k] <= c[k] * (1.0 + 1e-9), "{a:?}");
+            assert!(
+                a[k].is_finite() && a[k] >= 0.0 && a[k] <= c[k] * (1.0 + 1e-9),
+                "{a:?}"
+            );
         }
         darker += usize::from(a[1] < 0.9 * c[1]);
     }
