@@ -1,7 +1,8 @@
 //! Doppler paper reproductions on the CPU: Table 1 (render time per configuration, with and
 //! without Doppler), Fig. 13 (piecewise-linear against banded N = 40, 400, 4000: time and XYZ
 //! error against a converged reference) and Fig. 18 (merge tolerance against piece count,
-//! time and error). Tables go to `target/blueshift-benches/doppler_*.csv` (single-threaded
+//! time and error; with absorption the image path keeps only the optical depth in front,
+//! so the pieces counted are those of `tau_front`). Tables go to `target/blueshift-benches/doppler_*.csv` (single-threaded
 //! timings, ratios against a baseline of the same run), Fig. 13 and 18 also as PNG plots.
 
 use std::fmt::Write as _;
@@ -110,6 +111,8 @@ fn fig13() {
         let s = scene(&galaxy, &["bb", "H", "C"], 30.0, absorption);
         let mut st = DopplerSettings::default_for(&s, size, size);
         inclined(&s, &mut st);
+        // Reference: 1601 black-body samples, merge tolerance 0 (with absorption: the
+        // front-to-back path at its floor tolerance 1e-6, i.e. XYZ within 2e-6).
         let mut reference = st.clone();
         reference.blackbody_samples = 1601;
         reference.merge_tolerance = 0.0;
@@ -122,12 +125,37 @@ fn fig13() {
             "{label},pwl,0,{t_pwl:.4},{e_pwl:.3e},1,{:.1},{}",
             pwl.pieces.mean, pwl.pieces.max
         );
+        let mut pwl_pts = vec![(t_pwl, e_pwl)];
+        if absorption > 0.0 {
+            // The merge tolerance trade (the default is 1e-4).
+            for tol in [1e-3, 1e-2] {
+                let mut p = st.clone();
+                p.merge_tolerance = tol;
+                let (t, img) = timed(&s, &p);
+                let e = xyz_error(&img, &r);
+                pwl_pts.push((t, e));
+                let _ = writeln!(
+                    csv,
+                    "{label},pwl-tol-{tol:e},0,{t:.4},{e:.3e},{:.2},{:.1},{}",
+                    t / t_pwl,
+                    img.pieces.mean,
+                    img.pieces.max
+                );
+            }
+        }
         for (shift, sname) in [
             (BandShift::Nearest, "banded"),
             (BandShift::EnergyConserving, "banded-ec"),
         ] {
             let mut pts = Vec::new();
-            for n in [40usize, 400, 4000] {
+            // With absorption also N = 40,000 (energy-conserving): the accuracy the
+            // piecewise-linear integrator reaches, measured rather than extrapolated.
+            let ns: &[usize] = if absorption > 0.0 && shift == BandShift::EnergyConserving {
+                &[40, 400, 4000, 40000]
+            } else {
+                &[40, 400, 4000]
+            };
+            for &n in ns {
                 let mut b = st.clone();
                 b.integrator = SpectralIntegrator::Banded { bands: n, shift };
                 let (t, img) = timed(&s, &b);
@@ -140,27 +168,43 @@ fn fig13() {
                 );
             }
             curves.push(Curve {
-                label: format!("{label} {sname} N=40/400/4000"),
+                label: format!("{label} {sname} N={ns:?}"),
                 points: pts,
-                rgb: if shift == BandShift::Nearest {
-                    (200, 40, 40)
-                } else {
-                    (40, 40, 200)
+                rgb: match (shift == BandShift::Nearest, absorption > 0.0) {
+                    (true, false) => (240, 130, 130),
+                    (true, true) => (200, 40, 40),
+                    (false, false) => (130, 130, 240),
+                    (false, true) => (40, 40, 200),
                 },
             });
         }
+        if pwl_pts.len() == 1 {
+            pwl_pts.push((t_pwl * 1.15, e_pwl));
+        }
+        pwl_pts.sort_by(|a, b| a.0.total_cmp(&b.0));
         curves.push(Curve {
-            label: format!("{label} pwl"),
-            points: vec![(t_pwl, e_pwl), (t_pwl * 1.001, e_pwl)],
-            rgb: (20, 150, 20),
+            label: format!("{label} pwl (tol 1e-2/1e-3/1e-4 with absorption)"),
+            points: pwl_pts,
+            rgb: if absorption > 0.0 {
+                (20, 150, 20)
+            } else {
+                (120, 200, 60)
+            },
         });
     }
     std::fs::write(out_dir().join("doppler_fig13.csv"), csv).expect("write");
+    // Log-log, as the errors and times span decades: digits of accuracy (-log10 error,
+    // higher is better) against log10 seconds.
+    for c in &mut curves {
+        for p in &mut c.points {
+            *p = (p.0.max(1e-6).log10(), -p.1.max(1e-12).log10());
+        }
+    }
     let _ = line_plot(
         &out_dir().join("doppler_fig13.png"),
-        "Fig. 13: XYZ error against time (1 thread)",
-        "seconds",
-        "mean relative XYZ error",
+        "Fig. 13: accuracy against time (1 thread)",
+        "log10 seconds",
+        "-log10 mean relative XYZ error",
         &curves,
     );
 }
@@ -190,7 +234,7 @@ fn fig18() {
     std::fs::write(out_dir().join("doppler_fig18.csv"), csv).expect("write");
     let _ = line_plot(
         &out_dir().join("doppler_fig18.png"),
-        "Fig. 18: merge tolerance, error against mean pieces per ray",
+        "Fig. 18: merge tolerance, error against mean optical-depth pieces per ray",
         "mean pieces per ray",
         "mean relative XYZ error",
         &[Curve {
@@ -219,14 +263,31 @@ fn bench(c: &mut Criterion) {
     g.bench_function("banded_4000", |b| {
         b.iter(|| render_doppler(&s, &b4, &|| {}).expect("r"));
     });
+    let mut sa = s.clone();
+    sa.factors.absorption = 5.0;
+    g.bench_function("pwl_absorption", |b| {
+        b.iter(|| render_doppler(&sa, &st, &|| {}).expect("r"));
+    });
+    g.bench_function("banded_4000_absorption", |b| {
+        b.iter(|| render_doppler(&sa, &b4, &|| {}).expect("r"));
+    });
     g.finish();
 }
 
 fn main() {
     if std::env::var_os("BLUESHIFT_SKIP_TABLES").is_none() {
-        table1();
-        fig13();
-        fig18();
+        // BLUESHIFT_DOPPLER_TABLES=fig13,fig18 runs only the named ones (default: all).
+        let only = std::env::var("BLUESHIFT_DOPPLER_TABLES").unwrap_or_default();
+        let run = |name: &str| only.is_empty() || only.split(',').any(|x| x.trim() == name);
+        if run("table1") {
+            table1();
+        }
+        if run("fig13") {
+            fig13();
+        }
+        if run("fig18") {
+            fig18();
+        }
     }
     let mut c = Criterion::default().configure_from_args();
     bench(&mut c);

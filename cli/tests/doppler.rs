@@ -139,7 +139,197 @@ fn banded_and_pwl_agree_and_demo_writes_its_files() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let img = image::open(demo.join("side_by_side.png")).unwrap();
     assert_eq!((img.width(), img.height()), (48, 24));
-    assert!(demo.join("spectra.png").exists());
+    assert!(demo.join("spectra.png").exists() && demo.join("demo.png").exists());
+}
+
+/// Pixels of exactly `rgb` inside the rectangle `[x0, x1) x [y0, y1)`.
+fn count_colour(img: &image::RgbImage, rgb: [u8; 3], x0: u32, x1: u32, y0: u32, y1: u32) -> usize {
+    let mut n = 0;
+    for y in y0..y1.min(img.height()) {
+        for x in x0..x1.min(img.width()) {
+            n += usize::from(img.get_pixel(x, y).0 == rgb);
+        }
+    }
+    n
+}
+
+#[test]
+fn demo_figure_has_images_marks_and_spectra_under_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let demo = dir.path().join("demo");
+    let o = blueshift(&[
+        "demo",
+        demo.to_str().unwrap(),
+        "--size",
+        "32",
+        "--res",
+        "16",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fig = image::open(demo.join("demo.png")).unwrap().to_rgb8();
+    // Layout: 900 wide; the 32-pixel images are shown 4x (128 pixels) from y = 36, left one
+    // ending 5 pixels left of the centre, right one starting 5 right of it; the plot below.
+    assert_eq!(fig.width(), 900);
+    let (top, bottom) = (36, 36 + 128 + 10);
+    assert_eq!(fig.height(), bottom + 420);
+    // Both images hold the rendered galaxy: the side-by-side PNG's pixels, enlarged.
+    let sbs = image::open(demo.join("side_by_side.png"))
+        .unwrap()
+        .to_rgb8();
+    let (lx, rx) = (450 - 5 - 128, 455);
+    for (x0, off) in [(lx, 0u32), (rx, 32)] {
+        let (sx, sy) = (3u32, 3u32);
+        assert_eq!(
+            fig.get_pixel(x0 + sx * 4 + 1, top + sy * 4 + 1),
+            sbs.get_pixel(off + sx, sy)
+        );
+    }
+    // The picks (8,16), (16,16), (24,16) are ringed in the plot's colours in both images,
+    // and each colour also draws a curve in the plot under the images.
+    let colours = [[31, 119, 180], [214, 39, 40], [44, 160, 44]];
+    for (k, c) in colours.iter().enumerate() {
+        let px = 8 + 8 * k as u32;
+        for x0 in [lx, rx] {
+            let (cx, cy) = (x0 + px * 4 + 2, top + 16 * 4 + 2);
+            assert!(
+                count_colour(&fig, *c, cx - 10, cx + 11, cy - 10, cy + 11) > 10,
+                "no ring of colour {c:?} at pick {k}"
+            );
+        }
+        assert!(
+            count_colour(&fig, *c, 0, 900, bottom, fig.height()) > 100,
+            "no curve of colour {c:?} in the plot"
+        );
+    }
+}
+
+#[test]
+fn trace_writes_small_multiples_matching_the_pick() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("g.exr");
+    let o = blueshift(&[
+        "doppler",
+        "--synth",
+        "shell",
+        "--res",
+        "16",
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--velocity-factor",
+        "10",
+        "--pick",
+        "4,8",
+        "--trace",
+        "4,8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = std::fs::read_to_string(dir.path().join("g_trace_4_8.csv")).unwrap();
+    let rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    let steps = rows.iter().map(|r| r[0] as usize).max().unwrap() + 1;
+    assert!(steps > 12, "{steps} steps");
+    // More than 12 steps: 12 panels in a 4 x 3 grid of 300 x 230 under a 60-pixel title.
+    let png = image::open(dir.path().join("g_trace_4_8.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (1200, 60 + 3 * 230));
+    // Steps run back to front: the depth (distance from the ray's entry on the camera side)
+    // falls to 0 at the last step, which is the picked pixel's final spectrum.
+    let t_of = |s: usize| rows.iter().find(|r| r[0] as usize == s).unwrap()[1];
+    assert!(t_of(0) > t_of(steps / 2) && t_of(steps / 2) > t_of(steps - 1));
+    assert_eq!(t_of(steps - 1), 0.0);
+    let pick = std::fs::read_to_string(dir.path().join("g_pick_4_8.csv")).unwrap();
+    let pick: Vec<(f64, f64)> = pick
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let (a, b) = l.split_once(',').unwrap();
+            (a.parse().unwrap(), b.parse().unwrap())
+        })
+        .collect();
+    let mut compared = 0;
+    for r in rows.iter().filter(|r| r[0] as usize == steps - 1) {
+        let (l, v) = (r[3], r[4]);
+        let p = pick.iter().find(|p| (p.0 - l).abs() < 1e-9).unwrap().1;
+        assert!(
+            (p - v).abs() <= 1e-9 * p.abs().max(1e-30),
+            "{l}: {p} vs {v}"
+        );
+        compared += 1;
+    }
+    assert!(compared > 100);
+}
+
+#[test]
+fn tonemap_operators_compress_what_the_clamp_saturates() {
+    let dir = tempfile::tempdir().unwrap();
+    let saturated = |tonemap: &str, exposure: &str| -> (usize, usize) {
+        let out = dir.path().join(format!("t_{tonemap}.exr"));
+        let o = blueshift(&[
+            "doppler",
+            "--synth",
+            "galaxy",
+            "--res",
+            "16",
+            "--width",
+            "24",
+            "--height",
+            "24",
+            "--exposure",
+            exposure,
+            "--tonemap",
+            tonemap,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let png = image::open(out.with_extension("png")).unwrap().to_rgb8();
+        let full = png.pixels().filter(|p| p.0.contains(&255)).count();
+        let lit = png.pixels().filter(|p| p.0.iter().any(|&c| c > 0)).count();
+        (full, lit)
+    };
+    // p50: half the lit pixels are brighter than Y = 1, so the clamp saturates many.
+    let (clamped, lit) = saturated("none", "p50");
+    assert!(clamped > 10 && lit > clamped);
+    for op in ["reinhard", "drago"] {
+        let (n, _) = saturated(op, "p50");
+        assert!(n < clamped, "{op}: {n} saturated vs {clamped} clamped");
+    }
+    // Per-pixel luminance (Fig. 4a) works too; bad names are refused without output.
+    let (_, lit_pp) = saturated("none", "per-pixel");
+    assert!(lit_pp > 0);
+    for (tm, ex) in [
+        ("gamma", "p99"),
+        ("none", "p101"),
+        ("none", "-1"),
+        ("none", "bright"),
+    ] {
+        let out = dir.path().join("bad.exr");
+        let o = blueshift(&[
+            "doppler",
+            "--synth",
+            "shell",
+            "--res",
+            "8",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--tonemap",
+            tm,
+            "--exposure",
+            ex,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{tm} {ex}");
+        assert!(!out.exists() && !out.with_extension("png").exists());
+    }
 }
 
 /// A scene file of NRRDs written here: constant hydrogen moving away from the camera (+z)

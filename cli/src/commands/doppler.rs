@@ -12,10 +12,10 @@ use blueshift_tracking::doppler::{
     SpectralIntegrator, pixel_spectrum, render_doppler, trace_ray,
 };
 use clap::Parser;
-use plotters::style::RGBColor;
+use plotters::prelude::*;
 
 use crate::output::{write_bytes_atomic, write_via_temp_path};
-use crate::plot::{Series, line_plot};
+use crate::plot::{FONT, Series, line_plot, register_font};
 
 /// Arguments of `blueshift doppler`.
 #[derive(Debug, Parser)]
@@ -93,9 +93,16 @@ pub struct Args {
     /// Display colour matrix: srgb or cie (Eq. 10).
     #[arg(long, default_value = "srgb")]
     pub matrix: String,
-    /// Display exposure: a number multiplies XYZ; default: the 99th percentile of Y maps to 1.
+    /// Display luminance scaling (paper Fig. 4): a number multiplies XYZ (one reference for
+    /// all pixels), `pNN` maps the NN-th percentile of Y to 1 (default p99), `per-pixel`
+    /// divides each pixel by its own Y (chromaticity only).
     #[arg(long)]
-    pub exposure: Option<f64>,
+    pub exposure: Option<String>,
+    /// Tone mapping of the display PNG after the scaling and the colour matrix: `none`
+    /// (clamp to [0, 1]) or a blueshift-tonemap operator with its paper's default
+    /// parameters: linear, drago, reinhard, reinhard-local, durand, fattal.
+    #[arg(long, default_value = "none")]
+    pub tonemap: String,
     /// Output EXR (XYZ); the PNG goes next to it.
     #[arg(long, default_value = "doppler.exr")]
     pub out: PathBuf,
@@ -209,12 +216,77 @@ fn display(args: &Args) -> Result<DisplayOptions> {
             "cie" => ColourMatrix::CieRgbEq10,
             other => bail!("unknown --matrix '{other}' (srgb, cie)"),
         },
-        exposure: match args.exposure {
-            Some(k) if k.is_finite() && k > 0.0 => Exposure::Fixed(k),
-            Some(k) => bail!("--exposure {k} must be finite and > 0"),
+        exposure: match args.exposure.as_deref().map(str::trim) {
             None => Exposure::Percentile(99.0),
+            Some("per-pixel") => Exposure::PerPixel,
+            Some(e) => {
+                if let Some(p) = e.strip_prefix('p') {
+                    match p.parse::<f64>() {
+                        Ok(p) if (0.0..=100.0).contains(&p) => Exposure::Percentile(p),
+                        _ => bail!("--exposure {e}: a percentile pNN needs NN in [0, 100]"),
+                    }
+                } else {
+                    match e.parse::<f64>() {
+                        Ok(k) if k.is_finite() && k > 0.0 => Exposure::Fixed(k),
+                        _ => bail!(
+                            "--exposure {e}: expected a number > 0, pNN (percentile) or per-pixel"
+                        ),
+                    }
+                }
+            }
         },
     })
+}
+
+/// The names `--tonemap` accepts.
+const TONEMAPS: &str = "none, linear, drago, reinhard, reinhard-local, durand, fattal";
+
+/// The tone-mapping operator named by `--tonemap` (`None` for `none`).
+fn tonemap_op(name: &str) -> Result<Option<blueshift_tonemap::Operator>> {
+    use blueshift_tonemap::{
+        DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
+        ReinhardParams,
+    };
+    Ok(match name {
+        "none" | "clamp" => None,
+        "linear" => Some(Operator::Linear(LinearParams::default())),
+        "drago" => Some(Operator::Drago(DragoParams::default())),
+        "reinhard" => Some(Operator::Reinhard(ReinhardParams::default())),
+        "reinhard-local" => Some(Operator::ReinhardLocal(ReinhardLocalParams::default())),
+        "durand" => Some(Operator::Durand(DurandParams::default())),
+        "fattal" => Some(Operator::Fattal(FattalParams::default())),
+        other => bail!("--tonemap {other:?}: expected one of {TONEMAPS}"),
+    })
+}
+
+/// The display image: Fig. 4 scaling and colour matrix, then the tone-mapping operator (or
+/// a clamp), sRGB-encoded to 8 bits.
+fn display_rgb8(
+    disp: &DisplayOptions,
+    op: Option<&blueshift_tonemap::Operator>,
+    img: &DopplerImage,
+) -> Result<Vec<u8>> {
+    let Some(op) = op else {
+        return Ok(disp.to_rgb8(img));
+    };
+    let lin = disp.to_linear_rgb(img);
+    let rgb = image::Rgb32FImage::from_fn(img.width, img.height, |x, y| {
+        let p = lin[(y * img.width + x) as usize];
+        image::Rgb([p[0] as f32, p[1] as f32, p[2] as f32])
+    });
+    let out = op.apply(&rgb).context("--tonemap")?;
+    Ok(out
+        .into_raw()
+        .into_iter()
+        .map(|v| {
+            let v = if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (blueshift_tonemap::io::srgb_encode(v) * 255.0).round() as u8
+        })
+        .collect())
 }
 
 fn render(scene: &DopplerScene, st: &DopplerSettings) -> Result<DopplerImage> {
@@ -311,6 +383,7 @@ const COLOURS: [RGBColor; 6] = [
 pub fn run(args: Args) -> Result<()> {
     let (scene, st) = build(&args)?;
     let disp = display(&args)?;
+    let op = tonemap_op(args.tonemap.trim())?;
     for &(x, y) in args.pick.iter().chain(args.trace.iter()) {
         if x >= st.width || y >= st.height {
             bail!(
@@ -325,7 +398,12 @@ pub fn run(args: Args) -> Result<()> {
     let secs = start.elapsed().as_secs_f64();
     write_exr(&args.out, &img)?;
     let png = args.out.with_extension("png");
-    write_png(&png, img.width, img.height, disp.to_rgb8(&img))?;
+    write_png(
+        &png,
+        img.width,
+        img.height,
+        display_rgb8(&disp, op.as_ref(), &img)?,
+    )?;
     let mut series = Vec::new();
     for (i, &(x, y)) in args.pick.iter().enumerate() {
         let s = pixel_spectrum(&scene, &st, x, y)?;
@@ -361,25 +439,12 @@ pub fn run(args: Args) -> Result<()> {
             &sibling(&args.out, &format!("_trace_{x}_{y}.csv")),
             csv.as_bytes(),
         )?;
-        // Small multiples as overlaid curves: 6 evenly spaced steps.
-        let n = steps.len();
-        if n > 0 {
-            let series: Vec<Series> = (0..6)
-                .map(|k| (k * (n - 1)) / 5)
-                .enumerate()
-                .map(|(c, i)| Series {
-                    label: format!("step {i}"),
-                    points: samples(&steps[i].spectrum, st.range_nm),
-                    colour: COLOURS[c % COLOURS.len()],
-                })
-                .collect();
-            line_plot(
+        if !steps.is_empty() {
+            trace_panels(
                 &sibling(&args.out, &format!("_trace_{x}_{y}.png")),
-                "step-by-step accumulation",
-                "wavelength (nm)",
-                "spectral radiance",
-                &series,
-                (900, 500),
+                &format!("pixel {x},{y}: spectrum after each step (back to front)"),
+                &steps,
+                st.range_nm,
             )?;
         }
     }
@@ -415,7 +480,22 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&args.outdir)
         .with_context(|| format!("cannot create {}", args.outdir.display()))?;
     let size = args.size;
-    let picks = [(size / 4, size / 2), (3 * size / 4, size / 2)];
+    if !(8..=2048).contains(&size) {
+        bail!("--size {size} must be 8..=2048");
+    }
+    let picks = [
+        (size / 4, size / 2),
+        (size / 2, size / 2),
+        (3 * size / 4, size / 2),
+    ];
+    let mut demo_picks: Vec<DemoPick> = picks
+        .iter()
+        .map(|&xy| DemoPick {
+            xy,
+            on: Vec::new(),
+            off: Vec::new(),
+        })
+        .collect();
     let mut base = Args::parse_from(["doppler"]);
     base.res = args.res;
     base.width = size;
@@ -437,10 +517,16 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
                 &args.outdir.join(format!("{label}_pick_{x}_{y}.csv")),
                 spectrum_csv(&s, st.range_nm).as_bytes(),
             )?;
+            let pts = samples(&s, st.range_nm);
+            if vf > 0.0 {
+                demo_picks[i].on = pts.clone();
+            } else {
+                demo_picks[i].off = pts.clone();
+            }
             series.push(Series {
                 label: format!("{label} {x},{y}"),
-                points: samples(&s, st.range_nm),
-                colour: COLOURS[(images.len() * 2 + i) % COLOURS.len()],
+                points: pts,
+                colour: COLOURS[(images.len() * picks.len() + i) % COLOURS.len()],
             });
         }
         images.push(img);
@@ -459,6 +545,7 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
         rgb.extend_from_slice(&b[y * row..(y + 1) * row]);
     }
     write_png(&args.outdir.join("side_by_side.png"), 2 * size, size, rgb)?;
+    demo_figure(&args.outdir.join("demo.png"), size, &a, &b, &demo_picks)?;
     line_plot(
         &args.outdir.join("spectra.png"),
         "galaxy: picked spectra, inclined 60 deg, Doppler on (velocity x30) and off",
@@ -468,9 +555,200 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
         (1000, 500),
     )?;
     println!(
-        "wrote {}/side_by_side.png (left: Doppler on, right: off), spectra.png, EXRs and CSVs in {:.1} s",
+        "wrote {}/demo.png (Doppler on and off with the picked spectra under them), side_by_side.png, spectra.png, EXRs and CSVs in {:.1} s",
         args.outdir.display(),
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// The steps a small-multiples plot shows: at most `max` of `n`, evenly spaced, the last
+/// always included.
+fn panel_steps(n: usize, max: usize) -> Vec<usize> {
+    if n <= max {
+        return (0..n).collect();
+    }
+    let mut v: Vec<usize> = (1..=max).map(|k| (k * n).div_ceil(max) - 1).collect();
+    v.dedup();
+    v
+}
+
+fn plot_err(e: impl std::fmt::Display) -> anyhow::Error {
+    anyhow!("plot: {e}")
+}
+
+/// Small multiples of a traced ray: a grid of panels (at most 12), one per selected step,
+/// each the spectrum after that step, on shared axes; the step index and the depth (path
+/// position of the step's near end) in each panel's title.
+fn trace_panels(
+    path: &Path,
+    title: &str,
+    steps: &[blueshift_tracking::doppler::TraceStep],
+    range: (f64, f64),
+) -> Result<()> {
+    register_font();
+    let pick = panel_steps(steps.len(), 12);
+    let curves: Vec<Vec<(f64, f64)>> = pick
+        .iter()
+        .map(|&i| samples(&steps[i].spectrum, range))
+        .collect();
+    let mut ymax = curves
+        .iter()
+        .flatten()
+        .map(|p| p.1)
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max);
+    if ymax <= 0.0 {
+        ymax = 1.0;
+    }
+    let cols = pick.len().clamp(1, 4);
+    let rows = pick.len().div_ceil(cols).max(1);
+    let size = (300 * cols as u32, 60 + 230 * rows as u32);
+    let mut buf = vec![255u8; (size.0 * size.1 * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+        let root = root.titled(title, (FONT, 20)).map_err(plot_err)?;
+        let panels = root.split_evenly((rows, cols));
+        for ((area, &i), pts) in panels.iter().zip(&pick).zip(&curves) {
+            let mut chart = ChartBuilder::on(area)
+                .caption(format!("step {i}, depth t = {:.3}", steps[i].t), (FONT, 14))
+                .margin(6)
+                .x_label_area_size(28)
+                .y_label_area_size(52)
+                .build_cartesian_2d(range.0..range.1, 0.0..ymax * 1.05)
+                .map_err(plot_err)?;
+            chart
+                .configure_mesh()
+                .x_labels(4)
+                .y_labels(4)
+                .label_style((FONT, 11))
+                .y_label_formatter(&|v| format!("{v:.1e}"))
+                .draw()
+                .map_err(plot_err)?;
+            chart
+                .draw_series(LineSeries::new(
+                    pts.iter().copied(),
+                    COLOURS[0].stroke_width(1),
+                ))
+                .map_err(plot_err)?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    let img = image::RgbImage::from_raw(size.0, size.1, buf).context("plot buffer size")?;
+    write_via_temp_path(path, |p| {
+        img.save_with_format(p, image::ImageFormat::Png)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
+}
+
+/// One picked pixel of the demo: its position and its spectra with Doppler on and off.
+struct DemoPick {
+    xy: (u32, u32),
+    on: Vec<(f64, f64)>,
+    off: Vec<(f64, f64)>,
+}
+
+/// The demo figure (as at the bottom of the paper's Figs. 12 and 14-16): the Doppler-on and
+/// Doppler-off images side by side, a ring in each image at every picked pixel, and the
+/// picked spectra plotted under the images in the rings' colours (solid: Doppler on,
+/// thin: off).
+fn demo_figure(path: &Path, size: u32, on: &[u8], off: &[u8], picks: &[DemoPick]) -> Result<()> {
+    register_font();
+    let width = (2 * size + 30).max(900);
+    let scale = ((width / 2 - 15) / size).clamp(1, 4);
+    let shown = size * scale;
+    let top = 36 + shown + 10;
+    let plot_h = 420;
+    let dims = (width, top + plot_h);
+    let mut buf = vec![255u8; (dims.0 * dims.1 * 3) as usize];
+    let x_of = [width / 2 - 5 - shown, width / 2 + 5];
+    for (img, &x0) in [on, off].iter().zip(&x_of) {
+        for y in 0..shown {
+            for x in 0..shown {
+                let s = (((y / scale) * size + x / scale) * 3) as usize;
+                let d = (((36 + y) * dims.0 + x0 + x) * 3) as usize;
+                buf[d..d + 3].copy_from_slice(&img[s..s + 3]);
+            }
+        }
+    }
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, dims).into_drawing_area();
+        let (head, plot) = root.split_vertically(top);
+        for (label, &x0) in ["Doppler on (velocity x30)", "Doppler off"]
+            .iter()
+            .zip(&x_of)
+        {
+            head.draw(&Text::new(
+                (*label).to_owned(),
+                (x0 as i32, 8),
+                (FONT, 18).into_font().color(&BLACK),
+            ))
+            .map_err(plot_err)?;
+        }
+        for (k, p) in picks.iter().enumerate() {
+            let c = COLOURS[k % COLOURS.len()];
+            for &x0 in &x_of {
+                let cx = (x0 + p.xy.0 * scale + scale / 2) as i32;
+                let cy = (36 + p.xy.1 * scale + scale / 2) as i32;
+                head.draw(&Circle::new((cx, cy), 7, c.stroke_width(2)))
+                    .map_err(plot_err)?;
+            }
+        }
+        let (mut x0, mut x1, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+        for p in picks {
+            for &(x, y) in p.on.iter().chain(&p.off) {
+                x0 = x0.min(x);
+                x1 = x1.max(x);
+                y1 = y1.max(y);
+            }
+        }
+        if x0.partial_cmp(&x1) != Some(std::cmp::Ordering::Less) {
+            bail!("demo: no spectrum to plot");
+        }
+        if y1.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            y1 = 1.0;
+        }
+        let mut chart = ChartBuilder::on(&plot)
+            .caption("picked spectra (solid: Doppler on, thin: off)", (FONT, 16))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(80)
+            .build_cartesian_2d(x0..x1, 0.0..y1 * 1.05)
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .x_desc("wavelength (nm)")
+            .y_desc("spectral radiance")
+            .label_style((FONT, 13))
+            .y_label_formatter(&|v| format!("{v:.2e}"))
+            .draw()
+            .map_err(plot_err)?;
+        for (k, p) in picks.iter().enumerate() {
+            let c = COLOURS[k % COLOURS.len()];
+            chart
+                .draw_series(LineSeries::new(
+                    p.off.iter().copied(),
+                    c.mix(0.6).stroke_width(1),
+                ))
+                .map_err(plot_err)?;
+            chart
+                .draw_series(LineSeries::new(p.on.iter().copied(), c.stroke_width(2)))
+                .map_err(plot_err)?
+                .label(format!("pixel {},{}", p.xy.0, p.xy.1))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .label_font((FONT, 13))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(plot_err)?;
+        root.present().map_err(plot_err)?;
+    }
+    let img = image::RgbImage::from_raw(dims.0, dims.1, buf).context("figure buffer size")?;
+    write_via_temp_path(path, |p| {
+        img.save_with_format(p, image::ImageFormat::Png)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
 }

@@ -88,6 +88,48 @@ impl BandTables {
     }
 }
 
+/// Attenuates the bands by the optical depth of sample `j` over the path length `len`.
+fn absorb_half(
+    t: &BandTables,
+    scene: &DopplerScene,
+    s: &RaySamples,
+    j: usize,
+    len: f64,
+    w: f64,
+    v: &mut [f64],
+) {
+    let f = scene.factors;
+    let nsp = scene.species.len();
+    let sh = s.shift[j];
+    for (m, sp) in scene.species.iter().enumerate() {
+        let rho = s.rho[j * nsp + m];
+        if rho <= 0.0 {
+            continue;
+        }
+        match t.shift {
+            BandShift::Nearest => {
+                for &(i, k) in &t.rest_absorption[m] {
+                    if let Some(d) = t.layout.band_of(t.centres[i] * sh) {
+                        v[d] *= (-len * rho * k).exp();
+                    }
+                }
+            }
+            BandShift::EnergyConserving => {
+                for l in &sp.absorption_lines {
+                    let c = l.centre_nm;
+                    deposit(
+                        &t.layout,
+                        sh * (c - 0.5 * w),
+                        sh * (c + 0.5 * w),
+                        l.strength * f.absorption,
+                        |i, k| v[i] *= (-len * rho * k).exp(),
+                    );
+                }
+            }
+        }
+    }
+}
+
 pub(crate) fn integrate(
     ctx: &Context<'_>,
     t: &BandTables,
@@ -117,33 +159,16 @@ pub(crate) fn integrate(
         let wt = 0.5 * (d_prev + d_next);
         let sh = s.shift[j];
         let g = ctx.value_factor(sh) * sh;
+        // Half of the sample's optical depth before its emission and half after (the
+        // convention of the piecewise-linear integrator: emitted light crosses half of its
+        // own segment).
+        if f.absorption > 0.0 {
+            absorb_half(t, scene, s, j, 0.5 * wt, w, &mut v);
+        }
         for (m, sp) in scene.species.iter().enumerate() {
             let rho = s.rho[j * nsp + m];
             if rho <= 0.0 {
                 continue;
-            }
-            if f.absorption > 0.0 {
-                match t.shift {
-                    BandShift::Nearest => {
-                        for &(i, k) in &t.rest_absorption[m] {
-                            if let Some(d) = t.layout.band_of(t.centres[i] * sh) {
-                                v[d] *= (-wt * rho * k).exp();
-                            }
-                        }
-                    }
-                    BandShift::EnergyConserving => {
-                        for l in &sp.absorption_lines {
-                            let c = l.centre_nm;
-                            deposit(
-                                &t.layout,
-                                sh * (c - 0.5 * w),
-                                sh * (c + 0.5 * w),
-                                l.strength * f.absorption,
-                                |i, k| v[i] *= (-wt * rho * k).exp(),
-                            );
-                        }
-                    }
-                }
             }
             match t.shift {
                 BandShift::Nearest => {
@@ -174,6 +199,9 @@ pub(crate) fn integrate(
             for (x, &c) in v.iter_mut().zip(&t.centres) {
                 *x += k * bb.eval(c / sh);
             }
+        }
+        if f.absorption > 0.0 {
+            absorb_half(t, scene, s, j, 0.5 * wt, w, &mut v);
         }
         if want == Want::Trace && j > 0 {
             let b = Banded::from_values(t.layout, v.clone())

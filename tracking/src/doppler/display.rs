@@ -68,28 +68,37 @@ impl DisplayOptions {
         }
     }
 
-    /// 8-bit sRGB-encoded RGB, row-major, clamped to [0, 1] after scaling.
+    /// Linear RGB per pixel (row-major) after the luminance scaling and the colour matrix,
+    /// before any clamping or tone mapping: the input of a tone-mapping operator. Out-of-gamut
+    /// negative components and non-finite values become 0; values above 1 are kept.
     #[must_use]
-    pub fn to_rgb8(&self, image: &DopplerImage) -> Vec<u8> {
+    pub fn to_linear_rgb(&self, image: &DopplerImage) -> Vec<[f64; 3]> {
         let k = self.scale_for(image);
         let m = match self.matrix {
             ColourMatrix::Srgb => xyz_to_linear_srgb_matrix(),
             ColourMatrix::CieRgbEq10 => XYZ_TO_CIE_RGB_EQ10,
         };
-        let mut out = Vec::with_capacity(image.xyz.len() * 3);
-        for x in &image.xyz {
-            let kk = match self.exposure {
-                Exposure::PerPixel if x[1] > 0.0 => 1.0 / x[1],
-                _ => k,
-            };
-            let rgb = mat_mul(&m, [x[0] * kk, x[1] * kk, x[2] * kk]);
-            for c in rgb {
-                let v = if c.is_finite() {
-                    c.clamp(0.0, 1.0)
-                } else {
-                    0.0
+        image
+            .xyz
+            .iter()
+            .map(|x| {
+                let kk = match self.exposure {
+                    Exposure::PerPixel if x[1] > 0.0 => 1.0 / x[1],
+                    _ => k,
                 };
-                out.push((srgb_encode(v) * 255.0).round() as u8);
+                mat_mul(&m, [x[0] * kk, x[1] * kk, x[2] * kk])
+                    .map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })
+            })
+            .collect()
+    }
+
+    /// 8-bit sRGB-encoded RGB, row-major, clamped to [0, 1] after scaling.
+    #[must_use]
+    pub fn to_rgb8(&self, image: &DopplerImage) -> Vec<u8> {
+        let mut out = Vec::with_capacity(image.xyz.len() * 3);
+        for rgb in self.to_linear_rgb(image) {
+            for c in rgb {
+                out.push((srgb_encode(c.min(1.0)) * 255.0).round() as u8);
             }
         }
         out

@@ -34,6 +34,24 @@
 //! bodies are sampled on a fixed wavelength grid (`blackbody_samples` points) at both ends
 //! of the segment (trapezoid rule along the ray).
 //!
+//! ## Absorption: two paths, one convention
+//! Light emitted inside a segment crosses half of that segment's optical depth (the light
+//! from behind crosses all of it): for a constant medium this is within `(k dt)^2 / 24` of
+//! Beer-Lambert's `(e / k) (1 - exp(-k L))`. The banded integrator applies the same rule per
+//! sample (half its depth before its emission, half after), so the integrators compare fairly.
+//! - Image (XYZ) path, front to back: only the optical depth in front, `tau_front(lambda)`,
+//!   is kept (piecewise linear, non-zero only inside the shifted absorption lines). Each
+//!   segment's emission `E` adds its closed-form XYZ minus
+//!   `integral E (1 - exp(-tau)) cmf` over `tau`'s support, computed exactly per
+//!   sub-interval (`E` and the CMFs linear, `exp(-tau)` an exponential of the wavelength).
+//!   `tau_front` is merged against a budget for the whole ray (the k-th merge gets
+//!   `tol 6 / (pi k)^2`), so each XYZ channel is within `merge_tolerance` x the unattenuated
+//!   emission's. [`PieceStats`] counts `tau_front`'s pieces.
+//! - Spectrum path (picked pixels, traces), back to front: the spectrum is kept, attenuated
+//!   exactly at sub-piece ends (`max_depth_step`), and merged with `tol / segments` of its
+//!   maximum per merge, so merges add at most `merge_tolerance` of the maximum in total.
+//!   Tests check that both paths give the same XYZ within these bounds.
+//!
 //! ## Glossary (paper term -> type)
 //! | Paper | Here |
 //! |---|---|

@@ -91,12 +91,16 @@ pub struct DopplerSettings {
     pub line_width_nm: f64,
     /// Wavelength samples of black bodies (piecewise-linear integrator), >= 2.
     pub blackbody_samples: usize,
-    /// Merge tolerance relative to the spectrum's maximum (piecewise-linear with absorption).
+    /// Merge tolerance for a whole ray (piecewise-linear with absorption): the image path's
+    /// XYZ stays within this fraction of the unattenuated emission's XYZ (merges of the
+    /// optical depth in front), a kept spectrum within this fraction of its maximum.
     pub merge_tolerance: f64,
-    /// Per-ray piece budget: when a spectrum exceeds it, the merge tolerance is multiplied
-    /// by 4 until it fits (the preview fallback; the ray's fallback count is reported).
+    /// Per-ray piece budget: when the optical depth (image path) or the spectrum (picks,
+    /// traces) exceeds it, it is merged with 4 times the tolerance until it fits (the preview
+    /// fallback, which gives up the bound; the rays that needed it are counted).
     pub piece_budget: usize,
-    /// Largest optical-depth change inside one attenuated sub-piece.
+    /// Largest optical-depth change inside one attenuated sub-piece of a kept spectrum (its
+    /// chord errs by at most `max_depth_step^2 / 8` of the value per attenuation).
     pub max_depth_step: f64,
 }
 
@@ -305,8 +309,9 @@ impl<'a> Context<'a> {
     }
 }
 
-/// Piece counts per ray (piecewise-linear spectra kept by rays with absorption, picks and
-/// traces; emission-only rays keep none and count 0).
+/// Piece counts per ray: in images, the pieces of the optical depth in front kept by rays
+/// with absorption (emission-only rays keep nothing and count 0); for picks and traces, the
+/// kept spectrum's.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PieceStats {
     /// Mean over rays of the largest piece count a ray held.
