@@ -44,8 +44,11 @@
 //! | picked pixel spectra, step-by-step accumulation | [`pixel_spectrum`], [`trace_ray`] |
 
 mod banded;
+mod cube;
+mod fits;
 mod display;
 mod model;
+mod profile;
 mod pwl;
 mod render;
 #[cfg(test)]
@@ -53,6 +56,11 @@ mod tests;
 
 pub use display::{ColourMatrix, DisplayOptions, Exposure};
 pub use model::{BB_UNIT, DopplerScene, Factors, Species};
+pub use cube::{
+    CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
+};
+pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
+pub use profile::Broadening;
 pub use render::{
     BandShift, DopplerImage, DopplerSettings, PieceStats, SpectralIntegrator, TraceStep,
     pixel_spectrum, render_doppler, trace_ray,

@@ -145,8 +145,41 @@ pub(crate) fn integrate(
             if ra <= 0.0 && rb <= 0.0 {
                 continue;
             }
+            let (siga, sigb) = if ctx.profiles.active {
+                (
+                    ctx.profiles.sigma_v(m, s.temp[j]),
+                    ctx.profiles.sigma_v(m, s.temp[j + 1]),
+                )
+            } else {
+                (0.0, 0.0)
+            };
             for l in &sp.emission_lines {
                 let base = dt * l.strength * f.emission;
+                if ctx.profiles.active {
+                    super::profile::emit_line(
+                        &ctx.profiles.gauss,
+                        l.centre_nm,
+                        sa,
+                        sb,
+                        base * ra * ga,
+                        base * rb * gb,
+                        siga,
+                        sigb,
+                        st.line_width_nm,
+                        &mut |lo, hi, h0, h1| {
+                            if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
+                                return Ok(());
+                            }
+                            if keep {
+                                spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)
+                            } else {
+                                xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
+                                Ok(())
+                            }
+                        },
+                    )?;
+                    continue;
+                }
                 let (lo, hi, h0, h1) = line_trapezoid(
                     l.centre_nm,
                     sa,

@@ -98,6 +98,9 @@ pub struct DopplerSettings {
     pub piece_budget: usize,
     /// Largest optical-depth change inside one attenuated sub-piece.
     pub max_depth_step: f64,
+    /// Line profile beyond the box: thermal and/or a Gaussian width (piecewise-linear
+    /// integrator and cubes; the banded integrators keep the box).
+    pub broadening: super::profile::Broadening,
 }
 
 impl DopplerSettings {
@@ -123,6 +126,7 @@ impl DopplerSettings {
             merge_tolerance: 1e-4,
             piece_budget: 4096,
             max_depth_step: 0.1,
+            broadening: super::profile::Broadening::default(),
         }
     }
 
@@ -219,6 +223,7 @@ pub(crate) struct Context<'a> {
     pub step: f32,
     pub pwl: Option<pwl::PwlTables>,
     pub banded: Option<banded::BandTables>,
+    pub profiles: super::profile::Profiles,
 }
 
 impl<'a> Context<'a> {
@@ -231,12 +236,14 @@ impl<'a> Context<'a> {
                 Some(banded::BandTables::new(scene, settings, bands, shift)?),
             ),
         };
+        let profiles = super::profile::Profiles::new(scene, &settings.broadening)?;
         Ok(Self {
             scene,
             settings,
             step,
             pwl,
             banded,
+            profiles,
         })
     }
 
@@ -359,7 +366,7 @@ pub(crate) enum Want {
     Trace,
 }
 
-fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayOut> {
+pub(crate) fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayOut> {
     let samples = ctx.sample(ray)?;
     if samples.len() < 2 {
         return Ok(RayOut {
