@@ -32,8 +32,10 @@ pub const ATOMIC_MASS_UNIT_KG: f64 = 1.660_539_066_60e-27;
 pub fn thermal_sigma_m_per_s(temperature_k: f64, mass_amu: f64) -> Result<f64> {
     non_negative("temperature (K)", temperature_k)?;
     positive("atomic mass (amu)", mass_amu)?;
-    Ok((crate::blackbody::BOLTZMANN_J_PER_K * temperature_k / (mass_amu * ATOMIC_MASS_UNIT_KG))
-        .sqrt())
+    Ok(
+        (crate::blackbody::BOLTZMANN_J_PER_K * temperature_k / (mass_amu * ATOMIC_MASS_UNIT_KG))
+            .sqrt(),
+    )
 }
 
 /// A Gaussian's standard deviation in wavelength for a velocity dispersion
@@ -94,11 +96,7 @@ impl PwlGaussian {
         }
         let bound =
             h * h / 8.0 + (-0.5 * (l - h) * (l - h)).exp() + eps.abs() * (1.0 + h * h / 8.0);
-        Ok(Self {
-            x,
-            g,
-            bound,
-        })
+        Ok(Self { x, g, bound })
     }
 
     /// Number of pieces.
@@ -243,7 +241,11 @@ mod tests {
             let (c, sigma, area) = (656.28, 0.037, 2.5);
             let mut s = PiecewiseLinear::new();
             g.add_to(&mut s, c, sigma, area).unwrap();
-            assert!(((s.total() - area) / area).abs() < 1e-12, "area {}", s.total());
+            assert!(
+                ((s.total() - area) / area).abs() < 1e-12,
+                "area {}",
+                s.total()
+            );
             let peak = area / sigma * gauss(0.0);
             let mut err: f64 = 0.0;
             for i in -4000..=4000 {

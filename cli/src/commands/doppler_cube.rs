@@ -27,10 +27,10 @@ pub struct CubeArgs {
     #[arg(long)]
     pub line: Option<String>,
     /// Velocity channels VMIN:VMAX:N in km/s (channel edges from VMIN to VMAX).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub velocity_bins: Option<String>,
     /// Wavelength channels MIN:MAX:N in nm (instead of --velocity-bins; CTYPE3 WAVE).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub wavelength_bins: Option<String>,
     /// Velocity convention of the spectral axis: vrad (radio, FITS VRAD) or vopt (optical,
     /// FITS VOPT, yt's PPVCube axis).
@@ -54,8 +54,11 @@ pub struct CubeArgs {
     pub axis: Option<String>,
     /// View along any direction X,Y,Z: the observer sits at +normal (yt's normal vector);
     /// the line-of-sight velocity is -v . normal (positive: receding).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub normal: Option<String>,
+    /// Voxels are cells (Enzo, yt): rays cross the voxel centres' box grown by half a voxel.
+    #[arg(long)]
+    pub cell_domain: bool,
     /// FITS BUNIT of the cube.
     #[arg(long, default_value = "")]
     pub bunit: String,
@@ -70,9 +73,18 @@ fn parse_triple(s: &str, what: &str) -> Result<(f64, f64, usize)> {
     if p.len() != 3 {
         bail!("{what} '{s}': expected MIN:MAX:N");
     }
-    let a: f64 = p[0].trim().parse().map_err(|_| anyhow!("{what} '{s}': bad MIN"))?;
-    let b: f64 = p[1].trim().parse().map_err(|_| anyhow!("{what} '{s}': bad MAX"))?;
-    let n: usize = p[2].trim().parse().map_err(|_| anyhow!("{what} '{s}': bad N"))?;
+    let a: f64 = p[0]
+        .trim()
+        .parse()
+        .map_err(|_| anyhow!("{what} '{s}': bad MIN"))?;
+    let b: f64 = p[1]
+        .trim()
+        .parse()
+        .map_err(|_| anyhow!("{what} '{s}': bad MAX"))?;
+    let n: usize = p[2]
+        .trim()
+        .parse()
+        .map_err(|_| anyhow!("{what} '{s}': bad N"))?;
     if !(a.is_finite() && b.is_finite()) || a >= b {
         bail!("{what} '{s}': the range {a}..{b} is empty (MIN must be below MAX)");
     }
@@ -82,8 +94,10 @@ fn parse_triple(s: &str, what: &str) -> Result<(f64, f64, usize)> {
     Ok((a, b, n))
 }
 
-/// Applies `--axis` / `--normal` to the camera (both flags: an error).
+/// Applies `--cell-domain` and `--axis` / `--normal` to the settings (both view flags: an
+/// error).
 pub fn apply_view(args: &CubeArgs, scene: &DopplerScene, st: &mut DopplerSettings) -> Result<()> {
+    st.cell_domain = args.cell_domain;
     let normal = match (&args.axis, &args.normal) {
         (Some(_), Some(_)) => bail!("give --axis or --normal, not both"),
         (Some(a), None) => match a.trim().to_ascii_lowercase().as_str() {
@@ -105,7 +119,12 @@ pub fn apply_view(args: &CubeArgs, scene: &DopplerScene, st: &mut DopplerSetting
         }
         (None, None) => return Ok(()),
     };
-    st.camera = los_camera(scene, normal, st.width as f32 / st.height.max(1) as f32)?;
+    st.camera = los_camera(
+        scene,
+        normal,
+        st.width as f32 / st.height.max(1) as f32,
+        st.cell_domain,
+    )?;
     Ok(())
 }
 
@@ -316,7 +335,11 @@ fn blue_red(x: f32) -> RGBColor {
 }
 
 fn ramp(stops: &[[f32; 3]; 5], x: f32) -> RGBColor {
-    let x = if x.is_finite() { x.clamp(0.0, 1.0) } else { 0.0 } * 4.0;
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
     let i = (x.floor() as usize).min(3);
     let f = x - i as f32;
     let c = |k: usize| (stops[i][k] + f * (stops[i + 1][k] - stops[i][k])).round() as u8;

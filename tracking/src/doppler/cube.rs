@@ -236,9 +236,15 @@ pub struct Moments {
 /// sits at `+normal`, rays travel along `-normal`, and a positive line-of-sight velocity,
 /// `-v . normal`, recedes). Axis-aligned normals get yt's image axes (`z`: x right, y up;
 /// `x`: y right, z up; `y`: z right, x up); others get up = +z projected (+y when the
-/// normal is near z). The view frames the projection of the scene's box for an image of
-/// aspect `width / height`.
-pub fn los_camera(scene: &DopplerScene, normal: Vec3, aspect: f32) -> Result<Camera> {
+/// normal is near z). The view frames the projection of the scene's box (grown by half a
+/// voxel with `cell_domain`, see [`DopplerSettings::cell_domain`]) for an image of aspect
+/// `width / height`.
+pub fn los_camera(
+    scene: &DopplerScene,
+    normal: Vec3,
+    aspect: f32,
+    cell_domain: bool,
+) -> Result<Camera> {
     let n = normal
         .try_normalize()
         .filter(|n| n.is_finite())
@@ -257,7 +263,11 @@ pub fn los_camera(scene: &DopplerScene, normal: Vec3, aspect: f32) -> Result<Cam
     let f = -n;
     let right = f.cross(up).normalize();
     let up = right.cross(f);
-    let (lo, hi) = scene.geometry.world_bounds();
+    let (mut lo, mut hi) = scene.geometry.world_bounds();
+    if cell_domain {
+        lo -= 0.5 * scene.geometry.spacing;
+        hi += 0.5 * scene.geometry.spacing;
+    }
     let centre = 0.5 * (lo + hi);
     let (mut ex, mut ey) = (0.0f32, 0.0f32);
     for i in 0..8 {
@@ -393,7 +403,9 @@ pub fn render_cube(
     let ph = match settings.camera.projection {
         Projection::Orthographic { height } => f64::from(height) / f64::from(settings.height),
         Projection::Perspective { .. } => {
-            return Err(Error::parameter("spectral cubes need an orthographic camera"));
+            return Err(Error::parameter(
+                "spectral cubes need an orthographic camera",
+            ));
         }
     };
     let (w, h) = (settings.width as usize, settings.height as usize);

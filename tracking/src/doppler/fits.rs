@@ -105,21 +105,37 @@ pub fn fits_bytes(cube: &SpectralCube, meta: &CubeMeta) -> Result<Vec<u8>> {
         .enumerate()
     {
         let ax = i + 1;
-        cards.push(fits_str_card(&format!("CTYPE{ax}"), "LINEAR", "offset from the view centre")?);
+        cards.push(fits_str_card(
+            &format!("CTYPE{ax}"),
+            "LINEAR",
+            "offset from the view centre",
+        )?);
         if let Some(u) = unit {
             cards.push(fits_str_card(&format!("CUNIT{ax}"), u, "")?);
         }
-        cards.push(card(&format!("CRPIX{ax}"), &real(0.5 * (np as f64 + 1.0))?, ""));
+        cards.push(card(
+            &format!("CRPIX{ax}"),
+            &real(0.5 * (np as f64 + 1.0))?,
+            "",
+        ));
         cards.push(card(&format!("CRVAL{ax}"), &real(0.0)?, ""));
         cards.push(card(&format!("CDELT{ax}"), &real(d * scale)?, ""));
     }
     cards.push(fits_str_card("CTYPE3", ctype3, "")?);
     cards.push(fits_str_card("CUNIT3", cunit3, "")?);
     cards.push(card("CRPIX3", &real(1.0)?, "first channel"));
-    cards.push(card("CRVAL3", &real(crval3)?, "centre of the first channel"));
+    cards.push(card(
+        "CRVAL3",
+        &real(crval3)?,
+        "centre of the first channel",
+    ));
     cards.push(card("CDELT3", &real(cdelt3)?, "channel width"));
     if sp.axis != SpectralAxis::Wavelength {
-        cards.push(card("RESTWAV", &real(sp.rest_nm * 1e-9)?, "rest wavelength, m"));
+        cards.push(card(
+            "RESTWAV",
+            &real(sp.rest_nm * 1e-9)?,
+            "rest wavelength, m",
+        ));
     }
     if !meta.object.is_empty() {
         cards.push(fits_str_card("OBJECT", &meta.object, "")?);

@@ -45,8 +45,8 @@
 
 mod banded;
 mod cube;
-mod fits;
 mod display;
+mod fits;
 mod model;
 mod profile;
 mod pwl;
@@ -54,12 +54,12 @@ mod render;
 #[cfg(test)]
 mod tests;
 
-pub use display::{ColourMatrix, DisplayOptions, Exposure};
-pub use model::{BB_UNIT, DopplerScene, Factors, Species};
 pub use cube::{
     CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
 };
+pub use display::{ColourMatrix, DisplayOptions, Exposure};
 pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
+pub use model::{BB_UNIT, DopplerScene, Factors, Species};
 pub use profile::Broadening;
 pub use render::{
     BandShift, DopplerImage, DopplerSettings, PieceStats, SpectralIntegrator, TraceStep,

@@ -14,9 +14,7 @@
 //! trapezoid (the Gaussian only rounds its edges over about `sigma`, moving less than
 //! `sigma / sweep < 6.3 %` of the area by about `sigma`).
 
-use blueshift_spectrum::{
-    BOLTZMANN_J_PER_K, Catalogue, PwlGaussian, SPEED_OF_LIGHT_M_PER_S,
-};
+use blueshift_spectrum::{BOLTZMANN_J_PER_K, Catalogue, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
 
 use super::model::DopplerScene;
 use crate::{Error, Result};
@@ -63,6 +61,14 @@ impl Profiles {
             )));
         }
         let mut k_over_m = vec![0.0; scene.species.len()];
+        if let Some((_, temp)) = &scene.blackbody
+            && let Some((lo, _)) = temp.finite_range()
+            && lo < 0.0
+        {
+            return Err(Error::scene(format!(
+                "the temperature field has negative values (min {lo} K)"
+            )));
+        }
         if b.thermal {
             let Some((_, temp)) = &scene.blackbody else {
                 return Err(Error::scene(
@@ -70,13 +76,7 @@ impl Profiles {
                      temperature; set the black-body factor to 0 to keep it dark)",
                 ));
             };
-            if let Some((lo, _)) = temp.finite_range()
-                && lo < 0.0
-            {
-                return Err(Error::scene(format!(
-                    "the temperature field has negative values (min {lo} K)"
-                )));
-            }
+            let _ = temp;
             for (i, sp) in scene.species.iter().enumerate() {
                 let m = match b.masses_amu.iter().find(|(n, _)| n == &sp.name) {
                     Some(&(_, m)) => m,
@@ -138,7 +138,8 @@ pub(crate) fn emit_line<E>(
     let sweep = (lb - la).abs();
     if sigma_mean <= 0.0 || sweep >= 16.0 * sigma_mean {
         let min_width = if sigma_mean > 0.0 { 0.0 } else { min_width };
-        let (lo, hi, h0, h1) = super::pwl::line_trapezoid(centre, sa, sb, area_a, area_b, min_width);
+        let (lo, hi, h0, h1) =
+            super::pwl::line_trapezoid(centre, sa, sb, area_a, area_b, min_width);
         if hi > lo {
             return sink(lo, hi, h0, h1);
         }
@@ -179,9 +180,18 @@ mod tests {
     fn emitted(sa: f64, sb: f64, aa: f64, ab: f64, siga: f64, sigb: f64) -> PiecewiseLinear {
         let g = PwlGaussian::default();
         let mut s = PiecewiseLinear::new();
-        emit_line(&g, 656.28, sa, sb, aa, ab, siga, sigb, 0.1, &mut |a, b, h0, h1| {
-            s.add_trapezoid(a, b, h0, h1)
-        })
+        emit_line(
+            &g,
+            656.28,
+            sa,
+            sb,
+            aa,
+            ab,
+            siga,
+            sigb,
+            0.1,
+            &mut |a, b, h0, h1| s.add_trapezoid(a, b, h0, h1),
+        )
         .unwrap();
         s
     }

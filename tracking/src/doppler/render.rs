@@ -101,6 +101,10 @@ pub struct DopplerSettings {
     /// Line profile beyond the box: thermal and/or a Gaussian width (piecewise-linear
     /// integrator and cubes; the banded integrators keep the box).
     pub broadening: super::profile::Broadening,
+    /// Treat voxels as cells: rays cross the box of the voxel CENTRES grown by half a
+    /// spacing on every side (values clamped at the edges), as cell-centred simulation
+    /// codes (Enzo, yt) see their domain. Default false: the box of the voxel centres.
+    pub cell_domain: bool,
 }
 
 impl DopplerSettings {
@@ -127,6 +131,7 @@ impl DopplerSettings {
             piece_budget: 4096,
             max_depth_step: 0.1,
             broadening: super::profile::Broadening::default(),
+            cell_domain: false,
         }
     }
 
@@ -259,7 +264,11 @@ impl<'a> Context<'a> {
     /// Samples a ray back to front. Returns an empty set if the ray misses the volume.
     pub fn sample(&self, ray: &Ray) -> Result<RaySamples> {
         let g = &self.scene.geometry;
-        let (lo, hi) = g.world_bounds();
+        let (mut lo, mut hi) = g.world_bounds();
+        if self.settings.cell_domain {
+            lo -= 0.5 * g.spacing;
+            hi += 0.5 * g.spacing;
+        }
         let mut out = RaySamples::default();
         let Some((t0, t1)) = ray.clip_box(lo, hi) else {
             return Ok(out);
