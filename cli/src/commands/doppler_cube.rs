@@ -20,6 +20,8 @@ use crate::plot::{FONT, register_font};
 #[derive(Debug, Clone, Default, ClapArgs)]
 pub struct CubeArgs {
     /// Write a spectral cube (FITS) instead of an image; an NRRD copy goes next to it.
+    /// Lines without --thermal / --line-sigma get a box one channel wide (--line-width is
+    /// not used), whose exact channel integrals are yt's tent weights.
     #[arg(long)]
     pub cube: Option<PathBuf>,
     /// The cube's line: a name (H-alpha, Halpha, H-beta, HeI-5876, ...) or a rest
@@ -226,6 +228,14 @@ pub fn run_cube(args: &CubeArgs, scene: &DopplerScene, st: &DopplerSettings) -> 
         object: String::new(),
         world_unit,
     };
+    // Unbroadened lines get a box one channel wide: its exact channel integrals are yt's
+    // tent weights 1 - |v_c - v| / dv.
+    let mut st = st.clone();
+    st.line_width_nm = match spec.axis {
+        SpectralAxis::Wavelength => spec.width(),
+        _ => spec.rest_nm * spec.width() / blueshift_spectrum::SPEED_OF_LIGHT_M_PER_S,
+    };
+    let st = &st;
     let bar = indicatif::ProgressBar::new(u64::from(st.height));
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} rows [{elapsed}]")
