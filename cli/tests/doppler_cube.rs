@@ -10,7 +10,16 @@ fn blueshift(args: &[&str]) -> std::process::Output {
 }
 
 const BASE: [&str; 11] = [
-    "doppler", "--synth", "shell", "--res", "24", "--species", "H", "--width", "24", "--height",
+    "doppler",
+    "--synth",
+    "shell",
+    "--res",
+    "24",
+    "--species",
+    "H",
+    "--width",
+    "24",
+    "--height",
     "24",
 ];
 
@@ -44,7 +53,10 @@ fn shell_cube_with_moments() {
     assert!(bytes.starts_with(b"SIMPLE  =                    T"));
     for name in ["mom0", "mom1", "mom2"] {
         for ext in ["exr", "png"] {
-            assert!(dir.path().join(format!("shell_{name}.{ext}")).exists(), "{name}.{ext}");
+            assert!(
+                dir.path().join(format!("shell_{name}.{ext}")).exists(),
+                "{name}.{ext}"
+            );
         }
     }
     assert!(dir.path().join("shell.nrrd").exists());
@@ -69,10 +81,30 @@ fn bad_cube_input_exits_1_without_files() {
         vec!["--line", "OIII", "--velocity-bins", "-100:100:8"],
         vec!["--velocity-bins", "-100:100:8"],
         vec!["--line", "H-alpha"],
-        vec!["--line", "H-alpha", "--velocity-bins", "-100:100:8", "--axis", "w"],
-        vec!["--line", "H-alpha", "--velocity-bins", "-100:100:8", "--normal", "0,0,0"],
+        vec![
+            "--line",
+            "H-alpha",
+            "--velocity-bins",
+            "-100:100:8",
+            "--axis",
+            "w",
+        ],
+        vec![
+            "--line",
+            "H-alpha",
+            "--velocity-bins",
+            "-100:100:8",
+            "--normal",
+            "0,0,0",
+        ],
         // The shell has no temperature field.
-        vec!["--line", "H-alpha", "--velocity-bins", "-100:100:8", "--thermal"],
+        vec![
+            "--line",
+            "H-alpha",
+            "--velocity-bins",
+            "-100:100:8",
+            "--thermal",
+        ],
     ] {
         let mut a: Vec<&str> = BASE.to_vec();
         a.extend(["--cube", o]);

@@ -52,6 +52,8 @@ pub struct PwlGaussian {
     x: Vec<f64>,
     /// Knot values of the unit-area, unit-sigma profile (first and last are 0).
     g: Vec<f64>,
+    /// Area below each knot (0 at the first, 1 at the last).
+    cum: Vec<f64>,
     bound: f64,
 }
 
@@ -94,9 +96,31 @@ impl PwlGaussian {
         for v in &mut g {
             *v /= area;
         }
+        let mut cum = vec![0.0; g.len()];
+        for i in 1..g.len() {
+            cum[i] = cum[i - 1] + 0.5 * h * (g[i - 1] + g[i]);
+        }
         let bound =
             h * h / 8.0 + (-0.5 * (l - h) * (l - h)).exp() + eps.abs() * (1.0 + h * h / 8.0);
-        Ok(Self { x, g, bound })
+        Ok(Self { x, g, cum, bound })
+    }
+
+    /// The exact area of the unit profile below `z` (in sigmas from the centre): the
+    /// integral of the pieces, a piecewise quadratic from 0 to 1.
+    #[must_use]
+    pub fn cdf(&self, z: f64) -> f64 {
+        let (x0, xn) = (self.x[0], self.x[self.x.len() - 1]);
+        if z <= x0 || z.is_nan() {
+            return 0.0;
+        }
+        if z >= xn {
+            return self.cum[self.cum.len() - 1];
+        }
+        let h = self.x[1] - self.x[0];
+        let i = (((z - x0) / h) as usize).min(self.x.len() - 2);
+        let d = z - self.x[i];
+        let slope = (self.g[i + 1] - self.g[i]) / h;
+        self.cum[i] + d * (self.g[i] + 0.5 * slope * d)
     }
 
     /// Number of pieces.
@@ -259,6 +283,19 @@ mod tests {
             assert!(rel > 0.3 * g.sup_error_relative(), "{pps},{l}: {rel}");
         }
         assert!(PwlGaussian::default().sup_error_relative() < 0.0088);
+    }
+
+    #[test]
+    fn cdf_is_the_integral_of_the_pieces() {
+        let g = PwlGaussian::default();
+        let mut s = PiecewiseLinear::new();
+        g.add_to(&mut s, 0.0, 1.0, 1.0).unwrap();
+        for i in -50..50 {
+            let (a, b) = (f64::from(i) * 0.097, f64::from(i) * 0.097 + 0.31);
+            let exact = s.integrate(a, b).unwrap();
+            assert!((g.cdf(b) - g.cdf(a) - exact).abs() < 1e-13, "{a} {b}");
+        }
+        assert!((g.cdf(10.0) - 1.0).abs() < 1e-13 && g.cdf(-10.0) == 0.0);
     }
 
     #[test]

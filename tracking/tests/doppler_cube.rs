@@ -454,3 +454,44 @@ fn bad_cube_input_is_refused() {
         .to_string();
     assert!(e.contains("negative"), "{e}");
 }
+
+/// The image integrator uses the same profiles: a thermally broadened pixel spectrum keeps
+/// the line's energy, is wider (second moment sigma^2 larger by the thermal sigma^2 in nm)
+/// and the XYZ image barely changes (the CMFs vary little over 0.02 nm).
+#[test]
+fn image_integrator_broadens_lines_and_keeps_their_energy() {
+    let scene = slab_scene(1e4, -30e3);
+    let mut st = DopplerSettings::default_for(&scene, 4, 4);
+    st.camera = los_camera(&scene, Vec3::Z, 1.0, false).unwrap();
+    st.line_width_nm = 0.001;
+    let plain = blueshift_tracking::doppler::pixel_spectrum(&scene, &st, 1, 1).unwrap();
+    let img0 = blueshift_tracking::doppler::render_doppler(&scene, &st, &|| {}).unwrap();
+    st.broadening.thermal = true;
+    let broad = blueshift_tracking::doppler::pixel_spectrum(&scene, &st, 1, 1).unwrap();
+    let img1 = blueshift_tracking::doppler::render_doppler(&scene, &st, &|| {}).unwrap();
+    assert!((broad.total() / plain.total() - 1.0).abs() < 1e-9);
+    let var = |s: &blueshift_spectrum::PiecewiseLinear| {
+        let n = 20000;
+        let (a, b) = (HALPHA - 0.5, HALPHA + 0.5);
+        let dx = (b - a) / f64::from(n);
+        let (mut m0, mut m1, mut m2) = (0.0, 0.0, 0.0);
+        for i in 0..n {
+            let x = a + (f64::from(i) + 0.5) * dx;
+            let v = s.eval(x) * dx;
+            m0 += v;
+            m1 += v * x;
+            m2 += v * x * x;
+        }
+        m2 / m0 - (m1 / m0).powi(2)
+    };
+    let sigma_nm = HALPHA * blueshift_spectrum::thermal_sigma_m_per_s(1e4, 1.008).unwrap()
+        / SPEED_OF_LIGHT_M_PER_S;
+    let added = var(&broad) - var(&plain);
+    assert!(
+        (added / (sigma_nm * sigma_nm) - 1.0).abs() < 0.03,
+        "{added} vs {}",
+        sigma_nm * sigma_nm
+    );
+    let (y0, y1) = (img0.xyz[5][1], img1.xyz[5][1]);
+    assert!((y1 / y0 - 1.0).abs() < 1e-3, "{y0} {y1}");
+}

@@ -14,11 +14,12 @@
 //! line cube). With absorption the pixel's full spectrum (continuum included) is built and
 //! integrated with [`PiecewiseLinear::integrate`].
 
-use blueshift_spectrum::{PiecewiseLinear, SPEED_OF_LIGHT_M_PER_S};
+use blueshift_spectrum::{PiecewiseLinear, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
 use glam::Vec3;
 use rayon::prelude::*;
 
 use super::model::DopplerScene;
+use super::profile::Emit;
 use super::render::{Context, DopplerSettings, SpectralIntegrator, Want};
 use crate::{Camera, Error, Projection, Result};
 
@@ -313,6 +314,25 @@ fn bin_trapezoid(edges: &[f64], acc: &mut [f64], lo: f64, hi: f64, h0: f64, h1: 
     }
 }
 
+/// Adds the exact channel integrals of the [`PwlGaussian`] `(c, sigma, area)` through its
+/// piecewise-quadratic cumulative area (the same numbers as integrating its 32 pieces).
+fn bin_gaussian(g: &PwlGaussian, edges: &[f64], acc: &mut [f64], c: f64, sigma: f64, area: f64) {
+    let half = g.half_width_sigmas() * sigma;
+    let (lo, hi) = (c - half, c + half);
+    if hi <= edges[0] || lo >= edges[edges.len() - 1] {
+        return;
+    }
+    let inv = 1.0 / sigma;
+    let mut k = edges.partition_point(|&e| e <= lo).saturating_sub(1);
+    let mut f0 = g.cdf((edges[k] - c) * inv);
+    while k + 1 < edges.len() && edges[k] < hi {
+        let f1 = g.cdf((edges[k + 1] - c) * inv);
+        acc[k] += area * (f1 - f0);
+        f0 = f1;
+        k += 1;
+    }
+}
+
 fn ray_channels(ctx: &Context<'_>, ray: &crate::Ray, edges: &[f64], acc: &mut [f64]) -> Result<()> {
     let scene = ctx.scene;
     let st = ctx.settings;
@@ -358,8 +378,8 @@ fn ray_channels(ctx: &Context<'_>, ray: &crate::Ray, edges: &[f64], acc: &mut [f
                     continue;
                 }
                 let base = dt * l.strength * f.emission;
+                let g = &ctx.profiles.gauss;
                 super::profile::emit_line(
-                    &ctx.profiles.gauss,
                     l.centre_nm,
                     sa,
                     sb,
@@ -368,8 +388,13 @@ fn ray_channels(ctx: &Context<'_>, ray: &crate::Ray, edges: &[f64], acc: &mut [f
                     siga,
                     sigb,
                     st.line_width_nm,
-                    &mut |lo, hi, h0, h1| -> Result<()> {
-                        bin_trapezoid(edges, acc, lo, hi, h0, h1);
+                    &mut |e| -> Result<()> {
+                        match e {
+                            Emit::Trapezoid(lo, hi, h0, h1) => {
+                                bin_trapezoid(edges, acc, lo, hi, h0, h1);
+                            }
+                            Emit::Gaussian(c, sg, area) => bin_gaussian(g, edges, acc, c, sg, area),
+                        }
                         Ok(())
                     },
                 )?;

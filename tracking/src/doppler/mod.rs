@@ -11,6 +11,10 @@
 //! - [`render_doppler`] gives an XYZ [`DopplerImage`]; [`pixel_spectrum`] and [`trace_ray`]
 //!   give one pixel's final spectrum and its step-by-step accumulation;
 //!   [`DisplayOptions::to_rgb8`] maps XYZ to a display image.
+//! - Spectral cubes for astronomers: [`render_cube`] with a [`CubeSpec`] (velocity or
+//!   wavelength channels around a line), [`los_camera`] for a view along any direction,
+//!   [`SpectralCube::moments`], [`fits_bytes`] / [`nrrd_bytes`]; line profiles beyond the
+//!   box (thermal, Gaussian) through [`DopplerSettings::broadening`] ([`Broadening`]).
 //!
 //! ## The model
 //! Along a ray (marched back to front, in the light's direction, with step `step`), species
@@ -42,6 +46,9 @@
 //! | merge tolerance (Fig. 18) | [`DopplerSettings::merge_tolerance`] |
 //! | preview strategy | [`DopplerSettings::piece_budget`] |
 //! | picked pixel spectra, step-by-step accumulation | [`pixel_spectrum`], [`trace_ray`] |
+//! | line profile (paper: box of width delta lambda) | [`Broadening`], `blueshift_spectrum::PwlGaussian` |
+//! | position-position-velocity cube (yt's `PPVCube`) | [`SpectralCube`], [`render_cube`] |
+//! | moment maps 0/1/2 | [`Moments`] |
 
 mod banded;
 mod cube;

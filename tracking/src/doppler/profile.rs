@@ -112,13 +112,21 @@ impl Profiles {
     }
 }
 
-/// Emits one line's contribution over a segment as trapezoids `(lo, hi, h_lo, h_hi)`:
+/// What [`emit_line`] produces.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Emit {
+    /// A trapezoid `(lo, hi, h_lo, h_hi)`.
+    Trapezoid(f64, f64, f64, f64),
+    /// The [`PwlGaussian`] at `(centre, sigma, area)` (wavelengths in nm).
+    Gaussian(f64, f64, f64),
+}
+
+/// Emits one line's contribution over a segment as trapezoids and Gaussians:
 /// centre `centre` seen through shifts `sa`, `sb`, emitted areas `area_a`, `area_b` at the
 /// ends (the segment emits their mean), velocity dispersions `sig_a`, `sig_b` (m/s) at the
 /// ends, `min_width` the box width used without broadening.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn emit_line<E>(
-    gauss: &PwlGaussian,
     centre: f64,
     sa: f64,
     sb: f64,
@@ -127,7 +135,7 @@ pub(crate) fn emit_line<E>(
     sig_a: f64,
     sig_b: f64,
     min_width: f64,
-    sink: &mut impl FnMut(f64, f64, f64, f64) -> std::result::Result<(), E>,
+    sink: &mut impl FnMut(Emit) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
     let (la, lb) = (sa * centre, sb * centre);
     let (sna, snb) = (
@@ -141,7 +149,7 @@ pub(crate) fn emit_line<E>(
         let (lo, hi, h0, h1) =
             super::pwl::line_trapezoid(centre, sa, sb, area_a, area_b, min_width);
         if hi > lo {
-            return sink(lo, hi, h0, h1);
+            return sink(Emit::Trapezoid(lo, hi, h0, h1));
         }
         // A zero-width sweep with a zero minimum width cannot happen (sigma_mean > 0 then
         // takes the Gaussian branch below).
@@ -163,10 +171,15 @@ pub(crate) fn emit_line<E>(
         let pos = la + (lb - la) * uc;
         let sigma = sna + (snb - sna) * uc;
         if sigma > 0.0 {
-            gauss.for_each_piece(pos, sigma, area, &mut *sink)?;
+            sink(Emit::Gaussian(pos, sigma, area))?;
         } else {
             let w = min_width.max(1e-9);
-            sink(pos - 0.5 * w, pos + 0.5 * w, area / w, area / w)?;
+            sink(Emit::Trapezoid(
+                pos - 0.5 * w,
+                pos + 0.5 * w,
+                area / w,
+                area / w,
+            ))?;
         }
     }
     Ok(())

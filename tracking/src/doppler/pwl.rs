@@ -2,6 +2,7 @@
 
 use blueshift_spectrum::{Blackbody, Cmf, PiecewiseLinear, Xyz};
 
+use super::profile::Emit;
 use super::render::{Context, RayOut, RaySamples, TraceStep, Want};
 use crate::{Error, Result};
 
@@ -156,8 +157,18 @@ pub(crate) fn integrate(
             for l in &sp.emission_lines {
                 let base = dt * l.strength * f.emission;
                 if ctx.profiles.active {
+                    let mut add = |lo: f64, hi: f64, h0: f64, h1: f64| -> Result<()> {
+                        if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
+                            return Ok(());
+                        }
+                        if keep {
+                            spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)
+                        } else {
+                            xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
+                            Ok(())
+                        }
+                    };
                     super::profile::emit_line(
-                        &ctx.profiles.gauss,
                         l.centre_nm,
                         sa,
                         sb,
@@ -166,15 +177,10 @@ pub(crate) fn integrate(
                         siga,
                         sigb,
                         st.line_width_nm,
-                        &mut |lo, hi, h0, h1| {
-                            if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
-                                return Ok(());
-                            }
-                            if keep {
-                                spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)
-                            } else {
-                                xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
-                                Ok(())
+                        &mut |e| match e {
+                            Emit::Trapezoid(lo, hi, h0, h1) => add(lo, hi, h0, h1),
+                            Emit::Gaussian(c, sg, area) => {
+                                ctx.profiles.gauss.for_each_piece(c, sg, area, &mut add)
                             }
                         },
                     )?;
