@@ -141,3 +141,84 @@ fn banded_and_pwl_agree_and_demo_writes_its_files() {
     assert_eq!((img.width(), img.height()), (48, 24));
     assert!(demo.join("spectra.png").exists());
 }
+
+/// A scene file of NRRDs written here: constant hydrogen moving away from the camera (+z)
+/// at 300 km/s. The picked H-alpha peak sits at 656.279 (1 + 300 / c) nm; the factor flag
+/// overrides the file's velocity factor; a bad scene is refused with exit code 1.
+#[test]
+fn scene_file_renders_with_units_and_flag_overrides() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let n = 8usize;
+    let write = |name: &str, comps: usize, v: [f32; 3]| {
+        let mut b = format!(
+            "NRRD0004\ntype: float\ndimension: {}\nsizes: {}{n} {n} {n}\nendian: little\nencoding: raw\n\n",
+            if comps == 3 { 4 } else { 3 },
+            if comps == 3 { "3 " } else { "" }
+        )
+        .into_bytes();
+        for _ in 0..n * n * n {
+            for c in v.iter().take(comps) {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        std::fs::write(d.join(name), b).unwrap();
+    };
+    write("h.nrrd", 1, [2.0, 0.0, 0.0]);
+    write("v.nrrd", 3, [0.0, 0.0, 300.0]);
+    let scene = r#"{"velocity": {"file": "v.nrrd", "unit": "km/s"},
+        "species": [{"name": "hydrogen", "lines": "H", "density": {"file": "h.nrrd"}}],
+        "factors": {"velocity": 1}}"#;
+    std::fs::write(d.join("scene.json"), scene).unwrap();
+    let s = d.join("scene.json");
+    let s = s.to_str().unwrap();
+    let c = 299_792.458;
+    for (vf, want) in [("1", 656.279 * (1.0 + 300.0 / c)), ("0", 656.279)] {
+        let out = d.join(format!("v{vf}.exr"));
+        let o = blueshift(&[
+            "doppler",
+            "--scene",
+            s,
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--line-width",
+            "0.02",
+            "--velocity-factor",
+            vf,
+            "--pick",
+            "4,4",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let peak = peak_nm(&d.join(format!("v{vf}_pick_4_4.csv")), 650.0, 662.0);
+        assert!(
+            (peak - want).abs() < 0.03,
+            "velocity factor {vf}: peak {peak}, want {want}"
+        );
+    }
+    // Bad scenes: an unknown unit, a part the scene lacks, --scene with --synth.
+    std::fs::write(
+        d.join("bad.json"),
+        scene.replace("km/s", "parsec/fortnight"),
+    )
+    .unwrap();
+    let bad = d.join("bad.json");
+    for args in [
+        vec!["--scene", bad.to_str().unwrap()],
+        vec!["--scene", s, "--species", "oxygen"],
+        vec!["--scene", s, "--synth", "shell"],
+    ] {
+        let out = d.join("never.exr");
+        let mut all = vec!["doppler"];
+        all.extend(args.iter().copied());
+        all.extend(["--out", out.to_str().unwrap()]);
+        let o = blueshift(&all);
+        assert_eq!(o.status.code(), Some(1), "{args:?}");
+        let msg = String::from_utf8_lossy(&o.stderr);
+        assert!(!msg.trim().is_empty() && !msg.contains("panicked"), "{msg}");
+        assert!(!out.exists());
+    }
+}

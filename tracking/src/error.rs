@@ -12,6 +12,14 @@ pub enum Error {
     /// image size, a non-positive step, weights that do not match the channel count).
     #[error("invalid parameter: {0}")]
     Parameter(String),
+    /// A scene file is unreadable or inconsistent; names the file.
+    #[error("scene file {path}: {message}")]
+    SceneFile {
+        /// The scene file (or the data file it names).
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
     /// An error from the volume crate (macrocells, grids).
     #[error(transparent)]
     Volume(#[from] blueshift_volume::Error),

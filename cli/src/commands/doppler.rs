@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow, bail};
 use blueshift_spectrum::{DopplerModel, PiecewiseLinear};
 use blueshift_tracking::doppler::{
-    ColourMatrix, DisplayOptions, DopplerImage, DopplerScene, DopplerSettings, Exposure,
+    ColourMatrix, DisplayOptions, DopplerImage, DopplerScene, DopplerSettings, Exposure, SceneFile,
     SpectralIntegrator, pixel_spectrum, render_doppler, trace_ray,
 };
 use clap::Parser;
@@ -20,6 +20,12 @@ use crate::plot::{Series, line_plot};
 /// Arguments of `blueshift doppler`.
 #[derive(Debug, Parser)]
 pub struct Args {
+    /// Scene JSON mapping volume files to species, temperature and velocity with units
+    /// (format: blueshift_tracking::doppler::scene_file; example: scenes/enzo-moving7.json).
+    /// Replaces --synth/--res; --species then selects parts of the scene by name (bb for the
+    /// black body) and the factor flags override the file's factors.
+    #[arg(long, conflicts_with_all = ["synth", "res"])]
+    pub scene: Option<PathBuf>,
     /// Synthetic dataset: galaxy or shell.
     #[arg(long, default_value = "galaxy")]
     pub synth: String,
@@ -38,21 +44,21 @@ pub struct Args {
     /// Species, comma-separated: bb, H, He, C (default: bb,H for galaxy, H for shell).
     #[arg(long)]
     pub species: Option<String>,
-    /// Velocity factor (0: Doppler off).
-    #[arg(long, default_value_t = 1.0)]
-    pub velocity_factor: f64,
-    /// Temperature factor.
-    #[arg(long, default_value_t = 1.0)]
-    pub temperature_factor: f64,
-    /// Line emission factor.
-    #[arg(long, default_value_t = 1.0)]
-    pub emission_factor: f64,
-    /// Line absorption factor (0: emission only).
-    #[arg(long, default_value_t = 0.0)]
-    pub absorption_factor: f64,
-    /// Black-body factor.
-    #[arg(long, default_value_t = 1.0)]
-    pub blackbody_factor: f64,
+    /// Velocity factor (0: Doppler off); default 1 or the scene file's.
+    #[arg(long)]
+    pub velocity_factor: Option<f64>,
+    /// Temperature factor; default 1 or the scene file's.
+    #[arg(long)]
+    pub temperature_factor: Option<f64>,
+    /// Line emission factor; default 1 or the scene file's.
+    #[arg(long)]
+    pub emission_factor: Option<f64>,
+    /// Line absorption factor (0: emission only); default 0 or the scene file's.
+    #[arg(long)]
+    pub absorption_factor: Option<f64>,
+    /// Black-body factor; default 1 or the scene file's.
+    #[arg(long)]
+    pub blackbody_factor: Option<f64>,
     /// Subtract the mean velocity.
     #[arg(long)]
     pub subtract_mean_velocity: bool,
@@ -107,25 +113,65 @@ fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
 }
 
 fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
-    if !(2..=512).contains(&args.res) {
-        bail!("--res {} must be 2..=512", args.res);
-    }
-    let (vol, default_species) = match args.synth.as_str() {
-        "galaxy" => (blueshift_volume::synth::galaxy(args.res, 1)?, "bb,H"),
-        "shell" | "hydrogen-shell" => (blueshift_volume::synth::hydrogen_shell(args.res, 1)?, "H"),
-        other => bail!("unknown --synth '{other}' (galaxy, shell)"),
+    let mut scene = if let Some(path) = &args.scene {
+        let file = SceneFile::read(path)?;
+        let tokens: Option<Vec<&str>> = args
+            .species
+            .as_deref()
+            .map(|sp| sp.split(',').filter(|t| !t.trim().is_empty()).collect());
+        file.load_selected(tokens.as_deref())?
+    } else {
+        if !(2..=512).contains(&args.res) {
+            bail!("--res {} must be 2..=512", args.res);
+        }
+        let (vol, default_species) = match args.synth.as_str() {
+            "galaxy" => (blueshift_volume::synth::galaxy(args.res, 1)?, "bb,H"),
+            "shell" | "hydrogen-shell" => {
+                (blueshift_volume::synth::hydrogen_shell(args.res, 1)?, "H")
+            }
+            other => bail!("unknown --synth '{other}' (galaxy, shell)"),
+        };
+        let sp = args
+            .species
+            .clone()
+            .unwrap_or_else(|| default_species.to_owned());
+        let tokens: Vec<&str> = sp.split(',').filter(|t| !t.trim().is_empty()).collect();
+        DopplerScene::from_volume(&vol, &tokens)?
     };
-    let sp = args
-        .species
-        .clone()
-        .unwrap_or_else(|| default_species.to_owned());
-    let tokens: Vec<&str> = sp.split(',').filter(|t| !t.trim().is_empty()).collect();
-    let mut scene = DopplerScene::from_volume(&vol, &tokens)?;
-    scene.factors.velocity = args.velocity_factor;
-    scene.factors.temperature = args.temperature_factor;
-    scene.factors.emission = args.emission_factor;
-    scene.factors.absorption = args.absorption_factor;
-    scene.factors.blackbody = args.blackbody_factor;
+    for (flag, v, slot) in [
+        (
+            "--velocity-factor",
+            args.velocity_factor,
+            &mut scene.factors.velocity,
+        ),
+        (
+            "--temperature-factor",
+            args.temperature_factor,
+            &mut scene.factors.temperature,
+        ),
+        (
+            "--emission-factor",
+            args.emission_factor,
+            &mut scene.factors.emission,
+        ),
+        (
+            "--absorption-factor",
+            args.absorption_factor,
+            &mut scene.factors.absorption,
+        ),
+        (
+            "--blackbody-factor",
+            args.blackbody_factor,
+            &mut scene.factors.blackbody,
+        ),
+    ] {
+        if let Some(v) = v {
+            if !(v.is_finite() && v >= 0.0) {
+                bail!("{flag} {v} must be finite and >= 0");
+            }
+            *slot = v;
+        }
+    }
     if args.subtract_mean_velocity {
         scene.subtract_mean_velocity();
     }
@@ -204,13 +250,39 @@ fn write_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
     })
 }
 
+/// The spectrum as points whose linear interpolation is exact: every piece's end points
+/// (a jump appears as two points at one wavelength; gaps between pieces drop to zero) plus
+/// a uniform grid of 801 points over `range` for the zero baseline. Narrow lines are never
+/// lost between grid points.
 fn samples(s: &PiecewiseLinear, range: (f64, f64)) -> Vec<(f64, f64)> {
-    (0..=800)
-        .map(|i| {
-            let l = range.0 + (range.1 - range.0) * f64::from(i) / 800.0;
-            (l, s.eval(l))
-        })
-        .collect()
+    let mut pts: Vec<(f64, f64)> = Vec::with_capacity(2 * s.piece_count() + 801);
+    let mut prev_end: Option<f64> = None;
+    for p in s.pieces() {
+        if prev_end != Some(p.start_nm) {
+            if let Some(e) = prev_end {
+                pts.push((e, 0.0));
+            }
+            pts.push((p.start_nm, 0.0));
+        }
+        pts.push((p.start_nm, p.value_start));
+        pts.push((p.end_nm, p.value_end));
+        prev_end = Some(p.end_nm);
+    }
+    if let Some(e) = prev_end {
+        pts.push((e, 0.0));
+    }
+    // Break points are already sorted (pieces are ordered and disjoint).
+    let breaks: Vec<f64> = pts.iter().map(|p| p.0).collect();
+    for i in 0..=800 {
+        let l = range.0 + (range.1 - range.0) * f64::from(i) / 800.0;
+        // Grid points strictly inside a piece or a gap add nothing but the baseline; skip
+        // those that coincide with a break point so jumps keep their order.
+        if breaks.binary_search_by(|b| b.total_cmp(&l)).is_err() {
+            pts.push((l, s.eval(l)));
+        }
+    }
+    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    pts
 }
 
 fn spectrum_csv(s: &PiecewiseLinear, range: (f64, f64)) -> String {
@@ -357,13 +429,13 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
     base.width = size;
     base.height = size;
     base.species = Some("bb,H".into());
-    base.blackbody_factor = 0.1;
+    base.blackbody_factor = Some(0.1);
     base.inclination = 60.0;
     let start = Instant::now();
     let mut images = Vec::new();
     let mut series = Vec::new();
     for (label, vf) in [("doppler_on", 30.0), ("doppler_off", 0.0)] {
-        base.velocity_factor = vf;
+        base.velocity_factor = Some(vf);
         let (scene, st) = build(&base)?;
         let img = render(&scene, &st)?;
         write_exr(&args.outdir.join(format!("{label}.exr")), &img)?;

@@ -6,6 +6,9 @@
 //! - Build a [`DopplerScene`] with [`DopplerScene::from_volume`] (synthetic galaxy or shell:
 //!   species tokens `bb`, `H`, `He`, `C`) or by hand with [`Species`] and
 //!   [`DopplerScene::set_blackbody`] / [`DopplerScene::set_velocity`].
+//! - Or load a scene file ([`SceneFile::read`] then [`SceneFile::load`]): JSON mapping volume
+//!   files to species, temperature and velocity with units (format in [`SceneFile`]'s module
+//!   docs; `scenes/enzo-moving7.json` is a worked example on real Enzo data).
 //! - Pick [`DopplerSettings`] ([`DopplerSettings::default_for`] is the orthographic +z view
 //!   framing the volume's x-y extent) and a [`SpectralIntegrator`].
 //! - [`render_doppler`] gives an XYZ [`DopplerImage`]; [`pixel_spectrum`] and [`trace_ray`]
@@ -58,6 +61,7 @@ mod model;
 mod profile;
 mod pwl;
 mod render;
+pub mod scene_file;
 #[cfg(test)]
 mod tests;
 
@@ -71,4 +75,7 @@ pub use profile::Broadening;
 pub use render::{
     BandShift, DopplerImage, DopplerSettings, PieceStats, SpectralIntegrator, TraceStep,
     pixel_spectrum, render_doppler, trace_ray,
+};
+pub use scene_file::{
+    BlackbodySpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec, catalogue_mass_amu,
 };
