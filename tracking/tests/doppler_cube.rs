@@ -157,7 +157,7 @@ fn enzo_cube_matches_yt_ppvcube() {
     let key = "\"projected_density_sum_gcm2\": ";
     let i = meta.find(key).unwrap() + key.len();
     let projected: f64 = meta[i..]
-        .split(|c: char| c == ',' || c == '\n' || c == '}')
+        .split([',', '\n', '}'])
         .next()
         .unwrap()
         .trim()

@@ -73,7 +73,8 @@ impl Profiles {
             let Some((_, temp)) = &scene.blackbody else {
                 return Err(Error::scene(
                     "thermal broadening needs a temperature field (the scene's black-body \
-                     temperature; set the black-body factor to 0 to keep it dark)",
+                 temperature: keep `bb` among the species; a black-body factor of 0 keeps \
+                 it dark)",
                 ));
             };
             let _ = temp;
@@ -193,18 +194,10 @@ mod tests {
     fn emitted(sa: f64, sb: f64, aa: f64, ab: f64, siga: f64, sigb: f64) -> PiecewiseLinear {
         let g = PwlGaussian::default();
         let mut s = PiecewiseLinear::new();
-        emit_line(
-            &g,
-            656.28,
-            sa,
-            sb,
-            aa,
-            ab,
-            siga,
-            sigb,
-            0.1,
-            &mut |a, b, h0, h1| s.add_trapezoid(a, b, h0, h1),
-        )
+        emit_line(656.28, sa, sb, aa, ab, siga, sigb, 0.1, &mut |e| match e {
+            Emit::Trapezoid(a, b, h0, h1) => s.add_trapezoid(a, b, h0, h1),
+            Emit::Gaussian(c, sg, area) => g.add_to(&mut s, c, sg, area),
+        })
         .unwrap();
         s
     }
