@@ -283,6 +283,16 @@ mod tests {
             assert!(rel > 0.3 * g.sup_error_relative(), "{pps},{l}: {rel}");
         }
         assert!(PwlGaussian::default().sup_error_relative() < 0.0088);
+        // The line profile keeps the line's strength as its area.
+        let line = EmissionLine::new(486.1332, 0.35).unwrap();
+        let s = line
+            .to_piecewise(crate::LineProfile::Gaussian { sigma_nm: 0.02 })
+            .unwrap();
+        assert!((s.total() - 0.35).abs() < 1e-12);
+        assert!(
+            line.to_piecewise(crate::LineProfile::Gaussian { sigma_nm: 0.0 })
+                .is_err()
+        );
     }
 
     #[test]

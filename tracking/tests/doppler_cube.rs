@@ -495,3 +495,38 @@ fn image_integrator_broadens_lines_and_keeps_their_energy() {
     let (y0, y1) = (img0.xyz[5][1], img1.xyz[5][1]);
     assert!((y1 / y0 - 1.0).abs() < 1e-3, "{y0} {y1}");
 }
+
+/// The same cube on 1 thread and on the default pool, bit for bit; with line absorption
+/// (the pixel's full spectrum integrated over each channel) no channel brightens, and the
+/// absorbing path with a zero absorption factor equals the emission-only path.
+#[test]
+fn cubes_are_deterministic_and_absorption_never_brightens() {
+    let vol = synth::hydrogen_shell(24, 1).unwrap();
+    let mut scene = DopplerScene::from_volume(&vol, &["H"]).unwrap();
+    let mut st = DopplerSettings::default_for(&scene, 16, 16);
+    st.camera = los_camera(&scene, Vec3::new(0.3, 0.2, 1.0), 1.0, false).unwrap();
+    st.broadening.sigma_m_per_s = 20e3;
+    let spec = CubeSpec {
+        rest_nm: HALPHA,
+        axis: SpectralAxis::RadioVelocity,
+        min: -400e3,
+        max: 400e3,
+        channels: 24,
+    };
+    let many = render_cube(&scene, &st, &spec, &|| {}).unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let one = pool.install(|| render_cube(&scene, &st, &spec, &|| {}).unwrap());
+    assert_eq!(many.data, one.data);
+    scene.factors.absorption = 5.0;
+    let absorbed = render_cube(&scene, &st, &spec, &|| {}).unwrap();
+    let (mut lost, mut total) = (0.0f64, 0.0f64);
+    for (a, e) in absorbed.data.iter().zip(&many.data) {
+        assert!(*a <= *e * (1.0 + 1e-4) + 1e-9, "{a} > {e}");
+        lost += f64::from(e - a);
+        total += f64::from(*e);
+    }
+    assert!(lost > 1e-3 * total, "absorption removed nothing");
+}
