@@ -333,7 +333,56 @@ fn bin_gaussian(g: &PwlGaussian, edges: &[f64], acc: &mut [f64], c: f64, sigma: 
     }
 }
 
-fn ray_channels(ctx: &Context<'_>, ray: &crate::Ray, edges: &[f64], acc: &mut [f64]) -> Result<()> {
+/// Per species, the emission lines that can reach the channels at all: the largest speed in
+/// the scene bounds the shift (classical or relativistic), the hottest temperature bounds
+/// the thermal width (8 sigma), plus the box width.
+fn reachable_lines(ctx: &Context<'_>, edges: &[f64]) -> Vec<Vec<blueshift_spectrum::EmissionLine>> {
+    let scene = ctx.scene;
+    let vmax = scene.velocity.as_ref().map_or(0.0, |v| {
+        v.data()
+            .iter()
+            .fold(0.0f64, |m, x| m.max(f64::from(x.length())))
+    }) * scene.factors.velocity;
+    let beta = vmax / SPEED_OF_LIGHT_M_PER_S;
+    let tmax = scene.blackbody.as_ref().map_or(0.0, |(_, t)| {
+        t.finite_range()
+            .map_or(0.0, |(_, hi)| f64::from(hi).max(0.0))
+    }) * scene.factors.temperature;
+    let (wlo, whi) = (edges[0], edges[edges.len() - 1]);
+    scene
+        .species
+        .iter()
+        .enumerate()
+        .map(|(m, sp)| {
+            if beta >= 0.99 {
+                return sp.emission_lines.clone();
+            }
+            let g = (1.0 - beta * beta).sqrt();
+            let (slo, shi) = ((1.0 - beta).min((1.0 - beta) / g), (1.0 + beta) / g);
+            let sig = if ctx.profiles.active {
+                ctx.profiles.sigma_v(m, tmax) / SPEED_OF_LIGHT_M_PER_S
+            } else {
+                0.0
+            };
+            sp.emission_lines
+                .iter()
+                .filter(|l| {
+                    let reach = 8.0 * sig * shi * l.centre_nm + ctx.settings.line_width_nm;
+                    shi * l.centre_nm + reach >= wlo && slo * l.centre_nm - reach <= whi
+                })
+                .copied()
+                .collect()
+        })
+        .collect()
+}
+
+fn ray_channels(
+    ctx: &Context<'_>,
+    lines: &[Vec<blueshift_spectrum::EmissionLine>],
+    ray: &crate::Ray,
+    edges: &[f64],
+    acc: &mut [f64],
+) -> Result<()> {
     let scene = ctx.scene;
     let st = ctx.settings;
     let f = scene.factors;
@@ -357,7 +406,7 @@ fn ray_channels(ctx: &Context<'_>, ray: &crate::Ray, edges: &[f64], acc: &mut [f
         let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
         let (sa, sb) = (s.shift[j], s.shift[j + 1]);
         let (ga, gb) = (ctx.value_factor(sa) * sa, ctx.value_factor(sb) * sb);
-        for (m, sp) in scene.species.iter().enumerate() {
+        for m in 0..nsp {
             let (ra, rb) = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
             if ra <= 0.0 && rb <= 0.0 {
                 continue;
@@ -370,7 +419,7 @@ fn ray_channels(ctx: &Context<'_>, ray: &crate::Ray, edges: &[f64], acc: &mut [f
             } else {
                 (0.0, 0.0)
             };
-            for l in &sp.emission_lines {
+            for l in &lines[m] {
                 // Skip lines that cannot reach the window (shift range, 8 sigma and the box).
                 let (lmin, lmax) = (sa.min(sb) * l.centre_nm, sa.max(sb) * l.centre_nm);
                 let reach = 8.0 * siga.max(sigb) / SPEED_OF_LIGHT_M_PER_S * lmax + st.line_width_nm;
@@ -441,6 +490,7 @@ pub fn render_cube(
         .ok_or_else(|| Error::parameter("cube larger than 2^30 values"))?;
     let ctx = Context::new(scene, settings)?;
     let edges: Vec<f64> = (0..=spec.channels).map(|i| spec.edge_nm(i)).collect();
+    let lines = reachable_lines(&ctx, &edges);
     let rows: Vec<Result<Vec<Vec<f64>>>> = (0..h)
         .into_par_iter()
         .map(|y| {
@@ -453,7 +503,7 @@ pub fn render_cube(
                         settings.height,
                     );
                     let mut acc = vec![0.0; spec.channels];
-                    ray_channels(&ctx, &ray, &edges, &mut acc)?;
+                    ray_channels(&ctx, &lines, &ray, &edges, &mut acc)?;
                     Ok(acc)
                 })
                 .collect::<Result<Vec<_>>>();
