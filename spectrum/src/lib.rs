@@ -47,6 +47,7 @@
 //! | Fig. 10 21-piece black body | [`Blackbody::to_piecewise_uniform`], [`Blackbody::to_piecewise`] |
 //! | section 4.1 fixed bands, Algorithm 1 shift | [`Banded`], [`Banded::shift_nearest`] |
 //! | section 4.2 "Convolution" closed form | [`PiecewiseLinear::dot`] |
+//! | thermal Doppler broadening (not in the paper) | [`thermal_sigma_m_per_s`], [`PwlGaussian`], [`LineProfile::Gaussian`] |
 //! | D (wavelength ratio) | [`WavelengthShift`]; the frequency ratio is [`DopplerFactor`] |
 //!
 //! ## Units and conventions
@@ -63,6 +64,7 @@ mod doppler;
 mod error;
 mod lines;
 mod piecewise;
+mod profiles;
 
 pub use banded::{BandLayout, BandWeights, Banded};
 pub use blackbody::{
@@ -78,6 +80,10 @@ pub use doppler::{
 pub use error::{Error, Result};
 pub use lines::{Catalogue, EmissionLine, LineProfile, parse_line_list, read_line_list};
 pub use piecewise::{Piece, PiecewiseLinear};
+pub use profiles::{
+    ATOMIC_MASS_UNIT_KG, NamedLine, PwlGaussian, named_line, thermal_sigma_m_per_s,
+    velocity_sigma_to_nm,
+};
 
 /// The small interface shared by every spectrum type (CONVENTIONS C5): evaluate, bound, and
 /// convert to colour. Kernels take `impl Spectrum` generics; there is no `dyn` in hot paths.

@@ -106,6 +106,9 @@ pub struct Args {
     /// Output EXR (XYZ); the PNG goes next to it.
     #[arg(long, default_value = "doppler.exr")]
     pub out: PathBuf,
+    /// Spectral cube, line broadening and view direction.
+    #[command(flatten)]
+    pub cube: super::doppler_cube::CubeArgs,
 }
 
 fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
@@ -381,7 +384,12 @@ const COLOURS: [RGBColor; 6] = [
 
 /// Runs `blueshift doppler`.
 pub fn run(args: Args) -> Result<()> {
-    let (scene, st) = build(&args)?;
+    let (scene, mut st) = build(&args)?;
+    super::doppler_cube::apply_view(&args.cube, &scene, &mut st)?;
+    st.broadening = super::doppler_cube::broadening(&args.cube)?;
+    if args.cube.cube.is_some() {
+        return super::doppler_cube::run_cube(&args.cube, &scene, &st);
+    }
     let disp = display(&args)?;
     let op = tonemap_op(args.tonemap.trim())?;
     for &(x, y) in args.pick.iter().chain(args.trace.iter()) {

@@ -2,6 +2,7 @@
 
 pub mod convert;
 pub mod doppler;
+pub mod doppler_cube;
 pub mod info;
 pub mod relativity;
 pub mod render;

@@ -14,6 +14,10 @@
 //! - [`render_doppler`] gives an XYZ [`DopplerImage`]; [`pixel_spectrum`] and [`trace_ray`]
 //!   give one pixel's final spectrum and its step-by-step accumulation;
 //!   [`DisplayOptions::to_rgb8`] maps XYZ to a display image.
+//! - Spectral cubes for astronomers: [`render_cube`] with a [`CubeSpec`] (velocity or
+//!   wavelength channels around a line), [`los_camera`] for a view along any direction,
+//!   [`SpectralCube::moments`], [`fits_bytes`] / [`nrrd_bytes`]; line profiles beyond the
+//!   box (thermal, Gaussian) through [`DopplerSettings::broadening`] ([`Broadening`]).
 //!
 //! ## The model
 //! Along a ray (marched back to front, in the light's direction, with step `step`), species
@@ -63,18 +67,29 @@
 //! | merge tolerance (Fig. 18) | [`DopplerSettings::merge_tolerance`] |
 //! | preview strategy | [`DopplerSettings::piece_budget`] |
 //! | picked pixel spectra, step-by-step accumulation | [`pixel_spectrum`], [`trace_ray`] |
+//! | line profile (paper: box of width delta lambda) | [`Broadening`], `blueshift_spectrum::PwlGaussian` |
+//! | position-position-velocity cube (yt's `PPVCube`) | [`SpectralCube`], [`render_cube`] |
+//! | moment maps 0/1/2 | [`Moments`] |
 
 mod banded;
+mod cube;
 mod display;
+mod fits;
 mod model;
+mod profile;
 mod pwl;
 mod render;
 pub mod scene_file;
 #[cfg(test)]
 mod tests;
 
+pub use cube::{
+    CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
+};
 pub use display::{ColourMatrix, DisplayOptions, Exposure};
+pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
 pub use model::{BB_UNIT, DopplerScene, Factors, Species};
+pub use profile::Broadening;
 pub use render::{
     BandShift, DopplerImage, DopplerSettings, PieceStats, SpectralIntegrator, TraceStep,
     pixel_spectrum, render_doppler, trace_ray,

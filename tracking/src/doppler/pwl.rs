@@ -2,6 +2,7 @@
 
 use blueshift_spectrum::{Blackbody, Cmf, Piece, PiecewiseLinear, Xyz};
 
+use super::profile::Emit;
 use super::render::{Context, RayOut, RaySamples, TraceStep, Want};
 use crate::{Error, Result};
 
@@ -182,8 +183,46 @@ pub(crate) fn integrate(
             if ra <= 0.0 && rb <= 0.0 {
                 continue;
             }
+            let (siga, sigb) = if ctx.profiles.active {
+                (
+                    ctx.profiles.sigma_v(m, s.temp[j]),
+                    ctx.profiles.sigma_v(m, s.temp[j + 1]),
+                )
+            } else {
+                (0.0, 0.0)
+            };
             for l in &sp.emission_lines {
                 let base = dt * l.strength * f.emission;
+                if ctx.profiles.active {
+                    let mut add = |lo: f64, hi: f64, h0: f64, h1: f64| -> Result<()> {
+                        if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
+                            return Ok(());
+                        }
+                        if keep {
+                            spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)
+                        } else {
+                            xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
+                            Ok(())
+                        }
+                    };
+                    super::profile::emit_line(
+                        l.centre_nm,
+                        sa,
+                        sb,
+                        base * ra * ga,
+                        base * rb * gb,
+                        siga,
+                        sigb,
+                        st.line_width_nm,
+                        &mut |e| match e {
+                            Emit::Trapezoid(lo, hi, h0, h1) => add(lo, hi, h0, h1),
+                            Emit::Gaussian(c, sg, area) => {
+                                ctx.profiles.gauss.for_each_piece(c, sg, area, &mut add)
+                            }
+                        },
+                    )?;
+                    continue;
+                }
                 let (lo, hi, h0, h1) = line_trapezoid(
                     l.centre_nm,
                     sa,

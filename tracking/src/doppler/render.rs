@@ -102,6 +102,13 @@ pub struct DopplerSettings {
     /// Largest optical-depth change inside one attenuated sub-piece of a kept spectrum (its
     /// chord errs by at most `max_depth_step^2 / 8` of the value per attenuation).
     pub max_depth_step: f64,
+    /// Line profile beyond the box: thermal and/or a Gaussian width (piecewise-linear
+    /// integrator and cubes; the banded integrators keep the box).
+    pub broadening: super::profile::Broadening,
+    /// Treat voxels as cells: rays cross the box of the voxel CENTRES grown by half a
+    /// spacing on every side (values clamped at the edges), as cell-centred simulation
+    /// codes (Enzo, yt) see their domain. Default false: the box of the voxel centres.
+    pub cell_domain: bool,
 }
 
 impl DopplerSettings {
@@ -127,6 +134,8 @@ impl DopplerSettings {
             merge_tolerance: 1e-4,
             piece_budget: 4096,
             max_depth_step: 0.1,
+            broadening: super::profile::Broadening::default(),
+            cell_domain: false,
         }
     }
 
@@ -223,6 +232,7 @@ pub(crate) struct Context<'a> {
     pub step: f32,
     pub pwl: Option<pwl::PwlTables>,
     pub banded: Option<banded::BandTables>,
+    pub profiles: super::profile::Profiles,
 }
 
 impl<'a> Context<'a> {
@@ -235,12 +245,14 @@ impl<'a> Context<'a> {
                 Some(banded::BandTables::new(scene, settings, bands, shift)?),
             ),
         };
+        let profiles = super::profile::Profiles::new(scene, &settings.broadening)?;
         Ok(Self {
             scene,
             settings,
             step,
             pwl,
             banded,
+            profiles,
         })
     }
 
@@ -256,7 +268,11 @@ impl<'a> Context<'a> {
     /// Samples a ray back to front. Returns an empty set if the ray misses the volume.
     pub fn sample(&self, ray: &Ray) -> Result<RaySamples> {
         let g = &self.scene.geometry;
-        let (lo, hi) = g.world_bounds();
+        let (mut lo, mut hi) = g.world_bounds();
+        if self.settings.cell_domain {
+            lo -= 0.5 * g.spacing;
+            hi += 0.5 * g.spacing;
+        }
         let mut out = RaySamples::default();
         let Some((t0, t1)) = ray.clip_box(lo, hi) else {
             return Ok(out);
@@ -364,7 +380,7 @@ pub(crate) enum Want {
     Trace,
 }
 
-fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayOut> {
+pub(crate) fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayOut> {
     let samples = ctx.sample(ray)?;
     if samples.len() < 2 {
         return Ok(RayOut {

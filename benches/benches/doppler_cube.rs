@@ -1,0 +1,129 @@
+//! Spectral-cube generation (issue 10): a 256^2 x 128-channel H-alpha cube from the 64^3
+//! Enzo snapshot (`shared/data/enzo-moving7`, seen along z, v_los -350..-150 km/s) and from
+//! the 128^3 synthetic galaxy (128 x 128 x 64 voxels, edge-on along x, -300..300 km/s),
+//! thermal broadening off and on, single-threaded (yt's PPVCube, timed by
+//! `benches/scripts/yt_ppv_bench.py` on the same data, runs in one process). The Enzo cases
+//! are skipped, with a printed reason, when the shared data is absent. Timings also go to
+//! `target/blueshift-benches/doppler_cube.csv`.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use blueshift_benches::out_dir;
+use blueshift_spectrum::Catalogue;
+use blueshift_tracking::doppler::{
+    CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis, los_camera, render_cube,
+};
+use blueshift_volume::{AnyGrid, synth};
+use criterion::Criterion;
+use glam::Vec3;
+
+const HALPHA: f64 = 656.2816;
+
+fn enzo_dir() -> Option<PathBuf> {
+    let here = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    [
+        here.join("../../shared/data/enzo-moving7"),
+        here.join("../../../shared/data/enzo-moving7"),
+        PathBuf::from("/work/shared/data/enzo-moving7"),
+    ]
+    .into_iter()
+    .find(|p| p.join("density_gcm3_64x64x64_f32le.nhdr").exists())
+}
+
+fn enzo_scene() -> Option<DopplerScene> {
+    let dir = enzo_dir()?;
+    let read = |name: &str| {
+        blueshift_volume::read(dir.join(name))
+            .expect("enzo nhdr")
+            .channels()[0]
+            .grid
+            .clone()
+    };
+    let rho = read("density_gcm3_64x64x64_f32le.nhdr");
+    let temp = read("temperature_K_64x64x64_f32le.nhdr");
+    let AnyGrid::Vec3(mut vel) = read("velocity_kms_64x64x64x3_f32le.nhdr") else {
+        panic!("velocity is not a vector channel");
+    };
+    for v in vel.data_mut() {
+        *v *= 1e3; // km/s -> m/s
+    }
+    let mut scene = DopplerScene::new(*rho.geometry()).expect("scene");
+    scene
+        .add_species(Species {
+            name: "H".into(),
+            density: rho.clone(),
+            emission_lines: Catalogue::HydrogenBalmer.lines(),
+            absorption_lines: vec![],
+        })
+        .expect("species");
+    scene.set_blackbody(rho, temp).expect("temperature");
+    scene.factors.blackbody = 0.0;
+    scene.set_velocity(vel).expect("velocity");
+    Some(scene)
+}
+
+fn galaxy_scene() -> DopplerScene {
+    let vol = synth::galaxy(128, 1).expect("galaxy");
+    let mut s = DopplerScene::from_volume(&vol, &["bb", "H"]).expect("scene");
+    s.factors.blackbody = 0.0;
+    s
+}
+
+fn setup(
+    scene: &DopplerScene,
+    normal: Vec3,
+    vmin: f64,
+    vmax: f64,
+    thermal: bool,
+) -> (DopplerSettings, CubeSpec) {
+    let mut st = DopplerSettings::default_for(scene, 256, 256);
+    st.cell_domain = true;
+    st.camera = los_camera(scene, normal, 1.0, true).expect("camera");
+    let spec = CubeSpec {
+        rest_nm: HALPHA,
+        axis: SpectralAxis::OpticalVelocity,
+        min: vmin * 1e3,
+        max: vmax * 1e3,
+        channels: 128,
+    };
+    st.line_width_nm = HALPHA * spec.width() / blueshift_spectrum::SPEED_OF_LIGHT_M_PER_S;
+    st.broadening.thermal = thermal;
+    (st, spec)
+}
+
+fn main() {
+    let mut c = Criterion::default().configure_from_args().sample_size(10);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    let mut cases: Vec<(&str, DopplerScene, Vec3, f64, f64)> = Vec::new();
+    match enzo_scene() {
+        Some(s) => cases.push(("enzo64", s, Vec3::Z, -350.0, -150.0)),
+        None => println!("skipping the Enzo cube: shared/data/enzo-moving7 not found"),
+    }
+    cases.push(("galaxy128", galaxy_scene(), Vec3::X, -300.0, 300.0));
+    let mut csv = String::from("case,thermal,seconds_single_thread\n");
+    let mut group = c.benchmark_group("doppler_cube_256x256x128");
+    for (name, scene, normal, lo, hi) in &cases {
+        for thermal in [false, true] {
+            let (st, spec) = setup(scene, *normal, *lo, *hi, thermal);
+            let t = Instant::now();
+            let cube = pool.install(|| render_cube(scene, &st, &spec, &|| {}).expect("cube"));
+            let secs = t.elapsed().as_secs_f64();
+            let total: f64 = cube.data.iter().map(|&v| f64::from(v)).sum();
+            println!("{name} thermal={thermal}: {secs:.3} s single-threaded, sum {total:.4e}");
+            let _ = writeln!(csv, "{name},{thermal},{secs:.4}");
+            group.bench_function(format!("{name}_thermal_{thermal}"), |b| {
+                b.iter(|| pool.install(|| render_cube(scene, &st, &spec, &|| {}).expect("cube")));
+            });
+        }
+    }
+    group.finish();
+    let path = out_dir().join("doppler_cube.csv");
+    std::fs::write(&path, csv).expect("csv");
+    println!("wrote {}", path.display());
+    c.final_summary();
+}

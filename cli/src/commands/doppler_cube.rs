@@ -1,0 +1,446 @@
+//! `blueshift doppler --cube`: position-position-velocity cubes (FITS + NRRD), moment maps
+//! (EXR + colour-mapped PNGs with colour bars in km/s) and views along any direction.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow, bail};
+use blueshift_spectrum::named_line;
+use blueshift_tracking::doppler::{
+    Broadening, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Moments, SpectralAxis,
+    SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
+};
+use clap::Args as ClapArgs;
+use plotters::prelude::*;
+
+use crate::output::{write_bytes_atomic, write_via_temp_path};
+use crate::plot::{FONT, register_font};
+
+/// Cube, broadening and view flags of `blueshift doppler`.
+#[derive(Debug, Clone, Default, ClapArgs)]
+pub struct CubeArgs {
+    /// Write a spectral cube (FITS) instead of an image; an NRRD copy goes next to it.
+    /// Lines without --thermal / --line-sigma get a box one channel wide (--line-width is
+    /// not used), whose exact channel integrals are yt's tent weights.
+    #[arg(long)]
+    pub cube: Option<PathBuf>,
+    /// The cube's line: a name (H-alpha, Halpha, H-beta, HeI-5876, ...) or a rest
+    /// wavelength in nm.
+    #[arg(long)]
+    pub line: Option<String>,
+    /// Velocity channels VMIN:VMAX:N in km/s (channel edges from VMIN to VMAX).
+    #[arg(long, allow_hyphen_values = true)]
+    pub velocity_bins: Option<String>,
+    /// Wavelength channels MIN:MAX:N in nm (instead of --velocity-bins; CTYPE3 WAVE).
+    #[arg(long, allow_hyphen_values = true)]
+    pub wavelength_bins: Option<String>,
+    /// Velocity convention of the spectral axis: vrad (radio, FITS VRAD) or vopt (optical,
+    /// FITS VOPT, yt's PPVCube axis).
+    #[arg(long, default_value = "vrad")]
+    pub spectral_axis: String,
+    /// Thermal Doppler broadening of every line (sigma = sqrt(kT/m) from the temperature
+    /// field and the species' atomic mass).
+    #[arg(long)]
+    pub thermal: bool,
+    /// Extra Gaussian line width (1 sigma), km/s.
+    #[arg(long, default_value_t = 0.0)]
+    pub line_sigma: f64,
+    /// Atomic mass of a species, NAME=AMU (repeatable; H, He, C have catalogue masses).
+    #[arg(long)]
+    pub mass: Vec<String>,
+    /// Write moment maps 0, 1, 2 (EXR and PNG with colour bars) next to the cube.
+    #[arg(long)]
+    pub moments: bool,
+    /// View along an axis: the observer sits at +x, +y or +z (yt's axis projections).
+    #[arg(long)]
+    pub axis: Option<String>,
+    /// View along any direction X,Y,Z: the observer sits at +normal (yt's normal vector);
+    /// the line-of-sight velocity is -v . normal (positive: receding).
+    #[arg(long, allow_hyphen_values = true)]
+    pub normal: Option<String>,
+    /// Voxels are cells (Enzo, yt): rays cross the voxel centres' box grown by half a voxel.
+    #[arg(long)]
+    pub cell_domain: bool,
+    /// FITS BUNIT of the cube.
+    #[arg(long, default_value = "")]
+    pub bunit: String,
+    /// Spatial unit of the cube's sky axes, UNIT:SCALE (one world unit = SCALE UNIT), e.g.
+    /// cm:5.6149e23.
+    #[arg(long)]
+    pub world_unit: Option<String>,
+}
+
+fn parse_triple(s: &str, what: &str) -> Result<(f64, f64, usize)> {
+    let p: Vec<&str> = s.split(':').collect();
+    if p.len() != 3 {
+        bail!("{what} '{s}': expected MIN:MAX:N");
+    }
+    let a: f64 = p[0]
+        .trim()
+        .parse()
+        .map_err(|_| anyhow!("{what} '{s}': bad MIN"))?;
+    let b: f64 = p[1]
+        .trim()
+        .parse()
+        .map_err(|_| anyhow!("{what} '{s}': bad MAX"))?;
+    let n: usize = p[2]
+        .trim()
+        .parse()
+        .map_err(|_| anyhow!("{what} '{s}': bad N"))?;
+    if !(a.is_finite() && b.is_finite()) || a >= b {
+        bail!("{what} '{s}': the range {a}..{b} is empty (MIN must be below MAX)");
+    }
+    if n == 0 {
+        bail!("{what} '{s}': zero channels");
+    }
+    Ok((a, b, n))
+}
+
+/// Applies `--cell-domain` and `--axis` / `--normal` to the settings (both view flags: an
+/// error).
+pub fn apply_view(args: &CubeArgs, scene: &DopplerScene, st: &mut DopplerSettings) -> Result<()> {
+    st.cell_domain = args.cell_domain;
+    let normal = match (&args.axis, &args.normal) {
+        (Some(_), Some(_)) => bail!("give --axis or --normal, not both"),
+        (Some(a), None) => match a.trim().to_ascii_lowercase().as_str() {
+            "x" => glam::Vec3::X,
+            "y" => glam::Vec3::Y,
+            "z" => glam::Vec3::Z,
+            other => bail!("unknown --axis '{other}' (x, y, z)"),
+        },
+        (None, Some(n)) => {
+            let p: Vec<f32> = n
+                .split(',')
+                .map(|t| t.trim().parse::<f32>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| anyhow!("--normal '{n}': expected X,Y,Z"))?;
+            if p.len() != 3 || p.iter().any(|v| !v.is_finite()) {
+                bail!("--normal '{n}': expected three finite numbers X,Y,Z");
+            }
+            glam::Vec3::new(p[0], p[1], p[2])
+        }
+        (None, None) => return Ok(()),
+    };
+    st.camera = los_camera(
+        scene,
+        normal,
+        st.width as f32 / st.height.max(1) as f32,
+        st.cell_domain,
+    )?;
+    Ok(())
+}
+
+/// The broadening from the flags.
+pub fn broadening(args: &CubeArgs) -> Result<Broadening> {
+    if !(args.line_sigma.is_finite() && args.line_sigma >= 0.0) {
+        bail!("--line-sigma {} must be finite and >= 0", args.line_sigma);
+    }
+    let mut masses = Vec::new();
+    for m in &args.mass {
+        let (n, v) = m
+            .split_once('=')
+            .ok_or_else(|| anyhow!("--mass '{m}': expected NAME=AMU"))?;
+        let v: f64 = v
+            .trim()
+            .parse()
+            .map_err(|_| anyhow!("--mass '{m}': bad mass"))?;
+        if !(v.is_finite() && v > 0.0) {
+            bail!("--mass '{m}': the mass must be finite and > 0");
+        }
+        masses.push((n.trim().to_owned(), v));
+    }
+    Ok(Broadening {
+        thermal: args.thermal,
+        sigma_m_per_s: args.line_sigma * 1e3,
+        masses_amu: masses,
+    })
+}
+
+/// The channels from the flags.
+pub fn cube_spec(args: &CubeArgs) -> Result<CubeSpec> {
+    let line = args
+        .line
+        .as_deref()
+        .ok_or_else(|| anyhow!("--cube needs --line NAME_OR_NM"))?;
+    let rest_nm = match line.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => v,
+        Ok(v) => bail!("--line {v}: a wavelength must be finite and > 0 nm"),
+        Err(_) => named_line(line)?.line.centre_nm,
+    };
+    match (&args.velocity_bins, &args.wavelength_bins) {
+        (Some(_), Some(_)) => bail!("give --velocity-bins or --wavelength-bins, not both"),
+        (Some(v), None) => {
+            let (a, b, n) = parse_triple(v, "--velocity-bins")?;
+            let axis: SpectralAxis = args.spectral_axis.parse()?;
+            if axis == SpectralAxis::Wavelength {
+                bail!("--spectral-axis wave needs --wavelength-bins");
+            }
+            Ok(CubeSpec {
+                rest_nm,
+                axis,
+                min: a * 1e3,
+                max: b * 1e3,
+                channels: n,
+            })
+        }
+        (None, Some(w)) => {
+            let (a, b, n) = parse_triple(w, "--wavelength-bins")?;
+            Ok(CubeSpec {
+                rest_nm,
+                axis: SpectralAxis::Wavelength,
+                min: a,
+                max: b,
+                channels: n,
+            })
+        }
+        (None, None) => bail!("--cube needs --velocity-bins VMIN:VMAX:N (km/s)"),
+    }
+}
+
+fn sibling(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("cube");
+    out.with_file_name(format!("{stem}{suffix}"))
+}
+
+/// Renders and writes the cube (and moments): called by `blueshift doppler --cube`.
+pub fn run_cube(args: &CubeArgs, scene: &DopplerScene, st: &DopplerSettings) -> Result<()> {
+    let out = args.cube.as_ref().ok_or_else(|| anyhow!("no --cube"))?;
+    let spec = cube_spec(args)?;
+    spec.validate(st.range_nm)?;
+    let world_unit = match &args.world_unit {
+        None => None,
+        Some(w) => {
+            let (u, k) = w
+                .split_once(':')
+                .ok_or_else(|| anyhow!("--world-unit '{w}': expected UNIT:SCALE"))?;
+            let k: f64 = k
+                .trim()
+                .parse()
+                .map_err(|_| anyhow!("--world-unit '{w}': bad SCALE"))?;
+            if !(k.is_finite() && k > 0.0) {
+                bail!("--world-unit '{w}': SCALE must be finite and > 0");
+            }
+            Some((u.trim().to_owned(), k))
+        }
+    };
+    let meta = CubeMeta {
+        bunit: args.bunit.clone(),
+        object: String::new(),
+        world_unit,
+    };
+    // Unbroadened lines get a box one channel wide: its exact channel integrals are yt's
+    // tent weights 1 - |v_c - v| / dv.
+    let mut st = st.clone();
+    st.line_width_nm = match spec.axis {
+        SpectralAxis::Wavelength => spec.width(),
+        _ => spec.rest_nm * spec.width() / blueshift_spectrum::SPEED_OF_LIGHT_M_PER_S,
+    };
+    let st = &st;
+    let bar = indicatif::ProgressBar::new(u64::from(st.height));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} rows [{elapsed}]")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let start = Instant::now();
+    let cube = render_cube(scene, st, &spec, &|| bar.inc(1))?;
+    bar.finish_and_clear();
+    let secs = start.elapsed().as_secs_f64();
+    let fits = fits_bytes(&cube, &meta)?;
+    let nrrd = nrrd_bytes(&cube)?;
+    write_bytes_atomic(out, &fits)?;
+    let nrrd_path = out.with_extension("nrrd");
+    write_bytes_atomic(&nrrd_path, &nrrd)?;
+    if args.moments {
+        write_moments(out, &cube)?;
+    }
+    println!(
+        "wrote {} and {} ({}x{}x{} channels {} {:.4}..{:.4} nm, {:.2} s)",
+        out.display(),
+        nrrd_path.display(),
+        cube.nx,
+        cube.ny,
+        spec.channels,
+        spec.axis.ctype(),
+        spec.edge_nm(0),
+        spec.edge_nm(spec.channels),
+        secs
+    );
+    Ok(())
+}
+
+fn write_moments(out: &Path, cube: &SpectralCube) -> Result<()> {
+    let m: Moments = cube.moments();
+    let velocity = cube.spec.axis != SpectralAxis::Wavelength;
+    let (k, unit) = if velocity {
+        (1e-3, "km/s")
+    } else {
+        (1.0, "nm")
+    };
+    let maps: [(&str, Vec<f32>, String); 3] = [
+        (
+            "mom0",
+            m.m0.clone(),
+            "moment 0: integrated line emission".to_owned(),
+        ),
+        (
+            "mom1",
+            m.m1.iter().map(|v| (f64::from(*v) * k) as f32).collect(),
+            format!("moment 1: mean ({unit})"),
+        ),
+        (
+            "mom2",
+            m.m2.iter().map(|v| (f64::from(*v) * k) as f32).collect(),
+            format!("moment 2: dispersion ({unit})"),
+        ),
+    ];
+    for (name, v, title) in maps {
+        // Flip to image order (row 0 at the top).
+        let (w, h) = (m.nx, m.ny);
+        let mut img = Vec::with_capacity(v.len());
+        for y in (0..h).rev() {
+            img.extend_from_slice(&v[y * w..(y + 1) * w]);
+        }
+        let exr = image::Rgba32FImage::from_fn(w as u32, h as u32, |x, y| {
+            let p = img[y as usize * w + x as usize];
+            image::Rgba([p, p, p, 1.0])
+        });
+        let path = sibling(out, &format!("_{name}.exr"));
+        write_via_temp_path(&path, |p| {
+            exr.save_with_format(p, image::ImageFormat::OpenExr)
+                .with_context(|| format!("cannot write {}", path.display()))
+        })?;
+        let diverging = name == "mom1" && velocity;
+        colour_png(
+            &sibling(out, &format!("_{name}.png")),
+            &img,
+            w,
+            h,
+            &title,
+            diverging,
+        )?;
+    }
+    Ok(())
+}
+
+fn inferno(x: f32) -> RGBColor {
+    const STOPS: [[f32; 3]; 5] = [
+        [0.0, 0.0, 4.0],
+        [87.0, 16.0, 110.0],
+        [188.0, 55.0, 84.0],
+        [249.0, 142.0, 9.0],
+        [252.0, 255.0, 164.0],
+    ];
+    ramp(&STOPS, x)
+}
+
+fn blue_red(x: f32) -> RGBColor {
+    const STOPS: [[f32; 3]; 5] = [
+        [5.0, 48.0, 97.0],
+        [103.0, 169.0, 207.0],
+        [247.0, 247.0, 247.0],
+        [239.0, 138.0, 98.0],
+        [103.0, 0.0, 31.0],
+    ];
+    ramp(&STOPS, x)
+}
+
+fn ramp(stops: &[[f32; 3]; 5], x: f32) -> RGBColor {
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
+    let i = (x.floor() as usize).min(3);
+    let f = x - i as f32;
+    let c = |k: usize| (stops[i][k] + f * (stops[i + 1][k] - stops[i][k])).round() as u8;
+    RGBColor(c(0), c(1), c(2))
+}
+
+/// A colour-mapped picture (NaN grey) scaled up to at least 256 pixels, with a labelled
+/// colour bar: inferno from the minimum to the maximum, or blue-white-red symmetric about 0.
+fn colour_png(
+    path: &Path,
+    v: &[f32],
+    w: usize,
+    h: usize,
+    title: &str,
+    diverging: bool,
+) -> Result<()> {
+    register_font();
+    let finite = v.iter().copied().filter(|x| x.is_finite());
+    let (mut lo, mut hi) = finite.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), x| {
+        (a.min(x), b.max(x))
+    });
+    if !lo.is_finite() {
+        (lo, hi) = (0.0, 1.0);
+    }
+    if diverging {
+        let m = lo.abs().max(hi.abs()).max(1e-6);
+        (lo, hi) = (-m, m);
+    }
+    if hi <= lo {
+        hi = lo + 1.0;
+    }
+    let zoom = (256 / w.max(h).max(1)).max(1);
+    let (pw, ph) = (w * zoom, h * zoom);
+    let bar_w = 170usize;
+    let (iw, ih) = ((pw + bar_w) as u32, (ph.max(200) + 30) as u32);
+    let mut buf = vec![0u8; iw as usize * ih as usize * 3];
+    let map = |x: f32| {
+        if !x.is_finite() {
+            RGBColor(128, 128, 128)
+        } else if diverging {
+            blue_red((x - lo) / (hi - lo))
+        } else {
+            inferno((x - lo) / (hi - lo))
+        }
+    };
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (iw, ih)).into_drawing_area();
+        let err = |e| anyhow!("moment map plot: {e:?}");
+        root.fill(&WHITE).map_err(err)?;
+        let style = (FONT, 13).into_font().color(&BLACK);
+        root.draw(&Text::new(title.to_owned(), (4, 6), style.clone()))
+            .map_err(err)?;
+        for y in 0..ph {
+            for x in 0..pw {
+                root.draw_pixel(
+                    (x as i32, 30 + y as i32),
+                    &map(v[(y / zoom) * w + x / zoom]),
+                )
+                .map_err(err)?;
+            }
+        }
+        let (x0, y0, y1) = (pw as i32 + 14, 40i32, ih as i32 - 14);
+        for y in y0..=y1 {
+            let t = (y1 - y) as f32 / (y1 - y0).max(1) as f32;
+            root.draw(&Rectangle::new(
+                [(x0, y), (x0 + 16, y + 1)],
+                map(lo + t * (hi - lo)).filled(),
+            ))
+            .map_err(err)?;
+        }
+        for (t, y) in [
+            (1.0f32, y0),
+            (0.75, y0 + (y1 - y0) / 4),
+            (0.5, (y0 + y1) / 2),
+            (0.25, y0 + 3 * (y1 - y0) / 4),
+            (0.0, y1),
+        ] {
+            let val = lo + t * (hi - lo);
+            let label = if val.abs() >= 1e4 || (val != 0.0 && val.abs() < 1e-2) {
+                format!("{val:.3e}")
+            } else {
+                format!("{val:.2}")
+            };
+            root.draw(&Text::new(label, (x0 + 22, y - 6), style.clone()))
+                .map_err(err)?;
+        }
+        root.present().map_err(err)?;
+    }
+    let img = image::RgbImage::from_raw(iw, ih, buf).ok_or_else(|| anyhow!("plot buffer"))?;
+    write_via_temp_path(path, |p| {
+        img.save_with_format(p, image::ImageFormat::Png)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
+}
