@@ -2,6 +2,7 @@
 
 pub mod convert;
 pub mod doppler;
+pub mod gpu_info;
 pub mod info;
 pub mod relativity;
 pub mod render;
