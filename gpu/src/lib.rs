@@ -37,6 +37,7 @@
 
 pub mod context;
 pub mod error;
+pub mod tonemap;
 
 pub use context::{
     AdapterChoice, AdapterSummary, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext, GpuOptions,
