@@ -37,6 +37,7 @@
 
 pub mod context;
 pub mod error;
+pub mod relativity;
 pub mod tonemap;
 
 pub use context::{
