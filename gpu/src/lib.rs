@@ -41,8 +41,8 @@ pub mod relativity;
 pub mod tonemap;
 
 pub use context::{
-    AdapterChoice, AdapterSummary, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext, GpuOptions,
-    GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
+    AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext,
+    GpuOptions, GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
 };
 pub use error::{Error, Result};
 
