@@ -12,13 +12,17 @@
 //!   into a down-sampled grid of intensity levels, separable Gaussian blur of every level,
 //!   slice), then the base min/max (GPU per-row reduction, host fold), the base compression
 //!   and the recolouring, all on the GPU.
-//! - Reinhard local and Fattal are not ported: [`GpuTonemapper::apply`] returns
-//!   [`Error::Unsupported`] for them (the CLI's `--device auto` then uses the CPU).
+//! - Reinhard local: the key scaling on the CPU (log-average), then the n + 1 Gaussian
+//!   blurs (separable, the CPU's kernels), the scale selection (Eq. 7-9) and the
+//!   recolouring on the GPU.
+//! - Fattal is not ported: [`GpuTonemapper::apply`] returns [`Error::Unsupported`] for it
+//!   (the CLI's `--device auto` then uses the CPU).
 //!
 //! Parity (tested in `gpu/tests/tonemap.rs` against the CPU operator on the same image):
-//! global operators within 1e-4 relative + 1e-6 absolute per channel; Durand within 2e-4
-//! relative + 1e-6 absolute (the bilateral grid sums the same terms in the same order, the
-//! difference is the GPU's `exp`/`pow` rounding and fused multiply-adds).
+//! global operators within 1e-4 relative + 1e-6 absolute per channel; Reinhard local and
+//! Durand within 2e-4 relative + 1e-6 absolute (the blurs and the bilateral grid sum the
+//! same terms in the same order; the difference is the GPU's `exp`/`pow` rounding and
+//! fused multiply-adds).
 
 use blueshift_tonemap::plane::log_average;
 use blueshift_tonemap::{CleanImage, Operator, Plane};
@@ -34,6 +38,7 @@ const BLUR_WGSL: &str = include_str!("shaders/blur.wgsl");
 const SLICE_WGSL: &str = include_str!("shaders/durand_slice.wgsl");
 const COMBINE_WGSL: &str = include_str!("shaders/durand_combine.wgsl");
 const MINMAX_WGSL: &str = include_str!("shaders/row_minmax.wgsl");
+const DODGE_WGSL: &str = include_str!("shaders/reinhard_dodge.wgsl");
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -82,7 +87,7 @@ struct BlurParams {
     planes: u32,
     radius: u32,
     horizontal: u32,
-    p0: u32,
+    dst_plane: u32,
     p1: u32,
     p2: u32,
 }
@@ -115,6 +120,15 @@ struct CombineParams {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct DodgeParams {
+    n_pixels: u32,
+    n_scales: u32,
+    num: f32,
+    epsilon: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct MinMaxParams {
     w: u32,
     h: u32,
@@ -126,7 +140,11 @@ struct MinMaxParams {
 pub fn supports(op: &Operator) -> bool {
     matches!(
         op,
-        Operator::Linear(_) | Operator::Drago(_) | Operator::Reinhard(_) | Operator::Durand(_)
+        Operator::Linear(_)
+            | Operator::Drago(_)
+            | Operator::Reinhard(_)
+            | Operator::ReinhardLocal(_)
+            | Operator::Durand(_)
     )
 }
 
@@ -141,6 +159,7 @@ pub struct GpuTonemapper<'a> {
     slice: wgpu::ComputePipeline,
     combine: wgpu::ComputePipeline,
     minmax: wgpu::ComputePipeline,
+    dodge: wgpu::ComputePipeline,
 }
 
 impl<'a> GpuTonemapper<'a> {
@@ -155,6 +174,7 @@ impl<'a> GpuTonemapper<'a> {
             slice: ctx.compute_pipeline("durand_slice", SLICE_WGSL, "main")?,
             combine: ctx.compute_pipeline("durand_combine", COMBINE_WGSL, "main")?,
             minmax: ctx.compute_pipeline("row_minmax", MINMAX_WGSL, "main")?,
+            dodge: ctx.compute_pipeline("reinhard_dodge", DODGE_WGSL, "main")?,
         })
     }
 
@@ -163,7 +183,7 @@ impl<'a> GpuTonemapper<'a> {
     ///
     /// # Errors
     /// The tonemap crate's errors for bad parameters or an empty image;
-    /// [`Error::Unsupported`] for Reinhard local and Fattal; GPU errors.
+    /// [`Error::Unsupported`] for Fattal; GPU errors.
     pub fn apply(&self, op: &Operator, img: &Rgb32FImage) -> Result<Rgb32FImage> {
         op.validate()?;
         if img.width() == 0 || img.height() == 0 {
@@ -231,6 +251,11 @@ impl<'a> GpuTonemapper<'a> {
                     0.0
                 };
             }
+            Operator::ReinhardLocal(p) => {
+                let scale = (f64::from(p.key) / lavg()) as f32;
+                let scaled = clean.luminance.map(|v| v * scale);
+                return self.reinhard_local(&clean, &scaled, p);
+            }
             Operator::Durand(p) => {
                 let log_l = clean.luminance.map(|v| v.max(floor).log10());
                 return self.durand(&clean, &log_l, p);
@@ -250,6 +275,98 @@ impl<'a> GpuTonemapper<'a> {
         )?;
         let data = ctx.read_buffer::<f32>(&out, n as usize * 3)?;
         to_image(img.width(), img.height(), data)
+    }
+
+    fn reinhard_local(
+        &self,
+        clean: &CleanImage,
+        l: &Plane,
+        p: &blueshift_tonemap::ReinhardLocalParams,
+    ) -> Result<Rgb32FImage> {
+        let ctx = self.ctx;
+        let (w32, h32) = (l.width as u32, l.height as u32);
+        let n = w32 * h32;
+        let ns = p.scales;
+        let scales: Vec<f32> = (0..=ns).map(|i| p.scale_ratio.powi(i as i32)).collect();
+        let alpha1 = 1.0 / (2.0 * std::f32::consts::SQRT_2);
+        ctx.check_storage_size("Reinhard centres", u64::from(n) * 4 * (ns as u64 + 1))?;
+        let lb = ctx.storage_buffer("reinhard luminance", &l.data)?;
+        let tmp = ctx.storage_buffer_zeroed("reinhard blur tmp", u64::from(n) * 4)?;
+        let centres =
+            ctx.storage_buffer_zeroed("reinhard centres", u64::from(n) * 4 * (ns as u64 + 1))?;
+        let g2 = [
+            ctx.groups("reinhard", w32, WORKGROUP_2D)?,
+            ctx.groups("reinhard", h32, WORKGROUP_2D)?,
+            1,
+        ];
+        let mut bgs = Vec::with_capacity(2 * scales.len());
+        for (k, s) in scales.iter().enumerate() {
+            let kernel =
+                blueshift_tonemap::plane::gaussian_kernel(alpha1 * s / std::f32::consts::SQRT_2);
+            let kb = ctx.storage_buffer("reinhard kernel", &kernel)?;
+            let params = |horizontal: u32, dst_plane: u32| BlurParams {
+                w: w32,
+                h: h32,
+                planes: 1,
+                radius: (kernel.len() / 2) as u32,
+                horizontal,
+                dst_plane,
+                p1: 0,
+                p2: 0,
+            };
+            let ph = ctx.uniform_buffer("blur params", &params(1, 0))?;
+            let pv = ctx.uniform_buffer("blur params", &params(0, k as u32))?;
+            bgs.push(ctx.bind_group(&self.blur, 0, &[&lb, &kb, &tmp, &ph])?);
+            bgs.push(ctx.bind_group(&self.blur, 0, &[&tmp, &kb, &centres, &pv])?);
+        }
+        let scales_b = ctx.storage_buffer("reinhard scales", &scales)?;
+        let lum_out = ctx.storage_buffer_zeroed("reinhard lum out", u64::from(n) * 4)?;
+        let dp = ctx.uniform_buffer(
+            "dodge params",
+            &DodgeParams {
+                n_pixels: n,
+                n_scales: ns as u32,
+                num: 2f32.powf(p.phi) * p.key,
+                epsilon: p.epsilon,
+            },
+        )?;
+        bgs.push(ctx.bind_group(&self.dodge, 0, &[&lb, &centres, &scales_b, &lum_out, &dp])?);
+        let rgb = ctx.storage_buffer("tonemap rgb", clean.image.as_raw())?;
+        let lum = ctx.storage_buffer("tonemap luminance", &clean.luminance.data)?;
+        let out = ctx.storage_buffer_zeroed("tonemap out", u64::from(n) * 12)?;
+        let rec_p = ctx.uniform_buffer(
+            "recolour params",
+            &RecolourParams {
+                n,
+                saturation: p.saturation,
+                p0: 0,
+                p1: 0,
+            },
+        )?;
+        bgs.push(ctx.bind_group(&self.recolour, 0, &[&rgb, &lum, &lum_out, &out, &rec_p])?);
+        let refs: Vec<&wgpu::BindGroup> = bgs.iter().collect();
+        let g1 = [ctx.groups("reinhard", n, WORKGROUP_1D)?, 1, 1];
+        let mut passes: Vec<crate::Pass<'_>> = (0..2 * scales.len())
+            .map(|i| crate::Pass {
+                pipeline: &self.blur,
+                bind_groups: std::slice::from_ref(&refs[i]),
+                workgroups: g2,
+            })
+            .collect();
+        let m = 2 * scales.len();
+        passes.push(crate::Pass {
+            pipeline: &self.dodge,
+            bind_groups: std::slice::from_ref(&refs[m]),
+            workgroups: g1,
+        });
+        passes.push(crate::Pass {
+            pipeline: &self.recolour,
+            bind_groups: std::slice::from_ref(&refs[m + 1]),
+            workgroups: g1,
+        });
+        ctx.run_passes(&passes)?;
+        let data = ctx.read_buffer::<f32>(&out, n as usize * 3)?;
+        to_image(w32, h32, data)
     }
 
     fn durand(
@@ -309,7 +426,7 @@ impl<'a> GpuTonemapper<'a> {
                     planes: 2 * nl32,
                     radius,
                     horizontal,
-                    p0: 0,
+                    dst_plane: 0,
                     p1: 0,
                     p2: 0,
                 },

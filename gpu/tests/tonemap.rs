@@ -1,11 +1,12 @@
 //! GPU tone mapping against the CPU operators of blueshift-tonemap on the same images.
-//! Tolerances: global operators 1e-4 relative + 1e-6 absolute per channel; Durand 2e-4
-//! relative + 1e-6 absolute (see the module docs of `blueshift_gpu::tonemap`).
+//! Tolerances: global operators 1e-4 relative + 1e-6 absolute per channel; Reinhard local
+//! and Durand 2e-4 relative + 1e-6 absolute (see the module docs of `blueshift_gpu::tonemap`).
 
 use blueshift_gpu::tonemap::GpuTonemapper;
 use blueshift_gpu::{Error, test_context};
 use blueshift_tonemap::{
-    DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardParams, Roi,
+    DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
+    ReinhardParams, Roi,
 };
 use image::{Rgb, Rgb32FImage};
 
@@ -88,6 +89,27 @@ fn reinhard_matches_cpu() {
             saturation: 0.8,
         }),
         1e-4,
+        1e-6,
+    );
+}
+
+#[test]
+fn reinhard_local_matches_cpu() {
+    check(
+        Operator::ReinhardLocal(ReinhardLocalParams::default()),
+        2e-4,
+        1e-6,
+    );
+    check(
+        Operator::ReinhardLocal(ReinhardLocalParams {
+            key: 0.3,
+            phi: 4.0,
+            epsilon: 0.02,
+            scales: 5,
+            scale_ratio: 2.0,
+            saturation: 0.8,
+        }),
+        2e-4,
         1e-6,
     );
 }

@@ -1,6 +1,7 @@
 // Separable Gaussian blur of a stack of planes (blueshift_tonemap::plane::Plane::
 // gaussian_blur): a symmetric odd kernel, edges clamped, summed in kernel order.
-// `horizontal` = 1 convolves rows, 0 columns. invocation (x, y, plane).
+// `horizontal` = 1 convolves rows, 0 columns. invocation (x, y, plane); the result of
+// plane k goes to plane `dst_plane + k` of `dst`.
 
 struct Params {
     w: u32,
@@ -8,7 +9,7 @@ struct Params {
     planes: u32,
     radius: u32,
     horizontal: u32,
-    _p0: u32,
+    dst_plane: u32,
     _p1: u32,
     _p2: u32,
 }
@@ -40,5 +41,5 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
         acc += kernel[i] * v;
     }
-    dst[base + y * p.w + x] = acc;
+    dst[(p.dst_plane + k) * p.w * p.h + y * p.w + x] = acc;
 }
