@@ -774,3 +774,50 @@ mod tests {
         assert_eq!(pick(&[], &AdapterChoice::Auto), None);
     }
 }
+
+/// The CLI's `--device cpu|gpu|auto`: which backend runs a job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DeviceChoice {
+    /// The CPU reference (bit-reproducible; the default).
+    #[default]
+    Cpu,
+    /// A GPU: any adapter wgpu finds (lavapipe included), or an error.
+    Gpu,
+    /// A hardware GPU when there is one, else the CPU.
+    Auto,
+}
+
+impl std::str::FromStr for DeviceChoice {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "cpu" => Ok(DeviceChoice::Cpu),
+            "gpu" => Ok(DeviceChoice::Gpu),
+            "auto" => Ok(DeviceChoice::Auto),
+            other => Err(format!("unknown device {other:?} (use cpu, gpu or auto)")),
+        }
+    }
+}
+
+impl std::fmt::Display for DeviceChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            DeviceChoice::Cpu => "cpu",
+            DeviceChoice::Gpu => "gpu",
+            DeviceChoice::Auto => "auto",
+        })
+    }
+}
+
+impl DeviceChoice {
+    /// The context to run on: `None` means the CPU. `gpu` returns the shared context
+    /// ([`GpuContext::shared`], honouring `BLUESHIFT_GPU`) or its error; `auto` returns it
+    /// only when it is a hardware adapter (a software one would be slower than the CPU).
+    pub fn context(self) -> Result<Option<&'static GpuContext>> {
+        match self {
+            DeviceChoice::Cpu => Ok(None),
+            DeviceChoice::Gpu => GpuContext::shared().map(Some),
+            DeviceChoice::Auto => Ok(GpuContext::shared().ok().filter(|c| c.is_hardware())),
+        }
+    }
+}

@@ -43,6 +43,9 @@ pub enum Error {
     /// Invalid input to a GPU pipeline (bad parameters, bad sizes, non-finite values).
     #[error("invalid input: {0}")]
     InvalidInput(String),
+    /// The operation has no GPU implementation (the caller may fall back to the CPU).
+    #[error("not supported on the GPU: {0}")]
+    Unsupported(String),
     /// An error of the CPU tone-mapping crate (parameters are validated by it).
     #[error(transparent)]
     Tonemap(#[from] blueshift_tonemap::Error),

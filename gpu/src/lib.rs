@@ -37,11 +37,13 @@
 
 pub mod context;
 pub mod error;
+pub mod relativity;
+pub mod tonemap;
 pub mod tracking;
 
 pub use context::{
-    AdapterChoice, AdapterSummary, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext, GpuOptions,
-    GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
+    AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext,
+    GpuOptions, GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
 };
 pub use error::{Error, Result};
 

@@ -315,7 +315,7 @@ impl<'c> GpuTracker<'c> {
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
         let cpu = &scene.scene;
         if cpu.shading.is_some() {
-            return Err(Error::InvalidInput(
+            return Err(Error::Unsupported(
                 "gradient shading (scene.shading) is CPU-only; render it with --device cpu".into(),
             ));
         }

@@ -1,7 +1,6 @@
 //! One module per `blueshift` verb.
 
 pub mod convert;
-pub mod device;
 pub mod doppler;
 pub mod gpu_info;
 pub mod info;

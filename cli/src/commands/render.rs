@@ -165,8 +165,8 @@ pub struct Args {
     /// Where to render: cpu (default, bit-reproducible), gpu (a wgpu adapter or an error)
     /// or auto (a hardware GPU when present, else the CPU). The GPU supports every method,
     /// blend and light; shading, heat maps and --frames are CPU-only (auto then uses the CPU).
-    #[arg(long, value_enum, default_value_t = crate::commands::device::DeviceArg::Cpu)]
-    pub device: crate::commands::device::DeviceArg,
+    #[arg(long, default_value = "cpu")]
+    pub device: blueshift_gpu::DeviceChoice,
 }
 
 /// One channel of a scene file.
@@ -611,7 +611,7 @@ fn run_inner(args: &Args) -> Result<()> {
     integrator.prepared(&scene)?;
 
     let device = args.device;
-    let gpu = crate::commands::device::gpu_for(device)?;
+    let gpu = device.context().context("--device")?;
     let cpu_only = if scene.shading.is_some() {
         Some("shading")
     } else if !heatmaps.is_empty() {
@@ -622,7 +622,7 @@ fn run_inner(args: &Args) -> Result<()> {
         None
     };
     let gpu = match (gpu, cpu_only) {
-        (Some(_), Some(what)) if device == crate::commands::device::DeviceArg::Gpu => {
+        (Some(_), Some(what)) if device == blueshift_gpu::DeviceChoice::Gpu => {
             bail!("--device gpu: {what} is CPU-only; use --device cpu or auto")
         }
         (Some(_), Some(_)) => None,
