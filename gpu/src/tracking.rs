@@ -32,8 +32,6 @@
 //! f32 bit arithmetic; `Precision::U8` rounds half away from zero to multiples of 1/255 like
 //! the CPU.
 
-use std::sync::Mutex;
-
 use blueshift_tfedit::TransferFunction;
 use blueshift_tracking::{
     Blend, DdaMode, Integrator, Precision, Projection, RenderSettings, Scene,
@@ -325,11 +323,15 @@ impl<'c> GpuTracker<'c> {
         let mut params = scene.base_params();
         fill_settings(&mut params, settings);
         let weights = fill_integrator(&mut params, &integrator, cpu);
-        let mut chan = scene.chan.lock().map_err(|_| poisoned())?.clone();
+        // The blend weights go into this render's own copy of the channel table, so the
+        // scene on the device is never written by a render.
+        let mut chan = scene.chan.clone();
         for (n, w) in weights.iter().enumerate() {
             chan[2 * n][2] = *w;
         }
-        write_at(self.ctx, &scene.chan_buf, 0, &chan)?;
+        let chan_buf = self
+            .ctx
+            .storage_buffer("tracking channels (render)", &chan)?;
 
         let pixels = u64::from(settings.width) * u64::from(settings.height);
         checked_bytes(
@@ -353,7 +355,7 @@ impl<'c> GpuTracker<'c> {
                 (3, &scene.majorants),
                 (4, &mean),
                 (5, &m2),
-                (6, &scene.chan_buf),
+                (6, &chan_buf),
             ],
         )?;
         let gx = self
@@ -411,10 +413,6 @@ impl<'c> GpuTracker<'c> {
             .render_progressive(scene, integrator, settings, |_, _| {})?
             .mean_image())
     }
-}
-
-fn poisoned() -> Error {
-    Error::Internal("a lock was poisoned".into())
 }
 
 fn v3(v: Vec3) -> [f32; 3] {
@@ -512,7 +510,7 @@ pub struct GpuScene<'t, 'c> {
     cell_ranges: wgpu::Buffer,
     majorants: wgpu::Buffer,
     chan_buf: wgpu::Buffer,
-    chan: Mutex<Vec<[f32; 4]>>,
+    chan: Vec<[f32; 4]>,
     n_cells: u32,
 }
 
@@ -557,7 +555,7 @@ impl<'t, 'c> GpuScene<'t, 'c> {
             cell_ranges,
             majorants,
             chan_buf,
-            chan: Mutex::new(chan),
+            chan,
             n_cells: n_cells as u32,
         };
         gs.build_majorants(None)?;
@@ -600,12 +598,9 @@ impl<'t, 'c> GpuScene<'t, 'c> {
             &lut,
         )?;
         let info = chan_info(&tf);
-        {
-            let mut chan = self.chan.lock().map_err(|_| poisoned())?;
-            chan[2 * i] = info[0];
-            chan[2 * i + 1] = info[1];
-            write_at(ctx, &self.chan_buf, 0, &chan)?;
-        }
+        self.chan[2 * i] = info[0];
+        self.chan[2 * i + 1] = info[1];
+        write_at(ctx, &self.chan_buf, 0, &self.chan)?;
         self.scene
             .set_transfer_function(i, tf)
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
