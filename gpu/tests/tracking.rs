@@ -503,3 +503,60 @@ fn bad_inputs_are_refused_with_typed_errors() {
         .unwrap_err();
     assert!(e.to_string().contains("CPU-only"), "{e}");
 }
+
+#[test]
+fn progressive_mean_and_variance_match_a_homogeneous_slab() {
+    // Constant extinction sigma over a path of length L = 8 (orthographic rays along +z
+    // through the box [0, 8]^3): Woodcock tracking returns white (alpha 1) with probability
+    // p = 1 - exp(-sigma L), else the black background (alpha 0). So every pixel's mean is
+    // p and its variance p (1 - p): an analytic truth for the device's Welford buffers.
+    let Some(t) = tracker() else { return };
+    let g = AnyGrid::F32(Grid::from_fn(Geometry::unit([9, 9, 9]), |_, _, _| 0.5).unwrap());
+    let s = Scene::new(
+        vec![("c".into(), g, tf([1.0; 3], [1.0; 3], &[(0.0, 0.5)]))],
+        0.1,
+        4,
+    )
+    .unwrap();
+    let p = 1.0 - (-0.05f64 * 8.0).exp();
+    let gs = t.upload(s.clone()).unwrap();
+    let mut set = RenderSettings::default_for(&s, 8, 8, true);
+    set.spp = 256;
+    set.seed = 21;
+    let acc = t
+        .render_progressive(&gs, &Integrator::Woodcock { channel: 0 }, &set, |_, _| {})
+        .unwrap();
+    let se = (p * (1.0 - p) / 256.0).sqrt();
+    let (mut mean_sum, mut var_sum) = (0.0, 0.0);
+    for y in 0..8 {
+        for x in 0..8 {
+            let m = acc.mean(x, y);
+            assert!(
+                (m[3] - p).abs() <= 5.0 * se,
+                "pixel ({x}, {y}): {} vs {p}",
+                m[3]
+            );
+            assert!((m[0] - m[3]).abs() < 1e-5, "white on hit, black on miss");
+            mean_sum += m[3];
+            var_sum += acc.variance(x, y)[3];
+        }
+    }
+    let image_mean = mean_sum / 64.0;
+    assert!(
+        (image_mean - p).abs() <= 4.0 * se / 8.0,
+        "{image_mean} vs {p}"
+    );
+    let var = var_sum / 64.0;
+    assert!(
+        (var - p * (1.0 - p)).abs() <= 0.03 * p * (1.0 - p),
+        "{var} vs {}",
+        p * (1.0 - p)
+    );
+    // A noise target stops the accumulation as soon as it is met (after >= 2 passes).
+    set.noise_target = Some(0.5);
+    let early = t
+        .render_progressive(&gs, &Integrator::Woodcock { channel: 0 }, &set, |_, _| {})
+        .unwrap();
+    assert_eq!(early.samples(), 2);
+    assert!(early.noise() <= 0.5);
+}
