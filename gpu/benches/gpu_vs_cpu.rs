@@ -12,7 +12,8 @@ use blueshift_gpu::tonemap::GpuTonemapper;
 use blueshift_gpu::{GpuContext, GpuOptions};
 use blueshift_relativity::{Camera, CubeMap, Effects, Environment, Velocity, cube_dir};
 use blueshift_tonemap::{
-    DragoParams, DurandParams, LinearParams, Operator, ReinhardLocalParams, ReinhardParams,
+    DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
+    ReinhardParams,
 };
 use criterion::{Criterion, criterion_group, criterion_main};
 use glam::DVec3;
@@ -43,13 +44,14 @@ fn cube(n: u32) -> Environment {
     Environment::Cube(CubeMap::new(faces).expect("valid cube"))
 }
 
-fn operators() -> [Operator; 5] {
+fn operators() -> [Operator; 6] {
     [
         Operator::Linear(LinearParams::default()),
         Operator::Drago(DragoParams::default()),
         Operator::Reinhard(ReinhardParams::default()),
         Operator::ReinhardLocal(ReinhardLocalParams::default()),
         Operator::Durand(DurandParams::default()),
+        Operator::Fattal(FattalParams::default()),
     ]
 }
 

@@ -441,7 +441,7 @@ impl GpuContext {
         let e_int = pollster::block_on(int.pop());
         let e_val = pollster::block_on(val.pop());
         let e_oom = pollster::block_on(oom.pop());
-        for e in [e_oom, e_val, e_int].into_iter().flatten() {
+        if let Some(e) = [e_oom, e_val, e_int].into_iter().flatten().next() {
             return Err(Error::from_wgpu(&e));
         }
         self.check_device()?;

@@ -33,7 +33,7 @@ pub enum Op {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Where the operator runs: cpu (default, bit-reproducible), gpu (any wgpu adapter,
-    /// lavapipe included; every operator but fattal) or auto (a hardware GPU when
+    /// lavapipe included) or auto (a hardware GPU when
     /// present and the operator has a GPU version, else the CPU).
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
