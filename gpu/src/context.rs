@@ -746,6 +746,16 @@ mod tests {
     }
 
     #[test]
+    fn parse_devices() {
+        assert_eq!("cpu".parse::<DeviceChoice>(), Ok(DeviceChoice::Cpu));
+        assert_eq!(" GPU ".parse::<DeviceChoice>(), Ok(DeviceChoice::Gpu));
+        assert_eq!("auto".parse::<DeviceChoice>(), Ok(DeviceChoice::Auto));
+        assert!("tpu".parse::<DeviceChoice>().is_err());
+        assert_eq!(DeviceChoice::Cpu.context().unwrap().map(|_| ()), None);
+        assert_eq!(DeviceChoice::default(), DeviceChoice::Cpu);
+    }
+
+    #[test]
     fn parse_choices() {
         assert_eq!(AdapterChoice::parse(""), AdapterChoice::Auto);
         assert_eq!(AdapterChoice::parse(" Hardware "), AdapterChoice::Hardware);
