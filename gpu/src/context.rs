@@ -290,9 +290,12 @@ impl GpuContext {
     /// [`Error::NoAdapter`] / [`Error::RequestDevice`] on every call.
     pub fn shared() -> Result<&'static GpuContext> {
         static SHARED: OnceLock<std::result::Result<GpuContext, String>> = OnceLock::new();
-        match SHARED
-            .get_or_init(|| GpuContext::new(GpuOptions::default()).map_err(|e| e.to_string()))
-        {
+        match SHARED.get_or_init(|| {
+            GpuContext::new(GpuOptions::default()).map_err(|e| match e {
+                Error::NoAdapter(m) => m,
+                other => other.to_string(),
+            })
+        }) {
             Ok(ctx) => Ok(ctx),
             Err(msg) => Err(Error::NoAdapter(msg.clone())),
         }
@@ -729,7 +732,16 @@ pub fn test_context() -> Option<&'static GpuContext> {
                 .map(|v| v == "1")
                 .unwrap_or(false);
             assert!(!require, "{ENV_REQUIRE_GPU_TESTS}=1 but {e}");
-            eprintln!("SKIP: no wgpu adapter: {e}");
+            // Written to the stderr handle, not with eprintln!, so that the test harness's
+            // output capture does not hide it.
+            let msg = match &e {
+                Error::NoAdapter(m) => m.clone(),
+                other => other.to_string(),
+            };
+            let _ = std::io::Write::write_all(
+                &mut std::io::stderr(),
+                format!("SKIP: no wgpu adapter: {msg}\n").as_bytes(),
+            );
             None
         }
     }
@@ -743,6 +755,16 @@ mod tests {
         let mut i = wgpu::AdapterInfo::new(t, wgpu::Backend::Vulkan);
         i.name = name.into();
         i
+    }
+
+    #[test]
+    fn parse_devices() {
+        assert_eq!("cpu".parse::<DeviceChoice>(), Ok(DeviceChoice::Cpu));
+        assert_eq!(" GPU ".parse::<DeviceChoice>(), Ok(DeviceChoice::Gpu));
+        assert_eq!("auto".parse::<DeviceChoice>(), Ok(DeviceChoice::Auto));
+        assert!("tpu".parse::<DeviceChoice>().is_err());
+        assert_eq!(DeviceChoice::Cpu.context().unwrap().map(|_| ()), None);
+        assert_eq!(DeviceChoice::default(), DeviceChoice::Cpu);
     }
 
     #[test]

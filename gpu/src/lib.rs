@@ -24,12 +24,24 @@
 //! # Ok::<(), blueshift_gpu::Error>(())
 //! ```
 //!
+//! - Tone mapping: [`tonemap::GpuTonemapper`] (or [`tonemap::tonemap`]) takes the same
+//!   [`blueshift_tonemap::Operator`] as the CPU and returns the same image within a
+//!   tested tolerance.
+//! - Relativity: [`relativity::GpuRelativity`] (or [`relativity::render`]) takes the same
+//!   camera, velocity, effects and environment as [`blueshift_relativity::render`].
+//! - The CLI's `--device cpu|gpu|auto` is [`DeviceChoice`].
+//!
 //! ## Glossary
-//! | term | here |
+//! | paper / GPU term | here |
 //! |---|---|
 //! | adapter (physical GPU or software driver) | [`AdapterChoice`], [`GpuReport`] |
 //! | lavapipe (Mesa's software Vulkan) | [`AdapterChoice::Software`] |
 //! | compute shader (WGSL, `gpu/src/shaders/`) | [`GpuContext::compute_pipeline`] |
+//! | Drago 2003, Reinhard 2002 global curves (HDR VolVis Sec. 4) | [`tonemap::GpuTonemapper`], `shaders/tonemap_global.wgsl` |
+//! | Reinhard 2002 dodging and burning, Eq. 7-9 | `shaders/reinhard_dodge.wgsl` |
+//! | Durand 2002 fast bilateral filter (splat / blur / slice) | `shaders/durand_*.wgsl`, `shaders/blur.wgsl` |
+//! | Fattal 2002 attenuated gradients, Poisson equation (Neumann) | `shaders/fattal_div.wgsl`, `shaders/axis_transform.wgsl`, `shaders/poisson_divide.wgsl` |
+//! | relativistic aberration, Doppler shift, searchlight (relativity paper Eq. 2-3) | [`relativity::GpuRelativity`], `shaders/relativity.wgsl` |
 //!
 //! ## Shaders
 //! WGSL sources live in `gpu/src/shaders/` and are included with `include_str!`; a test
