@@ -245,6 +245,12 @@ impl<'a> Context<'a> {
                 Some(banded::BandTables::new(scene, settings, bands, shift)?),
             ),
         };
+        if banded.is_some() && !settings.broadening.is_none() {
+            return Err(Error::parameter(
+                "line broadening (thermal or Gaussian) is implemented in the piecewise-linear \
+                 integrator only: use the pwl integrator or drop the broadening",
+            ));
+        }
         let profiles = super::profile::Profiles::new(scene, &settings.broadening)?;
         Ok(Self {
             scene,

@@ -359,3 +359,20 @@ fn optically_thick_medium_stays_finite_and_dark() {
     }
     assert!(darker > 0);
 }
+
+/// Broadening is a piecewise-linear feature: the banded integrators refuse it instead of
+/// silently rendering box profiles.
+#[test]
+fn banded_refuses_broadening() {
+    let scene = ramp_scene(656.3);
+    let mut st = DopplerSettings::default_for(&scene, 2, 2);
+    st.broadening = Broadening {
+        sigma_m_per_s: 1e4,
+        ..Broadening::default()
+    };
+    st.integrator = "banded:400".parse().unwrap();
+    let e = render_doppler(&scene, &st, &|| {}).unwrap_err().to_string();
+    assert!(e.contains("piecewise-linear integrator only"), "{e}");
+    st.integrator = SpectralIntegrator::PiecewiseLinear;
+    assert!(render_doppler(&scene, &st, &|| {}).is_ok());
+}
