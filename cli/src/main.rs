@@ -42,6 +42,8 @@ enum Command {
     Doppler(Box<commands::doppler::Args>),
     /// Render the galaxy with Doppler on and off side by side, with picked spectra.
     Demo(commands::doppler::DemoArgs),
+    /// Print the wgpu adapter blueshift would use: backend, features, limits (--json).
+    GpuInfo(commands::gpu_info::Args),
 }
 
 fn main() -> ExitCode {
@@ -65,6 +67,7 @@ fn main() -> ExitCode {
         Command::Render(args) => commands::render::run(*args),
         Command::Doppler(args) => commands::doppler::run(*args),
         Command::Demo(args) => commands::doppler::run_demo(args),
+        Command::GpuInfo(args) => commands::gpu_info::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 pub mod convert;
 pub mod doppler;
 pub mod doppler_cube;
+pub mod gpu_info;
 pub mod info;
 pub mod relativity;
 pub mod render;

@@ -27,6 +27,10 @@ pub enum Synth {
 /// Axes: +Y up; equirect centre is -Z; cube faces follow OpenGL.
 #[derive(Debug, clap::Args)]
 pub struct Args {
+    /// Where to render: cpu (default, bit-reproducible), gpu (any wgpu adapter, lavapipe
+    /// included) or auto (a hardware GPU when present, else the CPU).
+    #[arg(long, default_value = "cpu")]
+    pub device: blueshift_gpu::DeviceChoice,
     /// Environment map (equirect file, cube folder or cube prefix).
     #[arg(required_unless_present = "synth")]
     pub env: Option<PathBuf>,
@@ -214,10 +218,20 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(spec) = &args.convert {
         return convert(&env, spec, &args.out, args.exposure);
     }
+    let gpu = match args.device.context().context("--device")? {
+        Some(ctx) => Some(blueshift_gpu::relativity::GpuRelativity::new(ctx, None)?),
+        None => None,
+    };
+    let render = |env: &Environment, cam: &Camera, v: Velocity, fx: Effects| -> Result<_> {
+        Ok(match &gpu {
+            Some(g) => g.render(env, cam, v, fx).context("GPU rendering")?,
+            None => render(env, cam, v, fx, None)?,
+        })
+    };
     match speeds {
         None => {
             let v = Velocity::along(direction, args.beta)?;
-            let img = render(&env, &cam, v, effects, None)?;
+            let img = render(&env, &cam, v, effects)?;
             write_image(&args.out, &img, args.exposure)?;
             if let Some(p) = &args.png {
                 write_image(p, &img, args.exposure)?;
@@ -233,7 +247,7 @@ pub fn run(args: Args) -> Result<()> {
             let stem = stem.to_string_lossy().into_owned();
             for (k, &b) in speeds.iter().enumerate() {
                 let v = Velocity::along(direction, b)?;
-                let img = render(&env, &cam, v, effects, None)?;
+                let img = render(&env, &cam, v, effects)?;
                 let path = PathBuf::from(format!("{stem}_{k:04}.{ext}"));
                 write_image(&path, &img, args.exposure)?;
                 eprintln!("frame {k}: beta {b:.4} -> {}", path.display());

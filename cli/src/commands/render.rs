@@ -162,6 +162,11 @@ pub struct Args {
     /// Print a JSON summary on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Where to render: cpu (default, bit-reproducible), gpu (a wgpu adapter or an error)
+    /// or auto (a hardware GPU when present, else the CPU). The GPU supports every method,
+    /// blend and light; shading, heat maps and --frames are CPU-only (auto then uses the CPU).
+    #[arg(long, default_value = "cpu")]
+    pub device: blueshift_gpu::DeviceChoice,
 }
 
 /// One channel of a scene file.
@@ -605,6 +610,28 @@ fn run_inner(args: &Args) -> Result<()> {
     settings.validate()?;
     integrator.prepared(&scene)?;
 
+    let device = args.device;
+    let gpu = device.context().context("--device")?;
+    let cpu_only = if scene.shading.is_some() {
+        Some("shading")
+    } else if !heatmaps.is_empty() {
+        Some("--heatmap")
+    } else if f.frames.is_some() {
+        Some("--frames")
+    } else {
+        None
+    };
+    let gpu = match (gpu, cpu_only) {
+        (Some(_), Some(what)) if device == blueshift_gpu::DeviceChoice::Gpu => {
+            bail!("--device gpu: {what} is CPU-only; use --device cpu or auto")
+        }
+        (Some(_), Some(_)) => None,
+        (g, _) => g,
+    };
+    if let Some(ctx) = gpu {
+        return render_on_gpu(ctx, args, scene, &integrator, &settings, method, n);
+    }
+
     let bar = indicatif::ProgressBar::new(u64::from(settings.spp));
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]")
@@ -667,6 +694,7 @@ fn run_inner(args: &Args) -> Result<()> {
             "width": width,
             "height": height,
             "spp": acc.samples(),
+            "device": "cpu",
             "noise": if acc.noise().is_finite() { Some(acc.noise()) } else { None },
             "seconds": seconds,
             "heatmaps": heat_files,
@@ -686,6 +714,72 @@ fn run_inner(args: &Args) -> Result<()> {
             acc.samples(),
             acc.noise(),
             seconds
+        );
+    }
+    Ok(())
+}
+
+/// `render` on a wgpu adapter: the same scene, integrator and settings through
+/// `blueshift_gpu::tracking`, the same outputs.
+fn render_on_gpu(
+    ctx: &'static blueshift_gpu::GpuContext,
+    args: &Args,
+    scene: Scene,
+    integrator: &Integrator,
+    settings: &RenderSettings,
+    method: &str,
+    n: usize,
+) -> Result<()> {
+    let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx).context("--device gpu")?;
+    let gs = tracker.upload(scene).context("--device gpu")?;
+    let bar = indicatif::ProgressBar::new(u64::from(settings.spp));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let start = Instant::now();
+    let acc = tracker
+        .render_progressive(&gs, integrator, settings, |done, noise| {
+            bar.set_position(u64::from(done));
+            if noise.is_finite() {
+                bar.set_message(format!("noise {noise:.4}"));
+            }
+        })
+        .context("--device gpu")?;
+    bar.finish_and_clear();
+    let seconds = start.elapsed().as_secs_f64();
+    let img = acc.mean_image();
+    write_via_temp_path(&args.out, |p| {
+        img.save_with_format(p, image::ImageFormat::OpenExr)
+            .with_context(|| format!("cannot write {}", args.out.display()))
+    })?;
+    if let Some(png) = &args.png {
+        write_png_preview(&img, png, &args.tonemap, args.exposure)?;
+    }
+    let noise = acc.noise();
+    let adapter = ctx.info().name.clone();
+    if args.json {
+        let summary = serde_json::json!({
+            "out": args.out,
+            "png": args.png,
+            "method": method,
+            "channels": n,
+            "width": settings.width,
+            "height": settings.height,
+            "spp": acc.samples(),
+            "device": "gpu",
+            "adapter": adapter,
+            "noise": if noise.is_finite() { Some(noise) } else { None },
+            "seconds": seconds,
+            "heatmaps": serde_json::Value::Array(Vec::new()),
+            "timings": serde_json::Value::Null,
+        });
+        println!("{summary}");
+    } else {
+        eprintln!(
+            "wrote {} ({} spp, noise {noise:.4}, {seconds:.2} s on {adapter})",
+            args.out.display(),
+            acc.samples(),
         );
     }
     Ok(())

@@ -32,6 +32,11 @@ pub enum Op {
 /// Arguments of `blueshift tonemap`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
+    /// Where the operator runs: cpu (default, bit-reproducible), gpu (any wgpu adapter,
+    /// lavapipe included) or auto (a hardware GPU when
+    /// present and the operator has a GPU version, else the CPU).
+    #[arg(long, default_value = "cpu")]
+    pub device: blueshift_gpu::DeviceChoice,
     /// Input HDR image: OpenEXR, Radiance .hdr or PFM (detected from the content).
     pub input: PathBuf,
     /// Output file: .png (display, sRGB), .exr, .hdr or .pfm (display-linear floats).
@@ -258,7 +263,22 @@ pub fn run(args: Args) -> Result<()> {
         }
     } else {
         kind = op.name();
-        let display = op.apply_clean(&clean)?;
+        let gpu = match args.device {
+            blueshift_gpu::DeviceChoice::Gpu if !blueshift_gpu::tonemap::supports(&op) => bail!(
+                "--device gpu: the {} operator has no GPU implementation (use --device cpu or auto)",
+                op.name()
+            ),
+            d => d
+                .context()
+                .context("--device")?
+                .filter(|_| blueshift_gpu::tonemap::supports(&op)),
+        };
+        let display = match gpu {
+            Some(ctx) => {
+                blueshift_gpu::tonemap::tonemap(ctx, &op, hdr).context("GPU tone mapping")?
+            }
+            None => op.apply_clean(&clean)?,
+        };
         write_display(&args.out, &display, args.depth)?;
         outputs.push(args.out.clone());
     }

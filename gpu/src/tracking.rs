@@ -1,0 +1,830 @@
+//! Woodcock tracking, multi-density Woodcock tracking and the emission-absorption ray
+//! marcher on the GPU, behind the CPU's own types: a `blueshift_tracking::Scene`, an
+//! `Integrator` and `RenderSettings` (one scene description, two backends).
+//!
+//! # What is the same as the CPU, and what is not
+//! - The counter-based random numbers are the CPU's ([`blueshift_tracking::Rng`]) bit for
+//!   bit: SplitMix64 keyed by (seed, pixel, sample, dimension), with 64-bit integers
+//!   emulated by pairs of 32-bit words in WGSL ([`rng_probe`] exposes them for tests). Every
+//!   pixel sample draws its numbers in the CPU's order, so the marcher's jitter and the
+//!   pixel jitter are the CPU's, and the Monte Carlo estimators are the same estimators.
+//! - The DDA over the macrocell grid, the camera rays, the trilinear sampling and every
+//!   integrator are straight ports of `blueshift-tracking` in f32.
+//! - The transfer functions are sampled on the device from lookup tables of
+//!   [`GpuTracker::lut_entries`] entries (`TransferFunction::lut`, linear filtering between
+//!   entries) instead of the CPU's exact knot evaluation. For piecewise-linear transfer
+//!   functions whose knots fall on table entries this is exact up to f32 rounding; otherwise
+//!   the difference is the table's interpolation error (below 1e-4 in opacity for 4096
+//!   entries and a smooth function).
+//! - The majorant grids are computed on the device from the volume crate's macrocell
+//!   min/max ([`GpuScene::set_transfer_function`] re-runs only this pass): for each cell,
+//!   the largest table opacity among the entries a linear lookup of any value in the cell's
+//!   (slightly widened) range can blend, times the density scale. This bounds what the
+//!   device samples exactly, so tracking stays unbiased.
+//! - The progressive accumulation is Welford's running mean and sum of squared deviations
+//!   per pixel, in f32 on the device (f64 on the CPU).
+//! - Gradient shading (`Scene::shading`) and the ray statistics / heat maps are CPU-only:
+//!   a scene with shading is refused with [`Error::InvalidInput`].
+//!
+//! # Compositing precision of the marcher
+//! `Precision::F16` rounds with the native `f16` type where the device has `SHADER_F16`
+//! ([`GpuTracker::native_f16`]), else with an exact emulation of round-to-nearest-even in
+//! f32 bit arithmetic; `Precision::U8` rounds half away from zero to multiples of 1/255 like
+//! the CPU.
+
+use blueshift_tfedit::TransferFunction;
+use blueshift_tracking::{
+    Blend, DdaMode, Integrator, Precision, Projection, RenderSettings, Scene,
+};
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use image::Rgba32FImage;
+
+use crate::context::{GpuContext, WORKGROUP_1D, WORKGROUP_2D};
+use crate::error::{Error, Result};
+
+/// WGSL of the tracking pipelines (render pass, majorant build, probes).
+pub const TRACKING_WGSL: &str = include_str!("shaders/tracking.wgsl");
+
+/// Entries of each transfer function's lookup table unless told otherwise.
+pub const DEFAULT_LUT_ENTRIES: usize = 4096;
+
+/// Samples per pixel rendered by one dispatch (bounds the time of one submission).
+pub const SAMPLES_PER_DISPATCH: u32 = 4;
+
+const F16_EMULATED_LINE: &str = "return f16_emulated(v); // F16_IMPL";
+
+/// The tracking WGSL with native half-precision rounding (`enable f16;`, `f32(f16(v))`)
+/// when `native_f16`, else the emulated rounding.
+#[must_use]
+pub fn tracking_wgsl(native_f16: bool) -> String {
+    if native_f16 {
+        format!(
+            "enable f16;\n{}",
+            TRACKING_WGSL.replace(F16_EMULATED_LINE, "return f32(f16(v));")
+        )
+    } else {
+        TRACKING_WGSL.to_string()
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Params {
+    width: u32,
+    height: u32,
+    sample_begin: u32,
+    sample_count: u32,
+    seed_lo: u32,
+    seed_hi: u32,
+    n_channels: u32,
+    lut_len: u32,
+    dims: [u32; 3],
+    k: u32,
+    cdims: [u32; 3],
+    n_cells: u32,
+    origin: [f32; 3],
+    density_scale: f32,
+    spacing: [f32; 3],
+    projection: u32,
+    eye: [f32; 3],
+    cam_h: f32,
+    fwd: [f32; 3],
+    jitter: u32,
+    right: [f32; 3],
+    kind: u32,
+    up: [f32; 3],
+    dda: u32,
+    background: [f32; 3],
+    blend: u32,
+    light_dir: [f32; 3],
+    has_light: u32,
+    light_radiance: [f32; 3],
+    ambient: f32,
+    bounds_lo: [f32; 3],
+    step: f32,
+    bounds_hi: [f32; 3],
+    early_termination: f32,
+    precision: u32,
+    channel: u32,
+    pad0: u32,
+    pad1: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct MajorantParams {
+    n_cells: u32,
+    n_channels: u32,
+    lut_len: u32,
+    channel: u32,
+    density_scale: f32,
+    pad: [u32; 3],
+}
+
+/// Creates a bind group for `pipeline`'s group 0 with explicit `(binding, buffer)` pairs.
+fn bind(
+    ctx: &GpuContext,
+    pipeline: &wgpu::ComputePipeline,
+    entries: &[(u32, &wgpu::Buffer)],
+) -> Result<wgpu::BindGroup> {
+    ctx.scoped(|| {
+        let layout = pipeline.get_bind_group_layout(0);
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = entries
+            .iter()
+            .map(|(b, buf)| wgpu::BindGroupEntry {
+                binding: *b,
+                resource: buf.as_entire_binding(),
+            })
+            .collect();
+        ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &layout,
+            entries: &entries,
+        })
+    })
+}
+
+/// Writes `data` into `buffer` at byte `offset`, checking the range first.
+fn write_at<T: Pod>(
+    ctx: &GpuContext,
+    buffer: &wgpu::Buffer,
+    offset: u64,
+    data: &[T],
+) -> Result<()> {
+    let bytes: &[u8] = bytemuck::cast_slice(data);
+    if offset + bytes.len() as u64 > buffer.size() {
+        return Err(Error::InvalidInput(format!(
+            "writing {} bytes at {offset} into a buffer of {}",
+            bytes.len(),
+            buffer.size()
+        )));
+    }
+    ctx.scoped(|| ctx.queue().write_buffer(buffer, offset, bytes))
+}
+
+/// Element count times element size, checked against the device's storage limits (and
+/// the 32-bit indexing of the shaders) before anything is allocated.
+fn checked_bytes(ctx: &GpuContext, what: &str, count: u64, elem: u64) -> Result<u64> {
+    let bytes = count
+        .checked_mul(elem)
+        .ok_or_else(|| Error::LimitExceeded {
+            what: what.into(),
+            limit: "max_buffer_size",
+            requested: u64::MAX,
+            max: ctx.limits().max_buffer_size,
+        })?;
+    ctx.check_storage_size(what, bytes)?;
+    if count > u64::from(u32::MAX) {
+        return Err(Error::LimitExceeded {
+            what: what.into(),
+            limit: "u32 element index of the shaders",
+            requested: count,
+            max: u64::from(u32::MAX),
+        });
+    }
+    Ok(bytes)
+}
+
+/// Checks that a scene of `n_channels` channels of `dims` voxels with macrocells of `k`
+/// voxels fits the device: the volume (f32 per voxel), the macrocell ranges and the
+/// majorant grids against `max_buffer_size` and `max_storage_buffer_binding_size`, and the
+/// shaders' 32-bit indices. The error names the limit; nothing is allocated.
+pub fn check_volume_fits(
+    ctx: &GpuContext,
+    n_channels: usize,
+    dims: [usize; 3],
+    k: usize,
+) -> Result<()> {
+    for (a, d) in dims.iter().enumerate() {
+        if u32::try_from(*d).is_err() {
+            return Err(Error::LimitExceeded {
+                what: format!("volume dimension {a}"),
+                limit: "u32 voxel coordinate",
+                requested: *d as u64,
+                max: u64::from(u32::MAX),
+            });
+        }
+    }
+    let n = n_channels as u64;
+    let voxels = dims.iter().fold(1u64, |a, &d| a.saturating_mul(d as u64));
+    let what = format!(
+        "volume ({n} channels of {}x{}x{} f32 voxels)",
+        dims[0], dims[1], dims[2]
+    );
+    checked_bytes(ctx, &what, n.saturating_mul(voxels), 4)?;
+    let k = k.max(1) as u64;
+    let cells = dims.iter().fold(1u64, |a, &d| {
+        a.saturating_mul((d as u64).div_ceil(k).max(1))
+    });
+    checked_bytes(
+        ctx,
+        "macrocell ranges",
+        n.saturating_mul(2).saturating_mul(cells),
+        4,
+    )?;
+    checked_bytes(ctx, "majorant grids", (n + 1).saturating_mul(cells), 4)?;
+    Ok(())
+}
+
+/// The compiled tracking pipelines of one [`GpuContext`]; compile once, upload many scenes.
+#[derive(Debug)]
+pub struct GpuTracker<'c> {
+    ctx: &'c GpuContext,
+    render: wgpu::ComputePipeline,
+    build_majorants: wgpu::ComputePipeline,
+    sum_majorants: wgpu::ComputePipeline,
+    native_f16: bool,
+    lut_entries: usize,
+}
+
+impl<'c> GpuTracker<'c> {
+    /// Compiles the pipelines (native f16 where the device has `SHADER_F16`) with
+    /// [`DEFAULT_LUT_ENTRIES`]-entry transfer-function tables.
+    pub fn new(ctx: &'c GpuContext) -> Result<Self> {
+        Self::with_options(ctx, ctx.has_f16(), DEFAULT_LUT_ENTRIES)
+    }
+
+    /// Compiles the pipelines with native half precision or not (`native_f16` is refused
+    /// without `SHADER_F16`) and `lut_entries` entries per table (2 to 2^20).
+    pub fn with_options(ctx: &'c GpuContext, native_f16: bool, lut_entries: usize) -> Result<Self> {
+        if native_f16 && !ctx.has_f16() {
+            return Err(Error::InvalidInput(
+                "native f16 asked for, but the device has no SHADER_F16".into(),
+            ));
+        }
+        if !(2..=1 << 20).contains(&lut_entries) {
+            return Err(Error::InvalidInput(format!(
+                "lut_entries: {lut_entries} must be in 2..=1048576"
+            )));
+        }
+        let src = tracking_wgsl(native_f16);
+        Ok(GpuTracker {
+            ctx,
+            render: ctx.compute_pipeline("tracking render_pass", &src, "render_pass")?,
+            build_majorants: ctx.compute_pipeline(
+                "tracking build_majorants",
+                &src,
+                "build_majorants",
+            )?,
+            sum_majorants: ctx.compute_pipeline("tracking sum_majorants", &src, "sum_majorants")?,
+            native_f16,
+            lut_entries,
+        })
+    }
+
+    /// The context.
+    #[must_use]
+    pub fn context(&self) -> &'c GpuContext {
+        self.ctx
+    }
+
+    /// Whether f16 compositing uses the native type (else the exact emulation).
+    #[must_use]
+    pub fn native_f16(&self) -> bool {
+        self.native_f16
+    }
+
+    /// Entries of each transfer function's lookup table.
+    #[must_use]
+    pub fn lut_entries(&self) -> usize {
+        self.lut_entries
+    }
+
+    /// Uploads `scene` (volume, lookup tables, macrocell ranges) and builds its majorant
+    /// grids on the device. A volume over the device's limits is refused with
+    /// [`Error::LimitExceeded`] naming the limit, before anything is allocated.
+    pub fn upload(&self, scene: Scene) -> Result<GpuScene<'_, 'c>> {
+        GpuScene::new(self, scene)
+    }
+
+    /// Renders `settings.spp` passes (or fewer once `settings.noise_target` is met),
+    /// calling `progress(samples, noise)` after each dispatch, and returns the per-pixel
+    /// mean and variance.
+    pub fn render_progressive(
+        &self,
+        scene: &GpuScene<'_, 'c>,
+        integrator: &Integrator,
+        settings: &RenderSettings,
+        mut progress: impl FnMut(u32, f64),
+    ) -> Result<GpuProgressive> {
+        settings
+            .validate()
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let cpu = &scene.scene;
+        if cpu.shading.is_some() {
+            return Err(Error::Unsupported(
+                "gradient shading (scene.shading) is CPU-only; render it with --device cpu".into(),
+            ));
+        }
+        let integrator = integrator
+            .prepared(cpu)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let mut params = scene.base_params();
+        fill_settings(&mut params, settings);
+        let weights = fill_integrator(&mut params, &integrator, cpu);
+        // The blend weights go into this render's own copy of the channel table, so the
+        // scene on the device is never written by a render.
+        let mut chan = scene.chan.clone();
+        for (n, w) in weights.iter().enumerate() {
+            chan[2 * n][2] = *w;
+        }
+        let chan_buf = self
+            .ctx
+            .storage_buffer("tracking channels (render)", &chan)?;
+
+        let pixels = u64::from(settings.width) * u64::from(settings.height);
+        checked_bytes(
+            self.ctx,
+            "accumulation buffer (pixels x RGBA f32)",
+            pixels,
+            16,
+        )?;
+        let mean = self
+            .ctx
+            .storage_buffer_zeroed("tracking mean", pixels * 16)?;
+        let m2 = self.ctx.storage_buffer_zeroed("tracking m2", pixels * 16)?;
+        let pbuf = self.ctx.uniform_buffer("tracking params", &params)?;
+        let bg = bind(
+            self.ctx,
+            &self.render,
+            &[
+                (0, &pbuf),
+                (1, &scene.volume),
+                (2, &scene.luts),
+                (3, &scene.majorants),
+                (4, &mean),
+                (5, &m2),
+                (6, &chan_buf),
+            ],
+        )?;
+        let gx = self
+            .ctx
+            .groups("tracking image width", settings.width, WORKGROUP_2D)?;
+        let gy = self
+            .ctx
+            .groups("tracking image height", settings.height, WORKGROUP_2D)?;
+        let mut done = 0u32;
+        let mut out = GpuProgressive {
+            width: settings.width,
+            height: settings.height,
+            samples: 0,
+            mean: Vec::new(),
+            m2: Vec::new(),
+        };
+        // With a noise target every pass is read back to test it; else larger batches.
+        let batch = if settings.noise_target.is_some() {
+            1
+        } else {
+            SAMPLES_PER_DISPATCH
+        };
+        while done < settings.spp {
+            let count = batch.min(settings.spp - done);
+            params.sample_begin = done;
+            params.sample_count = count;
+            self.ctx
+                .write_buffer(&pbuf, std::slice::from_ref(&params))?;
+            self.ctx.dispatch(&self.render, &bg, [gx, gy, 1])?;
+            done += count;
+            if let Some(target) = settings.noise_target {
+                out.read(self.ctx, &mean, &m2, done)?;
+                let noise = out.noise();
+                progress(done, noise);
+                if done >= 2 && noise <= target {
+                    return Ok(out);
+                }
+            } else {
+                progress(done, f64::INFINITY);
+            }
+        }
+        out.read(self.ctx, &mean, &m2, done)?;
+        Ok(out)
+    }
+
+    /// Renders the mean image (linear HDR RGB, alpha = 1 - transmittance), like
+    /// `blueshift_tracking::render`.
+    pub fn render(
+        &self,
+        scene: &GpuScene<'_, 'c>,
+        integrator: &Integrator,
+        settings: &RenderSettings,
+    ) -> Result<Rgba32FImage> {
+        Ok(self
+            .render_progressive(scene, integrator, settings, |_, _| {})?
+            .mean_image())
+    }
+}
+
+fn v3(v: Vec3) -> [f32; 3] {
+    v.to_array()
+}
+
+fn fill_settings(p: &mut Params, s: &RenderSettings) {
+    let cam = &s.camera;
+    let f = (cam.target - cam.eye).try_normalize().unwrap_or(Vec3::Z);
+    let r = f.cross(cam.up).try_normalize().unwrap_or(Vec3::X);
+    let u = r.cross(f);
+    p.width = s.width;
+    p.height = s.height;
+    p.seed_lo = s.seed as u32;
+    p.seed_hi = (s.seed >> 32) as u32;
+    p.eye = v3(cam.eye);
+    p.fwd = v3(f);
+    p.right = v3(r);
+    p.up = v3(u);
+    match cam.projection {
+        Projection::Perspective { fov_y_deg } => {
+            p.projection = 0;
+            p.cam_h = (fov_y_deg.to_radians() * 0.5).tan();
+        }
+        Projection::Orthographic { height } => {
+            p.projection = 1;
+            p.cam_h = 0.5 * height;
+        }
+    }
+    p.jitter = u32::from(s.jitter_pixels);
+}
+
+fn blend_code(b: &Blend) -> (u32, Option<&[f32]>) {
+    match b {
+        Blend::Density => (0, None),
+        Blend::Max => (1, None),
+        Blend::Mix { weights } => (2, Some(weights)),
+        Blend::Weighted { weights } => (3, Some(weights)),
+        Blend::Composite { weights } => (4, Some(weights)),
+    }
+}
+
+/// Fills the integrator fields; returns the per-channel weights (0 where unused).
+fn fill_integrator(p: &mut Params, integ: &Integrator, scene: &Scene) -> Vec<f32> {
+    let n = scene.channel_count();
+    let mut weights = vec![0.0f32; n];
+    let mut set_blend = |p: &mut Params, b: &Blend| {
+        let (code, w) = blend_code(b);
+        p.blend = code;
+        if let Some(w) = w {
+            for (dst, src) in weights.iter_mut().zip(w) {
+                *dst = *src;
+            }
+        }
+    };
+    match integ {
+        Integrator::Woodcock { channel } => {
+            p.kind = 0;
+            p.channel = *channel as u32;
+        }
+        Integrator::Mdwt { dda, blend } => {
+            p.kind = 1;
+            p.dda = match dda {
+                DdaMode::NDda => 0,
+                DdaMode::OneDda => 1,
+                DdaMode::Summed => 2,
+            };
+            set_blend(p, blend);
+        }
+        Integrator::Marcher(m) => {
+            p.kind = 2;
+            p.step = m
+                .step
+                .unwrap_or(0.5 * scene.geometry().spacing.min_element());
+            p.early_termination = m.early_termination;
+            p.precision = match m.precision {
+                Precision::F32 => 0,
+                Precision::F16 => 1,
+                Precision::U8 => 2,
+            };
+            set_blend(p, &m.blend);
+        }
+    }
+    weights
+}
+
+/// A scene on the device: the channels' voxels, lookup tables, macrocell ranges and
+/// majorant grids (built on the device), with the CPU scene it came from.
+#[derive(Debug)]
+pub struct GpuScene<'t, 'c> {
+    tracker: &'t GpuTracker<'c>,
+    scene: Scene,
+    volume: wgpu::Buffer,
+    luts: wgpu::Buffer,
+    cell_ranges: wgpu::Buffer,
+    majorants: wgpu::Buffer,
+    chan_buf: wgpu::Buffer,
+    chan: Vec<[f32; 4]>,
+    n_cells: u32,
+}
+
+impl<'t, 'c> GpuScene<'t, 'c> {
+    fn new(tracker: &'t GpuTracker<'c>, scene: Scene) -> Result<Self> {
+        let ctx = tracker.ctx;
+        let n = scene.channel_count();
+        let g = *scene.geometry();
+        let layout = *scene.layout();
+        let voxels = g.voxel_count() as u64;
+        let n_cells = layout.len() as u64;
+        let lut_len = tracker.lut_entries as u64;
+        // Every size is checked against the device before anything is allocated.
+        check_volume_fits(ctx, n, g.dims, layout.k)?;
+        checked_bytes(ctx, "lookup tables", n as u64 * lut_len, 16)?;
+        let mut data: Vec<f32> = Vec::with_capacity(n * voxels as usize);
+        for ch in scene.channels() {
+            data.extend(ch.grid().to_f32_vec());
+        }
+        let volume = ctx.storage_buffer("tracking volume", &data)?;
+        drop(data);
+        let mut lut_data: Vec<[f32; 4]> = Vec::with_capacity(n * tracker.lut_entries);
+        let mut chan = Vec::with_capacity(2 * n);
+        let mut ranges: Vec<f32> = Vec::with_capacity(2 * n * n_cells as usize);
+        for ch in scene.channels() {
+            let tf = ch.transfer_function();
+            push_lut(&mut lut_data, tf, tracker.lut_entries)?;
+            chan.extend(chan_info(tf));
+            ranges.extend_from_slice(ch.macrocells().mins());
+            ranges.extend_from_slice(ch.macrocells().maxs());
+        }
+        let luts = ctx.storage_buffer("tracking lookup tables", &lut_data)?;
+        let cell_ranges = ctx.storage_buffer("tracking macrocell ranges", &ranges)?;
+        let majorants =
+            ctx.storage_buffer_zeroed("tracking majorants", (n as u64 + 1) * n_cells * 4)?;
+        let chan_buf = ctx.storage_buffer("tracking channels", &chan)?;
+        let gs = GpuScene {
+            tracker,
+            scene,
+            volume,
+            luts,
+            cell_ranges,
+            majorants,
+            chan_buf,
+            chan,
+            n_cells: n_cells as u32,
+        };
+        gs.build_majorants(None)?;
+        Ok(gs)
+    }
+
+    /// The CPU scene this was uploaded from (kept in step with every edit).
+    #[must_use]
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// Sets the background colour (no upload: it is a render parameter).
+    pub fn set_background(&mut self, rgb: [f32; 3]) {
+        self.scene.background = rgb;
+    }
+
+    /// Sets or clears the directional light (shadow rays).
+    pub fn set_light(&mut self, light: Option<blueshift_tracking::DirectionalLight>) {
+        self.scene.light = light;
+    }
+
+    /// Replaces channel `i`'s transfer function: uploads its lookup table and rebuilds only
+    /// the majorants on the device (channel `i`'s grid, then the total); the volume stays.
+    /// The CPU scene is updated too.
+    pub fn set_transfer_function(&mut self, i: usize, tf: TransferFunction) -> Result<()> {
+        let n = self.scene.channel_count();
+        if i >= n {
+            return Err(Error::InvalidInput(format!(
+                "channel {i} out of range (0..{n})"
+            )));
+        }
+        let ctx = self.tracker.ctx;
+        let mut lut = Vec::with_capacity(self.tracker.lut_entries);
+        push_lut(&mut lut, &tf, self.tracker.lut_entries)?;
+        write_at(
+            ctx,
+            &self.luts,
+            (i * self.tracker.lut_entries * 16) as u64,
+            &lut,
+        )?;
+        let info = chan_info(&tf);
+        self.chan[2 * i] = info[0];
+        self.chan[2 * i + 1] = info[1];
+        write_at(ctx, &self.chan_buf, 0, &self.chan)?;
+        self.scene
+            .set_transfer_function(i, tf)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        self.build_majorants(Some(i))
+    }
+
+    fn build_majorants(&self, channel: Option<usize>) -> Result<()> {
+        let t = self.tracker;
+        let ctx = t.ctx;
+        let n = self.scene.channel_count() as u32;
+        let mp = MajorantParams {
+            n_cells: self.n_cells,
+            n_channels: n,
+            lut_len: t.lut_entries as u32,
+            channel: channel.map_or(n, |c| c as u32),
+            density_scale: self.scene.density_scale(),
+            pad: [0; 3],
+        };
+        let pbuf = ctx.uniform_buffer("majorant params", &mp)?;
+        let entries = [
+            (10, &pbuf),
+            (11, &self.cell_ranges),
+            (12, &self.luts),
+            (13, &self.chan_buf),
+            (14, &self.majorants),
+        ];
+        let bg_build = bind(ctx, &t.build_majorants, &entries)?;
+        let bg_sum = bind(ctx, &t.sum_majorants, &[(10, &pbuf), (14, &self.majorants)])?;
+        let gx = ctx.groups("majorant cells", self.n_cells, WORKGROUP_1D)?;
+        let gy = if channel.is_some() { 1 } else { n };
+        ctx.run_passes(&[
+            crate::context::Pass {
+                pipeline: &t.build_majorants,
+                bind_groups: &[&bg_build],
+                workgroups: [gx, gy, 1],
+            },
+            crate::context::Pass {
+                pipeline: &t.sum_majorants,
+                bind_groups: &[&bg_sum],
+                workgroups: [gx, 1, 1],
+            },
+        ])
+    }
+
+    /// The majorant grids read back from the device: one per channel (cells x fastest, like
+    /// `MajorantGrid::values`), then the cell-wise total.
+    pub fn majorants(&self) -> Result<Vec<Vec<f32>>> {
+        let n = self.scene.channel_count() + 1;
+        let cells = self.n_cells as usize;
+        let all: Vec<f32> = self.tracker.ctx.read_buffer(&self.majorants, n * cells)?;
+        Ok(all.chunks(cells).map(<[f32]>::to_vec).collect())
+    }
+
+    fn base_params(&self) -> Params {
+        let g = self.scene.geometry();
+        let l = self.scene.layout();
+        let (lo, hi) = self.scene.bounds();
+        let light = self.scene.light;
+        let mut p = Params::zeroed();
+        p.n_channels = self.scene.channel_count() as u32;
+        p.lut_len = self.tracker.lut_entries as u32;
+        p.dims = g.dims.map(|d| d as u32);
+        p.k = l.k as u32;
+        p.cdims = l.dims.map(|d| d as u32);
+        p.n_cells = self.n_cells;
+        p.origin = v3(g.origin);
+        p.spacing = v3(g.spacing);
+        p.density_scale = self.scene.density_scale();
+        p.background = self.scene.background;
+        if let Some(l) = light {
+            p.has_light = 1;
+            p.light_dir = v3(l.direction.try_normalize().unwrap_or(Vec3::Z));
+            p.light_radiance = l.radiance;
+            p.ambient = l.ambient;
+        }
+        p.bounds_lo = v3(lo);
+        p.bounds_hi = v3(hi);
+        p.early_termination = 1.0;
+        p.step = 1.0;
+        p
+    }
+}
+
+fn push_lut(out: &mut Vec<[f32; 4]>, tf: &TransferFunction, entries: usize) -> Result<()> {
+    let lut = tf
+        .lut(entries)
+        .map_err(|e| Error::InvalidInput(e.to_string()))?;
+    out.extend(
+        lut.as_rgba()
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2], c[3]]),
+    );
+    Ok(())
+}
+
+fn chan_info(tf: &TransferFunction) -> [[f32; 4]; 2] {
+    let [lo, hi] = tf.domain();
+    let [r, g, b] = tf.nan_color();
+    [[lo as f32, hi as f32, 0.0, 0.0], [r, g, b, 0.0]]
+}
+
+/// A progressive render read back from the device: per pixel the mean and the sum of
+/// squared deviations of RGBA over the samples (Welford, f32 on the device).
+#[derive(Clone, Debug)]
+pub struct GpuProgressive {
+    width: u32,
+    height: u32,
+    samples: u32,
+    mean: Vec<[f32; 4]>,
+    m2: Vec<[f32; 4]>,
+}
+
+impl GpuProgressive {
+    fn read(
+        &mut self,
+        ctx: &GpuContext,
+        mean: &wgpu::Buffer,
+        m2: &wgpu::Buffer,
+        samples: u32,
+    ) -> Result<()> {
+        let n = self.width as usize * self.height as usize;
+        self.mean = ctx.read_buffer(mean, n)?;
+        self.m2 = ctx.read_buffer(m2, n)?;
+        self.samples = samples;
+        Ok(())
+    }
+
+    /// Samples per pixel accumulated.
+    #[must_use]
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+
+    /// Mean RGBA of pixel `(x, y)`.
+    #[must_use]
+    pub fn mean(&self, x: u32, y: u32) -> [f64; 4] {
+        self.mean[(y * self.width + x) as usize].map(f64::from)
+    }
+
+    /// Sample variance of RGBA of pixel `(x, y)` (0 before two samples).
+    #[must_use]
+    pub fn variance(&self, x: u32, y: u32) -> [f64; 4] {
+        if self.samples < 2 {
+            return [0.0; 4];
+        }
+        let n = f64::from(self.samples);
+        self.m2[(y * self.width + x) as usize].map(|v| f64::from(v) / (n - 1.0))
+    }
+
+    /// Root mean square over pixels and RGB of the standard error of the pixel means
+    /// (`blueshift_tracking::Progressive::noise`); infinite before two samples.
+    #[must_use]
+    pub fn noise(&self) -> f64 {
+        if self.samples < 2 || self.m2.is_empty() {
+            return f64::INFINITY;
+        }
+        let n = f64::from(self.samples);
+        let sum: f64 = self
+            .m2
+            .iter()
+            .map(|m| f64::from(m[0] + m[1] + m[2]) / (n - 1.0) / n)
+            .sum();
+        (sum / (3.0 * self.m2.len() as f64)).sqrt()
+    }
+
+    /// The mean image.
+    #[must_use]
+    pub fn mean_image(&self) -> Rgba32FImage {
+        let data = self.mean.iter().flatten().copied().collect();
+        Rgba32FImage::from_raw(self.width, self.height, data).unwrap_or_default()
+    }
+}
+
+/// The raw 64-bit outputs of the device's counter-based generator for each key
+/// `(seed, pixel, sample)`: dimensions 0..8, for comparison with
+/// `blueshift_tracking::Rng::at`. Pixel and sample indices are 32-bit on the device.
+pub fn rng_probe(tracker: &GpuTracker<'_>, keys: &[(u64, u32, u32)]) -> Result<Vec<[u64; 8]>> {
+    let ctx = tracker.ctx;
+    if keys.is_empty() {
+        return Ok(Vec::new());
+    }
+    let n =
+        u32::try_from(keys.len()).map_err(|_| Error::InvalidInput("too many probe keys".into()))?;
+    let pipeline = probe_pipeline(tracker, "rng_probe")?;
+    let k: Vec<[u32; 4]> = keys
+        .iter()
+        .map(|&(s, p, q)| [s as u32, (s >> 32) as u32, p, q])
+        .collect();
+    let kb = ctx.storage_buffer("rng probe keys", &k)?;
+    let ob = ctx.storage_buffer_zeroed("rng probe bits", u64::from(n) * 64)?;
+    let bg = bind(ctx, &pipeline, &[(20, &kb), (21, &ob)])?;
+    let g = ctx.groups("rng probe", n, WORKGROUP_1D)?;
+    ctx.dispatch(&pipeline, &bg, [g, 1, 1])?;
+    let bits: Vec<[u32; 2]> = ctx.read_buffer(&ob, keys.len() * 8)?;
+    Ok(bits
+        .chunks_exact(8)
+        .map(|c| std::array::from_fn(|d| u64::from(c[d][0]) | (u64::from(c[d][1]) << 32)))
+        .collect())
+}
+
+/// The device's compositing roundings of each value: `(f16, u8)` as the marcher applies
+/// them (native or emulated f16 as the tracker was compiled).
+pub fn quantise_probe(tracker: &GpuTracker<'_>, values: &[f32]) -> Result<Vec<(f32, f32)>> {
+    let ctx = tracker.ctx;
+    if values.is_empty() {
+        return Ok(Vec::new());
+    }
+    let n = u32::try_from(values.len())
+        .map_err(|_| Error::InvalidInput("too many probe values".into()))?;
+    let pipeline = probe_pipeline(tracker, "quantise_probe")?;
+    let ib = ctx.storage_buffer("quantise probe in", values)?;
+    let ob = ctx.storage_buffer_zeroed("quantise probe out", u64::from(n) * 8)?;
+    let bg = bind(ctx, &pipeline, &[(22, &ib), (23, &ob)])?;
+    let g = ctx.groups("quantise probe", n, WORKGROUP_1D)?;
+    ctx.dispatch(&pipeline, &bg, [g, 1, 1])?;
+    let out: Vec<[f32; 2]> = ctx.read_buffer(&ob, values.len())?;
+    Ok(out.into_iter().map(|[a, b]| (a, b)).collect())
+}
+
+fn probe_pipeline(tracker: &GpuTracker<'_>, entry: &str) -> Result<wgpu::ComputePipeline> {
+    // Probes are for tests: compiled on demand, not kept.
+    tracker.ctx.compute_pipeline(
+        &format!("tracking {entry}"),
+        &tracking_wgsl(tracker.native_f16),
+        entry,
+    )
+}

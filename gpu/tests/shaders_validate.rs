@@ -1,0 +1,56 @@
+//! Every WGSL file in `gpu/src/shaders/` parses and validates with naga (the same naga
+//! wgpu uses), so a shader error fails the tests and not a user's run.
+
+use std::path::Path;
+
+fn validate(path: &Path) -> Result<(), String> {
+    let src = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+    let module = naga::front::wgsl::parse_str(&src).map_err(|e| e.emit_to_string(&src))?;
+    // All capabilities: f16 / f64 shaders are validated too (the context only loads them
+    // where the adapter has the feature).
+    let mut validator = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    );
+    validator
+        .validate(&module)
+        .map_err(|e| e.emit_to_string(&src))?;
+    Ok(())
+}
+
+#[test]
+fn every_wgsl_shader_validates() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/shaders");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .expect("shaders folder")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "wgsl"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no .wgsl files in {}", dir.display());
+    let failures: Vec<String> = files
+        .iter()
+        .filter_map(|p| validate(p).err().map(|e| format!("{}:\n{e}", p.display())))
+        .collect();
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn the_validator_rejects_a_broken_shader() {
+    // The check above can fail: a type error is caught.
+    let dir = tempfile_dir();
+    let p = dir.join("broken.wgsl");
+    std::fs::write(
+        &p,
+        "@compute @workgroup_size(1) fn main() { let x: f32 = 1u; }",
+    )
+    .unwrap();
+    assert!(validate(&p).is_err());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+fn tempfile_dir() -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("blueshift-gpu-naga-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
