@@ -36,6 +36,7 @@
 //! parses and validates every one of them with naga, so a shader error fails the tests.
 
 pub mod context;
+pub mod doppler;
 pub mod error;
 pub mod relativity;
 pub mod tonemap;
