@@ -1,0 +1,40 @@
+//! The GPU Doppler integrator against the CPU's on the same scene.
+//!
+//! `doppler_small` runs on any adapter (lavapipe in CI): the synthetic galaxy at 32^3 with a
+//! black body, H I and C I lines and its rotation x 30, a 32x32 image, the emission-only
+//! piecewise-linear integrator; `cpu` is `blueshift_tracking::doppler::render_doppler`
+//! (rayon), `gpu` is `blueshift_gpu::doppler::render_doppler_gpu` as a whole call (pipeline
+//! creation, upload, dispatch and readback included). The ratio gpu / cpu is the figure.
+
+use blueshift_gpu::GpuContext;
+use blueshift_gpu::doppler::render_doppler_gpu;
+use blueshift_tracking::doppler::{DopplerScene, DopplerSettings, render_doppler};
+use blueshift_volume::synth;
+use criterion::{Criterion, criterion_group, criterion_main};
+
+fn small(c: &mut Criterion) {
+    let ctx = match GpuContext::shared() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("SKIP: no wgpu adapter: {e}");
+            return;
+        }
+    };
+    let v = synth::galaxy(32, 5).expect("galaxy");
+    let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).expect("scene");
+    scene.factors.velocity = 30.0;
+    scene.factors.blackbody = 0.1;
+    let st = DopplerSettings::default_for(&scene, 32, 32);
+    let mut g = c.benchmark_group("doppler_small");
+    g.sample_size(10);
+    g.bench_function("cpu/pwl_emission", |b| {
+        b.iter(|| render_doppler(&scene, &st, &|| {}).expect("cpu"));
+    });
+    g.bench_function("gpu/pwl_emission", |b| {
+        b.iter(|| render_doppler_gpu(ctx, &scene, &st).expect("gpu"));
+    });
+    g.finish();
+}
+
+criterion_group!(benches, small);
+criterion_main!(benches);
