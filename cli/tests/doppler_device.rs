@@ -86,7 +86,6 @@ fn unsupported_settings_are_refused_on_gpu_and_fall_back_on_auto() {
     for (extra, word) in [
         (&["--absorption-factor", "2"][..], "absorption"),
         (&["--line-sigma", "50"][..], "broadening"),
-        (&["--integrator", "banded:16"][..], "banded"),
     ] {
         let o = run(dir.path(), extra, "refused.exr", "gpu");
         assert!(!o.status.success());

@@ -24,9 +24,10 @@
 //! (`DopplerSettings::broadening`), the banded integrators, and more than
 //! [`MAX_SPECIES`] species. The CLI's `--device auto` falls back to the CPU on these.
 
-use blueshift_spectrum::{Cmf, RadiationConstants, Xyz};
+use blueshift_spectrum::{BandLayout, Cmf, RadiationConstants, Xyz};
 use blueshift_tracking::doppler::{
-    BB_UNIT, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralIntegrator,
+    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, PieceStats,
+    SpectralIntegrator,
 };
 use blueshift_tracking::Ray;
 use bytemuck::{Pod, Zeroable};
@@ -65,12 +66,16 @@ struct Params {
     bb_k: u32,
     bb_c1: f32,
     bb_c2: f32,
-    pad0: f32,
+    shift_mode: u32,
     temp_factor: f32,
     vel_factor: f32,
     off_lambda: u32,
     off_hat: u32,
     bb_factor: f32,
+    n_bands: u32,
+    band_w: f32,
+    off_band_w: u32,
+    off_band_c: u32,
 }
 
 #[repr(C)]
@@ -93,11 +98,6 @@ fn tracking_err(e: blueshift_tracking::Error) -> Error {
 /// does, giving [`Error::InvalidInput`]).
 pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Result<()> {
     settings.validated_step(scene).map_err(tracking_err)?;
-    if let SpectralIntegrator::Banded { .. } = settings.integrator {
-        return Err(Error::Unsupported(
-            "the banded integrator (integrator banded:N / banded-ec:N); use pwl".into(),
-        ));
-    }
     if !settings.broadening.is_none() {
         return Err(Error::Unsupported(
             "line broadening (thermal / Gaussian sigma); the GPU keeps the box profile".into(),
@@ -120,6 +120,34 @@ pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Resu
         )));
     }
     Ok(())
+}
+
+/// blueshift-tracking's banded `deposit`: a box of `area` over `[lo, hi)` added to the bands
+/// (`(range start, range end, bands)`) as band means.
+fn deposit(
+    (a, b, n): (f64, f64, usize),
+    lo: f64,
+    hi: f64,
+    area: f64,
+    mut add: impl FnMut(usize, f64),
+) {
+    let bw = (b - a) / n as f64;
+    let (l, h) = (lo.max(a), hi.min(b));
+    if h <= l || hi <= lo {
+        return;
+    }
+    let height = area / (hi - lo);
+    let first = (((l - a) / bw).floor() as usize).min(n - 1);
+    for i in first..n {
+        let s = a + i as f64 * bw;
+        if s >= h {
+            break;
+        }
+        let ov = h.min(s + bw) - l.max(s);
+        if ov > 0.0 {
+            add(i, height * ov / bw);
+        }
+    }
 }
 
 fn to_u32(what: &str, n: usize) -> Result<u32> {
@@ -202,15 +230,44 @@ pub fn render_doppler_gpu(
         Some(v) => v.data().iter().flat_map(|p| p.to_array()).collect(),
         None => vec![0.0; 3],
     };
+    let (a, b) = settings.range_nm;
+    let (n_bands, nearest) = match settings.integrator {
+        SpectralIntegrator::PiecewiseLinear => (0, false),
+        SpectralIntegrator::Banded { bands, shift } => (bands, shift == BandShift::Nearest),
+    };
     let mut lines: Vec<[f32; 4]> = Vec::new();
-    for (m, sp) in scene.species().iter().enumerate() {
-        for l in &sp.emission_lines {
-            lines.push([
-                l.centre_nm as f32,
-                (l.strength * f.emission) as f32,
-                m as f32,
-                0.0,
-            ]);
+    if nearest {
+        // The CPU's rest-frame band values: each line's box deposited into the bands.
+        let bw = (b - a) / n_bands as f64;
+        let w = settings.line_width_nm;
+        for (m, sp) in scene.species().iter().enumerate() {
+            let mut v = std::collections::BTreeMap::<usize, f64>::new();
+            for l in &sp.emission_lines {
+                deposit(
+                    (a, b, n_bands),
+                    l.centre_nm - 0.5 * w,
+                    l.centre_nm + 0.5 * w,
+                    l.strength * f.emission,
+                    |i, x| *v.entry(i).or_insert(0.0) += x,
+                );
+            }
+            for (i, x) in v {
+                if x > 0.0 {
+                    lines.push([(a + (i as f64 + 0.5) * bw) as f32, x as f32, m as f32, 0.0]);
+                }
+            }
+        }
+    }
+    if !nearest {
+        for (m, sp) in scene.species().iter().enumerate() {
+            for l in &sp.emission_lines {
+                lines.push([
+                    l.centre_nm as f32,
+                    (l.strength * f.emission) as f32,
+                    m as f32,
+                    0.0,
+                ]);
+            }
         }
     }
     let n_lines = lines.len();
@@ -227,7 +284,6 @@ pub fn render_doppler_gpu(
         cmf_n += 1;
     }
     let cmf_step = (c_hi - c_lo) / (cmf_n.max(2) - 1) as f64;
-    let (a, b) = settings.range_nm;
     let k = settings.blackbody_samples;
     let lambdas: Vec<f64> = (0..k)
         .map(|i| a + (b - a) * i as f64 / (k - 1) as f64)
@@ -244,6 +300,25 @@ pub fn render_doppler_gpu(
             x += cmf.trapezoid_xyz(lambdas[i], lambdas[i + 1], 1.0, 0.0);
         }
         tables.extend(x.to_array().iter().map(|&v| v as f32));
+    }
+    // Banded: per-band CMF integrals (blueshift-spectrum's BandWeights) and band centres.
+    let off_band_w = tables.len();
+    let layout = if n_bands > 0 {
+        Some(BandLayout::new(a, b, n_bands).map_err(|e| Error::InvalidInput(e.to_string()))?)
+    } else {
+        None
+    };
+    if let Some(l) = layout {
+        ctx.check_storage_size("doppler tables", (tables.len() + 4 * n_bands) as u64 * 4)?;
+        for i in 0..n_bands {
+            let s0 = l.band_start_nm(i);
+            let x = cmf.trapezoid_xyz(s0, s0 + l.width_nm(), 1.0, 1.0);
+            tables.extend(x.to_array().iter().map(|&v| v as f32));
+        }
+    }
+    let off_band_c = tables.len();
+    if let Some(l) = layout {
+        tables.extend((0..n_bands).map(|i| l.band_centre_nm(i) as f32));
     }
     let (c1l, c2) = RadiationConstants::Codata.values();
     let rays = pixel_rays(scene, settings, step);
@@ -271,14 +346,25 @@ pub fn render_doppler_gpu(
         // B per nm with lambda in nm: c1L * 1e45 (lambda^5) * 1e-9 (per nm).
         bb_c1: (c1l * 1e36) as f32,
         bb_c2: (c2 * 1e9) as f32,
-        pad0: 0.0,
+        shift_mode: u32::from(matches!(
+            settings.integrator,
+            SpectralIntegrator::Banded {
+                shift: BandShift::EnergyConserving,
+                ..
+            }
+        )),
         temp_factor: f.temperature as f32,
         vel_factor: f.velocity as f32,
         off_lambda: to_u32("table offset", off_lambda)?,
         off_hat: to_u32("table offset", off_hat)?,
         bb_factor: (f.blackbody * BB_UNIT) as f32,
+        n_bands: to_u32("bands", n_bands)?,
+        band_w: ((b - a) / n_bands.max(1) as f64) as f32,
+        off_band_w: to_u32("table offset", off_band_w)?,
+        off_band_c: to_u32("table offset", off_band_c)?,
     };
-    let pipeline = ctx.compute_pipeline("doppler", DOPPLER_WGSL, "main")?;
+    let entry = if n_bands > 0 { "main_banded" } else { "main" };
+    let pipeline = ctx.compute_pipeline("doppler", DOPPLER_WGSL, entry)?;
     let rb = ctx.storage_buffer("doppler rays", &rays)?;
     let cb = ctx.storage_buffer("doppler channels", &channels)?;
     let vb = ctx.storage_buffer("doppler velocity", &velocity)?;

@@ -29,12 +29,16 @@ struct Params {
     bb_k: u32,
     bb_c1: f32,        // c1L for l in nm, per nm: B = c1 / l^5 / (exp(c2 / l T) - 1)
     bb_c2: f32,        // c2 in nm K
-    pad0: f32,
+    shift_mode: u32,   // banded: 0 nearest band, 1 energy-conserving
     temp_factor: f32,
     vel_factor: f32,
     off_lambda: u32,   // offset of the black-body grid in `tables`
     off_hat: u32,      // offset of the hat XYZs (3 per sample) in `tables`
     bb_factor: f32,    // black-body factor x BB_UNIT
+    n_bands: u32,      // banded: bands over [range_lo, range_hi)
+    band_w: f32,       // banded: band width, nm
+    off_band_w: u32,   // banded: offset of the per-band CMF integrals (3 per band)
+    off_band_c: u32,   // banded: offset of the band centres
 }
 
 struct PixelRay {
@@ -52,7 +56,8 @@ struct PixelRay {
 @group(0) @binding(2) var<storage, read> velocity: array<f32>;
 // CMF samples (3 per wavelength, cmf_n of them), then the black-body grid and its hat XYZs.
 @group(0) @binding(3) var<storage, read> tables: array<f32>;
-// Per line: centre nm, strength x emission factor, species index, unused.
+// Per line: centre nm, strength x emission factor, species index, unused. Banded with the
+// nearest shift: per rest-frame band entry, its centre nm, value per unit density, species.
 @group(0) @binding(4) var<storage, read> lines: array<vec4<f32>>;
 // Per pixel: X, Y, Z, flag (0 ok, 1: a Doppler shift was invalid).
 @group(0) @binding(5) var<storage, read_write> out_xyz: array<vec4<f32>>;
@@ -257,6 +262,109 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             s_a = s_b;
             t_a = t;
             bb_a = bb_b;
+        }
+    }
+    out_xyz[pix] = vec4<f32>(xyz, flag);
+}
+
+// ---- Banded integrator (Algorithm 1), emission only -------------------------------------
+// Without absorption the XYZ of the band values is linear in them, so each deposit into band
+// d adds W[d] x value to XYZ directly (W[d]: the CMF integrals over band d, from the host):
+// no per-ray band array.
+
+fn band_weight(d: u32) -> vec3<f32> {
+    let o = P.off_band_w + 3u * d;
+    return vec3<f32>(tables[o], tables[o + 1u], tables[o + 2u]);
+}
+
+// blueshift-spectrum's BandLayout::band_of: the band holding x, or n_bands for none.
+fn band_of(x: f32) -> u32 {
+    if (!(x >= P.range_lo && x < P.range_hi)) { return P.n_bands; }
+    return min(u32(floor((x - P.range_lo) / P.band_w)), P.n_bands - 1u);
+}
+
+// The banded `deposit`: a box of `area` over [lo, hi) spread over the bands it overlaps, as
+// band means, each weighted by its CMF integrals.
+fn deposit_xyz(lo: f32, hi: f32, area: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let l = max(lo, P.range_lo);
+    let h = min(hi, P.range_hi);
+    if (h <= l || hi <= lo) { return out; }
+    let height = area / (hi - lo);
+    let first = min(u32(floor((l - P.range_lo) / P.band_w)), P.n_bands - 1u);
+    for (var i = first; i < P.n_bands; i++) {
+        let s = P.range_lo + f32(i) * P.band_w;
+        if (s >= h) { break; }
+        let ov = min(h, s + P.band_w) - max(l, s);
+        if (ov > 0.0) { out += band_weight(i) * (height * ov / P.band_w); }
+    }
+    return out;
+}
+
+fn path_t(r: PixelRay, i: u32) -> f32 {
+    if (i == r.n_seg) { return r.len; }
+    return min(f32(i) * P.step, r.len);
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if (gid.x >= P.width || gid.y >= P.height) { return; }
+    let pix = gid.y * P.width + gid.x;
+    let r = rays[pix];
+    var xyz = vec3<f32>(0.0);
+    var flag = 0.0;
+    var rho: array<f32, 8>;
+    let nsp = min(P.nsp, MAX_SPECIES);
+    if (r.n_seg > 0u) {
+        for (var ii = 0u; ii <= r.n_seg; ii++) {
+            let i = r.n_seg - ii;
+            let t = path_t(r, i);
+            var wt = 0.0;
+            if (i < r.n_seg) { wt += abs(path_t(r, i + 1u) - t); }
+            if (i > 0u) { wt += abs(t - path_t(r, i - 1u)); }
+            wt *= 0.5;
+            let c = corners(r.p0 + r.dir_idx * t);
+            for (var m = 0u; m < nsp; m++) {
+                rho[m] = max(sample_channel(c, m), 0.0);
+            }
+            var v = vec3<f32>(0.0);
+            if (P.has_vel == 1u) { v = sample_velocity(c) * P.vel_factor; }
+            let v_r = dot(v, r.los);
+            var sh = 1.0;
+            if (P.model == 1u) {
+                let beta = length(v) / C_M_PER_S;
+                if (!(beta < 1.0)) { flag = 1.0; }
+                sh = (1.0 + v_r / C_M_PER_S) / sqrt(max(1.0 - beta * beta, 1e-30));
+            } else {
+                sh = 1.0 + v_r / C_M_PER_S;
+            }
+            if (!(sh > 0.0)) { flag = 1.0; sh = 1.0; }
+            let g = value_factor(sh) * sh;
+            for (var li = 0u; li < P.n_lines; li++) {
+                let line = lines[li];
+                let m = u32(line.z);
+                let rm = rho[m];
+                if (rm <= 0.0) { continue; }
+                if (P.shift_mode == 0u) {
+                    let d = band_of(line.x * sh);
+                    if (d < P.n_bands) { xyz += band_weight(d) * (wt * rm * g * line.y); }
+                } else {
+                    xyz += deposit_xyz(sh * (line.x - 0.5 * P.min_width),
+                                       sh * (line.x + 0.5 * P.min_width),
+                                       wt * rm * g * line.y);
+                }
+            }
+            if (P.has_bb == 1u) {
+                let brho = max(sample_channel(c, P.nsp), 0.0) * P.bb_factor;
+                let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
+                if (brho > 0.0 && temp > 0.0) {
+                    let k = wt * brho * value_factor(sh);
+                    for (var b = 0u; b < P.n_bands; b++) {
+                        let cb = tables[P.off_band_c + b];
+                        xyz += band_weight(b) * (k * planck(cb / sh, temp));
+                    }
+                }
+            }
         }
     }
     out_xyz[pix] = vec4<f32>(xyz, flag);
