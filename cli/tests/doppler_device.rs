@@ -69,7 +69,10 @@ fn gpu_image_matches_the_cpu_image() {
         read_exr(&dir.path().join("cpu.exr")),
         read_exr(&dir.path().join("gpu.exr")),
     );
-    let max = a.pixels().flat_map(|p| p.0[..3].to_vec()).fold(0.0f32, f32::max);
+    let max = a
+        .pixels()
+        .flat_map(|p| p.0[..3].to_vec())
+        .fold(0.0f32, f32::max);
     assert!(max > 0.0);
     for (p, q) in a.pixels().zip(b.pixels()) {
         for k in 0..3 {

@@ -2,13 +2,15 @@
 //!
 //! `doppler_small` runs on any adapter (lavapipe in CI): the synthetic galaxy at 32^3 with a
 //! black body, H I and C I lines and its rotation x 30, a 32x32 image, the emission-only
-//! piecewise-linear integrator; `cpu` is `blueshift_tracking::doppler::render_doppler`
+//! piecewise-linear integrator and the banded one (200 bands, energy-conserving shift); `cpu` is `blueshift_tracking::doppler::render_doppler`
 //! (rayon), `gpu` is `blueshift_gpu::doppler::render_doppler_gpu` as a whole call (pipeline
 //! creation, upload, dispatch and readback included). The ratio gpu / cpu is the figure.
 
 use blueshift_gpu::GpuContext;
 use blueshift_gpu::doppler::render_doppler_gpu;
-use blueshift_tracking::doppler::{DopplerScene, DopplerSettings, render_doppler};
+use blueshift_tracking::doppler::{
+    BandShift, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
+};
 use blueshift_volume::synth;
 use criterion::{Criterion, criterion_group, criterion_main};
 
@@ -32,6 +34,17 @@ fn small(c: &mut Criterion) {
     });
     g.bench_function("gpu/pwl_emission", |b| {
         b.iter(|| render_doppler_gpu(ctx, &scene, &st).expect("gpu"));
+    });
+    let mut banded = st.clone();
+    banded.integrator = SpectralIntegrator::Banded {
+        bands: 200,
+        shift: BandShift::EnergyConserving,
+    };
+    g.bench_function("cpu/banded_ec_200", |b| {
+        b.iter(|| render_doppler(&scene, &banded, &|| {}).expect("cpu"));
+    });
+    g.bench_function("gpu/banded_ec_200", |b| {
+        b.iter(|| render_doppler_gpu(ctx, &scene, &banded).expect("gpu"));
     });
     g.finish();
 }

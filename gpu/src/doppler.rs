@@ -15,21 +15,27 @@
 //!   (`blackbody_samples` points, each weighted by the XYZ of its hat function, computed on
 //!   the host in f64 as the CPU does).
 //!
+//! The banded integrators (Algorithm 1: `SpectralIntegrator::Banded`, nearest-band and
+//! energy-conserving shift) run per sample with the CPU's trapezoid weights; without
+//! absorption the XYZ of the band values is linear in them, so each deposit into band `d`
+//! adds the band's CMF integrals (blueshift-spectrum's `BandWeights`, from the host) times its
+//! value straight to XYZ, and no per-ray band array is kept.
+//!
 //! Arithmetic is f32 on the device (no `SHADER_F64` needed); the parity tests state the
 //! tolerance against the CPU image (`gpu/tests/doppler.rs`).
 //!
 //! # What is refused
 //! [`check_supported`] returns [`Error::Unsupported`] naming the setting for: absorption
 //! (absorption factor > 0 with absorption lines), line broadening
-//! (`DopplerSettings::broadening`), the banded integrators, and more than
-//! [`MAX_SPECIES`] species. The CLI's `--device auto` falls back to the CPU on these.
+//! (`DopplerSettings::broadening`), and more than [`MAX_SPECIES`] species. The CLI's
+//! `--device auto` falls back to the CPU on these. Picked spectra, traces and spectral cubes
+//! stay on the CPU.
 
 use blueshift_spectrum::{BandLayout, Cmf, RadiationConstants, Xyz};
-use blueshift_tracking::doppler::{
-    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, PieceStats,
-    SpectralIntegrator,
-};
 use blueshift_tracking::Ray;
+use blueshift_tracking::doppler::{
+    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralIntegrator,
+};
 use bytemuck::{Pod, Zeroable};
 
 use crate::context::{GpuContext, WORKGROUP_2D};
@@ -167,9 +173,7 @@ fn pixel_rays(scene: &DopplerScene, settings: &DopplerSettings, step: f32) -> Ve
     let mut out = Vec::with_capacity(w as usize * h as usize);
     for y in 0..h {
         for x in 0..w {
-            let ray: Ray = settings
-                .camera
-                .ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
+            let ray: Ray = settings.camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
             let mut pr = PixelRay::zeroed();
             if let Some((t0, t1)) = ray.clip_box(lo, hi) {
                 let len = t1 - t0;
@@ -188,9 +192,9 @@ fn pixel_rays(scene: &DopplerScene, settings: &DopplerSettings, step: f32) -> Ve
     out
 }
 
-/// Renders the XYZ image of `scene` on the GPU: the same image as
-/// `blueshift_tracking::doppler::render_doppler` within f32 rounding (see the module docs for
-/// what is supported). The piece statistics are zero, as the CPU's for emission-only rays.
+/// Renders the XYZ image of `scene` on the GPU with `settings.integrator` (piecewise linear
+/// or banded): the same image as `blueshift_tracking::doppler::render_doppler` within f32
+/// rounding (see the module docs for what is supported). The piece statistics are zero, as the CPU's for emission-only rays.
 pub fn render_doppler_gpu(
     ctx: &GpuContext,
     scene: &DopplerScene,

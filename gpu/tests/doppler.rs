@@ -99,7 +99,11 @@ fn shell_matches_the_cpu_with_both_doppler_models_and_radiance_rules() {
         st.invariant = invariant;
         let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
         let gpu = render_doppler_gpu(ctx, &scene, &st).unwrap();
-        compare(&format!("shell {model:?} invariant={invariant}"), &cpu, &gpu);
+        compare(
+            &format!("shell {model:?} invariant={invariant}"),
+            &cpu,
+            &gpu,
+        );
     }
 }
 
@@ -154,11 +158,17 @@ fn unsupported_settings_are_refused_by_name() {
     let mut a = scene.clone();
     a.factors.absorption = 1.0;
     let e = check_supported(&a, &st).unwrap_err();
-    assert!(matches!(&e, Error::Unsupported(m) if m.contains("absorption")), "{e}");
+    assert!(
+        matches!(&e, Error::Unsupported(m) if m.contains("absorption")),
+        "{e}"
+    );
     let mut b = st.clone();
     b.broadening.thermal = true;
     let e = check_supported(&scene, &b).unwrap_err();
-    assert!(matches!(&e, Error::Unsupported(m) if m.contains("broadening")), "{e}");
+    assert!(
+        matches!(&e, Error::Unsupported(m) if m.contains("broadening")),
+        "{e}"
+    );
     let mut c = st.clone();
     c.integrator = SpectralIntegrator::Banded {
         bands: 16,
@@ -166,7 +176,10 @@ fn unsupported_settings_are_refused_by_name() {
     };
     assert!(check_supported(&scene, &c).is_ok());
     let e = check_supported(&a, &c).unwrap_err();
-    assert!(matches!(&e, Error::Unsupported(m) if m.contains("absorption")), "{e}");
+    assert!(
+        matches!(&e, Error::Unsupported(m) if m.contains("absorption")),
+        "{e}"
+    );
     // Invalid settings are the CPU's errors, before anything reaches a device.
     let mut d = st.clone();
     d.line_width_nm = f64::NAN;
