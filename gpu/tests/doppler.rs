@@ -151,6 +151,37 @@ fn a_tilted_perspective_view_and_cell_domain_match_the_cpu() {
 }
 
 #[test]
+fn the_comparison_sees_the_doppler_shift_and_bad_velocities_are_errors() {
+    let Some(ctx) = test_context() else { return };
+    // The tolerance is tight enough to tell the rotating shell from the still one.
+    let mut moving = shell();
+    moving.factors.velocity = 10.0;
+    let mut still = moving.clone();
+    still.factors.velocity = 0.0;
+    let st = DopplerSettings::default_for(&moving, 16, 16);
+    let gpu = render_doppler_gpu(ctx, &moving, &st).unwrap();
+    let cpu_still = render_doppler(&still, &st, &|| {}).unwrap();
+    let result = std::panic::catch_unwind(|| compare("moving vs still", &cpu_still, &gpu));
+    assert!(
+        result.is_err(),
+        "the comparison cannot see a 3000 km/s rotation"
+    );
+    // Faster than light (300 km/s x 2000): the CPU refuses the shift, so does the GPU.
+    let mut fast = shell();
+    fast.factors.velocity = 2000.0;
+    for model in [DopplerModel::Classical, DopplerModel::Relativistic] {
+        let mut st = DopplerSettings::default_for(&fast, 16, 16);
+        st.model = model;
+        assert!(render_doppler(&fast, &st, &|| {}).is_err());
+        let e = render_doppler_gpu(ctx, &fast, &st).unwrap_err();
+        assert!(
+            matches!(&e, Error::InvalidInput(m) if m.contains("Doppler shift")),
+            "{e}"
+        );
+    }
+}
+
+#[test]
 fn unsupported_settings_are_refused_by_name() {
     let scene = galaxy();
     let st = DopplerSettings::default_for(&scene, 8, 8);
