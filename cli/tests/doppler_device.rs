@@ -107,6 +107,29 @@ fn unsupported_settings_are_refused_on_gpu_and_fall_back_on_auto() {
         assert!(String::from_utf8_lossy(&o.stdout).contains("on the cpu"));
         assert!(dir.path().join("auto.exr").exists());
     }
+    // Banded with absorption is on the GPU too, and agrees with the CPU.
+    let banded = ["--integrator", "banded-ec:100", "--absorption-factor", "50"];
+    let c = run(dir.path(), &banded, "bc.exr", "cpu");
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    let g = run(dir.path(), &banded, "bg.exr", "gpu");
+    if gpu_ok(&g) {
+        assert!(String::from_utf8_lossy(&g.stdout).contains("on the gpu"));
+        let (a, b) = (
+            read_exr(&dir.path().join("bc.exr")),
+            read_exr(&dir.path().join("bg.exr")),
+        );
+        let max = a
+            .pixels()
+            .flat_map(|p| p.0[..3].to_vec())
+            .fold(0.0f32, f32::max);
+        assert!(max > 0.0);
+        for (p, q) in a.pixels().zip(b.pixels()) {
+            for k in 0..3 {
+                let tol = 2e-3 * p.0[k].abs() + 1e-5 * max;
+                assert!((p.0[k] - q.0[k]).abs() <= tol, "{:?} vs {:?}", p.0, q.0);
+            }
+        }
+    }
     let o = run(dir.path(), &[], "x.exr", "quantum");
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown device"));

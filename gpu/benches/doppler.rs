@@ -2,7 +2,8 @@
 //!
 //! `doppler_small` runs on any adapter (lavapipe in CI): the synthetic galaxy at 32^3 with a
 //! black body, H I and C I lines and its rotation x 30, a 32x32 image, the emission-only
-//! piecewise-linear integrator and the banded one (200 bands, energy-conserving shift); `cpu` is `blueshift_tracking::doppler::render_doppler`
+//! piecewise-linear integrator and the banded one (200 bands, energy-conserving shift, without
+//! and with absorption x 50); `cpu` is `blueshift_tracking::doppler::render_doppler`
 //! (rayon), `gpu` is `blueshift_gpu::doppler::render_doppler_gpu` as a whole call (pipeline
 //! creation, upload, dispatch and readback included). The ratio gpu / cpu is the figure.
 
@@ -45,6 +46,14 @@ fn small(c: &mut Criterion) {
     });
     g.bench_function("gpu/banded_ec_200", |b| {
         b.iter(|| render_doppler_gpu(ctx, &scene, &banded).expect("gpu"));
+    });
+    let mut absorbing = scene.clone();
+    absorbing.factors.absorption = 50.0;
+    g.bench_function("cpu/banded_ec_200_absorption", |b| {
+        b.iter(|| render_doppler(&absorbing, &banded, &|| {}).expect("cpu"));
+    });
+    g.bench_function("gpu/banded_ec_200_absorption", |b| {
+        b.iter(|| render_doppler_gpu(ctx, &absorbing, &banded).expect("gpu"));
     });
     g.finish();
 }

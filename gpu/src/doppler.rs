@@ -16,17 +16,21 @@
 //!   the host in f64 as the CPU does).
 //!
 //! The banded integrators (Algorithm 1: `SpectralIntegrator::Banded`, nearest-band and
-//! energy-conserving shift) run per sample with the CPU's trapezoid weights; without
+//! energy-conserving shift) run per sample with the CPU's trapezoid weights. Without
 //! absorption the XYZ of the band values is linear in them, so each deposit into band `d`
 //! adds the band's CMF integrals (blueshift-spectrum's `BandWeights`, from the host) times its
-//! value straight to XYZ, and no per-ray band array is kept.
+//! value straight to XYZ, and no per-ray band array is kept. With absorption each ray keeps
+//! its band values in a device buffer (`pixels x bands` f32, checked against the storage
+//! limits before it is created), attenuated by half of each sample's optical depth before and
+//! after its emission as the CPU does.
 //!
 //! Arithmetic is f32 on the device (no `SHADER_F64` needed); the parity tests state the
 //! tolerance against the CPU image (`gpu/tests/doppler.rs`).
 //!
 //! # What is refused
 //! [`check_supported`] returns [`Error::Unsupported`] naming the setting for: absorption
-//! (absorption factor > 0 with absorption lines), line broadening
+//! (absorption factor > 0 with absorption lines) with the piecewise-linear integrator (its
+//! front-to-back optical-depth merging is not ported), line broadening
 //! (`DopplerSettings::broadening`), and more than [`MAX_SPECIES`] species. The CLI's
 //! `--device auto` falls back to the CPU on these. Picked spectra, traces and spectral cubes
 //! stay on the CPU.
@@ -82,6 +86,10 @@ struct Params {
     band_w: f32,
     off_band_w: u32,
     off_band_c: u32,
+    n_abs: u32,
+    absorbing: u32,
+    abs_factor: f32,
+    pad1: u32,
 }
 
 #[repr(C)]
@@ -109,14 +117,11 @@ pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Resu
             "line broadening (thermal / Gaussian sigma); the GPU keeps the box profile".into(),
         ));
     }
-    let absorbing = scene.factors.absorption > 0.0
-        && scene
-            .species()
-            .iter()
-            .any(|sp| !sp.absorption_lines.is_empty());
-    if absorbing {
+    if absorbing(scene) && settings.integrator == SpectralIntegrator::PiecewiseLinear {
         return Err(Error::Unsupported(
-            "absorption (absorption factor > 0); the GPU integrator is emission-only".into(),
+            "absorption (absorption factor > 0) with the piecewise-linear integrator; \
+             the GPU has it for the banded integrators only"
+                .into(),
         ));
     }
     if scene.species().len() > MAX_SPECIES {
@@ -154,6 +159,16 @@ fn deposit(
             add(i, height * ov / bw);
         }
     }
+}
+
+/// Whether any line absorbs (the absorption factor is > 0 and some species has absorption
+/// lines), as the CPU decides.
+fn absorbing(scene: &DopplerScene) -> bool {
+    scene.factors.absorption > 0.0
+        && scene
+            .species()
+            .iter()
+            .any(|sp| !sp.absorption_lines.is_empty())
 }
 
 fn to_u32(what: &str, n: usize) -> Result<u32> {
@@ -240,18 +255,38 @@ pub fn render_doppler_gpu(
         SpectralIntegrator::Banded { bands, shift } => (bands, shift == BandShift::Nearest),
     };
     let mut lines: Vec<[f32; 4]> = Vec::new();
-    if nearest {
-        // The CPU's rest-frame band values: each line's box deposited into the bands.
-        let bw = (b - a) / n_bands as f64;
+    let absorbs = n_bands > 0 && absorbing(scene);
+    // Emission entries, then (banded with absorption) absorption entries: with the nearest
+    // shift the CPU's rest-frame band values (each line's box deposited into the bands),
+    // otherwise the lines themselves.
+    let push_entries = |lines: &mut Vec<[f32; 4]>, emission: bool| {
+        let factor = if emission { f.emission } else { f.absorption };
+        let bw = (b - a) / n_bands.max(1) as f64;
         let w = settings.line_width_nm;
         for (m, sp) in scene.species().iter().enumerate() {
+            let list = if emission {
+                &sp.emission_lines
+            } else {
+                &sp.absorption_lines
+            };
+            if !nearest {
+                for l in list {
+                    lines.push([
+                        l.centre_nm as f32,
+                        (l.strength * factor) as f32,
+                        m as f32,
+                        0.0,
+                    ]);
+                }
+                continue;
+            }
             let mut v = std::collections::BTreeMap::<usize, f64>::new();
-            for l in &sp.emission_lines {
+            for l in list {
                 deposit(
                     (a, b, n_bands),
                     l.centre_nm - 0.5 * w,
                     l.centre_nm + 0.5 * w,
-                    l.strength * f.emission,
+                    l.strength * factor,
                     |i, x| *v.entry(i).or_insert(0.0) += x,
                 );
             }
@@ -261,20 +296,13 @@ pub fn render_doppler_gpu(
                 }
             }
         }
-    }
-    if !nearest {
-        for (m, sp) in scene.species().iter().enumerate() {
-            for l in &sp.emission_lines {
-                lines.push([
-                    l.centre_nm as f32,
-                    (l.strength * f.emission) as f32,
-                    m as f32,
-                    0.0,
-                ]);
-            }
-        }
-    }
+    };
+    push_entries(&mut lines, true);
     let n_lines = lines.len();
+    if absorbs {
+        push_entries(&mut lines, false);
+    }
+    let n_abs = lines.len() - n_lines;
     if lines.is_empty() {
         lines.push([0.0; 4]);
     }
@@ -366,6 +394,10 @@ pub fn render_doppler_gpu(
         band_w: ((b - a) / n_bands.max(1) as f64) as f32,
         off_band_w: to_u32("table offset", off_band_w)?,
         off_band_c: to_u32("table offset", off_band_c)?,
+        n_abs: to_u32("absorption lines", n_abs)?,
+        absorbing: u32::from(absorbs),
+        abs_factor: f.absorption as f32,
+        pad1: 0,
     };
     let entry = if n_bands > 0 { "main_banded" } else { "main" };
     let pipeline = ctx.compute_pipeline("doppler", DOPPLER_WGSL, entry)?;
@@ -377,7 +409,19 @@ pub fn render_doppler_gpu(
     let n_pix = rays.len();
     let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 16)?;
     let pb = ctx.uniform_buffer("doppler params", &params)?;
-    let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb])?;
+    let bg = if n_bands > 0 {
+        // The per-ray band values when absorbing (n_bands per pixel), else a placeholder.
+        let bytes = if absorbs {
+            n_pix as u64 * n_bands as u64 * 4
+        } else {
+            16
+        };
+        ctx.check_storage_size("doppler band values (pixels x bands)", bytes)?;
+        let sb = ctx.storage_buffer_zeroed("doppler band values", bytes)?;
+        ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?
+    } else {
+        ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb])?
+    };
     let gx = ctx.groups("doppler", settings.width, WORKGROUP_2D)?;
     let gy = ctx.groups("doppler", settings.height, WORKGROUP_2D)?;
     ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;

@@ -39,6 +39,10 @@ struct Params {
     band_w: f32,       // banded: band width, nm
     off_band_w: u32,   // banded: offset of the per-band CMF integrals (3 per band)
     off_band_c: u32,   // banded: offset of the band centres
+    n_abs: u32,        // banded with absorption: absorption entries after the n_lines emission ones
+    absorbing: u32,    // banded: 1 when the bands are kept per ray (absorption on)
+    abs_factor: f32,   // absorption factor
+    pad1: u32,
 }
 
 struct PixelRay {
@@ -62,6 +66,12 @@ struct PixelRay {
 // Per pixel: X, Y, Z, flag (0 ok, 1: a Doppler shift was invalid).
 @group(0) @binding(5) var<storage, read_write> out_xyz: array<vec4<f32>>;
 @group(0) @binding(6) var<uniform> P: Params;
+// Banded with absorption: the band values of every pixel's ray (n_bands per pixel).
+@group(0) @binding(7) var<storage, read_write> bands_buf: array<f32>;
+
+// Banded: where deposits go (XYZ directly, or the ray's bands when absorbing).
+var<private> acc_xyz: vec3<f32>;
+var<private> band_base: u32;
 
 const MAX_SPECIES: u32 = 8u;
 const C_M_PER_S: f32 = 299792458.0;
@@ -285,20 +295,62 @@ fn band_of(x: f32) -> u32 {
 
 // The banded `deposit`: a box of `area` over [lo, hi) spread over the bands it overlaps, as
 // band means, each weighted by its CMF integrals.
-fn deposit_xyz(lo: f32, hi: f32, area: f32) -> vec3<f32> {
-    var out = vec3<f32>(0.0);
+fn add_band(d: u32, value: f32) {
+    if (P.absorbing == 1u) {
+        bands_buf[band_base + d] += value;
+    } else {
+        acc_xyz += band_weight(d) * value;
+    }
+}
+
+fn deposit_add(lo: f32, hi: f32, area: f32) {
     let l = max(lo, P.range_lo);
     let h = min(hi, P.range_hi);
-    if (h <= l || hi <= lo) { return out; }
+    if (h <= l || hi <= lo) { return; }
     let height = area / (hi - lo);
     let first = min(u32(floor((l - P.range_lo) / P.band_w)), P.n_bands - 1u);
     for (var i = first; i < P.n_bands; i++) {
         let s = P.range_lo + f32(i) * P.band_w;
         if (s >= h) { break; }
         let ov = min(h, s + P.band_w) - max(l, s);
-        if (ov > 0.0) { out += band_weight(i) * (height * ov / P.band_w); }
+        if (ov > 0.0) { add_band(i, height * ov / P.band_w); }
     }
-    return out;
+}
+
+// Multiplies the bands a shifted absorption box overlaps by exp(-len rho k_band).
+fn deposit_absorb(lo: f32, hi: f32, area: f32, len_rho: f32) {
+    let l = max(lo, P.range_lo);
+    let h = min(hi, P.range_hi);
+    if (h <= l || hi <= lo) { return; }
+    let height = area / (hi - lo);
+    let first = min(u32(floor((l - P.range_lo) / P.band_w)), P.n_bands - 1u);
+    for (var i = first; i < P.n_bands; i++) {
+        let s = P.range_lo + f32(i) * P.band_w;
+        if (s >= h) { break; }
+        let ov = min(h, s + P.band_w) - max(l, s);
+        if (ov > 0.0) {
+            bands_buf[band_base + i] *= exp(-len_rho * (height * ov / P.band_w));
+        }
+    }
+}
+
+// blueshift-tracking's `absorb_half`: the sample's optical depth over path length `len`.
+fn absorb(rho: ptr<function, array<f32, 8>>, sh: f32, len: f32) {
+    for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+        let line = lines[li];
+        let m = u32(line.z);
+        let rm = (*rho)[m];
+        if (rm <= 0.0) { continue; }
+        if (P.shift_mode == 0u) {
+            let d = band_of(line.x * sh);
+            if (d < P.n_bands) {
+                bands_buf[band_base + d] *= exp(-len * rm * line.y);
+            }
+        } else {
+            deposit_absorb(sh * (line.x - 0.5 * P.min_width), sh * (line.x + 0.5 * P.min_width),
+                           line.y, len * rm);
+        }
+    }
 }
 
 fn path_t(r: PixelRay, i: u32) -> f32 {
@@ -311,10 +363,14 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (gid.x >= P.width || gid.y >= P.height) { return; }
     let pix = gid.y * P.width + gid.x;
     let r = rays[pix];
-    var xyz = vec3<f32>(0.0);
+    acc_xyz = vec3<f32>(0.0);
+    band_base = pix * P.n_bands;
     var flag = 0.0;
     var rho: array<f32, 8>;
     let nsp = min(P.nsp, MAX_SPECIES);
+    if (P.absorbing == 1u) {
+        for (var b = 0u; b < P.n_bands; b++) { bands_buf[band_base + b] = 0.0; }
+    }
     if (r.n_seg > 0u) {
         for (var ii = 0u; ii <= r.n_seg; ii++) {
             let i = r.n_seg - ii;
@@ -340,6 +396,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             if (!(sh > 0.0)) { flag = 1.0; sh = 1.0; }
             let g = value_factor(sh) * sh;
+            if (P.absorbing == 1u) { absorb(&rho, sh, 0.5 * wt); }
             for (var li = 0u; li < P.n_lines; li++) {
                 let line = lines[li];
                 let m = u32(line.z);
@@ -347,11 +404,11 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
                 if (rm <= 0.0) { continue; }
                 if (P.shift_mode == 0u) {
                     let d = band_of(line.x * sh);
-                    if (d < P.n_bands) { xyz += band_weight(d) * (wt * rm * g * line.y); }
+                    if (d < P.n_bands) { add_band(d, wt * rm * g * line.y); }
                 } else {
-                    xyz += deposit_xyz(sh * (line.x - 0.5 * P.min_width),
-                                       sh * (line.x + 0.5 * P.min_width),
-                                       wt * rm * g * line.y);
+                    deposit_add(sh * (line.x - 0.5 * P.min_width),
+                                sh * (line.x + 0.5 * P.min_width),
+                                wt * rm * g * line.y);
                 }
             }
             if (P.has_bb == 1u) {
@@ -361,11 +418,17 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
                     let k = wt * brho * value_factor(sh);
                     for (var b = 0u; b < P.n_bands; b++) {
                         let cb = tables[P.off_band_c + b];
-                        xyz += band_weight(b) * (k * planck(cb / sh, temp));
+                        add_band(b, k * planck(cb / sh, temp));
                     }
                 }
             }
+            if (P.absorbing == 1u) { absorb(&rho, sh, 0.5 * wt); }
         }
     }
-    out_xyz[pix] = vec4<f32>(xyz, flag);
+    if (P.absorbing == 1u) {
+        for (var b = 0u; b < P.n_bands; b++) {
+            acc_xyz += band_weight(b) * bands_buf[band_base + b];
+        }
+    }
+    out_xyz[pix] = vec4<f32>(acc_xyz, flag);
 }
