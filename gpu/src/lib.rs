@@ -16,6 +16,8 @@
 //! - The helpers [`GpuContext::compute_pipeline`], [`GpuContext::storage_buffer`],
 //!   [`GpuContext::uniform_buffer`], [`GpuContext::bind_group`], [`GpuContext::dispatch`]
 //!   and [`GpuContext::read_buffer`] are what every pipeline is made of.
+//! - Doppler volume rendering: [`doppler::render_doppler_gpu`] takes the CPU's
+//!   `DopplerScene` and `DopplerSettings`; [`doppler::check_supported`] says what it lacks.
 //!
 //! ```no_run
 //! use blueshift_gpu::{GpuContext, GpuOptions};
@@ -30,6 +32,7 @@
 //! | adapter (physical GPU or software driver) | [`AdapterChoice`], [`GpuReport`] |
 //! | lavapipe (Mesa's software Vulkan) | [`AdapterChoice::Software`] |
 //! | compute shader (WGSL, `gpu/src/shaders/`) | [`GpuContext::compute_pipeline`] |
+//! | Doppler paper Algorithms 1 and 2 on the GPU | [`doppler::render_doppler_gpu`] |
 //!
 //! ## Shaders
 //! WGSL sources live in `gpu/src/shaders/` and are included with `include_str!`; a test
