@@ -16,6 +16,8 @@
 //! - The helpers [`GpuContext::compute_pipeline`], [`GpuContext::storage_buffer`],
 //!   [`GpuContext::uniform_buffer`], [`GpuContext::bind_group`], [`GpuContext::dispatch`]
 //!   and [`GpuContext::read_buffer`] are what every pipeline is made of.
+//! - Doppler volume rendering: [`doppler::render_doppler_gpu`] takes the CPU's
+//!   `DopplerScene` and `DopplerSettings`; [`doppler::check_supported`] says what it lacks.
 //!
 //! ```no_run
 //! use blueshift_gpu::{GpuContext, GpuOptions};
@@ -42,12 +44,14 @@
 //! | Durand 2002 fast bilateral filter (splat / blur / slice) | `shaders/durand_*.wgsl`, `shaders/blur.wgsl` |
 //! | Fattal 2002 attenuated gradients, Poisson equation (Neumann) | `shaders/fattal_div.wgsl`, `shaders/axis_transform.wgsl`, `shaders/poisson_divide.wgsl` |
 //! | relativistic aberration, Doppler shift, searchlight (relativity paper Eq. 2-3) | [`relativity::GpuRelativity`], `shaders/relativity.wgsl` |
+//! | Doppler paper Algorithms 1 and 2 on the GPU | [`doppler::render_doppler_gpu`] |
 //!
 //! ## Shaders
 //! WGSL sources live in `gpu/src/shaders/` and are included with `include_str!`; a test
 //! parses and validates every one of them with naga, so a shader error fails the tests.
 
 pub mod context;
+pub mod doppler;
 pub mod error;
 pub mod relativity;
 pub mod tonemap;

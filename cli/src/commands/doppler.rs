@@ -109,6 +109,13 @@ pub struct Args {
     /// Spectral cube, line broadening and view direction.
     #[command(flatten)]
     pub cube: super::doppler_cube::CubeArgs,
+    /// Where to render the image: cpu (default, the f64 reference), gpu (a wgpu adapter or an
+    /// error) or auto (a hardware GPU when present, else the CPU). The GPU runs the
+    /// piecewise-linear integrator without absorption and the banded ones with or without;
+    /// piecewise-linear absorption, line broadening and cubes are CPU-only (gpu refuses them,
+    /// auto uses the CPU). Picked spectra and traces always run on the CPU.
+    #[arg(long, default_value = "cpu")]
+    pub device: blueshift_gpu::DeviceChoice,
 }
 
 fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
@@ -388,6 +395,9 @@ pub fn run(args: Args) -> Result<()> {
     super::doppler_cube::apply_view(&args.cube, &scene, &mut st)?;
     st.broadening = super::doppler_cube::broadening(&args.cube)?;
     if args.cube.cube.is_some() {
+        if args.device == blueshift_gpu::DeviceChoice::Gpu {
+            bail!("--device gpu: spectral cubes are CPU-only; use --device cpu or auto");
+        }
         return super::doppler_cube::run_cube(&args.cube, &scene, &st);
     }
     let disp = display(&args)?;
@@ -401,8 +411,25 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
+    let gpu = args.device.context().context("--device")?;
     let start = Instant::now();
-    let img = render(&scene, &st)?;
+    let (img, on) = match gpu {
+        Some(ctx) => match blueshift_gpu::doppler::check_supported(&scene, &st) {
+            Ok(()) => (
+                blueshift_gpu::doppler::render_doppler_gpu(ctx, &scene, &st)
+                    .context("--device gpu")?,
+                "gpu",
+            ),
+            Err(blueshift_gpu::Error::Unsupported(what))
+                if args.device == blueshift_gpu::DeviceChoice::Gpu =>
+            {
+                bail!("--device gpu: {what}; use --device cpu or auto")
+            }
+            // Unsupported on auto: the CPU; invalid settings: the CPU's own error.
+            Err(_) => (render(&scene, &st)?, "cpu"),
+        },
+        None => (render(&scene, &st)?, "cpu"),
+    };
     let secs = start.elapsed().as_secs_f64();
     write_exr(&args.out, &img)?;
     let png = args.out.with_extension("png");
@@ -457,7 +484,7 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     println!(
-        "wrote {} and {} ({}x{}, {:.2} s, pieces per ray mean {:.1} max {}, budget fallbacks {})",
+        "wrote {} and {} ({}x{}, {:.2} s on the {on}, pieces per ray mean {:.1} max {}, budget fallbacks {})",
         args.out.display(),
         png.display(),
         img.width,

@@ -106,6 +106,19 @@ impl DopplerScene {
         &self.species
     }
 
+    /// The black body's `(density, temperature_k)` channels, if set (read-only; for backends
+    /// such as blueshift-gpu that mirror the renderer).
+    #[must_use]
+    pub fn blackbody(&self) -> Option<(&AnyGrid, &AnyGrid)> {
+        self.blackbody.as_ref().map(|(d, t)| (d, t))
+    }
+
+    /// The velocity field (m/s), if set (read-only).
+    #[must_use]
+    pub fn velocity(&self) -> Option<&Grid<Vec3>> {
+        self.velocity.as_ref()
+    }
+
     /// Adds a species (scalar density on the scene's dims, finite, non-negative lines).
     pub fn add_species(&mut self, species: Species) -> Result<()> {
         scalar(&species.name, &species.density)?;

@@ -139,6 +139,12 @@ impl DopplerSettings {
         }
     }
 
+    /// Checks the settings against `scene` (as [`render_doppler`] does) and returns the ray
+    /// step in world units (`step`, or half the smallest voxel spacing).
+    pub fn validated_step(&self, scene: &DopplerScene) -> Result<f32> {
+        self.validate(scene)
+    }
+
     fn validate(&self, scene: &DopplerScene) -> Result<f32> {
         if self.width == 0
             || self.height == 0

@@ -1,0 +1,136 @@
+//! `blueshift doppler --device`: the GPU renders the CPU's XYZ image through the CLI (per
+//! pixel within the f32 tolerance of `gpu/tests/doppler.rs`), settings the GPU lacks are
+//! refused on `gpu` with one line and no output, and `auto` falls back to the CPU.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn doppler(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .arg("doppler")
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap()
+}
+
+fn require() -> bool {
+    std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1")
+}
+
+/// `false` (after a SKIP line) when a `--device gpu` run failed for want of an adapter.
+fn gpu_ok(out: &Output) -> bool {
+    if out.status.success() {
+        return true;
+    }
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!require(), "doppler --device gpu failed: {err}");
+    assert!(err.contains("no wgpu adapter"), "{err}");
+    eprintln!("SKIP: no wgpu adapter: {err}");
+    false
+}
+
+fn read_exr(p: &Path) -> image::Rgba32FImage {
+    image::open(p).unwrap().to_rgba32f()
+}
+
+const COMMON: [&str; 10] = [
+    "--synth",
+    "shell",
+    "--res",
+    "16",
+    "--width",
+    "16",
+    "--height",
+    "16",
+    "--velocity-factor",
+    "10",
+];
+
+fn run(dir: &Path, extra: &[&str], out: &str, device: &str) -> Output {
+    let mut a = COMMON.to_vec();
+    a.extend_from_slice(extra);
+    a.extend(["--device", device, "--out", out]);
+    doppler(&a, dir)
+}
+
+#[test]
+fn gpu_image_matches_the_cpu_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = run(dir.path(), &[], "cpu.exr", "cpu");
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    assert!(String::from_utf8_lossy(&c.stdout).contains("on the cpu"));
+    let g = run(dir.path(), &[], "gpu.exr", "gpu");
+    if !gpu_ok(&g) {
+        return;
+    }
+    assert!(String::from_utf8_lossy(&g.stdout).contains("on the gpu"));
+    let (a, b) = (
+        read_exr(&dir.path().join("cpu.exr")),
+        read_exr(&dir.path().join("gpu.exr")),
+    );
+    let max = a
+        .pixels()
+        .flat_map(|p| p.0[..3].to_vec())
+        .fold(0.0f32, f32::max);
+    assert!(max > 0.0);
+    for (p, q) in a.pixels().zip(b.pixels()) {
+        for k in 0..3 {
+            let tol = 2e-3 * p.0[k].abs() + 1e-5 * max;
+            assert!((p.0[k] - q.0[k]).abs() <= tol, "{:?} vs {:?}", p.0, q.0);
+        }
+    }
+    assert!(dir.path().join("gpu.png").exists());
+}
+
+#[test]
+fn unsupported_settings_are_refused_on_gpu_and_fall_back_on_auto() {
+    let dir = tempfile::tempdir().unwrap();
+    for (extra, word) in [
+        (&["--absorption-factor", "2"][..], "absorption"),
+        (&["--line-sigma", "50"][..], "broadening"),
+    ] {
+        let o = run(dir.path(), extra, "refused.exr", "gpu");
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        if err.contains("no wgpu adapter") && !require() {
+            eprintln!("SKIP: no wgpu adapter: {err}");
+        } else {
+            assert!(err.contains("--device gpu") && err.contains(word), "{err}");
+            assert_eq!(err.trim().lines().count(), 1, "{err}");
+        }
+        assert!(!dir.path().join("refused.exr").exists());
+        assert!(!dir.path().join("refused.png").exists());
+        // auto renders them (on the CPU when the GPU lacks them, or without a hardware GPU).
+        let o = run(dir.path(), extra, "auto.exr", "auto");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(String::from_utf8_lossy(&o.stdout).contains("on the cpu"));
+        assert!(dir.path().join("auto.exr").exists());
+    }
+    // Banded with absorption is on the GPU too, and agrees with the CPU.
+    let banded = ["--integrator", "banded-ec:100", "--absorption-factor", "50"];
+    let c = run(dir.path(), &banded, "bc.exr", "cpu");
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    let g = run(dir.path(), &banded, "bg.exr", "gpu");
+    if gpu_ok(&g) {
+        assert!(String::from_utf8_lossy(&g.stdout).contains("on the gpu"));
+        let (a, b) = (
+            read_exr(&dir.path().join("bc.exr")),
+            read_exr(&dir.path().join("bg.exr")),
+        );
+        let max = a
+            .pixels()
+            .flat_map(|p| p.0[..3].to_vec())
+            .fold(0.0f32, f32::max);
+        assert!(max > 0.0);
+        for (p, q) in a.pixels().zip(b.pixels()) {
+            for k in 0..3 {
+                let tol = 2e-3 * p.0[k].abs() + 1e-5 * max;
+                assert!((p.0[k] - q.0[k]).abs() <= tol, "{:?} vs {:?}", p.0, q.0);
+            }
+        }
+    }
+    let o = run(dir.path(), &[], "x.exr", "quantum");
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("unknown device"));
+}

@@ -1,0 +1,445 @@
+//! Doppler volume rendering on the GPU, behind the CPU's own types: a
+//! [`blueshift_tracking::doppler::DopplerScene`] and
+//! [`blueshift_tracking::doppler::DopplerSettings`] (one scene description, two backends).
+//!
+//! # What runs here
+//! The emission-only piecewise-linear integrator (the Doppler paper's Algorithm 2 as
+//! `blueshift_tracking::doppler::render_doppler` does it for rays without absorption): one
+//! thread per pixel marches its ray back to front with the CPU's step, samples every density,
+//! the black body and the velocity field trilinearly, and per segment
+//! - adds each line's trapezoid (between its two shifted positions, at least `line_width_nm`
+//!   wide, area = the emitted energy) integrated exactly against the piecewise-linear CIE 1931
+//!   CMFs (the CPU's table, uploaded; interval by interval, which in f32 avoids the
+//!   cancellation of the CPU's prefix-moment differences), and
+//! - adds the black body by the trapezoid rule along the ray on the CPU's wavelength grid
+//!   (`blackbody_samples` points, each weighted by the XYZ of its hat function, computed on
+//!   the host in f64 as the CPU does).
+//!
+//! The banded integrators (Algorithm 1: `SpectralIntegrator::Banded`, nearest-band and
+//! energy-conserving shift) run per sample with the CPU's trapezoid weights. Without
+//! absorption the XYZ of the band values is linear in them, so each deposit into band `d`
+//! adds the band's CMF integrals (blueshift-spectrum's `BandWeights`, from the host) times its
+//! value straight to XYZ, and no per-ray band array is kept. With absorption each ray keeps
+//! its band values in a device buffer (`pixels x bands` f32, checked against the storage
+//! limits before it is created), attenuated by half of each sample's optical depth before and
+//! after its emission as the CPU does.
+//!
+//! Arithmetic is f32 on the device (no `SHADER_F64` needed); the parity tests state the
+//! tolerance against the CPU image (`gpu/tests/doppler.rs`).
+//!
+//! # What is refused
+//! [`check_supported`] returns [`Error::Unsupported`] naming the setting for: absorption
+//! (absorption factor > 0 with absorption lines) with the piecewise-linear integrator (its
+//! front-to-back optical-depth merging is not ported), line broadening
+//! (`DopplerSettings::broadening`), and more than [`MAX_SPECIES`] species. The CLI's
+//! `--device auto` falls back to the CPU on these. Picked spectra, traces and spectral cubes
+//! stay on the CPU.
+
+use blueshift_spectrum::{BandLayout, Cmf, RadiationConstants, Xyz};
+use blueshift_tracking::Ray;
+use blueshift_tracking::doppler::{
+    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralIntegrator,
+};
+use bytemuck::{Pod, Zeroable};
+
+use crate::context::{GpuContext, WORKGROUP_2D};
+use crate::error::{Error, Result};
+
+/// WGSL of the Doppler pipeline.
+pub const DOPPLER_WGSL: &str = include_str!("shaders/doppler.wgsl");
+
+/// Most species the device kernel holds per ray.
+pub const MAX_SPECIES: usize = 8;
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct Params {
+    nx: u32,
+    ny: u32,
+    nz: u32,
+    nvox: u32,
+    nsp: u32,
+    n_lines: u32,
+    has_bb: u32,
+    has_vel: u32,
+    model: u32,
+    invariant: u32,
+    width: u32,
+    height: u32,
+    step: f32,
+    range_lo: f32,
+    range_hi: f32,
+    min_width: f32,
+    cmf_lo: f32,
+    cmf_step: f32,
+    cmf_n: u32,
+    bb_k: u32,
+    bb_c1: f32,
+    bb_c2: f32,
+    shift_mode: u32,
+    temp_factor: f32,
+    vel_factor: f32,
+    off_lambda: u32,
+    off_hat: u32,
+    bb_factor: f32,
+    n_bands: u32,
+    band_w: f32,
+    off_band_w: u32,
+    off_band_c: u32,
+    n_abs: u32,
+    absorbing: u32,
+    abs_factor: f32,
+    pad1: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PixelRay {
+    p0: [f32; 3],
+    n_seg: u32,
+    dir_idx: [f32; 3],
+    len: f32,
+    los: [f32; 3],
+    pad: f32,
+}
+
+fn tracking_err(e: blueshift_tracking::Error) -> Error {
+    Error::InvalidInput(e.to_string())
+}
+
+/// `Ok` when the GPU integrator covers `scene` + `settings`; otherwise
+/// [`Error::Unsupported`] naming the setting (the settings themselves are validated as the CPU
+/// does, giving [`Error::InvalidInput`]).
+pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Result<()> {
+    settings.validated_step(scene).map_err(tracking_err)?;
+    if !settings.broadening.is_none() {
+        return Err(Error::Unsupported(
+            "line broadening (thermal / Gaussian sigma); the GPU keeps the box profile".into(),
+        ));
+    }
+    if absorbing(scene) && settings.integrator == SpectralIntegrator::PiecewiseLinear {
+        return Err(Error::Unsupported(
+            "absorption (absorption factor > 0) with the piecewise-linear integrator; \
+             the GPU has it for the banded integrators only"
+                .into(),
+        ));
+    }
+    if scene.species().len() > MAX_SPECIES {
+        return Err(Error::Unsupported(format!(
+            "{} species (at most {MAX_SPECIES} on the GPU)",
+            scene.species().len()
+        )));
+    }
+    Ok(())
+}
+
+/// blueshift-tracking's banded `deposit`: a box of `area` over `[lo, hi)` added to the bands
+/// (`(range start, range end, bands)`) as band means.
+fn deposit(
+    (a, b, n): (f64, f64, usize),
+    lo: f64,
+    hi: f64,
+    area: f64,
+    mut add: impl FnMut(usize, f64),
+) {
+    let bw = (b - a) / n as f64;
+    let (l, h) = (lo.max(a), hi.min(b));
+    if h <= l || hi <= lo {
+        return;
+    }
+    let height = area / (hi - lo);
+    let first = (((l - a) / bw).floor() as usize).min(n - 1);
+    for i in first..n {
+        let s = a + i as f64 * bw;
+        if s >= h {
+            break;
+        }
+        let ov = h.min(s + bw) - l.max(s);
+        if ov > 0.0 {
+            add(i, height * ov / bw);
+        }
+    }
+}
+
+/// Whether any line absorbs (the absorption factor is > 0 and some species has absorption
+/// lines), as the CPU decides.
+fn absorbing(scene: &DopplerScene) -> bool {
+    scene.factors.absorption > 0.0
+        && scene
+            .species()
+            .iter()
+            .any(|sp| !sp.absorption_lines.is_empty())
+}
+
+fn to_u32(what: &str, n: usize) -> Result<u32> {
+    u32::try_from(n).map_err(|_| Error::InvalidInput(format!("{what} {n} exceeds u32")))
+}
+
+/// The rays of every pixel, as `render_doppler` builds them: the pixel centre's camera ray
+/// clipped to the box (of the voxel centres, or of the cells), `ceil(len / step)` segments.
+fn pixel_rays(scene: &DopplerScene, settings: &DopplerSettings, step: f32) -> Vec<PixelRay> {
+    let g = scene.geometry();
+    let (mut lo, mut hi) = g.world_bounds();
+    if settings.cell_domain {
+        lo -= 0.5 * g.spacing;
+        hi += 0.5 * g.spacing;
+    }
+    let (w, h) = (settings.width, settings.height);
+    let mut out = Vec::with_capacity(w as usize * h as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let ray: Ray = settings.camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
+            let mut pr = PixelRay::zeroed();
+            if let Some((t0, t1)) = ray.clip_box(lo, hi) {
+                let len = t1 - t0;
+                if len > 0.0 {
+                    let n_seg = (len / step).ceil().max(1.0);
+                    pr.n_seg = n_seg as u32;
+                    pr.len = len;
+                    pr.p0 = g.world_to_index(ray.at(t0)).to_array();
+                    pr.dir_idx = (ray.dir / g.spacing).to_array();
+                    pr.los = ray.dir.normalize().to_array();
+                }
+            }
+            out.push(pr);
+        }
+    }
+    out
+}
+
+/// Renders the XYZ image of `scene` on the GPU with `settings.integrator` (piecewise linear
+/// or banded): the same image as `blueshift_tracking::doppler::render_doppler` within f32
+/// rounding (see the module docs for what is supported). The piece statistics are zero, as the CPU's for emission-only rays.
+pub fn render_doppler_gpu(
+    ctx: &GpuContext,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+) -> Result<DopplerImage> {
+    check_supported(scene, settings)?;
+    let step = settings.validated_step(scene).map_err(tracking_err)?;
+    let g = scene.geometry();
+    let [nx, ny, nz] = g.dims;
+    let nvox = g.voxel_count();
+    let f = scene.factors;
+    let nsp = scene.species().len();
+    let bb = scene.blackbody();
+    let n_channels = nsp + if bb.is_some() { 2 } else { 0 };
+    // Check the largest buffer before building it.
+    ctx.check_storage_size(
+        "doppler channels",
+        (n_channels.max(1) as u64) * (nvox as u64) * 4,
+    )?;
+    ctx.check_storage_size("doppler velocity", (nvox as u64) * 12)?;
+    ctx.check_storage_size(
+        "doppler rays",
+        u64::from(settings.width) * u64::from(settings.height) * 48,
+    )?;
+    let mut channels: Vec<f32> = Vec::with_capacity(n_channels.max(1) * nvox);
+    for sp in scene.species() {
+        channels.extend(sp.density.to_f32_vec());
+    }
+    if let Some((d, t)) = bb {
+        channels.extend(d.to_f32_vec());
+        channels.extend(t.to_f32_vec());
+    }
+    if channels.is_empty() {
+        channels.push(0.0);
+    }
+    let velocity: Vec<f32> = match scene.velocity() {
+        Some(v) => v.data().iter().flat_map(|p| p.to_array()).collect(),
+        None => vec![0.0; 3],
+    };
+    let (a, b) = settings.range_nm;
+    let (n_bands, nearest) = match settings.integrator {
+        SpectralIntegrator::PiecewiseLinear => (0, false),
+        SpectralIntegrator::Banded { bands, shift } => (bands, shift == BandShift::Nearest),
+    };
+    let mut lines: Vec<[f32; 4]> = Vec::new();
+    let absorbs = n_bands > 0 && absorbing(scene);
+    // Emission entries, then (banded with absorption) absorption entries: with the nearest
+    // shift the CPU's rest-frame band values (each line's box deposited into the bands),
+    // otherwise the lines themselves.
+    let push_entries = |lines: &mut Vec<[f32; 4]>, emission: bool| {
+        let factor = if emission { f.emission } else { f.absorption };
+        let bw = (b - a) / n_bands.max(1) as f64;
+        let w = settings.line_width_nm;
+        for (m, sp) in scene.species().iter().enumerate() {
+            let list = if emission {
+                &sp.emission_lines
+            } else {
+                &sp.absorption_lines
+            };
+            if !nearest {
+                for l in list {
+                    lines.push([
+                        l.centre_nm as f32,
+                        (l.strength * factor) as f32,
+                        m as f32,
+                        0.0,
+                    ]);
+                }
+                continue;
+            }
+            let mut v = std::collections::BTreeMap::<usize, f64>::new();
+            for l in list {
+                deposit(
+                    (a, b, n_bands),
+                    l.centre_nm - 0.5 * w,
+                    l.centre_nm + 0.5 * w,
+                    l.strength * factor,
+                    |i, x| *v.entry(i).or_insert(0.0) += x,
+                );
+            }
+            for (i, x) in v {
+                if x > 0.0 {
+                    lines.push([(a + (i as f64 + 0.5) * bw) as f32, x as f32, m as f32, 0.0]);
+                }
+            }
+        }
+    };
+    push_entries(&mut lines, true);
+    let n_lines = lines.len();
+    if absorbs {
+        push_entries(&mut lines, false);
+    }
+    let n_abs = lines.len() - n_lines;
+    if lines.is_empty() {
+        lines.push([0.0; 4]);
+    }
+    // Tables: the CMFs, the black-body grid and its hat functions' XYZ (as the CPU's PwlTables).
+    let cmf = Cmf::cie1931_2deg();
+    let (c_lo, c_hi) = cmf.range_nm();
+    let mut tables: Vec<f32> = Vec::new();
+    let mut cmf_n = 0usize;
+    for (_, v) in cmf.samples() {
+        tables.extend(v.iter().map(|&x| x as f32));
+        cmf_n += 1;
+    }
+    let cmf_step = (c_hi - c_lo) / (cmf_n.max(2) - 1) as f64;
+    let k = settings.blackbody_samples;
+    let lambdas: Vec<f64> = (0..k)
+        .map(|i| a + (b - a) * i as f64 / (k - 1) as f64)
+        .collect();
+    let off_lambda = tables.len();
+    tables.extend(lambdas.iter().map(|&l| l as f32));
+    let off_hat = tables.len();
+    for i in 0..k {
+        let mut x = Xyz::ZERO;
+        if i > 0 {
+            x += cmf.trapezoid_xyz(lambdas[i - 1], lambdas[i], 0.0, 1.0);
+        }
+        if i + 1 < k {
+            x += cmf.trapezoid_xyz(lambdas[i], lambdas[i + 1], 1.0, 0.0);
+        }
+        tables.extend(x.to_array().iter().map(|&v| v as f32));
+    }
+    // Banded: per-band CMF integrals (blueshift-spectrum's BandWeights) and band centres.
+    let off_band_w = tables.len();
+    let layout = if n_bands > 0 {
+        Some(BandLayout::new(a, b, n_bands).map_err(|e| Error::InvalidInput(e.to_string()))?)
+    } else {
+        None
+    };
+    if let Some(l) = layout {
+        ctx.check_storage_size("doppler tables", (tables.len() + 4 * n_bands) as u64 * 4)?;
+        for i in 0..n_bands {
+            let s0 = l.band_start_nm(i);
+            let x = cmf.trapezoid_xyz(s0, s0 + l.width_nm(), 1.0, 1.0);
+            tables.extend(x.to_array().iter().map(|&v| v as f32));
+        }
+    }
+    let off_band_c = tables.len();
+    if let Some(l) = layout {
+        tables.extend((0..n_bands).map(|i| l.band_centre_nm(i) as f32));
+    }
+    let (c1l, c2) = RadiationConstants::Codata.values();
+    let rays = pixel_rays(scene, settings, step);
+    let params = Params {
+        nx: to_u32("dims", nx)?,
+        ny: to_u32("dims", ny)?,
+        nz: to_u32("dims", nz)?,
+        nvox: to_u32("voxels", nvox)?,
+        nsp: to_u32("species", nsp)?,
+        n_lines: to_u32("lines", n_lines)?,
+        has_bb: u32::from(bb.is_some()),
+        has_vel: u32::from(scene.velocity().is_some()),
+        model: u32::from(settings.model == blueshift_spectrum::DopplerModel::Relativistic),
+        invariant: u32::from(settings.invariant),
+        width: settings.width,
+        height: settings.height,
+        step,
+        range_lo: a as f32,
+        range_hi: b as f32,
+        min_width: settings.line_width_nm as f32,
+        cmf_lo: c_lo as f32,
+        cmf_step: cmf_step as f32,
+        cmf_n: to_u32("CMF samples", cmf_n)?,
+        bb_k: to_u32("black-body samples", k)?,
+        // B per nm with lambda in nm: c1L * 1e45 (lambda^5) * 1e-9 (per nm).
+        bb_c1: (c1l * 1e36) as f32,
+        bb_c2: (c2 * 1e9) as f32,
+        shift_mode: u32::from(matches!(
+            settings.integrator,
+            SpectralIntegrator::Banded {
+                shift: BandShift::EnergyConserving,
+                ..
+            }
+        )),
+        temp_factor: f.temperature as f32,
+        vel_factor: f.velocity as f32,
+        off_lambda: to_u32("table offset", off_lambda)?,
+        off_hat: to_u32("table offset", off_hat)?,
+        bb_factor: (f.blackbody * BB_UNIT) as f32,
+        n_bands: to_u32("bands", n_bands)?,
+        band_w: ((b - a) / n_bands.max(1) as f64) as f32,
+        off_band_w: to_u32("table offset", off_band_w)?,
+        off_band_c: to_u32("table offset", off_band_c)?,
+        n_abs: to_u32("absorption lines", n_abs)?,
+        absorbing: u32::from(absorbs),
+        abs_factor: f.absorption as f32,
+        pad1: 0,
+    };
+    let entry = if n_bands > 0 { "main_banded" } else { "main" };
+    let pipeline = ctx.compute_pipeline("doppler", DOPPLER_WGSL, entry)?;
+    let rb = ctx.storage_buffer("doppler rays", &rays)?;
+    let cb = ctx.storage_buffer("doppler channels", &channels)?;
+    let vb = ctx.storage_buffer("doppler velocity", &velocity)?;
+    let tb = ctx.storage_buffer("doppler tables", &tables)?;
+    let lb = ctx.storage_buffer("doppler lines", &lines)?;
+    let n_pix = rays.len();
+    let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 16)?;
+    let pb = ctx.uniform_buffer("doppler params", &params)?;
+    let bg = if n_bands > 0 {
+        // The per-ray band values when absorbing (n_bands per pixel), else a placeholder.
+        let bytes = if absorbs {
+            n_pix as u64 * n_bands as u64 * 4
+        } else {
+            16
+        };
+        ctx.check_storage_size("doppler band values (pixels x bands)", bytes)?;
+        let sb = ctx.storage_buffer_zeroed("doppler band values", bytes)?;
+        ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?
+    } else {
+        ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb])?
+    };
+    let gx = ctx.groups("doppler", settings.width, WORKGROUP_2D)?;
+    let gy = ctx.groups("doppler", settings.height, WORKGROUP_2D)?;
+    ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;
+    let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
+    if let Some(i) = out.iter().position(|p| p[3] != 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "Doppler shift: pixel ({}, {}) meets a velocity with |v| >= c or a shift <= 0",
+            i as u32 % settings.width,
+            i as u32 / settings.width
+        )));
+    }
+    Ok(DopplerImage {
+        width: settings.width,
+        height: settings.height,
+        xyz: out
+            .iter()
+            .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
+            .collect(),
+        pieces: PieceStats::default(),
+    })
+}
