@@ -21,7 +21,7 @@
 
 use blueshift_relativity::{
     Camera, CameraFrame, DopplerColourTable, Effects, Environment, TABLE_D_MAX, TABLE_D_MIN,
-    Velocity, unit,
+    Velocity,
 };
 use glam::DVec3;
 use image::Rgb32FImage;
@@ -116,23 +116,10 @@ impl<'a> GpuRelativity<'a> {
         effects: Effects,
     ) -> Result<Rgb32FImage> {
         let ctx = self.ctx;
-        // Validates the camera exactly as the CPU does.
-        CameraFrame::new(cam)?;
-        let forward = unit(cam.look, "look direction length")?;
-        let up0 = unit(cam.up, "up direction length")?;
-        let mut right = forward.cross(up0);
-        if right.length() < 1e-9 {
-            let alt = if forward.z.abs() < 0.9 {
-                DVec3::Z
-            } else {
-                DVec3::X
-            };
-            right = forward.cross(alt);
-        }
-        let right = right.normalize();
-        let up = right.cross(forward);
-        let half_h = (0.5 * cam.fov_y_deg.to_radians()).tan();
-        let half_w = half_h * f64::from(cam.width) / f64::from(cam.height);
+        // The CPU's own frame: validation and basis are shared, not re-derived.
+        let frame = CameraFrame::new(cam)?;
+        let (forward, right, up) = frame.basis();
+        let (half_w, half_h) = frame.half_extents();
 
         let (w, h) = (cam.width, cam.height);
         let n = u64::from(w) * u64::from(h);

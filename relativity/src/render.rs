@@ -135,6 +135,19 @@ impl CameraFrame {
         })
     }
 
+    /// The orthonormal frame `(forward, right, up)`: unit vectors, `up = right x forward`.
+    #[must_use]
+    pub fn basis(&self) -> (DVec3, DVec3, DVec3) {
+        (self.forward, self.right, self.up)
+    }
+
+    /// Image-plane half extents `(half_w, half_h)` at unit distance:
+    /// `half_h = tan(fov_y / 2)`, `half_w = half_h * width / height`.
+    #[must_use]
+    pub fn half_extents(&self) -> (f64, f64) {
+        (self.half_w, self.half_h)
+    }
+
     /// The observer-frame unit viewing direction through pixel centre `(x, y)` (row 0 at
     /// the top).
     #[must_use]

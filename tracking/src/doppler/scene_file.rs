@@ -587,6 +587,30 @@ mod tests {
         std::fs::write(dir.join(name), bytes).unwrap();
     }
 
+    fn mean_velocity(v: &Grid<Vec3>) -> glam::DVec3 {
+        v.data().iter().map(|x| x.as_dvec3()).sum::<glam::DVec3>() / v.data().len() as f64
+    }
+
+    /// The committed Enzo scene file, or `None` (with a printed reason) when the data is not
+    /// beside this checkout.
+    fn enzo_scene() -> Option<SceneFile> {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/enzo-moving7.json");
+        let file = SceneFile::read(&path).unwrap();
+        if file
+            .base
+            .join("velocity_kms_64x64x64x3_f32le.nhdr")
+            .exists()
+        {
+            Some(file)
+        } else {
+            eprintln!(
+                "SKIP: the Enzo data ({}) is not beside this checkout",
+                file.base.display()
+            );
+            None
+        }
+    }
+
     fn fixture() -> tempfile::TempDir {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path();
@@ -653,8 +677,7 @@ mod tests {
         assert!(scene.blackbody.is_none());
         assert_eq!(scene.species().len(), 1);
         let v = scene.velocity.as_ref().unwrap();
-        let mean: glam::DVec3 =
-            v.data().iter().map(|x| x.as_dvec3()).sum::<glam::DVec3>() / v.data().len() as f64;
+        let mean = mean_velocity(v);
         assert!(mean.length() < 1e-2, "{mean}");
         let scene = file.load_selected(Some(&["BB", "h i"])).unwrap();
         assert!(scene.blackbody.is_some());
@@ -753,25 +776,14 @@ mod tests {
     /// zero mean.
     #[test]
     fn enzo_scene_file_reads_the_real_snapshot() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/enzo-moving7.json");
-        let file = SceneFile::read(&path).unwrap();
-        if !file
-            .base
-            .join("velocity_kms_64x64x64x3_f32le.nhdr")
-            .exists()
-        {
-            eprintln!(
-                "SKIP: the Enzo data ({}) is not beside this checkout",
-                file.base.display()
-            );
+        let Some(file) = enzo_scene() else {
             return;
-        }
+        };
         let mut raw = file.clone();
         raw.velocity.as_mut().unwrap().subtract_mean = false;
         let scene = raw.load().unwrap();
         let v = scene.velocity.as_ref().unwrap();
-        let mean: glam::DVec3 =
-            v.data().iter().map(|x| x.as_dvec3()).sum::<glam::DVec3>() / v.data().len() as f64;
+        let mean = mean_velocity(v);
         let km = mean / 1e3;
         for (got, want) in [(km.x, 246.6), (km.y, 241.2), (km.z, 241.2)] {
             // SOURCE.md's figures come from yt over the AMR hierarchy; the uniform level-2
@@ -780,8 +792,7 @@ mod tests {
         }
         let scene = file.load().unwrap();
         let v = scene.velocity.as_ref().unwrap();
-        let mean: glam::DVec3 =
-            v.data().iter().map(|x| x.as_dvec3()).sum::<glam::DVec3>() / v.data().len() as f64;
+        let mean = mean_velocity(v);
         assert!(mean.length() < 1.0, "{mean} m/s after subtracting the mean");
         // Gas density 2.75e-24 g/cm^3 at most: x 0.76 / m_H = 1.25 H atoms per cm^3.
         let h = scene.species().iter().find(|s| s.name == "H I").unwrap();
@@ -817,19 +828,9 @@ mod tests {
     /// velocity only, an order of magnitude smaller.
     #[test]
     fn enzo_h_alpha_shows_the_bulk_motion_unless_subtracted() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/enzo-moving7.json");
-        let file = SceneFile::read(&path).unwrap();
-        if !file
-            .base
-            .join("velocity_kms_64x64x64x3_f32le.nhdr")
-            .exists()
-        {
-            eprintln!(
-                "SKIP: the Enzo data ({}) is not beside this checkout",
-                file.base.display()
-            );
+        let Some(file) = enzo_scene() else {
             return;
-        }
+        };
         let mut raw = file.clone();
         raw.velocity.as_mut().unwrap().subtract_mean = false;
         let h_alpha = 656.279;
