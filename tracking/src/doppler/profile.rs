@@ -19,7 +19,8 @@ use blueshift_spectrum::{BOLTZMANN_J_PER_K, Catalogue, PwlGaussian, SPEED_OF_LIG
 use super::model::DopplerScene;
 use crate::{Error, Result};
 
-/// Line broadening applied to every emission line of a scene (absorption lines keep the box).
+/// Line broadening applied to every emission and absorption line of a scene (piecewise-linear
+/// integrator and cubes; the banded integrators refuse it).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Broadening {
     /// Thermal Doppler broadening, `sigma_v = sqrt(k T / m)` (yt's `v_th^2 = 2 k T / m`),

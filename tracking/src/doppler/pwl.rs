@@ -123,7 +123,6 @@ pub(crate) fn integrate(
     let st = ctx.settings;
     let f = scene.factors;
     let cmf = Cmf::cie1931_2deg();
-    let nsp = scene.species.len();
     let n = s.len();
     let absorbing = f.absorption > 0.0
         && scene
@@ -135,7 +134,6 @@ pub(crate) fn integrate(
     }
     let keep = absorbing || want != Want::Xyz;
     let direct_bb = absorbing || want == Want::Trace;
-    let (range_lo, range_hi) = st.range_nm;
     let k = t.lambdas.len();
     let mut acc = vec![0.0; k];
     let mut fa = vec![0.0; k];
@@ -146,28 +144,17 @@ pub(crate) fn integrate(
     let mut out = RayOut::default();
     let mut tol_scale = 1.0;
     let mut half_tau = PiecewiseLinear::new();
+    let mut lines = Vec::new();
     let segments = (n - 1) as f64;
     for j in 0..n - 1 {
         let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
-        let (sa, sb) = (s.shift[j], s.shift[j + 1]);
         if absorbing {
             let mut tau = PiecewiseLinear::new();
-            for (m, sp) in scene.species.iter().enumerate() {
-                let (ra, rb) = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
-                if ra <= 0.0 && rb <= 0.0 {
-                    continue;
-                }
-                for l in &sp.absorption_lines {
-                    // Half the segment's optical depth: the light from behind crosses one
-                    // half before and one half after the segment's emission is added.
-                    let base = 0.5 * dt * l.strength * f.absorption;
-                    let (lo, hi, h0, h1) =
-                        line_trapezoid(l.centre_nm, sa, sb, base * ra, base * rb, st.line_width_nm);
-                    if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
-                        continue;
-                    }
-                    tau.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)?;
-                }
+            // Half the segment's optical depth: the light from behind crosses one half
+            // before and one half after the segment's emission is added.
+            segment_lines(ctx, s, j, false, 0.5, &mut lines)?;
+            for &(lo, hi, h0, h1) in &lines {
+                tau.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)?;
             }
             if !tau.is_empty() && !spec.is_empty() {
                 spec = spec
@@ -177,68 +164,12 @@ pub(crate) fn integrate(
             half_tau = tau;
         }
         // Line emission.
-        let (ga, gb) = (ctx.value_factor(sa) * sa, ctx.value_factor(sb) * sb);
-        for (m, sp) in scene.species.iter().enumerate() {
-            let (ra, rb) = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
-            if ra <= 0.0 && rb <= 0.0 {
-                continue;
-            }
-            let (siga, sigb) = if ctx.profiles.active {
-                (
-                    ctx.profiles.sigma_v(m, s.temp[j]),
-                    ctx.profiles.sigma_v(m, s.temp[j + 1]),
-                )
+        segment_lines(ctx, s, j, true, 1.0, &mut lines)?;
+        for &(lo, hi, h0, h1) in &lines {
+            if keep {
+                spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)?;
             } else {
-                (0.0, 0.0)
-            };
-            for l in &sp.emission_lines {
-                let base = dt * l.strength * f.emission;
-                if ctx.profiles.active {
-                    let mut add = |lo: f64, hi: f64, h0: f64, h1: f64| -> Result<()> {
-                        if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
-                            return Ok(());
-                        }
-                        if keep {
-                            spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)
-                        } else {
-                            xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
-                            Ok(())
-                        }
-                    };
-                    super::profile::emit_line(
-                        l.centre_nm,
-                        sa,
-                        sb,
-                        base * ra * ga,
-                        base * rb * gb,
-                        siga,
-                        sigb,
-                        st.line_width_nm,
-                        &mut |e| match e {
-                            Emit::Trapezoid(lo, hi, h0, h1) => add(lo, hi, h0, h1),
-                            Emit::Gaussian(c, sg, area) => {
-                                ctx.profiles.gauss.for_each_piece(c, sg, area, &mut add)
-                            }
-                        },
-                    )?;
-                    continue;
-                }
-                let (lo, hi, h0, h1) = line_trapezoid(
-                    l.centre_nm,
-                    sa,
-                    sb,
-                    base * ra * ga,
-                    base * rb * gb,
-                    st.line_width_nm,
-                );
-                if hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0) {
-                    continue;
-                }
-                if keep {
-                    spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)?;
-                } else {
-                    xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
-                }
+                xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
             }
         }
         // Black body: trapezoid rule along the ray on the fixed wavelength grid.
@@ -315,14 +246,18 @@ pub(crate) fn integrate(
 }
 
 /// The line trapezoids (`lo, hi, h_lo, h_hi`) of one segment: emission (`emission = true`,
-/// values include the shift factor) or full-segment optical depth.
+/// values include the shift factor) or the segment's optical depth, times `scale`. With
+/// broadening ([`super::profile::Broadening`]) each line's sweep comes out as its profile's
+/// pieces (thermal / Gaussian), for emission and absorption alike; otherwise as the paper's
+/// box swept into one trapezoid.
 fn segment_lines(
     ctx: &Context<'_>,
     s: &RaySamples,
     j: usize,
     emission: bool,
+    scale: f64,
     out: &mut Vec<(f64, f64, f64, f64)>,
-) {
+) -> Result<()> {
     let scene = ctx.scene;
     let st = ctx.settings;
     let f = scene.factors;
@@ -336,6 +271,12 @@ fn segment_lines(
         (1.0, 1.0)
     };
     out.clear();
+    let mut push = |lo: f64, hi: f64, h0: f64, h1: f64| -> Result<()> {
+        if !(hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0)) {
+            out.push((lo, hi, h0, h1));
+        }
+        Ok(())
+    };
     for (m, sp) in scene.species.iter().enumerate() {
         let (ra, rb) = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
         if ra <= 0.0 && rb <= 0.0 {
@@ -346,22 +287,42 @@ fn segment_lines(
         } else {
             (&sp.absorption_lines, f.absorption)
         };
+        let (siga, sigb) = if ctx.profiles.active {
+            (
+                ctx.profiles.sigma_v(m, s.temp[j]),
+                ctx.profiles.sigma_v(m, s.temp[j + 1]),
+            )
+        } else {
+            (0.0, 0.0)
+        };
         for l in lines {
-            let base = dt * l.strength * factor;
-            let tr = line_trapezoid(
-                l.centre_nm,
-                sa,
-                sb,
-                base * ra * ga,
-                base * rb * gb,
-                st.line_width_nm,
-            );
-            if tr.1 < range_lo || tr.0 > range_hi || (tr.2 <= 0.0 && tr.3 <= 0.0) {
-                continue;
+            let base = scale * dt * l.strength * factor;
+            let (a0, a1) = (base * ra * ga, base * rb * gb);
+            if ctx.profiles.active {
+                super::profile::emit_line(
+                    l.centre_nm,
+                    sa,
+                    sb,
+                    a0,
+                    a1,
+                    siga,
+                    sigb,
+                    st.line_width_nm,
+                    &mut |e| match e {
+                        Emit::Trapezoid(lo, hi, h0, h1) => push(lo, hi, h0, h1),
+                        Emit::Gaussian(c, sg, area) => {
+                            ctx.profiles.gauss.for_each_piece(c, sg, area, &mut push)
+                        }
+                    },
+                )?;
+            } else {
+                let (lo, hi, h0, h1) =
+                    line_trapezoid(l.centre_nm, sa, sb, a0, a1, st.line_width_nm);
+                push(lo, hi, h0, h1)?;
             }
-            out.push(tr);
         }
     }
+    Ok(())
 }
 
 /// The piece of `pieces` (sorted, disjoint) holding `x`, advancing the cursor `i`.
@@ -550,8 +511,8 @@ fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<Ray
     let mut budget_scale = 1.0;
     for j in (0..n - 1).rev() {
         let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
-        segment_lines(ctx, s, j, false, &mut absorb);
-        segment_lines(ctx, s, j, true, &mut emit);
+        segment_lines(ctx, s, j, false, 1.0, &mut absorb)?;
+        segment_lines(ctx, s, j, true, 1.0, &mut emit)?;
         let has_far = bb_row(ctx, t, s, j, &mut f_far)?;
         let has_bb = has_near || has_far;
         if has_bb {

@@ -103,7 +103,7 @@ pub struct DopplerSettings {
     /// chord errs by at most `max_depth_step^2 / 8` of the value per attenuation).
     pub max_depth_step: f64,
     /// Line profile beyond the box: thermal and/or a Gaussian width (piecewise-linear
-    /// integrator and cubes; the banded integrators keep the box).
+    /// integrator and cubes, emission and absorption lines; the banded integrators refuse it).
     pub broadening: super::profile::Broadening,
     /// Treat voxels as cells: rays cross the box of the voxel CENTRES grown by half a
     /// spacing on every side (values clamped at the edges), as cell-centred simulation

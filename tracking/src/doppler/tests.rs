@@ -273,6 +273,33 @@ fn constant_medium_follows_beer_lambert_on_both_paths() {
 
 #[test]
 fn front_to_back_xyz_equals_the_kept_spectrum_xyz() {
+    check_paths_agree(&Broadening::default());
+}
+
+/// Thermal and Gaussian profiles reach both paths (emission and absorption lines alike): the
+/// image path still equals the kept spectrum's XYZ, and differs from the box-profile image.
+#[test]
+fn broadened_lines_reach_the_front_to_back_path() {
+    let b = Broadening {
+        thermal: true,
+        sigma_m_per_s: 3e5,
+        ..Broadening::default()
+    };
+    let broad = check_paths_agree(&b);
+    let boxed = check_paths_agree(&Broadening::default());
+    let diff = broad
+        .iter()
+        .zip(&boxed)
+        .map(|(a, b)| (a[1] - b[1]).abs())
+        .fold(0.0, f64::max);
+    let peak = boxed.iter().map(|x| x[1]).fold(0.0, f64::max);
+    assert!(
+        diff > 1e-3 * peak,
+        "broadening changed nothing: {diff} vs peak {peak}"
+    );
+}
+
+fn check_paths_agree(broadening: &Broadening) -> Vec<[f64; 3]> {
     let v = synth::galaxy(24, 3).unwrap();
     let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
     scene.factors.velocity = 30.0;
@@ -283,6 +310,7 @@ fn front_to_back_xyz_equals_the_kept_spectrum_xyz() {
     let tol = 1e-4;
     let mut st = DopplerSettings::default_for(&scene, 10, 10);
     st.merge_tolerance = tol;
+    st.broadening = broadening.clone();
     let img = render_doppler(&scene, &st, &|| {}).unwrap();
     // The kept spectrum, back to front, converged: merges within 1e-6 of the maximum in
     // total, attenuation chords within dtau^2 / 8 = 1.25e-7 per sub-piece.
@@ -318,6 +346,7 @@ fn front_to_back_xyz_equals_the_kept_spectrum_xyz() {
         }
     }
     assert!(checked >= 4 && absorbed >= 2, "{checked} {absorbed}");
+    img.xyz
 }
 
 #[test]
