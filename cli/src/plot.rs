@@ -107,3 +107,40 @@ pub fn line_plot(
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }
+
+/// Inferno-like colour map (sRGB 8-bit) at `x` in [0, 1] (non-finite -> 0).
+pub fn inferno(x: f32) -> RGBColor {
+    const STOPS: [[f32; 3]; 5] = [
+        [0.0, 0.0, 4.0],
+        [87.0, 16.0, 110.0],
+        [188.0, 55.0, 84.0],
+        [249.0, 142.0, 9.0],
+        [252.0, 255.0, 164.0],
+    ];
+    ramp(&STOPS, x)
+}
+
+/// Diverging blue-white-red colour map at `x` in [0, 1] (white at 0.5).
+pub fn blue_red(x: f32) -> RGBColor {
+    const STOPS: [[f32; 3]; 5] = [
+        [5.0, 48.0, 97.0],
+        [103.0, 169.0, 207.0],
+        [247.0, 247.0, 247.0],
+        [239.0, 138.0, 98.0],
+        [103.0, 0.0, 31.0],
+    ];
+    ramp(&STOPS, x)
+}
+
+/// Linear interpolation through five evenly spaced colour stops.
+fn ramp(stops: &[[f32; 3]; 5], x: f32) -> RGBColor {
+    let x = if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    } * 4.0;
+    let i = (x.floor() as usize).min(3);
+    let f = x - i as f32;
+    let c = |k: usize| (stops[i][k] + f * (stops[i + 1][k] - stops[i][k])).round() as u8;
+    RGBColor(c(0), c(1), c(2))
+}

@@ -14,7 +14,7 @@ use clap::Args as ClapArgs;
 use plotters::prelude::*;
 
 use crate::output::{write_bytes_atomic, write_via_temp_path};
-use crate::plot::{FONT, register_font};
+use crate::plot::{FONT, blue_red, inferno, register_font};
 
 /// Cube, broadening and view flags of `blueshift doppler`.
 #[derive(Debug, Clone, Default, ClapArgs)]
@@ -320,40 +320,6 @@ fn write_moments(out: &Path, cube: &SpectralCube) -> Result<()> {
         )?;
     }
     Ok(())
-}
-
-fn inferno(x: f32) -> RGBColor {
-    const STOPS: [[f32; 3]; 5] = [
-        [0.0, 0.0, 4.0],
-        [87.0, 16.0, 110.0],
-        [188.0, 55.0, 84.0],
-        [249.0, 142.0, 9.0],
-        [252.0, 255.0, 164.0],
-    ];
-    ramp(&STOPS, x)
-}
-
-fn blue_red(x: f32) -> RGBColor {
-    const STOPS: [[f32; 3]; 5] = [
-        [5.0, 48.0, 97.0],
-        [103.0, 169.0, 207.0],
-        [247.0, 247.0, 247.0],
-        [239.0, 138.0, 98.0],
-        [103.0, 0.0, 31.0],
-    ];
-    ramp(&STOPS, x)
-}
-
-fn ramp(stops: &[[f32; 3]; 5], x: f32) -> RGBColor {
-    let x = if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
-    } * 4.0;
-    let i = (x.floor() as usize).min(3);
-    let f = x - i as f32;
-    let c = |k: usize| (stops[i][k] + f * (stops[i + 1][k] - stops[i][k])).round() as u8;
-    RGBColor(c(0), c(1), c(2))
 }
 
 /// A colour-mapped picture (NaN grey) scaled up to at least 256 pixels, with a labelled

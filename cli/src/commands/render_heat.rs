@@ -10,7 +10,7 @@ use blueshift_tracking::{HeatMap, Progressive};
 use plotters::prelude::*;
 
 use crate::output::write_via_temp_path;
-use crate::plot::{FONT, register_font};
+use crate::plot::{FONT, inferno, register_font};
 
 /// `OUT` with its extension replaced by `suffix` (`img.exr` -> `img.heat.exr`).
 fn beside(out: &Path, suffix: &str) -> PathBuf {
@@ -76,26 +76,6 @@ pub fn write_heatmaps(
     Ok(serde_json::Value::Object(summary))
 }
 
-/// Inferno-like colour map (sRGB 8-bit) at `x` in [0, 1].
-fn colour(x: f32) -> RGBColor {
-    const STOPS: [[f32; 3]; 5] = [
-        [0.0, 0.0, 4.0],
-        [87.0, 16.0, 110.0],
-        [188.0, 55.0, 84.0],
-        [249.0, 142.0, 9.0],
-        [252.0, 255.0, 164.0],
-    ];
-    let x = if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
-    } * 4.0;
-    let i = (x.floor() as usize).min(3);
-    let f = x - i as f32;
-    let c = |k: usize| (STOPS[i][k] + f * (STOPS[i + 1][k] - STOPS[i][k])).round() as u8;
-    RGBColor(c(0), c(1), c(2))
-}
-
 /// The heat map scaled 0..`max`, with a colour bar on the right labelled in data units.
 fn colour_mapped_png(
     path: &Path,
@@ -117,7 +97,7 @@ fn colour_mapped_png(
         root.fill(&WHITE).map_err(err)?;
         for y in 0..h {
             for x in 0..w {
-                root.draw_pixel((x as i32, y as i32), &colour(v[y * w + x] * scale))
+                root.draw_pixel((x as i32, y as i32), &inferno(v[y * w + x] * scale))
                     .map_err(err)?;
             }
         }
@@ -126,7 +106,7 @@ fn colour_mapped_png(
             let t = (y1 - y) as f32 / (y1 - y0).max(1) as f32;
             root.draw(&Rectangle::new(
                 [(x0, y), (x0 + 16, y + 1)],
-                colour(t).filled(),
+                inferno(t).filled(),
             ))
             .map_err(err)?;
         }
