@@ -5,6 +5,9 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+mod common;
+use common::{gpu_ok, read_exr, require};
+
 fn doppler(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_blueshift"))
         .arg("doppler")
@@ -12,26 +15,6 @@ fn doppler(args: &[&str], dir: &Path) -> Output {
         .current_dir(dir)
         .output()
         .unwrap()
-}
-
-fn require() -> bool {
-    std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1")
-}
-
-/// `false` (after a SKIP line) when a `--device gpu` run failed for want of an adapter.
-fn gpu_ok(out: &Output) -> bool {
-    if out.status.success() {
-        return true;
-    }
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!require(), "doppler --device gpu failed: {err}");
-    assert!(err.contains("no wgpu adapter"), "{err}");
-    eprintln!("SKIP: no wgpu adapter: {err}");
-    false
-}
-
-fn read_exr(p: &Path) -> image::Rgba32FImage {
-    image::open(p).unwrap().to_rgba32f()
 }
 
 const COMMON: [&str; 10] = [
@@ -61,7 +44,7 @@ fn gpu_image_matches_the_cpu_image() {
     assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
     assert!(String::from_utf8_lossy(&c.stdout).contains("on the cpu"));
     let g = run(dir.path(), &[], "gpu.exr", "gpu");
-    if !gpu_ok(&g) {
+    if !gpu_ok("doppler", &g) {
         return;
     }
     assert!(String::from_utf8_lossy(&g.stdout).contains("on the gpu"));
@@ -112,7 +95,7 @@ fn unsupported_settings_are_refused_on_gpu_and_fall_back_on_auto() {
     let c = run(dir.path(), &banded, "bc.exr", "cpu");
     assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
     let g = run(dir.path(), &banded, "bg.exr", "gpu");
-    if gpu_ok(&g) {
+    if gpu_ok("doppler", &g) {
         assert!(String::from_utf8_lossy(&g.stdout).contains("on the gpu"));
         let (a, b) = (
             read_exr(&dir.path().join("bc.exr")),

@@ -5,6 +5,9 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+mod common;
+use common::{gpu_ok, read_exr};
+
 fn blueshift(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_blueshift"))
         .arg("render")
@@ -12,26 +15,6 @@ fn blueshift(args: &[&str], dir: &Path) -> Output {
         .current_dir(dir)
         .output()
         .unwrap()
-}
-
-fn require() -> bool {
-    std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1")
-}
-
-/// Runs a GPU render; `false` (after a SKIP line) when there is no adapter.
-fn gpu_ok(out: &Output) -> bool {
-    if out.status.success() {
-        return true;
-    }
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!require(), "render --device gpu failed: {err}");
-    assert!(err.contains("no wgpu adapter"), "{err}");
-    eprintln!("SKIP: no wgpu adapter: {err}");
-    false
-}
-
-fn read_exr(p: &Path) -> image::Rgba32FImage {
-    image::open(p).unwrap().to_rgba32f()
 }
 
 const COMMON: [&str; 16] = [
@@ -70,7 +53,7 @@ fn the_gpu_marcher_matches_the_cpu_per_pixel() {
         "{}",
         String::from_utf8_lossy(&cpu.stderr)
     );
-    if !gpu_ok(&run(dir.path(), &m, "gpu.exr", "gpu")) {
+    if !gpu_ok("render", &run(dir.path(), &m, "gpu.exr", "gpu")) {
         return;
     }
     let a = read_exr(&dir.path().join("cpu.exr"));
@@ -96,7 +79,7 @@ fn gpu_tracking_agrees_with_the_cpu_in_the_mean_and_reports_json() {
     let v: serde_json::Value = serde_json::from_slice(&cpu.stdout).unwrap();
     assert_eq!(v["device"], "cpu");
     let g = run(dir.path(), &m, "gpu.exr", "gpu");
-    if !gpu_ok(&g) {
+    if !gpu_ok("render", &g) {
         return;
     }
     let v: serde_json::Value = serde_json::from_slice(&g.stdout).unwrap();

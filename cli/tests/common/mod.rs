@@ -1,0 +1,27 @@
+//! Helpers shared by the CLI's `--device` tests.
+
+use std::path::Path;
+use std::process::Output;
+
+/// True when `BLUESHIFT_REQUIRE_GPU_TESTS=1`: a missing adapter fails instead of skipping.
+pub fn require() -> bool {
+    std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1")
+}
+
+/// `false` (after a SKIP line) when a `--device gpu` run of `verb` failed for want of an
+/// adapter; any other failure (or a missing adapter under [`require`]) fails the test.
+pub fn gpu_ok(verb: &str, out: &Output) -> bool {
+    if out.status.success() {
+        return true;
+    }
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!require(), "{verb} --device gpu failed: {err}");
+    assert!(err.contains("no wgpu adapter"), "{err}");
+    eprintln!("SKIP: no wgpu adapter: {err}");
+    false
+}
+
+/// An EXR as f32 RGBA.
+pub fn read_exr(p: &Path) -> image::Rgba32FImage {
+    image::open(p).unwrap().to_rgba32f()
+}
