@@ -79,7 +79,7 @@ pub use doppler::{
 };
 pub use error::{Error, Result};
 pub use lines::{Catalogue, EmissionLine, LineProfile, parse_line_list, read_line_list};
-pub use piecewise::{Piece, PiecewiseLinear};
+pub use piecewise::{Piece, PiecewiseLinear, merge_pieces};
 pub use profiles::{
     ATOMIC_MASS_UNIT_KG, NamedLine, PwlGaussian, named_line, thermal_sigma_m_per_s,
     velocity_sigma_to_nm,

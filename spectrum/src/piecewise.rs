@@ -563,31 +563,8 @@ impl PiecewiseLinear {
     /// the result stays non-negative. Repeated merges add their tolerances.
     pub fn merged(&self, max_abs_error: f64) -> Result<Self> {
         non_negative("merge tolerance", max_abs_error)?;
-        let tol = max_abs_error;
-        let mut out: Vec<Piece> = Vec::with_capacity(self.map.len());
-        let mut run: Option<Run> = None;
-        for p in self.pieces() {
-            if p.value_start == 0.0 && p.value_end == 0.0 {
-                if let Some(r) = run.take() {
-                    out.push(r.piece());
-                }
-                continue;
-            }
-            run = Some(match run.take() {
-                Some(mut r) => {
-                    if r.end.0 == p.start_nm && r.try_extend(&p, tol) {
-                        r
-                    } else {
-                        out.push(r.piece());
-                        Run::start(&p)
-                    }
-                }
-                None => Run::start(&p),
-            });
-        }
-        if let Some(r) = run {
-            out.push(r.piece());
-        }
+        let mut out = Vec::with_capacity(self.map.len());
+        merge_into(self.pieces(), max_abs_error, &mut out);
         Ok(Self::from_sorted_unchecked(out))
     }
 
@@ -596,6 +573,56 @@ impl PiecewiseLinear {
     pub fn merged_relative(&self, relative_tolerance: f64) -> Result<Self> {
         non_negative("relative merge tolerance", relative_tolerance)?;
         self.merged(relative_tolerance * self.max_value())
+    }
+}
+
+/// [`PiecewiseLinear::merged`] on a plain slice of pieces (sorted by start, disjoint, values
+/// non-negative; gaps allowed), for integrators that keep a spectrum in a flat array: the
+/// result stays within `max_abs_error` of `pieces` at every wavelength, merges only across
+/// shared ends and drops identically zero pieces. `out` is cleared first. Refuses a negative
+/// or non-finite tolerance and unsorted or overlapping input.
+pub fn merge_pieces(pieces: &[Piece], max_abs_error: f64, out: &mut Vec<Piece>) -> Result<()> {
+    non_negative("merge tolerance", max_abs_error)?;
+    if let Some(w) = pieces
+        .windows(2)
+        .find(|w| !(w[0].end_nm <= w[1].start_nm && w[0].start_nm < w[0].end_nm))
+    {
+        return Err(Error::Range {
+            name: "piece overlapping or preceding its predecessor",
+            min_nm: w[1].start_nm,
+            max_nm: w[1].end_nm,
+            reason: "pieces must be sorted and must not overlap",
+        });
+    }
+    out.clear();
+    merge_into(pieces.iter().copied(), max_abs_error, out);
+    Ok(())
+}
+
+/// The merge of [`PiecewiseLinear::merged`] over sorted, disjoint pieces, appended to `out`.
+fn merge_into(pieces: impl Iterator<Item = Piece>, tol: f64, out: &mut Vec<Piece>) {
+    let mut run: Option<Run> = None;
+    for p in pieces {
+        if p.value_start == 0.0 && p.value_end == 0.0 {
+            if let Some(r) = run.take() {
+                out.push(r.piece());
+            }
+            continue;
+        }
+        run = Some(match run.take() {
+            Some(mut r) => {
+                if r.end.0 == p.start_nm && r.try_extend(&p, tol) {
+                    r
+                } else {
+                    out.push(r.piece());
+                    Run::start(&p)
+                }
+            }
+            None => Run::start(&p),
+        });
+    }
+    if let Some(r) = run {
+        out.push(r.piece());
     }
 }
 
@@ -736,6 +763,43 @@ mod tests {
                 let d = (m.eval(x) - s.eval(x)).abs();
                 assert!(d <= tol * (1.0 + 1e-9) + 1e-12, "tol {tol} at {x}: {d}");
             }
+            // The slice form (with a gap and a jump added) stays within the same tolerance
+            // of its input.
+            let mut pieces: Vec<Piece> = s.pieces().collect();
+            pieces.retain(|p| !(450.0..460.0).contains(&p.start_nm));
+            pieces[10].value_end += 0.5;
+            let mut out = Vec::new();
+            merge_pieces(&pieces, tol, &mut out).unwrap();
+            let input = PiecewiseLinear::from_pieces(pieces.iter().copied()).unwrap();
+            let merged = PiecewiseLinear::from_pieces(out.iter().copied()).unwrap();
+            assert!(out.len() < pieces.len());
+            for i in 0..20_000 {
+                let x = 399.0 + i as f64 * 0.0101;
+                let d = (merged.eval(x) - input.eval(x)).abs();
+                assert!(d <= tol * (1.0 + 1e-9) + 1e-12, "slice, tol {tol} at {x}: {d}");
+            }
         }
+    }
+
+    #[test]
+    fn merge_pieces_refuses_unsorted_or_overlapping_input() {
+        let a = Piece {
+            start_nm: 500.0,
+            end_nm: 501.0,
+            value_start: 1.0,
+            value_end: 1.0,
+        };
+        let b = Piece {
+            start_nm: 500.5,
+            end_nm: 502.0,
+            ..a
+        };
+        let mut out = Vec::new();
+        assert!(merge_pieces(&[a, b], 0.1, &mut out).is_err());
+        assert!(merge_pieces(&[b, a], 0.1, &mut out).is_err());
+        assert!(merge_pieces(&[a], -1.0, &mut out).is_err());
+        assert!(merge_pieces(&[a], f64::NAN, &mut out).is_err());
+        merge_pieces(&[a], 0.1, &mut out).unwrap();
+        assert_eq!(out, vec![a]);
     }
 }

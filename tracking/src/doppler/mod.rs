@@ -43,14 +43,20 @@
 //! from behind crosses all of it): for a constant medium this is within `(k dt)^2 / 24` of
 //! Beer-Lambert's `(e / k) (1 - exp(-k L))`. The banded integrator applies the same rule per
 //! sample (half its depth before its emission, half after), so the integrators compare fairly.
-//! - Image (XYZ) path, front to back: only the optical depth in front, `tau_front(lambda)`,
-//!   is kept (piecewise linear, non-zero only inside the shifted absorption lines). Each
-//!   segment's emission `E` adds its closed-form XYZ minus
-//!   `integral E (1 - exp(-tau)) cmf` over `tau`'s support, computed exactly per
-//!   sub-interval (`E` and the CMFs linear, `exp(-tau)` an exponential of the wavelength).
-//!   `tau_front` is merged against a budget for the whole ray (the k-th merge gets
-//!   `tol 6 / (pi k)^2`), so each XYZ channel is within `merge_tolerance` x the unattenuated
-//!   emission's. [`PieceStats`] counts `tau_front`'s pieces.
+//! - Image (XYZ) path, front to back: only the optical depth in front (plus half of the
+//!   current segment's), `P(lambda)`, is kept (a flat sorted array of linear pieces, non-zero
+//!   only inside the shifted absorption lines). Each segment's emission adds its closed-form
+//!   XYZ minus what `P` takes from it: for the black body, one dot product of its grid
+//!   coefficients with per-grid-point absorbed fractions `W_i = integral hat_i cmf (1 -
+//!   exp(-P))`, updated only inside the segment's line windows; for its lines, the exact
+//!   integral over their windows. Each sub-interval integral is exact (the CMFs, hats and
+//!   lines linear, `exp(-P)` an exponential of the wavelength), so the cost per segment
+//!   follows its lines, not the whole of `P` (module `front`). `merge_tolerance` `tol` is an
+//!   error budget for the whole ray: `P` is merged (the k-th merge gets `tol/4 6 / (pi k)^2`),
+//!   the smallest absorption depths are left out (`tol/4` in total), and the faintest
+//!   segments' line light is attenuated by the transmittance at each line's middle instead of
+//!   exactly (`tol/2` of each channel's unattenuated total); so each XYZ channel is within
+//!   `tol` x the unattenuated emission's. [`PieceStats`] counts `P`'s pieces.
 //! - Spectrum path (picked pixels, traces), back to front: the spectrum is kept, attenuated
 //!   exactly at sub-piece ends (`max_depth_step`), and merged with `tol / segments` of its
 //!   maximum per merge, so merges add at most `merge_tolerance` of the maximum in total.
@@ -75,6 +81,7 @@ mod banded;
 mod cube;
 mod display;
 mod fits;
+mod front;
 mod model;
 mod profile;
 mod pwl;

@@ -91,9 +91,10 @@ pub struct DopplerSettings {
     pub line_width_nm: f64,
     /// Wavelength samples of black bodies (piecewise-linear integrator), >= 2.
     pub blackbody_samples: usize,
-    /// Merge tolerance for a whole ray (piecewise-linear with absorption): the image path's
-    /// XYZ stays within this fraction of the unattenuated emission's XYZ (merges of the
-    /// optical depth in front), a kept spectrum within this fraction of its maximum.
+    /// Error budget for a whole ray (piecewise-linear with absorption): the image path's XYZ
+    /// stays within this fraction of the unattenuated emission's XYZ, per channel (merges of
+    /// the optical depth in front, negligible absorption and line light left out; see the
+    /// module docs), a kept spectrum within this fraction of its maximum.
     pub merge_tolerance: f64,
     /// Per-ray piece budget: when the optical depth (image path) or the spectrum (picks,
     /// traces) exceeds it, it is merged with 4 times the tolerance until it fits (the preview

@@ -299,6 +299,44 @@ fn broadened_lines_reach_the_front_to_back_path() {
     );
 }
 
+/// The merge tolerance is an error budget for the whole ray: with loose tolerances (merges,
+/// left-out absorption and line light all in play) every pixel's XYZ stays within `tol` x the
+/// unattenuated emission of the exact (`tol = 0`) image, per channel; and the budget is used.
+#[test]
+fn loose_tolerances_stay_within_their_error_budget() {
+    let v = synth::galaxy(24, 3).unwrap();
+    let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
+    scene.factors.velocity = 30.0;
+    scene.factors.absorption = 5.0;
+    scene.factors.blackbody = 0.1;
+    let mut clear = scene.clone();
+    clear.factors.absorption = 0.0;
+    let mut st = DopplerSettings::default_for(&scene, 10, 10);
+    st.merge_tolerance = 0.0;
+    st.piece_budget = 1 << 20;
+    let exact = render_doppler(&scene, &st, &|| {}).unwrap();
+    let emitted = render_doppler(&clear, &st, &|| {}).unwrap();
+    for tol in [1e-2, 5e-2, 0.2] {
+        st.merge_tolerance = tol;
+        let img = render_doppler(&scene, &st, &|| {}).unwrap();
+        let mut worst = 0.0f64;
+        for ((a, b), e) in img.xyz.iter().zip(&exact.xyz).zip(&emitted.xyz) {
+            for c in 0..3 {
+                let err = (a[c] - b[c]).abs();
+                assert!(
+                    err <= tol * e[c] * (1.0 + 1e-9) + 1e-300,
+                    "tol {tol} channel {c}: {a:?} vs exact {b:?} (emitted {e:?})"
+                );
+                if e[c] > 0.0 {
+                    worst = worst.max(err / (tol * e[c]));
+                }
+            }
+        }
+        // Not vacuous: the loose settings do change the image, by a visible part of the budget.
+        assert!(worst > 1e-3, "tol {tol}: worst error {worst} of the budget");
+    }
+}
+
 fn check_paths_agree(broadening: &Broadening) -> Vec<[f64; 3]> {
     let v = synth::galaxy(24, 3).unwrap();
     let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
