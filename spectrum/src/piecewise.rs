@@ -776,7 +776,10 @@ mod tests {
             for i in 0..20_000 {
                 let x = 399.0 + i as f64 * 0.0101;
                 let d = (merged.eval(x) - input.eval(x)).abs();
-                assert!(d <= tol * (1.0 + 1e-9) + 1e-12, "slice, tol {tol} at {x}: {d}");
+                assert!(
+                    d <= tol * (1.0 + 1e-9) + 1e-12,
+                    "slice, tol {tol} at {x}: {d}"
+                );
             }
         }
     }

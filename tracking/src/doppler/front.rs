@@ -110,15 +110,6 @@ fn count_ending_by(a: &[Piece], x: f64) -> usize {
     lo + a[lo..hi].partition_point(|p| p.end_nm <= x)
 }
 
-/// The value at `x` of sorted, disjoint pieces (0 outside them).
-fn value_at(pieces: &[Piece], x: f64) -> f64 {
-    let i = pieces.partition_point(|p| p.end_nm <= x);
-    pieces
-        .get(i)
-        .filter(|p| p.start_nm <= x)
-        .map_or(0.0, |p| p.at(x))
-}
-
 /// The part of `p` from `x` on (all of it when it starts at or after `x`).
 #[inline]
 fn from(p: Piece, x: f64) -> Piece {
@@ -629,6 +620,7 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
             .map(|q| 2.0 * q.value_start.max(q.value_end))
             .fold(0.0, f64::max);
         segment_lines(ctx, s, j, true, 1.0, lines)?;
+        lines.sort_unstable_by(|a, b| (a.0 + a.1).total_cmp(&(b.0 + b.1)));
         let emit_start = emit_all.len();
         emit_all.extend_from_slice(lines);
         let mut seg_xyz = [0.0f64; 3];
@@ -701,14 +693,20 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
             if seg.omit_light {
                 // Each line attenuated by the transmittance at its middle: off by at most the
                 // line's own light, as the budget assumes, and dark behind a thick medium.
+                // (The lines are sorted by their middles, so the cursors only advance.)
+                let (mut pc, mut dc) = (Cursor::new(p), Cursor::new(d));
                 for (&(lo, hi, _, _), x) in emit_all[seg.emit.clone()]
                     .iter()
                     .zip(&emit_xyz[seg.emit.clone()])
                 {
                     let mid = 0.5 * (lo + hi);
-                    let f = -(-(value_at(p, mid) + value_at(d, mid))).exp_m1();
-                    for c in 0..3 {
-                        taken[c] += f * x[c];
+                    let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
+                        + dc.at(mid).map_or(0.0, |q| q.at(mid));
+                    if depth > 0.0 {
+                        let f = -(-depth).exp_m1();
+                        for c in 0..3 {
+                            taken[c] += f * x[c];
+                        }
                     }
                 }
             } else {
