@@ -11,7 +11,6 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use bytemuck::Pod;
 use serde::Serialize;
-use wgpu::util::DeviceExt;
 
 use crate::error::{Error, Result};
 
@@ -445,6 +444,10 @@ impl GpuContext {
         let e_val = pollster::block_on(val.pop());
         let e_oom = pollster::block_on(oom.pop());
         if let Some(e) = [e_oom, e_val, e_int].into_iter().flatten().next() {
+            // A lost device makes every call a validation error: let its callback run and
+            // report the loss itself.
+            let _ = self.device.poll(wgpu::PollType::Poll);
+            self.check_device()?;
             return Err(Error::from_wgpu(&e));
         }
         self.check_device()?;
@@ -510,17 +513,43 @@ impl GpuContext {
     pub fn storage_buffer<T: Pod>(&self, label: &str, data: &[T]) -> Result<wgpu::Buffer> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
         self.check_storage_size(label, bytes.len() as u64)?;
-        let zero = [0u8; 4];
-        let contents = if bytes.is_empty() { &zero[..] } else { bytes };
+        self.buffer_with(
+            label,
+            bytes,
+            wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+        )
+    }
+
+    /// A buffer of `usage` (plus `COPY_DST`) holding `bytes`, padded to a multiple of 4 (at
+    /// least 4 bytes). Created unmapped and filled through the queue: wgpu's
+    /// `create_buffer_init` panics when the device is lost, this returns the error.
+    fn buffer_with(
+        &self,
+        label: &str,
+        bytes: &[u8],
+        usage: wgpu::BufferUsages,
+    ) -> Result<wgpu::Buffer> {
+        self.check_device()?;
+        let size = (bytes.len() as u64).max(4).div_ceil(4) * 4;
         self.scoped(|| {
-            self.device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents,
-                    usage: wgpu::BufferUsages::STORAGE
-                        | wgpu::BufferUsages::COPY_SRC
-                        | wgpu::BufferUsages::COPY_DST,
-                })
+            let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: usage | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            if !bytes.is_empty() {
+                if bytes.len().is_multiple_of(4) {
+                    self.queue.write_buffer(&buffer, 0, bytes);
+                } else {
+                    let mut padded = bytes.to_vec();
+                    padded.resize(size as usize, 0);
+                    self.queue.write_buffer(&buffer, 0, &padded);
+                }
+            }
+            buffer
         })
     }
 
@@ -529,6 +558,7 @@ impl GpuContext {
     pub fn storage_buffer_zeroed(&self, label: &str, bytes: u64) -> Result<wgpu::Buffer> {
         let size = bytes.max(4).div_ceil(4) * 4;
         self.check_storage_size(label, size)?;
+        self.check_device()?;
         self.scoped(|| {
             self.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -553,14 +583,7 @@ impl GpuContext {
                 max: l.max_uniform_buffer_binding_size,
             });
         }
-        self.scoped(|| {
-            self.device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some(label),
-                    contents: bytes,
-                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                })
-        })
+        self.buffer_with(label, bytes, wgpu::BufferUsages::UNIFORM)
     }
 
     /// A bind group for `pipeline`'s group `group`, binding `buffers[i]` (whole) at binding

@@ -78,3 +78,22 @@ fn forcing_a_missing_adapter_name_is_no_adapter() {
     let err = blueshift_gpu::GpuContext::new(opts).unwrap_err();
     assert!(matches!(err, Error::NoAdapter(_)), "{err}");
 }
+
+#[test]
+fn a_destroyed_device_is_a_typed_error_not_a_panic_or_a_hang() {
+    if test_context().is_none() {
+        return;
+    }
+    // A private context (the shared one stays usable for the other tests).
+    let ctx = blueshift_gpu::GpuContext::new(blueshift_gpu::GpuOptions::default()).unwrap();
+    assert_eq!(
+        blueshift_gpu::scale(&ctx, &[1.0, 2.0], 2.0, 0.0).unwrap(),
+        vec![2.0, 4.0]
+    );
+    ctx.device().destroy();
+    let err = blueshift_gpu::scale(&ctx, &[1.0, 2.0], 2.0, 0.0).unwrap_err();
+    assert!(matches!(err, Error::DeviceLost(_)), "{err}");
+    // Once lost, every later call says so.
+    let again = blueshift_gpu::scale(&ctx, &[3.0], 1.0, 0.0).unwrap_err();
+    assert!(matches!(again, Error::DeviceLost(_)), "{again}");
+}
