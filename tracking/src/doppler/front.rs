@@ -25,17 +25,21 @@
 //! overflows.
 //!
 //! Error bound (`tol = merge_tolerance`), a budget for the whole ray in three shares:
-//! - merges of `P` (the `k`-th with `tol/4 * 6 / (pi k)^2`; the series sums to `tol/4`);
+//! - merges of `P` (the `k`-th with `tol/8 * 6 / (pi k)^2`; the series sums to `tol/8`).
+//!   `W` is not recomputed after a merge (that would be a pass over all of `P`): the updates
+//!   after it are exact differences, so `W` keeps what the merges moved, at most `tol/8` of
+//!   each hat's XYZ more;
 //! - leaving out the smallest absorption depths `a_k` (smallest first, at most `tol/4` in
 //!   total; they are known before the march, see `choose_omissions`);
 //! - for the faintest segments' line light (faintest first, at most `tol/2` of each XYZ
 //!   channel's unattenuated total), each line attenuated by the transmittance at its middle
 //!   instead of exactly: off by at most the line's own light.
 //!
-//! So `P` is within `tol/2` of the exact depth everywhere, each transmittance within `tol/2`,
-//! and every XYZ channel within `tol` x the same channel of the unattenuated emission.
-//! `tol = 0` leaves out and merges nothing. Only the piece-budget fallback (counted) can
-//! break the bound.
+//! So `P` is within `3 tol/8` of the exact depth everywhere and each transmittance within
+//! `3 tol/8`: the black body's absorbed part is within `tol/2` of its unattenuated XYZ, the
+//! lines' within `3 tol/8 + tol/2`, and every XYZ channel within `tol` x the same channel of
+//! the unattenuated emission. `tol = 0` leaves out and merges nothing. Only the piece-budget
+//! fallback (counted) can break the bound.
 
 use blueshift_spectrum::{Cmf, Piece, Xyz, merge_pieces};
 
@@ -438,12 +442,6 @@ impl Sweep<'_> {
         }
         taken
     }
-
-    /// `W` from scratch for the depth `p` (after a merge).
-    fn reset(&mut self, p: &[Piece]) {
-        self.w.iter_mut().for_each(|v| *v = [0.0; 3]);
-        let _ = self.run(&[], p, &[]);
-    }
 }
 
 /// Chooses what to leave out within the error budget (module docs): the segments' absorption
@@ -733,14 +731,14 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
             add_sorted(p, d, p_next);
             std::mem::swap(p, p_next);
         }
-        let mut reset = false;
+        // W is not recomputed after a merge (a pass over all of P): it keeps what the merge
+        // moved, at most the merge's tolerance (module docs).
         if p.len() > merge_at {
             merges += 1;
             let share = 6.0 / (std::f64::consts::PI.powi(2) * f64::from(merges).powi(2));
-            merge_pieces(p, 0.25 * tol * share, p_next).map_err(spectrum_err)?;
+            merge_pieces(p, 0.125 * tol * share, p_next).map_err(spectrum_err)?;
             std::mem::swap(p, p_next);
             merge_at = (2 * p.len()).max(64);
-            reset = true;
         }
         // Budget fallback: coarser merges until P fits (the preview strategy; this breaks
         // the error bound above and is counted).
@@ -750,11 +748,7 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
             merge_pieces(p, tol.max(1e-6) * budget_scale, p_next).map_err(spectrum_err)?;
             std::mem::swap(p, p_next);
             out.fallback = true;
-            reset = true;
             guard += 1;
-        }
-        if reset {
-            sweep.reset(p);
         }
         out.max_pieces = out.max_pieces.max(p.len());
     }
