@@ -113,8 +113,15 @@ fn fig13() {
     let mut goal = String::from(
         "scene,banded4000_seconds,banded4000_xyz_error,pwl_merge_tolerance,pwl_seconds,pwl_xyz_error,speedup\n",
     );
-    for (label, absorption) in [("emission", 0.0), ("absorption", 5.0)] {
-        let s = scene(&galaxy, &["bb", "H", "C"], 30.0, absorption);
+    // The third scene adds He I (Fig. 18's species): more absorption lines, denser optical
+    // depth spectra.
+    let scenes: [(&str, &[&str], f64); 3] = [
+        ("emission", &["bb", "H", "C"], 0.0),
+        ("absorption", &["bb", "H", "C"], 5.0),
+        ("absorption-with-He", &["bb", "H", "C", "He"], 5.0),
+    ];
+    for (label, species, absorption) in scenes {
+        let s = scene(&galaxy, species, 30.0, absorption);
         let mut st = DopplerSettings::default_for(&s, size, size);
         inclined(&s, &mut st);
         // Reference: 1601 black-body samples, merge tolerance 0 (with absorption: the
@@ -136,7 +143,7 @@ fn fig13() {
         let mut banded_4000 = None;
         if absorption > 0.0 {
             // The merge tolerance trade (the default is 1e-4).
-            for tol in [1e-3, 1e-2, 2e-2, 5e-2] {
+            for tol in [1e-3, 1e-2, 2e-2, 5e-2, 1e-1] {
                 let mut p = st.clone();
                 p.merge_tolerance = tol;
                 let (t, img) = timed(&s, &p);
@@ -159,7 +166,7 @@ fn fig13() {
             let mut pts = Vec::new();
             // With absorption also N = 40,000 (energy-conserving): the accuracy the
             // piecewise-linear integrator reaches, measured rather than extrapolated.
-            let ns: &[usize] = if absorption > 0.0 && shift == BandShift::EnergyConserving {
+            let ns: &[usize] = if label == "absorption" && shift == BandShift::EnergyConserving {
                 &[40, 400, 4000, 40000]
             } else {
                 &[40, 400, 4000]
@@ -182,11 +189,13 @@ fn fig13() {
             curves.push(Curve {
                 label: format!("{label} {sname} N={ns:?}"),
                 points: pts,
-                rgb: match (shift == BandShift::Nearest, absorption > 0.0) {
-                    (true, false) => (240, 130, 130),
-                    (true, true) => (200, 40, 40),
-                    (false, false) => (130, 130, 240),
-                    (false, true) => (40, 40, 200),
+                rgb: match (shift == BandShift::Nearest, label) {
+                    (true, "emission") => (240, 130, 130),
+                    (true, "absorption") => (200, 40, 40),
+                    (true, _) => (200, 40, 160),
+                    (false, "emission") => (130, 130, 240),
+                    (false, "absorption") => (40, 40, 200),
+                    (false, _) => (40, 160, 200),
                 },
             });
         }
@@ -213,10 +222,10 @@ fn fig13() {
         curves.push(Curve {
             label: format!("{label} pwl (tol 5e-2 ... 1e-4 with absorption)"),
             points: pwl_pts,
-            rgb: if absorption > 0.0 {
-                (20, 150, 20)
-            } else {
-                (120, 200, 60)
+            rgb: match label {
+                "emission" => (120, 200, 60),
+                "absorption" => (20, 150, 20),
+                _ => (140, 110, 20),
             },
         });
     }
