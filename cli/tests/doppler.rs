@@ -238,6 +238,29 @@ fn trace_writes_small_multiples_matching_the_pick() {
     // More than 12 steps: 12 panels in a 4 x 3 grid of 300 x 230 under a 60-pixel title.
     let png = image::open(dir.path().join("g_trace_4_8.png")).unwrap();
     assert_eq!((png.width(), png.height()), (1200, 60 + 3 * 230));
+    // The animation: one frame per step (up to 120), the final one held longer, and the
+    // spectrum visibly growing between the first and the last frame.
+    use image::AnimationDecoder;
+    let gif = std::fs::File::open(dir.path().join("g_trace_4_8.gif")).unwrap();
+    let frames = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif))
+        .unwrap()
+        .into_frames()
+        .collect_frames()
+        .unwrap();
+    assert_eq!(frames.len(), steps.min(120));
+    let ms = |f: &image::Frame| {
+        let (n, d) = f.delay().numer_denom_ms();
+        n / d
+    };
+    assert!(ms(frames.last().unwrap()) > ms(&frames[0]));
+    assert_eq!(frames[0].buffer().dimensions(), (640, 400));
+    let differing = frames[0]
+        .buffer()
+        .pixels()
+        .zip(frames.last().unwrap().buffer().pixels())
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(differing > 500, "{differing} pixels differ");
     // Steps run back to front: the depth (distance from the ray's entry on the camera side)
     // falls to 0 at the last step, which is the picked pixel's final spectrum.
     let t_of = |s: usize| rows.iter().find(|r| r[0] as usize == s).unwrap()[1];

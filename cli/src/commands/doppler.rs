@@ -80,7 +80,8 @@ pub struct Args {
     /// Pick a pixel X,Y (repeatable): its spectrum as CSV and PNG next to the output.
     #[arg(long, value_parser = parse_xy)]
     pub pick: Vec<(u32, u32)>,
-    /// Trace a pixel's ray X,Y: the spectrum after each step as CSV and a plot.
+    /// Trace a pixel's ray X,Y: the spectrum after each step as CSV, small multiples (PNG) and
+    /// an animation (GIF).
     #[arg(long, value_parser = parse_xy)]
     pub trace: Option<(u32, u32)>,
     /// Tilt of the orthographic view about the x axis, degrees (0: along +z, the default
@@ -484,6 +485,12 @@ pub fn run(args: Args) -> Result<()> {
                 &steps,
                 st.range_nm,
             )?;
+            trace_animation(
+                &sibling(&args.out, &format!("_trace_{x}_{y}.gif")),
+                &format!("pixel {x},{y}"),
+                &steps,
+                st.range_nm,
+            )?;
         }
     }
     println!(
@@ -675,6 +682,96 @@ fn trace_panels(
     let img = image::RgbImage::from_raw(size.0, size.1, buf).context("plot buffer size")?;
     write_via_temp_path(path, |p| {
         img.save_with_format(p, image::ImageFormat::Png)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
+}
+
+/// Most frames of a trace animation (longer traces show evenly spaced steps, the last one
+/// always included).
+const MAX_FRAMES: usize = 120;
+
+/// The step-by-step accumulation as an animated GIF: one frame per step (at most
+/// [`MAX_FRAMES`]), the spectrum after that step on axes shared by all frames, the step and
+/// depth in the title; the last frame (the pixel's final spectrum) is held longer.
+fn trace_animation(
+    path: &Path,
+    title: &str,
+    steps: &[blueshift_tracking::doppler::TraceStep],
+    range: (f64, f64),
+) -> Result<()> {
+    register_font();
+    let pick = panel_steps(steps.len(), MAX_FRAMES);
+    let curves: Vec<Vec<(f64, f64)>> = pick
+        .iter()
+        .map(|&i| samples(&steps[i].spectrum, range))
+        .collect();
+    let mut ymax = curves
+        .iter()
+        .flatten()
+        .map(|p| p.1)
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max);
+    if ymax <= 0.0 {
+        ymax = 1.0;
+    }
+    let size = (640u32, 400u32);
+    let mut frames = Vec::with_capacity(pick.len());
+    for (k, (&i, pts)) in pick.iter().zip(&curves).enumerate() {
+        let mut buf = vec![255u8; (size.0 * size.1 * 3) as usize];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, size).into_drawing_area();
+            let mut chart = ChartBuilder::on(&root)
+                .caption(
+                    format!(
+                        "{title}: step {} of {}, depth t = {:.3}",
+                        i + 1,
+                        steps.len(),
+                        steps[i].t
+                    ),
+                    (FONT, 16),
+                )
+                .margin(10)
+                .x_label_area_size(36)
+                .y_label_area_size(64)
+                .build_cartesian_2d(range.0..range.1, 0.0..ymax * 1.05)
+                .map_err(plot_err)?;
+            chart
+                .configure_mesh()
+                .x_desc("wavelength (nm)")
+                .y_desc("spectral radiance")
+                .label_style((FONT, 12))
+                .y_label_formatter(&|v| format!("{v:.1e}"))
+                .draw()
+                .map_err(plot_err)?;
+            chart
+                .draw_series(LineSeries::new(
+                    pts.iter().copied(),
+                    COLOURS[0].stroke_width(2),
+                ))
+                .map_err(plot_err)?;
+            root.present().map_err(plot_err)?;
+        }
+        let rgba: Vec<u8> = buf
+            .chunks_exact(3)
+            .flat_map(|p| [p[0], p[1], p[2], 255])
+            .collect();
+        let img = image::RgbaImage::from_raw(size.0, size.1, rgba).context("frame size")?;
+        let ms = if k + 1 == pick.len() { 1500 } else { 120 };
+        frames.push(image::Frame::from_parts(
+            img,
+            0,
+            0,
+            image::Delay::from_numer_denom_ms(ms, 1),
+        ));
+    }
+    write_via_temp_path(path, |p| {
+        let file =
+            std::fs::File::create(p).with_context(|| format!("cannot write {}", path.display()))?;
+        let mut enc =
+            image::codecs::gif::GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+        enc.set_repeat(image::codecs::gif::Repeat::Infinite)
+            .map_err(|e| anyhow!("gif: {e}"))?;
+        enc.encode_frames(frames)
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }
