@@ -200,6 +200,30 @@ fn absorption_never_brightens_and_render_is_thread_independent() {
     assert!(absorbed.pieces.max > 0);
 }
 
+/// The preview fallback on the image path with absorption: a tiny piece budget still gives
+/// a finite image no brighter than the unattenuated one, and the rays that needed it are
+/// counted.
+#[test]
+fn tiny_piece_budget_falls_back_and_stays_bounded() {
+    let v = synth::galaxy(16, 5).unwrap();
+    let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
+    scene.factors.velocity = 30.0;
+    let mut st = DopplerSettings::default_for(&scene, 8, 8);
+    st.piece_budget = 8;
+    let clear = render_doppler(&scene, &st, &|| {}).unwrap();
+    scene.factors.absorption = 5.0;
+    let img = render_doppler(&scene, &st, &|| {}).unwrap();
+    assert!(img.pieces.fallback_rays > 0, "{:?}", img.pieces);
+    let mut darker = 0;
+    for (a, c) in img.xyz.iter().zip(&clear.xyz) {
+        for ch in 0..3 {
+            assert!(a[ch].is_finite() && a[ch] >= 0.0 && a[ch] <= c[ch] * (1.0 + 1e-9));
+        }
+        darker += usize::from(a[1] < 0.99 * c[1]);
+    }
+    assert!(darker > 0);
+}
+
 /// A constant medium along the z axis: density 1, one line at 500 nm emitting `e` and
 /// absorbing `k` (optical depth per unit length over the line's 1 nm box), no velocity.
 fn slab(e: f64, k: f64) -> DopplerScene {
