@@ -143,7 +143,7 @@ fn fig13() {
         let mut banded_4000 = None;
         if absorption > 0.0 {
             // The merge tolerance trade (the default is 1e-4).
-            for tol in [1e-3, 1e-2, 2e-2, 5e-2, 1e-1] {
+            for tol in [1e-3, 1e-2, 5e-2, 1e-1, 2e-1] {
                 let mut p = st.clone();
                 p.merge_tolerance = tol;
                 let (t, img) = timed(&s, &p);

@@ -29,8 +29,9 @@
 //!   `W` is not recomputed after a merge (that would be a pass over all of `P`): the updates
 //!   after it are exact differences, so `W` keeps what the merges moved, at most `tol/8` of
 //!   each hat's XYZ more;
-//! - leaving out the smallest absorption depths `a_k` (smallest first, at most `tol/4` in
-//!   total; they are known before the march, see `choose_omissions`);
+//! - leaving out the weakest absorption: single lines of single segments, smallest peak
+//!   depth first, at most `tol/4` in total (they are known before the march, see
+//!   `choose_omissions`);
 //! - for the faintest segments' line light (faintest first, at most `tol/2` of each XYZ
 //!   channel's unattenuated total), each line attenuated by the transmittance at its middle
 //!   instead of exactly: off by at most the line's own light.
@@ -444,23 +445,57 @@ impl Sweep<'_> {
     }
 }
 
-/// Chooses what to leave out within the error budget (module docs): the segments' absorption
-/// depths, smallest first, up to `depth_budget` in total; then, among the segments behind the
-/// first absorbing one, the absorption of their line light, faintest first (relative to each
-/// channel's unattenuated total `total`), up to `light_share` of each channel. Smallest
-/// first leaves out the most segments a budget allows.
-fn choose_omissions(segs: &mut [Segment], depth_budget: f64, light_share: f64, total: [f64; 3]) {
-    let mut idx: Vec<usize> = (0..segs.len()).filter(|&i| segs[i].own_max > 0.0).collect();
-    idx.sort_by(|&a, &b| segs[a].own_max.total_cmp(&segs[b].own_max));
-    let mut left = depth_budget;
-    for i in idx {
-        if segs[i].own_max > left {
-            break;
+/// Chooses what to leave out within the error budget (module docs): single absorption line
+/// sweeps (one line of one segment), smallest depth first, up to `depth_budget` in total
+/// (marked in `omit`); then, among the segments from the first one that still absorbs, the
+/// absorption of their line light, faintest first (relative to each channel's unattenuated
+/// total `total`), up to `light_share` of each channel. Smallest first leaves out the most
+/// that a budget allows.
+fn choose_omissions(
+    segs: &mut [Segment],
+    abs: &[Trap],
+    omit: &mut Vec<bool>,
+    depth_budget: f64,
+    light_share: f64,
+    total: [f64; 3],
+) {
+    omit.clear();
+    omit.resize(abs.len(), false);
+    let depth = |t: &Trap| t.2.max(t.3);
+    // Smallest first, without a sort: depths binned by their binary exponent; whole bins are
+    // left out while their running sum fits, then the next bin's lines in order while they
+    // fit. (Any set whose depths sum within the budget keeps the bound.)
+    const BINS: usize = 96;
+    let bin = |d: f64| -> usize {
+        let e = ((d.to_bits() >> 52) & 0x7ff) as i64 - 1023;
+        (e + 80).clamp(0, BINS as i64 - 1) as usize
+    };
+    let mut sums = [0.0f64; BINS];
+    for t in abs {
+        let d = depth(t);
+        if d > 0.0 && d <= depth_budget {
+            sums[bin(d)] += d;
         }
-        left -= segs[i].own_max;
-        segs[i].omit_depth = true;
     }
-    let Some(first) = segs.iter().position(|g| g.own_max > 0.0 && !g.omit_depth) else {
+    let mut left = depth_budget;
+    let mut full = 0;
+    while full < BINS && sums[full] <= left {
+        left -= sums[full];
+        full += 1;
+    }
+    for (i, t) in abs.iter().enumerate() {
+        let d = depth(t);
+        if d > 0.0 && d <= depth_budget {
+            let b = bin(d);
+            if b < full {
+                omit[i] = true;
+            } else if b == full && d <= left {
+                left -= d;
+                omit[i] = true;
+            }
+        }
+    }
+    let Some(first) = segs.iter().position(|g| g.abs.clone().any(|i| !omit[i])) else {
         return;
     };
     let score = |g: &Segment| {
@@ -524,16 +559,15 @@ fn line_xyz(t: &PwlTables, cmf: &Cmf, (lo, hi, h0, h1): Trap) -> [f64; 3] {
 
 /// One segment's emission and absorption, gathered before the march.
 struct Segment {
-    /// Its half absorption `a_k / 2` in `own` (a range) and the maximum of `a_k`.
+    /// Its absorption line trapezoids (full depth) in `abs_all` (a range).
+    abs: std::ops::Range<usize>,
+    /// Its half absorption `a_k / 2` without the left-out lines, in `own_all` (a range).
     own: std::ops::Range<usize>,
-    own_max: f64,
     /// Its emission line trapezoids in `emit` (a range) and their XYZ.
     emit: std::ops::Range<usize>,
     line_xyz: [f64; 3],
     /// Whether its black-body row (in `rows`) is non-zero.
     has_bb: bool,
-    /// Its absorption is left out (negligible, within the budget).
-    omit_depth: bool,
     /// The absorption of its line light is left out (negligible, within the budget).
     omit_light: bool,
 }
@@ -543,6 +577,8 @@ struct Segment {
 struct Scratch {
     segs: Vec<Segment>,
     rows: Vec<f64>,
+    abs_all: Vec<Trap>,
+    abs_omit: Vec<bool>,
     own_all: Vec<Piece>,
     emit_all: Vec<Trap>,
     emit_xyz: Vec<[f64; 3]>,
@@ -581,6 +617,8 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
     let Scratch {
         segs,
         rows,
+        abs_all,
+        abs_omit,
         own_all,
         emit_all,
         emit_xyz,
@@ -599,6 +637,7 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
     segs.clear();
     rows.clear();
     rows.resize(k * (n - 1), 0.0);
+    abs_all.clear();
     own_all.clear();
     emit_all.clear();
     emit_xyz.clear();
@@ -611,12 +650,8 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
     for (m, j) in (0..n - 1).rev().enumerate() {
         let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
         segment_lines(ctx, s, j, false, 1.0, lines)?;
-        let own_start = own_all.len();
-        sum_trapezoids(lines, 0.5, own_all, cuts);
-        let own_max = own_all[own_start..]
-            .iter()
-            .map(|q| 2.0 * q.value_start.max(q.value_end))
-            .fold(0.0, f64::max);
+        let abs_start = abs_all.len();
+        abs_all.extend_from_slice(lines);
         segment_lines(ctx, s, j, true, 1.0, lines)?;
         lines.sort_unstable_by(|a, b| (a.0 + a.1).total_cmp(&(b.0 + b.1)));
         let emit_start = emit_all.len();
@@ -642,12 +677,11 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
             }
         }
         segs.push(Segment {
-            own: own_start..own_all.len(),
-            own_max,
+            abs: abs_start..abs_all.len(),
+            own: 0..0,
             emit: emit_start..emit_all.len(),
             line_xyz: seg_xyz,
             has_bb,
-            omit_depth: false,
             omit_light: false,
         });
         std::mem::swap(f_near, f_far);
@@ -659,7 +693,23 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
     }
     let total = total.to_array();
     if tol > 0.0 {
-        choose_omissions(segs, 0.25 * tol, 0.5 * tol, total);
+        choose_omissions(segs, abs_all, abs_omit, 0.25 * tol, 0.5 * tol, total);
+    } else {
+        abs_omit.clear();
+        abs_omit.resize(abs_all.len(), false);
+    }
+    // Each segment's half depth, without the left-out lines.
+    for seg in segs.iter_mut() {
+        lines.clear();
+        lines.extend(
+            seg.abs
+                .clone()
+                .filter(|&i| !abs_omit[i])
+                .map(|i| abs_all[i]),
+        );
+        let start = own_all.len();
+        sum_trapezoids(lines, 0.5, own_all, cuts);
+        seg.own = start..own_all.len();
     }
 
     // March from the eye. Error budget (module docs): merges tol/4, omitted depth tol/4,
@@ -677,11 +727,7 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
     let mut merge_at = 64usize;
     let mut budget_scale = 1.0;
     for (m, seg) in segs.iter().enumerate() {
-        let own = if seg.omit_depth {
-            0..0
-        } else {
-            seg.own.clone()
-        };
+        let own = seg.own.clone();
         // D = (a_prev + a_this) / 2.
         add_sorted(&own_all[prev_own.clone()], &own_all[own.clone()], d);
         prev_own = own;

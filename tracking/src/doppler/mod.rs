@@ -53,7 +53,7 @@
 //!   lines linear, `exp(-P)` an exponential of the wavelength), so the cost per segment
 //!   follows its lines, not the whole of `P` (module `front`). `merge_tolerance` `tol` is an
 //!   error budget for the whole ray: `P` is merged (the k-th merge gets `tol/8 6 / (pi k)^2`),
-//!   the smallest absorption depths are left out (`tol/4` in total), and the faintest
+//!   the weakest absorption lines (per line and segment) are left out (`tol/4` in total), and the faintest
 //!   segments' line light is attenuated by the transmittance at each line's middle instead of
 //!   exactly (`tol/2` of each channel's unattenuated total); so each XYZ channel is within
 //!   `tol` x the unattenuated emission's. [`PieceStats`] counts `P`'s pieces.
