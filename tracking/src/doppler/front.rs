@@ -42,7 +42,7 @@
 //! the unattenuated emission. `tol = 0` leaves out and merges nothing. Only the piece-budget
 //! fallback (counted) can break the bound.
 
-use blueshift_spectrum::{Cmf, Piece, Xyz, merge_pieces};
+use blueshift_spectrum::{Piece, Xyz, merge_pieces};
 
 use super::pwl::{PwlTables, bb_row, segment_lines, spectrum_err};
 use super::render::{Context, RayOut, RaySamples};
@@ -526,37 +526,6 @@ fn choose_omissions(
     }
 }
 
-/// The XYZ of a line trapezoid against the piecewise-linear CMFs: exact, interval by
-/// interval of the CMF table (lines are narrow; wide ones go to the prefix-sum form).
-fn line_xyz(t: &PwlTables, cmf: &Cmf, (lo, hi, h0, h1): Trap) -> [f64; 3] {
-    let c_hi = t.cmf_lo + t.cmf_step * (t.cmf.len() - 1) as f64;
-    let (a, b) = (lo.max(t.cmf_lo), hi.min(c_hi));
-    if b <= a {
-        return [0.0; 3];
-    }
-    if b - a > 8.0 * t.cmf_step {
-        return cmf.trapezoid_xyz(lo, hi, h0, h1).to_array();
-    }
-    let slope = (h1 - h0) / (hi - lo);
-    let inv_cstep = 1.0 / t.cmf_step;
-    let mut out = [0.0; 3];
-    let mut u = a;
-    let mut cu = t.cmf_at(u);
-    let mut fu = h0 + slope * (u - lo);
-    while u < b {
-        let node = t.cmf_lo + (((u - t.cmf_lo) * inv_cstep) as usize + 1) as f64 * t.cmf_step;
-        let w = if node > u { node.min(b) } else { b };
-        let cw = t.cmf_at(w);
-        let fw = if w >= hi { h1 } else { h0 + slope * (w - lo) };
-        let h6 = (w - u) / 6.0;
-        for c in 0..3 {
-            out[c] += h6 * (2.0 * fu * cu[c] + fu * cw[c] + fw * cu[c] + 2.0 * fw * cw[c]);
-        }
-        (u, cu, fu) = (w, cw, fw);
-    }
-    out
-}
-
 /// One segment's emission and absorption, gathered before the march.
 struct Segment {
     /// Its absorption line trapezoids (full depth) in `abs_all` (a range).
@@ -609,7 +578,6 @@ pub(crate) fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) ->
 
 fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> Result<RayOut> {
     let st = ctx.settings;
-    let cmf = Cmf::cie1931_2deg();
     let n = s.len();
     let k = t.lambdas.len();
     let tol = st.merge_tolerance;
@@ -658,7 +626,7 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
         emit_all.extend_from_slice(lines);
         let mut seg_xyz = [0.0f64; 3];
         for &tr in lines.iter() {
-            let x = line_xyz(t, cmf, tr);
+            let x = t.line_xyz(tr);
             for c in 0..3 {
                 seg_xyz[c] += x[c];
             }

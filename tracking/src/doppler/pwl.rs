@@ -34,6 +34,39 @@ impl PwlTables {
 }
 
 impl PwlTables {
+    /// The XYZ of a line trapezoid against the piecewise-linear CMFs: exact, interval by
+    /// interval of the CMF table (lines are narrow; wide ones go to the prefix-sum form).
+    pub(crate) fn line_xyz(&self, (lo, hi, h0, h1): (f64, f64, f64, f64)) -> [f64; 3] {
+        let t = self;
+        let cmf = Cmf::cie1931_2deg();
+        let c_hi = t.cmf_lo + t.cmf_step * (t.cmf.len() - 1) as f64;
+        let (a, b) = (lo.max(t.cmf_lo), hi.min(c_hi));
+        if b <= a {
+            return [0.0; 3];
+        }
+        if b - a > 8.0 * t.cmf_step {
+            return cmf.trapezoid_xyz(lo, hi, h0, h1).to_array();
+        }
+        let slope = (h1 - h0) / (hi - lo);
+        let inv_cstep = 1.0 / t.cmf_step;
+        let mut out = [0.0; 3];
+        let mut u = a;
+        let mut cu = t.cmf_at(u);
+        let mut fu = h0 + slope * (u - lo);
+        while u < b {
+            let node = t.cmf_lo + (((u - t.cmf_lo) * inv_cstep) as usize + 1) as f64 * t.cmf_step;
+            let w = if node > u { node.min(b) } else { b };
+            let cw = t.cmf_at(w);
+            let fw = if w >= hi { h1 } else { h0 + slope * (w - lo) };
+            let h6 = (w - u) / 6.0;
+            for c in 0..3 {
+                out[c] += h6 * (2.0 * fu * cu[c] + fu * cw[c] + fw * cu[c] + 2.0 * fw * cw[c]);
+            }
+            (u, cu, fu) = (w, cw, fw);
+        }
+        out
+    }
+
     pub fn new(settings: &super::DopplerSettings) -> Self {
         let (a, b) = settings.range_nm;
         let k = settings.blackbody_samples;
@@ -169,7 +202,7 @@ pub(crate) fn integrate(
             if keep {
                 spec.add_trapezoid(lo, hi, h0, h1).map_err(spectrum_err)?;
             } else {
-                xyz += cmf.trapezoid_xyz(lo, hi, h0, h1);
+                xyz += Xyz::from_array(t.line_xyz((lo, hi, h0, h1)));
             }
         }
         // Black body: trapezoid rule along the ray on the fixed wavelength grid.
