@@ -357,17 +357,12 @@ impl Sweep<'_> {
                 .min(pc.next_break(pp))
                 .min(dc.next_break(dp))
                 .min(ec.next_break(ep));
-            let node = c_lo + (((u - c_lo) * inv_cstep) as usize + 1) as f64 * c_step;
-            if node > u {
-                w = w.min(node);
-            }
+            w = w.min(super::pwl::cell_of(c_lo, c_step, inv_cstep, u).1);
             let in_grid = u >= g0 && u < g1;
             let cell = if in_grid {
-                let i = (((u - g0) * inv_gstep) as usize).min(k - 2);
-                let next = g0 + (i + 1) as f64 * gstep;
-                if next > u {
-                    w = w.min(next);
-                }
+                let (i, next) = super::pwl::cell_of(g0, gstep, inv_gstep, u);
+                let i = i.min(k - 2);
+                w = w.min(if i == k - 2 { g1 } else { next });
                 Some(i)
             } else {
                 if u < g0 {

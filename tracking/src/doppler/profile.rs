@@ -140,10 +140,14 @@ pub(crate) fn emit_line<E>(
     sink: &mut impl FnMut(Emit) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
     let (la, lb) = (sa * centre, sb * centre);
-    let (sna, snb) = (
-        la * sig_a / SPEED_OF_LIGHT_M_PER_S,
-        lb * sig_b / SPEED_OF_LIGHT_M_PER_S,
-    );
+    // Widths below 1e-9 of the wavelength (0.3 m/s) are raised to it: narrower Gaussians'
+    // pieces would collapse below the wavelength's rounding and lose the line.
+    let floor = 1e-9 * la.max(lb);
+    let width = |l: f64, sig: f64| {
+        let w = l * sig / SPEED_OF_LIGHT_M_PER_S;
+        if w > 0.0 { w.max(floor) } else { w }
+    };
+    let (sna, snb) = (width(la, sig_a), width(lb, sig_b));
     let sigma_mean = 0.5 * (sna + snb);
     let sweep = (lb - la).abs();
     if sigma_mean <= 0.0 || sweep >= 16.0 * sigma_mean {

@@ -54,8 +54,7 @@ impl PwlTables {
         let mut cu = t.cmf_at(u);
         let mut fu = h0 + slope * (u - lo);
         while u < b {
-            let node = t.cmf_lo + (((u - t.cmf_lo) * inv_cstep) as usize + 1) as f64 * t.cmf_step;
-            let w = if node > u { node.min(b) } else { b };
+            let w = cell_of(t.cmf_lo, t.cmf_step, inv_cstep, u).1.min(b);
             let cw = t.cmf_at(w);
             let fw = if w >= hi { h1 } else { h0 + slope * (w - lo) };
             let h6 = (w - u) / 6.0;
@@ -119,6 +118,22 @@ pub(crate) fn line_trapezoid(
     } else {
         (lo, hi, area_b / w, area_a / w)
     }
+}
+
+/// The cell of a uniform grid (`origin + i step`) holding `u` and the cell's right end:
+/// `origin + i step <= u < origin + (i + 1) step`, exactly on the grid's own nodes (the
+/// index from `(u - origin) / step` alone can be one off when `u` is a node computed by
+/// rounding). `u >= origin`.
+#[inline]
+pub(crate) fn cell_of(origin: f64, step: f64, inv_step: f64, u: f64) -> (usize, f64) {
+    let mut i = ((u - origin) * inv_step).max(0.0) as usize;
+    while origin + (i + 1) as f64 * step <= u {
+        i += 1;
+    }
+    while i > 0 && origin + i as f64 * step > u {
+        i -= 1;
+    }
+    (i, origin + (i + 1) as f64 * step)
 }
 
 pub(crate) fn spectrum_err(e: blueshift_spectrum::Error) -> Error {
