@@ -622,6 +622,31 @@ fn plot_err(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow!("plot: {e}")
 }
 
+/// A plotted curve: (wavelength nm, value) points.
+type Curve = Vec<(f64, f64)>;
+
+/// The steps a trace plot shows (at most `max`), their spectra sampled over `range`, and the
+/// largest value (the shared y axis; 1 when all are zero). Registers the plot font.
+fn trace_curves(
+    steps: &[blueshift_tracking::doppler::TraceStep],
+    range: (f64, f64),
+    max: usize,
+) -> (Vec<usize>, Vec<Curve>, f64) {
+    register_font();
+    let pick = panel_steps(steps.len(), max);
+    let curves: Vec<Curve> = pick
+        .iter()
+        .map(|&i| samples(&steps[i].spectrum, range))
+        .collect();
+    let ymax = curves
+        .iter()
+        .flatten()
+        .map(|p| p.1)
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max);
+    (pick, curves, if ymax > 0.0 { ymax } else { 1.0 })
+}
+
 /// Small multiples of a traced ray: a grid of panels (at most 12), one per selected step,
 /// each the spectrum after that step, on shared axes; the step index and the depth (path
 /// position of the step's near end) in each panel's title.
@@ -631,21 +656,7 @@ fn trace_panels(
     steps: &[blueshift_tracking::doppler::TraceStep],
     range: (f64, f64),
 ) -> Result<()> {
-    register_font();
-    let pick = panel_steps(steps.len(), 12);
-    let curves: Vec<Vec<(f64, f64)>> = pick
-        .iter()
-        .map(|&i| samples(&steps[i].spectrum, range))
-        .collect();
-    let mut ymax = curves
-        .iter()
-        .flatten()
-        .map(|p| p.1)
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max);
-    if ymax <= 0.0 {
-        ymax = 1.0;
-    }
+    let (pick, curves, ymax) = trace_curves(steps, range, 12);
     let cols = pick.len().clamp(1, 4);
     let rows = pick.len().div_ceil(cols).max(1);
     let size = (300 * cols as u32, 60 + 230 * rows as u32);
@@ -699,21 +710,7 @@ fn trace_animation(
     steps: &[blueshift_tracking::doppler::TraceStep],
     range: (f64, f64),
 ) -> Result<()> {
-    register_font();
-    let pick = panel_steps(steps.len(), MAX_FRAMES);
-    let curves: Vec<Vec<(f64, f64)>> = pick
-        .iter()
-        .map(|&i| samples(&steps[i].spectrum, range))
-        .collect();
-    let mut ymax = curves
-        .iter()
-        .flatten()
-        .map(|p| p.1)
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max);
-    if ymax <= 0.0 {
-        ymax = 1.0;
-    }
+    let (pick, curves, ymax) = trace_curves(steps, range, MAX_FRAMES);
     let size = (640u32, 400u32);
     let mut frames = Vec::with_capacity(pick.len());
     for (k, (&i, pts)) in pick.iter().zip(&curves).enumerate() {

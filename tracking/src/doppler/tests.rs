@@ -323,11 +323,9 @@ fn broadened_lines_reach_the_front_to_back_path() {
     );
 }
 
-/// The merge tolerance is an error budget for the whole ray: with loose tolerances (merges,
-/// left-out absorption and line light all in play) every pixel's XYZ stays within `tol` x the
-/// unattenuated emission of the exact (`tol = 0`) image, per channel; and the budget is used.
-#[test]
-fn loose_tolerances_stay_within_their_error_budget() {
+/// The galaxy (24^3) with black body, H I and C I, velocity x30 and absorption x5, and the
+/// same without absorption.
+fn absorbing_galaxy() -> (DopplerScene, DopplerScene) {
     let v = synth::galaxy(24, 3).unwrap();
     let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
     scene.factors.velocity = 30.0;
@@ -335,6 +333,15 @@ fn loose_tolerances_stay_within_their_error_budget() {
     scene.factors.blackbody = 0.1;
     let mut clear = scene.clone();
     clear.factors.absorption = 0.0;
+    (scene, clear)
+}
+
+/// The merge tolerance is an error budget for the whole ray: with loose tolerances (merges,
+/// left-out absorption and line light all in play) every pixel's XYZ stays within `tol` x the
+/// unattenuated emission of the exact (`tol = 0`) image, per channel; and the budget is used.
+#[test]
+fn loose_tolerances_stay_within_their_error_budget() {
+    let (scene, clear) = absorbing_galaxy();
     let mut st = DopplerSettings::default_for(&scene, 10, 10);
     st.merge_tolerance = 0.0;
     st.piece_budget = 1 << 20;
@@ -362,13 +369,7 @@ fn loose_tolerances_stay_within_their_error_budget() {
 }
 
 fn check_paths_agree(broadening: &Broadening) -> Vec<[f64; 3]> {
-    let v = synth::galaxy(24, 3).unwrap();
-    let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
-    scene.factors.velocity = 30.0;
-    scene.factors.absorption = 5.0;
-    scene.factors.blackbody = 0.1;
-    let mut clear = scene.clone();
-    clear.factors.absorption = 0.0;
+    let (scene, clear) = absorbing_galaxy();
     let tol = 1e-4;
     let mut st = DopplerSettings::default_for(&scene, 10, 10);
     st.merge_tolerance = tol;
