@@ -42,7 +42,14 @@ struct Params {
     n_abs: u32,        // banded with absorption: absorption entries after the n_lines emission ones
     absorbing: u32,    // banded: 1 when the bands are kept per ray (absorption on)
     abs_factor: f32,   // absorption factor
-    pad1: u32,
+    pix_offset: u32,   // pwl with absorption: first pixel of the tile
+    n_pix: u32,        // pwl with absorption: end of the tile (pixels)
+    piece_cap: u32,    // pwl with absorption: min(piece_budget, device cap) pieces of tau_front
+    region_l: u32,     // pwl with absorption: pieces of regions A and B
+    stride: u32,       // pwl with absorption: floats per ray
+    merge_tol: f32,    // pwl with absorption: merge tolerance
+    pad2: u32,
+    pad3: u32,
 }
 
 struct PixelRay {
@@ -431,4 +438,558 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     out_xyz[pix] = vec4<f32>(acc_xyz, flag);
+}
+
+// ---- Piecewise-linear integrator with absorption, front to back ---------------------------
+// blueshift-tracking's `front_to_back` (pwl.rs): marching from the eye, the ray keeps only
+// the optical depth in front, tau_front(lambda), as a sorted array of linear pieces
+// (start, end, value at start, value at end) in its own region of `bands_buf` (the host
+// sizes it: `stride` floats per ray of the tile). Region layout, in pieces of 4 floats:
+//   A  [0, L)            tau_front
+//   B  [L, 2L)           tau_front + half the segment's depth (tau_mid)
+//   TR [2L, 2L + M)      the segment's absorption trapezoids (half heights), M = n_abs
+//   EP [2L + M, 2L + 2M) their sorted end points (4 per piece)
+//   TT [2L + 2M, 2L + 4M) their sum as sorted pieces
+// A segment's emission E adds its closed-form XYZ to `xyz`, and what tau_mid takes from it,
+// integral E (1 - exp(-tau_mid)) cmf over tau_mid's support, to `taken` (exact per
+// sub-interval cut at tau's, E's and the CMF table's breakpoints, exponential moments from the
+// end where tau is smaller). The pixel is max(xyz - taken, 0).
+
+const BAD: u32 = 0xffffffffu;
+const BIG: f32 = 3.0e38;
+
+var<private> rbase: u32;        // first float of this ray's region in bands_buf
+var<private> rho_f: array<f32, 8>;
+var<private> rho_n: array<f32, 8>;
+var<private> fell_back: bool;   // the piece budget (or the device cap) forced coarser merges
+var<private> budget_scale: f32;
+
+struct Samp {
+    t: f32,
+    s: f32,
+    bbr: f32,       // black-body density x factor x BB_UNIT (0: none)
+    temp: f32,      // temperature x factor
+    bbx: vec3<f32>, // XYZ of the sample's black-body row (hat weights)
+    bad: bool,      // the shift was invalid
+}
+
+fn pget(k: u32) -> vec4<f32> {
+    let o = rbase + 4u * k;
+    return vec4<f32>(bands_buf[o], bands_buf[o + 1u], bands_buf[o + 2u], bands_buf[o + 3u]);
+}
+
+fn pset(k: u32, v: vec4<f32>) {
+    let o = rbase + 4u * k;
+    bands_buf[o] = v.x;
+    bands_buf[o + 1u] = v.y;
+    bands_buf[o + 2u] = v.z;
+    bands_buf[o + 3u] = v.w;
+}
+
+fn fget(k: u32) -> f32 { return bands_buf[rbase + k]; }
+fn fset(k: u32, v: f32) { bands_buf[rbase + k] = v; }
+
+fn pat(p: vec4<f32>, x: f32) -> f32 { return lerp_at(p.x, p.y, p.z, p.w, x); }
+
+// Samples the ray at path position t: densities into `rho` (far or near), shift, black body.
+fn sample_at(r: PixelRay, t: f32, far: bool) -> Samp {
+    var o: Samp;
+    o.t = t;
+    o.bad = false;
+    let c = corners(r.p0 + r.dir_idx * t);
+    let nsp = min(P.nsp, MAX_SPECIES);
+    for (var m = 0u; m < nsp; m++) {
+        let v = max(sample_channel(c, m), 0.0);
+        if (far) { rho_f[m] = v; } else { rho_n[m] = v; }
+    }
+    var v = vec3<f32>(0.0);
+    if (P.has_vel == 1u) { v = sample_velocity(c) * P.vel_factor; }
+    let v_r = dot(v, r.los);
+    var s = 1.0;
+    if (P.model == 1u) {
+        let beta = length(v) / C_M_PER_S;
+        if (!(beta < 1.0)) { o.bad = true; }
+        s = (1.0 + v_r / C_M_PER_S) / sqrt(max(1.0 - beta * beta, 1e-30));
+    } else {
+        s = 1.0 + v_r / C_M_PER_S;
+    }
+    if (!(s > 0.0)) { o.bad = true; s = 1.0; }
+    o.s = s;
+    o.bbr = 0.0;
+    o.temp = 0.0;
+    o.bbx = vec3<f32>(0.0);
+    if (P.has_bb == 1u) {
+        o.bbr = max(sample_channel(c, P.nsp), 0.0) * P.bb_factor;
+        o.temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
+        o.bbx = bb_xyz(o.bbr, o.temp, s);
+    }
+    return o;
+}
+
+fn has_bb_row(a: Samp) -> bool { return a.bbr > 0.0 && a.temp > 0.0; }
+
+// One sample's black-body value on grid point i (the CPU's `bb_row`).
+fn bb_value(a: Samp, i: u32) -> f32 {
+    if (!has_bb_row(a)) { return 0.0; }
+    return value_factor(a.s) * a.bbr * planck(tables[P.off_lambda + i] / a.s, a.temp);
+}
+
+struct Trap {
+    t: vec4<f32>,   // lo, hi, value at lo, value at hi
+    ok: bool,
+}
+
+// Line entry `li` over the segment (a = far end, b = near end), as `segment_lines` gives it:
+// emission (values include the shift factor k(s) s) or optical depth, times `scale`.
+fn seg_trap(li: u32, far: Samp, near: Samp, dt: f32, emission: bool, scale: f32) -> Trap {
+    var o: Trap;
+    o.ok = false;
+    let line = lines[li];
+    let m = u32(line.z);
+    let ra = rho_f[m];
+    let rb = rho_n[m];
+    if (ra <= 0.0 && rb <= 0.0) { return o; }
+    var ga = 1.0;
+    var gb = 1.0;
+    if (emission) {
+        ga = value_factor(far.s) * far.s;
+        gb = value_factor(near.s) * near.s;
+    }
+    let base = scale * dt * line.y;
+    let area_a = base * ra * ga;
+    let area_b = base * rb * gb;
+    let la = far.s * line.x;
+    let lb = near.s * line.x;
+    let wdt = max(abs(lb - la), P.min_width);
+    let mid = 0.5 * (la + lb);
+    let lo = mid - 0.5 * wdt;
+    let hi = mid + 0.5 * wdt;
+    var h0 = area_a / wdt;
+    var h1 = area_b / wdt;
+    if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+    if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { return o; }
+    o.t = vec4<f32>(lo, hi, h0, h1);
+    o.ok = hi > lo;
+    return o;
+}
+
+// Inserts x into the sorted, duplicate-free floats [e0, e0 + n); returns the new count.
+fn insert_sorted(e0: u32, n: u32, x: f32) -> u32 {
+    var i = 0u;
+    while (i < n && fget(e0 + i) < x) { i++; }
+    if (i < n && fget(e0 + i) == x) { return n; }
+    for (var j = n; j > i; j--) { fset(e0 + j, fget(e0 + j - 1u)); }
+    fset(e0 + i, x);
+    return n + 1u;
+}
+
+// The sum of the mt trapezoids at TR as sorted pieces at TT (cut at every end point, gaps
+// left out, as repeated `add_trapezoid` gives it). Returns the piece count.
+fn build_sum(tr: u32, ep: u32, tt: u32, mt: u32) -> u32 {
+    let e0 = 4u * ep;
+    var ne = 0u;
+    for (var i = 0u; i < mt; i++) {
+        let q = pget(tr + i);
+        ne = insert_sorted(e0, ne, q.x);
+        ne = insert_sorted(e0, ne, q.y);
+    }
+    var nt = 0u;
+    for (var k = 0u; k + 1u < ne; k++) {
+        let x0 = fget(e0 + k);
+        let x1 = fget(e0 + k + 1u);
+        var v0 = 0.0;
+        var v1 = 0.0;
+        var covered = false;
+        for (var i = 0u; i < mt; i++) {
+            let q = pget(tr + i);
+            if (q.x <= x0 && x1 <= q.y) {
+                covered = true;
+                v0 += pat(q, x0);
+                v1 += pat(q, x1);
+            }
+        }
+        if (covered) {
+            pset(tt + nt, vec4<f32>(x0, x1, v0, v1));
+            nt++;
+        }
+    }
+    return nt;
+}
+
+// dst = src (na pieces) + tt (nt pieces), both sorted and disjoint: cut at the breakpoints
+// of both where either is non-zero, as `PiecewiseLinear::add_trapezoid`. BAD when more than
+// `cap` pieces would be needed (src is left untouched).
+fn sum_into(src: u32, na: u32, tt: u32, nt: u32, dst: u32, cap: u32) -> u32 {
+    var i = 0u;
+    var j = 0u;
+    var n = 0u;
+    var x = -BIG;
+    loop {
+        let has_p = i < na;
+        let has_q = j < nt;
+        if (!has_p && !has_q) { break; }
+        var p = vec4<f32>(0.0);
+        var q = vec4<f32>(0.0);
+        var ps = BIG;
+        var qs = BIG;
+        if (has_p) { p = pget(src + i); ps = max(p.x, x); }
+        if (has_q) { q = pget(tt + j); qs = max(q.x, x); }
+        let s = min(ps, qs);
+        var e = BIG;
+        if (has_p) { if (ps > s) { e = min(e, ps); } else { e = min(e, p.y); } }
+        if (has_q) { if (qs > s) { e = min(e, qs); } else { e = min(e, q.y); } }
+        var v0 = 0.0;
+        var v1 = 0.0;
+        if (has_p && ps <= s) { v0 += pat(p, s); v1 += pat(p, e); }
+        if (has_q && qs <= s) { v0 += pat(q, s); v1 += pat(q, e); }
+        if (n >= cap) { return BAD; }
+        pset(dst + n, vec4<f32>(s, e, v0, v1));
+        n++;
+        x = e;
+        if (has_p && p.y <= x) { i++; }
+        if (has_q && q.y <= x) { j++; }
+    }
+    return n;
+}
+
+// `PiecewiseLinear::merged(tol)` in place on [off, off + n): runs of contiguous pieces become
+// one line while it stays within tol of every breakpoint (a cone of slopes from the run's
+// start); zero pieces are dropped. With `bridge` (the device's last resort, counted as a
+// fallback) runs also cross gaps, the line kept within tol of zero over the gap.
+fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
+    var out = 0u;
+    var have = false;
+    var x0 = 0.0;
+    var y0 = 0.0;
+    var xe = 0.0;
+    var ye = 0.0;
+    var lo = -BIG;
+    var hi = BIG;
+    for (var k = 0u; k < n; k++) {
+        let p = pget(off + k);
+        if (p.z == 0.0 && p.w == 0.0) {
+            if (have) {
+                pset(off + out, vec4<f32>(x0, xe, y0, ye));
+                out++;
+                have = false;
+            }
+            continue;
+        }
+        if (have && (xe == p.x || bridge)) {
+            var l2 = lo;
+            var h2 = hi;
+            let dx = xe - x0;
+            l2 = max(l2, (ye - tol - y0) / dx);
+            h2 = min(h2, (ye + tol - y0) / dx);
+            if (xe == p.x) {
+                l2 = max(l2, (p.z - tol - y0) / dx);
+                h2 = min(h2, (p.z + tol - y0) / dx);
+            } else {
+                let dg = p.x - x0;
+                l2 = max(l2, max((-tol - y0) / dx, (-tol - y0) / dg));
+                h2 = min(h2, min((tol - y0) / dx, (tol - y0) / dg));
+                l2 = max(l2, (p.z - tol - y0) / dg);
+                h2 = min(h2, (p.z + tol - y0) / dg);
+            }
+            let slope = (p.w - y0) / (p.y - x0);
+            if (l2 <= slope && slope <= h2) {
+                lo = l2;
+                hi = h2;
+                xe = p.y;
+                ye = p.w;
+                continue;
+            }
+        }
+        if (have) {
+            pset(off + out, vec4<f32>(x0, xe, y0, ye));
+            out++;
+        }
+        have = true;
+        x0 = p.x;
+        y0 = p.z;
+        xe = p.y;
+        ye = p.w;
+        lo = -BIG;
+        hi = BIG;
+    }
+    if (have) {
+        pset(off + out, vec4<f32>(x0, xe, y0, ye));
+        out++;
+    }
+    return out;
+}
+
+fn max_value(off: u32, n: u32) -> f32 {
+    var m = 0.0;
+    for (var k = 0u; k < n; k++) {
+        let p = pget(off + k);
+        m = max(m, max(p.z, p.w));
+    }
+    return m;
+}
+
+// dst = src + tt; when that needs more than L pieces, src is merged across gaps with growing
+// tolerances until it fits (the device cap's fallback, counted). Returns dst's count or BAD.
+fn add_sum(src: u32, n_src: ptr<function, u32>, tt: u32, nt: u32, dst: u32) -> u32 {
+    var n = sum_into(src, *n_src, tt, nt, dst, P.region_l);
+    var tol = max(P.merge_tol * budget_scale, 1e-6 * max_value(src, *n_src));
+    var guard = 0u;
+    while (n == BAD && guard < 64u) {
+        fell_back = true;
+        tol = min(tol * 4.0, 1e30);
+        *n_src = merge(src, *n_src, tol, true);
+        n = sum_into(src, *n_src, tt, nt, dst, P.region_l);
+        guard++;
+    }
+    return n;
+}
+
+// `[int_0^h x^n exp(-s x) dx, n = 0, 1, 2]` for s >= 0: the series below |s h| = 1 (the
+// recurrence cancels there; 12 terms leave < 2e-10), the recurrence above (loses < 20 ulp).
+fn exp_moments(s: f32, h: f32) -> vec3<f32> {
+    let z = s * h;
+    if (z < 1.0) {
+        var m = vec3<f32>(0.0);
+        var term = 1.0;
+        for (var k = 0u; k < 12u; k++) {
+            let kf = f32(k);
+            m += term * vec3<f32>(1.0 / (kf + 1.0), 1.0 / (kf + 2.0), 1.0 / (kf + 3.0));
+            term *= -z / (kf + 1.0);
+        }
+        return vec3<f32>(m.x * h, m.y * h * h, m.z * h * h * h);
+    }
+    let e = exp(-z);
+    let i0 = (1.0 - e) / s;
+    let i1 = (i0 - h * e) / s;
+    let i2 = (2.0 * i1 - h * h * e) / s;
+    return vec3<f32>(i0, i1, i2);
+}
+
+// integral over [u, w] of E C (1 - exp(-tau)), E and C linear (values at the ends), tau
+// linear with the piece's slope; the exponential taken from the end where tau is smaller.
+fn absorbed_on(u: f32, w: f32, e_u: f32, e_w: f32, c_u: vec3<f32>, c_w: vec3<f32>,
+               tau_u: f32, tau_w: f32, slope: f32) -> vec3<f32> {
+    let h = w - u;
+    var base = 0.0;
+    var m = vec3<f32>(0.0);
+    let flip = slope < 0.0;
+    if (flip) {
+        base = exp(-max(tau_w, 0.0));
+        m = exp_moments(-slope, h);
+    } else {
+        base = exp(-max(tau_u, 0.0));
+        m = exp_moments(slope, h);
+    }
+    let de = (e_w - e_u) / h;
+    let dc = (c_w - c_u) / h;
+    let q0 = e_u * c_u;
+    let q1 = e_u * dc + de * c_u;
+    let q2 = de * dc;
+    let full = q0 * h + q1 * (h * h / 2.0) + q2 * (h * h * h / 3.0);
+    var r0 = q0;
+    var r1 = q1;
+    if (flip) {
+        r0 = q0 + q1 * h + q2 * (h * h);
+        r1 = -q1 - 2.0 * q2 * h;
+    }
+    return full - base * (r0 * m.x + r1 * m.y + q2 * m.z);
+}
+
+// The next node of the grid base + k step strictly after u.
+fn next_node(u: f32, base: f32, step: f32) -> f32 {
+    let k = floor((u - base) / step) + 1.0;
+    var x = base + k * step;
+    if (x <= u) { x = base + (k + 1.0) * step; }
+    return x;
+}
+
+fn cmf_hi() -> f32 { return P.cmf_lo + P.cmf_step * f32(P.cmf_n - 1u); }
+
+// The CMFs at x, on the table interval holding `mid`.
+fn cmf_on(mid: f32, x: f32) -> vec3<f32> {
+    let k = min(u32(max(floor((mid - P.cmf_lo) / P.cmf_step), 0.0)), P.cmf_n - 2u);
+    let x0 = P.cmf_lo + f32(k) * P.cmf_step;
+    let g0 = cmf(k);
+    let g1 = cmf(k + 1u);
+    return g0 + (g1 - g0) * ((x - x0) / P.cmf_step);
+}
+
+// What tau (region off, n pieces) takes from the segment's black body (the trapezoid rule
+// along the ray on the black-body grid: row_i = dt (f_far,i + f_near,i) / 2).
+fn absorbed_bb(off: u32, n: u32, far: Samp, near: Samp, dt: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let kk = P.bb_k;
+    let g0 = tables[P.off_lambda];
+    let g1 = tables[P.off_lambda + kk - 1u];
+    let gstep = (g1 - g0) / f32(kk - 1u);
+    var cached = BAD;
+    var r0 = 0.0;
+    var r1 = 0.0;
+    for (var k = 0u; k < n; k++) {
+        let p = pget(off + k);
+        if (p.z <= 0.0 && p.w <= 0.0) { continue; }
+        let lo = max(p.x, max(P.cmf_lo, g0));
+        let hi = min(p.y, min(cmf_hi(), g1));
+        if (!(hi > lo)) { continue; }
+        let slope = (p.w - p.z) / (p.y - p.x);
+        var u = lo;
+        var guard = 0u;
+        while (u < hi && guard < 100000u) {
+            guard++;
+            let w = min(hi, min(next_node(u, P.cmf_lo, P.cmf_step), next_node(u, g0, gstep)));
+            let mid = 0.5 * (u + w);
+            let gi = min(u32(max(floor((mid - g0) / gstep), 0.0)), kk - 2u);
+            if (gi != cached) {
+                cached = gi;
+                r0 = 0.5 * dt * (bb_value(far, gi) + bb_value(near, gi));
+                r1 = 0.5 * dt * (bb_value(far, gi + 1u) + bb_value(near, gi + 1u));
+            }
+            let xi = tables[P.off_lambda + gi];
+            let xj = tables[P.off_lambda + gi + 1u];
+            let e_u = lerp_at(xi, xj, r0, r1, u);
+            let e_w = lerp_at(xi, xj, r0, r1, w);
+            if (e_u > 0.0 || e_w > 0.0) {
+                out += absorbed_on(u, w, e_u, e_w, cmf_on(mid, u), cmf_on(mid, w),
+                                   pat(p, u), pat(p, w), slope);
+            }
+            u = w;
+        }
+    }
+    return out;
+}
+
+// What tau (region off, n pieces) takes from one emission trapezoid.
+fn absorbed_line(off: u32, n: u32, tr: vec4<f32>) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let a = max(tr.x, P.cmf_lo);
+    let b = min(tr.y, cmf_hi());
+    if (!(b > a)) { return out; }
+    // First piece ending after a.
+    var lo_i = 0u;
+    var hi_i = n;
+    while (lo_i < hi_i) {
+        let mid = (lo_i + hi_i) / 2u;
+        if (pget(off + mid).y <= a) { lo_i = mid + 1u; } else { hi_i = mid; }
+    }
+    for (var k = lo_i; k < n; k++) {
+        let p = pget(off + k);
+        if (p.x >= b) { break; }
+        if (p.z <= 0.0 && p.w <= 0.0) { continue; }
+        let slope = (p.w - p.z) / (p.y - p.x);
+        var u = max(a, p.x);
+        let end = min(b, p.y);
+        var guard = 0u;
+        while (u < end && guard < 100000u) {
+            guard++;
+            let w = min(end, next_node(u, P.cmf_lo, P.cmf_step));
+            let mid = 0.5 * (u + w);
+            let e_u = lerp_at(tr.x, tr.y, tr.z, tr.w, u);
+            let e_w = lerp_at(tr.x, tr.y, tr.z, tr.w, w);
+            if (e_u > 0.0 || e_w > 0.0) {
+                out += absorbed_on(u, w, e_u, e_w, cmf_on(mid, u), cmf_on(mid, w),
+                                   pat(p, u), pat(p, w), slope);
+            }
+            u = w;
+        }
+    }
+    return out;
+}
+
+@compute @workgroup_size(64, 1, 1)
+fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let pix = P.pix_offset + gid.x;
+    if (pix >= P.n_pix) { return; }
+    let r = rays[pix];
+    rbase = gid.x * P.stride;
+    fell_back = false;
+    budget_scale = 1.0;
+    let L = P.region_l;
+    let M = max(P.n_abs, 1u);
+    let A = 0u;
+    let B = L;
+    let TR = 2u * L;
+    let EP = 2u * L + M;
+    let TT = 2u * L + 2u * M;
+    var xyz = vec3<f32>(0.0);
+    var taken = vec3<f32>(0.0);
+    var bad = false;
+    var dev_err = false;
+    var na = 0u;
+    var merges = 0u;
+    var merge_at = 64u;
+    var max_pieces = 0u;
+    if (r.n_seg > 0u) {
+        var near = sample_at(r, path_t(r, 0u), false);
+        bad = bad || near.bad;
+        for (var seg = 0u; seg < r.n_seg; seg++) {
+            let far = sample_at(r, path_t(r, seg + 1u), true);
+            bad = bad || far.bad;
+            let dt = abs(far.t - near.t);
+            // Emission: closed-form XYZ of the lines and of the black body.
+            var any_emit = false;
+            for (var li = 0u; li < P.n_lines; li++) {
+                let e = seg_trap(li, far, near, dt, true, 1.0);
+                if (e.ok) {
+                    any_emit = true;
+                    xyz += trapezoid_xyz(e.t.x, e.t.y, e.t.z, e.t.w);
+                }
+            }
+            let has_bb = has_bb_row(far) || has_bb_row(near);
+            if (has_bb) { xyz += 0.5 * dt * (far.bbx + near.bbx); }
+            // The segment's absorption trapezoids at half height, and their sum.
+            var mt = 0u;
+            for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+                let e = seg_trap(li, far, near, dt, false, 1.0);
+                if (e.ok) {
+                    pset(TR + mt, vec4<f32>(e.t.x, e.t.y, 0.5 * e.t.z, 0.5 * e.t.w));
+                    mt++;
+                }
+            }
+            var nt = 0u;
+            if (mt > 0u) { nt = build_sum(TR, EP, TT, mt); }
+            // tau_mid = tau_front + half the segment's depth (in B; A itself when none).
+            var mid_off = A;
+            var nmid = na;
+            if (nt > 0u) {
+                nmid = add_sum(A, &na, TT, nt, B);
+                mid_off = B;
+                if (nmid == BAD) { dev_err = true; break; }
+            }
+            if (nmid > 0u && (has_bb || any_emit)) {
+                if (has_bb) { taken += absorbed_bb(mid_off, nmid, far, near, dt); }
+                for (var li = 0u; li < P.n_lines; li++) {
+                    let e = seg_trap(li, far, near, dt, true, 1.0);
+                    if (e.ok) { taken += absorbed_line(mid_off, nmid, e.t); }
+                }
+            }
+            // tau_front = tau_mid + the other half.
+            if (nt > 0u) {
+                na = add_sum(B, &nmid, TT, nt, A);
+                if (na == BAD) { dev_err = true; break; }
+            }
+            // The CPU's merge schedule: the k-th merge with tol 6 / (pi k)^2, then the budget.
+            if (na > merge_at) {
+                merges++;
+                let kf = f32(merges);
+                let share = 6.0 / (9.8696044 * kf * kf);
+                na = merge(A, na, P.merge_tol * share, false);
+                merge_at = max(2u * na, 64u);
+            }
+            var guard = 0u;
+            while (na > P.piece_cap && guard < 40u) {
+                budget_scale = min(budget_scale * 4.0, 1e30);
+                na = merge(A, na, P.merge_tol * budget_scale, false);
+                fell_back = true;
+                guard++;
+            }
+            max_pieces = max(max_pieces, na);
+            near = far;
+            for (var m = 0u; m < MAX_SPECIES; m++) { rho_n[m] = rho_f[m]; }
+        }
+    }
+    var flags = max_pieces * 8u;
+    if (bad) { flags += 1u; }
+    if (fell_back) { flags += 2u; }
+    if (dev_err) { flags += 4u; }
+    out_xyz[pix] = vec4<f32>(max(xyz - taken, vec3<f32>(0.0)), f32(flags));
 }
