@@ -293,10 +293,13 @@ fn absorbing_galaxy(absorption: f64) -> DopplerScene {
 }
 
 /// The piecewise-linear integrator with line absorption (front to back, tau_front as pieces
-/// on the device) against the CPU: measured worst `|gpu - cpu| / cpu` about 1e-4 on pixels
-/// above 1e-3 of the maximum (f32 positions, shifts and Planck's law as in the emission-only
-/// test, plus the f32 exponential moments); asserted within 2e-3, and every pixel within
-/// 2e-3 of the unattenuated emission (the CPU's own bound is `merge_tolerance` = 1e-4 of it).
+/// on the device) against the CPU. Measured on lavapipe: worst `|gpu - cpu| / cpu` 7.4e-4 on
+/// pixels above 1e-3 of the maximum and 3.7e-4 of `cpu + clear` (`clear`: the unattenuated
+/// image); asserted within 2e-3 (the emission-only kernel's tolerance: its own worst is 4.6e-4
+/// on the same pixel, f32 positions and shifts). The absorbed light alone (without merges)
+/// agrees within 8.7e-3 of itself (plus 1e-3 of its maximum; the worst pixel is the one where
+/// the emission-only kernel errs by 1e-3 on every H I line), asserted 2e-2; the CPU's own
+/// bound is `merge_tolerance` (1e-4) of the unattenuated emission.
 #[test]
 fn pwl_absorption_matches_the_cpu() {
     let Some(ctx) = test_context() else { return };
@@ -314,8 +317,20 @@ fn pwl_absorption_matches_the_cpu() {
         gpu.pieces.max, gpu.pieces.mean, cpu.pieces.max, cpu.pieces.mean
     );
     assert!(of_clear <= 2e-3 && of_cpu <= 2e-3);
-    // The absorbed light alone (clear - absorbing, each device against its own clear image,
-    // which cancels the f32 error of the emission shared with the emission-only kernel).
+    // The absorption acts (the test can see it) and the piece statistics are the CPU's.
+    let y = |im: &DopplerImage| im.xyz.iter().map(|p| p[1]).sum::<f64>();
+    assert!(y(&gpu) < 0.999 * y(&clear), "absorption darkens nothing");
+    assert!(gpu.pieces.max > 0 && gpu.pieces.fallback_rays == 0);
+    let pm = |im: &DopplerImage| im.pieces.max as f64;
+    assert!((pm(&gpu) - pm(&cpu)).abs() <= 0.1 * pm(&cpu) + 2.0);
+    assert!((gpu.pieces.mean - cpu.pieces.mean).abs() <= 0.1 * cpu.pieces.mean + 1.0);
+    // The absorbed light alone (clear - absorbing, each device against its own clear image),
+    // without merges (merge tolerance 0: the CPU's and the GPU's merges would differ by up to
+    // the tolerance, 1e-4 in optical depth, itself about 1 % of the absorbed light here).
+    let mut st = st.clone();
+    st.merge_tolerance = 0.0;
+    let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+    let gpu = render_doppler_gpu(ctx, &scene, &st).unwrap();
     let gpu_clear = render_doppler_gpu(ctx, &clear_scene, &st).unwrap();
     let taken = |a: &DopplerImage, b: &DopplerImage, i: usize, k: usize| b.xyz[i][k] - a.xyz[i][k];
     let max_taken = (0..cpu.xyz.len())
@@ -331,13 +346,6 @@ fn pwl_absorption_matches_the_cpu() {
     }
     eprintln!("pwl absorption 5: worst relative error of the absorbed light {worst_taken:.3e}");
     assert!(worst_taken <= 2e-2);
-    // The absorption acts (the test can see it) and the piece statistics are the CPU's.
-    let y = |im: &DopplerImage| im.xyz.iter().map(|p| p[1]).sum::<f64>();
-    assert!(y(&gpu) < 0.999 * y(&clear), "absorption darkens nothing");
-    assert!(gpu.pieces.max > 0 && gpu.pieces.fallback_rays == 0);
-    let pm = |im: &DopplerImage| im.pieces.max as f64;
-    assert!((pm(&gpu) - pm(&cpu)).abs() <= 0.1 * pm(&cpu) + 2.0);
-    assert!((gpu.pieces.mean - cpu.pieces.mean).abs() <= 0.1 * cpu.pieces.mean + 1.0);
 }
 
 /// Optically thick lines (absorption x 1e4, relativistic, invariant radiance): finite, never
