@@ -79,7 +79,10 @@
 //! `--device auto` falls back to the CPU on these. Picked spectra, traces and spectral cubes
 //! stay on the CPU.
 
-use blueshift_spectrum::{BandLayout, Cmf, RadiationConstants, Xyz};
+use blueshift_spectrum::{
+    ATOMIC_MASS_UNIT_KG, BOLTZMANN_J_PER_K, BandLayout, Catalogue, Cmf, PwlGaussian,
+    RadiationConstants, Xyz,
+};
 use blueshift_tracking::Ray;
 use blueshift_tracking::doppler::{
     BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralIntegrator,
@@ -100,6 +103,23 @@ pub const MAX_SPECIES: usize = 8;
 /// `min(piece_budget, DEVICE_PIECE_CAP)`, so with a larger `piece_budget` the budget fallback
 /// (coarser merges, counted in [`PieceStats::fallback_rays`]) starts earlier than on the CPU.
 pub const DEVICE_PIECE_CAP: usize = 1024;
+
+/// Loop iterations after which a pass of the absorbing kernel yields on a software adapter.
+const SOFTWARE_ITER_BUDGET: u32 = 40_000;
+
+/// Loop iterations a software adapter (lavapipe) runs per invocation before it stops every
+/// loop (llvmpipe's limiter is 65535); a pass that counts this many is reported as an error.
+const SOFTWARE_ITER_LIMIT: u32 = 65_000;
+
+/// `(iterations after which a pass yields, iterations that mean a cut-short pass)` of the
+/// resumable piecewise-linear kernels on `ctx`'s adapter.
+fn iteration_limits(ctx: &GpuContext) -> (u32, u32) {
+    if ctx.is_hardware() {
+        (1 << 24, u32::MAX)
+    } else {
+        (SOFTWARE_ITER_BUDGET, SOFTWARE_ITER_LIMIT)
+    }
+}
 
 /// Most bytes of per-ray piece storage one dispatch uses (the image is rendered in tiles of
 /// pixels that fit in it and in the device's storage-buffer limits).
@@ -149,6 +169,14 @@ struct Params {
     region_l: u32,
     stride: u32,
     merge_tol: f32,
+    pass_index: u32,
+    iter_budget: u32,
+    iter_limit: u32,
+    broaden: u32,
+    sigma2_user: f32,
+    off_kom: u32,
+    off_gauss: u32,
+    n_gauss: u32,
     pad2: u32,
     pad3: u32,
 }
@@ -174,9 +202,15 @@ fn tracking_err(e: blueshift_tracking::Error) -> Error {
 pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Result<()> {
     settings.validated_step(scene).map_err(tracking_err)?;
     if !settings.broadening.is_none() {
-        return Err(Error::Unsupported(
-            "line broadening (thermal / Gaussian sigma); the GPU keeps the box profile".into(),
-        ));
+        // The CPU's own checks first (its errors, not Unsupported).
+        broadening_k_over_m(scene, settings)?;
+        if absorbing(scene) {
+            return Err(Error::Unsupported(
+                "line broadening (thermal / Gaussian sigma) together with absorption; the GPU \
+                 broadens emission-only scenes"
+                    .into(),
+            ));
+        }
     }
     if scene.species().len() > MAX_SPECIES {
         return Err(Error::Unsupported(format!(
@@ -185,6 +219,70 @@ pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Resu
         )));
     }
     Ok(())
+}
+
+/// Per species `k / m` ((m/s)^2 per K; 0 without thermal broadening), with the CPU's checks
+/// of the broadening settings (blueshift-tracking's `Profiles::new`): the banded integrators
+/// refuse broadening, the user sigma must be finite and >= 0, the temperature field
+/// non-negative, thermal broadening needs a temperature field and a mass for every species.
+fn broadening_k_over_m(scene: &DopplerScene, settings: &DopplerSettings) -> Result<Vec<f64>> {
+    let b = &settings.broadening;
+    let mut out = vec![0.0; scene.species().len()];
+    if b.is_none() {
+        return Ok(out);
+    }
+    if settings.integrator != SpectralIntegrator::PiecewiseLinear {
+        return Err(Error::InvalidInput(
+            "line broadening (thermal or Gaussian) is implemented in the piecewise-linear \
+             integrator only: use the pwl integrator or drop the broadening"
+                .into(),
+        ));
+    }
+    if !(b.sigma_m_per_s.is_finite() && b.sigma_m_per_s >= 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "line sigma {} m/s must be finite and >= 0",
+            b.sigma_m_per_s
+        )));
+    }
+    if let Some((_, temp)) = scene.blackbody()
+        && let Some((lo, _)) = temp.finite_range()
+        && lo < 0.0
+    {
+        return Err(Error::InvalidInput(format!(
+            "the temperature field has negative values (min {lo} K)"
+        )));
+    }
+    if b.thermal {
+        if scene.blackbody().is_none() {
+            return Err(Error::InvalidInput(
+                "thermal broadening needs a temperature field (the scene's black-body \
+                 temperature: keep `bb` among the species; a black-body factor of 0 keeps it \
+                 dark)"
+                    .into(),
+            ));
+        }
+        for (i, sp) in scene.species().iter().enumerate() {
+            let m = match b.masses_amu.iter().find(|(n, _)| n == &sp.name) {
+                Some(&(_, m)) => m,
+                None => Catalogue::parse(&sp.name)
+                    .map(Catalogue::atomic_mass_amu)
+                    .map_err(|_| {
+                        Error::InvalidInput(format!(
+                            "species '{}' has no known atomic mass: give one",
+                            sp.name
+                        ))
+                    })?,
+            };
+            if !(m.is_finite() && m > 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "atomic mass {m} of '{}' must be finite and > 0",
+                    sp.name
+                )));
+            }
+            out[i] = BOLTZMANN_J_PER_K / (m * ATOMIC_MASS_UNIT_KG);
+        }
+    }
+    Ok(out)
 }
 
 /// blueshift-tracking's banded `deposit`: a box of `area` over `[lo, hi)` added to the bands
@@ -407,6 +505,37 @@ pub fn render_doppler_gpu(
     if let Some(l) = layout {
         tables.extend((0..n_bands).map(|i| l.band_centre_nm(i) as f32));
     }
+    // Broadening: k / m per species, then the unit Gaussian's knots (x, then g).
+    let off_kom = tables.len();
+    tables.extend(
+        broadening_k_over_m(scene, settings)?
+            .iter()
+            .map(|&v| v as f32),
+    );
+    let off_gauss = tables.len();
+    let (mut gx, mut gg) = (Vec::<f64>::new(), Vec::<f64>::new());
+    let _ = PwlGaussian::default().for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
+        if gx.is_empty() {
+            gx.push(lo);
+            gg.push(v0);
+        }
+        gx.push(hi);
+        gg.push(v1);
+        Ok::<(), ()>(())
+    });
+    // Integrals of g and z g from the first knot to each knot (exact for linear pieces).
+    let (mut c0, mut c1) = (vec![0.0f64], vec![0.0f64]);
+    for i in 0..gx.len().saturating_sub(1) {
+        let (z0, z1, g0, g1) = (gx[i], gx[i + 1], gg[i], gg[i + 1]);
+        let d = z1 - z0;
+        let sl = (g1 - g0) / d;
+        c0.push(c0[i] + d * (g0 + 0.5 * sl * d));
+        c1.push(c1[i] + z0 * g0 * d + (z0 * sl + g0) * d * d / 2.0 + sl * d * d * d / 3.0);
+    }
+    let n_gauss = gx.len();
+    for v in [&gx, &gg, &c0, &c1] {
+        tables.extend(v.iter().map(|&x| x as f32));
+    }
     let (c1l, c2) = RadiationConstants::Codata.values();
     let rays = pixel_rays(scene, settings, step);
     let params = Params {
@@ -458,6 +587,14 @@ pub fn render_doppler_gpu(
         region_l: 0,
         stride: 0,
         merge_tol: settings.merge_tolerance as f32,
+        pass_index: 0,
+        iter_budget: 0,
+        iter_limit: 0,
+        broaden: u32::from(!settings.broadening.is_none()),
+        sigma2_user: (settings.broadening.sigma_m_per_s * settings.broadening.sigma_m_per_s) as f32,
+        off_kom: to_u32("table offset", off_kom)?,
+        off_gauss: to_u32("table offset", off_gauss)?,
+        n_gauss: to_u32("Gaussian knots", n_gauss)?,
         pad2: 0,
         pad3: 0,
     };
@@ -465,6 +602,7 @@ pub fn render_doppler_gpu(
         let rays_b = ctx.storage_buffer("doppler rays", &rays)?;
         let bufs = Bufs {
             rays: &rays_b,
+            max_segments: rays.iter().map(|r| r.n_seg).max().unwrap_or(0),
             channels: &channels,
             velocity: &velocity,
             tables: &tables,
@@ -482,7 +620,9 @@ pub fn render_doppler_gpu(
     let n_pix = rays.len();
     let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 16)?;
     let pb = ctx.uniform_buffer("doppler params", &params)?;
-    let bg = if n_bands > 0 {
+    let gx = ctx.groups("doppler", settings.width, WORKGROUP_2D)?;
+    let gy = ctx.groups("doppler", settings.height, WORKGROUP_2D)?;
+    if n_bands > 0 {
         // The per-ray band values when absorbing (n_bands per pixel), else a placeholder.
         let bytes = if absorbs {
             n_pix as u64 * n_bands as u64 * 4
@@ -491,14 +631,42 @@ pub fn render_doppler_gpu(
         };
         ctx.check_storage_size("doppler band values (pixels x bands)", bytes)?;
         let sb = ctx.storage_buffer_zeroed("doppler band values", bytes)?;
-        ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?
+        let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
+        ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;
     } else {
-        ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb])?
-    };
-    let gx = ctx.groups("doppler", settings.width, WORKGROUP_2D)?;
-    let gy = ctx.groups("doppler", settings.height, WORKGROUP_2D)?;
-    ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;
+        // The piecewise-linear kernel runs in passes (see `iteration_limits`), keeping 20
+        // floats of state per pixel.
+        let bytes = n_pix as u64 * 20 * 4;
+        ctx.check_storage_size("doppler ray state (pixels x 20 floats)", bytes)?;
+        let sb = ctx.storage_buffer_zeroed("doppler ray state", bytes)?;
+        let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
+        let mut params = params;
+        (params.iter_budget, params.iter_limit) = iteration_limits(ctx);
+        let max_seg = rays.iter().map(|r| r.n_seg).max().unwrap_or(0) as usize;
+        for pass in 0.. {
+            params.pass_index = to_u32("pass", pass)?;
+            ctx.write_buffer(&pb, std::slice::from_ref(&params))?;
+            ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;
+            let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
+            if !out.iter().any(|p| p[3] < 0.0) {
+                break;
+            }
+            if pass > max_seg + 1 {
+                return Err(Error::Internal(
+                    "doppler: rays made no progress between passes".into(),
+                ));
+            }
+        }
+    }
     let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
+    if let Some(i) = out.iter().position(|p| p[3] == 2.0) {
+        return Err(Error::Internal(format!(
+            "doppler: pixel ({}, {}) passed the adapter's loop limit within one sample \
+             (software adapters: {SOFTWARE_ITER_LIMIT} loop iterations per pass)",
+            i as u32 % settings.width,
+            i as u32 / settings.width
+        )));
+    }
     if let Some(i) = out.iter().position(|p| p[3] != 0.0) {
         return Err(Error::InvalidInput(format!(
             "Doppler shift: pixel ({}, {}) meets a velocity with |v| >= c or a shift <= 0",
@@ -520,6 +688,7 @@ pub fn render_doppler_gpu(
 /// Host data of the Doppler pipeline (the rays already on the device).
 struct Bufs<'a> {
     rays: &'a wgpu::Buffer,
+    max_segments: u32,
     channels: &'a [f32],
     velocity: &'a [f32],
     tables: &'a [f32],
@@ -533,7 +702,9 @@ fn region_floats(piece_cap: usize, n_abs: usize) -> (usize, usize) {
     // Regions A and B hold tau_front (and tau_mid) with room for the segment's breakpoints
     // (at most 2 per absorption line) before the merges bring the count back under the cap.
     let l = piece_cap + 2 * m + 8;
-    (l, 4 * (2 * l + 4 * m))
+    // 8 pieces of per-ray state between passes, then A, B, the trapezoids, their end
+    // points and their sum.
+    (l, 4 * (8 + 2 * l + 4 * m))
 }
 
 /// The piece layout the GPU uses for the piecewise-linear integrator with absorption:
@@ -556,7 +727,10 @@ pub fn absorption_layout(
     let cap = settings.piece_budget.min(DEVICE_PIECE_CAP);
     let (_, floats) = region_floats(cap, n_abs);
     let per_ray = floats as u64 * 4;
-    let (mut max, mut limit) = (TILE_BYTES_CAP, "the GPU Doppler tile memory cap TILE_BYTES_CAP");
+    let (mut max, mut limit) = (
+        TILE_BYTES_CAP,
+        "the GPU Doppler tile memory cap TILE_BYTES_CAP",
+    );
     if limits.max_storage_buffer_binding_size < max {
         max = limits.max_storage_buffer_binding_size;
         limit = "max_storage_buffer_binding_size";
@@ -606,16 +780,37 @@ fn render_absorbing(
     let pb = ctx.uniform_buffer("doppler params", &params)?;
     let sb = ctx.storage_buffer_zeroed("doppler absorption pieces", tile as u64 * per_ray)?;
     let bg = ctx.bind_group(&pipeline, 0, &[b.rays, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
+    // Software adapters (lavapipe) stop all loops of an invocation after 65535 iterations in
+    // all (llvmpipe's loop limiter): the kernel counts its iterations and yields at the
+    // budget, the host dispatches passes until every ray of the tile is done. Hardware
+    // adapters have no such limit; their passes are long.
+    (params.iter_budget, params.iter_limit) = iteration_limits(ctx);
+    let max_seg = b.max_segments as usize;
     let mut start = 0usize;
+    let mut out: Vec<[f32; 4]> = Vec::new();
     while start < n_pix {
         let count = tile.min(n_pix - start);
         params.pix_offset = to_u32("pixel offset", start)?;
-        ctx.write_buffer(&pb, std::slice::from_ref(&params))?;
         let gx = ctx.groups("doppler absorption", to_u32("tile", count)?, 64)?;
-        ctx.dispatch(&pipeline, &bg, [gx, 1, 1])?;
+        let mut pass = 0usize;
+        loop {
+            params.pass_index = to_u32("pass", pass)?;
+            ctx.write_buffer(&pb, std::slice::from_ref(&params))?;
+            ctx.dispatch(&pipeline, &bg, [gx, 1, 1])?;
+            out = ctx.read_buffer(&ob, n_pix)?;
+            if !out[start..start + count].iter().any(|p| p[3] < 0.0) {
+                break;
+            }
+            pass += 1;
+            // Every pass finishes at least one segment of every unfinished ray.
+            if pass > max_seg + 1 {
+                return Err(Error::Internal(
+                    "doppler absorption: rays made no progress between passes".into(),
+                ));
+            }
+        }
         start += count;
     }
-    let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
     let (mut sum, mut max, mut fallback_rays) = (0.0f64, 0usize, 0usize);
     let mut xyz = Vec::with_capacity(n_pix);
     for (i, p) in out.iter().enumerate() {
@@ -629,7 +824,9 @@ fn render_absorbing(
         }
         if flags & 4 != 0 {
             return Err(Error::Internal(format!(
-                "doppler absorption: pixel ({}, {}) overflowed its piece region",
+                "doppler absorption: pixel ({}, {}) overflowed its piece region or one segment \
+                 passed the adapter's loop limit (software adapters: {SOFTWARE_ITER_LIMIT} \
+                 loop iterations per pass)",
                 i as u32 % settings.width,
                 i as u32 / settings.width
             )));

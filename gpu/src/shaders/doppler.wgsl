@@ -48,6 +48,14 @@ struct Params {
     region_l: u32,     // pwl with absorption: pieces of regions A and B
     stride: u32,       // pwl with absorption: floats per ray
     merge_tol: f32,    // pwl with absorption: merge tolerance
+    pass_index: u32,   // pwl with absorption: 0 starts the rays, later passes resume them
+    iter_budget: u32,  // pwl with absorption: loop iterations after which a pass yields
+    iter_limit: u32,   // pwl with absorption: the adapter's loop limit per invocation
+    broaden: u32,      // pwl without absorption: 1 when lines are broadened (thermal / sigma)
+    sigma2_user: f32,  // broadening: user velocity dispersion squared, (m/s)^2
+    off_kom: u32,      // broadening: offset of k / m per species ((m/s)^2 per K) in `tables`
+    off_gauss: u32,    // broadening: offset of the unit Gaussian's knots (x, then g) in `tables`
+    n_gauss: u32,      // broadening: knots of the unit Gaussian
     pad2: u32,
     pad3: u32,
 }
@@ -118,7 +126,7 @@ fn corners(p_in: vec3<f32>) -> Corner {
 fn sample_channel(c: Corner, ch: u32) -> f32 {
     let base = ch * P.nvox;
     var v = 0.0;
-    for (var k = 0u; k < 8u; k++) {
+    for (var k = 0u; k < 8u; k++) { iters += 1u;
         v += c.w[k] * channels[base + c.i[k]];
     }
     return v;
@@ -126,7 +134,7 @@ fn sample_channel(c: Corner, ch: u32) -> f32 {
 
 fn sample_velocity(c: Corner) -> vec3<f32> {
     var v = vec3<f32>(0.0);
-    for (var k = 0u; k < 8u; k++) {
+    for (var k = 0u; k < 8u; k++) { iters += 1u;
         let j = 3u * c.i[k];
         v += c.w[k] * vec3<f32>(velocity[j], velocity[j + 1u], velocity[j + 2u]);
     }
@@ -155,7 +163,7 @@ fn trapezoid_xyz(start: f32, end: f32, v0: f32, v1: f32) -> vec3<f32> {
     let last = P.cmf_n - 2u;
     let ia = min(u32(floor((a - lo) / P.cmf_step)), last);
     let ib = min(u32(floor((b - lo) / P.cmf_step)), last);
-    for (var k = ia; k <= ib; k++) {
+    for (var k = ia; k <= ib; k++) { iters += 1u;
         let x0 = lo + f32(k) * P.cmf_step;
         let x1 = x0 + P.cmf_step;
         var u = x0;
@@ -199,7 +207,7 @@ fn bb_xyz(rho: f32, temp: f32, s: f32) -> vec3<f32> {
     var out = vec3<f32>(0.0);
     if (rho <= 0.0 || temp <= 0.0) { return out; }
     let k = value_factor(s) * rho;
-    for (var i = 0u; i < P.bb_k; i++) {
+    for (var i = 0u; i < P.bb_k; i++) { iters += 1u;
         let l = tables[P.off_lambda + i];
         let h = vec3<f32>(tables[P.off_hat + 3u * i], tables[P.off_hat + 3u * i + 1u],
                           tables[P.off_hat + 3u * i + 2u]);
@@ -208,11 +216,183 @@ fn bb_xyz(rho: f32, temp: f32, s: f32) -> vec3<f32> {
     return out;
 }
 
+// ---- Line broadening (blueshift-tracking's profile.rs) ------------------------------------
+
+// Velocity dispersion of species m at temperature t_k, m/s.
+fn sigma_v(m: u32, t_k: f32) -> f32 {
+    return sqrt(tables[P.off_kom + m] * max(t_k, 0.0) + P.sigma2_user);
+}
+
+// `trapezoid_xyz` of the trapezoid on [c + a, c + b] with all lengths taken relative to c:
+// a Gaussian piece is sigma / 4 wide (5e-4 nm at 1 km/s), far below what absolute f32
+// wavelengths resolve (6e-5 nm at 656 nm); only the CMF nodes' offsets from c round, which
+// moves a kink of the continuous CMFs (a second-order error).
+fn trapezoid_xyz_local(c: f32, a: f32, b: f32, v0: f32, v1: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let lo_rel = P.cmf_lo - c;
+    let hi_rel = lo_rel + P.cmf_step * f32(P.cmf_n - 1u);
+    let ua = max(a, lo_rel);
+    let ub = min(b, hi_rel);
+    if (!(ub > ua)) { return out; }
+    let last = P.cmf_n - 2u;
+    let ia = min(u32(max(floor((ua - lo_rel) / P.cmf_step), 0.0)), last);
+    let ib = min(u32(max(floor((ub - lo_rel) / P.cmf_step), 0.0)), last);
+    for (var k = ia; k <= ib; k++) {
+        iters += 1u;
+        let x0 = lo_rel + f32(k) * P.cmf_step;
+        let x1 = x0 + P.cmf_step;
+        var u = x0;
+        var w = x1;
+        if (k == ia) { u = ua; }
+        if (k == ib) { w = ub; }
+        if (w <= u) { continue; }
+        let fu = lerp_at(a, b, v0, v1, u);
+        let fw = lerp_at(a, b, v0, v1, w);
+        let g0 = cmf(k);
+        let g1 = cmf(k + 1u);
+        let gu = g0 + (g1 - g0) * ((u - x0) / P.cmf_step);
+        let gw = g0 + (g1 - g0) * ((w - x0) / P.cmf_step);
+        out += (w - u) * (2.0 * fu * gu + fu * gw + fw * gu + 2.0 * fw * gw) / 6.0;
+    }
+    return out;
+}
+
+// The XYZ of one emitted trapezoid on [c + a, c + b], kept as `segment_lines` keeps it
+// (inside the range, not zero).
+fn emitted_xyz(c: f32, a: f32, b: f32, h0: f32, h1: f32) -> vec3<f32> {
+    if (c + b < P.range_lo || c + a > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) {
+        return vec3<f32>(0.0);
+    }
+    return trapezoid_xyz_local(c, a, b, h0, h1);
+}
+
+// The unit PwlGaussian's tables (host, f64): knots z_i (uniform), values g_i, and the
+// integrals of g and of z g from the first knot to z_i.
+fn gz(i: u32) -> f32 { return tables[P.off_gauss + i]; }
+fn gg(i: u32) -> f32 { return tables[P.off_gauss + P.n_gauss + i]; }
+fn gc0(i: u32) -> f32 { return tables[P.off_gauss + 2u * P.n_gauss + i]; }
+fn gc1(i: u32) -> f32 { return tables[P.off_gauss + 3u * P.n_gauss + i]; }
+
+// (integral of g, integral of z g) from the first knot to z (clamped to the support).
+fn gauss_cum(z_in: f32) -> vec2<f32> {
+    let n = P.n_gauss;
+    let z0 = gz(0u);
+    let zn = gz(n - 1u);
+    let z = clamp(z_in, z0, zn);
+    let hz = (zn - z0) / f32(n - 1u);
+    let i = min(u32(max(floor((z - z0) / hz), 0.0)), n - 2u);
+    let zi = gz(i);
+    let g0 = gg(i);
+    let sl = (gg(i + 1u) - g0) / hz;
+    let d = z - zi;
+    let m0 = d * (g0 + 0.5 * sl * d);
+    let m1 = zi * g0 * d + (zi * sl + g0) * d * d / 2.0 + sl * d * d * d / 3.0;
+    return vec2<f32>(gc0(i) + m0, gc1(i) + m1);
+}
+
+// The XYZ of the PwlGaussian of `area` and `sigma` at `pos`, as the CPU's pieces give it (the
+// pieces `segment_lines` keeps: those not wholly outside the wavelength range), in closed
+// form per CMF interval: on an interval the CMFs are linear, so the integral needs only the
+// profile's area and first moment there (no loop over the 32 pieces).
+fn gauss_xyz(pos: f32, sigma: f32, area: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let n = P.n_gauss;
+    let z0 = gz(0u);
+    let zn = gz(n - 1u);
+    let hz = (zn - z0) / f32(n - 1u);
+    // Kept pieces: end >= range_lo and start <= range_hi.
+    let zl = (P.range_lo - pos) / sigma;
+    let zh = (P.range_hi - pos) / sigma;
+    var za = z0;
+    if (zl > z0) { za = z0 + max(ceil((zl - z0) / hz) - 1.0, 0.0) * hz; }
+    var zb = zn;
+    if (zh < zn) { zb = z0 + min(floor((zh - z0) / hz) + 1.0, f32(n - 1u)) * hz; }
+    // Local wavelengths (relative to pos), clipped to the CMF table.
+    let lo_rel = P.cmf_lo - pos;
+    let hi_rel = lo_rel + P.cmf_step * f32(P.cmf_n - 1u);
+    let ua = max(za * sigma, lo_rel);
+    let ub = min(zb * sigma, hi_rel);
+    if (!(ub > ua)) { return out; }
+    let last = P.cmf_n - 2u;
+    let ia = min(u32(max(floor((ua - lo_rel) / P.cmf_step), 0.0)), last);
+    let ib = min(u32(max(floor((ub - lo_rel) / P.cmf_step), 0.0)), last);
+    for (var k = ia; k <= ib; k++) {
+        iters += 1u;
+        let x0 = lo_rel + f32(k) * P.cmf_step;
+        let u = max(ua, x0);
+        let w = min(ub, x0 + P.cmf_step);
+        if (!(w > u)) { continue; }
+        let m = gauss_cum(w / sigma) - gauss_cum(u / sigma);
+        let g0 = cmf(k);
+        let g1 = cmf(k + 1u);
+        let slope = (g1 - g0) / P.cmf_step;
+        // integral of p (c(pos) + slope (lambda - pos)), c(pos) on this interval's line.
+        let c_pos = g0 + slope * (0.0 - x0);
+        out += area * (m.x * c_pos + sigma * m.y * slope);
+    }
+    return out;
+}
+
+// `emit_line`: one line over a segment (centre seen through shifts sa, sb; areas, velocity
+// dispersions at the ends) as a trapezoid, or as up to 64 piecewise-linear Gaussians placed
+// at the area centroids of equal sub-intervals of the sweep; returns their XYZ.
+fn emit_line_xyz(centre: f32, sa: f32, sb: f32, area_a: f32, area_b: f32, sig_a: f32,
+                 sig_b: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let la = sa * centre;
+    let lb = sb * centre;
+    let sna = la * sig_a / C_M_PER_S;
+    let snb = lb * sig_b / C_M_PER_S;
+    let sigma_mean = 0.5 * (sna + snb);
+    let sweep = abs(lb - la);
+    if (sigma_mean <= 0.0 || sweep >= 16.0 * sigma_mean) {
+        var mw = P.min_width;
+        if (sigma_mean > 0.0) { mw = 0.0; }
+        let wdt = max(sweep, mw);
+        let mid = 0.5 * (la + lb);
+        if (!(wdt > 0.0)) { return out; }
+        var h0 = area_a / wdt;
+        var h1 = area_b / wdt;
+        if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+        return emitted_xyz(mid, -0.5 * wdt, 0.5 * wdt, h0, h1);
+    }
+    let mm = u32(clamp(ceil(4.0 * sweep / sigma_mean), 1.0, 64.0));
+    let inv = 1.0 / f32(mm);
+    let da = area_b - area_a;
+    for (var k = 0u; k < mm; k++) {
+        iters += 1u;
+        let u0 = f32(k) * inv;
+        let u1 = f32(k + 1u) * inv;
+        let a0 = area_a + da * u0;
+        let a1 = area_a + da * u1;
+        let area = 0.5 * (a0 + a1) * (u1 - u0);
+        if (area <= 0.0) { continue; }
+        let num = area_a * 0.5 * (u1 * u1 - u0 * u0) + da * (u1 * u1 * u1 - u0 * u0 * u0) / 3.0;
+        let uc = clamp(num / area, u0, u1);
+        let pos = la + (lb - la) * uc;
+        let sigma = sna + (snb - sna) * uc;
+        if (sigma > 0.0) {
+            out += gauss_xyz(pos, sigma, area);
+        } else {
+            let w = max(P.min_width, 1e-9);
+            out += emitted_xyz(pos, -0.5 * w, 0.5 * w, area / w, area / w);
+        }
+    }
+    return out;
+}
+
+// Resumable like `main_absorb` (lavapipe's loop limit): each pixel keeps 20 floats of state
+// in `bands_buf` between passes (xyz, flag, s_a, t_a, bb_a, temp_a, rho_a, next sample,
+// done); an unfinished pixel writes w = -1.
+const MAIN_STATE: u32 = 20u;
+
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (gid.x >= P.width || gid.y >= P.height) { return; }
     let pix = gid.y * P.width + gid.x;
     let r = rays[pix];
+    let sb = pix * MAIN_STATE;
+    iters = 0u;
     var xyz = vec3<f32>(0.0);
     var flag = 0.0;
     var rho_a: array<f32, 8>;
@@ -220,68 +400,112 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var s_a = 1.0;
     var t_a = 0.0;
     var bb_a = vec3<f32>(0.0);
+    var temp_a = 0.0;
+    var ii = 0u;
     let nsp = min(P.nsp, MAX_SPECIES);
-    if (r.n_seg > 0u) {
-        for (var ii = 0u; ii <= r.n_seg; ii++) {
-            let i = r.n_seg - ii;
-            var t = r.len;
-            if (i != r.n_seg) { t = min(f32(i) * P.step, r.len); }
-            let c = corners(r.p0 + r.dir_idx * t);
-            for (var m = 0u; m < nsp; m++) {
-                rho_b[m] = max(sample_channel(c, m), 0.0);
-            }
-            var bb_b = vec3<f32>(0.0);
-            var s_b = 1.0;
-            var v = vec3<f32>(0.0);
-            if (P.has_vel == 1u) { v = sample_velocity(c) * P.vel_factor; }
-            let v_r = dot(v, r.los);
-            if (P.model == 1u) {
-                let beta = length(v) / C_M_PER_S;
-                if (!(beta < 1.0)) { flag = 1.0; }
-                s_b = (1.0 + v_r / C_M_PER_S) / sqrt(max(1.0 - beta * beta, 1e-30));
-            } else {
-                s_b = 1.0 + v_r / C_M_PER_S;
-            }
-            if (!(s_b > 0.0)) { flag = 1.0; s_b = 1.0; }
-            if (P.has_bb == 1u) {
-                let rho = max(sample_channel(c, P.nsp), 0.0) * P.bb_factor;
-                let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
-                bb_b = bb_xyz(rho, temp, s_b);
-            }
-            if (ii > 0u) {
-                let dt = abs(t_a - t);
-                let ga = value_factor(s_a) * s_a;
-                let gb = value_factor(s_b) * s_b;
-                for (var li = 0u; li < P.n_lines; li++) {
-                    let line = lines[li];
-                    let m = u32(line.z);
-                    let ra = rho_a[m];
-                    let rb = rho_b[m];
-                    if (ra <= 0.0 && rb <= 0.0) { continue; }
-                    let base = dt * line.y;
-                    let area_a = base * ra * ga;
-                    let area_b = base * rb * gb;
-                    let la = s_a * line.x;
-                    let lb = s_b * line.x;
-                    let wdt = max(abs(lb - la), P.min_width);
-                    let mid = 0.5 * (la + lb);
-                    let lo = mid - 0.5 * wdt;
-                    let hi = mid + 0.5 * wdt;
-                    var h0 = area_a / wdt;
-                    var h1 = area_b / wdt;
-                    if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
-                    if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { continue; }
-                    xyz += trapezoid_xyz(lo, hi, h0, h1);
-                }
-                xyz += 0.5 * dt * (bb_a + bb_b);
-            }
-            for (var m = 0u; m < nsp; m++) { rho_a[m] = rho_b[m]; }
-            s_a = s_b;
-            t_a = t;
-            bb_a = bb_b;
-        }
+    if (P.pass_index > 0u) {
+        if (bands_buf[sb + 19u] != 0.0) { return; }
+        xyz = vec3<f32>(bands_buf[sb], bands_buf[sb + 1u], bands_buf[sb + 2u]);
+        flag = bands_buf[sb + 3u];
+        s_a = bands_buf[sb + 4u];
+        t_a = bands_buf[sb + 5u];
+        bb_a = vec3<f32>(bands_buf[sb + 6u], bands_buf[sb + 7u], bands_buf[sb + 8u]);
+        temp_a = bands_buf[sb + 9u];
+        for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_a[m] = bands_buf[sb + 10u + m]; }
+        ii = bitcast<u32>(bands_buf[sb + 18u]);
     }
-    out_xyz[pix] = vec4<f32>(xyz, flag);
+    if (r.n_seg == 0u) { ii = 1u; }
+    while (ii <= r.n_seg && r.n_seg > 0u && iters < P.iter_budget) {
+        iters += 1u;
+        let i = r.n_seg - ii;
+        var t = r.len;
+        if (i != r.n_seg) { t = min(f32(i) * P.step, r.len); }
+        let c = corners(r.p0 + r.dir_idx * t);
+        for (var m = 0u; m < nsp; m++) {
+            iters += 1u;
+            rho_b[m] = max(sample_channel(c, m), 0.0);
+        }
+        var bb_b = vec3<f32>(0.0);
+        var temp_b = 0.0;
+        var s_b = 1.0;
+        var v = vec3<f32>(0.0);
+        if (P.has_vel == 1u) { v = sample_velocity(c) * P.vel_factor; }
+        let v_r = dot(v, r.los);
+        if (P.model == 1u) {
+            let beta = length(v) / C_M_PER_S;
+            if (!(beta < 1.0)) { flag = 1.0; }
+            s_b = (1.0 + v_r / C_M_PER_S) / sqrt(max(1.0 - beta * beta, 1e-30));
+        } else {
+            s_b = 1.0 + v_r / C_M_PER_S;
+        }
+        if (!(s_b > 0.0)) { flag = 1.0; s_b = 1.0; }
+        if (P.has_bb == 1u) {
+            let rho = max(sample_channel(c, P.nsp), 0.0) * P.bb_factor;
+            let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
+            bb_b = bb_xyz(rho, temp, s_b);
+            temp_b = temp;
+        }
+        if (ii > 0u) {
+            let dt = abs(t_a - t);
+            let ga = value_factor(s_a) * s_a;
+            let gb = value_factor(s_b) * s_b;
+            for (var li = 0u; li < P.n_lines; li++) {
+                iters += 1u;
+                let line = lines[li];
+                let m = u32(line.z);
+                let ra = rho_a[m];
+                let rb = rho_b[m];
+                if (ra <= 0.0 && rb <= 0.0) { continue; }
+                let base = dt * line.y;
+                let area_a = base * ra * ga;
+                let area_b = base * rb * gb;
+                if (P.broaden == 1u) {
+                    xyz += emit_line_xyz(line.x, s_a, s_b, area_a, area_b,
+                                         sigma_v(m, temp_a), sigma_v(m, temp_b));
+                    continue;
+                }
+                let la = s_a * line.x;
+                let lb = s_b * line.x;
+                let wdt = max(abs(lb - la), P.min_width);
+                let mid = 0.5 * (la + lb);
+                let lo = mid - 0.5 * wdt;
+                let hi = mid + 0.5 * wdt;
+                var h0 = area_a / wdt;
+                var h1 = area_b / wdt;
+                if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+                if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { continue; }
+                xyz += trapezoid_xyz(lo, hi, h0, h1);
+            }
+            xyz += 0.5 * dt * (bb_a + bb_b);
+        }
+        for (var m = 0u; m < nsp; m++) { iters += 1u; rho_a[m] = rho_b[m]; }
+        s_a = s_b;
+        t_a = t;
+        bb_a = bb_b;
+        temp_a = temp_b;
+        ii++;
+    }
+    // One sample that alone passed the adapter's loop limit may have been cut short.
+    if (iters >= P.iter_limit) { flag = 2.0; ii = r.n_seg + 1u; }
+    let done = ii > r.n_seg;
+    bands_buf[sb] = xyz.x;
+    bands_buf[sb + 1u] = xyz.y;
+    bands_buf[sb + 2u] = xyz.z;
+    bands_buf[sb + 3u] = flag;
+    bands_buf[sb + 4u] = s_a;
+    bands_buf[sb + 5u] = t_a;
+    bands_buf[sb + 6u] = bb_a.x;
+    bands_buf[sb + 7u] = bb_a.y;
+    bands_buf[sb + 8u] = bb_a.z;
+    bands_buf[sb + 9u] = temp_a;
+    for (var m = 0u; m < MAX_SPECIES; m++) { bands_buf[sb + 10u + m] = rho_a[m]; }
+    bands_buf[sb + 18u] = bitcast<f32>(ii);
+    bands_buf[sb + 19u] = select(0.0, 1.0, done);
+    if (done) {
+        out_xyz[pix] = vec4<f32>(xyz, flag);
+    } else {
+        out_xyz[pix] = vec4<f32>(0.0, 0.0, 0.0, -1.0);
+    }
 }
 
 // ---- Banded integrator (Algorithm 1), emission only -------------------------------------
@@ -463,6 +687,9 @@ var<private> rho_f: array<f32, 8>;
 var<private> rho_n: array<f32, 8>;
 var<private> fell_back: bool;   // the piece budget (or the device cap) forced coarser merges
 var<private> budget_scale: f32;
+// Loop iterations of this invocation (lavapipe stops every loop of an invocation after 65535
+// iterations in all: the kernel counts its own and yields before, see `iter_budget`).
+var<private> iters: u32;
 
 struct Samp {
     t: f32,
@@ -498,7 +725,7 @@ fn sample_at(r: PixelRay, t: f32, far: bool) -> Samp {
     o.bad = false;
     let c = corners(r.p0 + r.dir_idx * t);
     let nsp = min(P.nsp, MAX_SPECIES);
-    for (var m = 0u; m < nsp; m++) {
+    for (var m = 0u; m < nsp; m++) { iters += 1u;
         let v = max(sample_channel(c, m), 0.0);
         if (far) { rho_f[m] = v; } else { rho_n[m] = v; }
     }
@@ -576,9 +803,9 @@ fn seg_trap(li: u32, far: Samp, near: Samp, dt: f32, emission: bool, scale: f32)
 // Inserts x into the sorted, duplicate-free floats [e0, e0 + n); returns the new count.
 fn insert_sorted(e0: u32, n: u32, x: f32) -> u32 {
     var i = 0u;
-    while (i < n && fget(e0 + i) < x) { i++; }
+    while (i < n && fget(e0 + i) < x) { iters += 1u; i++; }
     if (i < n && fget(e0 + i) == x) { return n; }
-    for (var j = n; j > i; j--) { fset(e0 + j, fget(e0 + j - 1u)); }
+    for (var j = n; j > i; j--) { iters += 1u; fset(e0 + j, fget(e0 + j - 1u)); }
     fset(e0 + i, x);
     return n + 1u;
 }
@@ -588,19 +815,19 @@ fn insert_sorted(e0: u32, n: u32, x: f32) -> u32 {
 fn build_sum(tr: u32, ep: u32, tt: u32, mt: u32) -> u32 {
     let e0 = 4u * ep;
     var ne = 0u;
-    for (var i = 0u; i < mt; i++) {
+    for (var i = 0u; i < mt; i++) { iters += 1u;
         let q = pget(tr + i);
         ne = insert_sorted(e0, ne, q.x);
         ne = insert_sorted(e0, ne, q.y);
     }
     var nt = 0u;
-    for (var k = 0u; k + 1u < ne; k++) {
+    for (var k = 0u; k + 1u < ne; k++) { iters += 1u;
         let x0 = fget(e0 + k);
         let x1 = fget(e0 + k + 1u);
         var v0 = 0.0;
         var v1 = 0.0;
         var covered = false;
-        for (var i = 0u; i < mt; i++) {
+        for (var i = 0u; i < mt; i++) { iters += 1u;
             let q = pget(tr + i);
             if (q.x <= x0 && x1 <= q.y) {
                 covered = true;
@@ -624,7 +851,7 @@ fn sum_into(src: u32, na: u32, tt: u32, nt: u32, dst: u32, cap: u32) -> u32 {
     var j = 0u;
     var n = 0u;
     var x = -BIG;
-    loop {
+    loop { iters += 1u;
         let has_p = i < na;
         let has_q = j < nt;
         if (!has_p && !has_q) { break; }
@@ -665,7 +892,7 @@ fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
     var ye = 0.0;
     var lo = -BIG;
     var hi = BIG;
-    for (var k = 0u; k < n; k++) {
+    for (var k = 0u; k < n; k++) { iters += 1u;
         let p = pget(off + k);
         if (p.z == 0.0 && p.w == 0.0) {
             if (have) {
@@ -721,7 +948,7 @@ fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
 
 fn max_value(off: u32, n: u32) -> f32 {
     var m = 0.0;
-    for (var k = 0u; k < n; k++) {
+    for (var k = 0u; k < n; k++) { iters += 1u;
         let p = pget(off + k);
         m = max(m, max(p.z, p.w));
     }
@@ -734,7 +961,7 @@ fn add_sum(src: u32, n_src: ptr<function, u32>, tt: u32, nt: u32, dst: u32) -> u
     var n = sum_into(src, *n_src, tt, nt, dst, P.region_l);
     var tol = max(P.merge_tol * budget_scale, 1e-6 * max_value(src, *n_src));
     var guard = 0u;
-    while (n == BAD && guard < 64u) {
+    while (n == BAD && guard < 64u) { iters += 1u;
         fell_back = true;
         tol = min(tol * 4.0, 1e30);
         *n_src = merge(src, *n_src, tol, true);
@@ -751,7 +978,7 @@ fn exp_moments(s: f32, h: f32) -> vec3<f32> {
     if (z < 1.0) {
         var m = vec3<f32>(0.0);
         var term = 1.0;
-        for (var k = 0u; k < 12u; k++) {
+        for (var k = 0u; k < 12u; k++) { iters += 1u;
             let kf = f32(k);
             m += term * vec3<f32>(1.0 / (kf + 1.0), 1.0 / (kf + 2.0), 1.0 / (kf + 3.0));
             term *= -z / (kf + 1.0);
@@ -825,7 +1052,7 @@ fn absorbed_bb(off: u32, n: u32, far: Samp, near: Samp, dt: f32) -> vec3<f32> {
     var cached = BAD;
     var r0 = 0.0;
     var r1 = 0.0;
-    for (var k = 0u; k < n; k++) {
+    for (var k = 0u; k < n; k++) { iters += 1u;
         let p = pget(off + k);
         if (p.z <= 0.0 && p.w <= 0.0) { continue; }
         let lo = max(p.x, max(P.cmf_lo, g0));
@@ -834,7 +1061,7 @@ fn absorbed_bb(off: u32, n: u32, far: Samp, near: Samp, dt: f32) -> vec3<f32> {
         let slope = (p.w - p.z) / (p.y - p.x);
         var u = lo;
         var guard = 0u;
-        while (u < hi && guard < 100000u) {
+        while (u < hi && guard < 100000u) { iters += 1u;
             guard++;
             let w = min(hi, min(next_node(u, P.cmf_lo, P.cmf_step), next_node(u, g0, gstep)));
             let mid = 0.5 * (u + w);
@@ -867,11 +1094,11 @@ fn absorbed_line(off: u32, n: u32, tr: vec4<f32>) -> vec3<f32> {
     // First piece ending after a.
     var lo_i = 0u;
     var hi_i = n;
-    while (lo_i < hi_i) {
+    while (lo_i < hi_i) { iters += 1u;
         let mid = (lo_i + hi_i) / 2u;
         if (pget(off + mid).y <= a) { lo_i = mid + 1u; } else { hi_i = mid; }
     }
-    for (var k = lo_i; k < n; k++) {
+    for (var k = lo_i; k < n; k++) { iters += 1u;
         let p = pget(off + k);
         if (p.x >= b) { break; }
         if (p.z <= 0.0 && p.w <= 0.0) { continue; }
@@ -879,7 +1106,7 @@ fn absorbed_line(off: u32, n: u32, tr: vec4<f32>) -> vec3<f32> {
         var u = max(a, p.x);
         let end = min(b, p.y);
         var guard = 0u;
-        while (u < end && guard < 100000u) {
+        while (u < end && guard < 100000u) { iters += 1u;
             guard++;
             let w = min(end, next_node(u, P.cmf_lo, P.cmf_step));
             let mid = 0.5 * (u + w);
@@ -895,101 +1122,161 @@ fn absorbed_line(off: u32, n: u32, tr: vec4<f32>) -> vec3<f32> {
     return out;
 }
 
+// Per-ray state between passes (floats at the start of the ray's region, 8 pieces): the
+// kernel yields after `iter_budget` loop iterations and the host dispatches it again.
+const ST_PIECES: u32 = 8u;
+
+fn save_state(xyz: vec3<f32>, taken: vec3<f32>, na: u32, merges: u32, merge_at: u32,
+              max_pieces: u32, flags: u32, seg: u32, near: Samp) {
+    fset(0u, xyz.x); fset(1u, xyz.y); fset(2u, xyz.z);
+    fset(3u, taken.x); fset(4u, taken.y); fset(5u, taken.z);
+    fset(6u, bitcast<f32>(na));
+    fset(7u, bitcast<f32>(merges));
+    fset(8u, bitcast<f32>(merge_at));
+    fset(9u, bitcast<f32>(max_pieces));
+    fset(10u, budget_scale);
+    fset(11u, bitcast<f32>(flags));
+    fset(12u, bitcast<f32>(seg));
+    fset(13u, near.t); fset(14u, near.s); fset(15u, near.bbr); fset(16u, near.temp);
+    fset(17u, near.bbx.x); fset(18u, near.bbx.y); fset(19u, near.bbx.z);
+    for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; fset(20u + m, rho_n[m]); }
+}
+
+// The front-to-back pass of one ray (see the section comment), resumable: pass 0 starts the
+// ray, later passes continue from the saved state; a finished ray writes its pixel (w: the
+// flags, max pieces x 8 + 4 device error + 2 fallback + 1 invalid shift), an unfinished one
+// writes w = -1.
 @compute @workgroup_size(64, 1, 1)
 fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
     let pix = P.pix_offset + gid.x;
     if (pix >= P.n_pix) { return; }
     let r = rays[pix];
     rbase = gid.x * P.stride;
-    fell_back = false;
-    budget_scale = 1.0;
+    iters = 0u;
     let L = P.region_l;
     let M = max(P.n_abs, 1u);
-    let A = 0u;
-    let B = L;
-    let TR = 2u * L;
-    let EP = 2u * L + M;
-    let TT = 2u * L + 2u * M;
+    let A = ST_PIECES;
+    let B = ST_PIECES + L;
+    let TR = ST_PIECES + 2u * L;
+    let EP = ST_PIECES + 2u * L + M;
+    let TT = ST_PIECES + 2u * L + 2u * M;
     var xyz = vec3<f32>(0.0);
     var taken = vec3<f32>(0.0);
-    var bad = false;
-    var dev_err = false;
     var na = 0u;
     var merges = 0u;
     var merge_at = 64u;
     var max_pieces = 0u;
-    if (r.n_seg > 0u) {
-        var near = sample_at(r, path_t(r, 0u), false);
-        bad = bad || near.bad;
-        for (var seg = 0u; seg < r.n_seg; seg++) {
-            let far = sample_at(r, path_t(r, seg + 1u), true);
-            bad = bad || far.bad;
-            let dt = abs(far.t - near.t);
-            // Emission: closed-form XYZ of the lines and of the black body.
-            var any_emit = false;
-            for (var li = 0u; li < P.n_lines; li++) {
-                let e = seg_trap(li, far, near, dt, true, 1.0);
-                if (e.ok) {
-                    any_emit = true;
-                    xyz += trapezoid_xyz(e.t.x, e.t.y, e.t.z, e.t.w);
-                }
-            }
-            let has_bb = has_bb_row(far) || has_bb_row(near);
-            if (has_bb) { xyz += 0.5 * dt * (far.bbx + near.bbx); }
-            // The segment's absorption trapezoids at half height, and their sum.
-            var mt = 0u;
-            for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
-                let e = seg_trap(li, far, near, dt, false, 1.0);
-                if (e.ok) {
-                    pset(TR + mt, vec4<f32>(e.t.x, e.t.y, 0.5 * e.t.z, 0.5 * e.t.w));
-                    mt++;
-                }
-            }
-            var nt = 0u;
-            if (mt > 0u) { nt = build_sum(TR, EP, TT, mt); }
-            // tau_mid = tau_front + half the segment's depth (in B; A itself when none).
-            var mid_off = A;
-            var nmid = na;
-            if (nt > 0u) {
-                nmid = add_sum(A, &na, TT, nt, B);
-                mid_off = B;
-                if (nmid == BAD) { dev_err = true; break; }
-            }
-            if (nmid > 0u && (has_bb || any_emit)) {
-                if (has_bb) { taken += absorbed_bb(mid_off, nmid, far, near, dt); }
-                for (var li = 0u; li < P.n_lines; li++) {
-                    let e = seg_trap(li, far, near, dt, true, 1.0);
-                    if (e.ok) { taken += absorbed_line(mid_off, nmid, e.t); }
-                }
-            }
-            // tau_front = tau_mid + the other half.
-            if (nt > 0u) {
-                na = add_sum(B, &nmid, TT, nt, A);
-                if (na == BAD) { dev_err = true; break; }
-            }
-            // The CPU's merge schedule: the k-th merge with tol 6 / (pi k)^2, then the budget.
-            if (na > merge_at) {
-                merges++;
-                let kf = f32(merges);
-                let share = 6.0 / (9.8696044 * kf * kf);
-                na = merge(A, na, P.merge_tol * share, false);
-                merge_at = max(2u * na, 64u);
-            }
-            var guard = 0u;
-            while (na > P.piece_cap && guard < 40u) {
-                budget_scale = min(budget_scale * 4.0, 1e30);
-                na = merge(A, na, P.merge_tol * budget_scale, false);
-                fell_back = true;
-                guard++;
-            }
-            max_pieces = max(max_pieces, na);
-            near = far;
-            for (var m = 0u; m < MAX_SPECIES; m++) { rho_n[m] = rho_f[m]; }
+    var flags = 0u;
+    var seg = 0u;
+    var near: Samp;
+    if (P.pass_index == 0u) {
+        fell_back = false;
+        budget_scale = 1.0;
+        if (r.n_seg > 0u) {
+            near = sample_at(r, path_t(r, 0u), false);
+            if (near.bad) { flags |= 1u; }
         }
+    } else {
+        flags = bitcast<u32>(fget(11u));
+        seg = bitcast<u32>(fget(12u));
+        if ((flags & 16u) != 0u) { return; }
+        xyz = vec3<f32>(fget(0u), fget(1u), fget(2u));
+        taken = vec3<f32>(fget(3u), fget(4u), fget(5u));
+        na = bitcast<u32>(fget(6u));
+        merges = bitcast<u32>(fget(7u));
+        merge_at = bitcast<u32>(fget(8u));
+        max_pieces = bitcast<u32>(fget(9u));
+        budget_scale = fget(10u);
+        fell_back = (flags & 2u) != 0u;
+        near.t = fget(13u);
+        near.s = fget(14u);
+        near.bbr = fget(15u);
+        near.temp = fget(16u);
+        near.bbx = vec3<f32>(fget(17u), fget(18u), fget(19u));
+        near.bad = false;
+        for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_n[m] = fget(20u + m); }
     }
-    var flags = max_pieces * 8u;
-    if (bad) { flags += 1u; }
-    if (fell_back) { flags += 2u; }
-    if (dev_err) { flags += 4u; }
-    out_xyz[pix] = vec4<f32>(max(xyz - taken, vec3<f32>(0.0)), f32(flags));
+    while (seg < r.n_seg && iters < P.iter_budget) {
+        iters += 1u;
+        let far = sample_at(r, path_t(r, seg + 1u), true);
+        if (far.bad) { flags |= 1u; }
+        let dt = abs(far.t - near.t);
+        // Emission: closed-form XYZ of the lines and of the black body.
+        var any_emit = false;
+        for (var li = 0u; li < P.n_lines; li++) {
+            iters += 1u;
+            let e = seg_trap(li, far, near, dt, true, 1.0);
+            if (e.ok) {
+                any_emit = true;
+                xyz += trapezoid_xyz(e.t.x, e.t.y, e.t.z, e.t.w);
+            }
+        }
+        let has_bb = has_bb_row(far) || has_bb_row(near);
+        if (has_bb) { xyz += 0.5 * dt * (far.bbx + near.bbx); }
+        // The segment's absorption trapezoids at half height, and their sum.
+        var mt = 0u;
+        for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+            iters += 1u;
+            let e = seg_trap(li, far, near, dt, false, 1.0);
+            if (e.ok) {
+                pset(TR + mt, vec4<f32>(e.t.x, e.t.y, 0.5 * e.t.z, 0.5 * e.t.w));
+                mt++;
+            }
+        }
+        var nt = 0u;
+        if (mt > 0u) { nt = build_sum(TR, EP, TT, mt); }
+        // tau_mid = tau_front + half the segment's depth (in B; A itself when none).
+        var mid_off = A;
+        var nmid = na;
+        if (nt > 0u) {
+            nmid = add_sum(A, &na, TT, nt, B);
+            mid_off = B;
+            if (nmid == BAD) { flags |= 4u; break; }
+        }
+        if (nmid > 0u && (has_bb || any_emit)) {
+            if (has_bb) { taken += absorbed_bb(mid_off, nmid, far, near, dt); }
+            for (var li = 0u; li < P.n_lines; li++) {
+                iters += 1u;
+                let e = seg_trap(li, far, near, dt, true, 1.0);
+                if (e.ok) { taken += absorbed_line(mid_off, nmid, e.t); }
+            }
+        }
+        // tau_front = tau_mid + the other half.
+        if (nt > 0u) {
+            na = add_sum(B, &nmid, TT, nt, A);
+            if (na == BAD) { flags |= 4u; break; }
+        }
+        // The CPU's merge schedule: the k-th merge with tol 6 / (pi k)^2, then the budget.
+        if (na > merge_at) {
+            merges++;
+            let kf = f32(merges);
+            let share = 6.0 / (9.8696044 * kf * kf);
+            na = merge(A, na, P.merge_tol * share, false);
+            merge_at = max(2u * na, 64u);
+        }
+        var guard = 0u;
+        while (na > P.piece_cap && guard < 40u) {
+            iters += 1u;
+            budget_scale = min(budget_scale * 4.0, 1e30);
+            na = merge(A, na, P.merge_tol * budget_scale, false);
+            fell_back = true;
+            guard++;
+        }
+        max_pieces = max(max_pieces, na);
+        near = far;
+        for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_n[m] = rho_f[m]; }
+        seg++;
+    }
+    if (fell_back) { flags |= 2u; }
+    // A segment that alone passed the adapter's loop limit may have been cut short.
+    if (iters >= P.iter_limit) { flags |= 4u; }
+    let done = seg >= r.n_seg || (flags & 4u) != 0u;
+    if (done) { flags |= 16u; }
+    save_state(xyz, taken, na, merges, merge_at, max_pieces, flags, seg, near);
+    if (done) {
+        let f = (flags & 7u) + 8u * max_pieces;
+        out_xyz[pix] = vec4<f32>(max(xyz - taken, vec3<f32>(0.0)), f32(f));
+    } else {
+        out_xyz[pix] = vec4<f32>(0.0, 0.0, 0.0, -1.0);
+    }
 }
