@@ -632,6 +632,9 @@ pub fn render_doppler_gpu(
         ctx.check_storage_size("doppler band values (pixels x bands)", bytes)?;
         let sb = ctx.storage_buffer_zeroed("doppler band values", bytes)?;
         let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
+        let mut params = params;
+        (_, params.iter_limit) = iteration_limits(ctx);
+        ctx.write_buffer(&pb, std::slice::from_ref(&params))?;
         ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;
     } else {
         // The piecewise-linear kernel runs in passes (see `iteration_limits`), keeping 20
@@ -661,8 +664,10 @@ pub fn render_doppler_gpu(
     let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
     if let Some(i) = out.iter().position(|p| p[3] == 2.0) {
         return Err(Error::Internal(format!(
-            "doppler: pixel ({}, {}) passed the adapter's loop limit within one sample \
-             (software adapters: {SOFTWARE_ITER_LIMIT} loop iterations per pass)",
+            "doppler: pixel ({}, {}) passed the adapter's loop limit (software adapters such \
+             as lavapipe stop after 65535 loop iterations per invocation; the banded kernels \
+             run in one pass, the piecewise-linear ones per sample): use fewer bands or \
+             samples, a hardware GPU, or the CPU",
             i as u32 % settings.width,
             i as u32 / settings.width
         )));

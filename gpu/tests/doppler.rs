@@ -502,3 +502,53 @@ fn broadened_lines_match_the_cpu() {
         }
     }
 }
+
+/// Long rays (32^3 galaxy: 64 segments, about 500 pieces of tau_front) need several passes of
+/// the resumable kernels on lavapipe, whose loop limiter stops every loop of an invocation
+/// after 65535 iterations: with and without absorption the image still matches the CPU.
+#[test]
+fn long_rays_resume_across_passes_and_match_the_cpu() {
+    let Some(ctx) = test_context() else { return };
+    let v = synth::galaxy(32, 5).unwrap();
+    let mut clear = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
+    clear.factors.velocity = 30.0;
+    clear.factors.blackbody = 0.1;
+    let mut absorbing = clear.clone();
+    absorbing.factors.absorption = 5.0;
+    let st = DopplerSettings::default_for(&clear, 6, 6);
+    for (name, sc) in [("long clear", &clear), ("long absorbing", &absorbing)] {
+        let cpu = render_doppler(sc, &st, &|| {}).unwrap();
+        let gpu = render_doppler_gpu(ctx, sc, &st).unwrap();
+        compare(name, &cpu, &gpu);
+        let (g, c) = (gpu.pieces.max as f64, cpu.pieces.max as f64);
+        eprintln!("{name}: max pieces gpu {g} cpu {c}");
+        assert!(
+            (g - c).abs() <= 0.1 * c + 2.0,
+            "{name}: max pieces gpu {g} cpu {c}"
+        );
+    }
+}
+
+/// A banded render whose one invocation needs more loop iterations than a software adapter
+/// runs (lavapipe stops every loop after 65535 iterations in all) is an error naming the loop
+/// limit there, never a silently darker image; a hardware GPU renders it as the CPU does.
+#[test]
+fn banded_work_beyond_the_software_loop_limit_is_an_error_not_a_wrong_image() {
+    let Some(ctx) = test_context() else { return };
+    let scene = galaxy();
+    let mut st = DopplerSettings::default_for(&scene, 2, 2);
+    st.integrator = SpectralIntegrator::Banded {
+        bands: 100_000,
+        shift: BandShift::EnergyConserving,
+    };
+    match render_doppler_gpu(ctx, &scene, &st) {
+        Err(Error::Internal(m)) if !ctx.is_hardware() => {
+            assert!(m.contains("loop limit"), "{m}");
+        }
+        Ok(gpu) if ctx.is_hardware() => {
+            let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+            compare("banded 100000", &cpu, &gpu);
+        }
+        other => panic!("hardware {}: {other:?}", ctx.is_hardware()),
+    }
+}

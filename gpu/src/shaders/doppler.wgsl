@@ -540,7 +540,7 @@ fn deposit_add(lo: f32, hi: f32, area: f32) {
     if (h <= l || hi <= lo) { return; }
     let height = area / (hi - lo);
     let first = min(u32(floor((l - P.range_lo) / P.band_w)), P.n_bands - 1u);
-    for (var i = first; i < P.n_bands; i++) {
+    for (var i = first; i < P.n_bands; i++) { iters += 1u;
         let s = P.range_lo + f32(i) * P.band_w;
         if (s >= h) { break; }
         let ov = min(h, s + P.band_w) - max(l, s);
@@ -555,7 +555,7 @@ fn deposit_absorb(lo: f32, hi: f32, area: f32, len_rho: f32) {
     if (h <= l || hi <= lo) { return; }
     let height = area / (hi - lo);
     let first = min(u32(floor((l - P.range_lo) / P.band_w)), P.n_bands - 1u);
-    for (var i = first; i < P.n_bands; i++) {
+    for (var i = first; i < P.n_bands; i++) { iters += 1u;
         let s = P.range_lo + f32(i) * P.band_w;
         if (s >= h) { break; }
         let ov = min(h, s + P.band_w) - max(l, s);
@@ -567,7 +567,7 @@ fn deposit_absorb(lo: f32, hi: f32, area: f32, len_rho: f32) {
 
 // blueshift-tracking's `absorb_half`: the sample's optical depth over path length `len`.
 fn absorb(rho: ptr<function, array<f32, 8>>, sh: f32, len: f32) {
-    for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+    for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) { iters += 1u;
         let line = lines[li];
         let m = u32(line.z);
         let rm = (*rho)[m];
@@ -596,14 +596,15 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = rays[pix];
     acc_xyz = vec3<f32>(0.0);
     band_base = pix * P.n_bands;
+    iters = 0u;
     var flag = 0.0;
     var rho: array<f32, 8>;
     let nsp = min(P.nsp, MAX_SPECIES);
     if (P.absorbing == 1u) {
-        for (var b = 0u; b < P.n_bands; b++) { bands_buf[band_base + b] = 0.0; }
+        for (var b = 0u; b < P.n_bands; b++) { iters += 1u; bands_buf[band_base + b] = 0.0; }
     }
     if (r.n_seg > 0u) {
-        for (var ii = 0u; ii <= r.n_seg; ii++) {
+        for (var ii = 0u; ii <= r.n_seg; ii++) { iters += 1u;
             let i = r.n_seg - ii;
             let t = path_t(r, i);
             var wt = 0.0;
@@ -611,7 +612,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
             if (i > 0u) { wt += abs(t - path_t(r, i - 1u)); }
             wt *= 0.5;
             let c = corners(r.p0 + r.dir_idx * t);
-            for (var m = 0u; m < nsp; m++) {
+            for (var m = 0u; m < nsp; m++) { iters += 1u;
                 rho[m] = max(sample_channel(c, m), 0.0);
             }
             var v = vec3<f32>(0.0);
@@ -628,7 +629,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
             if (!(sh > 0.0)) { flag = 1.0; sh = 1.0; }
             let g = value_factor(sh) * sh;
             if (P.absorbing == 1u) { absorb(&rho, sh, 0.5 * wt); }
-            for (var li = 0u; li < P.n_lines; li++) {
+            for (var li = 0u; li < P.n_lines; li++) { iters += 1u;
                 let line = lines[li];
                 let m = u32(line.z);
                 let rm = rho[m];
@@ -647,7 +648,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
                 if (brho > 0.0 && temp > 0.0) {
                     let k = wt * brho * value_factor(sh);
-                    for (var b = 0u; b < P.n_bands; b++) {
+                    for (var b = 0u; b < P.n_bands; b++) { iters += 1u;
                         let cb = tables[P.off_band_c + b];
                         add_band(b, k * planck(cb / sh, temp));
                     }
@@ -657,10 +658,13 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     if (P.absorbing == 1u) {
-        for (var b = 0u; b < P.n_bands; b++) {
+        for (var b = 0u; b < P.n_bands; b++) { iters += 1u;
             acc_xyz += band_weight(b) * bands_buf[band_base + b];
         }
     }
+    // lavapipe stops every loop of an invocation after 65535 iterations: report, not a
+    // silently short ray.
+    if (iters >= P.iter_limit) { flag = 2.0; }
     out_xyz[pix] = vec4<f32>(acc_xyz, flag);
 }
 
