@@ -1,7 +1,7 @@
 //! `blueshift doppler --device`: the GPU renders the CPU's XYZ image through the CLI (per
-//! pixel within the f32 tolerance of `gpu/tests/doppler.rs`, absorption included), settings
-//! the GPU lacks (line broadening) are refused on `gpu` with one line and no output, and
-//! `auto` falls back to the CPU.
+//! pixel within the f32 tolerance of `gpu/tests/doppler.rs`, absorption and line broadening
+//! included), settings the GPU lacks (broadening with absorption) are refused on `gpu` with
+//! one line and no output, and `auto` falls back to the CPU.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -70,28 +70,33 @@ fn gpu_image_matches_the_cpu_image() {
 #[test]
 fn unsupported_settings_are_refused_on_gpu_and_fall_back_on_auto() {
     let dir = tempfile::tempdir().unwrap();
-    for (extra, word) in [(&["--line-sigma", "50"][..], "broadening")] {
-        let o = run(dir.path(), extra, "refused.exr", "gpu");
-        assert!(!o.status.success());
-        let err = String::from_utf8_lossy(&o.stderr);
-        if err.contains("no wgpu adapter") && !require() {
-            eprintln!("SKIP: no wgpu adapter: {err}");
-        } else {
-            assert!(err.contains("--device gpu") && err.contains(word), "{err}");
-            assert_eq!(err.trim().lines().count(), 1, "{err}");
-        }
-        assert!(!dir.path().join("refused.exr").exists());
-        assert!(!dir.path().join("refused.png").exists());
-        // auto renders them (on the CPU when the GPU lacks them, or without a hardware GPU).
-        let o = run(dir.path(), extra, "auto.exr", "auto");
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        assert!(String::from_utf8_lossy(&o.stdout).contains("on the cpu"));
-        assert!(dir.path().join("auto.exr").exists());
+    // Line broadening together with absorption stays on the CPU.
+    let extra = ["--line-sigma", "50", "--absorption-factor", "2"];
+    let o = run(dir.path(), &extra, "refused.exr", "gpu");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    if err.contains("no wgpu adapter") && !require() {
+        eprintln!("SKIP: no wgpu adapter: {err}");
+    } else {
+        assert!(
+            err.contains("--device gpu") && err.contains("broadening"),
+            "{err}"
+        );
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
     }
-    // Absorption is on the GPU too (banded and piecewise linear), and agrees with the CPU.
+    assert!(!dir.path().join("refused.exr").exists());
+    assert!(!dir.path().join("refused.png").exists());
+    // auto renders it (on the CPU when the GPU lacks it, or without a hardware GPU).
+    let o = run(dir.path(), &extra, "auto.exr", "auto");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("on the cpu"));
+    assert!(dir.path().join("auto.exr").exists());
+    // Absorption (banded and piecewise linear) and line broadening (without absorption) are
+    // on the GPU too, and agree with the CPU.
     for (i, absorbing) in [
         &["--integrator", "banded-ec:100", "--absorption-factor", "50"][..],
         &["--absorption-factor", "2"][..],
+        &["--line-sigma", "50"][..],
     ]
     .into_iter()
     .enumerate()
