@@ -90,7 +90,7 @@
 //! lavapipe (llvmpipe) stops every loop of a shader invocation once the invocation has run
 //! 65535 loop iterations in all (its loop limiter), silently: a long ray would come out
 //! short. So the piecewise-linear kernels count their loop iterations and yield after a
-//! budget (40,000 on software adapters, 2^24 on hardware ones), saving the ray's state (the
+//! budget (30,000 on software adapters, 2^24 on hardware ones), saving the ray's state (the
 //! emission-only kernel 20 floats per pixel, the absorbing one 8 pieces at the start of its
 //! region); the host dispatches passes until every ray is done. A single sample or segment
 //! that alone needs more than the limit is reported as [`Error::Internal`] naming the loop
@@ -131,7 +131,7 @@ pub const MAX_SPECIES: usize = 8;
 pub const DEVICE_PIECE_CAP: usize = 1024;
 
 /// Loop iterations after which a pass of the absorbing kernel yields on a software adapter.
-const SOFTWARE_ITER_BUDGET: u32 = 40_000;
+const SOFTWARE_ITER_BUDGET: u32 = 30_000;
 
 /// Loop iterations a software adapter (lavapipe) runs per invocation before it stops every
 /// loop (llvmpipe's limiter is 65535); a pass that counts this many is reported as an error.
