@@ -147,6 +147,61 @@ fn iteration_limits(ctx: &GpuContext) -> (u32, u32) {
     }
 }
 
+/// Smallest pass budget (loop iterations per lane) tried on a software adapter.
+const SOFTWARE_MIN_BUDGET: u32 = 200;
+
+/// A resumable piecewise-linear kernel, dispatched in passes.
+struct Passes<'a> {
+    pipeline: &'a wgpu::ComputePipeline,
+    bind_group: &'a wgpu::BindGroup,
+    params: &'a wgpu::Buffer,
+    out: &'a wgpu::Buffer,
+    groups: [u32; 3],
+    n_pix: usize,
+    max_seg: usize,
+}
+
+impl Passes<'_> {
+    /// Dispatches passes until no pixel of `range` is unfinished (w < 0) and returns the
+    /// output. On a software adapter a pixel for which `limited` says the loop limiter ran out
+    /// (a batch of lanes ran more iterations than the driver allows) restarts the whole range
+    /// from pass 0 with a budget 4 times smaller, down to [`SOFTWARE_MIN_BUDGET`].
+    fn run(
+        &self,
+        ctx: &GpuContext,
+        params: &mut Params,
+        range: std::ops::Range<usize>,
+        limited: impl Fn(&[f32; 4]) -> bool,
+    ) -> Result<Vec<[f32; 4]>> {
+        let (mut budget, _) = iteration_limits(ctx);
+        loop {
+            params.iter_budget = budget;
+            let mut out: Vec<[f32; 4]> = Vec::new();
+            for pass in 0.. {
+                params.pass_index = to_u32("pass", pass)?;
+                ctx.write_buffer(self.params, std::slice::from_ref(params))?;
+                ctx.dispatch(self.pipeline, self.bind_group, self.groups)?;
+                out = ctx.read_buffer(self.out, self.n_pix)?;
+                if !out[range.clone()].iter().any(|p| p[3] < 0.0) {
+                    break;
+                }
+                // Every pass finishes at least one sample of every unfinished ray.
+                if pass > self.max_seg + 2 {
+                    return Err(Error::Internal(
+                        "doppler: rays made no progress between passes".into(),
+                    ));
+                }
+            }
+            let cut = out[range.clone()].iter().any(&limited);
+            if cut && !ctx.is_hardware() && budget > SOFTWARE_MIN_BUDGET {
+                budget = (budget / 4).max(SOFTWARE_MIN_BUDGET);
+                continue;
+            }
+            return Ok(out);
+        }
+    }
+}
+
 /// Most bytes of per-ray piece storage one dispatch uses (the image is rendered in tiles of
 /// pixels that fit in it and in the device's storage-buffer limits).
 pub const TILE_BYTES_CAP: u64 = 256 << 20;
@@ -203,7 +258,7 @@ struct Params {
     off_kom: u32,
     off_gauss: u32,
     n_gauss: u32,
-    pad2: u32,
+    probe_n: u32,
     pad3: u32,
 }
 
@@ -230,13 +285,6 @@ pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Resu
     if !settings.broadening.is_none() {
         // The CPU's own checks first (its errors, not Unsupported).
         broadening_k_over_m(scene, settings)?;
-        if absorbing(scene) {
-            return Err(Error::Unsupported(
-                "line broadening (thermal / Gaussian sigma) together with absorption; the GPU \
-                 broadens emission-only scenes"
-                    .into(),
-            ));
-        }
     }
     if scene.species().len() > MAX_SPECIES {
         return Err(Error::Unsupported(format!(
@@ -622,7 +670,7 @@ pub fn render_doppler_gpu(
         off_kom: to_u32("table offset", off_kom)?,
         off_gauss: to_u32("table offset", off_gauss)?,
         n_gauss: to_u32("Gaussian knots", n_gauss)?,
-        pad2: 0,
+        probe_n: 2,
         pad3: 0,
     };
     if pwl_absorbs {
@@ -671,22 +719,18 @@ pub fn render_doppler_gpu(
         let sb = ctx.storage_buffer_zeroed("doppler ray state", bytes)?;
         let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
         let mut params = params;
-        (params.iter_budget, params.iter_limit) = iteration_limits(ctx);
+        (_, params.iter_limit) = iteration_limits(ctx);
         let max_seg = rays.iter().map(|r| r.n_seg).max().unwrap_or(0) as usize;
-        for pass in 0.. {
-            params.pass_index = to_u32("pass", pass)?;
-            ctx.write_buffer(&pb, std::slice::from_ref(&params))?;
-            ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;
-            let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
-            if !out.iter().any(|p| p[3] < 0.0) {
-                break;
-            }
-            if pass > max_seg + 1 {
-                return Err(Error::Internal(
-                    "doppler: rays made no progress between passes".into(),
-                ));
-            }
-        }
+        let passes = Passes {
+            pipeline: &pipeline,
+            bind_group: &bg,
+            params: &pb,
+            out: &ob,
+            groups: [gx, gy, 1],
+            n_pix,
+            max_seg,
+        };
+        passes.run(ctx, &mut params, 0..n_pix, |p| p[3] == 2.0)?;
     }
     let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
     if let Some(i) = out.iter().position(|p| p[3] == 2.0) {
@@ -729,14 +773,16 @@ struct Bufs<'a> {
 
 /// Bytes of one ray's piece region for `piece_cap` pieces of `tau_front` and `n_abs`
 /// absorption lines (see [`absorption_layout`]).
-fn region_floats(piece_cap: usize, n_abs: usize) -> (usize, usize) {
+fn region_floats(piece_cap: usize, n_abs: usize, broaden: bool) -> (usize, usize) {
     let m = n_abs.max(1);
     // Regions A and B hold tau_front (and tau_mid) with room for the segment's breakpoints
-    // (at most 2 per absorption line) before the merges bring the count back under the cap.
-    let l = piece_cap + 2 * m + 8;
+    // (at most 2 per absorption line; with broadening 33 per Gaussian, room for two a line)
+    // before the merges bring the count back under the cap.
+    let per_line = if broaden { 2 * 33 } else { 2 };
+    let l = piece_cap + per_line * m + 8;
     // 8 pieces of per-ray state between passes, then A, B, the trapezoids, their end
-    // points and their sum.
-    (l, 4 * (8 + 2 * l + 4 * m))
+    // points and their sum (at least one broadened line's 32 pieces).
+    (l, 4 * (8 + 2 * l + 2 * m + (2 * m).max(40)))
 }
 
 /// The piece layout the GPU uses for the piecewise-linear integrator with absorption:
@@ -744,9 +790,10 @@ fn region_floats(piece_cap: usize, n_abs: usize) -> (usize, usize) {
 /// with `n_abs` absorption lines on a device whose storage limits are `limits`.
 ///
 /// Per ray: `cap = min(piece_budget, DEVICE_PIECE_CAP)` pieces of `tau_front`, two regions
-/// of `cap + 2 n_abs + 8` pieces (tau_front, and tau_front plus the segment's half depth)
-/// and `4 n_abs` pieces of scratch (the segment's absorption trapezoids and their sum), 16
-/// bytes per piece. A tile holds as many rays as fit in the smallest of
+/// of `cap + 2 n_abs + 8` pieces (`cap + 66 n_abs + 8` with line broadening: tau_front, and
+/// tau_front plus the segment's half depth), 8 pieces of state and `2 n_abs + max(2 n_abs,
+/// 40)` pieces of scratch (the segment's absorption trapezoids, their end points and their
+/// sum), 16 bytes per piece. A tile holds as many rays as fit in the smallest of
 /// `max_storage_buffer_binding_size`, `max_buffer_size` and [`TILE_BYTES_CAP`].
 ///
 /// # Errors
@@ -757,7 +804,7 @@ pub fn absorption_layout(
     limits: &wgpu::Limits,
 ) -> Result<(usize, u64, u64)> {
     let cap = settings.piece_budget.min(DEVICE_PIECE_CAP);
-    let (_, floats) = region_floats(cap, n_abs);
+    let (_, floats) = region_floats(cap, n_abs, !settings.broadening.is_none());
     let per_ray = floats as u64 * 4;
     let (mut max, mut limit) = (
         TILE_BYTES_CAP,
@@ -797,7 +844,7 @@ fn render_absorbing(
 ) -> Result<DopplerImage> {
     let n_pix = settings.width as usize * settings.height as usize;
     let (cap, per_ray, tile) = absorption_layout(settings, n_abs, &ctx.device().limits())?;
-    let (l, floats) = region_floats(cap, n_abs);
+    let (l, floats) = region_floats(cap, n_abs, !settings.broadening.is_none());
     let tile = (tile as usize).min(n_pix).max(1);
     params.piece_cap = to_u32("piece cap", cap)?;
     params.region_l = to_u32("piece region", l)?;
@@ -816,7 +863,7 @@ fn render_absorbing(
     // all (llvmpipe's loop limiter): the kernel counts its iterations and yields at the
     // budget, the host dispatches passes until every ray of the tile is done. Hardware
     // adapters have no such limit; their passes are long.
-    (params.iter_budget, params.iter_limit) = iteration_limits(ctx);
+    (_, params.iter_limit) = iteration_limits(ctx);
     let max_seg = b.max_segments as usize;
     let mut start = 0usize;
     let mut out: Vec<[f32; 4]> = Vec::new();
@@ -824,23 +871,18 @@ fn render_absorbing(
         let count = tile.min(n_pix - start);
         params.pix_offset = to_u32("pixel offset", start)?;
         let gx = ctx.groups("doppler absorption", to_u32("tile", count)?, 64)?;
-        let mut pass = 0usize;
-        loop {
-            params.pass_index = to_u32("pass", pass)?;
-            ctx.write_buffer(&pb, std::slice::from_ref(&params))?;
-            ctx.dispatch(&pipeline, &bg, [gx, 1, 1])?;
-            out = ctx.read_buffer(&ob, n_pix)?;
-            if !out[start..start + count].iter().any(|p| p[3] < 0.0) {
-                break;
-            }
-            pass += 1;
-            // Every pass finishes at least one segment of every unfinished ray.
-            if pass > max_seg + 1 {
-                return Err(Error::Internal(
-                    "doppler absorption: rays made no progress between passes".into(),
-                ));
-            }
-        }
+        let passes = Passes {
+            pipeline: &pipeline,
+            bind_group: &bg,
+            params: &pb,
+            out: &ob,
+            groups: [gx, 1, 1],
+            n_pix,
+            max_seg,
+        };
+        out = passes.run(ctx, &mut params, start..start + count, |p| {
+            p[3] >= 0.0 && (p[3] as u32) & 8 != 0
+        })?;
         start += count;
     }
     let (mut sum, mut max, mut fallback_rays) = (0.0f64, 0usize, 0usize);
@@ -856,14 +898,21 @@ fn render_absorbing(
         }
         if flags & 4 != 0 {
             return Err(Error::Internal(format!(
-                "doppler absorption: pixel ({}, {}) overflowed its piece region or one segment \
-                 passed the adapter's loop limit (software adapters: {SOFTWARE_ITER_LIMIT} \
-                 loop iterations per pass)",
+                "doppler absorption: pixel ({}, {}) overflowed its piece region",
                 i as u32 % settings.width,
                 i as u32 / settings.width
             )));
         }
-        let pieces = (flags >> 3) as usize;
+        if flags & 8 != 0 {
+            return Err(Error::Internal(format!(
+                "doppler absorption: pixel ({}, {}) needs more loop iterations in one segment \
+                 than the adapter's loop limit allows (software adapters such as lavapipe stop \
+                 after 65535 per invocation batch): use a hardware GPU or the CPU",
+                i as u32 % settings.width,
+                i as u32 / settings.width
+            )));
+        }
+        let pieces = (flags >> 4) as usize;
         sum += pieces as f64;
         max = max.max(pieces);
         fallback_rays += usize::from(flags & 2 != 0);

@@ -56,7 +56,7 @@ struct Params {
     off_kom: u32,      // broadening: offset of k / m per species ((m/s)^2 per K) in `tables`
     off_gauss: u32,    // broadening: offset of the unit Gaussian's knots (x, then g) in `tables`
     n_gauss: u32,      // broadening: knots of the unit Gaussian
-    pad2: u32,
+    probe_n: u32,      // 2: the trip count of `limiter_exhausted`'s loop (a runtime value)
     pad3: u32,
 }
 
@@ -89,6 +89,20 @@ var<private> acc_xyz: vec3<f32>;
 var<private> band_base: u32;
 
 const MAX_SPECIES: u32 = 8u;
+
+// lavapipe (llvmpipe) keeps one loop limiter per shader invocation batch (the SIMD lanes
+// run together): every iteration of every loop of any lane counts, and after 65535 every loop
+// exits at its next iteration end. This probe runs a two-iteration loop (trip count from the
+// uniform, so it is not unrolled): it stops after one iteration only when the limiter is
+// spent, i.e. when some loop may have been cut short. Always false on other adapters.
+fn limiter_exhausted() -> bool {
+    var k = 0u;
+    loop {
+        k += 1u;
+        if (k >= P.probe_n) { break; }
+    }
+    return k < P.probe_n;
+}
 const C_M_PER_S: f32 = 299792458.0;
 
 fn vidx(x: u32, y: u32, z: u32) -> u32 {
@@ -484,6 +498,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         bb_a = bb_b;
         temp_a = temp_b;
         ii++;
+        if (limiter_exhausted()) { flag = 2.0; ii = r.n_seg + 1u; break; }
     }
     // One sample that alone passed the adapter's loop limit may have been cut short.
     if (iters >= P.iter_limit) { flag = 2.0; ii = r.n_seg + 1u; }
@@ -664,7 +679,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     // lavapipe stops every loop of an invocation after 65535 iterations: report, not a
     // silently short ray.
-    if (iters >= P.iter_limit) { flag = 2.0; }
+    if (iters >= P.iter_limit || limiter_exhausted()) { flag = 2.0; }
     out_xyz[pix] = vec4<f32>(acc_xyz, flag);
 }
 
@@ -885,7 +900,8 @@ fn sum_into(src: u32, na: u32, tt: u32, nt: u32, dst: u32, cap: u32) -> u32 {
 
 // `PiecewiseLinear::merged(tol)` in place on [off, off + n): runs of contiguous pieces become
 // one line while it stays within tol of every breakpoint (a cone of slopes from the run's
-// start); zero pieces are dropped. With `bridge` (the device's last resort, counted as a
+// start); zero pieces, and runs merged into zero, are dropped (as the CPU's
+// `from_sorted_unchecked`). With `bridge` (the device's last resort, counted as a
 // fallback) runs also cross gaps, the line kept within tol of zero over the gap.
 fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
     var out = 0u;
@@ -900,8 +916,10 @@ fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
         let p = pget(off + k);
         if (p.z == 0.0 && p.w == 0.0) {
             if (have) {
-                pset(off + out, vec4<f32>(x0, xe, y0, ye));
-                out++;
+                if (y0 != 0.0 || ye != 0.0) {
+                    pset(off + out, vec4<f32>(x0, xe, y0, ye));
+                    out++;
+                }
                 have = false;
             }
             continue;
@@ -931,7 +949,7 @@ fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
                 continue;
             }
         }
-        if (have) {
+        if (have && (y0 != 0.0 || ye != 0.0)) {
             pset(off + out, vec4<f32>(x0, xe, y0, ye));
             out++;
         }
@@ -943,7 +961,7 @@ fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
         lo = -BIG;
         hi = BIG;
     }
-    if (have) {
+    if (have && (y0 != 0.0 || ye != 0.0)) {
         pset(off + out, vec4<f32>(x0, xe, y0, ye));
         out++;
     }
@@ -1145,6 +1163,151 @@ fn absorbed_line(off: u32, n: u32, tr: vec4<f32>) -> vec3<f32> {
     return out;
 }
 
+// ---- Broadened lines with absorption -------------------------------------------------------
+// With broadening each line's sweep is the CPU's `emit_line`: a trapezoid or up to 64
+// Gaussians of 32 pieces. Its sources are handled one at a time: mode 1 returns what tau
+// (region off, n pieces) takes from them (emission lines); mode 2 adds them at half height
+// to tau_front (absorption lines), one merge pass per source between the two regions
+// (`t_cur` holds the current tau, `t_n` its pieces).
+var<private> t_cur: u32;
+var<private> t_oth: u32;
+var<private> t_n: u32;
+var<private> t_bad: bool;
+var<private> t_tt: u32;     // scratch pieces for one source
+
+fn add_run(nt: u32) {
+    var n = t_n;
+    let r = add_sum(t_cur, &n, t_tt, nt, t_oth);
+    if (r == BAD) { t_bad = true; return; }
+    t_n = r;
+    let c = t_cur;
+    t_cur = t_oth;
+    t_oth = c;
+}
+
+fn source_trap(lo: f32, hi: f32, h0: f32, h1: f32, mode: u32, off: u32, n: u32) -> vec3<f32> {
+    if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0) || !(hi > lo)) {
+        return vec3<f32>(0.0);
+    }
+    if (mode == 1u) { return absorbed_line(off, n, vec4<f32>(lo, hi, h0, h1)); }
+    pset(t_tt, vec4<f32>(lo, hi, 0.5 * h0, 0.5 * h1));
+    add_run(1u);
+    return vec3<f32>(0.0);
+}
+
+fn source_gauss(pos: f32, sigma: f32, area: f32, mode: u32, off: u32, n: u32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let ng = P.n_gauss;
+    let z0 = gz(0u);
+    let zn = gz(ng - 1u);
+    let hz = (zn - z0) / f32(ng - 1u);
+    let kk = area / sigma;
+    var cnt = 0u;
+    for (var i = 0u; i + 1u < ng; i++) {
+        iters += 1u;
+        let lo = pos + gz(i) * sigma;
+        let hi = pos + gz(i + 1u) * sigma;
+        let h0 = kk * gg(i);
+        let h1 = kk * gg(i + 1u);
+        if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0) || !(hi > lo)) {
+            continue;
+        }
+        if (mode == 1u) {
+            out += absorbed_line(off, n, vec4<f32>(lo, hi, h0, h1));
+        } else {
+            pset(t_tt + cnt, vec4<f32>(lo, hi, 0.5 * h0, 0.5 * h1));
+            cnt++;
+        }
+    }
+    if (mode == 2u && cnt > 0u) { add_run(cnt); }
+    return out;
+}
+
+// `emit_line` with its sources handled by `mode` (see above).
+fn emit_line_sources(centre: f32, sa: f32, sb: f32, area_a: f32, area_b: f32, sig_a: f32,
+                     sig_b: f32, mode: u32, off: u32, n: u32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let la = sa * centre;
+    let lb = sb * centre;
+    let sna = la * sig_a / C_M_PER_S;
+    let snb = lb * sig_b / C_M_PER_S;
+    let sigma_mean = 0.5 * (sna + snb);
+    let sweep = abs(lb - la);
+    if (sigma_mean <= 0.0 || sweep >= 16.0 * sigma_mean) {
+        var mw = P.min_width;
+        if (sigma_mean > 0.0) { mw = 0.0; }
+        let wdt = max(sweep, mw);
+        let mid = 0.5 * (la + lb);
+        if (!(wdt > 0.0)) { return out; }
+        var h0 = area_a / wdt;
+        var h1 = area_b / wdt;
+        if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+        return source_trap(mid - 0.5 * wdt, mid + 0.5 * wdt, h0, h1, mode, off, n);
+    }
+    let mm = u32(clamp(ceil(4.0 * sweep / sigma_mean), 1.0, 64.0));
+    let inv = 1.0 / f32(mm);
+    let da = area_b - area_a;
+    for (var k = 0u; k < mm; k++) {
+        iters += 1u;
+        let u0 = f32(k) * inv;
+        let u1 = f32(k + 1u) * inv;
+        let a0 = area_a + da * u0;
+        let a1 = area_a + da * u1;
+        let area = 0.5 * (a0 + a1) * (u1 - u0);
+        if (area <= 0.0) { continue; }
+        let num = area_a * 0.5 * (u1 * u1 - u0 * u0) + da * (u1 * u1 * u1 - u0 * u0 * u0) / 3.0;
+        let uc = clamp(num / area, u0, u1);
+        let pos = la + (lb - la) * uc;
+        let sigma = sna + (snb - sna) * uc;
+        if (sigma > 0.0) {
+            out += source_gauss(pos, sigma, area, mode, off, n);
+        } else {
+            let w = max(P.min_width, 1e-9);
+            out += source_trap(pos - 0.5 * w, pos + 0.5 * w, area / w, area / w, mode, off, n);
+        }
+    }
+    return out;
+}
+
+// Line entry li's areas over the segment (a = far end, b = near end), and its species.
+struct LineAreas {
+    ok: bool,
+    m: u32,
+    area_a: f32,
+    area_b: f32,
+}
+
+fn line_areas(li: u32, far: Samp, near: Samp, dt: f32, emission: bool) -> LineAreas {
+    var o: LineAreas;
+    let line = lines[li];
+    o.m = u32(line.z);
+    let ra = rho_f[o.m];
+    let rb = rho_n[o.m];
+    o.ok = !(ra <= 0.0 && rb <= 0.0);
+    var ga = 1.0;
+    var gb = 1.0;
+    if (emission) {
+        ga = value_factor(far.s) * far.s;
+        gb = value_factor(near.s) * near.s;
+    }
+    let base = dt * line.y;
+    o.area_a = base * ra * ga;
+    o.area_b = base * rb * gb;
+    return o;
+}
+
+// Adds half of the segment's broadened absorption lines to tau (t_cur, t_n).
+fn add_broadened_half(far: Samp, near: Samp, dt: f32) {
+    for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+        iters += 1u;
+        let a = line_areas(li, far, near, dt, false);
+        if (!a.ok) { continue; }
+        let line = lines[li];
+        emit_line_sources(line.x, far.s, near.s, a.area_a, a.area_b, sigma_v(a.m, far.temp),
+                          sigma_v(a.m, near.temp), 2u, 0u, 0u);
+    }
+}
+
 // Per-ray state between passes (floats at the start of the ray's region, 8 pieces): the
 // kernel yields after `iter_budget` loop iterations and the host dispatches it again.
 const ST_PIECES: u32 = 8u;
@@ -1167,8 +1330,8 @@ fn save_state(xyz: vec3<f32>, taken: vec3<f32>, na: u32, merges: u32, merge_at: 
 
 // The front-to-back pass of one ray (see the section comment), resumable: pass 0 starts the
 // ray, later passes continue from the saved state; a finished ray writes its pixel (w: the
-// flags, max pieces x 8 + 4 device error + 2 fallback + 1 invalid shift), an unfinished one
-// writes w = -1.
+// flags, max pieces x 16 + 8 loop limiter spent + 4 region overflow + 2 fallback + 1 invalid
+// shift), an unfinished one writes w = -1.
 @compute @workgroup_size(64, 1, 1)
 fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
     let pix = P.pix_offset + gid.x;
@@ -1228,6 +1391,15 @@ fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
         var any_emit = false;
         for (var li = 0u; li < P.n_lines; li++) {
             iters += 1u;
+            if (P.broaden == 1u) {
+                let a = line_areas(li, far, near, dt, true);
+                if (a.ok) {
+                    any_emit = true;
+                    xyz += emit_line_xyz(lines[li].x, far.s, near.s, a.area_a, a.area_b,
+                                         sigma_v(a.m, far.temp), sigma_v(a.m, near.temp));
+                }
+                continue;
+            }
             let e = seg_trap(li, far, near, dt, true, 1.0);
             if (e.ok) {
                 any_emit = true;
@@ -1236,6 +1408,35 @@ fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         let has_bb = has_bb_row(far) || has_bb_row(near);
         if (has_bb) { xyz += 0.5 * dt * (far.bbx + near.bbx); }
+        if (P.broaden == 1u) {
+            // Broadened: sources one by one into tau, absorbed light per emitted source.
+            t_cur = A;
+            t_oth = B;
+            t_n = na;
+            t_tt = TT;
+            t_bad = false;
+            add_broadened_half(far, near, dt);
+            if (t_bad) { flags |= 4u; break; }
+            let mid_off = t_cur;
+            let nmid = t_n;
+            if (nmid > 0u && (has_bb || any_emit)) {
+                if (has_bb) { taken += absorbed_bb(mid_off, nmid, far, near, dt); }
+                for (var li = 0u; li < P.n_lines; li++) {
+                    iters += 1u;
+                    let a = line_areas(li, far, near, dt, true);
+                    if (!a.ok) { continue; }
+                    taken += emit_line_sources(lines[li].x, far.s, near.s, a.area_a, a.area_b,
+                                               sigma_v(a.m, far.temp),
+                                               sigma_v(a.m, near.temp), 1u, mid_off, nmid);
+                }
+            }
+            add_broadened_half(far, near, dt);
+            if (t_bad) { flags |= 4u; break; }
+            na = t_n;
+            if (t_cur != A) {
+                for (var k = 0u; k < na; k++) { iters += 1u; pset(A + k, pget(B + k)); }
+            }
+        } else {
         // The segment's absorption trapezoids at half height, and their sum.
         var mt = 0u;
         for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
@@ -1269,6 +1470,7 @@ fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
             na = add_sum(B, &nmid, TT, nt, A);
             if (na == BAD) { flags |= 4u; break; }
         }
+        }
         // The CPU's merge schedule: the k-th merge with tol 6 / (pi k)^2, then the budget.
         if (na > merge_at) {
             merges++;
@@ -1289,15 +1491,16 @@ fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
         near = far;
         for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_n[m] = rho_f[m]; }
         seg++;
+        if (limiter_exhausted()) { flags |= 8u; break; }
     }
     if (fell_back) { flags |= 2u; }
     // A segment that alone passed the adapter's loop limit may have been cut short.
-    if (iters >= P.iter_limit) { flags |= 4u; }
-    let done = seg >= r.n_seg || (flags & 4u) != 0u;
+    if (iters >= P.iter_limit) { flags |= 8u; }
+    let done = seg >= r.n_seg || (flags & 12u) != 0u;
     if (done) { flags |= 16u; }
     save_state(xyz, taken, na, merges, merge_at, max_pieces, flags, seg, near);
     if (done) {
-        let f = (flags & 7u) + 8u * max_pieces;
+        let f = (flags & 15u) + 16u * max_pieces;
         out_xyz[pix] = vec4<f32>(max(xyz - taken, vec3<f32>(0.0)), f32(f));
     } else {
         out_xyz[pix] = vec4<f32>(0.0, 0.0, 0.0, -1.0);
