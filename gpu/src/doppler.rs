@@ -86,24 +86,36 @@
 //!   pixel), optically thick (x 1e4) 6.6e-6 of `cpu + unattenuated`; asserted 2e-3.
 //!
 //!
+//! With line broadening and absorption each line's sources (the trapezoid, or its up to 64
+//! Gaussians of 32 pieces) are handled one at a time: an absorption line's sources are
+//! merged into `tau_front` at half height, one merge pass each (between the two regions), and
+//! what `tau_mid` takes from an emission line is integrated piece by piece of its sources
+//! (the absorbed light is linear in the emission). The regions then have room for two
+//! Gaussians a line (`cap + 66 n_abs + 8` pieces). f32 wavelengths resolve about 6e-5 nm at
+//! 656 nm: optical-depth profiles narrower than that (sigma below about 0.1 km/s, or a sweep
+//! that narrow) are lost on the device where the CPU keeps them.
+//!
 //! # Passes (software adapters)
-//! lavapipe (llvmpipe) stops every loop of a shader invocation once the invocation has run
-//! 65535 loop iterations in all (its loop limiter), silently: a long ray would come out
-//! short. So the piecewise-linear kernels count their loop iterations and yield after a
-//! budget (30,000 on software adapters, 2^24 on hardware ones), saving the ray's state (the
-//! emission-only kernel 20 floats per pixel, the absorbing one 8 pieces at the start of its
-//! region); the host dispatches passes until every ray is done. A single sample or segment
-//! that alone needs more than the limit is reported as [`Error::Internal`] naming the loop
-//! limit, as is a banded render (one pass) that passes it: never a silently darker image.
+//! lavapipe (llvmpipe) runs a batch of 8 or 16 lanes together and keeps one loop limiter per
+//! batch: every iteration of every loop of any lane counts, and after 65535 all loops exit at
+//! their next iteration end, silently (a long ray would come out short). So the
+//! piecewise-linear kernels are resumable: each lane counts its loop iterations and yields
+//! after a budget (30,000 on software adapters, 2^24 on hardware ones), saving its ray's state
+//! (the emission-only kernel 20 floats per pixel, the absorbing one 8 pieces at the start of
+//! its region), and the host dispatches passes until every ray is done. After each sample or
+//! segment a two-iteration probe loop (trip count from the uniform) finds out whether the
+//! batch's limiter ran out (divergent lanes add up); if so the host restarts the tile from
+//! pass 0 with a budget 4 times smaller, down to 200, and a segment that alone spends the
+//! limiter is [`Error::Internal`] naming the loop limit (e.g. broadened H I + C I lines with
+//! absorption on the 16^3 galaxy), as is a banded render (one pass) that spends it: never a
+//! silently darker image. Hardware adapters have no such limiter.
 //!
 //! # What is refused
-//! [`check_supported`] returns [`Error::Unsupported`] naming the setting for line broadening
-//! together with absorption (the broadened absorption profiles would need per-segment piece
-//! sums of up to 64 x 32 pieces a line), and for more than [`MAX_SPECIES`] species. The CLI's
-//! `--device auto` falls back to the CPU on these. Settings the CPU itself refuses (broadening
-//! with a banded integrator, thermal broadening without a temperature field, a bad sigma or
-//! mass) are [`Error::InvalidInput`] with the CPU's message. Picked spectra, traces and
-//! spectral cubes stay on the CPU.
+//! [`check_supported`] returns [`Error::Unsupported`] for more than [`MAX_SPECIES`] species;
+//! the CLI's `--device auto` falls back to the CPU on it. Settings the CPU itself refuses
+//! (broadening with a banded integrator, thermal broadening without a temperature field, a
+//! bad sigma or mass) are [`Error::InvalidInput`] with the CPU's message. Picked spectra,
+//! traces and spectral cubes stay on the CPU.
 
 use blueshift_spectrum::{
     ATOMIC_MASS_UNIT_KG, BOLTZMANN_J_PER_K, BandLayout, Catalogue, Cmf, PwlGaussian,
