@@ -1,7 +1,8 @@
-//! The GPU Doppler integrators (piecewise linear; banded, nearest and energy-conserving
-//! shift, with and without absorption) against `blueshift_tracking::doppler::render_doppler` on the same
-//! scenes (16^3 synthetic galaxy and rotating hydrogen shell, 16x16 images), and the settings
-//! it refuses.
+//! The GPU Doppler integrators (piecewise linear and banded, nearest and energy-conserving
+//! shift, with and without absorption, with and without line broadening) against
+//! `blueshift_tracking::doppler::render_doppler` on the same scenes (16^3 and 32^3 synthetic
+//! galaxy, rotating hydrogen shell, small images), the piece budget's fallback, the storage
+//! and loop limits, and the settings it refuses.
 //!
 //! Tolerance: the device computes in f32 what the CPU computes in f64 (positions along the
 //! ray, trilinear weights, the shift `s = 1 + v_r / c`, Planck's law, the CMF integrals), so
