@@ -3,7 +3,8 @@
 //! `doppler_small` runs on any adapter (lavapipe in CI): the synthetic galaxy at 32^3 with a
 //! black body, H I and C I lines and its rotation x 30, a 32x32 image, the emission-only
 //! piecewise-linear integrator and the banded one (200 bands, energy-conserving shift, without
-//! and with absorption x 50); `cpu` is `blueshift_tracking::doppler::render_doppler`
+//! and with absorption x 50), and the piecewise-linear integrator with absorption x 5
+//! (`pwl_absorption`: front to back, the optical depth in front as pieces); `cpu` is `blueshift_tracking::doppler::render_doppler`
 //! (rayon), `gpu` is `blueshift_gpu::doppler::render_doppler_gpu` as a whole call (pipeline
 //! creation, upload, dispatch and readback included). The ratio gpu / cpu is the figure.
 
@@ -54,6 +55,15 @@ fn small(c: &mut Criterion) {
     });
     g.bench_function("gpu/banded_ec_200_absorption", |b| {
         b.iter(|| render_doppler_gpu(ctx, &absorbing, &banded).expect("gpu"));
+    });
+    // The piecewise-linear integrator with absorption (front to back, tau_front as pieces).
+    let mut lines_absorb = scene.clone();
+    lines_absorb.factors.absorption = 5.0;
+    g.bench_function("cpu/pwl_absorption", |b| {
+        b.iter(|| render_doppler(&lines_absorb, &st, &|| {}).expect("cpu"));
+    });
+    g.bench_function("gpu/pwl_absorption", |b| {
+        b.iter(|| render_doppler_gpu(ctx, &lines_absorb, &st).expect("gpu"));
     });
     g.finish();
 }

@@ -721,10 +721,20 @@ impl GpuContext {
             }
         });
         self.wait()?;
-        let status = slot
-            .lock()
-            .map_err(|_| Error::Map("poisoned".into()))?
-            .take();
+        // Another thread polling the same device may be the one that runs the callback
+        // (after our poll returned): poll again until it has run, for at most ten seconds.
+        let start = std::time::Instant::now();
+        let status = loop {
+            let s = slot
+                .lock()
+                .map_err(|_| Error::Map("poisoned".into()))?
+                .take();
+            if s.is_some() || start.elapsed() > std::time::Duration::from_secs(10) {
+                break s;
+            }
+            std::thread::yield_now();
+            self.wait()?;
+        };
         match status {
             Some(Ok(())) => {}
             Some(Err(m)) => return Err(Error::Map(m)),

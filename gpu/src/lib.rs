@@ -45,6 +45,7 @@
 //! | Fattal 2002 attenuated gradients, Poisson equation (Neumann) | `shaders/fattal_div.wgsl`, `shaders/axis_transform.wgsl`, `shaders/poisson_divide.wgsl` |
 //! | relativistic aberration, Doppler shift, searchlight (relativity paper Eq. 2-3) | [`relativity::GpuRelativity`], `shaders/relativity.wgsl` |
 //! | Doppler paper Algorithms 1 and 2 on the GPU | [`doppler::render_doppler_gpu`] |
+//! | optical depth in front as pieces, preview budget (Algorithm 2 with absorption) | [`doppler::absorption_layout`], [`doppler::DEVICE_PIECE_CAP`] |
 //!
 //! ## Shaders
 //! WGSL sources live in `gpu/src/shaders/` and are included with `include_str!`; a test

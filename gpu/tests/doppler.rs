@@ -1,7 +1,8 @@
-//! The GPU Doppler integrators (piecewise linear; banded, nearest and energy-conserving
-//! shift, with and without absorption) against `blueshift_tracking::doppler::render_doppler` on the same
-//! scenes (16^3 synthetic galaxy and rotating hydrogen shell, 16x16 images), and the settings
-//! it refuses.
+//! The GPU Doppler integrators (piecewise linear and banded, nearest and energy-conserving
+//! shift, with and without absorption, with and without line broadening) against
+//! `blueshift_tracking::doppler::render_doppler` on the same scenes (16^3 and 32^3 synthetic
+//! galaxy, rotating hydrogen shell, small images), the piece budget's fallback, the storage
+//! and loop limits, and the settings it refuses.
 //!
 //! Tolerance: the device computes in f32 what the CPU computes in f64 (positions along the
 //! ray, trilinear weights, the shift `s = 1 + v_r / c`, Planck's law, the CMF integrals), so
@@ -12,7 +13,9 @@
 //! Every test prints `SKIP: no wgpu adapter: ...` and returns when there is no adapter,
 //! unless `BLUESHIFT_REQUIRE_GPU_TESTS=1`.
 
-use blueshift_gpu::doppler::{check_supported, render_doppler_gpu};
+use blueshift_gpu::doppler::{
+    DEVICE_PIECE_CAP, absorption_layout, check_supported, render_doppler_gpu,
+};
 use blueshift_gpu::{Error, test_context};
 use blueshift_spectrum::DopplerModel;
 use blueshift_tracking::doppler::{
@@ -225,16 +228,47 @@ fn unsupported_settings_are_refused_by_name() {
     assert!(check_supported(&scene, &st).is_ok());
     let mut a = scene.clone();
     a.factors.absorption = 1.0;
-    let e = check_supported(&a, &st).unwrap_err();
     assert!(
-        matches!(&e, Error::Unsupported(m) if m.contains("absorption")),
-        "{e}"
+        check_supported(&a, &st).is_ok(),
+        "piecewise linear with absorption runs on the GPU"
     );
     let mut b = st.clone();
     b.broadening.thermal = true;
-    let e = check_supported(&scene, &b).unwrap_err();
     assert!(
-        matches!(&e, Error::Unsupported(m) if m.contains("broadening")),
+        check_supported(&scene, &b).is_ok() && check_supported(&a, &b).is_ok(),
+        "broadened lines run on the GPU, with and without absorption"
+    );
+    // More species than the kernel holds.
+    let v = synth::galaxy(8, 5).unwrap();
+    let many = DopplerScene::from_volume(&v, &["H"; 9]).unwrap();
+    let e = check_supported(&many, &DopplerSettings::default_for(&many, 8, 8)).unwrap_err();
+    assert!(
+        matches!(&e, Error::Unsupported(m) if m.contains("species")),
+        "{e}"
+    );
+    // The CPU's own refusals of broadening settings are InvalidInput, as on the CPU.
+    let mut banded = b.clone();
+    banded.integrator = SpectralIntegrator::Banded {
+        bands: 16,
+        shift: BandShift::Nearest,
+    };
+    assert!(render_doppler(&scene, &banded, &|| {}).is_err());
+    let e = check_supported(&scene, &banded).unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidInput(m) if m.contains("piecewise-linear")),
+        "{e}"
+    );
+    let no_bb = shell();
+    let e = check_supported(&no_bb, &b).unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidInput(m) if m.contains("temperature")),
+        "{e}"
+    );
+    let mut bad_sigma = st.clone();
+    bad_sigma.broadening.sigma_m_per_s = f64::NAN;
+    let e = check_supported(&scene, &bad_sigma).unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidInput(m) if m.contains("sigma")),
         "{e}"
     );
     let mut c = st.clone();
@@ -254,9 +288,326 @@ fn unsupported_settings_are_refused_by_name() {
     assert!(matches!(e, Error::InvalidInput(_)), "{e}");
     // And the renderer itself refuses them too.
     if let Some(ctx) = test_context() {
+        let st = DopplerSettings::default_for(&many, 8, 8);
         assert!(matches!(
-            render_doppler_gpu(ctx, &a, &st),
+            render_doppler_gpu(ctx, &many, &st),
             Err(Error::Unsupported(_))
         ));
     }
+}
+
+/// Per pixel and channel, the largest `|gpu - cpu| / (cpu + clear)` where `clear` is the
+/// CPU's image without absorption (the unattenuated emission, the scale of the CPU's own
+/// error bound), and the largest `|gpu - cpu| / cpu` over pixels brighter than 1e-3 of the
+/// image maximum.
+fn absorption_errors(cpu: &DopplerImage, gpu: &DopplerImage, clear: &DopplerImage) -> (f64, f64) {
+    let max = cpu
+        .xyz
+        .iter()
+        .flat_map(|p| p.iter().copied())
+        .fold(0.0f64, f64::max);
+    let (mut of_clear, mut of_cpu) = (0.0f64, 0.0f64);
+    for ((c, g), u) in cpu.xyz.iter().zip(&gpu.xyz).zip(&clear.xyz) {
+        for k in 0..3 {
+            assert!(g[k].is_finite() && g[k] >= 0.0, "gpu {}", g[k]);
+            let d = (c[k] - g[k]).abs();
+            of_clear = of_clear.max(d / (c[k] + u[k]).max(1e-30));
+            if c[k] > 1e-3 * max {
+                of_cpu = of_cpu.max(d / c[k]);
+            }
+        }
+    }
+    (of_clear, of_cpu)
+}
+
+fn absorbing_galaxy(absorption: f64) -> DopplerScene {
+    let mut g = galaxy();
+    g.factors.absorption = absorption;
+    g
+}
+
+/// The piecewise-linear integrator with line absorption (front to back, tau_front as pieces
+/// on the device) against the CPU. Measured on lavapipe: worst `|gpu - cpu| / cpu` 7.4e-4 on
+/// pixels above 1e-3 of the maximum and 3.7e-4 of `cpu + clear` (`clear`: the unattenuated
+/// image); asserted within 2e-3 (the emission-only kernel's tolerance: its own worst is 4.6e-4
+/// on the same pixel, f32 positions and shifts). The absorbed light alone (without merges)
+/// agrees within 8.7e-3 of itself (plus 1e-3 of its maximum; the worst pixel is the one where
+/// the emission-only kernel errs by 1e-3 on every H I line), asserted 2e-2; the CPU's own
+/// bound is `merge_tolerance` (1e-4) of the unattenuated emission.
+#[test]
+fn pwl_absorption_matches_the_cpu() {
+    let Some(ctx) = test_context() else { return };
+    let clear_scene = galaxy();
+    let scene = absorbing_galaxy(5.0);
+    let st = DopplerSettings::default_for(&scene, 16, 16);
+    let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+    let gpu = render_doppler_gpu(ctx, &scene, &st).unwrap();
+    let clear = render_doppler(&clear_scene, &st, &|| {}).unwrap();
+    compare("galaxy pwl absorption 5", &cpu, &gpu);
+    let (of_clear, of_cpu) = absorption_errors(&cpu, &gpu, &clear);
+    eprintln!(
+        "pwl absorption 5: worst |gpu - cpu| / (cpu + clear) {of_clear:.3e}, / cpu {of_cpu:.3e}; \
+         pieces gpu max {} mean {:.1}, cpu max {} mean {:.1}",
+        gpu.pieces.max, gpu.pieces.mean, cpu.pieces.max, cpu.pieces.mean
+    );
+    assert!(of_clear <= 2e-3 && of_cpu <= 2e-3);
+    // The absorption acts (the test can see it) and the piece statistics are the CPU's.
+    let y = |im: &DopplerImage| im.xyz.iter().map(|p| p[1]).sum::<f64>();
+    assert!(y(&gpu) < 0.999 * y(&clear), "absorption darkens nothing");
+    assert!(gpu.pieces.max > 0 && gpu.pieces.fallback_rays == 0);
+    let pm = |im: &DopplerImage| im.pieces.max as f64;
+    assert!((pm(&gpu) - pm(&cpu)).abs() <= 0.1 * pm(&cpu) + 2.0);
+    assert!((gpu.pieces.mean - cpu.pieces.mean).abs() <= 0.1 * cpu.pieces.mean + 1.0);
+    // The absorbed light alone (clear - absorbing, each device against its own clear image),
+    // without merges (merge tolerance 0: the CPU's and the GPU's merges would differ by up to
+    // the tolerance, 1e-4 in optical depth, itself about 1 % of the absorbed light here).
+    let mut st = st.clone();
+    st.merge_tolerance = 0.0;
+    let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+    let gpu = render_doppler_gpu(ctx, &scene, &st).unwrap();
+    let gpu_clear = render_doppler_gpu(ctx, &clear_scene, &st).unwrap();
+    let taken = |a: &DopplerImage, b: &DopplerImage, i: usize, k: usize| b.xyz[i][k] - a.xyz[i][k];
+    let max_taken = (0..cpu.xyz.len())
+        .flat_map(|i| (0..3).map(move |k| (i, k)))
+        .map(|(i, k)| taken(&cpu, &clear, i, k))
+        .fold(0.0f64, f64::max);
+    let mut worst_taken = 0.0f64;
+    for i in 0..cpu.xyz.len() {
+        for k in 0..3 {
+            let (tc, tg) = (taken(&cpu, &clear, i, k), taken(&gpu, &gpu_clear, i, k));
+            worst_taken = worst_taken.max((tc - tg).abs() / (tc.abs() + 1e-3 * max_taken));
+        }
+    }
+    eprintln!("pwl absorption 5: worst relative error of the absorbed light {worst_taken:.3e}");
+    assert!(worst_taken <= 2e-2);
+}
+
+/// Optically thick lines (absorption x 1e4, relativistic, invariant radiance): finite, never
+/// brighter than the same render without absorption, and within 2e-3 of the unattenuated
+/// emission of the CPU image (the cancellation of `emitted - absorbed` in f32 is bounded by
+/// the emitted light, not by the small remainder).
+#[test]
+fn optically_thick_pwl_absorption_is_finite_and_darker() {
+    let Some(ctx) = test_context() else { return };
+    let clear_scene = galaxy();
+    let scene = absorbing_galaxy(1e4);
+    let mut st = DopplerSettings::default_for(&scene, 12, 12);
+    st.model = DopplerModel::Relativistic;
+    st.invariant = true;
+    let gpu = render_doppler_gpu(ctx, &scene, &st).unwrap();
+    let free = render_doppler_gpu(ctx, &clear_scene, &st).unwrap();
+    let mut darker = 0;
+    for (a, f) in gpu.xyz.iter().zip(&free.xyz) {
+        for k in 0..3 {
+            assert!(a[k].is_finite() && a[k] >= 0.0);
+            assert!(
+                a[k] <= f[k] * (1.0 + 1e-5) + 1e-30,
+                "brighter: {} > {}",
+                a[k],
+                f[k]
+            );
+        }
+        darker += usize::from(a[1] < 0.95 * f[1]);
+    }
+    assert!(darker > 10, "only {darker} pixels lose > 5 % of Y");
+    let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+    let clear = render_doppler(&clear_scene, &st, &|| {}).unwrap();
+    let (of_clear, of_cpu) = absorption_errors(&cpu, &gpu, &clear);
+    eprintln!("thick: worst |gpu - cpu| / (cpu + clear) {of_clear:.3e}, / cpu {of_cpu:.3e}");
+    assert!(of_clear <= 2e-3);
+}
+
+/// A tiny piece budget forces the fallback (coarser merges of tau_front) on both devices:
+/// the GPU counts the rays that needed it, stays finite and below the unattenuated image, and
+/// keeps no more than the budget.
+#[test]
+fn the_piece_budget_fallback_is_counted() {
+    let Some(ctx) = test_context() else { return };
+    let scene = absorbing_galaxy(5.0);
+    let mut st = DopplerSettings::default_for(&scene, 12, 12);
+    // 40 pieces: below the ~140 the rays keep, above the number of disjoint line groups
+    // (the CPU multiplies its fallback tolerance by 4 per try, without bound, when merges
+    // cannot reach the budget).
+    st.piece_budget = 40;
+    let gpu = render_doppler_gpu(ctx, &scene, &st).unwrap();
+    let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+    let clear = render_doppler_gpu(ctx, &galaxy(), &st).unwrap();
+    eprintln!(
+        "budget 40: fallback rays gpu {} cpu {}, max pieces gpu {} cpu {}",
+        gpu.pieces.fallback_rays, cpu.pieces.fallback_rays, gpu.pieces.max, cpu.pieces.max
+    );
+    assert!(gpu.pieces.fallback_rays > 0);
+    assert!(gpu.pieces.max <= 40);
+    let (fg, fc) = (
+        gpu.pieces.fallback_rays as f64,
+        cpu.pieces.fallback_rays as f64,
+    );
+    assert!((fg - fc).abs() <= 0.1 * fc + 2.0, "gpu {fg} cpu {fc}");
+    for (a, f) in gpu.xyz.iter().zip(&clear.xyz) {
+        for k in 0..3 {
+            assert!(a[k].is_finite() && a[k] >= 0.0 && a[k] <= f[k] * (1.0 + 1e-5) + 1e-30);
+        }
+    }
+    // Budget 8: fewer pieces than tau_front has disjoint line groups (max 16 here), so merges
+    // cannot reach the budget (the CPU's fallback tolerance then grows without bound and
+    // overflows; the device caps it) and a segment's sum may overflow the ray's region, which
+    // the device answers by merging across gaps (counted too). Still finite, never brighter,
+    // and the image within 5 % of budget 40's.
+    let mut tiny = st.clone();
+    tiny.piece_budget = 8;
+    let g8 = render_doppler_gpu(ctx, &scene, &tiny).unwrap();
+    eprintln!(
+        "budget 8: fallback rays gpu {}, max pieces {}",
+        g8.pieces.fallback_rays, g8.pieces.max
+    );
+    assert!(g8.pieces.fallback_rays > 0);
+    let (mut y8, mut y40) = (0.0, 0.0);
+    for ((a, f), b) in g8.xyz.iter().zip(&clear.xyz).zip(&gpu.xyz) {
+        for k in 0..3 {
+            assert!(a[k].is_finite() && a[k] >= 0.0 && a[k] <= f[k] * (1.0 + 1e-5) + 1e-30);
+        }
+        y8 += a[1];
+        y40 += b[1];
+    }
+    assert!(
+        (y8 - y40).abs() <= 0.05 * y40,
+        "budget 8: Y {y8} vs budget 40: {y40}"
+    );
+    // The fallback gives up the bound, not the image: within 5 % of the CPU's fallback image.
+    let clear_cpu = render_doppler(&galaxy(), &st, &|| {}).unwrap();
+    let (of_clear, _) = absorption_errors(&cpu, &gpu, &clear_cpu);
+    eprintln!("budget 40: worst |gpu - cpu| / (cpu + clear) {of_clear:.3e}");
+    assert!(of_clear <= 0.05);
+}
+
+/// Per-ray piece storage that fits no device limit is refused by name, before anything is
+/// created.
+#[test]
+fn absorption_storage_beyond_the_limits_is_refused_by_name() {
+    let scene = absorbing_galaxy(5.0);
+    let st = DopplerSettings::default_for(&scene, 8, 8);
+    let limits = wgpu::Limits {
+        max_storage_buffer_binding_size: 4096,
+        ..wgpu::Limits::default()
+    };
+    let e = absorption_layout(&st, 30, &limits).unwrap_err();
+    assert!(
+        matches!(&e, Error::LimitExceeded { limit, .. } if *limit == "max_storage_buffer_binding_size"),
+        "{e}"
+    );
+    let (cap, per_ray, tile) = absorption_layout(&st, 30, &wgpu::Limits::default()).unwrap();
+    assert_eq!(cap, DEVICE_PIECE_CAP.min(st.piece_budget));
+    assert!(tile * per_ray <= wgpu::Limits::default().max_storage_buffer_binding_size);
+}
+
+/// Broadened emission lines (thermal from the black-body temperature field and a user
+/// Gaussian sigma; the CPU's `emit_line`: up to 64 sub-sweep Gaussians of 32 pieces each)
+/// against the CPU, within the emission-only tolerance (measured worst 4e-6 on lavapipe). At
+/// 3000 km/s (6.6 nm at H alpha) the broadening changes the image beyond that tolerance (the
+/// test sees it; narrower profiles barely change XYZ, the CMFs being nearly linear over them).
+#[test]
+fn broadened_lines_match_the_cpu() {
+    let Some(ctx) = test_context() else { return };
+    let scene = galaxy();
+    let mut shell = shell();
+    shell.factors.velocity = 10.0;
+    for (name, sc, thermal, sigma) in [
+        ("galaxy thermal", &scene, true, 0.0),
+        ("galaxy thermal + 300 km/s", &scene, true, 3e5),
+        ("shell 100 km/s", &shell, false, 1e5),
+        ("shell 3000 km/s", &shell, false, 3e6),
+    ] {
+        let mut st = DopplerSettings::default_for(sc, 16, 16);
+        st.broadening.thermal = thermal;
+        st.broadening.sigma_m_per_s = sigma;
+        let cpu = render_doppler(sc, &st, &|| {}).unwrap();
+        let gpu = render_doppler_gpu(ctx, sc, &st).unwrap();
+        compare(name, &cpu, &gpu);
+        let mut plain = st.clone();
+        plain.broadening = Default::default();
+        let box_profile = render_doppler(sc, &plain, &|| {}).unwrap();
+        if sigma > 1e6 {
+            let r = std::panic::catch_unwind(|| compare("box vs broadened", &box_profile, &gpu));
+            assert!(r.is_err(), "{name}: broadening changes nothing visible");
+        }
+    }
+}
+
+/// Long rays (32^3 galaxy: 64 segments, about 500 pieces of tau_front) need several passes of
+/// the resumable kernels on lavapipe, whose loop limiter stops every loop of an invocation
+/// after 65535 iterations: with and without absorption the image still matches the CPU.
+#[test]
+fn long_rays_resume_across_passes_and_match_the_cpu() {
+    let Some(ctx) = test_context() else { return };
+    let v = synth::galaxy(32, 5).unwrap();
+    let mut clear = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
+    clear.factors.velocity = 30.0;
+    clear.factors.blackbody = 0.1;
+    let mut absorbing = clear.clone();
+    absorbing.factors.absorption = 5.0;
+    let st = DopplerSettings::default_for(&clear, 6, 6);
+    for (name, sc) in [("long clear", &clear), ("long absorbing", &absorbing)] {
+        let cpu = render_doppler(sc, &st, &|| {}).unwrap();
+        let gpu = render_doppler_gpu(ctx, sc, &st).unwrap();
+        compare(name, &cpu, &gpu);
+        let (g, c) = (gpu.pieces.max as f64, cpu.pieces.max as f64);
+        eprintln!("{name}: max pieces gpu {g} cpu {c}");
+        assert!(
+            (g - c).abs() <= 0.1 * c + 2.0,
+            "{name}: max pieces gpu {g} cpu {c}"
+        );
+    }
+}
+
+/// A banded render whose one invocation needs more loop iterations than a software adapter
+/// runs (lavapipe stops every loop after 65535 iterations in all) is an error naming the loop
+/// limit there, never a silently darker image; a hardware GPU renders it as the CPU does.
+#[test]
+fn banded_work_beyond_the_software_loop_limit_is_an_error_not_a_wrong_image() {
+    let Some(ctx) = test_context() else { return };
+    let scene = galaxy();
+    let mut st = DopplerSettings::default_for(&scene, 2, 2);
+    st.integrator = SpectralIntegrator::Banded {
+        bands: 100_000,
+        shift: BandShift::EnergyConserving,
+    };
+    match render_doppler_gpu(ctx, &scene, &st) {
+        Err(Error::Internal(m)) if !ctx.is_hardware() => {
+            assert!(m.contains("loop limit"), "{m}");
+        }
+        Ok(gpu) if ctx.is_hardware() => {
+            let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+            compare("banded 100000", &cpu, &gpu);
+        }
+        other => panic!("hardware {}: {other:?}", ctx.is_hardware()),
+    }
+}
+
+/// Broadened emission and absorption lines together (rotating hydrogen shell, 50 km/s
+/// Gaussian, absorption x 2; the sources of each line are added to tau_front one merge pass
+/// at a time, and what tau takes from each emitted Gaussian piece is subtracted) against the
+/// CPU: measured worst relative difference 9e-5 on lavapipe, piece statistics equal.
+#[test]
+fn broadened_lines_with_absorption_match_the_cpu() {
+    let Some(ctx) = test_context() else { return };
+    let mut scene = shell();
+    scene.factors.velocity = 10.0;
+    scene.factors.absorption = 2.0;
+    let mut st = DopplerSettings::default_for(&scene, 8, 8);
+    st.broadening.sigma_m_per_s = 5e4;
+    let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+    let gpu = render_doppler_gpu(ctx, &scene, &st).unwrap();
+    compare("shell broadened, absorption 2", &cpu, &gpu);
+    eprintln!(
+        "broadened absorption: pieces gpu max {} mean {:.1}, cpu max {} mean {:.1}",
+        gpu.pieces.max, gpu.pieces.mean, cpu.pieces.max, cpu.pieces.mean
+    );
+    let pm = |im: &DopplerImage| im.pieces.max as f64;
+    assert!(pm(&cpu) > 0.0 && (pm(&gpu) - pm(&cpu)).abs() <= 0.1 * pm(&cpu) + 2.0);
+    // The absorption acts.
+    let mut clear = scene.clone();
+    clear.factors.absorption = 0.0;
+    let free = render_doppler_gpu(ctx, &clear, &st).unwrap();
+    let y = |im: &DopplerImage| im.xyz.iter().map(|p| p[1]).sum::<f64>();
+    assert!(y(&gpu) < 0.99 * y(&free));
 }

@@ -115,9 +115,9 @@ pub struct Args {
     pub cube: super::doppler_cube::CubeArgs,
     /// Where to render the image: cpu (default, the f64 reference), gpu (a wgpu adapter or an
     /// error) or auto (a hardware GPU when present, else the CPU). The GPU runs the
-    /// piecewise-linear integrator without absorption and the banded ones with or without;
-    /// piecewise-linear absorption, line broadening and cubes are CPU-only (gpu refuses them,
-    /// auto uses the CPU). Picked spectra and traces always run on the CPU.
+    /// piecewise-linear and banded integrators, with or without absorption and line
+    /// broadening; spectral cubes are CPU-only (gpu refuses them, auto uses the CPU), as are
+    /// picked spectra and traces.
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
 }

@@ -42,7 +42,22 @@ struct Params {
     n_abs: u32,        // banded with absorption: absorption entries after the n_lines emission ones
     absorbing: u32,    // banded: 1 when the bands are kept per ray (absorption on)
     abs_factor: f32,   // absorption factor
-    pad1: u32,
+    pix_offset: u32,   // pwl with absorption: first pixel of the tile
+    n_pix: u32,        // pwl with absorption: end of the tile (pixels)
+    piece_cap: u32,    // pwl with absorption: min(piece_budget, device cap) pieces of tau_front
+    region_l: u32,     // pwl with absorption: pieces of regions A and B
+    stride: u32,       // pwl with absorption: floats per ray
+    merge_tol: f32,    // pwl with absorption: merge tolerance
+    pass_index: u32,   // pwl with absorption: 0 starts the rays, later passes resume them
+    iter_budget: u32,  // pwl with absorption: loop iterations after which a pass yields
+    iter_limit: u32,   // pwl with absorption: the adapter's loop limit per invocation
+    broaden: u32,      // pwl without absorption: 1 when lines are broadened (thermal / sigma)
+    sigma2_user: f32,  // broadening: user velocity dispersion squared, (m/s)^2
+    off_kom: u32,      // broadening: offset of k / m per species ((m/s)^2 per K) in `tables`
+    off_gauss: u32,    // broadening: offset of the unit Gaussian's knots (x, then g) in `tables`
+    n_gauss: u32,      // broadening: knots of the unit Gaussian
+    probe_n: u32,      // 2: the trip count of `limiter_exhausted`'s loop (a runtime value)
+    pad3: u32,
 }
 
 struct PixelRay {
@@ -74,6 +89,20 @@ var<private> acc_xyz: vec3<f32>;
 var<private> band_base: u32;
 
 const MAX_SPECIES: u32 = 8u;
+
+// lavapipe (llvmpipe) keeps one loop limiter per shader invocation batch (the SIMD lanes
+// run together): every iteration of every loop of any lane counts, and after 65535 every loop
+// exits at its next iteration end. This probe runs a two-iteration loop (trip count from the
+// uniform, so it is not unrolled): it stops after one iteration only when the limiter is
+// spent, i.e. when some loop may have been cut short. Always false on other adapters.
+fn limiter_exhausted() -> bool {
+    var k = 0u;
+    loop {
+        k += 1u;
+        if (k >= P.probe_n) { break; }
+    }
+    return k < P.probe_n;
+}
 const C_M_PER_S: f32 = 299792458.0;
 
 fn vidx(x: u32, y: u32, z: u32) -> u32 {
@@ -111,7 +140,7 @@ fn corners(p_in: vec3<f32>) -> Corner {
 fn sample_channel(c: Corner, ch: u32) -> f32 {
     let base = ch * P.nvox;
     var v = 0.0;
-    for (var k = 0u; k < 8u; k++) {
+    for (var k = 0u; k < 8u; k++) { iters += 1u;
         v += c.w[k] * channels[base + c.i[k]];
     }
     return v;
@@ -119,7 +148,7 @@ fn sample_channel(c: Corner, ch: u32) -> f32 {
 
 fn sample_velocity(c: Corner) -> vec3<f32> {
     var v = vec3<f32>(0.0);
-    for (var k = 0u; k < 8u; k++) {
+    for (var k = 0u; k < 8u; k++) { iters += 1u;
         let j = 3u * c.i[k];
         v += c.w[k] * vec3<f32>(velocity[j], velocity[j + 1u], velocity[j + 2u]);
     }
@@ -148,7 +177,7 @@ fn trapezoid_xyz(start: f32, end: f32, v0: f32, v1: f32) -> vec3<f32> {
     let last = P.cmf_n - 2u;
     let ia = min(u32(floor((a - lo) / P.cmf_step)), last);
     let ib = min(u32(floor((b - lo) / P.cmf_step)), last);
-    for (var k = ia; k <= ib; k++) {
+    for (var k = ia; k <= ib; k++) { iters += 1u;
         let x0 = lo + f32(k) * P.cmf_step;
         let x1 = x0 + P.cmf_step;
         var u = x0;
@@ -192,7 +221,7 @@ fn bb_xyz(rho: f32, temp: f32, s: f32) -> vec3<f32> {
     var out = vec3<f32>(0.0);
     if (rho <= 0.0 || temp <= 0.0) { return out; }
     let k = value_factor(s) * rho;
-    for (var i = 0u; i < P.bb_k; i++) {
+    for (var i = 0u; i < P.bb_k; i++) { iters += 1u;
         let l = tables[P.off_lambda + i];
         let h = vec3<f32>(tables[P.off_hat + 3u * i], tables[P.off_hat + 3u * i + 1u],
                           tables[P.off_hat + 3u * i + 2u]);
@@ -201,11 +230,183 @@ fn bb_xyz(rho: f32, temp: f32, s: f32) -> vec3<f32> {
     return out;
 }
 
+// ---- Line broadening (blueshift-tracking's profile.rs) ------------------------------------
+
+// Velocity dispersion of species m at temperature t_k, m/s.
+fn sigma_v(m: u32, t_k: f32) -> f32 {
+    return sqrt(tables[P.off_kom + m] * max(t_k, 0.0) + P.sigma2_user);
+}
+
+// `trapezoid_xyz` of the trapezoid on [c + a, c + b] with all lengths taken relative to c:
+// a Gaussian piece is sigma / 4 wide (5e-4 nm at 1 km/s), far below what absolute f32
+// wavelengths resolve (6e-5 nm at 656 nm); only the CMF nodes' offsets from c round, which
+// moves a kink of the continuous CMFs (a second-order error).
+fn trapezoid_xyz_local(c: f32, a: f32, b: f32, v0: f32, v1: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let lo_rel = P.cmf_lo - c;
+    let hi_rel = lo_rel + P.cmf_step * f32(P.cmf_n - 1u);
+    let ua = max(a, lo_rel);
+    let ub = min(b, hi_rel);
+    if (!(ub > ua)) { return out; }
+    let last = P.cmf_n - 2u;
+    let ia = min(u32(max(floor((ua - lo_rel) / P.cmf_step), 0.0)), last);
+    let ib = min(u32(max(floor((ub - lo_rel) / P.cmf_step), 0.0)), last);
+    for (var k = ia; k <= ib; k++) {
+        iters += 1u;
+        let x0 = lo_rel + f32(k) * P.cmf_step;
+        let x1 = x0 + P.cmf_step;
+        var u = x0;
+        var w = x1;
+        if (k == ia) { u = ua; }
+        if (k == ib) { w = ub; }
+        if (w <= u) { continue; }
+        let fu = lerp_at(a, b, v0, v1, u);
+        let fw = lerp_at(a, b, v0, v1, w);
+        let g0 = cmf(k);
+        let g1 = cmf(k + 1u);
+        let gu = g0 + (g1 - g0) * ((u - x0) / P.cmf_step);
+        let gw = g0 + (g1 - g0) * ((w - x0) / P.cmf_step);
+        out += (w - u) * (2.0 * fu * gu + fu * gw + fw * gu + 2.0 * fw * gw) / 6.0;
+    }
+    return out;
+}
+
+// The XYZ of one emitted trapezoid on [c + a, c + b], kept as `segment_lines` keeps it
+// (inside the range, not zero).
+fn emitted_xyz(c: f32, a: f32, b: f32, h0: f32, h1: f32) -> vec3<f32> {
+    if (c + b < P.range_lo || c + a > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) {
+        return vec3<f32>(0.0);
+    }
+    return trapezoid_xyz_local(c, a, b, h0, h1);
+}
+
+// The unit PwlGaussian's tables (host, f64): knots z_i (uniform), values g_i, and the
+// integrals of g and of z g from the first knot to z_i.
+fn gz(i: u32) -> f32 { return tables[P.off_gauss + i]; }
+fn gg(i: u32) -> f32 { return tables[P.off_gauss + P.n_gauss + i]; }
+fn gc0(i: u32) -> f32 { return tables[P.off_gauss + 2u * P.n_gauss + i]; }
+fn gc1(i: u32) -> f32 { return tables[P.off_gauss + 3u * P.n_gauss + i]; }
+
+// (integral of g, integral of z g) from the first knot to z (clamped to the support).
+fn gauss_cum(z_in: f32) -> vec2<f32> {
+    let n = P.n_gauss;
+    let z0 = gz(0u);
+    let zn = gz(n - 1u);
+    let z = clamp(z_in, z0, zn);
+    let hz = (zn - z0) / f32(n - 1u);
+    let i = min(u32(max(floor((z - z0) / hz), 0.0)), n - 2u);
+    let zi = gz(i);
+    let g0 = gg(i);
+    let sl = (gg(i + 1u) - g0) / hz;
+    let d = z - zi;
+    let m0 = d * (g0 + 0.5 * sl * d);
+    let m1 = zi * g0 * d + (zi * sl + g0) * d * d / 2.0 + sl * d * d * d / 3.0;
+    return vec2<f32>(gc0(i) + m0, gc1(i) + m1);
+}
+
+// The XYZ of the PwlGaussian of `area` and `sigma` at `pos`, as the CPU's pieces give it (the
+// pieces `segment_lines` keeps: those not wholly outside the wavelength range), in closed
+// form per CMF interval: on an interval the CMFs are linear, so the integral needs only the
+// profile's area and first moment there (no loop over the 32 pieces).
+fn gauss_xyz(pos: f32, sigma: f32, area: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let n = P.n_gauss;
+    let z0 = gz(0u);
+    let zn = gz(n - 1u);
+    let hz = (zn - z0) / f32(n - 1u);
+    // Kept pieces: end >= range_lo and start <= range_hi.
+    let zl = (P.range_lo - pos) / sigma;
+    let zh = (P.range_hi - pos) / sigma;
+    var za = z0;
+    if (zl > z0) { za = z0 + max(ceil((zl - z0) / hz) - 1.0, 0.0) * hz; }
+    var zb = zn;
+    if (zh < zn) { zb = z0 + min(floor((zh - z0) / hz) + 1.0, f32(n - 1u)) * hz; }
+    // Local wavelengths (relative to pos), clipped to the CMF table.
+    let lo_rel = P.cmf_lo - pos;
+    let hi_rel = lo_rel + P.cmf_step * f32(P.cmf_n - 1u);
+    let ua = max(za * sigma, lo_rel);
+    let ub = min(zb * sigma, hi_rel);
+    if (!(ub > ua)) { return out; }
+    let last = P.cmf_n - 2u;
+    let ia = min(u32(max(floor((ua - lo_rel) / P.cmf_step), 0.0)), last);
+    let ib = min(u32(max(floor((ub - lo_rel) / P.cmf_step), 0.0)), last);
+    for (var k = ia; k <= ib; k++) {
+        iters += 1u;
+        let x0 = lo_rel + f32(k) * P.cmf_step;
+        let u = max(ua, x0);
+        let w = min(ub, x0 + P.cmf_step);
+        if (!(w > u)) { continue; }
+        let m = gauss_cum(w / sigma) - gauss_cum(u / sigma);
+        let g0 = cmf(k);
+        let g1 = cmf(k + 1u);
+        let slope = (g1 - g0) / P.cmf_step;
+        // integral of p (c(pos) + slope (lambda - pos)), c(pos) on this interval's line.
+        let c_pos = g0 + slope * (0.0 - x0);
+        out += area * (m.x * c_pos + sigma * m.y * slope);
+    }
+    return out;
+}
+
+// `emit_line`: one line over a segment (centre seen through shifts sa, sb; areas, velocity
+// dispersions at the ends) as a trapezoid, or as up to 64 piecewise-linear Gaussians placed
+// at the area centroids of equal sub-intervals of the sweep; returns their XYZ.
+fn emit_line_xyz(centre: f32, sa: f32, sb: f32, area_a: f32, area_b: f32, sig_a: f32,
+                 sig_b: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let la = sa * centre;
+    let lb = sb * centre;
+    let sna = la * sig_a / C_M_PER_S;
+    let snb = lb * sig_b / C_M_PER_S;
+    let sigma_mean = 0.5 * (sna + snb);
+    let sweep = abs(lb - la);
+    if (sigma_mean <= 0.0 || sweep >= 16.0 * sigma_mean) {
+        var mw = P.min_width;
+        if (sigma_mean > 0.0) { mw = 0.0; }
+        let wdt = max(sweep, mw);
+        let mid = 0.5 * (la + lb);
+        if (!(wdt > 0.0)) { return out; }
+        var h0 = area_a / wdt;
+        var h1 = area_b / wdt;
+        if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+        return emitted_xyz(mid, -0.5 * wdt, 0.5 * wdt, h0, h1);
+    }
+    let mm = u32(clamp(ceil(4.0 * sweep / sigma_mean), 1.0, 64.0));
+    let inv = 1.0 / f32(mm);
+    let da = area_b - area_a;
+    for (var k = 0u; k < mm; k++) {
+        iters += 1u;
+        let u0 = f32(k) * inv;
+        let u1 = f32(k + 1u) * inv;
+        let a0 = area_a + da * u0;
+        let a1 = area_a + da * u1;
+        let area = 0.5 * (a0 + a1) * (u1 - u0);
+        if (area <= 0.0) { continue; }
+        let num = area_a * 0.5 * (u1 * u1 - u0 * u0) + da * (u1 * u1 * u1 - u0 * u0 * u0) / 3.0;
+        let uc = clamp(num / area, u0, u1);
+        let pos = la + (lb - la) * uc;
+        let sigma = sna + (snb - sna) * uc;
+        if (sigma > 0.0) {
+            out += gauss_xyz(pos, sigma, area);
+        } else {
+            let w = max(P.min_width, 1e-9);
+            out += emitted_xyz(pos, -0.5 * w, 0.5 * w, area / w, area / w);
+        }
+    }
+    return out;
+}
+
+// Resumable like `main_absorb` (lavapipe's loop limit): each pixel keeps 20 floats of state
+// in `bands_buf` between passes (xyz, flag, s_a, t_a, bb_a, temp_a, rho_a, next sample,
+// done); an unfinished pixel writes w = -1.
+const MAIN_STATE: u32 = 20u;
+
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (gid.x >= P.width || gid.y >= P.height) { return; }
     let pix = gid.y * P.width + gid.x;
     let r = rays[pix];
+    let sb = pix * MAIN_STATE;
+    iters = 0u;
     var xyz = vec3<f32>(0.0);
     var flag = 0.0;
     var rho_a: array<f32, 8>;
@@ -213,68 +414,113 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var s_a = 1.0;
     var t_a = 0.0;
     var bb_a = vec3<f32>(0.0);
+    var temp_a = 0.0;
+    var ii = 0u;
     let nsp = min(P.nsp, MAX_SPECIES);
-    if (r.n_seg > 0u) {
-        for (var ii = 0u; ii <= r.n_seg; ii++) {
-            let i = r.n_seg - ii;
-            var t = r.len;
-            if (i != r.n_seg) { t = min(f32(i) * P.step, r.len); }
-            let c = corners(r.p0 + r.dir_idx * t);
-            for (var m = 0u; m < nsp; m++) {
-                rho_b[m] = max(sample_channel(c, m), 0.0);
-            }
-            var bb_b = vec3<f32>(0.0);
-            var s_b = 1.0;
-            var v = vec3<f32>(0.0);
-            if (P.has_vel == 1u) { v = sample_velocity(c) * P.vel_factor; }
-            let v_r = dot(v, r.los);
-            if (P.model == 1u) {
-                let beta = length(v) / C_M_PER_S;
-                if (!(beta < 1.0)) { flag = 1.0; }
-                s_b = (1.0 + v_r / C_M_PER_S) / sqrt(max(1.0 - beta * beta, 1e-30));
-            } else {
-                s_b = 1.0 + v_r / C_M_PER_S;
-            }
-            if (!(s_b > 0.0)) { flag = 1.0; s_b = 1.0; }
-            if (P.has_bb == 1u) {
-                let rho = max(sample_channel(c, P.nsp), 0.0) * P.bb_factor;
-                let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
-                bb_b = bb_xyz(rho, temp, s_b);
-            }
-            if (ii > 0u) {
-                let dt = abs(t_a - t);
-                let ga = value_factor(s_a) * s_a;
-                let gb = value_factor(s_b) * s_b;
-                for (var li = 0u; li < P.n_lines; li++) {
-                    let line = lines[li];
-                    let m = u32(line.z);
-                    let ra = rho_a[m];
-                    let rb = rho_b[m];
-                    if (ra <= 0.0 && rb <= 0.0) { continue; }
-                    let base = dt * line.y;
-                    let area_a = base * ra * ga;
-                    let area_b = base * rb * gb;
-                    let la = s_a * line.x;
-                    let lb = s_b * line.x;
-                    let wdt = max(abs(lb - la), P.min_width);
-                    let mid = 0.5 * (la + lb);
-                    let lo = mid - 0.5 * wdt;
-                    let hi = mid + 0.5 * wdt;
-                    var h0 = area_a / wdt;
-                    var h1 = area_b / wdt;
-                    if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
-                    if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { continue; }
-                    xyz += trapezoid_xyz(lo, hi, h0, h1);
-                }
-                xyz += 0.5 * dt * (bb_a + bb_b);
-            }
-            for (var m = 0u; m < nsp; m++) { rho_a[m] = rho_b[m]; }
-            s_a = s_b;
-            t_a = t;
-            bb_a = bb_b;
-        }
+    if (P.pass_index > 0u) {
+        if (bands_buf[sb + 19u] != 0.0) { return; }
+        xyz = vec3<f32>(bands_buf[sb], bands_buf[sb + 1u], bands_buf[sb + 2u]);
+        flag = bands_buf[sb + 3u];
+        s_a = bands_buf[sb + 4u];
+        t_a = bands_buf[sb + 5u];
+        bb_a = vec3<f32>(bands_buf[sb + 6u], bands_buf[sb + 7u], bands_buf[sb + 8u]);
+        temp_a = bands_buf[sb + 9u];
+        for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_a[m] = bands_buf[sb + 10u + m]; }
+        ii = bitcast<u32>(bands_buf[sb + 18u]);
     }
-    out_xyz[pix] = vec4<f32>(xyz, flag);
+    if (r.n_seg == 0u) { ii = 1u; }
+    while (ii <= r.n_seg && r.n_seg > 0u && iters < P.iter_budget) {
+        iters += 1u;
+        let i = r.n_seg - ii;
+        var t = r.len;
+        if (i != r.n_seg) { t = min(f32(i) * P.step, r.len); }
+        let c = corners(r.p0 + r.dir_idx * t);
+        for (var m = 0u; m < nsp; m++) {
+            iters += 1u;
+            rho_b[m] = max(sample_channel(c, m), 0.0);
+        }
+        var bb_b = vec3<f32>(0.0);
+        var temp_b = 0.0;
+        var s_b = 1.0;
+        var v = vec3<f32>(0.0);
+        if (P.has_vel == 1u) { v = sample_velocity(c) * P.vel_factor; }
+        let v_r = dot(v, r.los);
+        if (P.model == 1u) {
+            let beta = length(v) / C_M_PER_S;
+            if (!(beta < 1.0)) { flag = 1.0; }
+            s_b = (1.0 + v_r / C_M_PER_S) / sqrt(max(1.0 - beta * beta, 1e-30));
+        } else {
+            s_b = 1.0 + v_r / C_M_PER_S;
+        }
+        if (!(s_b > 0.0)) { flag = 1.0; s_b = 1.0; }
+        if (P.has_bb == 1u) {
+            let rho = max(sample_channel(c, P.nsp), 0.0) * P.bb_factor;
+            let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
+            bb_b = bb_xyz(rho, temp, s_b);
+            temp_b = temp;
+        }
+        if (ii > 0u) {
+            let dt = abs(t_a - t);
+            let ga = value_factor(s_a) * s_a;
+            let gb = value_factor(s_b) * s_b;
+            for (var li = 0u; li < P.n_lines; li++) {
+                iters += 1u;
+                let line = lines[li];
+                let m = u32(line.z);
+                let ra = rho_a[m];
+                let rb = rho_b[m];
+                if (ra <= 0.0 && rb <= 0.0) { continue; }
+                let base = dt * line.y;
+                let area_a = base * ra * ga;
+                let area_b = base * rb * gb;
+                if (P.broaden == 1u) {
+                    xyz += emit_line_xyz(line.x, s_a, s_b, area_a, area_b,
+                                         sigma_v(m, temp_a), sigma_v(m, temp_b));
+                    continue;
+                }
+                let la = s_a * line.x;
+                let lb = s_b * line.x;
+                let wdt = max(abs(lb - la), P.min_width);
+                let mid = 0.5 * (la + lb);
+                let lo = mid - 0.5 * wdt;
+                let hi = mid + 0.5 * wdt;
+                var h0 = area_a / wdt;
+                var h1 = area_b / wdt;
+                if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+                if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { continue; }
+                xyz += trapezoid_xyz(lo, hi, h0, h1);
+            }
+            xyz += 0.5 * dt * (bb_a + bb_b);
+        }
+        for (var m = 0u; m < nsp; m++) { iters += 1u; rho_a[m] = rho_b[m]; }
+        s_a = s_b;
+        t_a = t;
+        bb_a = bb_b;
+        temp_a = temp_b;
+        ii++;
+        if (limiter_exhausted()) { flag = 2.0; ii = r.n_seg + 1u; break; }
+    }
+    // One sample that alone passed the adapter's loop limit may have been cut short.
+    if (iters >= P.iter_limit) { flag = 2.0; ii = r.n_seg + 1u; }
+    let done = ii > r.n_seg;
+    bands_buf[sb] = xyz.x;
+    bands_buf[sb + 1u] = xyz.y;
+    bands_buf[sb + 2u] = xyz.z;
+    bands_buf[sb + 3u] = flag;
+    bands_buf[sb + 4u] = s_a;
+    bands_buf[sb + 5u] = t_a;
+    bands_buf[sb + 6u] = bb_a.x;
+    bands_buf[sb + 7u] = bb_a.y;
+    bands_buf[sb + 8u] = bb_a.z;
+    bands_buf[sb + 9u] = temp_a;
+    for (var m = 0u; m < MAX_SPECIES; m++) { bands_buf[sb + 10u + m] = rho_a[m]; }
+    bands_buf[sb + 18u] = bitcast<f32>(ii);
+    bands_buf[sb + 19u] = select(0.0, 1.0, done);
+    if (done) {
+        out_xyz[pix] = vec4<f32>(xyz, flag);
+    } else {
+        out_xyz[pix] = vec4<f32>(0.0, 0.0, 0.0, -1.0);
+    }
 }
 
 // ---- Banded integrator (Algorithm 1), emission only -------------------------------------
@@ -309,7 +555,7 @@ fn deposit_add(lo: f32, hi: f32, area: f32) {
     if (h <= l || hi <= lo) { return; }
     let height = area / (hi - lo);
     let first = min(u32(floor((l - P.range_lo) / P.band_w)), P.n_bands - 1u);
-    for (var i = first; i < P.n_bands; i++) {
+    for (var i = first; i < P.n_bands; i++) { iters += 1u;
         let s = P.range_lo + f32(i) * P.band_w;
         if (s >= h) { break; }
         let ov = min(h, s + P.band_w) - max(l, s);
@@ -324,7 +570,7 @@ fn deposit_absorb(lo: f32, hi: f32, area: f32, len_rho: f32) {
     if (h <= l || hi <= lo) { return; }
     let height = area / (hi - lo);
     let first = min(u32(floor((l - P.range_lo) / P.band_w)), P.n_bands - 1u);
-    for (var i = first; i < P.n_bands; i++) {
+    for (var i = first; i < P.n_bands; i++) { iters += 1u;
         let s = P.range_lo + f32(i) * P.band_w;
         if (s >= h) { break; }
         let ov = min(h, s + P.band_w) - max(l, s);
@@ -336,7 +582,7 @@ fn deposit_absorb(lo: f32, hi: f32, area: f32, len_rho: f32) {
 
 // blueshift-tracking's `absorb_half`: the sample's optical depth over path length `len`.
 fn absorb(rho: ptr<function, array<f32, 8>>, sh: f32, len: f32) {
-    for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+    for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) { iters += 1u;
         let line = lines[li];
         let m = u32(line.z);
         let rm = (*rho)[m];
@@ -365,14 +611,15 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
     let r = rays[pix];
     acc_xyz = vec3<f32>(0.0);
     band_base = pix * P.n_bands;
+    iters = 0u;
     var flag = 0.0;
     var rho: array<f32, 8>;
     let nsp = min(P.nsp, MAX_SPECIES);
     if (P.absorbing == 1u) {
-        for (var b = 0u; b < P.n_bands; b++) { bands_buf[band_base + b] = 0.0; }
+        for (var b = 0u; b < P.n_bands; b++) { iters += 1u; bands_buf[band_base + b] = 0.0; }
     }
     if (r.n_seg > 0u) {
-        for (var ii = 0u; ii <= r.n_seg; ii++) {
+        for (var ii = 0u; ii <= r.n_seg; ii++) { iters += 1u;
             let i = r.n_seg - ii;
             let t = path_t(r, i);
             var wt = 0.0;
@@ -380,7 +627,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
             if (i > 0u) { wt += abs(t - path_t(r, i - 1u)); }
             wt *= 0.5;
             let c = corners(r.p0 + r.dir_idx * t);
-            for (var m = 0u; m < nsp; m++) {
+            for (var m = 0u; m < nsp; m++) { iters += 1u;
                 rho[m] = max(sample_channel(c, m), 0.0);
             }
             var v = vec3<f32>(0.0);
@@ -397,7 +644,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
             if (!(sh > 0.0)) { flag = 1.0; sh = 1.0; }
             let g = value_factor(sh) * sh;
             if (P.absorbing == 1u) { absorb(&rho, sh, 0.5 * wt); }
-            for (var li = 0u; li < P.n_lines; li++) {
+            for (var li = 0u; li < P.n_lines; li++) { iters += 1u;
                 let line = lines[li];
                 let m = u32(line.z);
                 let rm = rho[m];
@@ -416,7 +663,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
                 if (brho > 0.0 && temp > 0.0) {
                     let k = wt * brho * value_factor(sh);
-                    for (var b = 0u; b < P.n_bands; b++) {
+                    for (var b = 0u; b < P.n_bands; b++) { iters += 1u;
                         let cb = tables[P.off_band_c + b];
                         add_band(b, k * planck(cb / sh, temp));
                     }
@@ -426,9 +673,836 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     if (P.absorbing == 1u) {
-        for (var b = 0u; b < P.n_bands; b++) {
+        for (var b = 0u; b < P.n_bands; b++) { iters += 1u;
             acc_xyz += band_weight(b) * bands_buf[band_base + b];
         }
     }
+    // lavapipe stops every loop of an invocation after 65535 iterations: report, not a
+    // silently short ray.
+    if (iters >= P.iter_limit || limiter_exhausted()) { flag = 2.0; }
     out_xyz[pix] = vec4<f32>(acc_xyz, flag);
+}
+
+// ---- Piecewise-linear integrator with absorption, front to back ---------------------------
+// blueshift-tracking's `front_to_back` (pwl.rs): marching from the eye, the ray keeps only
+// the optical depth in front, tau_front(lambda), as a sorted array of linear pieces
+// (start, end, value at start, value at end) in its own region of `bands_buf` (the host
+// sizes it: `stride` floats per ray of the tile). Region layout, in pieces of 4 floats:
+//   A  [0, L)            tau_front
+//   B  [L, 2L)           tau_front + half the segment's depth (tau_mid)
+//   TR [2L, 2L + M)      the segment's absorption trapezoids (half heights), M = n_abs
+//   EP [2L + M, 2L + 2M) their sorted end points (4 per piece)
+//   TT [2L + 2M, 2L + 4M) their sum as sorted pieces
+// A segment's emission E adds its closed-form XYZ to `xyz`, and what tau_mid takes from it,
+// integral E (1 - exp(-tau_mid)) cmf over tau_mid's support, to `taken` (exact per
+// sub-interval cut at tau's, E's and the CMF table's breakpoints, exponential moments from the
+// end where tau is smaller). The pixel is max(xyz - taken, 0).
+
+const BAD: u32 = 0xffffffffu;
+const BIG: f32 = 3.0e38;
+
+var<private> rbase: u32;        // first float of this ray's region in bands_buf
+var<private> rho_f: array<f32, 8>;
+var<private> rho_n: array<f32, 8>;
+var<private> fell_back: bool;   // the piece budget (or the device cap) forced coarser merges
+var<private> budget_scale: f32;
+// Loop iterations of this invocation (lavapipe stops every loop of an invocation after 65535
+// iterations in all: the kernel counts its own and yields before, see `iter_budget`).
+var<private> iters: u32;
+
+struct Samp {
+    t: f32,
+    s: f32,
+    bbr: f32,       // black-body density x factor x BB_UNIT (0: none)
+    temp: f32,      // temperature x factor
+    bbx: vec3<f32>, // XYZ of the sample's black-body row (hat weights)
+    bad: bool,      // the shift was invalid
+}
+
+fn pget(k: u32) -> vec4<f32> {
+    let o = rbase + 4u * k;
+    return vec4<f32>(bands_buf[o], bands_buf[o + 1u], bands_buf[o + 2u], bands_buf[o + 3u]);
+}
+
+fn pset(k: u32, v: vec4<f32>) {
+    let o = rbase + 4u * k;
+    bands_buf[o] = v.x;
+    bands_buf[o + 1u] = v.y;
+    bands_buf[o + 2u] = v.z;
+    bands_buf[o + 3u] = v.w;
+}
+
+fn fget(k: u32) -> f32 { return bands_buf[rbase + k]; }
+fn fset(k: u32, v: f32) { bands_buf[rbase + k] = v; }
+
+fn pat(p: vec4<f32>, x: f32) -> f32 { return lerp_at(p.x, p.y, p.z, p.w, x); }
+
+// Samples the ray at path position t: densities into `rho` (far or near), shift, black body.
+fn sample_at(r: PixelRay, t: f32, far: bool) -> Samp {
+    var o: Samp;
+    o.t = t;
+    o.bad = false;
+    let c = corners(r.p0 + r.dir_idx * t);
+    let nsp = min(P.nsp, MAX_SPECIES);
+    for (var m = 0u; m < nsp; m++) { iters += 1u;
+        let v = max(sample_channel(c, m), 0.0);
+        if (far) { rho_f[m] = v; } else { rho_n[m] = v; }
+    }
+    var v = vec3<f32>(0.0);
+    if (P.has_vel == 1u) { v = sample_velocity(c) * P.vel_factor; }
+    let v_r = dot(v, r.los);
+    var s = 1.0;
+    if (P.model == 1u) {
+        let beta = length(v) / C_M_PER_S;
+        if (!(beta < 1.0)) { o.bad = true; }
+        s = (1.0 + v_r / C_M_PER_S) / sqrt(max(1.0 - beta * beta, 1e-30));
+    } else {
+        s = 1.0 + v_r / C_M_PER_S;
+    }
+    if (!(s > 0.0)) { o.bad = true; s = 1.0; }
+    o.s = s;
+    o.bbr = 0.0;
+    o.temp = 0.0;
+    o.bbx = vec3<f32>(0.0);
+    if (P.has_bb == 1u) {
+        o.bbr = max(sample_channel(c, P.nsp), 0.0) * P.bb_factor;
+        o.temp = max(sample_channel(c, P.nsp + 1u), 0.0) * P.temp_factor;
+        o.bbx = bb_xyz(o.bbr, o.temp, s);
+    }
+    return o;
+}
+
+fn has_bb_row(a: Samp) -> bool { return a.bbr > 0.0 && a.temp > 0.0; }
+
+// One sample's black-body value on grid point i (the CPU's `bb_row`).
+fn bb_value(a: Samp, i: u32) -> f32 {
+    if (!has_bb_row(a)) { return 0.0; }
+    return value_factor(a.s) * a.bbr * planck(tables[P.off_lambda + i] / a.s, a.temp);
+}
+
+struct Trap {
+    t: vec4<f32>,   // lo, hi, value at lo, value at hi
+    ok: bool,
+}
+
+// Line entry `li` over the segment (a = far end, b = near end), as `segment_lines` gives it:
+// emission (values include the shift factor k(s) s) or optical depth, times `scale`.
+fn seg_trap(li: u32, far: Samp, near: Samp, dt: f32, emission: bool, scale: f32) -> Trap {
+    var o: Trap;
+    o.ok = false;
+    let line = lines[li];
+    let m = u32(line.z);
+    let ra = rho_f[m];
+    let rb = rho_n[m];
+    if (ra <= 0.0 && rb <= 0.0) { return o; }
+    var ga = 1.0;
+    var gb = 1.0;
+    if (emission) {
+        ga = value_factor(far.s) * far.s;
+        gb = value_factor(near.s) * near.s;
+    }
+    let base = scale * dt * line.y;
+    let area_a = base * ra * ga;
+    let area_b = base * rb * gb;
+    let la = far.s * line.x;
+    let lb = near.s * line.x;
+    let wdt = max(abs(lb - la), P.min_width);
+    let mid = 0.5 * (la + lb);
+    let lo = mid - 0.5 * wdt;
+    let hi = mid + 0.5 * wdt;
+    var h0 = area_a / wdt;
+    var h1 = area_b / wdt;
+    if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+    if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { return o; }
+    o.t = vec4<f32>(lo, hi, h0, h1);
+    o.ok = hi > lo;
+    return o;
+}
+
+// Inserts x into the sorted, duplicate-free floats [e0, e0 + n); returns the new count.
+fn insert_sorted(e0: u32, n: u32, x: f32) -> u32 {
+    var i = 0u;
+    while (i < n && fget(e0 + i) < x) { iters += 1u; i++; }
+    if (i < n && fget(e0 + i) == x) { return n; }
+    for (var j = n; j > i; j--) { iters += 1u; fset(e0 + j, fget(e0 + j - 1u)); }
+    fset(e0 + i, x);
+    return n + 1u;
+}
+
+// The sum of the mt trapezoids at TR as sorted pieces at TT (cut at every end point, gaps
+// left out, as repeated `add_trapezoid` gives it). Returns the piece count.
+fn build_sum(tr: u32, ep: u32, tt: u32, mt: u32) -> u32 {
+    let e0 = 4u * ep;
+    var ne = 0u;
+    for (var i = 0u; i < mt; i++) { iters += 1u;
+        let q = pget(tr + i);
+        ne = insert_sorted(e0, ne, q.x);
+        ne = insert_sorted(e0, ne, q.y);
+    }
+    var nt = 0u;
+    for (var k = 0u; k + 1u < ne; k++) { iters += 1u;
+        let x0 = fget(e0 + k);
+        let x1 = fget(e0 + k + 1u);
+        var v0 = 0.0;
+        var v1 = 0.0;
+        var covered = false;
+        for (var i = 0u; i < mt; i++) { iters += 1u;
+            let q = pget(tr + i);
+            if (q.x <= x0 && x1 <= q.y) {
+                covered = true;
+                v0 += pat(q, x0);
+                v1 += pat(q, x1);
+            }
+        }
+        if (covered) {
+            pset(tt + nt, vec4<f32>(x0, x1, v0, v1));
+            nt++;
+        }
+    }
+    return nt;
+}
+
+// dst = src (na pieces) + tt (nt pieces), both sorted and disjoint: cut at the breakpoints
+// of both where either is non-zero, as `PiecewiseLinear::add_trapezoid`. BAD when more than
+// `cap` pieces would be needed (src is left untouched).
+fn sum_into(src: u32, na: u32, tt: u32, nt: u32, dst: u32, cap: u32) -> u32 {
+    var i = 0u;
+    var j = 0u;
+    var n = 0u;
+    var x = -BIG;
+    loop { iters += 1u;
+        let has_p = i < na;
+        let has_q = j < nt;
+        if (!has_p && !has_q) { break; }
+        var p = vec4<f32>(0.0);
+        var q = vec4<f32>(0.0);
+        var ps = BIG;
+        var qs = BIG;
+        if (has_p) { p = pget(src + i); ps = max(p.x, x); }
+        if (has_q) { q = pget(tt + j); qs = max(q.x, x); }
+        let s = min(ps, qs);
+        var e = BIG;
+        if (has_p) { if (ps > s) { e = min(e, ps); } else { e = min(e, p.y); } }
+        if (has_q) { if (qs > s) { e = min(e, qs); } else { e = min(e, q.y); } }
+        var v0 = 0.0;
+        var v1 = 0.0;
+        if (has_p && ps <= s) { v0 += pat(p, s); v1 += pat(p, e); }
+        if (has_q && qs <= s) { v0 += pat(q, s); v1 += pat(q, e); }
+        if (n >= cap) { return BAD; }
+        pset(dst + n, vec4<f32>(s, e, v0, v1));
+        n++;
+        x = e;
+        if (has_p && p.y <= x) { i++; }
+        if (has_q && q.y <= x) { j++; }
+    }
+    return n;
+}
+
+// `PiecewiseLinear::merged(tol)` in place on [off, off + n): runs of contiguous pieces become
+// one line while it stays within tol of every breakpoint (a cone of slopes from the run's
+// start); zero pieces, and runs merged into zero, are dropped (as the CPU's
+// `from_sorted_unchecked`). With `bridge` (the device's last resort, counted as a
+// fallback) runs also cross gaps, the line kept within tol of zero over the gap.
+fn merge(off: u32, n: u32, tol: f32, bridge: bool) -> u32 {
+    var out = 0u;
+    var have = false;
+    var x0 = 0.0;
+    var y0 = 0.0;
+    var xe = 0.0;
+    var ye = 0.0;
+    var lo = -BIG;
+    var hi = BIG;
+    for (var k = 0u; k < n; k++) { iters += 1u;
+        let p = pget(off + k);
+        if (p.z == 0.0 && p.w == 0.0) {
+            if (have) {
+                if (y0 != 0.0 || ye != 0.0) {
+                    pset(off + out, vec4<f32>(x0, xe, y0, ye));
+                    out++;
+                }
+                have = false;
+            }
+            continue;
+        }
+        if (have && (xe == p.x || bridge)) {
+            var l2 = lo;
+            var h2 = hi;
+            let dx = xe - x0;
+            l2 = max(l2, (ye - tol - y0) / dx);
+            h2 = min(h2, (ye + tol - y0) / dx);
+            if (xe == p.x) {
+                l2 = max(l2, (p.z - tol - y0) / dx);
+                h2 = min(h2, (p.z + tol - y0) / dx);
+            } else {
+                let dg = p.x - x0;
+                l2 = max(l2, max((-tol - y0) / dx, (-tol - y0) / dg));
+                h2 = min(h2, min((tol - y0) / dx, (tol - y0) / dg));
+                l2 = max(l2, (p.z - tol - y0) / dg);
+                h2 = min(h2, (p.z + tol - y0) / dg);
+            }
+            let slope = (p.w - y0) / (p.y - x0);
+            if (l2 <= slope && slope <= h2) {
+                lo = l2;
+                hi = h2;
+                xe = p.y;
+                ye = p.w;
+                continue;
+            }
+        }
+        if (have && (y0 != 0.0 || ye != 0.0)) {
+            pset(off + out, vec4<f32>(x0, xe, y0, ye));
+            out++;
+        }
+        have = true;
+        x0 = p.x;
+        y0 = p.z;
+        xe = p.y;
+        ye = p.w;
+        lo = -BIG;
+        hi = BIG;
+    }
+    if (have && (y0 != 0.0 || ye != 0.0)) {
+        pset(off + out, vec4<f32>(x0, xe, y0, ye));
+        out++;
+    }
+    return out;
+}
+
+fn max_value(off: u32, n: u32) -> f32 {
+    var m = 0.0;
+    for (var k = 0u; k < n; k++) { iters += 1u;
+        let p = pget(off + k);
+        m = max(m, max(p.z, p.w));
+    }
+    return m;
+}
+
+// dst = src + tt; when that needs more than L pieces, src is merged across gaps with growing
+// tolerances until it fits (the device cap's fallback, counted). Returns dst's count or BAD.
+fn add_sum(src: u32, n_src: ptr<function, u32>, tt: u32, nt: u32, dst: u32) -> u32 {
+    var n = sum_into(src, *n_src, tt, nt, dst, P.region_l);
+    var tol = max(P.merge_tol * budget_scale, 1e-6 * max_value(src, *n_src));
+    var guard = 0u;
+    while (n == BAD && guard < 64u) { iters += 1u;
+        fell_back = true;
+        tol = min(tol * 4.0, 1e30);
+        *n_src = merge(src, *n_src, tol, true);
+        n = sum_into(src, *n_src, tt, nt, dst, P.region_l);
+        guard++;
+    }
+    return n;
+}
+
+// `[int_0^h x^n exp(-s x) dx, n = 0, 1, 2]` for s >= 0: the series below |s h| = 1 (the
+// recurrence cancels there; 12 terms leave < 2e-10), the recurrence above (loses < 20 ulp).
+fn exp_moments(s: f32, h: f32) -> vec3<f32> {
+    let z = s * h;
+    if (z < 1.0) {
+        // sum_k (-z)^k / k! / (n + k + 1), k = 0..11, as straight-line code (a loop here
+        // would spend the software adapter's loop budget once per sub-interval).
+        let y = -z;
+        var m = vec3<f32>(1.0, 0.5, 1.0 / 3.0);
+        var t = y;
+        m += t * vec3<f32>(1.0 / 2.0, 1.0 / 3.0, 1.0 / 4.0);
+        t *= y / 2.0;
+        m += t * vec3<f32>(1.0 / 3.0, 1.0 / 4.0, 1.0 / 5.0);
+        t *= y / 3.0;
+        m += t * vec3<f32>(1.0 / 4.0, 1.0 / 5.0, 1.0 / 6.0);
+        t *= y / 4.0;
+        m += t * vec3<f32>(1.0 / 5.0, 1.0 / 6.0, 1.0 / 7.0);
+        t *= y / 5.0;
+        m += t * vec3<f32>(1.0 / 6.0, 1.0 / 7.0, 1.0 / 8.0);
+        t *= y / 6.0;
+        m += t * vec3<f32>(1.0 / 7.0, 1.0 / 8.0, 1.0 / 9.0);
+        t *= y / 7.0;
+        m += t * vec3<f32>(1.0 / 8.0, 1.0 / 9.0, 1.0 / 10.0);
+        t *= y / 8.0;
+        m += t * vec3<f32>(1.0 / 9.0, 1.0 / 10.0, 1.0 / 11.0);
+        t *= y / 9.0;
+        m += t * vec3<f32>(1.0 / 10.0, 1.0 / 11.0, 1.0 / 12.0);
+        t *= y / 10.0;
+        m += t * vec3<f32>(1.0 / 11.0, 1.0 / 12.0, 1.0 / 13.0);
+        t *= y / 11.0;
+        m += t * vec3<f32>(1.0 / 12.0, 1.0 / 13.0, 1.0 / 14.0);
+        return vec3<f32>(m.x * h, m.y * h * h, m.z * h * h * h);
+    }
+    let e = exp(-z);
+    let i0 = (1.0 - e) / s;
+    let i1 = (i0 - h * e) / s;
+    let i2 = (2.0 * i1 - h * h * e) / s;
+    return vec3<f32>(i0, i1, i2);
+}
+
+// integral over [u, w] of E C (1 - exp(-tau)), E and C linear (values at the ends), tau
+// linear with the piece's slope; the exponential taken from the end where tau is smaller.
+fn absorbed_on(u: f32, w: f32, e_u: f32, e_w: f32, c_u: vec3<f32>, c_w: vec3<f32>,
+               tau_u: f32, tau_w: f32, slope: f32) -> vec3<f32> {
+    let h = w - u;
+    var base = 0.0;
+    var m = vec3<f32>(0.0);
+    let flip = slope < 0.0;
+    if (flip) {
+        base = exp(-max(tau_w, 0.0));
+        m = exp_moments(-slope, h);
+    } else {
+        base = exp(-max(tau_u, 0.0));
+        m = exp_moments(slope, h);
+    }
+    let de = (e_w - e_u) / h;
+    let dc = (c_w - c_u) / h;
+    let q0 = e_u * c_u;
+    let q1 = e_u * dc + de * c_u;
+    let q2 = de * dc;
+    let full = q0 * h + q1 * (h * h / 2.0) + q2 * (h * h * h / 3.0);
+    var r0 = q0;
+    var r1 = q1;
+    if (flip) {
+        r0 = q0 + q1 * h + q2 * (h * h);
+        r1 = -q1 - 2.0 * q2 * h;
+    }
+    return full - base * (r0 * m.x + r1 * m.y + q2 * m.z);
+}
+
+// The next node of the grid base + k step strictly after u.
+fn next_node(u: f32, base: f32, step: f32) -> f32 {
+    let k = floor((u - base) / step) + 1.0;
+    var x = base + k * step;
+    if (x <= u) { x = base + (k + 1.0) * step; }
+    return x;
+}
+
+fn cmf_hi() -> f32 { return P.cmf_lo + P.cmf_step * f32(P.cmf_n - 1u); }
+
+// The CMFs at x, on the table interval holding `mid`.
+fn cmf_on(mid: f32, x: f32) -> vec3<f32> {
+    let k = min(u32(max(floor((mid - P.cmf_lo) / P.cmf_step), 0.0)), P.cmf_n - 2u);
+    let x0 = P.cmf_lo + f32(k) * P.cmf_step;
+    let g0 = cmf(k);
+    let g1 = cmf(k + 1u);
+    return g0 + (g1 - g0) * ((x - x0) / P.cmf_step);
+}
+
+// What tau (region off, n pieces) takes from the segment's black body (the trapezoid rule
+// along the ray on the black-body grid: row_i = dt (f_far,i + f_near,i) / 2).
+fn absorbed_bb(off: u32, n: u32, far: Samp, near: Samp, dt: f32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let kk = P.bb_k;
+    let g0 = tables[P.off_lambda];
+    let g1 = tables[P.off_lambda + kk - 1u];
+    let gstep = (g1 - g0) / f32(kk - 1u);
+    var cached = BAD;
+    var r0 = 0.0;
+    var r1 = 0.0;
+    for (var k = 0u; k < n; k++) { iters += 1u;
+        let p = pget(off + k);
+        if (p.z <= 0.0 && p.w <= 0.0) { continue; }
+        let lo = max(p.x, max(P.cmf_lo, g0));
+        let hi = min(p.y, min(cmf_hi(), g1));
+        if (!(hi > lo)) { continue; }
+        let slope = (p.w - p.z) / (p.y - p.x);
+        var u = lo;
+        var guard = 0u;
+        while (u < hi && guard < 100000u) { iters += 1u;
+            guard++;
+            let w = min(hi, min(next_node(u, P.cmf_lo, P.cmf_step), next_node(u, g0, gstep)));
+            let mid = 0.5 * (u + w);
+            let gi = min(u32(max(floor((mid - g0) / gstep), 0.0)), kk - 2u);
+            if (gi != cached) {
+                cached = gi;
+                r0 = 0.5 * dt * (bb_value(far, gi) + bb_value(near, gi));
+                r1 = 0.5 * dt * (bb_value(far, gi + 1u) + bb_value(near, gi + 1u));
+            }
+            let xi = tables[P.off_lambda + gi];
+            let xj = tables[P.off_lambda + gi + 1u];
+            let e_u = lerp_at(xi, xj, r0, r1, u);
+            let e_w = lerp_at(xi, xj, r0, r1, w);
+            if (e_u > 0.0 || e_w > 0.0) {
+                out += absorbed_on(u, w, e_u, e_w, cmf_on(mid, u), cmf_on(mid, w),
+                                   pat(p, u), pat(p, w), slope);
+            }
+            u = w;
+        }
+    }
+    return out;
+}
+
+// What tau (region off, n pieces) takes from one emission trapezoid.
+fn absorbed_line(off: u32, n: u32, tr: vec4<f32>) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let a = max(tr.x, P.cmf_lo);
+    let b = min(tr.y, cmf_hi());
+    if (!(b > a)) { return out; }
+    // First piece ending after a.
+    var lo_i = 0u;
+    var hi_i = n;
+    while (lo_i < hi_i) { iters += 1u;
+        let mid = (lo_i + hi_i) / 2u;
+        if (pget(off + mid).y <= a) { lo_i = mid + 1u; } else { hi_i = mid; }
+    }
+    for (var k = lo_i; k < n; k++) { iters += 1u;
+        let p = pget(off + k);
+        if (p.x >= b) { break; }
+        if (p.z <= 0.0 && p.w <= 0.0) { continue; }
+        let slope = (p.w - p.z) / (p.y - p.x);
+        var u = max(a, p.x);
+        let end = min(b, p.y);
+        var guard = 0u;
+        while (u < end && guard < 100000u) { iters += 1u;
+            guard++;
+            let w = min(end, next_node(u, P.cmf_lo, P.cmf_step));
+            let mid = 0.5 * (u + w);
+            let e_u = lerp_at(tr.x, tr.y, tr.z, tr.w, u);
+            let e_w = lerp_at(tr.x, tr.y, tr.z, tr.w, w);
+            if (e_u > 0.0 || e_w > 0.0) {
+                out += absorbed_on(u, w, e_u, e_w, cmf_on(mid, u), cmf_on(mid, w),
+                                   pat(p, u), pat(p, w), slope);
+            }
+            u = w;
+        }
+    }
+    return out;
+}
+
+// ---- Broadened lines with absorption -------------------------------------------------------
+// With broadening each line's sweep is the CPU's `emit_line`: a trapezoid or up to 64
+// Gaussians of 32 pieces. Its sources are handled one at a time: mode 1 returns what tau
+// (region off, n pieces) takes from them (emission lines); mode 2 adds them at half height
+// to tau_front (absorption lines), one merge pass per source between the two regions
+// (`t_cur` holds the current tau, `t_n` its pieces).
+var<private> t_cur: u32;
+var<private> t_oth: u32;
+var<private> t_n: u32;
+var<private> t_bad: bool;
+var<private> t_tt: u32;     // scratch pieces for one source
+
+fn add_run(nt: u32) {
+    var n = t_n;
+    let r = add_sum(t_cur, &n, t_tt, nt, t_oth);
+    if (r == BAD) { t_bad = true; return; }
+    t_n = r;
+    let c = t_cur;
+    t_cur = t_oth;
+    t_oth = c;
+}
+
+fn source_trap(lo: f32, hi: f32, h0: f32, h1: f32, mode: u32, off: u32, n: u32) -> vec3<f32> {
+    if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0) || !(hi > lo)) {
+        return vec3<f32>(0.0);
+    }
+    if (mode == 1u) { return absorbed_line(off, n, vec4<f32>(lo, hi, h0, h1)); }
+    pset(t_tt, vec4<f32>(lo, hi, 0.5 * h0, 0.5 * h1));
+    add_run(1u);
+    return vec3<f32>(0.0);
+}
+
+fn source_gauss(pos: f32, sigma: f32, area: f32, mode: u32, off: u32, n: u32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let ng = P.n_gauss;
+    let z0 = gz(0u);
+    let zn = gz(ng - 1u);
+    let hz = (zn - z0) / f32(ng - 1u);
+    let kk = area / sigma;
+    var cnt = 0u;
+    for (var i = 0u; i + 1u < ng; i++) {
+        iters += 1u;
+        let lo = pos + gz(i) * sigma;
+        let hi = pos + gz(i + 1u) * sigma;
+        let h0 = kk * gg(i);
+        let h1 = kk * gg(i + 1u);
+        if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0) || !(hi > lo)) {
+            continue;
+        }
+        if (mode == 1u) {
+            out += absorbed_line(off, n, vec4<f32>(lo, hi, h0, h1));
+        } else {
+            pset(t_tt + cnt, vec4<f32>(lo, hi, 0.5 * h0, 0.5 * h1));
+            cnt++;
+        }
+    }
+    if (mode == 2u && cnt > 0u) { add_run(cnt); }
+    return out;
+}
+
+// `emit_line` with its sources handled by `mode` (see above).
+fn emit_line_sources(centre: f32, sa: f32, sb: f32, area_a: f32, area_b: f32, sig_a: f32,
+                     sig_b: f32, mode: u32, off: u32, n: u32) -> vec3<f32> {
+    var out = vec3<f32>(0.0);
+    let la = sa * centre;
+    let lb = sb * centre;
+    let sna = la * sig_a / C_M_PER_S;
+    let snb = lb * sig_b / C_M_PER_S;
+    let sigma_mean = 0.5 * (sna + snb);
+    let sweep = abs(lb - la);
+    if (sigma_mean <= 0.0 || sweep >= 16.0 * sigma_mean) {
+        var mw = P.min_width;
+        if (sigma_mean > 0.0) { mw = 0.0; }
+        let wdt = max(sweep, mw);
+        let mid = 0.5 * (la + lb);
+        if (!(wdt > 0.0)) { return out; }
+        var h0 = area_a / wdt;
+        var h1 = area_b / wdt;
+        if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+        return source_trap(mid - 0.5 * wdt, mid + 0.5 * wdt, h0, h1, mode, off, n);
+    }
+    let mm = u32(clamp(ceil(4.0 * sweep / sigma_mean), 1.0, 64.0));
+    let inv = 1.0 / f32(mm);
+    let da = area_b - area_a;
+    for (var k = 0u; k < mm; k++) {
+        iters += 1u;
+        let u0 = f32(k) * inv;
+        let u1 = f32(k + 1u) * inv;
+        let a0 = area_a + da * u0;
+        let a1 = area_a + da * u1;
+        let area = 0.5 * (a0 + a1) * (u1 - u0);
+        if (area <= 0.0) { continue; }
+        let num = area_a * 0.5 * (u1 * u1 - u0 * u0) + da * (u1 * u1 * u1 - u0 * u0 * u0) / 3.0;
+        let uc = clamp(num / area, u0, u1);
+        let pos = la + (lb - la) * uc;
+        let sigma = sna + (snb - sna) * uc;
+        if (sigma > 0.0) {
+            out += source_gauss(pos, sigma, area, mode, off, n);
+        } else {
+            let w = max(P.min_width, 1e-9);
+            out += source_trap(pos - 0.5 * w, pos + 0.5 * w, area / w, area / w, mode, off, n);
+        }
+    }
+    return out;
+}
+
+// Line entry li's areas over the segment (a = far end, b = near end), and its species.
+struct LineAreas {
+    ok: bool,
+    m: u32,
+    area_a: f32,
+    area_b: f32,
+}
+
+fn line_areas(li: u32, far: Samp, near: Samp, dt: f32, emission: bool) -> LineAreas {
+    var o: LineAreas;
+    let line = lines[li];
+    o.m = u32(line.z);
+    let ra = rho_f[o.m];
+    let rb = rho_n[o.m];
+    o.ok = !(ra <= 0.0 && rb <= 0.0);
+    var ga = 1.0;
+    var gb = 1.0;
+    if (emission) {
+        ga = value_factor(far.s) * far.s;
+        gb = value_factor(near.s) * near.s;
+    }
+    let base = dt * line.y;
+    o.area_a = base * ra * ga;
+    o.area_b = base * rb * gb;
+    return o;
+}
+
+// Adds half of the segment's broadened absorption lines to tau (t_cur, t_n).
+fn add_broadened_half(far: Samp, near: Samp, dt: f32) {
+    for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+        iters += 1u;
+        let a = line_areas(li, far, near, dt, false);
+        if (!a.ok) { continue; }
+        let line = lines[li];
+        emit_line_sources(line.x, far.s, near.s, a.area_a, a.area_b, sigma_v(a.m, far.temp),
+                          sigma_v(a.m, near.temp), 2u, 0u, 0u);
+    }
+}
+
+// Per-ray state between passes (floats at the start of the ray's region, 8 pieces): the
+// kernel yields after `iter_budget` loop iterations and the host dispatches it again.
+const ST_PIECES: u32 = 8u;
+
+fn save_state(xyz: vec3<f32>, taken: vec3<f32>, na: u32, merges: u32, merge_at: u32,
+              max_pieces: u32, flags: u32, seg: u32, near: Samp) {
+    fset(0u, xyz.x); fset(1u, xyz.y); fset(2u, xyz.z);
+    fset(3u, taken.x); fset(4u, taken.y); fset(5u, taken.z);
+    fset(6u, bitcast<f32>(na));
+    fset(7u, bitcast<f32>(merges));
+    fset(8u, bitcast<f32>(merge_at));
+    fset(9u, bitcast<f32>(max_pieces));
+    fset(10u, budget_scale);
+    fset(11u, bitcast<f32>(flags));
+    fset(12u, bitcast<f32>(seg));
+    fset(13u, near.t); fset(14u, near.s); fset(15u, near.bbr); fset(16u, near.temp);
+    fset(17u, near.bbx.x); fset(18u, near.bbx.y); fset(19u, near.bbx.z);
+    for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; fset(20u + m, rho_n[m]); }
+}
+
+// The front-to-back pass of one ray (see the section comment), resumable: pass 0 starts the
+// ray, later passes continue from the saved state; a finished ray writes its pixel (w: the
+// flags, max pieces x 16 + 8 loop limiter spent + 4 region overflow + 2 fallback + 1 invalid
+// shift), an unfinished one writes w = -1.
+@compute @workgroup_size(64, 1, 1)
+fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let pix = P.pix_offset + gid.x;
+    if (pix >= P.n_pix) { return; }
+    let r = rays[pix];
+    rbase = gid.x * P.stride;
+    iters = 0u;
+    let L = P.region_l;
+    let M = max(P.n_abs, 1u);
+    let A = ST_PIECES;
+    let B = ST_PIECES + L;
+    let TR = ST_PIECES + 2u * L;
+    let EP = ST_PIECES + 2u * L + M;
+    let TT = ST_PIECES + 2u * L + 2u * M;
+    var xyz = vec3<f32>(0.0);
+    var taken = vec3<f32>(0.0);
+    var na = 0u;
+    var merges = 0u;
+    var merge_at = 64u;
+    var max_pieces = 0u;
+    var flags = 0u;
+    var seg = 0u;
+    var near: Samp;
+    if (P.pass_index == 0u) {
+        fell_back = false;
+        budget_scale = 1.0;
+        if (r.n_seg > 0u) {
+            near = sample_at(r, path_t(r, 0u), false);
+            if (near.bad) { flags |= 1u; }
+        }
+    } else {
+        flags = bitcast<u32>(fget(11u));
+        seg = bitcast<u32>(fget(12u));
+        if ((flags & 16u) != 0u) { return; }
+        xyz = vec3<f32>(fget(0u), fget(1u), fget(2u));
+        taken = vec3<f32>(fget(3u), fget(4u), fget(5u));
+        na = bitcast<u32>(fget(6u));
+        merges = bitcast<u32>(fget(7u));
+        merge_at = bitcast<u32>(fget(8u));
+        max_pieces = bitcast<u32>(fget(9u));
+        budget_scale = fget(10u);
+        fell_back = (flags & 2u) != 0u;
+        near.t = fget(13u);
+        near.s = fget(14u);
+        near.bbr = fget(15u);
+        near.temp = fget(16u);
+        near.bbx = vec3<f32>(fget(17u), fget(18u), fget(19u));
+        near.bad = false;
+        for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_n[m] = fget(20u + m); }
+    }
+    while (seg < r.n_seg && iters < P.iter_budget) {
+        iters += 1u;
+        let far = sample_at(r, path_t(r, seg + 1u), true);
+        if (far.bad) { flags |= 1u; }
+        let dt = abs(far.t - near.t);
+        // Emission: closed-form XYZ of the lines and of the black body.
+        var any_emit = false;
+        for (var li = 0u; li < P.n_lines; li++) {
+            iters += 1u;
+            if (P.broaden == 1u) {
+                let a = line_areas(li, far, near, dt, true);
+                if (a.ok) {
+                    any_emit = true;
+                    xyz += emit_line_xyz(lines[li].x, far.s, near.s, a.area_a, a.area_b,
+                                         sigma_v(a.m, far.temp), sigma_v(a.m, near.temp));
+                }
+                continue;
+            }
+            let e = seg_trap(li, far, near, dt, true, 1.0);
+            if (e.ok) {
+                any_emit = true;
+                xyz += trapezoid_xyz(e.t.x, e.t.y, e.t.z, e.t.w);
+            }
+        }
+        let has_bb = has_bb_row(far) || has_bb_row(near);
+        if (has_bb) { xyz += 0.5 * dt * (far.bbx + near.bbx); }
+        if (P.broaden == 1u) {
+            // Broadened: sources one by one into tau, absorbed light per emitted source.
+            t_cur = A;
+            t_oth = B;
+            t_n = na;
+            t_tt = TT;
+            t_bad = false;
+            add_broadened_half(far, near, dt);
+            if (t_bad) { flags |= 4u; break; }
+            let mid_off = t_cur;
+            let nmid = t_n;
+            if (nmid > 0u && (has_bb || any_emit)) {
+                if (has_bb) { taken += absorbed_bb(mid_off, nmid, far, near, dt); }
+                for (var li = 0u; li < P.n_lines; li++) {
+                    iters += 1u;
+                    let a = line_areas(li, far, near, dt, true);
+                    if (!a.ok) { continue; }
+                    taken += emit_line_sources(lines[li].x, far.s, near.s, a.area_a, a.area_b,
+                                               sigma_v(a.m, far.temp),
+                                               sigma_v(a.m, near.temp), 1u, mid_off, nmid);
+                }
+            }
+            add_broadened_half(far, near, dt);
+            if (t_bad) { flags |= 4u; break; }
+            na = t_n;
+            if (t_cur != A) {
+                for (var k = 0u; k < na; k++) { iters += 1u; pset(A + k, pget(B + k)); }
+            }
+        } else {
+        // The segment's absorption trapezoids at half height, and their sum.
+        var mt = 0u;
+        for (var li = P.n_lines; li < P.n_lines + P.n_abs; li++) {
+            iters += 1u;
+            let e = seg_trap(li, far, near, dt, false, 1.0);
+            if (e.ok) {
+                pset(TR + mt, vec4<f32>(e.t.x, e.t.y, 0.5 * e.t.z, 0.5 * e.t.w));
+                mt++;
+            }
+        }
+        var nt = 0u;
+        if (mt > 0u) { nt = build_sum(TR, EP, TT, mt); }
+        // tau_mid = tau_front + half the segment's depth (in B; A itself when none).
+        var mid_off = A;
+        var nmid = na;
+        if (nt > 0u) {
+            nmid = add_sum(A, &na, TT, nt, B);
+            mid_off = B;
+            if (nmid == BAD) { flags |= 4u; break; }
+        }
+        if (nmid > 0u && (has_bb || any_emit)) {
+            if (has_bb) { taken += absorbed_bb(mid_off, nmid, far, near, dt); }
+            for (var li = 0u; li < P.n_lines; li++) {
+                iters += 1u;
+                let e = seg_trap(li, far, near, dt, true, 1.0);
+                if (e.ok) { taken += absorbed_line(mid_off, nmid, e.t); }
+            }
+        }
+        // tau_front = tau_mid + the other half.
+        if (nt > 0u) {
+            na = add_sum(B, &nmid, TT, nt, A);
+            if (na == BAD) { flags |= 4u; break; }
+        }
+        }
+        // The CPU's merge schedule: the k-th merge with tol 6 / (pi k)^2, then the budget.
+        if (na > merge_at) {
+            merges++;
+            let kf = f32(merges);
+            let share = 6.0 / (9.8696044 * kf * kf);
+            na = merge(A, na, P.merge_tol * share, false);
+            merge_at = max(2u * na, 64u);
+        }
+        var guard = 0u;
+        while (na > P.piece_cap && guard < 40u) {
+            iters += 1u;
+            budget_scale = min(budget_scale * 4.0, 1e30);
+            na = merge(A, na, P.merge_tol * budget_scale, false);
+            fell_back = true;
+            guard++;
+        }
+        max_pieces = max(max_pieces, na);
+        near = far;
+        for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_n[m] = rho_f[m]; }
+        seg++;
+        if (limiter_exhausted()) { flags |= 8u; break; }
+    }
+    if (fell_back) { flags |= 2u; }
+    // A segment that alone passed the adapter's loop limit may have been cut short.
+    if (iters >= P.iter_limit) { flags |= 8u; }
+    let done = seg >= r.n_seg || (flags & 12u) != 0u;
+    if (done) { flags |= 16u; }
+    save_state(xyz, taken, na, merges, merge_at, max_pieces, flags, seg, near);
+    if (done) {
+        let f = (flags & 15u) + 16u * max_pieces;
+        out_xyz[pix] = vec4<f32>(max(xyz - taken, vec3<f32>(0.0)), f32(f));
+    } else {
+        out_xyz[pix] = vec4<f32>(0.0, 0.0, 0.0, -1.0);
+    }
 }
