@@ -365,9 +365,9 @@ fn emit_line_xyz(centre: f32, sa: f32, sb: f32, area_a: f32, area_b: f32, sig_a:
         let wdt = max(sweep, mw);
         let mid = 0.5 * (la + lb);
         if (!(wdt > 0.0)) { return out; }
-        var h0 = area_a / wdt;
-        var h1 = area_b / wdt;
-        if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+        let hh = trap_heights(la, lb, area_a, area_b, wdt);
+        let h0 = hh.x;
+        let h1 = hh.y;
         return emitted_xyz(mid, -0.5 * wdt, 0.5 * wdt, h0, h1);
     }
     let mm = u32(clamp(ceil(4.0 * sweep / sigma_mean), 1.0, 64.0));
@@ -484,9 +484,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 let mid = 0.5 * (la + lb);
                 let lo = mid - 0.5 * wdt;
                 let hi = mid + 0.5 * wdt;
-                var h0 = area_a / wdt;
-                var h1 = area_b / wdt;
-                if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+                let hh = trap_heights(la, lb, area_a, area_b, wdt);
+                let h0 = hh.x;
+                let h1 = hh.y;
                 if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { continue; }
                 xyz += trapezoid_xyz(lo, hi, h0, h1);
             }
@@ -810,9 +810,9 @@ fn seg_trap(li: u32, far: Samp, near: Samp, dt: f32, emission: bool, scale: f32)
     let mid = 0.5 * (la + lb);
     let lo = mid - 0.5 * wdt;
     let hi = mid + 0.5 * wdt;
-    var h0 = area_a / wdt;
-    var h1 = area_b / wdt;
-    if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+    let hh = trap_heights(la, lb, area_a, area_b, wdt);
+    let h0 = hh.x;
+    let h1 = hh.y;
     if (hi < P.range_lo || lo > P.range_hi || (h0 <= 0.0 && h1 <= 0.0)) { return o; }
     o.t = vec4<f32>(lo, hi, h0, h1);
     o.ok = hi > lo;
@@ -1063,6 +1063,19 @@ fn absorbed_on(u: f32, w: f32, e_u: f32, e_w: f32, c_u: vec3<f32>, c_w: vec3<f32
     return full - base * (r0 * m.x + r1 * m.y + q2 * m.z);
 }
 
+// The heights at the low and high ends of a line's trapezoid of width `wdt` swept from `la`
+// to `lb` (the CPU's `pwl::line_trapezoid`): the mean height tilted by the swept fraction of
+// the width, so a still line emits a flat box and the result is continuous in the velocity.
+fn trap_heights(la: f32, lb: f32, area_a: f32, area_b: f32, wdt: f32) -> vec2<f32> {
+    let sweep = abs(lb - la);
+    let mean = 0.5 * (area_a + area_b) / wdt;
+    let tilt = 0.5 * (area_b - area_a) / wdt * (sweep / wdt);
+    let ha = max(mean - tilt, 0.0);
+    let hb = max(mean + tilt, 0.0);
+    if (la <= lb) { return vec2<f32>(ha, hb); }
+    return vec2<f32>(hb, ha);
+}
+
 // The next node of the grid base + k step strictly after u.
 fn next_node(u: f32, base: f32, step: f32) -> f32 {
     let k = floor((u - base) / step) + 1.0;
@@ -1239,9 +1252,9 @@ fn emit_line_sources(centre: f32, sa: f32, sb: f32, area_a: f32, area_b: f32, si
         let wdt = max(sweep, mw);
         let mid = 0.5 * (la + lb);
         if (!(wdt > 0.0)) { return out; }
-        var h0 = area_a / wdt;
-        var h1 = area_b / wdt;
-        if (la > lb) { h0 = area_b / wdt; h1 = area_a / wdt; }
+        let hh = trap_heights(la, lb, area_a, area_b, wdt);
+        let h0 = hh.x;
+        let h1 = hh.y;
         return source_trap(mid - 0.5 * wdt, mid + 0.5 * wdt, h0, h1, mode, off, n);
     }
     let mm = u32(clamp(ceil(4.0 * sweep / sigma_mean), 1.0, 64.0));

@@ -536,6 +536,10 @@ struct Segment {
     omit_light: bool,
 }
 
+/// Most black-body row values (grid points x segments) kept from the pre-pass to the march
+/// (16 MiB); longer rays evaluate their rows twice instead.
+const MAX_KEPT_ROWS: usize = 1 << 21;
+
 /// Buffers reused from ray to ray (per thread).
 #[derive(Default)]
 struct Scratch {
@@ -598,8 +602,11 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
     } = sc;
     // Gather every segment (from the eye), the unattenuated XYZ per segment and in total.
     segs.clear();
+    // The segments' black-body rows are kept for the march unless they would take more than
+    // MAX_KEPT_ROWS values (then the march evaluates them again).
+    let keep_rows = k.saturating_mul(n - 1) <= MAX_KEPT_ROWS;
     rows.clear();
-    rows.resize(k * (n - 1), 0.0);
+    rows.resize(if keep_rows { k * (n - 1) } else { k }, 0.0);
     abs_all.clear();
     own_all.clear();
     emit_all.clear();
@@ -633,7 +640,8 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
         let has_far = bb_row(ctx, t, s, j, f_far)?;
         let has_bb = has_near || has_far;
         if has_bb {
-            let row = &mut rows[m * k..(m + 1) * k];
+            let at = if keep_rows { m * k } else { 0 };
+            let row = &mut rows[at..at + k];
             for i in 0..k {
                 row[i] = 0.5 * dt * (f_near[i] + f_far[i]);
                 acc[i] += row[i];
@@ -688,8 +696,21 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
     let mut taken = [0.0f64; 3];
     let mut merges = 0u32;
     let mut merge_at = 64usize;
-    let mut budget_scale = 1.0;
+    let mut budget_scale = 1.0f64;
+    if !keep_rows {
+        bb_row(ctx, t, s, n - 1, f_near)?;
+    }
     for (m, seg) in segs.iter().enumerate() {
+        if !keep_rows {
+            // This segment's row again (the pre-pass did not keep it).
+            let j = n - 2 - m;
+            let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
+            bb_row(ctx, t, s, j, f_far)?;
+            for i in 0..k {
+                rows[i] = 0.5 * dt * (f_near[i] + f_far[i]);
+            }
+            std::mem::swap(f_near, f_far);
+        }
         let own = seg.own.clone();
         // D = (a_prev + a_this) / 2.
         add_sorted(&own_all[prev_own.clone()], &own_all[own.clone()], d);
@@ -729,7 +750,8 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
             }
         }
         if seg.has_bb && lit {
-            let row = &rows[m * k..(m + 1) * k];
+            let at = if keep_rows { m * k } else { 0 };
+            let row = &rows[at..at + k];
             for (r, wi) in row.iter().zip(&sweep.w) {
                 for c in 0..3 {
                     taken[c] += r * wi[c];
@@ -751,17 +773,30 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
         }
         // Budget fallback: coarser merges until P fits (the preview strategy; this breaks
         // the error bound above and is counted).
-        let mut guard = 0;
-        while p.len() > st.piece_budget && guard < 40 {
-            budget_scale *= 4.0;
-            merge_pieces(p, tol.max(1e-6) * budget_scale, p_next).map_err(spectrum_err)?;
+        // Stops when a merge gains nothing (more separate line groups than the budget) and
+        // never lets the scale overflow.
+        while p.len() > st.piece_budget {
+            budget_scale = (budget_scale * 4.0).min(1e30);
+            merge_pieces(p, (tol.max(1e-6) * budget_scale).min(f64::MAX), p_next)
+                .map_err(spectrum_err)?;
+            let gained = p_next.len() < p.len();
             std::mem::swap(p, p_next);
             out.fallback = true;
-            guard += 1;
+            if !gained && budget_scale >= 1e30 {
+                break;
+            }
+            if !gained && p.windows(2).all(|w| w[0].end_nm < w[1].start_nm) {
+                // Nothing left to join: only gaps separate the pieces.
+                break;
+            }
         }
         out.max_pieces = out.max_pieces.max(p.len());
     }
     *w = sweep.w;
+    // Do not hold on to the buffers of an exceptionally long ray.
+    if abs_all.capacity() + emit_all.capacity() + own_all.capacity() > MAX_KEPT_ROWS {
+        *sc = Scratch::default();
+    }
     out.xyz = Xyz::from_array([
         (total[0] - taken[0]).max(0.0),
         (total[1] - taken[1]).max(0.0),

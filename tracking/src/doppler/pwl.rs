@@ -100,7 +100,11 @@ impl PwlTables {
 
 /// The trapezoid a delta line at `centre` emits over a segment whose ends see shifts `sa`, `sb`
 /// and line areas `area_a`, `area_b`: between the shifted positions (at least `min_width`
-/// wide, centred), heights linear in the ends' areas, total area `(area_a + area_b) / 2`.
+/// wide, centred), total area `(area_a + area_b) / 2`, its centroid the swept emission's
+/// exactly. When the sweep covers the whole width the heights are `area_a / w` and
+/// `area_b / w` at the two shifted ends; a sweep narrower than the box tilts it only by the
+/// swept fraction (a still line emits a flat box, whatever its end densities), so the result
+/// is continuous in the velocity.
 pub(crate) fn line_trapezoid(
     centre: f64,
     sa: f64,
@@ -110,13 +114,17 @@ pub(crate) fn line_trapezoid(
     min_width: f64,
 ) -> (f64, f64, f64, f64) {
     let (la, lb) = (sa * centre, sb * centre);
-    let w = (lb - la).abs().max(min_width);
+    let sweep = (lb - la).abs();
+    let w = sweep.max(min_width);
     let m = 0.5 * (la + lb);
     let (lo, hi) = (m - 0.5 * w, m + 0.5 * w);
+    let mean = 0.5 * (area_a + area_b) / w;
+    let tilt = 0.5 * (area_b - area_a) / w * (sweep / w);
+    let (h_a, h_b) = ((mean - tilt).max(0.0), (mean + tilt).max(0.0));
     if la <= lb {
-        (lo, hi, area_a / w, area_b / w)
+        (lo, hi, h_a, h_b)
     } else {
-        (lo, hi, area_b / w, area_a / w)
+        (lo, hi, h_b, h_a)
     }
 }
 
@@ -190,7 +198,7 @@ pub(crate) fn integrate(
     let mut spec = PiecewiseLinear::new();
     let mut xyz = Xyz::ZERO;
     let mut out = RayOut::default();
-    let mut tol_scale = 1.0;
+    let mut tol_scale = 1.0f64;
     let mut half_tau = PiecewiseLinear::new();
     let mut lines = Vec::new();
     let segments = (n - 1) as f64;
@@ -256,10 +264,12 @@ pub(crate) fn integrate(
                     .map_err(spectrum_err)?;
             }
             // Budget fallback: coarser merges until the spectrum fits (the preview strategy).
+            // (At most 40 tries per segment, the scale capped so it never overflows.)
             let mut guard = 0;
             while spec.piece_count() > st.piece_budget && guard < 40 {
-                tol_scale *= 4.0;
-                let tol = st.merge_tolerance.max(1e-6) * tol_scale * spec.max_value();
+                tol_scale = (tol_scale * 4.0).min(1e30);
+                let tol =
+                    (st.merge_tolerance.max(1e-6) * tol_scale * spec.max_value()).min(f64::MAX);
                 spec = spec.merged(tol).map_err(spectrum_err)?;
                 out.fallback = true;
                 guard += 1;

@@ -205,8 +205,10 @@ fn absorption_never_brightens_and_render_is_thread_independent() {
 /// counted.
 #[test]
 fn tiny_piece_budget_falls_back_and_stays_bounded() {
+    // He I adds lines: more separate line groups than the budget, so merges cannot reach it
+    // (the fallback's tolerance must stop growing instead of overflowing).
     let v = synth::galaxy(16, 5).unwrap();
-    let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
+    let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C", "He"]).unwrap();
     scene.factors.velocity = 30.0;
     let mut st = DopplerSettings::default_for(&scene, 8, 8);
     st.piece_budget = 8;
@@ -214,6 +216,9 @@ fn tiny_piece_budget_falls_back_and_stays_bounded() {
     scene.factors.absorption = 5.0;
     let img = render_doppler(&scene, &st, &|| {}).unwrap();
     assert!(img.pieces.fallback_rays > 0, "{:?}", img.pieces);
+    // The kept-spectrum path too: more separate lines than the budget, still a spectrum.
+    let spec = pixel_spectrum(&scene, &st, 4, 4).unwrap();
+    assert!(spec.max_value().is_finite());
     let mut darker = 0;
     for (a, c) in img.xyz.iter().zip(&clear.xyz) {
         for ch in 0..3 {
@@ -513,5 +518,61 @@ fn line_xyz_equals_the_prefix_sum_form() {
                 b[c]
             );
         }
+    }
+}
+
+/// Continuity in the velocity: a tiny velocity factor changes the image by about the
+/// largest |v_r| / c it implies, not by a jump (the shift is exactly 1 without velocity).
+#[test]
+fn a_tiny_velocity_changes_the_image_continuously() {
+    let v = synth::galaxy(16, 5).unwrap();
+    let mut scene = DopplerScene::from_volume(&v, &["bb", "H", "C"]).unwrap();
+    let st = DopplerSettings::default_for(&scene, 12, 12);
+    scene.factors.velocity = 0.0;
+    let still = render_doppler(&scene, &st, &|| {}).unwrap();
+    scene.factors.velocity = 1e-3;
+    let slow = render_doppler(&scene, &st, &|| {}).unwrap();
+    let peak = still.xyz.iter().map(|x| x[1]).fold(0.0, f64::max);
+    let mut worst = 0.0f64;
+    for (a, b) in slow.xyz.iter().zip(&still.xyz) {
+        for c in 0..3 {
+            worst = worst.max((a[c] - b[c]).abs() / peak);
+        }
+    }
+    assert!(
+        worst < 1e-5,
+        "velocity x1e-3 moved the image by {worst:e} of its peak"
+    );
+}
+
+/// A ray whose black-body rows would not fit the kept-rows cap (100,000 grid points x 30
+/// segments) evaluates them again in the march: the same image as a grid below the cap, to
+/// the black-body sampling's convergence.
+#[test]
+fn very_fine_black_body_grids_give_the_same_absorbed_image() {
+    let mut scene = slab(2.0, 0.4);
+    let geom = scene.geometry;
+    let one = || AnyGrid::F32(Grid::from_fn(geom, |_, _, _| 1.0f32).unwrap());
+    let t = AnyGrid::F32(Grid::from_fn(geom, |_, _, z| 3000.0 + 100.0 * z as f32).unwrap());
+    scene.set_blackbody(one(), t).unwrap();
+    scene.factors.blackbody = 1e-6;
+    let ray = Ray::new(Vec3::new(0.5, 0.5, -1.0), Vec3::Z).unwrap();
+    let mut st = DopplerSettings::default_for(&scene, 2, 2);
+    st.merge_tolerance = 0.0;
+    let xyz = |k: usize, st: &mut DopplerSettings| {
+        st.blackbody_samples = k;
+        let ctx = super::render::Context::new(&scene, st).unwrap();
+        super::render::integrate(&ctx, &ray, super::render::Want::Xyz)
+            .unwrap()
+            .xyz
+            .to_array()
+    };
+    let kept = xyz(60_000, &mut st);
+    let again = xyz(100_000, &mut st);
+    for c in 0..3 {
+        assert!(
+            (kept[c] - again[c]).abs() <= 1e-8 * kept[c],
+            "channel {c}: {kept:?} vs {again:?}"
+        );
     }
 }
