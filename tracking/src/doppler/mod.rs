@@ -89,6 +89,8 @@ mod render;
 pub mod scene_file;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod front_tests;
 
 pub use cube::{
     CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
