@@ -344,7 +344,7 @@ fn steep_relativistic_broadened_cell_domain_rays_match_the_kept_spectrum() {
     ];
     let mut cases = 0;
     for v in [3e6f32, 2e7] {
-        let sc = scene([5, 5, 8], &sps, Some(7000.0), v);
+        let sc = scene([4, 4, 6], &sps, Some(7000.0), v);
         for (samples, cell, invariant, broad) in [
             (2usize, false, false, 0),
             (200, true, true, 0),
@@ -368,7 +368,9 @@ fn steep_relativistic_broadened_cell_domain_rays_match_the_kept_spectrum() {
                     ..Broadening::default()
                 },
             };
-            check_tol0(&sc, &st, &centre_rays(&sc));
+            // Broadened sweeps give thousands of pieces: one ray is enough there.
+            let rays = centre_rays(&sc);
+            check_tol0(&sc, &st, if broad == 0 { &rays } else { &rays[..1] });
             cases += 1;
         }
     }
@@ -647,3 +649,42 @@ fn oblique_image_matches_the_kept_spectrum_per_pixel() {
     assert!(absorbed >= 5, "{absorbed}");
 }
 
+
+/// The smallest case of the test above: a uniform 1500 K black body one voxel deep behind
+/// one static absorption line centred on node 2 of an 8-sample grid (494.29 nm). (Node 3,
+/// 551.43 nm, agrees to rounding.)
+#[test]
+fn one_absorption_line_on_a_black_body_grid_node() {
+    let geom = Geometry::unit([2, 2, 2]);
+    let one = || AnyGrid::F32(Grid::from_fn(geom, |_, _, _| 1.0f32).unwrap());
+    let (a, b, k) = (380.0f64, 780.0f64, 8usize);
+    for node in [3usize, 2] {
+        let centre = a + (b - a) * node as f64 / (k - 1) as f64;
+        let mut s = DopplerScene::new(geom).unwrap();
+        s.add_species(Species {
+            name: "absorber".into(),
+            density: one(),
+            emission_lines: vec![],
+            absorption_lines: lines(&[(centre, 20.0)]),
+        })
+        .unwrap();
+        let t = AnyGrid::F32(Grid::from_fn(geom, |_, _, _| 1500.0f32).unwrap());
+        s.set_blackbody(one(), t).unwrap();
+        s.factors.absorption = 1.0;
+        let mut st = DopplerSettings::default_for(&s, 2, 2);
+        st.blackbody_samples = k;
+        st.merge_tolerance = 0.0;
+        let ray = z_ray(0.5, 0.5);
+        let got = image_xyz(&s, &st, &ray);
+        let (want, _) = reference(&s, &st, &ray);
+        let e = emitted_xyz(&s, &st, &ray);
+        for c in 0..3 {
+            assert!(
+                (got[c] - want[c]).abs() <= 1e-9 * e[c],
+                "line on node {node} ({centre} nm), channel {c}: image {got:?} vs kept \
+                 spectrum {want:?}: error {:.3e} of the emission {e:?}",
+                (got[c] - want[c]).abs() / e[c]
+            );
+        }
+    }
+}
