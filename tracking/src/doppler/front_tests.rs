@@ -688,3 +688,101 @@ fn one_absorption_line_on_a_black_body_grid_node() {
         }
     }
 }
+
+/// Holes (zero density and zero temperature in parts of the volume: segments with one dark
+/// end, rays whose first segments neither emit nor absorb), lines swept across the CMF
+/// table's ends by 10 % of c, identical lines of two species and zero-strength lines.
+#[test]
+fn holes_and_lines_swept_across_the_table_ends_match_the_kept_spectrum() {
+    let geom = Geometry::unit([4, 4, 10]);
+    let hole = |x: usize, z: usize| (z + x) % 4 == 1 || z < 3;
+    let rho = Grid::from_fn(geom, |x, _, z| if hole(x, z) { 0.0f32 } else { 1.0 + 0.1 * z as f32 })
+        .unwrap();
+    let temp = Grid::from_fn(geom, |x, _, z| if (z + 2 * x) % 3 == 0 { 0.0f32 } else { 4000.0 })
+        .unwrap();
+    let vel = Grid::from_fn(geom, |x, _, z| {
+        Vec3::new(0.0, 0.0, (z as f32 - 4.5) * 6e6 + x as f32 * 1e6)
+    })
+    .unwrap();
+    let mut s = DopplerScene::new(geom).unwrap();
+    let twin = lines(&[(820.0, 1.0), (370.0, 1.0), (600.0, 0.0)]);
+    for name in ["a", "b"] {
+        s.add_species(Species {
+            name: name.into(),
+            density: AnyGrid::F32(rho.clone()),
+            emission_lines: twin.clone(),
+            absorption_lines: twin.clone(),
+        })
+        .unwrap();
+    }
+    s.add_species(Species {
+        name: "absorber".into(),
+        density: AnyGrid::F32(rho.clone()),
+        emission_lines: vec![],
+        absorption_lines: lines(&[(365.0, 2.0), (825.0, 2.0)]),
+    })
+    .unwrap();
+    s.set_blackbody(AnyGrid::F32(rho), AnyGrid::F32(temp)).unwrap();
+    s.set_velocity(vel).unwrap();
+    s.factors.absorption = 1.0;
+    for range in [(300.0, 900.0), (380.0, 780.0)] {
+        let mut st = DopplerSettings::default_for(&s, 2, 2);
+        st.range_nm = range;
+        st.blackbody_samples = 5;
+        let rays: Vec<Ray> = (0..4).map(|x| z_ray(x as f32 * 0.9 + 0.2, 1.5)).collect();
+        let absorbed = check_tol0(&s, &st, &rays);
+        assert!(absorbed >= 1, "{range:?}: nothing absorbed");
+    }
+}
+
+/// Claim 2 with broadened lines (every profile piece is a candidate for leaving out) and the
+/// relativistic invariant transform, down to a tolerance of 1e-9.
+#[test]
+fn loose_tolerances_keep_the_budget_with_broadened_lines() {
+    let sps = [
+        Sp {
+            emit: vec![(486.13, 1.0), (656.28, 2.0), (500.0, 0.5)],
+            abs: vec![(486.13, 0.3), (656.28, 0.9), (500.0, 1e-3)],
+            rho: 1.0,
+        },
+        Sp {
+            emit: vec![],
+            abs: vec![(656.28, 0.2), (486.13, 1e-4)],
+            rho: 1.0,
+        },
+    ];
+    let mut sc = scene([6, 6, 10], &sps, Some(6500.0), 1.5e6);
+    sc.factors.absorption = 3.0;
+    let mut clear = sc.clone();
+    clear.factors.absorption = 0.0;
+    let mut st = DopplerSettings::default_for(&sc, 5, 5);
+    st.model = DopplerModel::Relativistic;
+    st.invariant = true;
+    st.broadening = Broadening {
+        sigma_m_per_s: 1.5e5,
+        ..Broadening::default()
+    };
+    st.merge_tolerance = 0.0;
+    st.piece_budget = 1 << 20;
+    let exact = render_doppler(&sc, &st, &|| {}).unwrap();
+    let emitted = render_doppler(&clear, &st, &|| {}).unwrap();
+    let mut worst = 0.0f64;
+    for tol in [1e-9, 1e-3, 0.05, 0.5] {
+        st.merge_tolerance = tol;
+        let img = render_doppler(&sc, &st, &|| {}).unwrap();
+        assert_eq!(img.pieces.fallback_rays, 0);
+        for ((a, b), e) in img.xyz.iter().zip(&exact.xyz).zip(&emitted.xyz) {
+            for c in 0..3 {
+                let err = (a[c] - b[c]).abs();
+                assert!(
+                    err <= tol * e[c] * (1.0 + 1e-9),
+                    "tol {tol} channel {c}: {a:?} vs exact {b:?} (emitted {e:?})"
+                );
+                if e[c] > 0.0 && tol >= 1e-3 {
+                    worst = worst.max(err / (tol * e[c]));
+                }
+            }
+        }
+    }
+    assert!(worst > 1e-4, "the loose settings changed nothing: {worst}");
+}
