@@ -82,6 +82,8 @@ mod cube;
 mod display;
 mod fits;
 mod front;
+#[cfg(test)]
+mod front_tests;
 mod model;
 mod profile;
 mod pwl;
@@ -89,8 +91,6 @@ mod render;
 pub mod scene_file;
 #[cfg(test)]
 mod tests;
-#[cfg(test)]
-mod front_tests;
 
 pub use cube::{
     CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
