@@ -82,6 +82,8 @@ mod cube;
 mod display;
 mod fits;
 mod front;
+#[cfg(test)]
+mod front_tests;
 mod model;
 mod profile;
 mod pwl;
