@@ -134,14 +134,17 @@ pub(crate) fn line_trapezoid(
 /// rounding). `u >= origin`.
 #[inline]
 pub(crate) fn cell_of(origin: f64, step: f64, inv_step: f64, u: f64) -> (usize, f64) {
-    let mut i = ((u - origin) * inv_step).max(0.0) as usize;
-    while origin + (i + 1) as f64 * step <= u {
-        i += 1;
+    // One correction each way suffices: the quotient is off by at most one cell.
+    let mut k = ((u - origin) * inv_step).floor().max(0.0);
+    let mut next = origin + (k + 1.0) * step;
+    if next <= u {
+        k += 1.0;
+        next = origin + (k + 1.0) * step;
+    } else if k > 0.0 && origin + k * step > u {
+        k -= 1.0;
+        next = origin + (k + 1.0) * step;
     }
-    while i > 0 && origin + i as f64 * step > u {
-        i -= 1;
-    }
-    (i, origin + (i + 1) as f64 * step)
+    (k as usize, next)
 }
 
 pub(crate) fn spectrum_err(e: blueshift_spectrum::Error) -> Error {
