@@ -3,8 +3,8 @@
 //! error against a converged reference) and Fig. 18 (merge tolerance against piece count,
 //! time and error; with absorption the image path keeps only the optical depth in front,
 //! so the pieces counted are those of `tau_front`). Tables go to
-//! `target/blueshift-benches/doppler_*.csv` (single-threaded timings, ratios against a baseline
-//! of the same run), Fig. 13 and 18 also as PNG plots; `doppler_fig13_goal.csv` reads off the
+//! `target/blueshift-benches/doppler_*.csv` (single-threaded timings, the best of two runs under
+//! 5 s; ratios against a baseline of the same run), Fig. 13 and 18 also as PNG plots; `doppler_fig13_goal.csv` reads off the
 //! issue's goal: banded:4000's time over the fastest piecewise-linear setting at equal or
 //! better XYZ accuracy, per scene.
 
@@ -40,14 +40,24 @@ fn scene(vol: &Volume, species: &[&str], vf: f64, absorption: f64) -> DopplerSce
     s
 }
 
+/// Single-threaded render time: the best of two runs for renders under 5 s (the machines are
+/// shared and noisy; every integrator gets the same protocol), one run for longer ones.
 fn timed(scene: &DopplerScene, st: &DopplerSettings) -> (f64, DopplerImage) {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .expect("pool");
-    let t = Instant::now();
-    let img = pool.install(|| render_doppler(scene, st, &|| {}).expect("render"));
-    (t.elapsed().as_secs_f64(), img)
+    let run = || {
+        let t = Instant::now();
+        let img = pool.install(|| render_doppler(scene, st, &|| {}).expect("render"));
+        (t.elapsed().as_secs_f64(), img)
+    };
+    let (t, img) = run();
+    if t < 5.0 {
+        let (t2, _) = run();
+        return (t.min(t2), img);
+    }
+    (t, img)
 }
 
 /// Mean over pixels of |XYZ - ref| / |ref| (pixels with a non-negligible reference).
