@@ -168,32 +168,8 @@ fn lerp_at(a: f32, b: f32, va: f32, vb: f32, x: f32) -> f32 {
 // Exact XYZ of the trapezoid (start, end, v0, v1) against the piecewise-linear CMFs, interval
 // by interval of the CMF table (a line spans a few; no prefix differences, which cancel in f32).
 fn trapezoid_xyz(start: f32, end: f32, v0: f32, v1: f32) -> vec3<f32> {
-    let lo = P.cmf_lo;
-    let hi = P.cmf_lo + P.cmf_step * f32(P.cmf_n - 1u);
-    let a = max(start, lo);
-    let b = min(end, hi);
-    var out = vec3<f32>(0.0);
-    if (!(b > a)) { return out; }
-    let last = P.cmf_n - 2u;
-    let ia = min(u32(floor((a - lo) / P.cmf_step)), last);
-    let ib = min(u32(floor((b - lo) / P.cmf_step)), last);
-    for (var k = ia; k <= ib; k++) { iters += 1u;
-        let x0 = lo + f32(k) * P.cmf_step;
-        let x1 = x0 + P.cmf_step;
-        var u = x0;
-        var w = x1;
-        if (k == ia) { u = a; }
-        if (k == ib) { w = b; }
-        if (w <= u) { continue; }
-        let fu = lerp_at(start, end, v0, v1, u);
-        let fw = lerp_at(start, end, v0, v1, w);
-        let g0 = cmf(k);
-        let g1 = cmf(k + 1u);
-        let gu = g0 + (g1 - g0) * ((u - x0) / P.cmf_step);
-        let gw = g0 + (g1 - g0) * ((w - x0) / P.cmf_step);
-        out += (w - u) * (2.0 * fu * gu + fu * gw + fw * gu + 2.0 * fw * gw) / 6.0;
-    }
-    return out;
+    // The same integration as the line-relative form, with wavelengths taken as they are.
+    return trapezoid_xyz_local(0.0, start, end, v0, v1);
 }
 
 fn value_factor(s: f32) -> f32 {
