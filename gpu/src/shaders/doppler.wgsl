@@ -326,6 +326,9 @@ fn gauss_xyz(pos: f32, sigma: f32, area: f32) -> vec3<f32> {
 // `emit_line`: one line over a segment (centre seen through shifts sa, sb; areas, velocity
 // dispersions at the ends) as a trapezoid, or as up to 64 piecewise-linear Gaussians placed
 // at the area centroids of equal sub-intervals of the sweep; returns their XYZ.
+// (`emit_line_sources` below walks the same split for the absorbing kernel. They stay two
+// functions: that one touches the absorbing kernel's piece buffers, and a call from here, even
+// one never taken, would put those bindings into the emission-only pipeline's layout.)
 fn emit_line_xyz(centre: f32, sa: f32, sb: f32, area_a: f32, area_b: f32, sig_a: f32,
                  sig_b: f32) -> vec3<f32> {
     var out = vec3<f32>(0.0);
