@@ -30,7 +30,7 @@
 //! absorption the XYZ of the band values is linear in them, so each deposit into band `d`
 //! adds the band's CMF integrals (blueshift-spectrum's `BandWeights`, from the host) times its
 //! value straight to XYZ, and no per-ray band array is kept. With absorption each ray keeps
-//! its band values in a device buffer (`pixels x bands` f32, checked against the storage
+//! its band values in a device buffer (`pixels x bands` working floats, checked against the storage
 //! limits before it is created), attenuated by half of each sample's optical depth before and
 //! after its emission as the CPU does.
 //!
@@ -56,8 +56,8 @@
 //! The device's budget is `min(piece_budget, DEVICE_PIECE_CAP)` pieces ([`DEVICE_PIECE_CAP`]
 //! = 1024): with a larger `piece_budget` the fallback starts earlier than on the CPU (reported
 //! the same way). Each ray's region holds two arrays of `cap + 2 n_abs + 8` pieces plus
-//! `4 n_abs` pieces of scratch (16 bytes a piece, `n_abs` = absorption lines); the image is
-//! dispatched in tiles of as many rays as fit in `max_storage_buffer_binding_size`,
+//! `4 n_abs` pieces of scratch (16 bytes a piece in f32, 32 in f64, `n_abs` = absorption
+//! lines); the image is dispatched in tiles of as many rays as fit in `max_storage_buffer_binding_size`,
 //! `max_buffer_size` and [`TILE_BYTES_CAP`] (256 MiB), and refused with
 //! [`Error::LimitExceeded`] naming the limit when one ray does not fit
 //! ([`absorption_layout`]). Should a segment's sum still need more than a region (a
@@ -65,10 +65,33 @@
 //! tolerances until it fits (counted as a fallback too). [`PieceStats`] reports
 //! `tau_front`'s largest piece count per ray as the CPU's does.
 //!
-//! ## Single precision
-//! Arithmetic is f32 on the device (no `SHADER_F64` needed); the parity tests state the
-//! tolerance against the CPU image (`gpu/tests/doppler.rs`). With absorption the scheme is
-//! the CPU's, arranged so that f32 loses nothing large:
+//! ## Precision: f64 where the adapter has it, else a measured f32 scheme
+//! Every kernel is one WGSL body written in a working float `fw` ([`shader_source`] prepends
+//! the prelude that defines it). [`DopplerPrecision::Auto`] (what [`render_doppler_gpu`] and
+//! the CLI's `--gpu-precision auto` use) takes f64 where the adapter has `SHADER_F64`, f32
+//! elsewhere; `F32` and `F64` force one ([`render_doppler_gpu_with`]).
+//!
+//! In both, the volume is sampled exactly as the CPU samples it: the position
+//! `world_to_index(origin + dir (t0 + t))` and the nested trilinear lerps in f32, the same
+//! operations in the same order (the CPU's grids are f32). Everything after the samples runs
+//! in `fw`: shifts, line trapezoids and Gaussians, Planck's law, CMF integrals, the pieces of
+//! the optical depth, the exponential moments, the sums, and the output.
+//!
+//! **f64** (`SHADER_F64`): SPIR-V's GLSL.std.450 has no f64 `exp`, so the prelude writes it
+//! out (`k ln 2 + r` reduction with ln 2 split in two, a degree-13 polynomial, `ldexp`;
+//! below 3e-16 relative), and `expm1` by its series below 0.25; the exponential moments switch
+//! from series to recurrence at `s h = 0.05` as on the CPU. Measured on lavapipe against the
+//! CPU (`gpu/tests/doppler.rs`, `f64_kernels_agree_with_the_cpu_to_rounding`): worst 2e-14
+//! relative per pixel and channel for emission-only, broadened, banded and (at merge tolerance
+//! 0) absorbing renders, the same piece counts; asserted 1e-11 on software adapters. A
+//! hardware compiler may fuse the f32 sampling's multiply-adds (WGSL allows it), which moves
+//! a sample by an ulp: there the bound is f32's, 1e-5. With a merge tolerance the absorbing
+//! kernel differs from the CPU by the algorithms' own tolerance (the device merges where the
+//! CPU also leaves out its weakest lines; measured 2.1e-6 of the pixel).
+//!
+//! **f32** (no `SHADER_F64` needed, and 2 to 64 times faster on GPUs with slow f64): the
+//! parity tests state the tolerance against the CPU image. With absorption the scheme is the
+//! CPU's, arranged so that f32 loses nothing large:
 //! - the transmittance of a sub-interval is taken from its end with the smaller `tau`
 //!   (`exp(-tau)` there, times moments of a decaying exponential), so nothing overflows and
 //!   the moments stay in `[0, h^(n+1)/(n+1)]`;
@@ -80,20 +103,19 @@
 //! - the pixel is `max(emitted - absorbed, 0)`: the rounding of that difference is a few ulp
 //!   of the emitted (unattenuated) light, so for optically thick pixels the error is small
 //!   against the unattenuated emission (the scale of the CPU's own `merge_tolerance` bound),
-//!   not against the remainder. Measured on lavapipe (`gpu/tests/doppler.rs`, 16^3 galaxy,
-//!   absorption x 5): worst `|gpu - cpu| / cpu` 7.4e-4 on pixels above 1e-3 of the maximum,
-//!   3.7e-4 of `cpu + unattenuated` (the emission-only kernel's worst, 4.6e-4, is on the same
-//!   pixel), optically thick (x 1e4) 6.6e-6 of `cpu + unattenuated`; asserted 2e-3.
-//!
+//!   not against the remainder. Measured on lavapipe (`gpu/tests/doppler.rs`): worst
+//!   `|gpu - cpu| / cpu` 1e-5 per pixel and channel (8e-6 banded 400, 3.6e-6 with absorption,
+//!   9e-5 broadened with absorption), the absorbed light alone 1.3e-4 of itself, optically
+//!   thick (x 1e4) 8.9e-6 of `cpu + unattenuated`; asserted 2e-3. f32 wavelengths resolve
+//!   about 6e-5 nm at 656 nm: optical-depth profiles narrower than that (sigma below about
+//!   0.1 km/s, or a sweep that narrow) are lost where the CPU and the f64 kernels keep them.
 //!
 //! With line broadening and absorption each line's sources (the trapezoid, or its up to 64
 //! Gaussians of 32 pieces) are handled one at a time: an absorption line's sources are
 //! merged into `tau_front` at half height, one merge pass each (between the two regions), and
 //! what `tau_mid` takes from an emission line is integrated piece by piece of its sources
 //! (the absorbed light is linear in the emission). The regions then have room for two
-//! Gaussians a line (`cap + 66 n_abs + 8` pieces). f32 wavelengths resolve about 6e-5 nm at
-//! 656 nm: optical-depth profiles narrower than that (sigma below about 0.1 km/s, or a sweep
-//! that narrow) are lost on the device where the CPU keeps them.
+//! Gaussians a line (`cap + 66 n_abs + 8` pieces).
 //!
 //! # Passes (software adapters)
 //! lavapipe (llvmpipe) runs a batch of 8 or 16 lanes together and keeps one loop limiter per
@@ -133,6 +155,179 @@ use crate::error::{Error, Result};
 /// WGSL of the Doppler pipeline.
 pub const DOPPLER_WGSL: &str = include_str!("shaders/doppler.wgsl");
 
+/// Prelude of the f32 kernels: the working float `fw` is f32.
+const PRELUDE_F32: &str = "\
+alias fw = f32;
+const SERIES_Z: f32 = 1.0;
+const FW_MAX: f32 = 3.0e38;
+fn exp_fw(x: f32) -> f32 { return exp(x); }
+fn expm1_fw(x: f32) -> f32 {
+    if (x < 1e-3) { return x * (1.0 + 0.5 * x); }
+    return exp(x) - 1.0;
+}
+fn u2w(u: u32) -> f32 { return bitcast<f32>(u); }
+fn w2u(x: f32) -> u32 { return bitcast<u32>(x); }
+";
+
+/// Prelude of the f64 kernels: the working float `fw` is f64. SPIR-V's GLSL.std.450 `Exp`
+/// takes 16- and 32-bit floats only, so `exp_fw` is written out: `x = k ln 2 + r` with
+/// `|r| <= ln 2 / 2` (ln 2 split in two parts so `k ln 2` is exact), the degree-13 Taylor
+/// polynomial of `exp(r)` (remainder < 4e-18 relative) and `ldexp` (exact). Measured against
+/// Rust's `f64::exp` on lavapipe: < 3e-16 relative (`gpu/tests/doppler.rs`).
+const PRELUDE_F64: &str = "\
+alias fw = f64;
+const SERIES_Z: f64 = 0.05;
+const FW_MAX: f64 = 1.0e300;
+fn exp_fw(x: f64) -> f64 {
+    // Past f64's range: a value planck's `den < FW_MAX` check reads as an overflow.
+    if (x > 709.78) { return FW_MAX * 2.0; }
+    if (x < -745.2) { return 0.0; }
+    let k = floor(x * 1.4426950408889634 + 0.5);
+    let r = (x - k * 0.6931471803691238) - k * 1.9082149292705877e-10;
+    return ldexp(exp_poly(r), i32(k));
+}
+fn exp_poly(r: f64) -> f64 {
+    var p: f64 = 1.0 / 6227020800.0;
+    p = p * r + 1.0 / 479001600.0;
+    p = p * r + 1.0 / 39916800.0;
+    p = p * r + 1.0 / 3628800.0;
+    p = p * r + 1.0 / 362880.0;
+    p = p * r + 1.0 / 40320.0;
+    p = p * r + 1.0 / 5040.0;
+    p = p * r + 1.0 / 720.0;
+    p = p * r + 1.0 / 120.0;
+    p = p * r + 1.0 / 24.0;
+    p = p * r + 1.0 / 6.0;
+    p = p * r + 0.5;
+    p = p * r + 1.0;
+    return p * r + 1.0;
+}
+fn expm1_fw(x: f64) -> f64 {
+    if (abs(x) < 0.25) {
+        // x (1 + x / 2! + ... + x^13 / 14!): remainder < 1e-19 relative.
+        return (exp_poly_m1(x)) * x;
+    }
+    return exp_fw(x) - 1.0;
+}
+fn exp_poly_m1(r: f64) -> f64 {
+    var p: f64 = 1.0 / 87178291200.0;
+    p = p * r + 1.0 / 6227020800.0;
+    p = p * r + 1.0 / 479001600.0;
+    p = p * r + 1.0 / 39916800.0;
+    p = p * r + 1.0 / 3628800.0;
+    p = p * r + 1.0 / 362880.0;
+    p = p * r + 1.0 / 40320.0;
+    p = p * r + 1.0 / 5040.0;
+    p = p * r + 1.0 / 720.0;
+    p = p * r + 1.0 / 120.0;
+    p = p * r + 1.0 / 24.0;
+    p = p * r + 1.0 / 6.0;
+    p = p * r + 0.5;
+    return p * r + 1.0;
+}
+fn u2w(u: u32) -> f64 { return f64(u); }
+fn w2u(x: f64) -> u32 { return u32(x); }
+";
+
+/// The WGSL of the Doppler kernels with working precision f64 (`double`) or f32: a prelude
+/// defining the working float `fw` and its helpers, then [`DOPPLER_WGSL`].
+pub fn shader_source(double: bool) -> String {
+    let prelude = if double { PRELUDE_F64 } else { PRELUDE_F32 };
+    format!("{prelude}\n{DOPPLER_WGSL}")
+}
+
+/// The working precision of the Doppler kernels (everything after the volume samples, which
+/// are f32 as on the CPU: shifts, lines, black bodies, pieces, integrals and sums).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DopplerPrecision {
+    /// f64 where the adapter has `SHADER_F64`, else f32 (the issue's rule: double precision
+    /// where the adapter offers it).
+    #[default]
+    Auto,
+    /// f32 everywhere: fastest on GPUs with slow f64 (most consumer cards run f64 at 1/32 to
+    /// 1/64 of the f32 rate); its error against the CPU is measured in the tests and stated in
+    /// the module docs.
+    F32,
+    /// f64 after the samples (which are f32 as on the CPU): agrees with the CPU to rounding
+    /// where both run the same algorithm (2e-14 per pixel measured on lavapipe); needs
+    /// `SHADER_F64`.
+    F64,
+}
+
+impl DopplerPrecision {
+    /// Parses `auto`, `f32` or `f64`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] naming the accepted values.
+    pub fn parse(text: &str) -> Result<Self> {
+        match text.trim().to_ascii_lowercase().as_str() {
+            "auto" => Ok(Self::Auto),
+            "f32" | "single" => Ok(Self::F32),
+            "f64" | "double" => Ok(Self::F64),
+            other => Err(Error::InvalidInput(format!(
+                "GPU precision '{other}': use auto, f32 or f64"
+            ))),
+        }
+    }
+
+    /// Whether the kernels run in f64 on `ctx`.
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] for [`DopplerPrecision::F64`] without `SHADER_F64`.
+    pub fn is_double_on(self, ctx: &GpuContext) -> Result<bool> {
+        match self {
+            Self::Auto => Ok(ctx.has_f64()),
+            Self::F32 => Ok(false),
+            Self::F64 if ctx.has_f64() => Ok(true),
+            Self::F64 => Err(Error::Unsupported(format!(
+                "f64 Doppler kernels: the adapter '{}' has no SHADER_F64 (use f32 or auto)",
+                ctx.info().name
+            ))),
+        }
+    }
+}
+
+/// The kernels' per-pixel output (X, Y, Z, flags) in f64.
+fn read_out(ctx: &GpuContext, buf: &wgpu::Buffer, n: usize, double: bool) -> Result<Vec<[f64; 4]>> {
+    if double {
+        ctx.read_buffer::<[f64; 4]>(buf, n)
+    } else {
+        Ok(ctx
+            .read_buffer::<[f32; 4]>(buf, n)?
+            .iter()
+            .map(|p| p.map(f64::from))
+            .collect())
+    }
+}
+
+/// Bytes of a working float.
+fn fw_bytes(double: bool) -> u64 {
+    if double { 8 } else { 4 }
+}
+
+/// Host data for a working-float storage buffer (built in f64, uploaded as the kernel reads it).
+enum FwData {
+    F32(Vec<f32>),
+    F64(Vec<f64>),
+}
+
+impl FwData {
+    fn new(values: &[f64], double: bool) -> Self {
+        if double {
+            Self::F64(values.to_vec())
+        } else {
+            Self::F32(values.iter().map(|&v| v as f32).collect())
+        }
+    }
+
+    fn upload(&self, ctx: &GpuContext, label: &str) -> Result<wgpu::Buffer> {
+        match self {
+            Self::F32(v) => ctx.storage_buffer(label, v),
+            Self::F64(v) => ctx.storage_buffer(label, v),
+        }
+    }
+}
+
 /// Most species the device kernel holds per ray.
 pub const MAX_SPECIES: usize = 8;
 
@@ -171,6 +366,7 @@ struct Passes<'a> {
     groups: [u32; 3],
     n_pix: usize,
     max_seg: usize,
+    double: bool,
 }
 
 impl Passes<'_> {
@@ -183,17 +379,17 @@ impl Passes<'_> {
         ctx: &GpuContext,
         params: &mut Params,
         range: std::ops::Range<usize>,
-        limited: impl Fn(&[f32; 4]) -> bool,
-    ) -> Result<Vec<[f32; 4]>> {
+        limited: impl Fn(&[f64; 4]) -> bool,
+    ) -> Result<Vec<[f64; 4]>> {
         let (mut budget, _) = iteration_limits(ctx);
         loop {
             params.iter_budget = budget;
-            let mut out: Vec<[f32; 4]> = Vec::new();
+            let mut out: Vec<[f64; 4]> = Vec::new();
             for pass in 0.. {
                 params.pass_index = to_u32("pass", pass)?;
                 ctx.write_buffer(self.params, std::slice::from_ref(params))?;
                 ctx.dispatch(self.pipeline, self.bind_group, self.groups)?;
-                out = ctx.read_buffer(self.out, self.n_pix)?;
+                out = read_out(ctx, self.out, self.n_pix, self.double)?;
                 if !out[range.clone()].iter().any(|p| p[3] < 0.0) {
                     break;
                 }
@@ -234,55 +430,46 @@ struct Params {
     width: u32,
     height: u32,
     step: f32,
-    range_lo: f32,
-    range_hi: f32,
-    min_width: f32,
-    cmf_lo: f32,
-    cmf_step: f32,
+    vel_factor: f32,
+    off_pf: u32,
     cmf_n: u32,
     bb_k: u32,
-    bb_c1: f32,
-    bb_c2: f32,
     shift_mode: u32,
-    temp_factor: f32,
-    vel_factor: f32,
     off_lambda: u32,
     off_hat: u32,
-    bb_factor: f32,
     n_bands: u32,
-    band_w: f32,
     off_band_w: u32,
     off_band_c: u32,
     n_abs: u32,
     absorbing: u32,
-    abs_factor: f32,
     pix_offset: u32,
     n_pix: u32,
     piece_cap: u32,
     region_l: u32,
     stride: u32,
-    merge_tol: f32,
     pass_index: u32,
     iter_budget: u32,
     iter_limit: u32,
     broaden: u32,
-    sigma2_user: f32,
     off_kom: u32,
     off_gauss: u32,
     n_gauss: u32,
     probe_n: u32,
-    pad3: u32,
+    g_origin: [f32; 3],
+    g_spacing: [f32; 3],
+    pad0: u32,
+    pad1: u32,
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct PixelRay {
-    p0: [f32; 3],
-    n_seg: u32,
-    dir_idx: [f32; 3],
+    origin: [f32; 3],
+    t0: f32,
+    dir: [f32; 3],
     len: f32,
     los: [f32; 3],
-    pad: f32,
+    n_seg: u32,
 }
 
 fn tracking_err(e: blueshift_tracking::Error) -> Error {
@@ -434,8 +621,10 @@ fn pixel_rays(scene: &DopplerScene, settings: &DopplerSettings, step: f32) -> Ve
                     let n_seg = (len / step).ceil().max(1.0);
                     pr.n_seg = n_seg as u32;
                     pr.len = len;
-                    pr.p0 = g.world_to_index(ray.at(t0)).to_array();
-                    pr.dir_idx = (ray.dir / g.spacing).to_array();
+                    // The kernel samples world_to_index(origin + dir (t0 + t)), as the CPU.
+                    pr.origin = ray.origin.to_array();
+                    pr.t0 = t0;
+                    pr.dir = ray.dir.to_array();
                     pr.los = ray.dir.normalize().to_array();
                 }
             }
@@ -446,15 +635,31 @@ fn pixel_rays(scene: &DopplerScene, settings: &DopplerSettings, step: f32) -> Ve
 }
 
 /// Renders the XYZ image of `scene` on the GPU with `settings.integrator` (piecewise linear
-/// or banded): the same image as `blueshift_tracking::doppler::render_doppler` within f32
-/// rounding (see the module docs for what is supported). The piece statistics are those of
+/// or banded): the same image as `blueshift_tracking::doppler::render_doppler`, in f64 where
+/// the adapter has `SHADER_F64` and in f32 elsewhere ([`DopplerPrecision::Auto`]; see the
+/// module docs for the tolerances and what is supported). The piece statistics are those of
 /// `tau_front` with absorption (piecewise linear), zero otherwise, as on the CPU.
 pub fn render_doppler_gpu(
     ctx: &GpuContext,
     scene: &DopplerScene,
     settings: &DopplerSettings,
 ) -> Result<DopplerImage> {
+    render_doppler_gpu_with(ctx, scene, settings, DopplerPrecision::Auto)
+}
+
+/// [`render_doppler_gpu`] in the working precision `precision` (see [`DopplerPrecision`]).
+///
+/// # Errors
+/// As [`render_doppler_gpu`]; [`Error::Unsupported`] for [`DopplerPrecision::F64`] on an
+/// adapter without `SHADER_F64`.
+pub fn render_doppler_gpu_with(
+    ctx: &GpuContext,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    precision: DopplerPrecision,
+) -> Result<DopplerImage> {
     check_supported(scene, settings)?;
+    let double = precision.is_double_on(ctx)?;
     let step = settings.validated_step(scene).map_err(tracking_err)?;
     let g = scene.geometry();
     let [nx, ny, nz] = g.dims;
@@ -493,13 +698,13 @@ pub fn render_doppler_gpu(
         SpectralIntegrator::PiecewiseLinear => (0, false),
         SpectralIntegrator::Banded { bands, shift } => (bands, shift == BandShift::Nearest),
     };
-    let mut lines: Vec<[f32; 4]> = Vec::new();
+    let mut lines: Vec<[f64; 4]> = Vec::new();
     let absorbs = absorbing(scene);
     let pwl_absorbs = absorbs && n_bands == 0;
     // Emission entries, then (banded with absorption) absorption entries: with the nearest
     // shift the CPU's rest-frame band values (each line's box deposited into the bands),
     // otherwise the lines themselves.
-    let push_entries = |lines: &mut Vec<[f32; 4]>, emission: bool| {
+    let push_entries = |lines: &mut Vec<[f64; 4]>, emission: bool| {
         let factor = if emission { f.emission } else { f.absorption };
         let bw = (b - a) / n_bands.max(1) as f64;
         let w = settings.line_width_nm;
@@ -511,12 +716,7 @@ pub fn render_doppler_gpu(
             };
             if !nearest {
                 for l in list {
-                    lines.push([
-                        l.centre_nm as f32,
-                        (l.strength * factor) as f32,
-                        m as f32,
-                        0.0,
-                    ]);
+                    lines.push([l.centre_nm, l.strength * factor, m as f64, 0.0]);
                 }
                 continue;
             }
@@ -532,7 +732,7 @@ pub fn render_doppler_gpu(
             }
             for (i, x) in v {
                 if x > 0.0 {
-                    lines.push([(a + (i as f64 + 0.5) * bw) as f32, x as f32, m as f32, 0.0]);
+                    lines.push([a + (i as f64 + 0.5) * bw, x, m as f64, 0.0]);
                 }
             }
         }
@@ -549,10 +749,10 @@ pub fn render_doppler_gpu(
     // Tables: the CMFs, the black-body grid and its hat functions' XYZ (as the CPU's PwlTables).
     let cmf = Cmf::cie1931_2deg();
     let (c_lo, c_hi) = cmf.range_nm();
-    let mut tables: Vec<f32> = Vec::new();
+    let mut tables: Vec<f64> = Vec::new();
     let mut cmf_n = 0usize;
     for (_, v) in cmf.samples() {
-        tables.extend(v.iter().map(|&x| x as f32));
+        tables.extend(v.iter().copied());
         cmf_n += 1;
     }
     let cmf_step = (c_hi - c_lo) / (cmf_n.max(2) - 1) as f64;
@@ -561,7 +761,7 @@ pub fn render_doppler_gpu(
         .map(|i| a + (b - a) * i as f64 / (k - 1) as f64)
         .collect();
     let off_lambda = tables.len();
-    tables.extend(lambdas.iter().map(|&l| l as f32));
+    tables.extend(lambdas.iter().copied());
     let off_hat = tables.len();
     for i in 0..k {
         let mut x = Xyz::ZERO;
@@ -571,7 +771,7 @@ pub fn render_doppler_gpu(
         if i + 1 < k {
             x += cmf.trapezoid_xyz(lambdas[i], lambdas[i + 1], 1.0, 0.0);
         }
-        tables.extend(x.to_array().iter().map(|&v| v as f32));
+        tables.extend(x.to_array());
     }
     // Banded: per-band CMF integrals (blueshift-spectrum's BandWeights) and band centres.
     let off_band_w = tables.len();
@@ -581,24 +781,23 @@ pub fn render_doppler_gpu(
         None
     };
     if let Some(l) = layout {
-        ctx.check_storage_size("doppler tables", (tables.len() + 4 * n_bands) as u64 * 4)?;
+        ctx.check_storage_size(
+            "doppler tables",
+            (tables.len() + 4 * n_bands) as u64 * fw_bytes(double),
+        )?;
         for i in 0..n_bands {
             let s0 = l.band_start_nm(i);
             let x = cmf.trapezoid_xyz(s0, s0 + l.width_nm(), 1.0, 1.0);
-            tables.extend(x.to_array().iter().map(|&v| v as f32));
+            tables.extend(x.to_array());
         }
     }
     let off_band_c = tables.len();
     if let Some(l) = layout {
-        tables.extend((0..n_bands).map(|i| l.band_centre_nm(i) as f32));
+        tables.extend((0..n_bands).map(|i| l.band_centre_nm(i)));
     }
     // Broadening: k / m per species, then the unit Gaussian's knots (x, then g).
     let off_kom = tables.len();
-    tables.extend(
-        broadening_k_over_m(scene, settings)?
-            .iter()
-            .map(|&v| v as f32),
-    );
+    tables.extend(broadening_k_over_m(scene, settings)?);
     let off_gauss = tables.len();
     let (mut gx, mut gg) = (Vec::<f64>::new(), Vec::<f64>::new());
     let _ = PwlGaussian::default().for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
@@ -621,9 +820,26 @@ pub fn render_doppler_gpu(
     }
     let n_gauss = gx.len();
     for v in [&gx, &gg, &c0, &c1] {
-        tables.extend(v.iter().map(|&x| x as f32));
+        tables.extend(v.iter().copied());
     }
     let (c1l, c2) = RadiationConstants::Codata.values();
+    // The working-precision parameters (the shader's `PFw`, in its order).
+    let off_pf = tables.len();
+    tables.extend([
+        a,
+        b,
+        settings.line_width_nm,
+        c_lo,
+        cmf_step,
+        // B per nm with lambda in nm: c1L * 1e45 (lambda^5) * 1e-9 (per nm).
+        c1l * 1e36,
+        c2 * 1e9,
+        f.temperature,
+        f.blackbody * BB_UNIT,
+        (b - a) / n_bands.max(1) as f64,
+        settings.merge_tolerance,
+        settings.broadening.sigma_m_per_s * settings.broadening.sigma_m_per_s,
+    ]);
     let rays = pixel_rays(scene, settings, step);
     let params = Params {
         nx: to_u32("dims", nx)?,
@@ -639,16 +855,10 @@ pub fn render_doppler_gpu(
         width: settings.width,
         height: settings.height,
         step,
-        range_lo: a as f32,
-        range_hi: b as f32,
-        min_width: settings.line_width_nm as f32,
-        cmf_lo: c_lo as f32,
-        cmf_step: cmf_step as f32,
+        vel_factor: f.velocity as f32,
+        off_pf: to_u32("table offset", off_pf)?,
         cmf_n: to_u32("CMF samples", cmf_n)?,
         bb_k: to_u32("black-body samples", k)?,
-        // B per nm with lambda in nm: c1L * 1e45 (lambda^5) * 1e-9 (per nm).
-        bb_c1: (c1l * 1e36) as f32,
-        bb_c2: (c2 * 1e9) as f32,
         shift_mode: u32::from(matches!(
             settings.integrator,
             SpectralIntegrator::Banded {
@@ -656,35 +866,33 @@ pub fn render_doppler_gpu(
                 ..
             }
         )),
-        temp_factor: f.temperature as f32,
-        vel_factor: f.velocity as f32,
         off_lambda: to_u32("table offset", off_lambda)?,
         off_hat: to_u32("table offset", off_hat)?,
-        bb_factor: (f.blackbody * BB_UNIT) as f32,
         n_bands: to_u32("bands", n_bands)?,
-        band_w: ((b - a) / n_bands.max(1) as f64) as f32,
         off_band_w: to_u32("table offset", off_band_w)?,
         off_band_c: to_u32("table offset", off_band_c)?,
         n_abs: to_u32("absorption lines", n_abs)?,
         absorbing: u32::from(absorbs),
-        abs_factor: f.absorption as f32,
         pix_offset: 0,
         n_pix: 0,
         piece_cap: 0,
         region_l: 0,
         stride: 0,
-        merge_tol: settings.merge_tolerance as f32,
         pass_index: 0,
         iter_budget: 0,
         iter_limit: 0,
         broaden: u32::from(!settings.broadening.is_none()),
-        sigma2_user: (settings.broadening.sigma_m_per_s * settings.broadening.sigma_m_per_s) as f32,
         off_kom: to_u32("table offset", off_kom)?,
         off_gauss: to_u32("table offset", off_gauss)?,
         n_gauss: to_u32("Gaussian knots", n_gauss)?,
         probe_n: 2,
-        pad3: 0,
+        g_origin: g.origin.to_array(),
+        g_spacing: g.spacing.to_array(),
+        pad0: 0,
+        pad1: 0,
     };
+    let tables = FwData::new(&tables, double);
+    let lines_fw = FwData::new(lines.as_flattened(), double);
     if pwl_absorbs {
         let rays_b = ctx.storage_buffer("doppler rays", &rays)?;
         let bufs = Bufs {
@@ -693,26 +901,27 @@ pub fn render_doppler_gpu(
             channels: &channels,
             velocity: &velocity,
             tables: &tables,
-            lines: &lines,
+            lines: &lines_fw,
+            double,
         };
         return render_absorbing(ctx, settings, params, &bufs, n_abs);
     }
     let entry = if n_bands > 0 { "main_banded" } else { "main" };
-    let pipeline = ctx.compute_pipeline("doppler", DOPPLER_WGSL, entry)?;
+    let pipeline = ctx.compute_pipeline("doppler", &shader_source(double), entry)?;
     let rb = ctx.storage_buffer("doppler rays", &rays)?;
     let cb = ctx.storage_buffer("doppler channels", &channels)?;
     let vb = ctx.storage_buffer("doppler velocity", &velocity)?;
-    let tb = ctx.storage_buffer("doppler tables", &tables)?;
-    let lb = ctx.storage_buffer("doppler lines", &lines)?;
+    let tb = tables.upload(ctx, "doppler tables")?;
+    let lb = lines_fw.upload(ctx, "doppler lines")?;
     let n_pix = rays.len();
-    let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 16)?;
+    let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 4 * fw_bytes(double))?;
     let pb = ctx.uniform_buffer("doppler params", &params)?;
     let gx = ctx.groups("doppler", settings.width, WORKGROUP_2D)?;
     let gy = ctx.groups("doppler", settings.height, WORKGROUP_2D)?;
     if n_bands > 0 {
         // The per-ray band values when absorbing (n_bands per pixel), else a placeholder.
         let bytes = if absorbs {
-            n_pix as u64 * n_bands as u64 * 4
+            n_pix as u64 * n_bands as u64 * fw_bytes(double)
         } else {
             16
         };
@@ -725,8 +934,8 @@ pub fn render_doppler_gpu(
         ctx.dispatch(&pipeline, &bg, [gx, gy, 1])?;
     } else {
         // The piecewise-linear kernel runs in passes (see `iteration_limits`), keeping 20
-        // floats of state per pixel.
-        let bytes = n_pix as u64 * 20 * 4;
+        // working floats of state per pixel.
+        let bytes = n_pix as u64 * 20 * fw_bytes(double);
         ctx.check_storage_size("doppler ray state (pixels x 20 floats)", bytes)?;
         let sb = ctx.storage_buffer_zeroed("doppler ray state", bytes)?;
         let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
@@ -741,10 +950,11 @@ pub fn render_doppler_gpu(
             groups: [gx, gy, 1],
             n_pix,
             max_seg,
+            double,
         };
         passes.run(ctx, &mut params, 0..n_pix, |p| p[3] == 2.0)?;
     }
-    let out: Vec<[f32; 4]> = ctx.read_buffer(&ob, n_pix)?;
+    let out = read_out(ctx, &ob, n_pix, double)?;
     if let Some(i) = out.iter().position(|p| p[3] == 2.0) {
         return Err(Error::Internal(format!(
             "doppler: pixel ({}, {}) passed the adapter's loop limit (software adapters such \
@@ -765,10 +975,7 @@ pub fn render_doppler_gpu(
     Ok(DopplerImage {
         width: settings.width,
         height: settings.height,
-        xyz: out
-            .iter()
-            .map(|p| [f64::from(p[0]), f64::from(p[1]), f64::from(p[2])])
-            .collect(),
+        xyz: out.iter().map(|p| [p[0], p[1], p[2]]).collect(),
         pieces: PieceStats::default(),
     })
 }
@@ -779,8 +986,10 @@ struct Bufs<'a> {
     max_segments: u32,
     channels: &'a [f32],
     velocity: &'a [f32],
-    tables: &'a [f32],
-    lines: &'a [[f32; 4]],
+    tables: &'a FwData,
+    lines: &'a FwData,
+    /// Whether the kernels run in f64.
+    double: bool,
 }
 
 /// Bytes of one ray's piece region for `piece_cap` pieces of `tau_front` and `n_abs`
@@ -805,8 +1014,9 @@ fn region_floats(piece_cap: usize, n_abs: usize, broaden: bool) -> (usize, usize
 /// of `cap + 2 n_abs + 8` pieces (`cap + 66 n_abs + 8` with line broadening: tau_front, and
 /// tau_front plus the segment's half depth), 8 pieces of state and `2 n_abs + max(2 n_abs,
 /// 40)` pieces of scratch (the segment's absorption trapezoids, their end points and their
-/// sum), 16 bytes per piece. A tile holds as many rays as fit in the smallest of
-/// `max_storage_buffer_binding_size`, `max_buffer_size` and [`TILE_BYTES_CAP`].
+/// sum), 16 bytes per piece (f32; [`absorption_layout_fw`] gives f64's 32). A tile holds as
+/// many rays as fit in the smallest of `max_storage_buffer_binding_size`, `max_buffer_size`
+/// and [`TILE_BYTES_CAP`].
 ///
 /// # Errors
 /// [`Error::LimitExceeded`] naming the limit when not even one ray fits.
@@ -815,9 +1025,19 @@ pub fn absorption_layout(
     n_abs: usize,
     limits: &wgpu::Limits,
 ) -> Result<(usize, u64, u64)> {
+    absorption_layout_fw(settings, n_abs, limits, false)
+}
+
+/// [`absorption_layout`] with f64 pieces (32 bytes a piece) when `double`.
+pub fn absorption_layout_fw(
+    settings: &DopplerSettings,
+    n_abs: usize,
+    limits: &wgpu::Limits,
+    double: bool,
+) -> Result<(usize, u64, u64)> {
     let cap = settings.piece_budget.min(DEVICE_PIECE_CAP);
     let (_, floats) = region_floats(cap, n_abs, !settings.broadening.is_none());
-    let per_ray = floats as u64 * 4;
+    let per_ray = floats as u64 * fw_bytes(double);
     let (mut max, mut limit) = (
         TILE_BYTES_CAP,
         "the GPU Doppler tile memory cap TILE_BYTES_CAP",
@@ -855,19 +1075,24 @@ fn render_absorbing(
     n_abs: usize,
 ) -> Result<DopplerImage> {
     let n_pix = settings.width as usize * settings.height as usize;
-    let (cap, per_ray, tile) = absorption_layout(settings, n_abs, &ctx.device().limits())?;
+    let (cap, per_ray, tile) =
+        absorption_layout_fw(settings, n_abs, &ctx.device().limits(), b.double)?;
     let (l, floats) = region_floats(cap, n_abs, !settings.broadening.is_none());
     let tile = (tile as usize).min(n_pix).max(1);
     params.piece_cap = to_u32("piece cap", cap)?;
     params.region_l = to_u32("piece region", l)?;
     params.stride = to_u32("piece stride", floats)?;
     params.n_pix = to_u32("pixels", n_pix)?;
-    let pipeline = ctx.compute_pipeline("doppler absorption", DOPPLER_WGSL, "main_absorb")?;
+    let pipeline = ctx.compute_pipeline(
+        "doppler absorption",
+        &shader_source(b.double),
+        "main_absorb",
+    )?;
     let cb = ctx.storage_buffer("doppler channels", b.channels)?;
     let vb = ctx.storage_buffer("doppler velocity", b.velocity)?;
-    let tb = ctx.storage_buffer("doppler tables", b.tables)?;
-    let lb = ctx.storage_buffer("doppler lines", b.lines)?;
-    let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 16)?;
+    let tb = b.tables.upload(ctx, "doppler tables")?;
+    let lb = b.lines.upload(ctx, "doppler lines")?;
+    let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 4 * fw_bytes(b.double))?;
     let pb = ctx.uniform_buffer("doppler params", &params)?;
     let sb = ctx.storage_buffer_zeroed("doppler absorption pieces", tile as u64 * per_ray)?;
     let bg = ctx.bind_group(&pipeline, 0, &[b.rays, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
@@ -878,7 +1103,7 @@ fn render_absorbing(
     (_, params.iter_limit) = iteration_limits(ctx);
     let max_seg = b.max_segments as usize;
     let mut start = 0usize;
-    let mut out: Vec<[f32; 4]> = Vec::new();
+    let mut out: Vec<[f64; 4]> = Vec::new();
     while start < n_pix {
         let count = tile.min(n_pix - start);
         params.pix_offset = to_u32("pixel offset", start)?;
@@ -891,6 +1116,7 @@ fn render_absorbing(
             groups: [gx, 1, 1],
             n_pix,
             max_seg,
+            double: b.double,
         };
         out = passes.run(ctx, &mut params, start..start + count, |p| {
             p[3] >= 0.0 && (p[3] as u32) & 8 != 0
@@ -928,7 +1154,7 @@ fn render_absorbing(
         sum += pieces as f64;
         max = max.max(pieces);
         fallback_rays += usize::from(flags & 2 != 0);
-        xyz.push([f64::from(p[0]), f64::from(p[1]), f64::from(p[2])]);
+        xyz.push([p[0], p[1], p[2]]);
     }
     Ok(DopplerImage {
         width: settings.width,
