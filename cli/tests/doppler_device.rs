@@ -135,3 +135,56 @@ fn unsupported_settings_are_refused_on_gpu_and_fall_back_on_auto() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown device"));
 }
+
+/// `--gpu-precision`: f64 (where the adapter has SHADER_F64, as lavapipe does) writes the
+/// CPU's image to within the EXR's own f32 rounding, f32 within its stated 2e-3, auto names
+/// what it took, and a bad value is refused by clap with the accepted values.
+#[test]
+fn the_gpu_precision_flag_picks_the_kernels() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = ["--absorption-factor", "2", "--merge-tol", "0"];
+    let c = run(dir.path(), &extra, "pc.exr", "cpu");
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    let a = read_exr(&dir.path().join("pc.exr"));
+    let max = a
+        .pixels()
+        .flat_map(|p| p.0[..3].to_vec())
+        .fold(0.0f32, f32::max);
+    assert!(max > 0.0);
+    let worst = |b: &image::Rgba32FImage| {
+        a.pixels()
+            .zip(b.pixels())
+            .flat_map(|(p, q)| {
+                (0..3).map(move |k| (p.0[k] - q.0[k]).abs() / (p.0[k].abs() + 1e-6 * max))
+            })
+            .fold(0.0f32, f32::max)
+    };
+    let mut x = extra.to_vec();
+    x.extend(["--gpu-precision", "f64"]);
+    let g = run(dir.path(), &x, "p64.exr", "gpu");
+    if !gpu_ok("doppler", &g) {
+        return;
+    }
+    let out = String::from_utf8_lossy(&g.stdout);
+    if g.status.success() && out.contains("gpu (f64)") {
+        let w = worst(&read_exr(&dir.path().join("p64.exr")));
+        eprintln!("--gpu-precision f64: worst relative difference {w:e}");
+        // The same f64 sums, written as f32: at most an f32 rounding apart.
+        assert!(w <= 2e-7, "{w}");
+    }
+    x.truncate(extra.len());
+    x.extend(["--gpu-precision", "f32"]);
+    let g = run(dir.path(), &x, "p32.exr", "gpu");
+    assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
+    assert!(String::from_utf8_lossy(&g.stdout).contains("gpu (f32)"));
+    let w = worst(&read_exr(&dir.path().join("p32.exr")));
+    eprintln!("--gpu-precision f32: worst relative difference {w:e}");
+    assert!(w <= 2e-3 && w > 0.0, "{w}");
+    x.truncate(extra.len());
+    x.extend(["--gpu-precision", "f16"]);
+    let o = run(dir.path(), &x, "bad.exr", "gpu");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("auto, f32 or f64"), "{err}");
+    assert!(!dir.path().join("bad.exr").exists());
+}

@@ -300,6 +300,24 @@ fn read_out(ctx: &GpuContext, buf: &wgpu::Buffer, n: usize, double: bool) -> Res
     }
 }
 
+impl std::str::FromStr for DopplerPrecision {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        Self::parse(s)
+    }
+}
+
+impl std::fmt::Display for DopplerPrecision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Auto => "auto",
+            Self::F32 => "f32",
+            Self::F64 => "f64",
+        })
+    }
+}
+
 /// Bytes of a working float.
 fn fw_bytes(double: bool) -> u64 {
     if double { 8 } else { 4 }

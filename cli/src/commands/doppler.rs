@@ -120,6 +120,12 @@ pub struct Args {
     /// picked spectra and traces.
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
+    /// Working precision of the GPU kernels: auto (f64 where the adapter has SHADER_F64, as
+    /// the CPU; else f32), f64 (agrees with the CPU to rounding; an error without SHADER_F64)
+    /// or f32 (faster on GPUs with slow f64; within 2e-3 of the CPU per pixel, see
+    /// blueshift-gpu's doppler module). The CPU ignores it.
+    #[arg(long, default_value = "auto")]
+    pub gpu_precision: blueshift_gpu::doppler::DopplerPrecision,
 }
 
 fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
@@ -419,11 +425,20 @@ pub fn run(args: Args) -> Result<()> {
     let start = Instant::now();
     let (img, on) = match gpu {
         Some(ctx) => match blueshift_gpu::doppler::check_supported(&scene, &st) {
-            Ok(()) => (
-                blueshift_gpu::doppler::render_doppler_gpu(ctx, &scene, &st)
-                    .context("--device gpu")?,
-                "gpu",
-            ),
+            Ok(()) => {
+                let double = args
+                    .gpu_precision
+                    .is_double_on(ctx)
+                    .context("--gpu-precision")?;
+                let img = blueshift_gpu::doppler::render_doppler_gpu_with(
+                    ctx,
+                    &scene,
+                    &st,
+                    args.gpu_precision,
+                )
+                .context("--device gpu")?;
+                (img, if double { "gpu (f64)" } else { "gpu (f32)" })
+            }
             Err(blueshift_gpu::Error::Unsupported(what))
                 if args.device == blueshift_gpu::DeviceChoice::Gpu =>
             {
