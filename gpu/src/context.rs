@@ -204,7 +204,12 @@ pub struct GpuContext {
     queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     sink: Arc<ErrorSink>,
+    /// Compiled pipelines by (entry point, WGSL source): a pipeline is compiled once per
+    /// context (the Doppler kernels take seconds on a software adapter).
+    pipelines: Mutex<PipelineCache>,
 }
+
+type PipelineCache = std::collections::HashMap<(String, String), wgpu::ComputePipeline>;
 
 /// Workgroup size (x) that the crate's 1-D shaders use.
 pub const WORKGROUP_1D: u32 = 64;
@@ -281,6 +286,7 @@ impl GpuContext {
             queue,
             info,
             sink,
+            pipelines: Mutex::new(PipelineCache::new()),
         })
     }
 
@@ -454,9 +460,38 @@ impl GpuContext {
         Ok(out)
     }
 
-    /// Compiles `wgsl` and creates a compute pipeline for `entry` with an automatic layout.
-    /// A shader error is [`Error::Validation`] naming the label.
+    /// Compiles `wgsl` and creates a compute pipeline for `entry` with an automatic layout,
+    /// once per context: a later call with the same source and entry point returns the same
+    /// pipeline. A shader error is [`Error::Validation`] naming the label.
     pub fn compute_pipeline(
+        &self,
+        label: &str,
+        wgsl: &str,
+        entry: &str,
+    ) -> Result<wgpu::ComputePipeline> {
+        self.check_device()?;
+        let key = (entry.to_string(), wgsl.to_string());
+        if let Some(p) = self
+            .pipelines
+            .lock()
+            .ok()
+            .and_then(|c| c.get(&key).cloned())
+        {
+            return Ok(p);
+        }
+        let pipeline = self.compile_pipeline(label, wgsl, entry)?;
+        if let Ok(mut c) = self.pipelines.lock() {
+            c.insert(key, pipeline.clone());
+        }
+        Ok(pipeline)
+    }
+
+    /// Pipelines compiled so far and kept by [`GpuContext::compute_pipeline`].
+    pub fn cached_pipelines(&self) -> usize {
+        self.pipelines.lock().map_or(0, |c| c.len())
+    }
+
+    fn compile_pipeline(
         &self,
         label: &str,
         wgsl: &str,

@@ -97,3 +97,30 @@ fn a_destroyed_device_is_a_typed_error_not_a_panic_or_a_hang() {
     let again = blueshift_gpu::scale(&ctx, &[3.0], 1.0, 0.0).unwrap_err();
     assert!(matches!(again, Error::DeviceLost(_)), "{again}");
 }
+
+#[test]
+fn a_pipeline_is_compiled_once_per_context() {
+    if test_context().is_none() {
+        return;
+    }
+    // A private context: its cache holds only what this test compiles.
+    let ctx = blueshift_gpu::GpuContext::new(blueshift_gpu::GpuOptions::default()).unwrap();
+    assert_eq!(ctx.cached_pipelines(), 0);
+    assert_eq!(
+        blueshift_gpu::scale(&ctx, &[1.0], 2.0, 1.0).unwrap(),
+        vec![3.0]
+    );
+    assert_eq!(ctx.cached_pipelines(), 1);
+    // The same source and entry again: the cached pipeline, which still computes.
+    assert_eq!(
+        blueshift_gpu::scale(&ctx, &[2.0], 2.0, 1.0).unwrap(),
+        vec![5.0]
+    );
+    assert_eq!(ctx.cached_pipelines(), 1);
+    // Another source is another pipeline; a broken one is an error and is not kept.
+    let other = blueshift_gpu::SCALE_WGSL.replace("params.a * x[i]", "params.a * x[i] * 2.0");
+    ctx.compute_pipeline("scale x2", &other, "main").unwrap();
+    assert_eq!(ctx.cached_pipelines(), 2);
+    assert!(ctx.compute_pipeline("broken", "fn main(", "main").is_err());
+    assert_eq!(ctx.cached_pipelines(), 2);
+}
