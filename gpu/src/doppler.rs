@@ -53,9 +53,11 @@
 //!   `merge_tolerance 6 / (pi k)^2`, then, over the budget, merges with 4, 16, ... times the
 //!   tolerance (the fallback, counted per ray in [`PieceStats::fallback_rays`]).
 //!
-//! The device's budget is `min(piece_budget, DEVICE_PIECE_CAP)` pieces ([`DEVICE_PIECE_CAP`]
-//! = 1024): with a larger `piece_budget` the fallback starts earlier than on the CPU (reported
-//! the same way). Each ray's region holds two arrays of `cap + 2 n_abs + 8` pieces plus
+//! The budget is the CPU's, in two rounds: every ray first runs with
+//! `min(piece_budget, DEVICE_PIECE_CAP)` pieces ([`DEVICE_PIECE_CAP`] = 1024, which keeps the
+//! tiles large), and where `piece_budget` is larger the rays that needed the fallback there
+//! run again with `piece_budget` pieces (up to 2^20; a budget whose region exceeds the
+//! storage limits keeps the first round's result, its fallback counted). Each ray's region holds two arrays of `cap + 2 n_abs + 8` pieces plus
 //! `4 n_abs` pieces of scratch (16 bytes a piece in f32, 32 in f64, `n_abs` = absorption
 //! lines); the image is dispatched in tiles of as many rays as fit in `max_storage_buffer_binding_size`,
 //! `max_buffer_size` and [`TILE_BYTES_CAP`] (256 MiB), and refused with
@@ -349,11 +351,14 @@ impl FwData {
 /// Most species the device kernel holds per ray.
 pub const MAX_SPECIES: usize = 8;
 
-/// Most pieces of the optical depth in front (`tau_front`) a ray keeps on the device with
-/// absorption (piecewise-linear integrator): the device's piece budget is
-/// `min(piece_budget, DEVICE_PIECE_CAP)`, so with a larger `piece_budget` the budget fallback
-/// (coarser merges, counted in [`PieceStats::fallback_rays`]) starts earlier than on the CPU.
+/// Pieces of the optical depth in front (`tau_front`) a ray has on the device in the first
+/// round with absorption (piecewise-linear integrator): `min(piece_budget, DEVICE_PIECE_CAP)`.
+/// With a larger `piece_budget`, rays that needed the fallback at the cap run again with the
+/// whole budget, so the fallback ([`PieceStats::fallback_rays`]) is the CPU's.
 pub const DEVICE_PIECE_CAP: usize = 1024;
+
+/// Most pieces per ray a rerun at the CPU's budget keeps (larger budgets are held to it).
+const MAX_RERUN_BUDGET: usize = 1 << 20;
 
 /// Loop iterations after which a pass of the absorbing kernel yields on a software adapter.
 const SOFTWARE_ITER_BUDGET: u32 = 30_000;
@@ -912,10 +917,8 @@ pub fn render_doppler_gpu_with(
     let tables = FwData::new(&tables, double);
     let lines_fw = FwData::new(lines.as_flattened(), double);
     if pwl_absorbs {
-        let rays_b = ctx.storage_buffer("doppler rays", &rays)?;
         let bufs = Bufs {
-            rays: &rays_b,
-            max_segments: rays.iter().map(|r| r.n_seg).max().unwrap_or(0),
+            rays: &rays,
             channels: &channels,
             velocity: &velocity,
             tables: &tables,
@@ -998,10 +1001,9 @@ pub fn render_doppler_gpu_with(
     })
 }
 
-/// Host data of the Doppler pipeline (the rays already on the device).
+/// Host data of the Doppler pipeline.
 struct Bufs<'a> {
-    rays: &'a wgpu::Buffer,
-    max_segments: u32,
+    rays: &'a [PixelRay],
     channels: &'a [f32],
     velocity: &'a [f32],
     tables: &'a FwData,
@@ -1054,7 +1056,19 @@ pub fn absorption_layout_fw(
     double: bool,
 ) -> Result<(usize, u64, u64)> {
     let cap = settings.piece_budget.min(DEVICE_PIECE_CAP);
-    let (_, floats) = region_floats(cap, n_abs, !settings.broadening.is_none());
+    let (per_ray, tile) = tile_layout(cap, n_abs, !settings.broadening.is_none(), limits, double)?;
+    Ok((cap, per_ray, tile))
+}
+
+/// `(bytes per ray, rays per tile)` for `cap` pieces of `tau_front` per ray.
+fn tile_layout(
+    cap: usize,
+    n_abs: usize,
+    broaden: bool,
+    limits: &wgpu::Limits,
+    double: bool,
+) -> Result<(u64, u64)> {
+    let (_, floats) = region_floats(cap, n_abs, broaden);
     let per_ray = floats as u64 * fw_bytes(double);
     let (mut max, mut limit) = (
         TILE_BYTES_CAP,
@@ -1080,66 +1094,58 @@ pub fn absorption_layout_fw(
             max,
         });
     }
-    Ok((cap, per_ray, tile))
+    Ok((per_ray, tile))
 }
 
 /// The piecewise-linear integrator with absorption: the front-to-back pass per ray, in
-/// tiles of pixels (see [`absorption_layout`]).
+/// tiles of pixels (see [`absorption_layout`]). Rays run with the device cap first
+/// (`min(piece_budget, DEVICE_PIECE_CAP)` pieces: large tiles); where the budget is larger
+/// and a ray needed the cap's fallback, that ray runs again with the CPU's own budget (as
+/// many pieces as fit the storage limits), so the fallback is the CPU's.
 fn render_absorbing(
     ctx: &GpuContext,
     settings: &DopplerSettings,
-    mut params: Params,
+    params: Params,
     b: &Bufs<'_>,
     n_abs: usize,
 ) -> Result<DopplerImage> {
     let n_pix = settings.width as usize * settings.height as usize;
-    let (cap, per_ray, tile) =
-        absorption_layout_fw(settings, n_abs, &ctx.device().limits(), b.double)?;
-    let (l, floats) = region_floats(cap, n_abs, !settings.broadening.is_none());
-    let tile = (tile as usize).min(n_pix).max(1);
-    params.piece_cap = to_u32("piece cap", cap)?;
-    params.region_l = to_u32("piece region", l)?;
-    params.stride = to_u32("piece stride", floats)?;
-    params.n_pix = to_u32("pixels", n_pix)?;
-    let pipeline = ctx.compute_pipeline(
-        "doppler absorption",
-        &shader_source(b.double),
-        "main_absorb",
-    )?;
-    let cb = ctx.storage_buffer("doppler channels", b.channels)?;
-    let vb = ctx.storage_buffer("doppler velocity", b.velocity)?;
-    let tb = b.tables.upload(ctx, "doppler tables")?;
-    let lb = b.lines.upload(ctx, "doppler lines")?;
-    let ob = ctx.storage_buffer_zeroed("doppler xyz", n_pix as u64 * 4 * fw_bytes(b.double))?;
-    let pb = ctx.uniform_buffer("doppler params", &params)?;
-    let sb = ctx.storage_buffer_zeroed("doppler absorption pieces", tile as u64 * per_ray)?;
-    let bg = ctx.bind_group(&pipeline, 0, &[b.rays, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
-    // Software adapters (lavapipe) stop all loops of an invocation after 65535 iterations in
-    // all (llvmpipe's loop limiter): the kernel counts its iterations and yields at the
-    // budget, the host dispatches passes until every ray of the tile is done. Hardware
-    // adapters have no such limit; their passes are long.
-    (_, params.iter_limit) = iteration_limits(ctx);
-    let max_seg = b.max_segments as usize;
-    let mut start = 0usize;
-    let mut out: Vec<[f64; 4]> = Vec::new();
-    while start < n_pix {
-        let count = tile.min(n_pix - start);
-        params.pix_offset = to_u32("pixel offset", start)?;
-        let gx = ctx.groups("doppler absorption", to_u32("tile", count)?, 64)?;
-        let passes = Passes {
-            pipeline: &pipeline,
-            bind_group: &bg,
-            params: &pb,
-            out: &ob,
-            groups: [gx, 1, 1],
-            n_pix,
-            max_seg,
-            double: b.double,
-        };
-        out = passes.run(ctx, &mut params, start..start + count, |p| {
-            p[3] >= 0.0 && (p[3] as u32) & 8 != 0
-        })?;
-        start += count;
+    let dev = DeviceData {
+        pipeline: ctx.compute_pipeline(
+            "doppler absorption",
+            &shader_source(b.double),
+            "main_absorb",
+        )?,
+        channels: ctx.storage_buffer("doppler channels", b.channels)?,
+        velocity: ctx.storage_buffer("doppler velocity", b.velocity)?,
+        tables: b.tables.upload(ctx, "doppler tables")?,
+        lines: b.lines.upload(ctx, "doppler lines")?,
+    };
+    let cap = settings.piece_budget.min(DEVICE_PIECE_CAP);
+    let mut out = absorb_rays(ctx, settings, params, b, &dev, b.rays, cap, n_abs)?;
+    if cap < settings.piece_budget {
+        // Rays that fell back (bit 2) at the device cap, with no error: again at the budget.
+        let again: Vec<usize> = (0..n_pix)
+            .filter(|&i| {
+                let f = out[i][3] as u32;
+                f & 2 != 0 && f & 13 == 0
+            })
+            .collect();
+        if !again.is_empty() {
+            let rays: Vec<PixelRay> = again.iter().map(|&i| b.rays[i]).collect();
+            let budget = settings.piece_budget.min(MAX_RERUN_BUDGET);
+            match absorb_rays(ctx, settings, params, b, &dev, &rays, budget, n_abs) {
+                Ok(o) => {
+                    for (k, &i) in again.iter().enumerate() {
+                        out[i] = o[k];
+                    }
+                }
+                // A budget beyond the storage limits keeps the capped result (its fallback
+                // counted in PieceStats), as a budget the device cannot hold.
+                Err(Error::LimitExceeded { .. }) => {}
+                Err(e) => return Err(e),
+            }
+        }
     }
     let (mut sum, mut max, mut fallback_rays) = (0.0f64, 0usize, 0usize);
     let mut xyz = Vec::with_capacity(n_pix);
@@ -1184,4 +1190,83 @@ fn render_absorbing(
             fallback_rays,
         },
     })
+}
+
+/// Device buffers shared by the passes of [`render_absorbing`].
+struct DeviceData {
+    pipeline: wgpu::ComputePipeline,
+    channels: wgpu::Buffer,
+    velocity: wgpu::Buffer,
+    tables: wgpu::Buffer,
+    lines: wgpu::Buffer,
+}
+
+/// Runs the absorbing kernel on `rays` with `cap` pieces of `tau_front` per ray, in tiles;
+/// returns per ray (X, Y, Z, flags).
+#[allow(clippy::too_many_arguments)]
+fn absorb_rays(
+    ctx: &GpuContext,
+    settings: &DopplerSettings,
+    mut params: Params,
+    b: &Bufs<'_>,
+    dev: &DeviceData,
+    rays: &[PixelRay],
+    cap: usize,
+    n_abs: usize,
+) -> Result<Vec<[f64; 4]>> {
+    let n = rays.len();
+    let broaden = !settings.broadening.is_none();
+    let (per_ray, tile) = tile_layout(cap, n_abs, broaden, &ctx.device().limits(), b.double)?;
+    let (l, floats) = region_floats(cap, n_abs, broaden);
+    let tile = (tile as usize).min(n).max(1);
+    params.piece_cap = to_u32("piece cap", cap)?;
+    params.region_l = to_u32("piece region", l)?;
+    params.stride = to_u32("piece stride", floats)?;
+    params.n_pix = to_u32("pixels", n)?;
+    let rb = ctx.storage_buffer("doppler rays", rays)?;
+    let ob = ctx.storage_buffer_zeroed("doppler xyz", n as u64 * 4 * fw_bytes(b.double))?;
+    let pb = ctx.uniform_buffer("doppler params", &params)?;
+    let sb = ctx.storage_buffer_zeroed("doppler absorption pieces", tile as u64 * per_ray)?;
+    let bg = ctx.bind_group(
+        &dev.pipeline,
+        0,
+        &[
+            &rb,
+            &dev.channels,
+            &dev.velocity,
+            &dev.tables,
+            &dev.lines,
+            &ob,
+            &pb,
+            &sb,
+        ],
+    )?;
+    // Software adapters (lavapipe) stop all loops of an invocation after 65535 iterations in
+    // all (llvmpipe's loop limiter): the kernel counts its iterations and yields at the
+    // budget, the host dispatches passes until every ray of the tile is done. Hardware
+    // adapters have no such limit; their passes are long.
+    (_, params.iter_limit) = iteration_limits(ctx);
+    let max_seg = rays.iter().map(|r| r.n_seg).max().unwrap_or(0) as usize;
+    let mut start = 0usize;
+    let mut out: Vec<[f64; 4]> = Vec::new();
+    while start < n {
+        let count = tile.min(n - start);
+        params.pix_offset = to_u32("pixel offset", start)?;
+        let gx = ctx.groups("doppler absorption", to_u32("tile", count)?, 64)?;
+        let passes = Passes {
+            pipeline: &dev.pipeline,
+            bind_group: &bg,
+            params: &pb,
+            out: &ob,
+            groups: [gx, 1, 1],
+            n_pix: n,
+            max_seg,
+            double: b.double,
+        };
+        out = passes.run(ctx, &mut params, start..start + count, |p| {
+            p[3] >= 0.0 && (p[3] as u32) & 8 != 0
+        })?;
+        start += count;
+    }
+    Ok(out)
 }
