@@ -18,17 +18,11 @@ use blueshift_tracking::doppler::{
 };
 use blueshift_volume::{Volume, synth};
 use criterion::Criterion;
-use glam::Vec3;
 
-/// The galaxy seen at 60 degrees inclination (face-on, its rotation is transverse).
+/// The galaxy seen at 60 degrees inclination (face-on, its rotation is transverse), zoomed
+/// to the disc.
 fn inclined(scene: &DopplerScene, st: &mut DopplerSettings) {
-    let (lo, hi) = scene.geometry().world_bounds();
-    let (c, r) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
-    let (si, ci) = 60f32.to_radians().sin_cos();
-    let d = Vec3::new(0.0, si, ci);
-    st.camera.target = c;
-    st.camera.eye = c - d * (r + 1.0);
-    st.camera.up = Vec3::new(0.0, ci, -si);
+    st.incline(scene, 60.0).expect("inclination");
     st.camera.projection = Projection::Orthographic { height: 30.0 };
 }
 

@@ -24,7 +24,6 @@ use blueshift_tracking::doppler::{
 };
 use blueshift_volume::{Volume, synth};
 use criterion::{BenchmarkGroup, Criterion, criterion_group, criterion_main};
-use glam::Vec3;
 
 /// The GPU variants of one case: `gpu` (f32) and `gpu_f64` where the adapter has SHADER_F64.
 fn bench_gpu(
@@ -91,18 +90,6 @@ fn small(c: &mut Criterion) {
     g.finish();
 }
 
-/// The galaxy seen at 60 degrees inclination, as the CPU's Table 1 bench.
-fn inclined(scene: &DopplerScene, st: &mut DopplerSettings) {
-    let (lo, hi) = scene.geometry().world_bounds();
-    let (c, r) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
-    let (si, ci) = 60f32.to_radians().sin_cos();
-    let d = Vec3::new(0.0, si, ci);
-    st.camera.target = c;
-    st.camera.eye = c - d * (r + 1.0);
-    st.camera.up = Vec3::new(0.0, ci, -si);
-    st.camera.projection = Projection::Orthographic { height: 30.0 };
-}
-
 fn table1(c: &mut Criterion) {
     let Ok(ctx) = GpuContext::shared() else {
         eprintln!("SKIP doppler_table1: no wgpu adapter");
@@ -134,7 +121,9 @@ fn table1(c: &mut Criterion) {
             s.factors.blackbody = 0.1;
             let mut st = DopplerSettings::default_for(&s, 512, 512);
             if name != "shell_H" {
-                inclined(&s, &mut st);
+                // As the CPU's Table 1 bench: 60 degrees, zoomed to the disc.
+                st.incline(&s, 60.0).expect("inclination");
+                st.camera.projection = Projection::Orthographic { height: 30.0 };
             }
             bench_gpu(&mut g, ctx, &format!("{name}_doppler_{doppler}"), &s, &st);
         }

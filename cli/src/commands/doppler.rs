@@ -208,19 +208,8 @@ fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
     };
     st.invariant = args.invariant;
     if args.inclination != 0.0 {
-        if !(args.inclination.is_finite() && args.inclination.abs() <= 90.0) {
-            bail!("--inclination {} must lie in [-90, 90]", args.inclination);
-        }
-        let (lo, hi) = scene.geometry().world_bounds();
-        let (centre, radius) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
-        let (si, ci) = args.inclination.to_radians().sin_cos();
-        let dir = glam::Vec3::new(0.0, si, ci);
-        st.camera.target = centre;
-        st.camera.eye = centre - dir * (radius + 1.0);
-        st.camera.up = glam::Vec3::new(0.0, ci, -si);
-        st.camera.projection = blueshift_tracking::Projection::Orthographic {
-            height: (hi - lo).x.max((hi - lo).y),
-        };
+        st.incline(&scene, args.inclination)
+            .map_err(|e| anyhow::anyhow!("--inclination: {e}"))?;
     }
     st.merge_tolerance = args.merge_tol;
     st.piece_budget = args.piece_budget;

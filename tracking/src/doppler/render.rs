@@ -140,6 +140,31 @@ impl DopplerSettings {
         }
     }
 
+    /// Views the scene as an astronomer inclines a disc: orthographic, the line of sight
+    /// tilted by `degrees` from +z towards +y about the x axis through the volume's centre (0:
+    /// face-on along +z, 90: edge-on along +y), framing the volume's x-y extent.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] when `degrees` is not finite or lies outside [-90, 90].
+    pub fn incline(&mut self, scene: &DopplerScene, degrees: f32) -> Result<()> {
+        if !(degrees.is_finite() && degrees.abs() <= 90.0) {
+            return Err(Error::parameter(format!(
+                "inclination {degrees} degrees must lie in [-90, 90]"
+            )));
+        }
+        let (lo, hi) = scene.geometry.world_bounds();
+        let (centre, radius) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
+        let (si, ci) = degrees.to_radians().sin_cos();
+        let dir = Vec3::new(0.0, si, ci);
+        self.camera.target = centre;
+        self.camera.eye = centre - dir * (radius + 1.0);
+        self.camera.up = Vec3::new(0.0, ci, -si);
+        self.camera.projection = crate::Projection::Orthographic {
+            height: (hi - lo).x.max((hi - lo).y),
+        };
+        Ok(())
+    }
+
     /// Checks the settings against `scene` (as [`render_doppler`] does) and returns the ray
     /// step in world units (`step`, or half the smallest voxel spacing).
     pub fn validated_step(&self, scene: &DopplerScene) -> Result<f32> {

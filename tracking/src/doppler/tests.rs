@@ -576,3 +576,26 @@ fn very_fine_black_body_grids_give_the_same_absorbed_image() {
         );
     }
 }
+
+#[test]
+fn incline_tilts_the_line_of_sight_about_x_and_refuses_bad_angles() {
+    let v = synth::galaxy(8, 1).unwrap();
+    let scene = DopplerScene::from_volume(&v, &["H"]).unwrap();
+    let mut st = DopplerSettings::default_for(&scene, 4, 4);
+    for (deg, want) in [
+        (0.0f32, Vec3::Z),
+        (90.0, Vec3::Y),
+        (-90.0, -Vec3::Y),
+        (60.0, Vec3::new(0.0, 0.75f32.sqrt(), 0.5)),
+    ] {
+        st.incline(&scene, deg).unwrap();
+        let dir = (st.camera.target - st.camera.eye).normalize();
+        assert!((dir - want).length() < 1e-5, "{deg}: {dir} vs {want}");
+        // The up vector is perpendicular to the line of sight.
+        assert!(st.camera.up.dot(dir).abs() < 1e-5);
+    }
+    for bad in [90.5f32, -100.0, f32::NAN, f32::INFINITY] {
+        let e = st.incline(&scene, bad).unwrap_err();
+        assert!(e.to_string().contains("[-90, 90]"), "{e}");
+    }
+}
