@@ -80,9 +80,11 @@
 //! the optical depth, the exponential moments, the sums, and the output.
 //!
 //! **f64** (`SHADER_F64`): SPIR-V's GLSL.std.450 has no f64 `exp`, so the prelude writes it
-//! out (`k ln 2 + r` reduction with ln 2 split in two, a degree-14 polynomial, `ldexp`;
-//! measured 2.2e-16 relative), and `expm1` by the same series below 0.25 (5.4e-16); the exponential moments switch
-//! from series to recurrence at `s h = 0.05` as on the CPU. Measured on lavapipe against the
+//! out (`k ln 2 + r` reduction with ln 2 split in two, a degree-14 polynomial, `2^k` from k's
+//! bits: no `ldexp`, which HLSL lacks for f64; measured 2.2e-16 relative), and `expm1` by the
+//! same series below 0.25 (5.4e-16); the exponential moments switch from series to
+//! recurrence at `s h = 0.05` as on the CPU. Should the f64 kernel still not compile on some
+//! backend, `Auto` takes f32 there (a forced `F64` reports the error). Measured on lavapipe against the
 //! CPU (`gpu/tests/doppler.rs`, `f64_kernels_agree_with_the_cpu_to_rounding`): worst 2e-14
 //! relative per pixel and channel for emission-only, broadened, banded and (at merge tolerance
 //! 0) absorbing renders, the same piece counts; asserted 1e-11 on software adapters. A
@@ -174,8 +176,10 @@ fn w2u(x: f32) -> u32 { return bitcast<u32>(x); }
 /// Prelude of the f64 kernels: the working float `fw` is f64. SPIR-V's GLSL.std.450 `Exp`
 /// takes 16- and 32-bit floats only, so `exp_fw` is written out: `x = k ln 2 + r` with
 /// `|r| <= ln 2 / 2` (ln 2 split in two parts so `k ln 2` is exact), `exp(r) = 1 + r tail(r)`
-/// with `tail(r) = sum_{j<14} r^j / (j + 1)!` (remainder < 1e-19 relative) and `ldexp`
-/// (exact); `expm1(x) = x tail(x)` below 0.25. Measured through the kernels against the CPU's
+/// with `tail(r) = sum_{j<14} r^j / (j + 1)!` (remainder < 1e-19 relative), times `2^k`
+/// built from k's bits (exact; no `ldexp`, which not every shading language has for f64);
+/// `expm1(x) = x tail(x)` below 0.25. Above 700 it returns `2 FW_MAX` (which every caller
+/// reads as an overflow), below -708 zero. Measured through the kernels against the CPU's
 /// f64 on lavapipe: 2e-14 per pixel (`gpu/tests/doppler.rs`).
 const PRELUDE_F64: &str = "\
 alias fw = f64;
@@ -197,13 +201,36 @@ fn exp_tail(r: f64) -> f64 {
     p = p * r + 0.5;
     return p * r + 1.0;
 }
+// One factor of `pow2_fw`: `up` (2^bit) or `down` (its inverse) where the bit is set, else 1.
+fn pow2_bit(a: u32, bit: u32, neg: bool, up: f64, down: f64) -> f64 {
+    if ((a & bit) == 0u) { return 1.0; }
+    if (neg) { return down; }
+    return up;
+}
+// 2^k for |k| <= 1023, exactly, from the bits of |k| (straight-line: no loop).
+fn pow2_fw(k: i32) -> f64 {
+    let a = u32(abs(k));
+    let neg = k < 0;
+    var f: f64 = 1.0;
+    f *= pow2_bit(a, 1u, neg, 2.0, 0.5);
+    f *= pow2_bit(a, 2u, neg, 4.0, 0.25);
+    f *= pow2_bit(a, 4u, neg, 16.0, 0.0625);
+    f *= pow2_bit(a, 8u, neg, 256.0, 0.00390625);
+    f *= pow2_bit(a, 16u, neg, 65536.0, 1.52587890625e-5);
+    f *= pow2_bit(a, 32u, neg, 4294967296.0, 2.3283064365386963e-10);
+    f *= pow2_bit(a, 64u, neg, 1.8446744073709552e19, 5.421010862427522e-20);
+    f *= pow2_bit(a, 128u, neg, 3.402823669209385e38, 2.938735877055719e-39);
+    f *= pow2_bit(a, 256u, neg, 1.157920892373162e77, 8.636168555094445e-78);
+    f *= pow2_bit(a, 512u, neg, 1.3407807929942597e154, 7.458340731200207e-155);
+    return f;
+}
 fn exp_fw(x: f64) -> f64 {
     // Past f64's range: a value planck's `den < FW_MAX` check reads as an overflow.
-    if (x > 709.78) { return FW_MAX * 2.0; }
-    if (x < -745.2) { return 0.0; }
+    if (x > 700.0) { return FW_MAX * 2.0; }
+    if (x < -708.0) { return 0.0; }
     let k = floor(x * 1.4426950408889634 + 0.5);
     let r = (x - k * 0.6931471803691238) - k * 1.9082149292705877e-10;
-    return ldexp(1.0 + r * exp_tail(r), i32(k));
+    return (1.0 + r * exp_tail(r)) * pow2_fw(i32(k));
 }
 fn expm1_fw(x: f64) -> f64 {
     if (abs(x) < 0.25) { return x * exp_tail(x); }
@@ -300,6 +327,19 @@ impl std::fmt::Display for DopplerPrecision {
             Self::F64 => "f64",
         })
     }
+}
+
+/// Whether `entry` runs in f64 on `ctx`: as [`DopplerPrecision::is_double_on`], except that
+/// `Auto` takes f32 when the f64 kernel does not compile for the adapter's backend (a shading
+/// language without some f64 operation); a forced `F64` reports that error.
+fn working_precision(ctx: &GpuContext, precision: DopplerPrecision, entry: &str) -> Result<bool> {
+    let double = precision.is_double_on(ctx)?;
+    if double && precision == DopplerPrecision::Auto {
+        return Ok(ctx
+            .compute_pipeline("doppler", &shader_source(true), entry)
+            .is_ok());
+    }
+    Ok(double)
 }
 
 /// Bytes of a working float.
@@ -664,7 +704,12 @@ pub fn render_doppler_gpu_with(
     precision: DopplerPrecision,
 ) -> Result<DopplerImage> {
     check_supported(scene, settings)?;
-    let double = precision.is_double_on(ctx)?;
+    let entry = match (settings.integrator, absorbing(scene)) {
+        (SpectralIntegrator::Banded { .. }, _) => "main_banded",
+        (SpectralIntegrator::PiecewiseLinear, true) => "main_absorb",
+        (SpectralIntegrator::PiecewiseLinear, false) => "main",
+    };
+    let double = working_precision(ctx, precision, entry)?;
     let step = settings.validated_step(scene).map_err(tracking_err)?;
     let g = scene.geometry();
     let [nx, ny, nz] = g.dims;
@@ -909,7 +954,6 @@ pub fn render_doppler_gpu_with(
         };
         return render_absorbing(ctx, settings, params, &bufs, n_abs);
     }
-    let entry = if n_bands > 0 { "main_banded" } else { "main" };
     let pipeline = ctx.compute_pipeline("doppler", &shader_source(double), entry)?;
     let rb = ctx.storage_buffer("doppler rays", &rays)?;
     let cb = ctx.storage_buffer("doppler channels", &channels)?;
