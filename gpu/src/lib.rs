@@ -18,6 +18,9 @@
 //!   and [`GpuContext::read_buffer`] are what every pipeline is made of.
 //! - Doppler volume rendering: [`doppler::render_doppler_gpu`] takes the CPU's
 //!   `DopplerScene` and `DopplerSettings`; [`doppler::check_supported`] says what it lacks.
+//!   It runs in f64 where the adapter has `SHADER_F64` (the CPU's image to rounding) and in
+//!   f32 elsewhere; [`doppler::render_doppler_gpu_with`] and [`doppler::DopplerPrecision`]
+//!   force one.
 //!
 //! ```no_run
 //! use blueshift_gpu::{GpuContext, GpuOptions};
@@ -46,10 +49,13 @@
 //! | relativistic aberration, Doppler shift, searchlight (relativity paper Eq. 2-3) | [`relativity::GpuRelativity`], `shaders/relativity.wgsl` |
 //! | Doppler paper Algorithms 1 and 2 on the GPU | [`doppler::render_doppler_gpu`] |
 //! | optical depth in front as pieces, preview budget (Algorithm 2 with absorption) | [`doppler::absorption_layout`], [`doppler::DEVICE_PIECE_CAP`] |
+//! | double precision where the adapter has it (`SHADER_F64`) | [`doppler::DopplerPrecision`], [`doppler::shader_source`] |
 //!
 //! ## Shaders
 //! WGSL sources live in `gpu/src/shaders/` and are included with `include_str!`; a test
-//! parses and validates every one of them with naga, so a shader error fails the tests.
+//! parses and validates every one of them with naga (`doppler.wgsl` with both of its
+//! precision preludes), so a shader error fails the tests. [`GpuContext::compute_pipeline`]
+//! compiles each (source, entry point) once per context.
 
 pub mod context;
 pub mod doppler;
