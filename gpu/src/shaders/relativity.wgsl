@@ -58,8 +58,12 @@ fn fmod_euclid(a: f32, b: f32) -> f32 {
     return r;
 }
 
+// (longitude, polar angle) as blueshift_relativity::lon_polar. The polar angle is
+// atan2(|xz|, y), not the CPU's acos(y): equal for unit vectors, but acos in f32 loses up to
+// 3e-4 rad near the poles (and is approximated on some drivers), which moved lookups by a
+// sizeable fraction of a texel on real 1k-2k maps.
 fn lon_polar(d: vec3<f32>) -> vec2<f32> {
-    return vec2<f32>(atan2(d.x, -d.z), acos(clamp(d.y, -1.0, 1.0)));
+    return vec2<f32>(atan2(d.x, -d.z), atan2(length(d.xz), d.y));
 }
 
 fn sample_equirect(d: vec3<f32>) -> vec3<f32> {
