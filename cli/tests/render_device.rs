@@ -118,3 +118,98 @@ fn cpu_only_options_are_refused_on_the_gpu_and_bad_values_on_any() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// lavapipe stops every loop of an invocation batch after 65535 iterations in all; the
+/// marcher with a tiny step needs more. `gpu` must then give the CPU's image (one sample
+/// per dispatch where four did not fit) or fail with one line naming the loop limit and
+/// write nothing, never an image of rays cut short (before the fix: a darker image, exit 0).
+/// `auto` with the adapter forced by `BLUESHIFT_GPU` renders it on the CPU, bit for bit.
+#[test]
+fn long_rays_on_the_gpu_equal_the_cpu_or_are_refused_and_auto_falls_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = [
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--tf",
+        "builtin:viridis",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--density-scale",
+        "3",
+        "--seed",
+        "3",
+        "--method",
+        "marcher",
+    ];
+    let go = |extra: &[&str], device: &str, out: &str| {
+        let mut a = base.to_vec();
+        a.extend_from_slice(extra);
+        a.extend(["--device", device, "--out", out]);
+        Command::new(env!("CARGO_BIN_EXE_blueshift"))
+            .arg("render")
+            .args(&a)
+            .env("BLUESHIFT_GPU", "software")
+            .current_dir(dir.path())
+            .output()
+            .unwrap()
+    };
+    // About 9,000 steps per ray: one sample fits lavapipe's limit, four at once do not.
+    let few = ["--step", "0.0002", "--spp", "4"];
+    assert!(go(&few, "cpu", "a_cpu.exr").status.success());
+    if !gpu_ok("render", &go(&few, "gpu", "a_gpu.exr")) {
+        return;
+    }
+    let (c, g) = (
+        read_exr(&dir.path().join("a_cpu.exr")),
+        read_exr(&dir.path().join("a_gpu.exr")),
+    );
+    let d = c
+        .as_raw()
+        .iter()
+        .zip(g.as_raw())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    // The marcher's f32 error grown over the steps (measured 4.3e-5).
+    assert!(d <= 3e-4, "step 0.0002: max |gpu - cpu| = {d}");
+    assert!(c.pixels().any(|p| p.0[3] > 0.1));
+
+    // Four times as many steps: one sample alone passes a software adapter's limit.
+    let many = ["--step", "0.00005", "--spp", "1"];
+    assert!(go(&many, "cpu", "b_cpu.exr").status.success());
+    let o = go(&many, "gpu", "b_gpu.exr");
+    let err = String::from_utf8_lossy(&o.stderr);
+    if o.status.success() {
+        let (c, g) = (
+            read_exr(&dir.path().join("b_cpu.exr")),
+            read_exr(&dir.path().join("b_gpu.exr")),
+        );
+        let d = c
+            .as_raw()
+            .iter()
+            .zip(g.as_raw())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max);
+        assert!(d <= 1e-3, "step 0.00005: max |gpu - cpu| = {d}");
+    } else {
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains("loop limit"), "{err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(!dir.path().join("b_gpu.exr").exists());
+        let o = go(&many, "auto", "b_auto.exr");
+        let aerr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{aerr}");
+        assert!(
+            aerr.contains("--device auto") && aerr.contains("on the CPU"),
+            "{aerr}"
+        );
+        assert_eq!(
+            std::fs::read(dir.path().join("b_cpu.exr")).unwrap(),
+            std::fs::read(dir.path().join("b_auto.exr")).unwrap()
+        );
+    }
+}

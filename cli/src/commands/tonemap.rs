@@ -33,8 +33,9 @@ pub enum Op {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Where the operator runs: cpu (default, bit-reproducible), gpu (any wgpu adapter,
-    /// lavapipe included) or auto (a hardware GPU when
-    /// present and the operator has a GPU version, else the CPU).
+    /// lavapipe included) or auto (a hardware GPU when present, or the adapter
+    /// $BLUESHIFT_GPU forces, else the CPU; an image over the adapter's limits, e.g. Fattal's
+    /// DCT matrices, is tone-mapped on the CPU).
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
     /// Input HDR image: OpenEXR, Radiance .hdr or PFM (detected from the content).
@@ -274,9 +275,14 @@ pub fn run(args: Args) -> Result<()> {
                 .filter(|_| blueshift_gpu::tonemap::supports(&op)),
         };
         let display = match gpu {
-            Some(ctx) => {
-                blueshift_gpu::tonemap::tonemap(ctx, &op, hdr).context("GPU tone mapping")?
-            }
+            Some(ctx) => match blueshift_gpu::tonemap::tonemap(ctx, &op, hdr) {
+                Ok(d) => d,
+                Err(e) if args.device.falls_back_on(&e) => {
+                    eprintln!("--device auto: {e}; tone-mapping on the CPU");
+                    op.apply_clean(&clean)?
+                }
+                Err(e) => return Err(anyhow::Error::new(e).context("GPU tone mapping")),
+            },
             None => op.apply_clean(&clean)?,
         };
         write_display(&args.out, &display, args.depth)?;
