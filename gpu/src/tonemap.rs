@@ -28,7 +28,10 @@
 //! Durand within 2e-4 relative + 1e-6 absolute; Fattal within 2e-4 relative + 1e-6
 //! absolute (the f32 matrix DCT against the CPU's f64 FFT-based DCT; measured largest
 //! difference 2e-6 relative on the 32x24 test image; f32 rounding in the O(W + H)-term
-//! sums grows roughly with the square root of the side) (the blurs and the bilateral grid sum the
+//! sums grows roughly with the square root of the side: on real photographs, memorial.hdr
+//! 512x768 and Desk.exr 644x874, the largest absolute difference is 2e-5 (at 0.82) and
+//! dark values near the percentile black point differ by up to 3.3e-6, so there the bound
+//! is 2e-4 relative + 2e-5 absolute) (the blurs and the bilateral grid sum the
 //! same terms in the same order; the difference is the GPU's `exp`/`pow` rounding and
 //! fused multiply-adds).
 
