@@ -23,6 +23,13 @@
 //!   W^2 and H^2 floats within `max_storage_buffer_binding_size`). The display scaling
 //!   (percentiles) and recolouring run on the host.
 //!
+//! lavapipe stops every loop of an invocation batch after 65535 iterations in all, silently;
+//! Durand's splat (each grid cell sums (sigma_s / 4)^2 pixels) and the row min/max (a row
+//! of the image) probe for it, and a run that ran out is [`Error::Unsupported`] naming the
+//! loop limit (e.g. sigma_s of about 500 pixels or more), never a wrong image. The other
+//! shaders' loops are bounded far below the limit (blur radii, 16 scales, DCT sides within
+//! the storage limit).
+//!
 //! Parity (tested in `gpu/tests/tonemap.rs` against the CPU operator on the same image):
 //! global operators within 1e-4 relative + 1e-6 absolute per channel; Reinhard local and
 //! Durand within 2e-4 relative + 1e-6 absolute; Fattal within 2e-4 relative + 1e-6
@@ -573,7 +580,7 @@ impl<'a> GpuTonemapper<'a> {
                 step,
                 cut: 4.0 * sigma_r,
                 inv2r2: 1.0 / (2.0 * sigma_r * sigma_r),
-                p0: 0,
+                p0: 2, // the loop-limiter probe's trip count
                 p1: 0,
             },
         )?;
@@ -611,7 +618,13 @@ impl<'a> GpuTonemapper<'a> {
                 p2: 0,
             },
         )?;
-        let bg_splat = ctx.bind_group(&self.splat, 0, &[&input, &levels_b, &grid, &splat_p])?;
+        // Set by the splat and row min/max shaders when lavapipe's loop limit ran out.
+        let limited = ctx.storage_buffer("durand loop-limit flag", &[0u32])?;
+        let bg_splat = ctx.bind_group(
+            &self.splat,
+            0,
+            &[&input, &levels_b, &grid, &splat_p, &limited],
+        )?;
         let bg_bh = ctx.bind_group(&self.blur, 0, &[&grid, &kernel_b, &grid2, &blur_h])?;
         let bg_bv = ctx.bind_group(&self.blur, 0, &[&grid2, &kernel_b, &grid, &blur_v])?;
         let bg_slice = ctx.bind_group(&self.slice, 0, &[&input, &grid, &base, &slice_p])?;
@@ -665,15 +678,21 @@ impl<'a> GpuTonemapper<'a> {
             &MinMaxParams {
                 w: w32,
                 h: h32,
-                p0: 0,
+                p0: 2, // the loop-limiter probe's trip count
                 p1: 0,
             },
         )?;
-        let bg_mm = ctx.bind_group(&self.minmax, 0, &[&base, &mm, &mm_p])?;
+        let bg_mm = ctx.bind_group(&self.minmax, 0, &[&base, &mm, &mm_p, &limited])?;
         ctx.dispatch(
             &self.minmax,
             &bg_mm,
             [ctx.groups("minmax", h32, WORKGROUP_1D)?, 1, 1],
+        )?;
+        crate::tracking::check_loop_limit(
+            ctx,
+            &limited,
+            "Durand's bilateral grid (each cell sums sigma_s/4 x sigma_s/4 pixels)",
+            "a smaller --sigma-s",
         )?;
         let rows = ctx.read_buffer::<f32>(&mm, h * 2)?;
         let (bmin, bmax) = rows

@@ -182,24 +182,32 @@ fn write_at<T: Pod>(
     ctx.scoped(|| ctx.queue().write_buffer(buffer, offset, bytes))
 }
 
-/// Reads a loop-limit flag written by the shaders' probe; set means that some invocation
-/// batch ran out of the adapter's loop limit, so loops may have stopped early:
-/// [`Error::Unsupported`] naming the limit (never a silently wrong result).
-fn check_loop_limit(ctx: &GpuContext, flag: &wgpu::Buffer, what: &str) -> Result<()> {
+/// What to change when a tracking shader runs out of the loop limit.
+const TRACKING_HINT: &str = "fewer steps per ray (a larger marcher step, a smaller density \
+                             scale or volume)";
+
+/// Reads a loop-limit flag written by a shader's probe (`limiter_exhausted`); set means
+/// that some invocation batch ran out of the adapter's loop limit, so loops may have
+/// stopped early: [`Error::Unsupported`] naming the limit (never a silently wrong result).
+pub(crate) fn check_loop_limit(
+    ctx: &GpuContext,
+    flag: &wgpu::Buffer,
+    what: &str,
+    hint: &str,
+) -> Result<()> {
     let v: Vec<u32> = ctx.read_buffer(flag, 1)?;
     if v[0] == 0 {
         return Ok(());
     }
-    Err(loop_limit_error(ctx, what))
+    Err(loop_limit_error(ctx, what, hint))
 }
 
-fn loop_limit_error(ctx: &GpuContext, what: &str) -> Error {
+pub(crate) fn loop_limit_error(ctx: &GpuContext, what: &str, hint: &str) -> Error {
     Error::Unsupported(format!(
         "{what} passed the loop limit of the adapter {:?}: software adapters such as \
          lavapipe stop every loop of an invocation batch after {SOFTWARE_LOOP_LIMIT} \
-         iterations in all, which would silently cut rays short; use a hardware GPU or the \
-         CPU (--device cpu), or fewer steps per ray (a larger marcher step, a smaller \
-         density scale or volume)",
+         iterations in all, which would silently give a wrong result; use a hardware GPU or \
+         the CPU (--device cpu), or {hint}",
         ctx.info().name
     ))
 }
@@ -452,7 +460,11 @@ impl<'c> GpuTracker<'c> {
                 let flag: Vec<u32> = self.ctx.read_buffer(&limited, 1)?;
                 if flag[0] != 0 {
                     if count == 1 {
-                        return Err(loop_limit_error(self.ctx, "a pixel sample's ray"));
+                        return Err(loop_limit_error(
+                            self.ctx,
+                            "a pixel sample's ray",
+                            TRACKING_HINT,
+                        ));
                     }
                     batch = 1;
                     done = 0;
@@ -732,6 +744,7 @@ impl<'t, 'c> GpuScene<'t, 'c> {
             ctx,
             &limited,
             "building the majorants (scanning the lookup tables)",
+            "shorter lookup tables",
         )
     }
 
