@@ -12,7 +12,8 @@
 //!   integrator are straight ports of `blueshift-tracking` in f32.
 //! - The transfer functions are sampled on the device from lookup tables of
 //!   [`GpuTracker::lut_entries`] entries (`TransferFunction::lut`, linear filtering between
-//!   entries) instead of the CPU's exact knot evaluation. For piecewise-linear transfer
+//!   entries; on a log10 data axis the entries are uniform in log10 of the value and the
+//!   device looks up log10 of the sample) instead of the CPU's exact knot evaluation. For piecewise-linear transfer
 //!   functions whose knots fall on table entries this is exact up to f32 rounding; otherwise
 //!   the difference is the table's interpolation error (below 1e-4 in opacity for 4096
 //!   entries and a smooth function).
@@ -42,7 +43,7 @@
 //! f32 bit arithmetic; `Precision::U8` rounds half away from zero to multiples of 1/255 like
 //! the CPU.
 
-use blueshift_tfedit::TransferFunction;
+use blueshift_tfedit::{DataAxis, TransferFunction};
 use blueshift_tracking::{
     Blend, DdaMode, Integrator, Precision, Projection, RenderSettings, Scene,
 };
@@ -788,7 +789,31 @@ impl<'t, 'c> GpuScene<'t, 'c> {
     }
 }
 
+/// The device's table of `tf`: entries uniform in the transfer function's interpolation
+/// coordinate, i.e. in the data value (`TransferFunction::lut`) or, on a logarithmic data
+/// axis, in log10 of it, so that linear filtering between entries follows the function
+/// as closely on either axis (a table uniform in the data value would put the lowest
+/// decades of a log axis between its first two entries).
 fn push_lut(out: &mut Vec<[f32; 4]>, tf: &TransferFunction, entries: usize) -> Result<()> {
+    if tf.data_axis() == DataAxis::Log {
+        if !(2..=1 << 24).contains(&entries) {
+            return Err(Error::InvalidInput(format!(
+                "a lookup table needs 2 to 2^24 entries, got {entries}"
+            )));
+        }
+        let axis = DataAxis::Log;
+        let [lo, hi] = tf.domain().map(|v| axis.coord(v));
+        let step = (hi - lo) / (entries - 1) as f64;
+        out.extend((0..entries).map(|i| {
+            let c = if i + 1 == entries {
+                hi
+            } else {
+                lo + i as f64 * step
+            };
+            tf.eval(axis.value(c))
+        }));
+        return Ok(());
+    }
     let lut = tf
         .lut(entries)
         .map_err(|e| Error::InvalidInput(e.to_string()))?;
@@ -800,10 +825,14 @@ fn push_lut(out: &mut Vec<[f32; 4]>, tf: &TransferFunction, entries: usize) -> R
     Ok(())
 }
 
+/// The channel table's entries: (axis coordinate of the domain's min and max, blend weight
+/// (set per render), 1 on a log10 axis), (NaN colour, 0).
 fn chan_info(tf: &TransferFunction) -> [[f32; 4]; 2] {
-    let [lo, hi] = tf.domain();
+    let axis = tf.data_axis();
+    let [lo, hi] = tf.domain().map(|v| axis.coord(v));
+    let log = if axis == DataAxis::Log { 1.0 } else { 0.0 };
     let [r, g, b] = tf.nan_color();
-    [[lo as f32, hi as f32, 0.0, 0.0], [r, g, b, 0.0]]
+    [[lo as f32, hi as f32, 0.0, log], [r, g, b, 0.0]]
 }
 
 /// A progressive render read back from the device: per pixel the mean and the sum of

@@ -249,6 +249,16 @@ fn sample_index(n: u32, q: vec3<f32>) -> f32 {
     return e0 * (1.0 - t.z) + e1 * t.z;
 }
 
+// A data value's coordinate on its transfer function's axis: the value, or its log10 on
+// a log axis (`info.w` = 1), whose domain is positive: values at or below 0 clamp to the
+// domain's minimum as on the CPU.
+fn axis_coord(v: f32, info: vec4<f32>) -> f32 {
+    if info.w != 0.0 {
+        return log2(max(v, 1.17549435e-38)) * 0.30102999566;
+    }
+    return v;
+}
+
 // Extinction (xyz unused) and colour of channel n at world point p: (r, g, b, sigma).
 fn scene_sample(n: u32, p: vec3<f32>) -> vec4<f32> {
     let v = sample_index(n, (p - P.origin) / P.spacing);
@@ -257,7 +267,7 @@ fn scene_sample(n: u32, p: vec3<f32>) -> vec4<f32> {
         return vec4<f32>(chan[2u * n + 1u].xyz, 0.0);
     }
     let last = f32(P.lut_len - 1u);
-    let pos = clamp((v - info.x) / (info.y - info.x) * last, 0.0, last);
+    let pos = clamp((axis_coord(v, info) - info.x) / (info.y - info.x) * last, 0.0, last);
     let i = min(u32(floor(pos)), P.lut_len - 2u);
     let fr = pos - f32(i);
     let a = luts[n * P.lut_len + i];
@@ -871,7 +881,7 @@ struct MajorantParams {
 fn lut_pos(n: u32, v: f32) -> f32 {
     let info = maj_chan[2u * n];
     let last = f32(MP.lut_len - 1u);
-    return clamp((v - info.x) / (info.y - info.x) * last, 0.0, last);
+    return clamp((axis_coord(v, info) - info.x) / (info.y - info.x) * last, 0.0, last);
 }
 
 // Majorant of one (cell, channel): the largest lookup-table opacity among the entries a
