@@ -226,10 +226,11 @@ fn gpu_matches_cpu_on_detailed_maps_and_near_the_speed_of_light() {
     let smooth = dir.path().join("smooth.exr");
     let img = image::Rgb32FImage::from_fn(256, 128, |x, y| {
         let (u, v) = (x as f32 / 256.0, y as f32 / 128.0);
+        use std::f32::consts::{PI, TAU};
         image::Rgb([
-            1.0 + 0.8 * (6.283 * u).sin() * (3.14 * v).sin(),
-            1.0 + 0.5 * (3.14 * v).cos(),
-            0.6 + 0.3 * (12.566 * u).cos(),
+            1.0 + 0.8 * (TAU * u).sin() * (PI * v).sin(),
+            1.0 + 0.5 * (PI * v).cos(),
+            0.6 + 0.3 * (2.0 * TAU * u).cos(),
         ])
     });
     image::DynamicImage::ImageRgb32F(img).save(&smooth).unwrap();
