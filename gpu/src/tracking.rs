@@ -13,10 +13,10 @@
 //! - The transfer functions are sampled on the device from lookup tables of
 //!   [`GpuTracker::lut_entries`] entries (`TransferFunction::lut`, linear filtering between
 //!   entries; on a log10 data axis the entries are uniform in log10 of the value and the
-//!   device looks up log10 of the sample) instead of the CPU's exact knot evaluation. For piecewise-linear transfer
-//!   functions whose knots fall on table entries this is exact up to f32 rounding; otherwise
-//!   the difference is the table's interpolation error (below 1e-4 in opacity for 4096
-//!   entries and a smooth function).
+//!   device looks up log10 of the sample) instead of the CPU's exact knot evaluation. For
+//!   piecewise-linear transfer functions whose knots fall on table entries this is exact up
+//!   to f32 rounding; otherwise the difference is the table's interpolation error (below
+//!   1e-4 in opacity for 4096 entries and a smooth function).
 //! - The majorant grids are computed on the device from the volume crate's macrocell
 //!   min/max ([`GpuScene::set_transfer_function`] re-runs only this pass): for each cell,
 //!   the largest table opacity among the entries a linear lookup of any value in the cell's
