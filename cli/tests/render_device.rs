@@ -279,3 +279,92 @@ fn log_axis_transfer_functions_render_the_cpu_picture_on_the_gpu() {
     assert!(d <= 1e-4, "log:viridis: max |gpu - cpu| = {d}");
     assert!(a.pixels().any(|p| p.0[3] > 0.3));
 }
+
+/// The same command twice writes the same bytes, on either device: EXR files were written
+/// by the `image` crate, which compresses blocks on several threads and writes them in the
+/// order they finish, so the pixels agreed but the files differed from run to run.
+#[test]
+fn exr_outputs_are_byte_for_byte_reproducible() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |args: &[&str], out: &str| {
+        let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+            .args(args)
+            .args(["--out", out])
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        (o, dir.path().join(out))
+    };
+    let render = [
+        "render",
+        "--synth",
+        "three-cubes",
+        "--res",
+        "24",
+        "--tf",
+        "builtin:viridis",
+        "--width",
+        "256",
+        "--height",
+        "192",
+        "--spp",
+        "2",
+        "--method",
+        "mdwt-1dda",
+    ];
+    let relativity = [
+        "relativity",
+        "--synth",
+        "checker",
+        "--width",
+        "320",
+        "--height",
+        "240",
+    ];
+    for device in ["cpu", "gpu"] {
+        for (k, base) in [&render[..], &relativity[..]].into_iter().enumerate() {
+            let mut args = base.to_vec();
+            args.extend(["--device", device]);
+            let (o1, p1) = run(&args, &format!("{k}_{device}_1.exr"));
+            if device == "gpu" && !gpu_ok(base[0], &o1) {
+                return;
+            }
+            assert!(
+                o1.status.success(),
+                "{}",
+                String::from_utf8_lossy(&o1.stderr)
+            );
+            let (o2, p2) = run(&args, &format!("{k}_{device}_2.exr"));
+            assert!(o2.status.success());
+            let (b1, b2) = (std::fs::read(&p1).unwrap(), std::fs::read(&p2).unwrap());
+            assert!(
+                b1 == b2,
+                "{} {device}: two runs wrote different bytes",
+                base[0]
+            );
+            if k == 1 {
+                // Tone-map the relativity picture twice, on this device.
+                let input = p1.to_str().unwrap().to_string();
+                let t = [
+                    "tonemap",
+                    input.as_str(),
+                    "--op",
+                    "durand",
+                    "--device",
+                    device,
+                ];
+                let (t1, q1) = run(&t, &format!("t_{device}_1.exr"));
+                assert!(
+                    t1.status.success(),
+                    "{}",
+                    String::from_utf8_lossy(&t1.stderr)
+                );
+                let (_, q2) = run(&t, &format!("t_{device}_2.exr"));
+                assert!(
+                    std::fs::read(q1).unwrap() == std::fs::read(q2).unwrap(),
+                    "tonemap {device}: two runs wrote different bytes"
+                );
+            }
+        }
+    }
+}

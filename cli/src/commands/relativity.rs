@@ -152,9 +152,12 @@ fn write_image(path: &Path, img: &Rgb32FImage, exposure: f64) -> Result<()> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
+    if ext == "exr" {
+        return crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw());
+    }
     write_via_temp_path(path, |tmp| {
         match ext.as_str() {
-            "exr" | "hdr" => image::DynamicImage::ImageRgb32F(img.clone())
+            "hdr" => image::DynamicImage::ImageRgb32F(img.clone())
                 .save(tmp)
                 .with_context(|| format!("cannot encode {}", path.display()))?,
             "png" => to_srgb8(img, exposure)

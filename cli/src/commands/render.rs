@@ -38,8 +38,6 @@ use blueshift_volume::{AnyGrid, synth};
 use glam::Vec3;
 use serde::Deserialize;
 
-use crate::output::write_via_temp_path;
-
 /// Arguments of `blueshift render`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -691,10 +689,7 @@ fn run_inner(args: &Args) -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
     let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
-    write_via_temp_path(&args.out, |p| {
-        img.save_with_format(p, image::ImageFormat::OpenExr)
-            .with_context(|| format!("cannot write {}", args.out.display()))
-    })?;
+    crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
     if let Some(png) = &args.png {
         write_png_preview(&img, png, &args.tonemap, args.exposure)?;
     }
@@ -768,10 +763,7 @@ fn render_on_gpu(
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
     let img = acc.mean_image();
-    write_via_temp_path(&args.out, |p| {
-        img.save_with_format(p, image::ImageFormat::OpenExr)
-            .with_context(|| format!("cannot write {}", args.out.display()))
-    })?;
+    crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
     if let Some(png) = &args.png {
         write_png_preview(&img, png, &args.tonemap, args.exposure)?;
     }

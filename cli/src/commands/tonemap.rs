@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use blueshift_tonemap::io::{self, ExrPrecision, PngDepth};
+use blueshift_tonemap::io::{self, PngDepth};
 use blueshift_tonemap::{
     DragoParams, DurandParams, ExposureSeries, FattalParams, LinearParams, Operator,
     PseudocolourParams, ReinhardLocalParams, ReinhardParams, Roi,
@@ -207,7 +207,10 @@ fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
                 PngDepth::Eight
             },
         ),
-        "exr" => io::write_exr(path, img, ExrPrecision::Float),
+        // Not io::write_exr: its blocks are written in the order threads finish them.
+        "exr" => {
+            return crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw());
+        }
         "hdr" => io::write_radiance_hdr(path, img),
         "pfm" => io::write_pfm(path, img),
         other => bail!(
