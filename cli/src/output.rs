@@ -87,3 +87,47 @@ fn make_readable(path: &Path) {
     #[cfg(not(unix))]
     let _ = path;
 }
+
+/// Writes an OpenEXR of 32-bit float channels atomically: `data` holds `width x height`
+/// pixels row by row with `channels` values each (3: RGB, 4: RGBA). The blocks are
+/// compressed one after the other, so the same picture always gives the same bytes (the
+/// `image` crate's writer compresses them on several threads and writes them in the order
+/// they finish, so two runs of the same render differed in their bytes).
+pub fn write_exr_f32(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: usize,
+    data: &[f32],
+) -> Result<()> {
+    use exr::prelude::{Image, SpecificChannels, Vec2, WritableImage};
+    let size = (width as usize, height as usize);
+    if width == 0 || height == 0 || data.len() != size.0 * size.1 * channels {
+        anyhow::bail!(
+            "cannot write {}: {} values for a {width}x{height} image of {channels} channels",
+            path.display(),
+            data.len()
+        );
+    }
+    let at = move |p: Vec2<usize>, c: usize| data[(p.y() * size.0 + p.x()) * channels + c];
+    write_via_temp_path(path, |tmp| {
+        let result = match channels {
+            4 => Image::from_channels(
+                size,
+                SpecificChannels::rgba(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2), at(p, 3))),
+            )
+            .write()
+            .non_parallel()
+            .to_file(tmp),
+            3 => Image::from_channels(
+                size,
+                SpecificChannels::rgb(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2))),
+            )
+            .write()
+            .non_parallel()
+            .to_file(tmp),
+            _ => anyhow::bail!("an EXR of {channels} channels: use 3 or 4"),
+        };
+        result.with_context(|| format!("cannot write {}", path.display()))
+    })
+}

@@ -212,3 +212,53 @@ fn device_auto_on_a_software_adapter_is_the_cpu_and_bad_devices_are_refused() {
     assert_eq!(o.status.code(), Some(1));
     assert!(!out.exists());
 }
+
+/// The adapter aliases the documentation promises: `lavapipe` (and `software`) pick the
+/// software adapter, `gpu` (and `hardware`) a hardware one, checked against the list of
+/// adapters `--all` reports. `lavapipe` used to be taken as a name and fail, since the
+/// adapter is called "llvmpipe (...)".
+#[test]
+fn adapter_aliases_pick_the_kind_they_name() {
+    let all = blueshift(&["gpu-info", "--json", "--all"]);
+    if !all.status.success() {
+        let err = String::from_utf8_lossy(&all.stderr);
+        assert!(!require(), "gpu-info failed: {err}");
+        eprintln!("SKIP: no wgpu adapter: {err}");
+        return;
+    }
+    let v: serde_json::Value = serde_json::from_slice(&all.stdout).unwrap();
+    let kinds: Vec<&str> = v["adapters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["device_type"].as_str().unwrap())
+        .collect();
+    let has_software = kinds.contains(&"Cpu");
+    let has_hardware = kinds.iter().any(|k| *k != "Cpu");
+    for (alias, want_hardware, present) in [
+        ("lavapipe", false, has_software),
+        ("software", false, has_software),
+        ("gpu", true, has_hardware),
+        ("hardware", true, has_hardware),
+    ] {
+        for via_env in [false, true] {
+            let mut cmd = Command::new(env!("CARGO_BIN_EXE_blueshift"));
+            cmd.args(["gpu-info", "--json"]);
+            if via_env {
+                cmd.env("BLUESHIFT_GPU", alias);
+            } else {
+                cmd.args(["--adapter", alias]).env_remove("BLUESHIFT_GPU");
+            }
+            let out = cmd.output().unwrap();
+            let err = String::from_utf8_lossy(&out.stderr);
+            if present {
+                assert!(out.status.success(), "{alias} (env {via_env}): {err}");
+                let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+                assert_eq!(r["hardware"], serde_json::json!(want_hardware), "{alias}");
+            } else {
+                assert_eq!(out.status.code(), Some(1), "{alias}: {err}");
+                assert!(err.contains("no wgpu adapter"), "{alias}: {err}");
+            }
+        }
+    }
+}

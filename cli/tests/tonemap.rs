@@ -159,3 +159,125 @@ fn bad_input_fails_with_one_line_and_leaves_no_output() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("bias"));
 }
+
+/// `--device auto` with the adapter `BLUESHIFT_GPU` forces (lavapipe here) tone-maps on the
+/// CPU what the adapter cannot: Fattal's width^2 DCT matrix of a 6000-pixel-wide image is
+/// over `max_storage_buffer_binding_size` (128 MiB on lavapipe), so `gpu` fails with one
+/// line naming the limit and writes nothing, and `auto` notes it and writes the CPU's image
+/// bit for bit.
+#[test]
+fn auto_tone_maps_on_the_cpu_what_the_adapter_cannot() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("wide.pfm");
+    write_pfm(&input, 6000, 3, |x, y| {
+        0.01 + ((x * 7 + y * 13) % 97) as f32 * 0.1
+    });
+    let run = |device: &str, out: &std::path::Path| {
+        blueshift()
+            .env("BLUESHIFT_GPU", "software")
+            .arg("tonemap")
+            .arg(&input)
+            .args(["--op", "fattal", "--device", device, "--out"])
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let cpu = dir.path().join("cpu.pfm");
+    let o = run("cpu", &cpu);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let gpu = dir.path().join("gpu.pfm");
+    let g = run("gpu", &gpu);
+    let gerr = String::from_utf8_lossy(&g.stderr).to_string();
+    let auto = dir.path().join("auto.pfm");
+    let a = run("auto", &auto);
+    let aerr = String::from_utf8_lossy(&a.stderr);
+    assert!(a.status.success(), "{aerr}");
+    // Whatever the adapter, auto's image is the CPU's when the GPU did not run it.
+    if !g.status.success() {
+        assert_eq!(
+            std::fs::read(&cpu).unwrap(),
+            std::fs::read(&auto).unwrap(),
+            "auto did not write the CPU's image"
+        );
+        assert!(
+            !gpu.exists(),
+            "a failed --device gpu left {}",
+            gpu.display()
+        );
+        assert_eq!(gerr.trim().lines().count(), 1, "{gerr}");
+        if gerr.contains("no wgpu adapter") {
+            let require = std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1");
+            assert!(!require, "{gerr}");
+            eprintln!("SKIP: no software wgpu adapter: {gerr}");
+            return;
+        }
+        assert!(gerr.contains("max_storage_buffer_binding_size"), "{gerr}");
+        // auto tried the forced adapter and fell back.
+        assert!(
+            aerr.contains("--device auto") && aerr.contains("on the CPU"),
+            "{aerr}"
+        );
+    }
+}
+
+/// Durand with a spatial sigma as large as the image: each bilateral-grid cell sums
+/// (sigma_s / 4)^2 pixels, past lavapipe's loop limit (65535 per invocation batch, after
+/// which loops stop silently; before the check `gpu` wrote an image up to 10x off and
+/// exited 0). `gpu` must write the CPU's image within the stated tolerance or fail with one
+/// line naming the loop limit and write nothing; `auto` with the adapter forced then writes
+/// the CPU's image bit for bit.
+#[test]
+fn durand_past_the_loop_limit_is_refused_on_gpu_and_done_on_the_cpu_by_auto() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.pfm");
+    write_pfm(&input, 320, 240, |x, y| {
+        10f32.powf(4.0 * (x as f32 / 320.0) - 1.0) * (1.2 + (y as f32 * 0.3).sin())
+    });
+    let run = |device: &str, out: &std::path::Path| {
+        blueshift()
+            .env("BLUESHIFT_GPU", "software")
+            .arg("tonemap")
+            .arg(&input)
+            .args(["--op", "durand", "--sigma-s", "1280", "--device", device])
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    let cpu = dir.path().join("cpu.pfm");
+    assert!(run("cpu", &cpu).status.success());
+    let gpu = dir.path().join("gpu.pfm");
+    let g = run("gpu", &gpu);
+    let err = String::from_utf8_lossy(&g.stderr);
+    let floats = |p: &std::path::Path| -> Vec<f32> {
+        let b = std::fs::read(p).unwrap();
+        // "PF\n320 240\n-1.0\n" then little-endian floats.
+        let start = b.len() - 320 * 240 * 12;
+        b[start..]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    };
+    if g.status.success() {
+        for (a, b) in floats(&cpu).iter().zip(&floats(&gpu)) {
+            assert!((a - b).abs() <= 2e-4 * a.abs() + 1e-6, "cpu {a} gpu {b}");
+        }
+        return;
+    }
+    if err.contains("no wgpu adapter") {
+        let require = std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1");
+        assert!(!require, "{err}");
+        eprintln!("SKIP: no software wgpu adapter: {err}");
+        return;
+    }
+    assert_eq!(g.status.code(), Some(1), "{err}");
+    assert!(err.contains("loop limit"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!gpu.exists());
+    let auto = dir.path().join("auto.pfm");
+    let a = run("auto", &auto);
+    let aerr = String::from_utf8_lossy(&a.stderr);
+    assert!(a.status.success(), "{aerr}");
+    assert!(aerr.contains("--device auto"), "{aerr}");
+    assert_eq!(std::fs::read(&cpu).unwrap(), std::fs::read(&auto).unwrap());
+}

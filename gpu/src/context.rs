@@ -42,8 +42,8 @@ impl AdapterChoice {
         let t = text.trim();
         match t.to_ascii_lowercase().as_str() {
             "" | "auto" => AdapterChoice::Auto,
-            "hardware" | "hw" => AdapterChoice::Hardware,
-            "software" | "sw" | "cpu" => AdapterChoice::Software,
+            "hardware" | "hw" | "gpu" => AdapterChoice::Hardware,
+            "software" | "sw" | "cpu" | "lavapipe" => AdapterChoice::Software,
             _ => AdapterChoice::Name(t.to_string()),
         }
     }
@@ -833,6 +833,17 @@ mod tests {
         assert!("tpu".parse::<DeviceChoice>().is_err());
         assert_eq!(DeviceChoice::Cpu.context().unwrap().map(|_| ()), None);
         assert_eq!(DeviceChoice::default(), DeviceChoice::Cpu);
+        let limit = Error::LimitExceeded {
+            what: "x".into(),
+            limit: "max_buffer_size",
+            requested: 2,
+            max: 1,
+        };
+        assert!(DeviceChoice::Auto.falls_back_on(&limit));
+        assert!(DeviceChoice::Auto.falls_back_on(&Error::Unsupported("x".into())));
+        assert!(!DeviceChoice::Auto.falls_back_on(&Error::InvalidInput("x".into())));
+        assert!(!DeviceChoice::Auto.falls_back_on(&Error::Validation("x".into())));
+        assert!(!DeviceChoice::Gpu.falls_back_on(&limit));
     }
 
     #[test]
@@ -840,6 +851,13 @@ mod tests {
         assert_eq!(AdapterChoice::parse(""), AdapterChoice::Auto);
         assert_eq!(AdapterChoice::parse(" Hardware "), AdapterChoice::Hardware);
         assert_eq!(AdapterChoice::parse("software"), AdapterChoice::Software);
+        // The aliases the documentation promises ("lavapipe" is not in the adapter's name,
+        // which is "llvmpipe (LLVM ...)", so it must not be taken as a name).
+        assert_eq!(AdapterChoice::parse("gpu"), AdapterChoice::Hardware);
+        assert_eq!(AdapterChoice::parse("hw"), AdapterChoice::Hardware);
+        assert_eq!(AdapterChoice::parse("Lavapipe"), AdapterChoice::Software);
+        assert_eq!(AdapterChoice::parse("sw"), AdapterChoice::Software);
+        assert_eq!(AdapterChoice::parse("cpu"), AdapterChoice::Software);
         assert_eq!(
             AdapterChoice::parse("llvmpipe"),
             AdapterChoice::Name("llvmpipe".into())
@@ -873,7 +891,9 @@ pub enum DeviceChoice {
     Cpu,
     /// A GPU: any adapter wgpu finds (lavapipe included), or an error.
     Gpu,
-    /// A hardware GPU when there is one, else the CPU.
+    /// A hardware GPU when there is one (or the adapter that `BLUESHIFT_GPU` forces), else
+    /// the CPU; a job the adapter cannot run (see [`DeviceChoice::falls_back_on`]) runs on
+    /// the CPU too.
     Auto,
 }
 
@@ -902,12 +922,31 @@ impl std::fmt::Display for DeviceChoice {
 impl DeviceChoice {
     /// The context to run on: `None` means the CPU. `gpu` returns the shared context
     /// ([`GpuContext::shared`], honouring `BLUESHIFT_GPU`) or its error; `auto` returns it
-    /// only when it is a hardware adapter (a software one would be slower than the CPU).
+    /// when it is a hardware adapter (a software one would be slower than the CPU) or when
+    /// `BLUESHIFT_GPU` forces an adapter (`hardware`, `software` or a name), else `None`.
     pub fn context(self) -> Result<Option<&'static GpuContext>> {
         match self {
             DeviceChoice::Cpu => Ok(None),
             DeviceChoice::Gpu => GpuContext::shared().map(Some),
-            DeviceChoice::Auto => Ok(GpuContext::shared().ok().filter(|c| c.is_hardware())),
+            DeviceChoice::Auto => {
+                let forced = AdapterChoice::from_env().is_some_and(|c| c != AdapterChoice::Auto);
+                Ok(GpuContext::shared()
+                    .ok()
+                    .filter(|c| forced || c.is_hardware()))
+            }
         }
+    }
+
+    /// Whether a GPU failure `err` lets this choice run the job on the CPU instead: `auto`
+    /// does when the job does not fit or is not supported on the adapter
+    /// ([`Error::LimitExceeded`], [`Error::Unsupported`], [`Error::OutOfMemory`]); `gpu`
+    /// and `cpu` never do.
+    #[must_use]
+    pub fn falls_back_on(self, err: &Error) -> bool {
+        self == DeviceChoice::Auto
+            && matches!(
+                err,
+                Error::LimitExceeded { .. } | Error::Unsupported(_) | Error::OutOfMemory(_)
+            )
     }
 }

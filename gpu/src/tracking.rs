@@ -12,10 +12,11 @@
 //!   integrator are straight ports of `blueshift-tracking` in f32.
 //! - The transfer functions are sampled on the device from lookup tables of
 //!   [`GpuTracker::lut_entries`] entries (`TransferFunction::lut`, linear filtering between
-//!   entries) instead of the CPU's exact knot evaluation. For piecewise-linear transfer
-//!   functions whose knots fall on table entries this is exact up to f32 rounding; otherwise
-//!   the difference is the table's interpolation error (below 1e-4 in opacity for 4096
-//!   entries and a smooth function).
+//!   entries; on a log10 data axis the entries are uniform in log10 of the value and the
+//!   device looks up log10 of the sample) instead of the CPU's exact knot evaluation. For
+//!   piecewise-linear transfer functions whose knots fall on table entries this is exact up
+//!   to f32 rounding; otherwise the difference is the table's interpolation error (below
+//!   1e-4 in opacity for 4096 entries and a smooth function).
 //! - The majorant grids are computed on the device from the volume crate's macrocell
 //!   min/max ([`GpuScene::set_transfer_function`] re-runs only this pass): for each cell,
 //!   the largest table opacity among the entries a linear lookup of any value in the cell's
@@ -26,13 +27,23 @@
 //! - Gradient shading (`Scene::shading`) and the ray statistics / heat maps are CPU-only:
 //!   a scene with shading is refused with [`Error::InvalidInput`].
 //!
+//! # Loop limit of software adapters
+//! lavapipe (llvmpipe) stops every loop of an invocation batch (the SIMD lanes run
+//! together) after [`SOFTWARE_LOOP_LIMIT`] iterations in all, silently: a long ray (a small
+//! marcher step, a dense volume) would stop half-way and the image come out darker. The
+//! render and majorant shaders end with a probe that finds out whether the limiter ran out
+//! and set a flag; on a software adapter the flag is read after every dispatch. A dispatch
+//! of several samples that ran out is redone from the start one sample per dispatch; a
+//! single sample (or a majorant table scan) that runs out is [`Error::Unsupported`] naming
+//! the loop limit, never a silently darker image. Hardware adapters have no such limit.
+//!
 //! # Compositing precision of the marcher
 //! `Precision::F16` rounds with the native `f16` type where the device has `SHADER_F16`
 //! ([`GpuTracker::native_f16`]), else with an exact emulation of round-to-nearest-even in
 //! f32 bit arithmetic; `Precision::U8` rounds half away from zero to multiples of 1/255 like
 //! the CPU.
 
-use blueshift_tfedit::TransferFunction;
+use blueshift_tfedit::{DataAxis, TransferFunction};
 use blueshift_tracking::{
     Blend, DdaMode, Integrator, Precision, Projection, RenderSettings, Scene,
 };
@@ -51,6 +62,14 @@ pub const DEFAULT_LUT_ENTRIES: usize = 4096;
 
 /// Samples per pixel rendered by one dispatch (bounds the time of one submission).
 pub const SAMPLES_PER_DISPATCH: u32 = 4;
+
+/// Trip count of the shaders' loop-limiter probe (`limiter_exhausted`): a uniform, so that
+/// the probe's loop is not unrolled.
+const PROBE_N: u32 = 2;
+
+/// The loop limit of software adapters: lavapipe (llvmpipe) stops every loop of an
+/// invocation batch after this many loop iterations in all, silently.
+pub const SOFTWARE_LOOP_LIMIT: u32 = 65535;
 
 const F16_EMULATED_LINE: &str = "return f16_emulated(v); // F16_IMPL";
 
@@ -107,7 +126,7 @@ struct Params {
     early_termination: f32,
     precision: u32,
     channel: u32,
-    pad0: u32,
+    probe_n: u32,
     pad1: u32,
 }
 
@@ -119,7 +138,8 @@ struct MajorantParams {
     lut_len: u32,
     channel: u32,
     density_scale: f32,
-    pad: [u32; 3],
+    probe_n: u32,
+    pad: [u32; 2],
 }
 
 /// Creates a bind group for `pipeline`'s group 0 with explicit `(binding, buffer)` pairs.
@@ -161,6 +181,50 @@ fn write_at<T: Pod>(
         )));
     }
     ctx.scoped(|| ctx.queue().write_buffer(buffer, offset, bytes))
+}
+
+/// What to change when a tracking shader runs out of the loop limit.
+const TRACKING_HINT: &str = "fewer steps per ray (a larger marcher step, a smaller density \
+                             scale or volume)";
+
+/// Reads a loop-limit flag written by a shader's probe (`limiter_exhausted`); set means
+/// that some invocation batch ran out of the adapter's loop limit, so loops may have
+/// stopped early: [`Error::Unsupported`] naming the limit (never a silently wrong result).
+pub(crate) fn check_loop_limit(
+    ctx: &GpuContext,
+    flag: &wgpu::Buffer,
+    what: &str,
+    hint: &str,
+) -> Result<()> {
+    let v: Vec<u32> = ctx.read_buffer(flag, 1)?;
+    if v[0] == 0 {
+        return Ok(());
+    }
+    Err(loop_limit_error(ctx, what, hint))
+}
+
+pub(crate) fn loop_limit_error(ctx: &GpuContext, what: &str, hint: &str) -> Error {
+    Error::Unsupported(format!(
+        "{what} passed the loop limit of the adapter {:?}: software adapters such as \
+         lavapipe stop every loop of an invocation batch after {SOFTWARE_LOOP_LIMIT} \
+         iterations in all, which would silently give a wrong result; use a hardware GPU or \
+         the CPU (--device cpu), or {hint}",
+        ctx.info().name
+    ))
+}
+
+/// Zero-fills `buffers` on the device and waits.
+fn clear_buffers(ctx: &GpuContext, buffers: &[&wgpu::Buffer]) -> Result<()> {
+    ctx.scoped(|| {
+        let mut enc = ctx
+            .device()
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        for b in buffers {
+            enc.clear_buffer(b, 0, None);
+        }
+        ctx.queue().submit([enc.finish()]);
+    })?;
+    ctx.wait()
 }
 
 /// Element count times element size, checked against the device's storage limits (and
@@ -345,6 +409,9 @@ impl<'c> GpuTracker<'c> {
             .storage_buffer_zeroed("tracking mean", pixels * 16)?;
         let m2 = self.ctx.storage_buffer_zeroed("tracking m2", pixels * 16)?;
         let pbuf = self.ctx.uniform_buffer("tracking params", &params)?;
+        let limited = self
+            .ctx
+            .storage_buffer("tracking loop-limit flag", &[0u32])?;
         let bg = bind(
             self.ctx,
             &self.render,
@@ -356,6 +423,7 @@ impl<'c> GpuTracker<'c> {
                 (4, &mean),
                 (5, &m2),
                 (6, &chan_buf),
+                (7, &limited),
             ],
         )?;
         let gx = self
@@ -373,11 +441,15 @@ impl<'c> GpuTracker<'c> {
             m2: Vec::new(),
         };
         // With a noise target every pass is read back to test it; else larger batches.
-        let batch = if settings.noise_target.is_some() {
+        let mut batch = if settings.noise_target.is_some() {
             1
         } else {
             SAMPLES_PER_DISPATCH
         };
+        // Software adapters have a loop limit per invocation batch (see
+        // `check_loop_limit`): the flag is read after every dispatch there, and a dispatch
+        // of several samples that ran out is redone from the start one sample at a time.
+        let software = !self.ctx.is_hardware();
         while done < settings.spp {
             let count = batch.min(settings.spp - done);
             params.sample_begin = done;
@@ -385,6 +457,22 @@ impl<'c> GpuTracker<'c> {
             self.ctx
                 .write_buffer(&pbuf, std::slice::from_ref(&params))?;
             self.ctx.dispatch(&self.render, &bg, [gx, gy, 1])?;
+            if software || done + count >= settings.spp {
+                let flag: Vec<u32> = self.ctx.read_buffer(&limited, 1)?;
+                if flag[0] != 0 {
+                    if count == 1 {
+                        return Err(loop_limit_error(
+                            self.ctx,
+                            "a pixel sample's ray",
+                            TRACKING_HINT,
+                        ));
+                    }
+                    batch = 1;
+                    done = 0;
+                    clear_buffers(self.ctx, &[&mean, &m2, &limited])?;
+                    continue;
+                }
+            }
             done += count;
             if let Some(target) = settings.noise_target {
                 out.read(self.ctx, &mean, &m2, done)?;
@@ -617,7 +705,8 @@ impl<'t, 'c> GpuScene<'t, 'c> {
             lut_len: t.lut_entries as u32,
             channel: channel.map_or(n, |c| c as u32),
             density_scale: self.scene.density_scale(),
-            pad: [0; 3],
+            probe_n: PROBE_N,
+            pad: [0; 2],
         };
         let pbuf = ctx.uniform_buffer("majorant params", &mp)?;
         let entries = [
@@ -626,6 +715,15 @@ impl<'t, 'c> GpuScene<'t, 'c> {
             (12, &self.luts),
             (13, &self.chan_buf),
             (14, &self.majorants),
+        ];
+        let limited = ctx.storage_buffer("majorant loop-limit flag", &[0u32])?;
+        let entries = [
+            entries[0],
+            entries[1],
+            entries[2],
+            entries[3],
+            entries[4],
+            (15, &limited),
         ];
         let bg_build = bind(ctx, &t.build_majorants, &entries)?;
         let bg_sum = bind(ctx, &t.sum_majorants, &[(10, &pbuf), (14, &self.majorants)])?;
@@ -642,7 +740,13 @@ impl<'t, 'c> GpuScene<'t, 'c> {
                 bind_groups: &[&bg_sum],
                 workgroups: [gx, 1, 1],
             },
-        ])
+        ])?;
+        check_loop_limit(
+            ctx,
+            &limited,
+            "building the majorants (scanning the lookup tables)",
+            "shorter lookup tables",
+        )
     }
 
     /// The majorant grids read back from the device: one per channel (cells x fastest, like
@@ -680,11 +784,36 @@ impl<'t, 'c> GpuScene<'t, 'c> {
         p.bounds_hi = v3(hi);
         p.early_termination = 1.0;
         p.step = 1.0;
+        p.probe_n = PROBE_N;
         p
     }
 }
 
+/// The device's table of `tf`: entries uniform in the transfer function's interpolation
+/// coordinate, i.e. in the data value (`TransferFunction::lut`) or, on a logarithmic data
+/// axis, in log10 of it, so that linear filtering between entries follows the function
+/// as closely on either axis (a table uniform in the data value would put the lowest
+/// decades of a log axis between its first two entries).
 fn push_lut(out: &mut Vec<[f32; 4]>, tf: &TransferFunction, entries: usize) -> Result<()> {
+    if tf.data_axis() == DataAxis::Log {
+        if !(2..=1 << 24).contains(&entries) {
+            return Err(Error::InvalidInput(format!(
+                "a lookup table needs 2 to 2^24 entries, got {entries}"
+            )));
+        }
+        let axis = DataAxis::Log;
+        let [lo, hi] = tf.domain().map(|v| axis.coord(v));
+        let step = (hi - lo) / (entries - 1) as f64;
+        out.extend((0..entries).map(|i| {
+            let c = if i + 1 == entries {
+                hi
+            } else {
+                lo + i as f64 * step
+            };
+            tf.eval(axis.value(c))
+        }));
+        return Ok(());
+    }
     let lut = tf
         .lut(entries)
         .map_err(|e| Error::InvalidInput(e.to_string()))?;
@@ -696,10 +825,14 @@ fn push_lut(out: &mut Vec<[f32; 4]>, tf: &TransferFunction, entries: usize) -> R
     Ok(())
 }
 
+/// The channel table's entries: (axis coordinate of the domain's min and max, blend weight
+/// (set per render), 1 on a log10 axis), (NaN colour, 0).
 fn chan_info(tf: &TransferFunction) -> [[f32; 4]; 2] {
-    let [lo, hi] = tf.domain();
+    let axis = tf.data_axis();
+    let [lo, hi] = tf.domain().map(|v| axis.coord(v));
+    let log = if axis == DataAxis::Log { 1.0 } else { 0.0 };
     let [r, g, b] = tf.nan_color();
-    [[lo as f32, hi as f32, 0.0, 0.0], [r, g, b, 0.0]]
+    [[lo as f32, hi as f32, 0.0, log], [r, g, b, 0.0]]
 }
 
 /// A progressive render read back from the device: per pixel the mean and the sum of

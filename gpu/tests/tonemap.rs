@@ -145,6 +145,33 @@ fn durand_matches_cpu() {
     );
 }
 
+/// The splat of Durand's bilateral grid walks sigma_s/4 x sigma_s/4 pixels per cell: with
+/// a spatial sigma as large as the image, far more loop iterations than lavapipe's limit
+/// (65535 per invocation batch, after which every loop stops silently; before the check
+/// this returned values up to 10x off with no error). The GPU must equal the CPU or, on a
+/// software adapter, refuse with `Error::Unsupported` naming the loop limit.
+#[test]
+fn durand_with_a_huge_spatial_sigma_equals_the_cpu_or_is_refused() {
+    let Some(ctx) = test_context() else { return };
+    let img = Rgb32FImage::from_fn(320, 240, |x, y| {
+        let l = 10f32.powf(4.0 * (x as f32 / 320.0) - 1.0) * (1.2 + (y as f32 * 0.3).sin());
+        Rgb([l, 0.8 * l, 0.5 * l])
+    });
+    let op = Operator::Durand(DurandParams {
+        sigma_spatial_px: Some(1280.0),
+        ..DurandParams::default()
+    });
+    let cpu = op.apply(&img).unwrap();
+    match GpuTonemapper::new(ctx).unwrap().apply(&op, &img) {
+        Ok(gpu) => assert_close(&gpu, &cpu, 2e-4, 1e-6, "durand sigma_s 1280"),
+        Err(Error::Unsupported(m)) => {
+            assert!(!ctx.is_hardware(), "{m}");
+            assert!(m.contains("loop limit"), "{m}");
+        }
+        Err(e) => panic!("expected an image or Error::Unsupported, got {e}"),
+    }
+}
+
 #[test]
 fn black_image_stays_black_and_bad_input_is_refused() {
     let Some(ctx) = test_context() else { return };

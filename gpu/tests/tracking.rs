@@ -11,7 +11,7 @@ use std::sync::OnceLock;
 
 use blueshift_gpu::tracking::{GpuTracker, check_volume_fits, quantise_probe, rng_probe};
 use blueshift_gpu::{Error, GpuContext, test_context};
-use blueshift_tfedit::{ColorKnot, OpacityKnot, TransferFunction};
+use blueshift_tfedit::{ColorKnot, DataAxis, OpacityKnot, TransferFunction};
 use blueshift_tracking::{
     Blend, DdaMode, DirectionalLight, Integrator, Precision, RayMarcher, RenderSettings, Rng,
     Scene, Shading, render, render_progressive,
@@ -268,6 +268,20 @@ fn a_transfer_function_edit_rebuilds_the_majorants_on_the_device() {
             assert!((a - b).abs() <= 1e-6 * b.abs().max(1e-3), "{n}: {a} vs {b}");
         }
     }
+    // The edited scene is the scene uploaded afresh with the new function: the same
+    // majorants bit for bit, and the same image bit for bit (tables and channel data too).
+    let full = t.upload(fresh.clone()).unwrap();
+    assert_eq!(after, full.majorants().unwrap());
+    let integ = Integrator::Mdwt {
+        dda: DdaMode::OneDda,
+        blend: Blend::Density,
+    };
+    let set = settings(&fresh, 8, 2, 3);
+    let edited = t.render(&gs, &integ, &set).unwrap();
+    assert_eq!(
+        edited.as_raw(),
+        t.render(&full, &integ, &set).unwrap().as_raw()
+    );
     assert!(matches!(
         gs.set_transfer_function(5, tf([0.0; 3], [0.0; 3], &[(0.0, 0.1)])),
         Err(Error::InvalidInput(_))
@@ -559,4 +573,125 @@ fn progressive_mean_and_variance_match_a_homogeneous_slab() {
         .unwrap();
     assert_eq!(early.samples(), 2);
     assert!(early.noise() <= 0.5);
+}
+
+/// lavapipe stops every loop of an invocation batch after 65535 iterations in all
+/// (`tracking::SOFTWARE_LOOP_LIMIT`), silently. A dispatch of several samples that runs out
+/// is redone one sample per dispatch and still equals the CPU; a render whose single sample
+/// runs out is refused with `Error::Unsupported` naming the loop limit: never an image of
+/// rays cut short (before this check the 0.004 case came out with every pixel darker).
+#[test]
+fn long_rays_equal_the_cpu_or_are_refused_never_cut_short() {
+    let Some(t) = tracker() else { return };
+    let s = scene(0.6);
+    let gs = t.upload(s.clone()).unwrap();
+    let march = |step: f32| {
+        Integrator::Marcher(RayMarcher {
+            step: Some(step),
+            ..RayMarcher::default()
+        })
+    };
+    // Thousands of steps per ray: one sample fits lavapipe's limit, four in one dispatch
+    // do not. The tolerance is the marcher's f32 error grown over the many steps
+    // (measured 7.3e-5).
+    let set = settings(&s, 4, 4, 5);
+    let integ = march(0.004);
+    let cpu = render(&s, &integ, &set).unwrap();
+    let gpu = t.render(&gs, &integ, &set).unwrap();
+    let d = max_diff(&cpu, &gpu);
+    assert!(d <= 3e-4, "step 0.004, 4 spp: max |gpu - cpu| = {d}");
+    assert!(cpu.as_raw().chunks(4).any(|p| p[3] > 0.3));
+    // Eight times as many steps: one sample alone passes the limit of a software adapter.
+    let set = settings(&s, 4, 1, 5);
+    let integ = march(0.0005);
+    let cpu = render(&s, &integ, &set).unwrap();
+    match t.render(&gs, &integ, &set) {
+        Ok(gpu) => {
+            let d = max_diff(&cpu, &gpu);
+            assert!(d <= 2e-3, "step 0.0005: max |gpu - cpu| = {d}");
+        }
+        Err(Error::Unsupported(m)) => {
+            assert!(!t.context().is_hardware(), "{m}");
+            assert!(m.contains("loop limit"), "{m}");
+        }
+        Err(e) => panic!("expected an image or Error::Unsupported, got {e}"),
+    }
+}
+
+/// The majorant pass scans a cell's table entries: with a table far longer than lavapipe's
+/// loop limit it is refused on a software adapter (never majorants too small, which would
+/// bias the tracking); a hardware adapter has no such limit and builds them.
+#[test]
+fn majorants_over_the_loop_limit_are_refused_on_software_adapters() {
+    let Some(ctx) = test_context() else { return };
+    let t = GpuTracker::with_options(ctx, false, 1 << 20).unwrap();
+    // A cell holding the whole data range spans all 2^20 entries.
+    match t.upload(scene(0.4)) {
+        Ok(gs) => {
+            assert!(ctx.is_hardware(), "a software adapter scanned 2^20 entries");
+            let full = gs.majorants().unwrap();
+            assert!(full.iter().flatten().all(|m| m.is_finite() && *m >= 0.0));
+        }
+        Err(Error::Unsupported(m)) => {
+            assert!(!ctx.is_hardware(), "{m}");
+            assert!(m.contains("loop limit"), "{m}");
+        }
+        Err(e) => panic!("expected Ok or Error::Unsupported, got {e}"),
+    }
+}
+
+/// A transfer function on a log10 data axis over six decades. The device's table is
+/// uniform in log10 of the value like the function's knots (a table uniform in the value
+/// had the lowest 3.6 decades between its first two entries: the Enzo density of
+/// `shared/data` came out 1.4 % darker, alpha off by 1.3e-3). Knots on table entries, so
+/// the marcher is within the f32 tolerance of the linear-axis test, and the majorants
+/// bound the CPU's exact ones.
+#[test]
+fn log_axis_transfer_functions_match_the_cpu() {
+    let Some(t) = tracker() else { return };
+    let blob = grid(16, |x, y, z| {
+        10f32.powf(-6.0 * (x * x + y * y + z * z).min(1.0))
+    });
+    // LUT - 1 = 4096 steps over 6 decades: 10^(-6 + 1.5 k) sits on entry 1024 k.
+    let knot = |k: i32, a: f32| OpacityKnot::new(10f64.powf(-6.0 + 1.5 * f64::from(k)), a);
+    let tf = TransferFunction::new(
+        [1e-6, 1.0],
+        vec![
+            ColorKnot {
+                x: 1e-6,
+                rgb: [0.2, 0.3, 1.0],
+            },
+            ColorKnot {
+                x: 1.0,
+                rgb: [1.0, 0.8, 0.2],
+            },
+        ],
+        vec![
+            knot(0, 0.0),
+            knot(1, 0.6),
+            knot(2, 0.05),
+            knot(3, 0.3),
+            knot(4, 0.9),
+        ],
+    )
+    .unwrap()
+    .with_data_axis(DataAxis::Log)
+    .unwrap();
+    let s = Scene::new(vec![("blob".into(), blob, tf)], 2.0, 4).unwrap();
+    let gs = t.upload(s.clone()).unwrap();
+    let set = settings(&s, 16, 1, 5);
+    let integ = Integrator::Marcher(RayMarcher::default());
+    let cpu = render(&s, &integ, &set).unwrap();
+    let gpu = t.render(&gs, &integ, &set).unwrap();
+    let d = max_diff(&cpu, &gpu);
+    assert!(d <= 2e-5, "log axis marcher: max |gpu - cpu| = {d}");
+    assert!(cpu.as_raw().chunks(4).any(|p| p[3] > 0.3));
+    let got = gs.majorants().unwrap();
+    for (i, (a, b)) in got[0]
+        .iter()
+        .zip(s.channels()[0].majorant().values())
+        .enumerate()
+    {
+        assert!(*a >= b * (1.0 - 1e-5), "cell {i}: {a} < {b}");
+    }
 }

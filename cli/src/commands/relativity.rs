@@ -28,7 +28,8 @@ pub enum Synth {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Where to render: cpu (default, bit-reproducible), gpu (any wgpu adapter, lavapipe
-    /// included) or auto (a hardware GPU when present, else the CPU).
+    /// included) or auto (a hardware GPU when present, or the adapter $BLUESHIFT_GPU
+    /// forces, else the CPU; an image or map over the adapter's limits renders on the CPU).
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
     /// Environment map (equirect file, cube folder or cube prefix).
@@ -151,9 +152,12 @@ fn write_image(path: &Path, img: &Rgb32FImage, exposure: f64) -> Result<()> {
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
         .unwrap_or_default();
+    if ext == "exr" {
+        return crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw());
+    }
     write_via_temp_path(path, |tmp| {
         match ext.as_str() {
-            "exr" | "hdr" => image::DynamicImage::ImageRgb32F(img.clone())
+            "hdr" => image::DynamicImage::ImageRgb32F(img.clone())
                 .save(tmp)
                 .with_context(|| format!("cannot encode {}", path.display()))?,
             "png" => to_srgb8(img, exposure)
@@ -222,9 +226,17 @@ pub fn run(args: Args) -> Result<()> {
         Some(ctx) => Some(blueshift_gpu::relativity::GpuRelativity::new(ctx, None)?),
         None => None,
     };
+    let device = args.device;
     let render = |env: &Environment, cam: &Camera, v: Velocity, fx: Effects| -> Result<_> {
         Ok(match &gpu {
-            Some(g) => g.render(env, cam, v, fx).context("GPU rendering")?,
+            Some(g) => match g.render(env, cam, v, fx) {
+                Ok(img) => img,
+                Err(e) if device.falls_back_on(&e) => {
+                    eprintln!("--device auto: {e}; rendering on the CPU");
+                    render(env, cam, v, fx, None)?
+                }
+                Err(e) => return Err(anyhow::Error::new(e).context("GPU rendering")),
+            },
             None => render(env, cam, v, fx, None)?,
         })
     };

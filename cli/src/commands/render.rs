@@ -38,8 +38,6 @@ use blueshift_volume::{AnyGrid, synth};
 use glam::Vec3;
 use serde::Deserialize;
 
-use crate::output::write_via_temp_path;
-
 /// Arguments of `blueshift render`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -163,8 +161,10 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// Where to render: cpu (default, bit-reproducible), gpu (a wgpu adapter or an error)
-    /// or auto (a hardware GPU when present, else the CPU). The GPU supports every method,
-    /// blend and light; shading, heat maps and --frames are CPU-only (auto then uses the CPU).
+    /// or auto (a hardware GPU when present, or the adapter $BLUESHIFT_GPU forces, else the
+    /// CPU). The GPU supports every method, blend and light; shading, heat maps and
+    /// --frames are CPU-only, and a render over the adapter's limits (buffer sizes,
+    /// lavapipe's loop limit) fails on gpu; auto renders those on the CPU.
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
 }
@@ -629,7 +629,18 @@ fn run_inner(args: &Args) -> Result<()> {
         (g, _) => g,
     };
     if let Some(ctx) = gpu {
-        return render_on_gpu(ctx, args, scene, &integrator, &settings, method, n);
+        // auto keeps a copy for the CPU in case the adapter cannot run this render.
+        let cpu_copy = (device == blueshift_gpu::DeviceChoice::Auto).then(|| scene.clone());
+        match render_on_gpu(ctx, args, scene, &integrator, &settings, method, n) {
+            Ok(()) => return Ok(()),
+            Err(e) => match (cpu_copy, gpu_error(&e)) {
+                (Some(copy), Some(ge)) if device.falls_back_on(ge) => {
+                    eprintln!("--device auto: {ge}; rendering on the CPU");
+                    scene = copy;
+                }
+                _ => return Err(e),
+            },
+        }
     }
 
     let bar = indicatif::ProgressBar::new(u64::from(settings.spp));
@@ -678,10 +689,7 @@ fn run_inner(args: &Args) -> Result<()> {
     let seconds = start.elapsed().as_secs_f64();
     let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
-    write_via_temp_path(&args.out, |p| {
-        img.save_with_format(p, image::ImageFormat::OpenExr)
-            .with_context(|| format!("cannot write {}", args.out.display()))
-    })?;
+    crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
     if let Some(png) = &args.png {
         write_png_preview(&img, png, &args.tonemap, args.exposure)?;
     }
@@ -719,6 +727,12 @@ fn run_inner(args: &Args) -> Result<()> {
     Ok(())
 }
 
+/// The GPU crate's error inside an error chain, if any.
+pub(crate) fn gpu_error(e: &anyhow::Error) -> Option<&blueshift_gpu::Error> {
+    e.chain()
+        .find_map(|c| c.downcast_ref::<blueshift_gpu::Error>())
+}
+
 /// `render` on a wgpu adapter: the same scene, integrator and settings through
 /// `blueshift_gpu::tracking`, the same outputs.
 fn render_on_gpu(
@@ -749,10 +763,7 @@ fn render_on_gpu(
     bar.finish_and_clear();
     let seconds = start.elapsed().as_secs_f64();
     let img = acc.mean_image();
-    write_via_temp_path(&args.out, |p| {
-        img.save_with_format(p, image::ImageFormat::OpenExr)
-            .with_context(|| format!("cannot write {}", args.out.display()))
-    })?;
+    crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
     if let Some(png) = &args.png {
         write_png_preview(&img, png, &args.tonemap, args.exposure)?;
     }

@@ -56,8 +56,10 @@ pub fn write_heatmaps(
             Encoding::FAST_LOSSLESS,
             AnyChannels::sort(channels),
         );
+        // One block after the other: the same bytes on every run.
         Image::from_layer(layer)
             .write()
+            .non_parallel()
             .to_file(p)
             .with_context(|| format!("cannot write {}", exr_path.display()))
     })?;

@@ -256,10 +256,8 @@ fn lut(a: LutArgs) -> Result<()> {
     let (w32, h32) = (u32::try_from(w)?, u32::try_from(h)?);
     let img = image::Rgba32FImage::from_raw(w32, h32, data)
         .context("lookup table buffer has the wrong size")?;
-    write_via_temp_path(&a.out, |p| {
-        img.save_with_format(p, image::ImageFormat::OpenExr)
-            .with_context(|| format!("cannot write {}", a.out.display()))
-    })?;
+    // Block after block, so the same table always gives the same bytes.
+    crate::output::write_exr_f32(&a.out, w32, h32, 4, img.as_raw())?;
     println!("wrote {} ({w} x {h} RGBA f32)", a.out.display());
     Ok(())
 }

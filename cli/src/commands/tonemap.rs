@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use blueshift_tonemap::io::{self, ExrPrecision, PngDepth};
+use blueshift_tonemap::io::{self, PngDepth};
 use blueshift_tonemap::{
     DragoParams, DurandParams, ExposureSeries, FattalParams, LinearParams, Operator,
     PseudocolourParams, ReinhardLocalParams, ReinhardParams, Roi,
@@ -33,8 +33,9 @@ pub enum Op {
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Where the operator runs: cpu (default, bit-reproducible), gpu (any wgpu adapter,
-    /// lavapipe included) or auto (a hardware GPU when
-    /// present and the operator has a GPU version, else the CPU).
+    /// lavapipe included) or auto (a hardware GPU when present, or the adapter
+    /// $BLUESHIFT_GPU forces, else the CPU; an image over the adapter's limits, e.g. Fattal's
+    /// DCT matrices, is tone-mapped on the CPU).
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
     /// Input HDR image: OpenEXR, Radiance .hdr or PFM (detected from the content).
@@ -206,7 +207,10 @@ fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
                 PngDepth::Eight
             },
         ),
-        "exr" => io::write_exr(path, img, ExrPrecision::Float),
+        // Not io::write_exr: its blocks are written in the order threads finish them.
+        "exr" => {
+            return crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw());
+        }
         "hdr" => io::write_radiance_hdr(path, img),
         "pfm" => io::write_pfm(path, img),
         other => bail!(
@@ -274,9 +278,14 @@ pub fn run(args: Args) -> Result<()> {
                 .filter(|_| blueshift_gpu::tonemap::supports(&op)),
         };
         let display = match gpu {
-            Some(ctx) => {
-                blueshift_gpu::tonemap::tonemap(ctx, &op, hdr).context("GPU tone mapping")?
-            }
+            Some(ctx) => match blueshift_gpu::tonemap::tonemap(ctx, &op, hdr) {
+                Ok(d) => d,
+                Err(e) if args.device.falls_back_on(&e) => {
+                    eprintln!("--device auto: {e}; tone-mapping on the CPU");
+                    op.apply_clean(&clean)?
+                }
+                Err(e) => return Err(anyhow::Error::new(e).context("GPU tone mapping")),
+            },
             None => op.apply_clean(&clean)?,
         };
         write_display(&args.out, &display, args.depth)?;

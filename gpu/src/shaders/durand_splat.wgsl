@@ -15,7 +15,7 @@ struct Params {
     step: f32,
     cut: f32,
     inv2r2: f32,
-    _p0: u32,
+    probe_n: u32, // 2: the trip count of `limiter_exhausted`'s loop (a runtime value)
     _p1: u32,
 }
 
@@ -23,6 +23,22 @@ struct Params {
 @group(0) @binding(1) var<storage, read> levels: array<f32>;
 @group(0) @binding(2) var<storage, read_write> grid: array<f32>;
 @group(0) @binding(3) var<uniform> p: Params;
+// Set to 1 when an invocation batch ran out of the adapter's loop limit (a cell walks
+// z x z pixels, z = sigma_s / 4).
+@group(0) @binding(4) var<storage, read_write> limited: array<atomic<u32>>;
+
+// lavapipe (llvmpipe) keeps one loop limiter per invocation batch: every iteration of every
+// loop of any lane counts, and after 65535 every loop stops, silently. This loop of `n` = 2
+// iterations (a uniform, so not unrolled) stops after one only when the limiter is spent.
+// Always false on other adapters.
+fn limiter_exhausted(n: u32) -> bool {
+    var k = 0u;
+    loop {
+        k += 1u;
+        if k >= n { break; }
+    }
+    return k < n;
+}
 
 @compute @workgroup_size(8, 8)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
@@ -52,5 +68,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
                 grid[(p.nl + j) * plane + cell] += g * v;
             }
         }
+    }
+    if limiter_exhausted(p.probe_n) {
+        atomicOr(&limited[0], 1u);
     }
 }

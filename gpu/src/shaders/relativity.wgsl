@@ -26,7 +26,7 @@ struct Params {
     cell_deg: f32,
     grid_deg: f32,
     line_deg: f32,
-    _p0: f32,
+    one_minus_speed: f32, // 1 - |beta|, computed in f64 on the host
     _p1: f32,
     light: vec4<f32>,
     dark: vec4<f32>,
@@ -58,8 +58,12 @@ fn fmod_euclid(a: f32, b: f32) -> f32 {
     return r;
 }
 
+// (longitude, polar angle) as blueshift_relativity::lon_polar. The polar angle is
+// atan2(|xz|, y), not the CPU's acos(y): equal for unit vectors, but acos in f32 loses up to
+// 3e-4 rad near the poles (and is approximated on some drivers), which moved lookups by a
+// sizeable fraction of a texel on real 1k-2k maps.
 fn lon_polar(d: vec3<f32>) -> vec2<f32> {
-    return vec2<f32>(atan2(d.x, -d.z), acos(clamp(d.y, -1.0, 1.0)));
+    return vec2<f32>(atan2(d.x, -d.z), atan2(length(d.xz), d.y));
 }
 
 fn sample_equirect(d: vec3<f32>) -> vec3<f32> {
@@ -178,19 +182,43 @@ fn sample_env(d: vec3<f32>) -> vec3<f32> {
     }
 }
 
-// Velocity::observer_to_scene: aberration with the boost reversed.
+// 1 - cos of the angle between the unit vector d and the unit axis, given c = cos and
+// perp = d - c axis: |perp|^2 / (1 + c) for c > 0, where 1 - c itself would cancel.
+fn one_minus_cos(c: f32, perp: vec3<f32>) -> f32 {
+    if c > 0.0 {
+        return dot(perp, perp) / (1.0 + c);
+    }
+    return 1.0 - c;
+}
+
+// Velocity::observer_to_scene: aberration with the boost reversed, b = -speed. The CPU's
+// (c + b) / (1 + b c) u + perp / (gamma (1 + b c)) is, up to the positive factor 1 + b c
+// that the normalisation removes, (c - speed) u + perp / gamma; and c - speed =
+// (1 - speed) - (1 - c) with 1 - speed from the host, so nothing cancels in f32 for rays
+// near the direction of motion at speeds near 1 (f32 holds 1 - 0.999999 to 6 % only).
 fn observer_to_scene(d: vec3<f32>) -> vec3<f32> {
     let speed = p.beta.w;
     if speed == 0.0 {
         return d;
     }
-    let b = -speed;
     let u = p.beta.xyz / speed;
     let c = dot(d, u);
     let perp = d - c * u;
-    let denom = 1.0 + b * c;
-    let par = (c + b) / denom;
-    return normalize(par * u + perp / (p.gamma * denom));
+    let c_minus_speed = p.one_minus_speed - one_minus_cos(c, perp);
+    return normalize(c_minus_speed * u + perp / p.gamma);
+}
+
+// Velocity::doppler_factor_observer, 1 / (gamma (1 - beta . d)), with 1 - beta . d =
+// (1 - speed) + speed (1 - c) so that it keeps its precision as above.
+fn doppler_factor(d: vec3<f32>) -> f32 {
+    let speed = p.beta.w;
+    if speed == 0.0 {
+        return 1.0;
+    }
+    let u = p.beta.xyz / speed;
+    let c = dot(d, u);
+    let perp = d - c * u;
+    return 1.0 / (p.gamma * (p.one_minus_speed + speed * one_minus_cos(c, perp)));
 }
 
 fn table_entry(k: u32, i: u32) -> f32 {
@@ -234,7 +262,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     var rgb = sample_env(d_scene);
     if p.doppler == 1u || p.searchlight == 1u {
-        let dop = 1.0 / (p.gamma * (1.0 - dot(p.beta.xyz, d_obs)));
+        let dop = doppler_factor(d_obs);
         if p.doppler == 1u {
             rgb = doppler_shift(dop, rgb);
         }

@@ -4,13 +4,29 @@
 struct Params {
     w: u32,
     h: u32,
-    _p0: u32,
+    probe_n: u32, // 2: the trip count of `limiter_exhausted`'s loop (a runtime value)
     _p1: u32,
 }
 
 @group(0) @binding(0) var<storage, read> src: array<f32>;
 @group(0) @binding(1) var<storage, read_write> out_minmax: array<f32>;
 @group(0) @binding(2) var<uniform> p: Params;
+// Set to 1 when an invocation batch ran out of the adapter's loop limit (a row wider than
+// 65535 pixels).
+@group(0) @binding(3) var<storage, read_write> limited: array<atomic<u32>>;
+
+// lavapipe (llvmpipe) keeps one loop limiter per invocation batch: every iteration of every
+// loop of any lane counts, and after 65535 every loop stops, silently. This loop of `n` = 2
+// iterations (a uniform, so not unrolled) stops after one only when the limiter is spent.
+// Always false on other adapters.
+fn limiter_exhausted(n: u32) -> bool {
+    var k = 0u;
+    loop {
+        k += 1u;
+        if k >= n { break; }
+    }
+    return k < n;
+}
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
@@ -27,4 +43,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     out_minmax[2u * y] = lo;
     out_minmax[2u * y + 1u] = hi;
+    if limiter_exhausted(p.probe_n) {
+        atomicOr(&limited[0], 1u);
+    }
 }

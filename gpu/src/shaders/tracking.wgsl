@@ -44,7 +44,7 @@ struct Params {
     early_termination: f32,
     prec_mode: u32, // 0 f32, 1 f16, 2 u8
     channel: u32, // Woodcock's channel
-    _pad0: u32,
+    probe_n: u32, // 2: the trip count of `limiter_exhausted`'s loop (a runtime value)
     _pad1: u32,
 }
 
@@ -60,8 +60,25 @@ struct Params {
 @group(0) @binding(5) var<storage, read_write> acc_m2: array<vec4<f32>>;
 // Two vec4 per channel: (domain min, domain max, blend weight, 0), (NaN colour, 0).
 @group(0) @binding(6) var<storage, read> chan: array<vec4<f32>>;
+// Set to 1 when an invocation batch ran out of the adapter's loop limit (see below).
+@group(0) @binding(7) var<storage, read_write> limited: array<atomic<u32>>;
 
 const BIG: f32 = 3.0e38;
+
+// lavapipe (llvmpipe) keeps one loop limiter per invocation batch (the SIMD lanes that run
+// together): every iteration of every loop of any lane counts, and after 65535 every loop
+// exits at the end of its current iteration, silently (a ray would stop half-way and the
+// image come out darker). This probe runs a loop of `n` iterations (`n` = 2 from a uniform,
+// so it is not unrolled): it stops after one only when the limiter is spent, i.e. when some
+// loop may have been cut short. Always false on other adapters.
+fn limiter_exhausted(n: u32) -> bool {
+    var k = 0u;
+    loop {
+        k += 1u;
+        if k >= n { break; }
+    }
+    return k < n;
+}
 
 // ---------------------------------------------------------------- 64-bit arithmetic
 
@@ -232,6 +249,16 @@ fn sample_index(n: u32, q: vec3<f32>) -> f32 {
     return e0 * (1.0 - t.z) + e1 * t.z;
 }
 
+// A data value's coordinate on its transfer function's axis: the value, or its log10 on
+// a log axis (`info.w` = 1), whose domain is positive: values at or below 0 clamp to the
+// domain's minimum as on the CPU.
+fn axis_coord(v: f32, info: vec4<f32>) -> f32 {
+    if info.w != 0.0 {
+        return log2(max(v, 1.17549435e-38)) * 0.30102999566;
+    }
+    return v;
+}
+
 // Extinction (xyz unused) and colour of channel n at world point p: (r, g, b, sigma).
 fn scene_sample(n: u32, p: vec3<f32>) -> vec4<f32> {
     let v = sample_index(n, (p - P.origin) / P.spacing);
@@ -240,7 +267,7 @@ fn scene_sample(n: u32, p: vec3<f32>) -> vec4<f32> {
         return vec4<f32>(chan[2u * n + 1u].xyz, 0.0);
     }
     let last = f32(P.lut_len - 1u);
-    let pos = clamp((v - info.x) / (info.y - info.x) * last, 0.0, last);
+    let pos = clamp((axis_coord(v, info) - info.x) / (info.y - info.x) * last, 0.0, last);
     let i = min(u32(floor(pos)), P.lut_len - 2u);
     let fr = pos - f32(i);
     let a = luts[n * P.lut_len + i];
@@ -823,6 +850,9 @@ fn render_pass(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     acc_mean[pixel] = mean;
     acc_m2[pixel] = m2;
+    if limiter_exhausted(P.probe_n) {
+        atomicOr(&limited[0], 1u);
+    }
 }
 
 // ---------------------------------------------------------------- majorants on the device
@@ -834,7 +864,7 @@ struct MajorantParams {
     // Channel to rebuild, or n_channels for all of them.
     channel: u32,
     density_scale: f32,
-    _pad0: u32,
+    probe_n: u32, // 2, as Params::probe_n
     _pad1: u32,
     _pad2: u32,
 }
@@ -845,11 +875,13 @@ struct MajorantParams {
 @group(0) @binding(12) var<storage, read> maj_luts: array<vec4<f32>>;
 @group(0) @binding(13) var<storage, read> maj_chan: array<vec4<f32>>;
 @group(0) @binding(14) var<storage, read_write> maj_out: array<f32>;
+// Set to 1 when the loop limiter ran out while scanning a table (see `limiter_exhausted`).
+@group(0) @binding(15) var<storage, read_write> maj_limited: array<atomic<u32>>;
 
 fn lut_pos(n: u32, v: f32) -> f32 {
     let info = maj_chan[2u * n];
     let last = f32(MP.lut_len - 1u);
-    return clamp((v - info.x) / (info.y - info.x) * last, 0.0, last);
+    return clamp((axis_coord(v, info) - info.x) / (info.y - info.x) * last, 0.0, last);
 }
 
 // Majorant of one (cell, channel): the largest lookup-table opacity among the entries a
@@ -879,6 +911,9 @@ fn build_majorants(@builtin(global_invocation_id) gid: vec3<u32>) {
         best = max(best, maj_luts[n * MP.lut_len + i].w);
     }
     maj_out[n * MP.n_cells + cell] = best * MP.density_scale;
+    if limiter_exhausted(MP.probe_n) {
+        atomicOr(&maj_limited[0], 1u);
+    }
 }
 
 // The total majorant: the cell-wise sum over channels, in channel order.
