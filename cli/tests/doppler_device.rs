@@ -188,3 +188,58 @@ fn the_gpu_precision_flag_picks_the_kernels() {
     assert!(err.contains("auto, f32 or f64"), "{err}");
     assert!(!dir.path().join("bad.exr").exists());
 }
+
+/// Work beyond lavapipe's loop limit (a banded render of 200,000 bands: one pass per pixel)
+/// is refused on `gpu` with one line naming the limit and no output, and `auto` with the
+/// adapter `BLUESHIFT_GPU` forces renders it on the CPU: the same EXR bytes as `--device cpu`
+/// (the EXR is written block after block, so equal images are equal files).
+#[test]
+fn auto_falls_back_to_the_cpu_where_the_adapter_cannot_run_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let go = |device: &str, out: &str| {
+        let mut a = COMMON[..4].to_vec();
+        a.extend([
+            "--width",
+            "2",
+            "--height",
+            "2",
+            "--integrator",
+            "banded-ec:200000",
+            "--device",
+            device,
+            "--out",
+            out,
+        ]);
+        Command::new(env!("CARGO_BIN_EXE_blueshift"))
+            .arg("doppler")
+            .args(&a)
+            .env("BLUESHIFT_GPU", "software")
+            .current_dir(dir.path())
+            .output()
+            .unwrap()
+    };
+    let c = go("cpu", "c.exr");
+    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    let g = go("gpu", "g.exr");
+    if g.status.success() {
+        // An adapter without lavapipe's limit renders it.
+        return;
+    }
+    let err = String::from_utf8_lossy(&g.stderr);
+    if err.contains("no wgpu adapter") {
+        assert!(!common::require(), "{err}");
+        eprintln!("SKIP: no wgpu adapter: {err}");
+        return;
+    }
+    assert!(err.contains("loop limit"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!dir.path().join("g.exr").exists());
+    let a = go("auto", "a.exr");
+    assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
+    assert!(String::from_utf8_lossy(&a.stdout).contains("on the cpu"));
+    assert!(String::from_utf8_lossy(&a.stderr).contains("rendering on the CPU"));
+    assert_eq!(
+        std::fs::read(dir.path().join("c.exr")).unwrap(),
+        std::fs::read(dir.path().join("a.exr")).unwrap()
+    );
+}

@@ -132,7 +132,7 @@
 //! segment a two-iteration probe loop (trip count from the uniform) finds out whether the
 //! batch's limiter ran out (divergent lanes add up); if so the host restarts the tile from
 //! pass 0 with a budget 4 times smaller, down to 200, and a segment that alone spends the
-//! limiter is [`Error::Internal`] naming the loop limit (e.g. broadened H I + C I lines with
+//! limiter is [`Error::Unsupported`] naming the loop limit (e.g. broadened H I + C I lines with
 //! absorption on the 16^3 galaxy), as is a banded render (one pass) that spends it: never a
 //! silently darker image. Hardware adapters have no such limiter.
 //!
@@ -1003,7 +1003,7 @@ pub fn render_doppler_gpu_with(
     }
     let out = read_out(ctx, &ob, n_pix, double)?;
     if let Some(i) = out.iter().position(|p| p[3] == 2.0) {
-        return Err(Error::Internal(format!(
+        return Err(Error::Unsupported(format!(
             "doppler: pixel ({}, {}) passed the adapter's loop limit (software adapters such \
              as lavapipe stop after 65535 loop iterations per invocation; the banded kernels \
              run in one pass, the piecewise-linear ones per sample): use fewer bands or \
@@ -1192,7 +1192,7 @@ fn render_absorbing(
             )));
         }
         if flags & 8 != 0 {
-            return Err(Error::Internal(format!(
+            return Err(Error::Unsupported(format!(
                 "doppler absorption: pixel ({}, {}) needs more loop iterations in one segment \
                  than the adapter's loop limit allows (software adapters such as lavapipe stop \
                  after 65535 per invocation batch): use a hardware GPU or the CPU",

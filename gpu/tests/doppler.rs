@@ -679,7 +679,7 @@ fn banded_work_beyond_the_software_loop_limit_is_an_error_not_a_wrong_image() {
             shift: BandShift::EnergyConserving,
         };
         match gpu_render(ctx, &scene, &st) {
-            Err(Error::Internal(m)) if !ctx.is_hardware() => {
+            Err(Error::Unsupported(m)) if !ctx.is_hardware() => {
                 assert!(m.contains("loop limit"), "{m}");
             }
             Ok(gpu) if ctx.is_hardware() => {

@@ -351,7 +351,8 @@ pub enum ExrPrecision {
     Float,
 }
 
-/// Writes an RGB OpenEXR file (zip-compressed scanlines).
+/// Writes an RGB OpenEXR file (zip-compressed scanlines, written block after block: the same
+/// image gives the same bytes every run).
 ///
 /// # Errors
 /// [`Error::Io`], or [`Error::EmptyImage`].
@@ -373,14 +374,20 @@ pub fn write_exr(path: impl AsRef<Path>, img: &Rgb32FImage, precision: ExrPrecis
                     let [r, g, b] = px(pos);
                     (r, g, b)
                 });
-                Image::from_channels(size, channels).write().to_buffered(w)
+                Image::from_channels(size, channels)
+                    .write()
+                    .non_parallel()
+                    .to_buffered(w)
             }
             ExrPrecision::Half => {
                 let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
                     let [r, g, b] = px(pos);
                     (f16::from_f32(r), f16::from_f32(g), f16::from_f32(b))
                 });
-                Image::from_channels(size, channels).write().to_buffered(w)
+                Image::from_channels(size, channels)
+                    .write()
+                    .non_parallel()
+                    .to_buffered(w)
             }
         };
         result.map_err(|e| match e {

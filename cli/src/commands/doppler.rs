@@ -310,14 +310,13 @@ fn render(scene: &DopplerScene, st: &DopplerSettings) -> Result<DopplerImage> {
 }
 
 fn write_exr(path: &Path, img: &DopplerImage) -> Result<()> {
-    let buf = image::Rgba32FImage::from_fn(img.width, img.height, |x, y| {
-        let p = img.xyz[(y * img.width + x) as usize];
-        image::Rgba([p[0] as f32, p[1] as f32, p[2] as f32, 1.0])
-    });
-    write_via_temp_path(path, |p| {
-        buf.save_with_format(p, image::ImageFormat::OpenExr)
-            .with_context(|| format!("cannot write {}", path.display()))
-    })
+    // Block after block (the same bytes every run), via a temporary file.
+    let data: Vec<f32> = img
+        .xyz
+        .iter()
+        .flat_map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 1.0])
+        .collect();
+    crate::output::write_exr_f32(path, img.width, img.height, 4, &data)
 }
 
 fn write_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
@@ -419,14 +418,21 @@ pub fn run(args: Args) -> Result<()> {
                     .gpu_precision
                     .is_double_on(ctx)
                     .context("--gpu-precision")?;
-                let img = blueshift_gpu::doppler::render_doppler_gpu_with(
+                match blueshift_gpu::doppler::render_doppler_gpu_with(
                     ctx,
                     &scene,
                     &st,
                     args.gpu_precision,
-                )
-                .context("--device gpu")?;
-                (img, if double { "gpu (f64)" } else { "gpu (f32)" })
+                ) {
+                    Ok(img) => (img, if double { "gpu (f64)" } else { "gpu (f32)" }),
+                    // auto: what the adapter cannot run (limits, its loop limit, memory) runs
+                    // on the CPU.
+                    Err(e) if args.device.falls_back_on(&e) => {
+                        eprintln!("--device auto: {e}; rendering on the CPU");
+                        (render(&scene, &st)?, "cpu")
+                    }
+                    Err(e) => return Err(anyhow::Error::new(e).context("--device gpu")),
+                }
             }
             Err(blueshift_gpu::Error::Unsupported(what))
                 if args.device == blueshift_gpu::DeviceChoice::Gpu =>

@@ -300,15 +300,10 @@ fn write_moments(out: &Path, cube: &SpectralCube) -> Result<()> {
         for y in (0..h).rev() {
             img.extend_from_slice(&v[y * w..(y + 1) * w]);
         }
-        let exr = image::Rgba32FImage::from_fn(w as u32, h as u32, |x, y| {
-            let p = img[y as usize * w + x as usize];
-            image::Rgba([p, p, p, 1.0])
-        });
+        let rgba: Vec<f32> = img.iter().flat_map(|&p| [p, p, p, 1.0]).collect();
         let path = sibling(out, &format!("_{name}.exr"));
-        write_via_temp_path(&path, |p| {
-            exr.save_with_format(p, image::ImageFormat::OpenExr)
-                .with_context(|| format!("cannot write {}", path.display()))
-        })?;
+        // Block after block (the same bytes every run), via a temporary file.
+        crate::output::write_exr_f32(&path, w as u32, h as u32, 4, &rgba)?;
         let diverging = name == "mom1" && velocity;
         colour_png(
             &sibling(out, &format!("_{name}.png")),
