@@ -241,10 +241,11 @@ fn w2u(x: f64) -> u32 { return u32(x); }
 ";
 
 /// The WGSL of the Doppler kernels with working precision f64 (`double`) or f32: a prelude
-/// defining the working float `fw` and its helpers, then [`DOPPLER_WGSL`].
+/// defining the working float `fw` and its helpers, the loop-limiter probe
+/// ([`crate::LIMITER_WGSL`]), then [`DOPPLER_WGSL`].
 pub fn shader_source(double: bool) -> String {
     let prelude = if double { PRELUDE_F64 } else { PRELUDE_F32 };
-    format!("{prelude}\n{DOPPLER_WGSL}")
+    format!("{prelude}\n{}{DOPPLER_WGSL}", crate::LIMITER_WGSL)
 }
 
 /// The working precision of the Doppler kernels (everything after the volume samples, which

@@ -54,7 +54,8 @@
 //! ## Shaders
 //! WGSL sources live in `gpu/src/shaders/` and are included with `include_str!`; a test
 //! parses and validates every one of them with naga (`doppler.wgsl` with both of its
-//! precision preludes), so a shader error fails the tests. [`GpuContext::compute_pipeline`]
+//! precision preludes, the callers of the loop-limiter probe with [`LIMITER_WGSL`]), so a
+//! shader error fails the tests. [`GpuContext::compute_pipeline`]
 //! compiles each (source, entry point) once per context.
 
 pub mod context;
@@ -69,6 +70,11 @@ pub use context::{
     GpuOptions, GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
 };
 pub use error::{Error, Result};
+
+/// WGSL of `limiter_exhausted(n)`, the probe of lavapipe's loop limiter (every loop of an
+/// invocation batch stops silently after 65535 iterations in all): prepended to the tracking,
+/// Doppler, Durand-splat and row min/max shaders, whose kernels call it.
+pub const LIMITER_WGSL: &str = include_str!("shaders/limiter.wgsl");
 
 /// WGSL of the smoke-test kernel `y = a x + b` (see [`scale`]).
 pub const SCALE_WGSL: &str = include_str!("shaders/scale.wgsl");

@@ -51,11 +51,17 @@ use crate::error::{Error, Result};
 
 const GLOBAL_WGSL: &str = include_str!("shaders/tonemap_global.wgsl");
 const RECOLOUR_WGSL: &str = include_str!("shaders/tonemap_recolour.wgsl");
-const SPLAT_WGSL: &str = include_str!("shaders/durand_splat.wgsl");
+const SPLAT_WGSL: &str = concat!(
+    include_str!("shaders/limiter.wgsl"),
+    include_str!("shaders/durand_splat.wgsl")
+);
 const BLUR_WGSL: &str = include_str!("shaders/blur.wgsl");
 const SLICE_WGSL: &str = include_str!("shaders/durand_slice.wgsl");
 const COMBINE_WGSL: &str = include_str!("shaders/durand_combine.wgsl");
-const MINMAX_WGSL: &str = include_str!("shaders/row_minmax.wgsl");
+const MINMAX_WGSL: &str = concat!(
+    include_str!("shaders/limiter.wgsl"),
+    include_str!("shaders/row_minmax.wgsl")
+);
 const DODGE_WGSL: &str = include_str!("shaders/reinhard_dodge.wgsl");
 const FATTAL_DIV_WGSL: &str = include_str!("shaders/fattal_div.wgsl");
 const AXIS_WGSL: &str = include_str!("shaders/axis_transform.wgsl");

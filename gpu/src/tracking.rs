@@ -55,7 +55,10 @@ use crate::context::{GpuContext, WORKGROUP_1D, WORKGROUP_2D};
 use crate::error::{Error, Result};
 
 /// WGSL of the tracking pipelines (render pass, majorant build, probes).
-pub const TRACKING_WGSL: &str = include_str!("shaders/tracking.wgsl");
+pub const TRACKING_WGSL: &str = concat!(
+    include_str!("shaders/limiter.wgsl"),
+    include_str!("shaders/tracking.wgsl")
+);
 
 /// Entries of each transfer function's lookup table unless told otherwise.
 pub const DEFAULT_LUT_ENTRIES: usize = 4096;

@@ -1,10 +1,16 @@
 //! Every WGSL file in `gpu/src/shaders/` parses and validates with naga (the same naga
-//! wgpu uses), so a shader error fails the tests and not a user's run.
+//! wgpu uses), so a shader error fails the tests and not a user's run. Files that call the
+//! loop-limiter probe are validated with `limiter.wgsl` prepended, and `doppler.wgsl` with
+//! each of its precision preludes, as the crate compiles them.
 
 use std::path::Path;
 
 fn validate(path: &Path) -> Result<(), String> {
     let src = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+    // Shaders that call the loop-limiter probe get it prepended, as the crate compiles them.
+    if src.contains("limiter_exhausted(") && !src.contains("fn limiter_exhausted") {
+        return validate_source(&format!("{}{src}", blueshift_gpu::LIMITER_WGSL));
+    }
     validate_source(&src)
 }
 

@@ -127,19 +127,6 @@ var<private> band_base: u32;
 
 const MAX_SPECIES: u32 = 8u;
 
-// lavapipe (llvmpipe) keeps one loop limiter per shader invocation batch (the SIMD lanes
-// run together): every iteration of every loop of any lane counts, and after 65535 every loop
-// exits at its next iteration end. This probe runs a two-iteration loop (trip count from the
-// uniform, so it is not unrolled): it stops after one iteration only when the limiter is
-// spent, i.e. when some loop may have been cut short. Always false on other adapters.
-fn limiter_exhausted() -> bool {
-    var k = 0u;
-    loop {
-        k += 1u;
-        if (k >= P.probe_n) { break; }
-    }
-    return k < P.probe_n;
-}
 const C_M_PER_S = 299792458.0;
 
 fn vidx(x: u32, y: u32, z: u32) -> u32 {
@@ -536,7 +523,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         bb_a = bb_b;
         temp_a = temp_b;
         ii++;
-        if (limiter_exhausted()) { flag = 2.0; ii = r.n_seg + 1u; break; }
+        if (limiter_exhausted(P.probe_n)) { flag = 2.0; ii = r.n_seg + 1u; break; }
     }
     // One sample that alone passed the adapter's loop limit may have been cut short.
     if (iters >= P.iter_limit) { flag = 2.0; ii = r.n_seg + 1u; }
@@ -713,7 +700,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     // lavapipe stops every loop of an invocation after 65535 iterations: report, not a
     // silently short ray.
-    if (iters >= P.iter_limit || limiter_exhausted()) { flag = 2.0; }
+    if (iters >= P.iter_limit || limiter_exhausted(P.probe_n)) { flag = 2.0; }
     out_xyz[pix] = vec4<fw>(acc_xyz, flag);
 }
 
@@ -1535,7 +1522,7 @@ fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
         near = far;
         for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_n[m] = rho_f[m]; }
         seg++;
-        if (limiter_exhausted()) { flags |= 8u; break; }
+        if (limiter_exhausted(P.probe_n)) { flags |= 8u; break; }
     }
     if (fell_back) { flags |= 2u; }
     // A segment that alone passed the adapter's loop limit may have been cut short.

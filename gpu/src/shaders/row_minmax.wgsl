@@ -15,18 +15,6 @@ struct Params {
 // 65535 pixels).
 @group(0) @binding(3) var<storage, read_write> limited: array<atomic<u32>>;
 
-// lavapipe (llvmpipe) keeps one loop limiter per invocation batch: every iteration of every
-// loop of any lane counts, and after 65535 every loop stops, silently. This loop of `n` = 2
-// iterations (a uniform, so not unrolled) stops after one only when the limiter is spent.
-// Always false on other adapters.
-fn limiter_exhausted(n: u32) -> bool {
-    var k = 0u;
-    loop {
-        k += 1u;
-        if k >= n { break; }
-    }
-    return k < n;
-}
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {

@@ -65,20 +65,6 @@ struct Params {
 
 const BIG: f32 = 3.0e38;
 
-// lavapipe (llvmpipe) keeps one loop limiter per invocation batch (the SIMD lanes that run
-// together): every iteration of every loop of any lane counts, and after 65535 every loop
-// exits at the end of its current iteration, silently (a ray would stop half-way and the
-// image come out darker). This probe runs a loop of `n` iterations (`n` = 2 from a uniform,
-// so it is not unrolled): it stops after one only when the limiter is spent, i.e. when some
-// loop may have been cut short. Always false on other adapters.
-fn limiter_exhausted(n: u32) -> bool {
-    var k = 0u;
-    loop {
-        k += 1u;
-        if k >= n { break; }
-    }
-    return k < n;
-}
 
 // ---------------------------------------------------------------- 64-bit arithmetic
 
