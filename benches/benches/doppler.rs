@@ -12,8 +12,8 @@ use std::fmt::Write as _;
 use std::time::Instant;
 
 use blueshift_benches::{Curve, line_plot, out_dir};
-use blueshift_tracking::Projection;
-use blueshift_tracking::doppler::{
+use blueshift_doppler::Projection;
+use blueshift_doppler::{
     BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
 };
 use blueshift_volume::{Volume, synth};

@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use blueshift_benches::out_dir;
 use blueshift_spectrum::Catalogue;
-use blueshift_tracking::doppler::{
+use blueshift_doppler::{
     CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis, los_camera, render_cube,
 };
 use blueshift_volume::{AnyGrid, synth};

@@ -4,7 +4,7 @@
 //! black body, H I and C I lines and its rotation x 30, a 32x32 image, the emission-only
 //! piecewise-linear integrator and the banded one (200 bands, energy-conserving shift, without
 //! and with absorption x 50), and the piecewise-linear integrator with absorption x 5
-//! (`pwl_absorption`: front to back, the optical depth in front as pieces); `cpu` is `blueshift_tracking::doppler::render_doppler`
+//! (`pwl_absorption`: front to back, the optical depth in front as pieces); `cpu` is `blueshift_doppler::render_doppler`
 //! (rayon), `gpu` is `blueshift_gpu::doppler::render_doppler_gpu_with` in f32 and `gpu_f64`
 //! the same in f64 (where the adapter has `SHADER_F64`), each as a whole call (upload,
 //! dispatch and readback; the pipeline is compiled once per context, on the first call). The
@@ -18,8 +18,8 @@
 
 use blueshift_gpu::GpuContext;
 use blueshift_gpu::doppler::{DopplerPrecision, render_doppler_gpu_with};
-use blueshift_tracking::Projection;
-use blueshift_tracking::doppler::{
+use blueshift_doppler::Projection;
+use blueshift_doppler::{
     BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
 };
 use blueshift_volume::{Volume, synth};

@@ -1,10 +1,10 @@
 //! Doppler volume rendering on the GPU, behind the CPU's own types: a
-//! [`blueshift_tracking::doppler::DopplerScene`] and
-//! [`blueshift_tracking::doppler::DopplerSettings`] (one scene description, two backends).
+//! [`blueshift_doppler::DopplerScene`] and
+//! [`blueshift_doppler::DopplerSettings`] (one scene description, two backends).
 //!
 //! # What runs here
 //! The emission-only piecewise-linear integrator (the Doppler paper's Algorithm 2 as
-//! `blueshift_tracking::doppler::render_doppler` does it for rays without absorption): one
+//! `blueshift_doppler::render_doppler` does it for rays without absorption): one
 //! thread per pixel marches its ray back to front with the CPU's step, samples every density,
 //! the black body and the velocity field trilinearly, and per segment
 //! - adds each line's trapezoid (between its two shifted positions, at least `line_width_nm`
@@ -35,7 +35,7 @@
 //! after its emission as the CPU does.
 //!
 //! # Absorption with the piecewise-linear integrator
-//! The image path of blueshift-tracking's `front_to_back` (`tracking/src/doppler/pwl.rs`),
+//! The image path of blueshift-doppler's `front_to_back` (`doppler/src/front.rs`),
 //! entry `main_absorb`, one thread per pixel: marching from the eye, each ray keeps only the
 //! optical depth in front, `tau_front(lambda)`, as a sorted array of linear pieces in its own
 //! region of a storage buffer. Per segment it
@@ -143,17 +143,15 @@
 //! bad sigma or mass) are [`Error::InvalidInput`] with the CPU's message. Picked spectra,
 //! traces and spectral cubes stay on the CPU.
 
-use blueshift_spectrum::{
-    ATOMIC_MASS_UNIT_KG, BOLTZMANN_J_PER_K, BandLayout, Catalogue, Cmf, PwlGaussian,
-    RadiationConstants, Xyz,
+use blueshift_doppler::{
+    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, LineEntry, LineKind,
+    PieceStats, Prepared, PwlTables, SpectralIntegrator,
 };
-use blueshift_tracking::Ray;
-use blueshift_tracking::doppler::{
-    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralIntegrator,
-};
+use blueshift_spectrum::RadiationConstants;
 use bytemuck::{Pod, Zeroable};
 
 use crate::context::{GpuContext, WORKGROUP_2D};
+use crate::device::Unsupported;
 use crate::error::{Error, Result};
 
 /// WGSL of the Doppler pipeline.
@@ -518,21 +516,19 @@ struct PixelRay {
     n_seg: u32,
 }
 
-fn tracking_err(e: blueshift_tracking::Error) -> Error {
+fn doppler_err(e: blueshift_doppler::Error) -> Error {
     Error::InvalidInput(e.to_string())
 }
 
-/// `Ok` when the GPU integrator covers `scene` + `settings`; otherwise
-/// [`Error::Unsupported`] naming the setting (the settings themselves are validated as the CPU
-/// does, giving [`Error::InvalidInput`]).
-pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Result<()> {
-    settings.validated_step(scene).map_err(tracking_err)?;
-    if !settings.broadening.is_none() {
-        // The CPU's own checks first (its errors, not Unsupported).
-        broadening_k_over_m(scene, settings)?;
-    }
+/// `Ok` when the GPU integrator covers `scene` + `settings`, else why not (more than
+/// [`MAX_SPECIES`] species). Settings the CPU refuses are not this function's business:
+/// [`Prepared::new`] refuses them, with the CPU's messages, on both devices.
+pub fn supports(
+    scene: &DopplerScene,
+    _settings: &DopplerSettings,
+) -> std::result::Result<(), Unsupported> {
     if scene.species().len() > MAX_SPECIES {
-        return Err(Error::Unsupported(format!(
+        return Err(Unsupported(format!(
             "{} species (at most {MAX_SPECIES} on the GPU)",
             scene.species().len()
         )));
@@ -540,139 +536,33 @@ pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Resu
     Ok(())
 }
 
-/// Per species `k / m` ((m/s)^2 per K; 0 without thermal broadening), with the CPU's checks
-/// of the broadening settings (blueshift-tracking's `Profiles::new`): the banded integrators
-/// refuse broadening, the user sigma must be finite and >= 0, the temperature field
-/// non-negative, thermal broadening needs a temperature field and a mass for every species.
-fn broadening_k_over_m(scene: &DopplerScene, settings: &DopplerSettings) -> Result<Vec<f64>> {
-    let b = &settings.broadening;
-    let mut out = vec![0.0; scene.species().len()];
-    if b.is_none() {
-        return Ok(out);
-    }
-    if settings.integrator != SpectralIntegrator::PiecewiseLinear {
-        return Err(Error::InvalidInput(
-            "line broadening (thermal or Gaussian) is implemented in the piecewise-linear \
-             integrator only: use the pwl integrator or drop the broadening"
-                .into(),
-        ));
-    }
-    if !(b.sigma_m_per_s.is_finite() && b.sigma_m_per_s >= 0.0) {
-        return Err(Error::InvalidInput(format!(
-            "line sigma {} m/s must be finite and >= 0",
-            b.sigma_m_per_s
-        )));
-    }
-    if let Some((_, temp)) = scene.blackbody()
-        && let Some((lo, _)) = temp.finite_range()
-        && lo < 0.0
-    {
-        return Err(Error::InvalidInput(format!(
-            "the temperature field has negative values (min {lo} K)"
-        )));
-    }
-    if b.thermal {
-        if scene.blackbody().is_none() {
-            return Err(Error::InvalidInput(
-                "thermal broadening needs a temperature field (the scene's black-body \
-                 temperature: keep `bb` among the species; a black-body factor of 0 keeps it \
-                 dark)"
-                    .into(),
-            ));
-        }
-        for (i, sp) in scene.species().iter().enumerate() {
-            let m = match b.masses_amu.iter().find(|(n, _)| n == &sp.name) {
-                Some(&(_, m)) => m,
-                None => Catalogue::parse(&sp.name)
-                    .map(Catalogue::atomic_mass_amu)
-                    .map_err(|_| {
-                        Error::InvalidInput(format!(
-                            "species '{}' has no known atomic mass: give one",
-                            sp.name
-                        ))
-                    })?,
-            };
-            if !(m.is_finite() && m > 0.0) {
-                return Err(Error::InvalidInput(format!(
-                    "atomic mass {m} of '{}' must be finite and > 0",
-                    sp.name
-                )));
-            }
-            out[i] = BOLTZMANN_J_PER_K / (m * ATOMIC_MASS_UNIT_KG);
-        }
-    }
-    Ok(out)
-}
-
-/// blueshift-tracking's banded `deposit`: a box of `area` over `[lo, hi)` added to the bands
-/// (`(range start, range end, bands)`) as band means.
-fn deposit(
-    (a, b, n): (f64, f64, usize),
-    lo: f64,
-    hi: f64,
-    area: f64,
-    mut add: impl FnMut(usize, f64),
-) {
-    let bw = (b - a) / n as f64;
-    let (l, h) = (lo.max(a), hi.min(b));
-    if h <= l || hi <= lo {
-        return;
-    }
-    let height = area / (hi - lo);
-    let first = (((l - a) / bw).floor() as usize).min(n - 1);
-    for i in first..n {
-        let s = a + i as f64 * bw;
-        if s >= h {
-            break;
-        }
-        let ov = h.min(s + bw) - l.max(s);
-        if ov > 0.0 {
-            add(i, height * ov / bw);
-        }
-    }
-}
-
-/// Whether any line absorbs (the absorption factor is > 0 and some species has absorption
-/// lines), as the CPU decides.
-fn absorbing(scene: &DopplerScene) -> bool {
-    scene.factors.absorption > 0.0
-        && scene
-            .species()
-            .iter()
-            .any(|sp| !sp.absorption_lines.is_empty())
+/// `Ok` when the GPU integrator covers `scene` + `settings`: the settings validated and
+/// prepared as on the CPU ([`Error::InvalidInput`] with the CPU's message), then
+/// [`supports`] ([`Error::Unsupported`]).
+pub fn check_supported(scene: &DopplerScene, settings: &DopplerSettings) -> Result<()> {
+    Prepared::new(scene, settings).map_err(doppler_err)?;
+    Ok(supports(scene, settings)?)
 }
 
 fn to_u32(what: &str, n: usize) -> Result<u32> {
     u32::try_from(n).map_err(|_| Error::InvalidInput(format!("{what} {n} exceeds u32")))
 }
 
-/// The rays of every pixel, as `render_doppler` builds them: the pixel centre's camera ray
-/// clipped to the box (of the voxel centres, or of the cells), `ceil(len / step)` segments.
-fn pixel_rays(scene: &DopplerScene, settings: &DopplerSettings, step: f32) -> Vec<PixelRay> {
-    let g = scene.geometry();
-    let (mut lo, mut hi) = g.world_bounds();
-    if settings.cell_domain {
-        lo -= 0.5 * g.spacing;
-        hi += 0.5 * g.spacing;
-    }
+/// The rays of every pixel, as the CPU samples them ([`Prepared::pixel_ray`]).
+fn pixel_rays(prep: &Prepared, scene: &DopplerScene, settings: &DopplerSettings) -> Vec<PixelRay> {
     let (w, h) = (settings.width, settings.height);
     let mut out = Vec::with_capacity(w as usize * h as usize);
     for y in 0..h {
         for x in 0..w {
-            let ray: Ray = settings.camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
             let mut pr = PixelRay::zeroed();
-            if let Some((t0, t1)) = ray.clip_box(lo, hi) {
-                let len = t1 - t0;
-                if len > 0.0 {
-                    let n_seg = (len / step).ceil().max(1.0);
-                    pr.n_seg = n_seg as u32;
-                    pr.len = len;
-                    // The kernel samples world_to_index(origin + dir (t0 + t)), as the CPU.
-                    pr.origin = ray.origin.to_array();
-                    pr.t0 = t0;
-                    pr.dir = ray.dir.to_array();
-                    pr.los = ray.dir.normalize().to_array();
-                }
+            if let (ray, Some(span)) = prep.pixel_ray(scene, settings, x, y) {
+                // The kernel samples world_to_index(origin + dir (t0 + t)), as the CPU.
+                pr.n_seg = span.n_seg;
+                pr.len = span.len;
+                pr.origin = ray.origin.to_array();
+                pr.t0 = span.t0;
+                pr.dir = ray.dir.to_array();
+                pr.los = ray.dir.normalize().to_array();
             }
             out.push(pr);
         }
@@ -681,7 +571,7 @@ fn pixel_rays(scene: &DopplerScene, settings: &DopplerSettings, step: f32) -> Ve
 }
 
 /// Renders the XYZ image of `scene` on the GPU with `settings.integrator` (piecewise linear
-/// or banded): the same image as `blueshift_tracking::doppler::render_doppler`, in f64 where
+/// or banded): the same image as `blueshift_doppler::render_doppler`, in f64 where
 /// the adapter has `SHADER_F64` and in f32 elsewhere ([`DopplerPrecision::Auto`]; see the
 /// module docs for the tolerances and what is supported). The piece statistics are those of
 /// `tau_front` with absorption (piecewise linear), zero otherwise, as on the CPU.
@@ -704,14 +594,15 @@ pub fn render_doppler_gpu_with(
     settings: &DopplerSettings,
     precision: DopplerPrecision,
 ) -> Result<DopplerImage> {
-    check_supported(scene, settings)?;
-    let entry = match (settings.integrator, absorbing(scene)) {
+    let prep = Prepared::new(scene, settings).map_err(doppler_err)?;
+    supports(scene, settings)?;
+    let entry = match (settings.integrator, prep.absorbing()) {
         (SpectralIntegrator::Banded { .. }, _) => "main_banded",
         (SpectralIntegrator::PiecewiseLinear, true) => "main_absorb",
         (SpectralIntegrator::PiecewiseLinear, false) => "main",
     };
     let double = working_precision(ctx, precision, entry)?;
-    let step = settings.validated_step(scene).map_err(tracking_err)?;
+    let step = prep.step();
     let g = scene.geometry();
     let [nx, ny, nz] = g.dims;
     let nvox = g.voxel_count();
@@ -745,113 +636,70 @@ pub fn render_doppler_gpu_with(
         None => vec![0.0; 3],
     };
     let (a, b) = settings.range_nm;
-    let (n_bands, nearest) = match settings.integrator {
-        SpectralIntegrator::PiecewiseLinear => (0, false),
-        SpectralIntegrator::Banded { bands, shift } => (bands, shift == BandShift::Nearest),
+    let n_bands = match settings.integrator {
+        SpectralIntegrator::PiecewiseLinear => 0,
+        SpectralIntegrator::Banded { bands, .. } => bands,
     };
-    let mut lines: Vec<[f64; 4]> = Vec::new();
-    let absorbs = absorbing(scene);
+    let absorbs = prep.absorbing();
     let pwl_absorbs = absorbs && n_bands == 0;
-    // Emission entries, then (banded with absorption) absorption entries: with the nearest
-    // shift the CPU's rest-frame band values (each line's box deposited into the bands),
-    // otherwise the lines themselves.
-    let push_entries = |lines: &mut Vec<[f64; 4]>, emission: bool| {
-        let factor = if emission { f.emission } else { f.absorption };
-        let bw = (b - a) / n_bands.max(1) as f64;
-        let w = settings.line_width_nm;
-        for (m, sp) in scene.species().iter().enumerate() {
-            let list = if emission {
-                &sp.emission_lines
-            } else {
-                &sp.absorption_lines
-            };
-            if !nearest {
-                for l in list {
-                    lines.push([l.centre_nm, l.strength * factor, m as f64, 0.0]);
-                }
-                continue;
-            }
-            let mut v = std::collections::BTreeMap::<usize, f64>::new();
-            for l in list {
-                deposit(
-                    (a, b, n_bands),
-                    l.centre_nm - 0.5 * w,
-                    l.centre_nm + 0.5 * w,
-                    l.strength * factor,
-                    |i, x| *v.entry(i).or_insert(0.0) += x,
-                );
-            }
-            for (i, x) in v {
-                if x > 0.0 {
-                    lines.push([a + (i as f64 + 0.5) * bw, x, m as f64, 0.0]);
-                }
-            }
-        }
-    };
-    push_entries(&mut lines, true);
+    // Emission entries, then (banded with absorption) absorption entries: the lines, or with
+    // the nearest shift the CPU's rest-frame band values.
+    let to_row = |e: LineEntry| [e.centre_nm, e.strength, e.species as f64, 0.0];
+    let mut lines: Vec<[f64; 4]> = prep
+        .line_entries(scene, LineKind::Emission)
+        .into_iter()
+        .map(to_row)
+        .collect();
     let n_lines = lines.len();
     if absorbs {
-        push_entries(&mut lines, false);
+        lines.extend(
+            prep.line_entries(scene, LineKind::Absorption)
+                .into_iter()
+                .map(to_row),
+        );
     }
     let n_abs = lines.len() - n_lines;
     if lines.is_empty() {
         lines.push([0.0; 4]);
     }
-    // Tables: the CMFs, the black-body grid and its hat functions' XYZ (as the CPU's PwlTables).
-    let cmf = Cmf::cie1931_2deg();
-    let (c_lo, c_hi) = cmf.range_nm();
-    let mut tables: Vec<f64> = Vec::new();
-    let mut cmf_n = 0usize;
-    for (_, v) in cmf.samples() {
-        tables.extend(v.iter().copied());
-        cmf_n += 1;
-    }
-    let cmf_step = (c_hi - c_lo) / (cmf_n.max(2) - 1) as f64;
-    let k = settings.blackbody_samples;
-    let lambdas: Vec<f64> = (0..k)
-        .map(|i| a + (b - a) * i as f64 / (k - 1) as f64)
-        .collect();
-    let off_lambda = tables.len();
-    tables.extend(lambdas.iter().copied());
-    let off_hat = tables.len();
-    for i in 0..k {
-        let mut x = Xyz::ZERO;
-        if i > 0 {
-            x += cmf.trapezoid_xyz(lambdas[i - 1], lambdas[i], 0.0, 1.0);
+    // Tables: the CMFs, the black-body grid and its hat functions' XYZ (the CPU's PwlTables;
+    // the banded kernels read the CMF table too).
+    let own;
+    let pt = match prep.pwl_tables() {
+        Some(t) => t,
+        None => {
+            own = PwlTables::new(settings);
+            &own
         }
-        if i + 1 < k {
-            x += cmf.trapezoid_xyz(lambdas[i], lambdas[i + 1], 1.0, 0.0);
-        }
-        tables.extend(x.to_array());
-    }
-    // Banded: per-band CMF integrals (blueshift-spectrum's BandWeights) and band centres.
-    let off_band_w = tables.len();
-    let layout = if n_bands > 0 {
-        Some(BandLayout::new(a, b, n_bands).map_err(|e| Error::InvalidInput(e.to_string()))?)
-    } else {
-        None
     };
-    if let Some(l) = layout {
+    let mut tables: Vec<f64> = Vec::new();
+    let cmf_n = pt.cmf.len();
+    tables.extend(pt.cmf.iter().flatten().copied());
+    let (c_lo, cmf_step) = (pt.cmf_lo, pt.cmf_step);
+    let k = pt.lambdas.len();
+    let off_lambda = tables.len();
+    tables.extend(pt.lambdas.iter().copied());
+    let off_hat = tables.len();
+    tables.extend(pt.hat_xyz.iter().flat_map(|x| x.to_array()));
+    // Banded: per-band CMF integrals and band centres (the CPU's BandTables).
+    let off_band_w = tables.len();
+    if let Some(bt) = prep.band_tables() {
         ctx.check_storage_size(
             "doppler tables",
             (tables.len() + 4 * n_bands) as u64 * fw_bytes(double),
         )?;
-        for i in 0..n_bands {
-            let s0 = l.band_start_nm(i);
-            let x = cmf.trapezoid_xyz(s0, s0 + l.width_nm(), 1.0, 1.0);
-            tables.extend(x.to_array());
-        }
+        tables.extend(bt.weights().per_band().iter().flatten().copied());
     }
     let off_band_c = tables.len();
-    if let Some(l) = layout {
-        tables.extend((0..n_bands).map(|i| l.band_centre_nm(i)));
+    if let Some(bt) = prep.band_tables() {
+        tables.extend(bt.centres().iter().copied());
     }
     // Broadening: k / m per species, then the unit Gaussian's knots (x, then g).
     let off_kom = tables.len();
-    tables.extend(broadening_k_over_m(scene, settings)?);
+    tables.extend(prep.profiles().k_over_m.iter().copied());
     let off_gauss = tables.len();
     let (mut gx, mut gg) = (Vec::<f64>::new(), Vec::<f64>::new());
-    let _ = PwlGaussian::default().for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
+    let _ = prep.profiles().gauss.for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
         if gx.is_empty() {
             gx.push(lo);
             gg.push(v0);
@@ -891,7 +739,7 @@ pub fn render_doppler_gpu_with(
         settings.merge_tolerance,
         settings.broadening.sigma_m_per_s * settings.broadening.sigma_m_per_s,
     ]);
-    let rays = pixel_rays(scene, settings, step);
+    let rays = pixel_rays(&prep, scene, settings);
     let params = Params {
         nx: to_u32("dims", nx)?,
         ny: to_u32("dims", ny)?,

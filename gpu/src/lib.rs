@@ -59,6 +59,7 @@
 //! compiles each (source, entry point) once per context.
 
 pub mod context;
+pub mod device;
 pub mod doppler;
 pub mod error;
 pub mod relativity;
@@ -69,6 +70,7 @@ pub use context::{
     AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext,
     GpuOptions, GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
 };
+pub use device::{Ran, Unsupported, run_with_fallback};
 pub use error::{Error, Result};
 
 /// WGSL of `limiter_exhausted(n)`, the probe of lavapipe's loop limiter (every loop of an

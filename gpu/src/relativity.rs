@@ -84,6 +84,15 @@ fn c4(c: [f32; 3]) -> [f32; 4] {
     [c[0], c[1], c[2], 0.0]
 }
 
+/// `Ok` when the GPU renders `effects` (aberration, Doppler and searchlight in any
+/// combination, every environment kind): always, as the kernel mirrors
+/// [`blueshift_relativity::render`] whole; what does not fit an adapter (a map over its
+/// texture or buffer limits) fails at run time with [`Error::LimitExceeded`], on which
+/// `--device auto` falls back. Here so that every backend answers the question the same way.
+pub fn supports(_effects: Effects) -> std::result::Result<(), crate::device::Unsupported> {
+    Ok(())
+}
+
 /// The relativity pipeline compiled for a context, with the colour table uploaded.
 #[derive(Debug)]
 pub struct GpuRelativity<'a> {

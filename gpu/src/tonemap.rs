@@ -172,9 +172,10 @@ struct MinMaxParams {
     p1: u32,
 }
 
-/// Whether [`GpuTonemapper`] implements `op` on the GPU.
-pub fn supports(op: &Operator) -> bool {
-    matches!(
+/// `Ok` when [`GpuTonemapper`] implements `op` on the GPU, else why not (the operator has
+/// no GPU implementation; the CPU runs it).
+pub fn supports(op: &Operator) -> std::result::Result<(), crate::device::Unsupported> {
+    if matches!(
         op,
         Operator::Linear(_)
             | Operator::Drago(_)
@@ -182,7 +183,14 @@ pub fn supports(op: &Operator) -> bool {
             | Operator::ReinhardLocal(_)
             | Operator::Durand(_)
             | Operator::Fattal(_)
-    )
+    ) {
+        Ok(())
+    } else {
+        Err(crate::device::Unsupported(format!(
+            "the {} operator has no GPU implementation",
+            op.name()
+        )))
+    }
 }
 
 /// The tone-mapping pipelines, compiled once for a context.
@@ -232,12 +240,7 @@ impl<'a> GpuTonemapper<'a> {
         if img.width() == 0 || img.height() == 0 {
             return Err(blueshift_tonemap::Error::EmptyImage.into());
         }
-        if !supports(op) {
-            return Err(Error::Unsupported(format!(
-                "the {} operator has no GPU implementation; use the CPU",
-                op.name()
-            )));
-        }
+        supports(op)?;
         let n = u32::try_from(u64::from(img.width()) * u64::from(img.height()))
             .map_err(|_| Error::InvalidInput("image has more than 2^32 pixels".into()))?;
         self.ctx

@@ -45,13 +45,14 @@
 
 use blueshift_tfedit::{DataAxis, TransferFunction};
 use blueshift_tracking::{
-    Blend, DdaMode, Integrator, Precision, Projection, RenderSettings, Scene,
+    Blend, DdaMode, Integrator, Precision, Progressive, Projection, RenderSettings, Scene,
 };
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use image::Rgba32FImage;
 
 use crate::context::{GpuContext, WORKGROUP_1D, WORKGROUP_2D};
+use crate::device::Unsupported;
 use crate::error::{Error, Result};
 
 /// WGSL of the tracking pipelines (render pass, majorant build, probes).
@@ -374,16 +375,12 @@ impl<'c> GpuTracker<'c> {
         integrator: &Integrator,
         settings: &RenderSettings,
         mut progress: impl FnMut(u32, f64),
-    ) -> Result<GpuProgressive> {
+    ) -> Result<Progressive> {
         settings
             .validate()
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
         let cpu = &scene.scene;
-        if cpu.shading.is_some() {
-            return Err(Error::Unsupported(
-                "gradient shading (scene.shading) is CPU-only; render it with --device cpu".into(),
-            ));
-        }
+        supports(cpu, settings)?;
         let integrator = integrator
             .prepared(cpu)
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
@@ -436,13 +433,6 @@ impl<'c> GpuTracker<'c> {
             .ctx
             .groups("tracking image height", settings.height, WORKGROUP_2D)?;
         let mut done = 0u32;
-        let mut out = GpuProgressive {
-            width: settings.width,
-            height: settings.height,
-            samples: 0,
-            mean: Vec::new(),
-            m2: Vec::new(),
-        };
         // With a noise target every pass is read back to test it; else larger batches.
         let mut batch = if settings.noise_target.is_some() {
             1
@@ -478,7 +468,7 @@ impl<'c> GpuTracker<'c> {
             }
             done += count;
             if let Some(target) = settings.noise_target {
-                out.read(self.ctx, &mean, &m2, done)?;
+                let out = read_progressive(self.ctx, settings, &mean, &m2, done)?;
                 let noise = out.noise();
                 progress(done, noise);
                 if done >= 2 && noise <= target {
@@ -488,8 +478,7 @@ impl<'c> GpuTracker<'c> {
                 progress(done, f64::INFINITY);
             }
         }
-        out.read(self.ctx, &mean, &m2, done)?;
-        Ok(out)
+        read_progressive(self.ctx, settings, &mean, &m2, done)
     }
 
     /// Renders the mean image (linear HDR RGB, alpha = 1 - transmittance), like
@@ -506,15 +495,32 @@ impl<'c> GpuTracker<'c> {
     }
 }
 
+/// `Ok` when the GPU tracker covers `scene` + `settings`, else why not: gradient shading,
+/// heat maps and the timing protocol are CPU-only.
+pub fn supports(scene: &Scene, settings: &RenderSettings) -> std::result::Result<(), Unsupported> {
+    if scene.shading.is_some() {
+        return Err(Unsupported(
+            "gradient shading (scene.shading) is CPU-only; render it with --device cpu".into(),
+        ));
+    }
+    if settings.heatmaps {
+        return Err(Unsupported("heat maps are CPU-only".into()));
+    }
+    if settings.timed_frames.is_some() {
+        return Err(Unsupported(
+            "the timing protocol (warm-up and timed frames) is CPU-only".into(),
+        ));
+    }
+    Ok(())
+}
+
 fn v3(v: Vec3) -> [f32; 3] {
     v.to_array()
 }
 
 fn fill_settings(p: &mut Params, s: &RenderSettings) {
     let cam = &s.camera;
-    let f = (cam.target - cam.eye).try_normalize().unwrap_or(Vec3::Z);
-    let r = f.cross(cam.up).try_normalize().unwrap_or(Vec3::X);
-    let u = r.cross(f);
+    let (f, r, u) = cam.basis();
     p.width = s.width;
     p.height = s.height;
     p.seed_lo = s.seed as u32;
@@ -838,76 +844,22 @@ fn chan_info(tf: &TransferFunction) -> [[f32; 4]; 2] {
     [[lo as f32, hi as f32, 0.0, log], [r, g, b, 0.0]]
 }
 
-/// A progressive render read back from the device: per pixel the mean and the sum of
-/// squared deviations of RGBA over the samples (Welford, f32 on the device).
-#[derive(Clone, Debug)]
-pub struct GpuProgressive {
-    width: u32,
-    height: u32,
+/// Reads the device's running mean and sum of squared deviations (f32 Welford) into the
+/// CPU's accumulation buffer, so noise, variance and the mean image are computed by the one
+/// implementation, `blueshift_tracking::Progressive`.
+fn read_progressive(
+    ctx: &GpuContext,
+    settings: &RenderSettings,
+    mean: &wgpu::Buffer,
+    m2: &wgpu::Buffer,
     samples: u32,
-    mean: Vec<[f32; 4]>,
-    m2: Vec<[f32; 4]>,
-}
-
-impl GpuProgressive {
-    fn read(
-        &mut self,
-        ctx: &GpuContext,
-        mean: &wgpu::Buffer,
-        m2: &wgpu::Buffer,
-        samples: u32,
-    ) -> Result<()> {
-        let n = self.width as usize * self.height as usize;
-        self.mean = ctx.read_buffer(mean, n)?;
-        self.m2 = ctx.read_buffer(m2, n)?;
-        self.samples = samples;
-        Ok(())
-    }
-
-    /// Samples per pixel accumulated.
-    #[must_use]
-    pub fn samples(&self) -> u32 {
-        self.samples
-    }
-
-    /// Mean RGBA of pixel `(x, y)`.
-    #[must_use]
-    pub fn mean(&self, x: u32, y: u32) -> [f64; 4] {
-        self.mean[(y * self.width + x) as usize].map(f64::from)
-    }
-
-    /// Sample variance of RGBA of pixel `(x, y)` (0 before two samples).
-    #[must_use]
-    pub fn variance(&self, x: u32, y: u32) -> [f64; 4] {
-        if self.samples < 2 {
-            return [0.0; 4];
-        }
-        let n = f64::from(self.samples);
-        self.m2[(y * self.width + x) as usize].map(|v| f64::from(v) / (n - 1.0))
-    }
-
-    /// Root mean square over pixels and RGB of the standard error of the pixel means
-    /// (`blueshift_tracking::Progressive::noise`); infinite before two samples.
-    #[must_use]
-    pub fn noise(&self) -> f64 {
-        if self.samples < 2 || self.m2.is_empty() {
-            return f64::INFINITY;
-        }
-        let n = f64::from(self.samples);
-        let sum: f64 = self
-            .m2
-            .iter()
-            .map(|m| f64::from(m[0] + m[1] + m[2]) / (n - 1.0) / n)
-            .sum();
-        (sum / (3.0 * self.m2.len() as f64)).sqrt()
-    }
-
-    /// The mean image.
-    #[must_use]
-    pub fn mean_image(&self) -> Rgba32FImage {
-        let data = self.mean.iter().flatten().copied().collect();
-        Rgba32FImage::from_raw(self.width, self.height, data).unwrap_or_default()
-    }
+) -> Result<Progressive> {
+    let n = settings.width as usize * settings.height as usize;
+    let widen = |v: Vec<[f32; 4]>| v.into_iter().map(|p| p.map(f64::from)).collect();
+    let mean: Vec<[f32; 4]> = ctx.read_buffer(mean, n)?;
+    let m2: Vec<[f32; 4]> = ctx.read_buffer(m2, n)?;
+    Progressive::from_moments(settings.width, settings.height, samples, widen(mean), widen(m2))
+        .map_err(|e| Error::InvalidInput(e.to_string()))
 }
 
 /// The raw 64-bit outputs of the device's counter-based generator for each key

@@ -1,6 +1,6 @@
 //! The GPU Doppler integrators (piecewise linear and banded, nearest and energy-conserving
 //! shift, with and without absorption, with and without line broadening) against
-//! `blueshift_tracking::doppler::render_doppler` on the same scenes (16^3 and 32^3 synthetic
+//! `blueshift_doppler::render_doppler` on the same scenes (16^3 and 32^3 synthetic
 //! galaxy, rotating hydrogen shell, small images), the piece budget's fallback, the storage
 //! and loop limits, and the settings it refuses.
 //!
@@ -23,7 +23,7 @@ use blueshift_gpu::doppler::{
 };
 use blueshift_gpu::{Error, test_context};
 use blueshift_spectrum::DopplerModel;
-use blueshift_tracking::doppler::{
+use blueshift_doppler::{
     BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
 };
 use blueshift_volume::synth;
@@ -239,11 +239,11 @@ fn a_tilted_perspective_view_and_cell_domain_match_the_cpu() {
         let mut st = DopplerSettings::default_for(&scene, 16, 12);
         let (lo, hi) = scene.geometry().world_bounds();
         let c = 0.5 * (lo + hi);
-        st.camera = blueshift_tracking::Camera {
+        st.camera = blueshift_doppler::Camera {
             eye: c + glam::Vec3::new(1.5, 1.0, 2.5) * (hi - lo).length(),
             target: c,
             up: glam::Vec3::Y,
-            projection: blueshift_tracking::Projection::Perspective { fov_y_deg: 30.0 },
+            projection: blueshift_doppler::Projection::Perspective { fov_y_deg: 30.0 },
         };
         st.cell_domain = true;
         st.blackbody_samples = 7;

@@ -336,6 +336,12 @@ impl BandWeights {
         Self { layout, weights }
     }
 
+    /// The XYZ of a unit value in each band (the CMF integrals over each band), band by band.
+    #[must_use]
+    pub fn per_band(&self) -> &[[f64; 3]] {
+        &self.weights
+    }
+
     /// XYZ of a banded spectrum; refuses a spectrum of another layout.
     pub fn xyz(&self, spectrum: &Banded) -> Result<Xyz> {
         if self.layout != spectrum.layout {

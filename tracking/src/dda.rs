@@ -10,7 +10,7 @@
 
 use glam::Vec3;
 
-use crate::camera::Ray;
+use crate::Ray;
 use crate::majorant::MajorantGrid;
 
 /// The cell layout shared by all channels of a scene: macrocells of `k` voxels per edge

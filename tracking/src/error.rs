@@ -20,6 +20,12 @@ pub enum Error {
         /// What is wrong.
         message: String,
     },
+    /// The run was cancelled through its observer.
+    #[error("cancelled")]
+    Cancelled,
+    /// An error from the camera crate (a degenerate camera).
+    #[error(transparent)]
+    Camera(#[from] blueshift_camera::Error),
     /// An error from the volume crate (macrocells, grids).
     #[error(transparent)]
     Volume(#[from] blueshift_volume::Error),

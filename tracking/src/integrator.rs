@@ -27,7 +27,7 @@ use std::ops::ControlFlow;
 use glam::Vec3;
 use half::f16;
 
-use crate::camera::Ray;
+use crate::Ray;
 use crate::dda::{Dda, DdaMajorantIterator};
 use crate::majorant::MajorantGrid;
 use crate::rng::Rng;

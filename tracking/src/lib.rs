@@ -40,18 +40,17 @@
 //! | timing protocol (warm-up, timed frames) | [`render_timed`], [`FrameTimes`] |
 //! | gradient shading, materials | [`Shading`], [`Material`] |
 
-pub mod camera;
 pub mod dda;
-pub mod doppler;
 mod error;
 pub mod integrator;
 pub mod majorant;
 pub mod render;
 pub mod rng;
 pub mod scene;
+pub mod session;
 pub mod shading;
 
-pub use camera::{Camera, Projection, Ray};
+pub use blueshift_camera::{Camera, Projection, Ray};
 pub use dda::{CellLayout, Dda, DdaCell, DdaMajorantIterator, MajorantSegment};
 pub use error::{Error, Result};
 pub use integrator::{
@@ -59,8 +58,10 @@ pub use integrator::{
 };
 pub use majorant::MajorantGrid;
 pub use render::{
-    FrameTimes, HeatMap, Progressive, RenderSettings, render, render_progressive, render_timed,
+    FrameTimes, HeatMap, Progressive, RenderSettings, TrackingOutput, render, render_progressive,
+    render_timed,
 };
+pub use session::TrackingSession;
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};
 pub use shading::{Material, Shading};

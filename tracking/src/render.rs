@@ -2,9 +2,10 @@
 //! running mean and variance per pixel, rayon over rows, counter-based random numbers.
 
 use image::Rgba32FImage;
+use blueshift_camera::{Observer, Progress, Silent};
 use rayon::prelude::*;
 
-use crate::camera::Camera;
+use crate::Camera;
 use std::time::Instant;
 
 use crate::integrator::{Integrator, RayStats};
@@ -34,6 +35,15 @@ pub struct RenderSettings {
     pub noise_target: Option<f64>,
     /// Jitter the sample position inside the pixel (anti-aliasing); off samples the centre.
     pub jitter_pixels: bool,
+    /// Count the work per pixel for heat maps ([`Progressive::heatmap`]; MDWT Fig. 1g).
+    /// Timing each sample costs a little.
+    pub heatmaps: bool,
+    /// The timing protocol of MDWT section 6: `Some(frames)` renders `warmup` frames of 1
+    /// spp (discarded), then `frames` timed frames of 1 spp each, accumulated; `spp` and the
+    /// noise target are then ignored and the run reports [`FrameTimes`].
+    pub timed_frames: Option<u32>,
+    /// Warm-up frames of the timing protocol (with [`RenderSettings::timed_frames`]).
+    pub warmup: u32,
 }
 
 impl RenderSettings {
@@ -50,6 +60,9 @@ impl RenderSettings {
             camera: Camera::default_view(lo, hi, width as f32 / height.max(1) as f32, orthographic),
             noise_target: None,
             jitter_pixels: true,
+            heatmaps: false,
+            timed_frames: None,
+            warmup: 0,
         }
     }
 
@@ -66,7 +79,12 @@ impl RenderSettings {
                 "noise_target: {t} must be finite and non-negative"
             )));
         }
-        self.camera.validate()
+        if self.timed_frames == Some(0) {
+            return Err(Error::parameter(
+                "frames: at least one timed frame is needed",
+            ));
+        }
+        Ok(self.camera.validate()?)
     }
 }
 
@@ -173,6 +191,39 @@ impl Progressive {
         })
     }
 
+    /// A buffer from per-pixel moments computed elsewhere (a GPU backend's running mean and
+    /// sum of squared deviations, row-major) after `samples` samples, so noise, variance and
+    /// images come from this one implementation.
+    ///
+    /// # Errors
+    /// A bad size, or `mean` / `m2` not one entry per pixel.
+    pub fn from_moments(
+        width: u32,
+        height: u32,
+        samples: u32,
+        mean: Vec<[f64; 4]>,
+        m2: Vec<[f64; 4]>,
+    ) -> Result<Self> {
+        check_size(width, height)?;
+        let n = width as usize * height as usize;
+        if mean.len() != n || m2.len() != n {
+            return Err(Error::parameter(format!(
+                "moments: {} means and {} squared deviations for {n} pixels",
+                mean.len(),
+                m2.len()
+            )));
+        }
+        Ok(Progressive {
+            width,
+            height,
+            samples,
+            heat_samples: 0,
+            mean,
+            m2,
+            heat: None,
+        })
+    }
+
     /// Starts counting the work per pixel for [`Progressive::heatmap`] (from the next pass
     /// on; the means are over the passes counted). Timing each sample costs a little.
     pub fn enable_heatmaps(&mut self) {
@@ -207,12 +258,23 @@ impl Progressive {
         settings: &RenderSettings,
     ) -> Result<()> {
         settings.validate()?;
+        let integrator = integrator.prepared(scene)?;
+        self.add_prepared_pass(scene, &integrator, settings)
+    }
+
+    /// [`Progressive::add_pass`] with an integrator already prepared for `scene` and
+    /// validated settings.
+    pub(crate) fn add_prepared_pass(
+        &mut self,
+        scene: &Scene,
+        integrator: &Integrator,
+        settings: &RenderSettings,
+    ) -> Result<()> {
         if settings.width != self.width || settings.height != self.height {
             return Err(Error::parameter(
                 "settings: image size differs from the accumulation buffer's",
             ));
         }
-        let integrator = integrator.prepared(scene)?;
         let w = self.width as usize;
         let sample = self.samples;
         let count = f64::from(sample + 1);
@@ -311,27 +373,29 @@ impl Progressive {
 
 /// Renders `settings.spp` passes (or fewer when the noise target is met), calling
 /// `progress(passes_done, noise)` after each pass, and returns the accumulation buffer.
+/// A wrapper of the one render loop, [`crate::TrackingSession`]'s, for borrowed scenes.
 pub fn render_progressive(
     scene: &Scene,
     integrator: &Integrator,
     settings: &RenderSettings,
-    mut progress: impl FnMut(u32, f64),
+    progress: impl FnMut(u32, f64) + Send,
 ) -> Result<Progressive> {
     settings.validate()?;
     let integrator = integrator.prepared(scene)?;
-    let mut acc = Progressive::new(settings.width, settings.height)?;
-    for _ in 0..settings.spp {
-        acc.add_pass(scene, &integrator, settings)?;
-        let noise = acc.noise();
-        progress(acc.samples(), noise);
-        if let Some(target) = settings.noise_target
-            && acc.samples() >= 2
-            && noise <= target
-        {
-            break;
+    let progress = std::sync::Mutex::new(progress);
+    let obs = PassCallback(&progress);
+    Ok(run_loop(scene, &integrator, settings, &obs)?.image)
+}
+
+/// Forwards each pass's count and noise to a closure.
+struct PassCallback<'a, F>(&'a std::sync::Mutex<F>);
+
+impl<F: FnMut(u32, f64) + Send> Observer<Progressive> for PassCallback<'_, F> {
+    fn pass(&self, pass: u32, image: &Progressive, _noise: Option<f64>) {
+        if let Ok(mut f) = self.0.lock() {
+            f(pass, image.noise());
         }
     }
-    Ok(acc)
 }
 
 /// Renders the mean image (HDR, linear RGB; alpha = 1 - transmittance).
@@ -341,6 +405,97 @@ pub fn render(
     settings: &RenderSettings,
 ) -> Result<Rgba32FImage> {
     Ok(render_progressive(scene, integrator, settings, |_, _| {})?.mean_image())
+}
+
+/// What a tracking run returns: the accumulation buffer (mean image, variance, noise, heat
+/// maps) and, under the timing protocol, the frame times.
+#[derive(Clone, Debug)]
+pub struct TrackingOutput {
+    /// The accumulated samples.
+    pub image: Progressive,
+    /// Frame times when [`RenderSettings::timed_frames`] is set.
+    pub frame_times: Option<FrameTimes>,
+}
+
+/// The one render loop: progressive passes under `observer` (or the timing protocol when
+/// `settings.timed_frames` is set). `integrator` must be prepared for `scene` and
+/// `settings` validated.
+pub(crate) fn run_loop(
+    scene: &Scene,
+    integrator: &Integrator,
+    settings: &RenderSettings,
+    observer: &dyn Observer<Progressive>,
+) -> Result<TrackingOutput> {
+    let mut acc = Progressive::new(settings.width, settings.height)?;
+    if let Some(frames) = settings.timed_frames {
+        let total = u64::from(settings.warmup) + u64::from(frames);
+        if settings.warmup > 0 {
+            let mut scratch = Progressive::new(settings.width, settings.height)?;
+            for i in 0..settings.warmup {
+                if observer.cancelled() {
+                    return Err(Error::Cancelled);
+                }
+                scratch.add_prepared_pass(scene, integrator, settings)?;
+                observer.progress(Progress {
+                    done: u64::from(i) + 1,
+                    total,
+                    pass: 0,
+                });
+            }
+        }
+        if settings.heatmaps {
+            acc.enable_heatmaps();
+        }
+        let mut times = Vec::with_capacity(frames.min(1 << 20) as usize);
+        for _ in 0..frames {
+            if observer.cancelled() {
+                return Err(Error::Cancelled);
+            }
+            let start = Instant::now();
+            acc.add_prepared_pass(scene, integrator, settings)?;
+            times.push(start.elapsed().as_secs_f64());
+            report(observer, &acc, u64::from(settings.warmup), total);
+        }
+        return Ok(TrackingOutput {
+            image: acc,
+            frame_times: Some(FrameTimes {
+                warmup: settings.warmup,
+                frames: times,
+            }),
+        });
+    }
+    if settings.heatmaps {
+        acc.enable_heatmaps();
+    }
+    for _ in 0..settings.spp {
+        if observer.cancelled() {
+            return Err(Error::Cancelled);
+        }
+        acc.add_prepared_pass(scene, integrator, settings)?;
+        let noise = report(observer, &acc, 0, u64::from(settings.spp));
+        if let Some(target) = settings.noise_target
+            && acc.samples() >= 2
+            && noise <= target
+        {
+            break;
+        }
+    }
+    Ok(TrackingOutput {
+        image: acc,
+        frame_times: None,
+    })
+}
+
+/// Tells `observer` about a finished pass; returns the noise estimate.
+fn report(observer: &dyn Observer<Progressive>, acc: &Progressive, before: u64, total: u64) -> f64 {
+    let noise = acc.noise();
+    observer.progress(Progress {
+        done: before + u64::from(acc.samples()),
+        total,
+        pass: acc.samples(),
+    });
+    observer.pass(acc.samples(), acc, noise.is_finite().then_some(noise));
+    noise
 }
 
 /// Frame times of the timing protocol ([`render_timed`]), seconds.
@@ -378,7 +533,9 @@ impl FrameTimes {
 /// The timing protocol of MDWT section 6: `warmup` frames of 1 spp rendered and thrown
 /// away, then `frames` timed frames of 1 spp each accumulated progressively (the image is
 /// the accumulation of the timed frames). `heatmaps` turns on the per-pixel counters for the
-/// timed frames. `settings.spp` and the noise target are ignored.
+/// timed frames. `settings.spp` and the noise target are ignored. A wrapper of the one render
+/// loop with [`RenderSettings::timed_frames`], [`RenderSettings::warmup`] and
+/// [`RenderSettings::heatmaps`] set.
 pub fn render_timed(
     scene: &Scene,
     integrator: &Integrator,
@@ -387,34 +544,16 @@ pub fn render_timed(
     frames: u32,
     heatmaps: bool,
 ) -> Result<(Progressive, FrameTimes)> {
+    let mut settings = settings.clone();
+    settings.timed_frames = Some(frames);
+    settings.warmup = warmup;
+    settings.heatmaps = heatmaps;
     settings.validate()?;
-    if frames == 0 {
-        return Err(Error::parameter(
-            "frames: at least one timed frame is needed",
-        ));
-    }
     let integrator = integrator.prepared(scene)?;
-    if warmup > 0 {
-        let mut scratch = Progressive::new(settings.width, settings.height)?;
-        for _ in 0..warmup {
-            scratch.add_pass(scene, &integrator, settings)?;
-        }
-    }
-    let mut acc = Progressive::new(settings.width, settings.height)?;
-    if heatmaps {
-        acc.enable_heatmaps();
-    }
-    let mut times = Vec::with_capacity(frames.min(1 << 20) as usize);
-    for _ in 0..frames {
-        let start = Instant::now();
-        acc.add_pass(scene, &integrator, settings)?;
-        times.push(start.elapsed().as_secs_f64());
-    }
-    Ok((
-        acc,
-        FrameTimes {
-            warmup,
-            frames: times,
-        },
-    ))
+    let out = run_loop(scene, &integrator, &settings, &Silent)?;
+    let times = out.frame_times.unwrap_or(FrameTimes {
+        warmup,
+        frames: Vec::new(),
+    });
+    Ok((out.image, times))
 }

@@ -7,10 +7,11 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use blueshift_spectrum::{DopplerModel, PiecewiseLinear};
-use blueshift_tracking::doppler::{
+use blueshift_doppler::{
     ColourMatrix, DisplayOptions, DopplerImage, DopplerScene, DopplerSettings, Exposure, SceneFile,
-    SpectralIntegrator, pixel_spectrum, render_doppler, trace_ray,
+    DopplerSession, SpectralIntegrator,
 };
+use blueshift_camera::OnProgress;
 use clap::Parser;
 use plotters::prelude::*;
 
@@ -21,7 +22,7 @@ use crate::plot::{FONT, Series, line_plot, register_font};
 #[derive(Debug, Parser)]
 pub struct Args {
     /// Scene JSON mapping volume files to species, temperature and velocity with units
-    /// (format: blueshift_tracking::doppler::scene_file; example: scenes/enzo-moving7.json).
+    /// (format: blueshift_doppler::scene_file; example: scenes/enzo-moving7.json).
     /// Replaces --synth/--res; --species then selects parts of the scene by name (bb for the
     /// black body) and the factor flags override the file's factors.
     #[arg(long, conflicts_with_all = ["synth", "res"])]
@@ -298,15 +299,27 @@ fn display_rgb8(
         .collect())
 }
 
-fn render(scene: &DopplerScene, st: &DopplerSettings) -> Result<DopplerImage> {
-    let bar = indicatif::ProgressBar::new(u64::from(st.height));
+fn render(session: &DopplerSession) -> Result<DopplerImage> {
+    let bar = indicatif::ProgressBar::new(u64::from(session.settings().height));
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} rows [{elapsed}]")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let img = render_doppler(scene, st, &|| bar.inc(1))?;
+    let img = session.render(&OnProgress::new(|_| bar.inc(1)))?;
     bar.finish_and_clear();
     Ok(img)
+}
+
+/// The one wording of a device failure: `--device gpu: <why>; use --device cpu or auto` for
+/// what the GPU does not support, the error with its context otherwise.
+pub(crate) fn device_error(e: anyhow::Error) -> anyhow::Error {
+    match e.downcast_ref::<blueshift_gpu::Error>() {
+        Some(blueshift_gpu::Error::Unsupported(what)) => {
+            anyhow!("--device gpu: {what}; use --device cpu or auto")
+        }
+        Some(_) => e.context("--device"),
+        None => e,
+    }
 }
 
 fn write_exr(path: &Path, img: &DopplerImage) -> Result<()> {
@@ -409,41 +422,29 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
-    let gpu = args.device.context().context("--device")?;
+    // One session: the image, the picks and the trace share its prepared tables.
+    let session = DopplerSession::new(scene, st)?;
+    let (scene, st) = (session.scene(), session.settings());
     let start = Instant::now();
-    let (img, on) = match gpu {
-        Some(ctx) => match blueshift_gpu::doppler::check_supported(&scene, &st) {
-            Ok(()) => {
-                let double = args
-                    .gpu_precision
-                    .is_double_on(ctx)
-                    .context("--gpu-precision")?;
-                match blueshift_gpu::doppler::render_doppler_gpu_with(
-                    ctx,
-                    &scene,
-                    &st,
-                    args.gpu_precision,
-                ) {
-                    Ok(img) => (img, if double { "gpu (f64)" } else { "gpu (f32)" }),
-                    // auto: what the adapter cannot run (limits, its loop limit, memory) runs
-                    // on the CPU.
-                    Err(e) if args.device.falls_back_on(&e) => {
-                        eprintln!("--device auto: {e}; rendering on the CPU");
-                        (render(&scene, &st)?, "cpu")
-                    }
-                    Err(e) => return Err(anyhow::Error::new(e).context("--device gpu")),
-                }
-            }
-            Err(blueshift_gpu::Error::Unsupported(what))
-                if args.device == blueshift_gpu::DeviceChoice::Gpu =>
-            {
-                bail!("--device gpu: {what}; use --device cpu or auto")
-            }
-            // Unsupported on auto: the CPU; invalid settings: the CPU's own error.
-            Err(_) => (render(&scene, &st)?, "cpu"),
+    let mut on = "cpu";
+    let ran = blueshift_gpu::run_with_fallback(
+        args.device,
+        || blueshift_gpu::doppler::supports(scene, st),
+        |ctx| {
+            let double = args.gpu_precision.is_double_on(ctx)?;
+            on = if double { "gpu (f64)" } else { "gpu (f32)" };
+            blueshift_gpu::doppler::render_doppler_gpu_with(ctx, scene, st, args.gpu_precision)
         },
-        None => (render(&scene, &st)?, "cpu"),
-    };
+        || render(&session),
+    )
+    .map_err(device_error)?;
+    if let Some(why) = &ran.fallback {
+        eprintln!("--device auto: {why}; rendering on the CPU");
+    }
+    if ran.device == blueshift_camera::DeviceKind::Cpu {
+        on = "cpu";
+    }
+    let img = ran.value;
     let secs = start.elapsed().as_secs_f64();
     write_exr(&args.out, &img)?;
     let png = args.out.with_extension("png");
@@ -455,7 +456,7 @@ pub fn run(args: Args) -> Result<()> {
     )?;
     let mut series = Vec::new();
     for (i, &(x, y)) in args.pick.iter().enumerate() {
-        let s = pixel_spectrum(&scene, &st, x, y)?;
+        let s = session.pixel_spectrum(x, y)?;
         write_bytes_atomic(
             &sibling(&args.out, &format!("_pick_{x}_{y}.csv")),
             spectrum_csv(&s, st.range_nm).as_bytes(),
@@ -477,7 +478,7 @@ pub fn run(args: Args) -> Result<()> {
         )?;
     }
     if let Some((x, y)) = args.trace {
-        let steps = trace_ray(&scene, &st, x, y)?;
+        let steps = session.trace(x, y)?;
         let mut csv = String::from("step,t,radial_velocity_m_per_s,wavelength_nm,value\n");
         for (i, s) in steps.iter().enumerate() {
             for (l, v) in samples(&s.spectrum, st.range_nm).into_iter().step_by(4) {
@@ -561,13 +562,19 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
     let start = Instant::now();
     let mut images = Vec::new();
     let mut series = Vec::new();
+    // One session; Doppler off is a factor edit (nothing but the factors is rebuilt).
+    base.velocity_factor = Some(30.0);
+    let (scene, st) = build(&base)?;
+    let mut session = DopplerSession::new(scene, st)?;
     for (label, vf) in [("doppler_on", 30.0), ("doppler_off", 0.0)] {
-        base.velocity_factor = Some(vf);
-        let (scene, st) = build(&base)?;
-        let img = render(&scene, &st)?;
+        let mut factors = session.scene().factors;
+        factors.velocity = vf;
+        session.set_factors(factors)?;
+        let st = session.settings();
+        let img = render(&session)?;
         write_exr(&args.outdir.join(format!("{label}.exr")), &img)?;
         for (i, &(x, y)) in picks.iter().enumerate() {
-            let s = pixel_spectrum(&scene, &st, x, y)?;
+            let s = session.pixel_spectrum(x, y)?;
             write_bytes_atomic(
                 &args.outdir.join(format!("{label}_pick_{x}_{y}.csv")),
                 spectrum_csv(&s, st.range_nm).as_bytes(),
@@ -638,7 +645,7 @@ type Curve = Vec<(f64, f64)>;
 /// The steps a trace plot shows (at most `max`), their spectra sampled over `range`, and the
 /// largest value (the shared y axis; 1 when all are zero). Registers the plot font.
 fn trace_curves(
-    steps: &[blueshift_tracking::doppler::TraceStep],
+    steps: &[blueshift_doppler::TraceStep],
     range: (f64, f64),
     max: usize,
 ) -> (Vec<usize>, Vec<Curve>, f64) {
@@ -663,7 +670,7 @@ fn trace_curves(
 fn trace_panels(
     path: &Path,
     title: &str,
-    steps: &[blueshift_tracking::doppler::TraceStep],
+    steps: &[blueshift_doppler::TraceStep],
     range: (f64, f64),
 ) -> Result<()> {
     let (pick, curves, ymax) = trace_curves(steps, range, 12);
@@ -717,7 +724,7 @@ const MAX_FRAMES: usize = 120;
 fn trace_animation(
     path: &Path,
     title: &str,
-    steps: &[blueshift_tracking::doppler::TraceStep],
+    steps: &[blueshift_doppler::TraceStep],
     range: (f64, f64),
 ) -> Result<()> {
     let (pick, curves, ymax) = trace_curves(steps, range, MAX_FRAMES);

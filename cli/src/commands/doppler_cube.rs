@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use blueshift_spectrum::named_line;
-use blueshift_tracking::doppler::{
+use blueshift_doppler::{
     Broadening, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Moments, SpectralAxis,
     SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
 };

@@ -222,23 +222,30 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(spec) = &args.convert {
         return convert(&env, spec, &args.out, args.exposure);
     }
-    let gpu = match args.device.context().context("--device")? {
-        Some(ctx) => Some(blueshift_gpu::relativity::GpuRelativity::new(ctx, None)?),
-        None => None,
-    };
+    // The GPU pipeline is built on first use and kept for every frame of a ramp.
+    let gpu = std::cell::OnceCell::new();
     let device = args.device;
     let render = |env: &Environment, cam: &Camera, v: Velocity, fx: Effects| -> Result<_> {
-        Ok(match &gpu {
-            Some(g) => match g.render(env, cam, v, fx) {
-                Ok(img) => img,
-                Err(e) if device.falls_back_on(&e) => {
-                    eprintln!("--device auto: {e}; rendering on the CPU");
-                    render(env, cam, v, fx, None)?
-                }
-                Err(e) => return Err(anyhow::Error::new(e).context("GPU rendering")),
+        let ran = blueshift_gpu::run_with_fallback(
+            device,
+            || blueshift_gpu::relativity::supports(fx),
+            |ctx| {
+                let g = match gpu.get() {
+                    Some(g) => g,
+                    None => {
+                        let g = blueshift_gpu::relativity::GpuRelativity::new(ctx, None)?;
+                        gpu.get_or_init(|| g)
+                    }
+                };
+                g.render(env, cam, v, fx)
             },
-            None => render(env, cam, v, fx, None)?,
-        })
+            || -> Result<_> { Ok(render(env, cam, v, fx, None)?) },
+        )
+        .map_err(crate::commands::doppler::device_error)?;
+        if let Some(why) = &ran.fallback {
+            eprintln!("--device auto: {why}; rendering on the CPU");
+        }
+        Ok(ran.value)
     };
     match speeds {
         None => {

@@ -32,7 +32,8 @@ use anyhow::{Context, Result, anyhow, bail};
 use blueshift_tfedit::{ColorKnot, DataAxis, OpacityKnot, TransferFunction};
 use blueshift_tracking::{
     Blend, Camera, DdaMode, DirectionalLight, HeatMap, Integrator, Material, Precision,
-    Progressive, Projection, RayMarcher, RenderSettings, Scene, Shading, render_timed,
+    Progressive, Projection, RayMarcher, RenderSettings, Scene, Shading, TrackingOutput,
+    TrackingSession,
 };
 use blueshift_volume::{AnyGrid, synth};
 use glam::Vec3;
@@ -607,94 +608,79 @@ fn run_inner(args: &Args) -> Result<()> {
     if let Some(u) = f.up {
         cam.up = Vec3::from(u);
     }
+    if f.warmup.is_some() && f.frames.is_none() {
+        bail!("--warmup: needs --frames N (the timed frames)");
+    }
+    settings.heatmaps = !heatmaps.is_empty();
+    settings.timed_frames = f.frames;
+    settings.warmup = f.warmup.unwrap_or(0);
     settings.validate()?;
     integrator.prepared(&scene)?;
 
     let device = args.device;
-    let gpu = device.context().context("--device")?;
-    let cpu_only = if scene.shading.is_some() {
-        Some("shading")
-    } else if !heatmaps.is_empty() {
-        Some("--heatmap")
-    } else if f.frames.is_some() {
-        Some("--frames")
-    } else {
-        None
-    };
-    let gpu = match (gpu, cpu_only) {
-        (Some(_), Some(what)) if device == blueshift_gpu::DeviceChoice::Gpu => {
-            bail!("--device gpu: {what} is CPU-only; use --device cpu or auto")
-        }
-        (Some(_), Some(_)) => None,
-        (g, _) => g,
-    };
-    if let Some(ctx) = gpu {
-        // auto keeps a copy for the CPU in case the adapter cannot run this render.
-        let cpu_copy = (device == blueshift_gpu::DeviceChoice::Auto).then(|| scene.clone());
-        match render_on_gpu(ctx, args, scene, &integrator, &settings, method, n) {
-            Ok(()) => return Ok(()),
-            Err(e) => match (cpu_copy, gpu_error(&e)) {
-                (Some(copy), Some(ge)) if device.falls_back_on(ge) => {
-                    eprintln!("--device auto: {ge}; rendering on the CPU");
-                    scene = copy;
-                }
-                _ => return Err(e),
-            },
-        }
-    }
-
-    let bar = indicatif::ProgressBar::new(u64::from(settings.spp));
+    let supported = blueshift_gpu::tracking::supports(&scene, &settings);
+    // gpu hands the scene to the device; auto keeps it for the CPU in case the adapter
+    // cannot run this render.
+    let slot = std::cell::RefCell::new(Some(scene));
+    let take = || slot.borrow_mut().take().ok_or_else(|| anyhow!("scene already used"));
+    let bar = indicatif::ProgressBar::new(u64::from(settings.timed_frames.unwrap_or(settings.spp)));
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let start = Instant::now();
-    let (acc, times) = match f.frames {
-        Some(frames) => {
-            let warmup = f.warmup.unwrap_or(0);
-            let (acc, t) = render_timed(
-                &scene,
-                &integrator,
-                &settings,
-                warmup,
-                frames,
-                !heatmaps.is_empty(),
-            )?;
-            (acc, Some(t))
-        }
-        None => {
-            if f.warmup.is_some() {
-                bail!("--warmup: needs --frames N (the timed frames)");
-            }
-            let mut acc = Progressive::new(settings.width, settings.height)?;
-            if !heatmaps.is_empty() {
-                acc.enable_heatmaps();
-            }
-            let integ = integrator.prepared(&scene)?;
-            for _ in 0..settings.spp {
-                acc.add_pass(&scene, &integ, &settings)?;
-                let noise = acc.noise();
-                bar.set_position(u64::from(acc.samples()));
-                if noise.is_finite() {
-                    bar.set_message(format!("noise {noise:.4}"));
-                }
-                if settings.noise_target.is_some_and(|t| noise <= t) {
-                    break;
-                }
-            }
-            (acc, None)
+    let show = |done: u32, noise: f64| {
+        bar.set_position(u64::from(done));
+        if noise.is_finite() {
+            bar.set_message(format!("noise {noise:.4}"));
         }
     };
+    let start = Instant::now();
+    let ran = blueshift_gpu::run_with_fallback(
+        device,
+        || supported.clone(),
+        |ctx| {
+            let scene = match device {
+                blueshift_gpu::DeviceChoice::Auto => slot.borrow().clone(),
+                _ => slot.borrow_mut().take(),
+            }
+            .ok_or_else(|| blueshift_gpu::Error::InvalidInput("no scene".into()))?;
+            let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx)?;
+            let gs = tracker.upload(scene)?;
+            let image = tracker.render_progressive(&gs, &integrator, &settings, &show)?;
+            Ok(TrackingOutput {
+                image,
+                frame_times: None,
+            })
+        },
+        || -> Result<TrackingOutput> {
+            let session = TrackingSession::new(take()?, integrator.clone(), settings.clone())?;
+            let observer = OnPass(&show);
+            Ok(session.render(&observer)?)
+        },
+    )
+    .map_err(crate::commands::doppler::device_error)?;
     bar.finish_and_clear();
+    if let Some(why) = &ran.fallback {
+        eprintln!("--device auto: {why}; rendering on the CPU");
+    }
     let seconds = start.elapsed().as_secs_f64();
+    let on_gpu = ran.device == blueshift_camera::DeviceKind::Gpu;
+    let TrackingOutput {
+        image: acc,
+        frame_times: times,
+    } = ran.value;
     let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
     crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
     if let Some(png) = &args.png {
         write_png_preview(&img, png, &args.tonemap, args.exposure)?;
     }
+    let noise = acc.noise();
+    let adapter = on_gpu
+        .then(|| device.context().ok().flatten().map(|c| c.info().name.clone()))
+        .flatten();
     if args.json {
-        let summary = serde_json::json!({
+        let mut summary = serde_json::json!({
             "out": args.out,
             "png": args.png,
             "method": method,
@@ -702,8 +688,8 @@ fn run_inner(args: &Args) -> Result<()> {
             "width": width,
             "height": height,
             "spp": acc.samples(),
-            "device": "cpu",
-            "noise": if acc.noise().is_finite() { Some(acc.noise()) } else { None },
+            "device": ran.device.to_string(),
+            "noise": if noise.is_finite() { Some(noise) } else { None },
             "seconds": seconds,
             "heatmaps": heat_files,
             "timings": times.as_ref().map(|t| serde_json::json!({
@@ -714,86 +700,28 @@ fn run_inner(args: &Args) -> Result<()> {
                 "frame_s": t.frames,
             })),
         });
+        if let Some(a) = &adapter {
+            summary["adapter"] = serde_json::json!(a);
+        }
         println!("{summary}");
     } else {
+        let on = adapter.map(|a| format!(" on {a}")).unwrap_or_default();
         eprintln!(
-            "wrote {} ({} spp, noise {:.4}, {:.2} s)",
-            args.out.display(),
-            acc.samples(),
-            acc.noise(),
-            seconds
-        );
-    }
-    Ok(())
-}
-
-/// The GPU crate's error inside an error chain, if any.
-pub(crate) fn gpu_error(e: &anyhow::Error) -> Option<&blueshift_gpu::Error> {
-    e.chain()
-        .find_map(|c| c.downcast_ref::<blueshift_gpu::Error>())
-}
-
-/// `render` on a wgpu adapter: the same scene, integrator and settings through
-/// `blueshift_gpu::tracking`, the same outputs.
-fn render_on_gpu(
-    ctx: &'static blueshift_gpu::GpuContext,
-    args: &Args,
-    scene: Scene,
-    integrator: &Integrator,
-    settings: &RenderSettings,
-    method: &str,
-    n: usize,
-) -> Result<()> {
-    let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx).context("--device gpu")?;
-    let gs = tracker.upload(scene).context("--device gpu")?;
-    let bar = indicatif::ProgressBar::new(u64::from(settings.spp));
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    let start = Instant::now();
-    let acc = tracker
-        .render_progressive(&gs, integrator, settings, |done, noise| {
-            bar.set_position(u64::from(done));
-            if noise.is_finite() {
-                bar.set_message(format!("noise {noise:.4}"));
-            }
-        })
-        .context("--device gpu")?;
-    bar.finish_and_clear();
-    let seconds = start.elapsed().as_secs_f64();
-    let img = acc.mean_image();
-    crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
-    if let Some(png) = &args.png {
-        write_png_preview(&img, png, &args.tonemap, args.exposure)?;
-    }
-    let noise = acc.noise();
-    let adapter = ctx.info().name.clone();
-    if args.json {
-        let summary = serde_json::json!({
-            "out": args.out,
-            "png": args.png,
-            "method": method,
-            "channels": n,
-            "width": settings.width,
-            "height": settings.height,
-            "spp": acc.samples(),
-            "device": "gpu",
-            "adapter": adapter,
-            "noise": if noise.is_finite() { Some(noise) } else { None },
-            "seconds": seconds,
-            "heatmaps": serde_json::Value::Array(Vec::new()),
-            "timings": serde_json::Value::Null,
-        });
-        println!("{summary}");
-    } else {
-        eprintln!(
-            "wrote {} ({} spp, noise {noise:.4}, {seconds:.2} s on {adapter})",
+            "wrote {} ({} spp, noise {noise:.4}, {seconds:.2} s{on})",
             args.out.display(),
             acc.samples(),
         );
     }
     Ok(())
+}
+
+/// Forwards each finished pass (samples, noise) to the progress bar.
+struct OnPass<'a, F>(&'a F);
+
+impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for OnPass<'_, F> {
+    fn pass(&self, pass: u32, acc: &Progressive, _noise: Option<f64>) {
+        (self.0)(pass, acc.noise());
+    }
 }
 
 /// The names `--tonemap` accepts.

@@ -267,27 +267,17 @@ pub fn run(args: Args) -> Result<()> {
         }
     } else {
         kind = op.name();
-        let gpu = match args.device {
-            blueshift_gpu::DeviceChoice::Gpu if !blueshift_gpu::tonemap::supports(&op) => bail!(
-                "--device gpu: the {} operator has no GPU implementation (use --device cpu or auto)",
-                op.name()
-            ),
-            d => d
-                .context()
-                .context("--device")?
-                .filter(|_| blueshift_gpu::tonemap::supports(&op)),
-        };
-        let display = match gpu {
-            Some(ctx) => match blueshift_gpu::tonemap::tonemap(ctx, &op, hdr) {
-                Ok(d) => d,
-                Err(e) if args.device.falls_back_on(&e) => {
-                    eprintln!("--device auto: {e}; tone-mapping on the CPU");
-                    op.apply_clean(&clean)?
-                }
-                Err(e) => return Err(anyhow::Error::new(e).context("GPU tone mapping")),
-            },
-            None => op.apply_clean(&clean)?,
-        };
+        let ran = blueshift_gpu::run_with_fallback(
+            args.device,
+            || blueshift_gpu::tonemap::supports(&op),
+            |ctx| blueshift_gpu::tonemap::tonemap(ctx, &op, hdr),
+            || -> Result<_> { Ok(op.apply_clean(&clean)?) },
+        )
+        .map_err(crate::commands::doppler::device_error)?;
+        if let Some(why) = &ran.fallback {
+            eprintln!("--device auto: {why}; tone-mapping on the CPU");
+        }
+        let display = ran.value;
         write_display(&args.out, &display, args.depth)?;
         outputs.push(args.out.clone());
     }

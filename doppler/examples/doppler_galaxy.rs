@@ -5,8 +5,8 @@
 
 use std::time::Instant;
 
-use blueshift_tracking::Projection;
-use blueshift_tracking::doppler::{DopplerScene, DopplerSettings, render_doppler};
+use blueshift_doppler::Projection;
+use blueshift_doppler::{DopplerScene, DopplerSettings, render_doppler};
 use glam::Vec3;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -94,6 +94,17 @@ impl DopplerScene {
         })
     }
 
+    /// Whether any line absorbs: the absorption factor is > 0 and some species has
+    /// absorption lines (the piecewise-linear integrator then runs front to back).
+    #[must_use]
+    pub fn absorbs(&self) -> bool {
+        self.factors.absorption > 0.0
+            && self
+                .species
+                .iter()
+                .any(|sp| !sp.absorption_lines.is_empty())
+    }
+
     /// The scene's geometry.
     #[must_use]
     pub fn geometry(&self) -> &Geometry {

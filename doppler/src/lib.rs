@@ -1,4 +1,6 @@
-//! Doppler volume rendering (the Doppler paper, `shared/papers/doppler-volume-rendering.txt`):
+//! # blueshift-doppler: Doppler volume rendering
+//!
+//! The Doppler paper (`shared/papers/doppler-volume-rendering.txt`):
 //! the emission-absorption model of Eq. 8 over species, moved by a velocity field, integrated
 //! with the banded baseline (Algorithm 1) or the piecewise-linear integrator (Algorithm 2).
 //!
@@ -80,25 +82,34 @@
 mod banded;
 mod cube;
 mod display;
+mod error;
 mod fits;
 mod front;
 #[cfg(test)]
 mod front_tests;
 mod model;
+mod prepared;
 mod profile;
 mod pwl;
 mod render;
 pub mod scene_file;
+mod session;
 #[cfg(test)]
 mod tests;
 
+pub use blueshift_camera::{Camera, Projection, Ray};
+pub use error::{Error, Result};
 pub use cube::{
     CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
 };
 pub use display::{ColourMatrix, DisplayOptions, Exposure};
 pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
 pub use model::{BB_UNIT, DopplerScene, Factors, Species};
-pub use profile::Broadening;
+pub use banded::BandTables;
+pub use prepared::{LineEntry, LineKind, Prepared, RaySpan};
+pub use profile::{Broadening, Profiles};
+pub use pwl::PwlTables;
+pub use session::DopplerSession;
 pub use render::{
     BandShift, DopplerImage, DopplerSettings, PieceStats, SpectralIntegrator, TraceStep,
     pixel_spectrum, render_doppler, trace_ray,

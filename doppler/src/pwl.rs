@@ -6,15 +6,20 @@ use super::profile::Emit;
 use super::render::{Context, RayOut, RaySamples, TraceStep, Want};
 use crate::{Error, Result};
 
-/// Per-render tables: the black-body wavelength grid and the XYZ of each grid hat function.
+/// The piecewise-linear integrator's tables (part of [`crate::Prepared`]): the black-body
+/// wavelength grid, the XYZ of each grid hat function, and the CMF table.
 #[derive(Debug)]
-pub(crate) struct PwlTables {
-    pub(crate) lambdas: Vec<f64>,
-    pub(crate) hat_xyz: Vec<Xyz>,
-    /// The CMF table (CIE 1931 2 degree): first wavelength, spacing (nm) and samples.
-    pub(crate) cmf_lo: f64,
-    pub(crate) cmf_step: f64,
-    pub(crate) cmf: Vec<[f64; 3]>,
+pub struct PwlTables {
+    /// The black-body wavelength grid, nm: `blackbody_samples` points spanning `range_nm`.
+    pub lambdas: Vec<f64>,
+    /// The XYZ of each grid point's hat function (1 at the point, 0 at its neighbours).
+    pub hat_xyz: Vec<Xyz>,
+    /// The CMF table (CIE 1931 2 degree): first wavelength, nm.
+    pub cmf_lo: f64,
+    /// The CMF table's spacing, nm.
+    pub cmf_step: f64,
+    /// The CMF samples (x-bar, y-bar, z-bar), from `cmf_lo` every `cmf_step`.
+    pub cmf: Vec<[f64; 3]>,
 }
 
 impl PwlTables {
@@ -66,6 +71,8 @@ impl PwlTables {
         out
     }
 
+    /// The tables for `settings` (its wavelength range and black-body samples).
+    #[must_use]
     pub fn new(settings: &super::DopplerSettings) -> Self {
         let (a, b) = settings.range_nm;
         let k = settings.blackbody_samples;
@@ -178,16 +185,10 @@ pub(crate) fn integrate(
     s: &RaySamples,
     want: Want,
 ) -> Result<RayOut> {
-    let scene = ctx.scene;
     let st = ctx.settings;
-    let f = scene.factors;
     let cmf = Cmf::cie1931_2deg();
     let n = s.len();
-    let absorbing = f.absorption > 0.0
-        && scene
-            .species
-            .iter()
-            .any(|sp| !sp.absorption_lines.is_empty());
+    let absorbing = ctx.absorbing;
     if absorbing && want == Want::Xyz {
         return super::front::front_to_back(ctx, t, s);
     }

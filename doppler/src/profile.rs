@@ -42,18 +42,26 @@ impl Broadening {
     }
 }
 
-/// Per-render broadening tables.
+/// The line-broadening tables (part of [`crate::Prepared`]), built with the checks of the
+/// broadening settings.
 #[derive(Debug)]
-pub(crate) struct Profiles {
+pub struct Profiles {
+    /// The piecewise-linear unit Gaussian every broadened line is placed as.
     pub gauss: PwlGaussian,
     /// Per species: `k / m` in (m/s)^2 per K (0 without thermal broadening).
     pub k_over_m: Vec<f64>,
     /// User dispersion squared, (m/s)^2.
     pub sigma2_user: f64,
+    /// Whether any broadening applies (else lines keep the paper's box).
     pub active: bool,
 }
 
 impl Profiles {
+    /// The tables for `scene` and broadening `b`.
+    ///
+    /// # Errors
+    /// A non-finite or negative sigma, a temperature field with negative values, thermal
+    /// broadening without a temperature field, a species without a known atomic mass.
     pub fn new(scene: &DopplerScene, b: &Broadening) -> Result<Self> {
         if !(b.sigma_m_per_s.is_finite() && b.sigma_m_per_s >= 0.0) {
             return Err(Error::parameter(format!(
@@ -109,6 +117,7 @@ impl Profiles {
     }
 
     /// Velocity dispersion of species `m` at temperature `t_k`, m/s.
+    #[must_use]
     pub fn sigma_v(&self, m: usize, t_k: f64) -> f64 {
         (self.k_over_m[m] * t_k.max(0.0) + self.sigma2_user).sqrt()
     }

@@ -16,11 +16,13 @@
 
 use blueshift_spectrum::{PiecewiseLinear, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
 use glam::Vec3;
+use blueshift_camera::{Observer, Progress};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::model::DopplerScene;
 use super::profile::Emit;
-use super::render::{Context, DopplerSettings, SpectralIntegrator, Want};
+use super::render::{Context, DopplerImage, DopplerSettings, SpectralIntegrator, Want};
 use crate::{Camera, Error, Projection, Result};
 
 /// The spectral axis of a cube.
@@ -386,11 +388,7 @@ fn ray_channels(
     let scene = ctx.scene;
     let st = ctx.settings;
     let f = scene.factors;
-    let absorbing = f.absorption > 0.0
-        && scene
-            .species
-            .iter()
-            .any(|sp| !sp.absorption_lines.is_empty());
+    let absorbing = ctx.absorbing;
     if absorbing {
         let out = super::render::integrate(ctx, ray, Want::Spectrum)?;
         let spec = out.spectrum.unwrap_or_default();
@@ -468,6 +466,26 @@ pub fn render_cube(
     spec: &CubeSpec,
     progress: &(dyn Fn() + Sync),
 ) -> Result<SpectralCube> {
+    render_cube_with(scene, settings, spec, &RowCallback(progress))
+}
+
+/// Calls a plain closure once per finished row.
+struct RowCallback<'a>(&'a (dyn Fn() + Sync));
+
+impl Observer<DopplerImage> for RowCallback<'_> {
+    fn progress(&self, _: Progress) {
+        (self.0)();
+    }
+}
+
+/// [`render_cube`] under an observer: progress once per finished row, cancel polled before
+/// each row ([`Error::Cancelled`]).
+pub(crate) fn render_cube_with(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    spec: &CubeSpec,
+    observer: &dyn Observer<DopplerImage>,
+) -> Result<SpectralCube> {
     if settings.integrator != SpectralIntegrator::PiecewiseLinear {
         return Err(Error::parameter(
             "spectral cubes need the piecewise-linear integrator",
@@ -491,9 +509,13 @@ pub fn render_cube(
     let ctx = Context::new(scene, settings)?;
     let edges: Vec<f64> = (0..=spec.channels).map(|i| spec.edge_nm(i)).collect();
     let lines = reachable_lines(&ctx, &edges);
+    let done = AtomicU64::new(0);
     let rows: Vec<Result<Vec<Vec<f64>>>> = (0..h)
         .into_par_iter()
         .map(|y| {
+            if observer.cancelled() {
+                return Err(Error::Cancelled);
+            }
             let row = (0..w)
                 .map(|x| {
                     let ray = settings.camera.ray(
@@ -507,7 +529,11 @@ pub fn render_cube(
                     Ok(acc)
                 })
                 .collect::<Result<Vec<_>>>();
-            progress();
+            observer.progress(Progress {
+                done: done.fetch_add(1, Ordering::Relaxed) + 1,
+                total: h as u64,
+                pass: 0,
+            });
             row
         })
         .collect();

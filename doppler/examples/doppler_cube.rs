@@ -5,7 +5,7 @@
 //!
 //! Run: `cargo run --release -p blueshift-tracking --example doppler_cube`
 
-use blueshift_tracking::doppler::{
+use blueshift_doppler::{
     CubeMeta, CubeSpec, DopplerScene, DopplerSettings, SpectralAxis, fits_bytes, los_camera,
     nrrd_bytes, render_cube,
 };

@@ -837,9 +837,9 @@ mod tests {
         let c_km = C_M_PER_S / 1e3;
         for (f, lo, hi) in [(&raw, 200.0, 290.0), (&file, -45.0, 45.0)] {
             let scene = f.load_selected(Some(&["H I"])).unwrap();
-            let mut st = crate::doppler::DopplerSettings::default_for(&scene, 16, 16);
+            let mut st = crate::DopplerSettings::default_for(&scene, 16, 16);
             st.line_width_nm = 0.02;
-            let s = crate::doppler::pixel_spectrum(&scene, &st, 8, 8).unwrap();
+            let s = crate::pixel_spectrum(&scene, &st, 8, 8).unwrap();
             let shift = centroid(&s, 650.0, 662.0) - h_alpha;
             let v = shift / h_alpha * c_km;
             assert!(

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use blueshift_volume::synth;
 
 use blueshift_spectrum::{EmissionLine, SPEED_OF_LIGHT_M_PER_S};
-use blueshift_tracking::doppler::{
+use blueshift_doppler::{
     Broadening, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis,
     SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
 };
@@ -464,11 +464,11 @@ fn image_integrator_broadens_lines_and_keeps_their_energy() {
     let mut st = DopplerSettings::default_for(&scene, 4, 4);
     st.camera = los_camera(&scene, Vec3::Z, 1.0, false).unwrap();
     st.line_width_nm = 0.001;
-    let plain = blueshift_tracking::doppler::pixel_spectrum(&scene, &st, 1, 1).unwrap();
-    let img0 = blueshift_tracking::doppler::render_doppler(&scene, &st, &|| {}).unwrap();
+    let plain = blueshift_doppler::pixel_spectrum(&scene, &st, 1, 1).unwrap();
+    let img0 = blueshift_doppler::render_doppler(&scene, &st, &|| {}).unwrap();
     st.broadening.thermal = true;
-    let broad = blueshift_tracking::doppler::pixel_spectrum(&scene, &st, 1, 1).unwrap();
-    let img1 = blueshift_tracking::doppler::render_doppler(&scene, &st, &|| {}).unwrap();
+    let broad = blueshift_doppler::pixel_spectrum(&scene, &st, 1, 1).unwrap();
+    let img1 = blueshift_doppler::render_doppler(&scene, &st, &|| {}).unwrap();
     assert!((broad.total() / plain.total() - 1.0).abs() < 1e-9);
     let var = |s: &blueshift_spectrum::PiecewiseLinear| {
         let n = 20000;

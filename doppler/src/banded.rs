@@ -6,9 +6,11 @@ use super::DopplerScene;
 use super::render::{BandShift, Context, RayOut, RaySamples, TraceStep, Want};
 use crate::{Error, Result};
 
-/// Per-render tables.
+/// The banded integrator's tables (part of [`crate::Prepared`]): the band layout, each
+/// band's CMF weights and centre, the shift rule, and every species' rest-frame emission and
+/// absorption per unit density (its lines' boxes deposited into the bands as band means).
 #[derive(Debug)]
-pub(crate) struct BandTables {
+pub struct BandTables {
     layout: BandLayout,
     weights: BandWeights,
     centres: Vec<f64>,
@@ -43,6 +45,10 @@ fn deposit(layout: &BandLayout, lo: f64, hi: f64, area: f64, mut add: impl FnMut
 }
 
 impl BandTables {
+    /// The tables of `bands` bands over `settings.range_nm` with shift rule `shift`.
+    ///
+    /// # Errors
+    /// A band layout the spectrum crate refuses.
     pub fn new(
         scene: &DopplerScene,
         settings: &super::DopplerSettings,
@@ -85,6 +91,39 @@ impl BandTables {
                 .map(|s| rest(&s.absorption_lines, f.absorption))
                 .collect(),
         })
+    }
+}
+
+impl BandTables {
+    /// The band layout.
+    #[must_use]
+    pub fn layout(&self) -> BandLayout {
+        self.layout
+    }
+    /// The per-band CMF integrals (XYZ of a unit band value).
+    #[must_use]
+    pub fn weights(&self) -> &BandWeights {
+        &self.weights
+    }
+    /// Band centres, nm.
+    #[must_use]
+    pub fn centres(&self) -> &[f64] {
+        &self.centres
+    }
+    /// The shift rule.
+    #[must_use]
+    pub fn shift(&self) -> BandShift {
+        self.shift
+    }
+    /// Rest-frame emission of species `m` per unit density: sparse `(band, value)`.
+    #[must_use]
+    pub fn rest_emission(&self, m: usize) -> &[(usize, f64)] {
+        &self.rest_emission[m]
+    }
+    /// Rest-frame absorption of species `m` per unit density: sparse `(band, value)`.
+    #[must_use]
+    pub fn rest_absorption(&self, m: usize) -> &[(usize, f64)] {
+        &self.rest_absorption[m]
     }
 }
 

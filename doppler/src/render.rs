@@ -2,9 +2,12 @@
 
 use blueshift_spectrum::{DopplerModel, PiecewiseLinear, WavelengthShift, Xyz};
 use glam::Vec3;
+use blueshift_camera::{Observer, Progress};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::model::{BB_UNIT, DopplerScene};
+use super::prepared::{Prepared, RaySpan};
 use super::{banded, pwl};
 use crate::{Camera, Error, Ray, Result};
 
@@ -256,42 +259,52 @@ impl RaySamples {
     }
 }
 
-/// Everything precomputed once per render.
+/// A render's view of the scene, its settings and their [`Prepared`] tables (owned when the
+/// caller did not prepare them).
 #[derive(Debug)]
 pub(crate) struct Context<'a> {
     pub scene: &'a DopplerScene,
     pub settings: &'a DopplerSettings,
-    pub step: f32,
-    pub pwl: Option<pwl::PwlTables>,
-    pub banded: Option<banded::BandTables>,
-    pub profiles: super::profile::Profiles,
+    prep: Prep<'a>,
+}
+
+#[derive(Debug)]
+enum Prep<'a> {
+    Owned(Box<Prepared>),
+    Borrowed(&'a Prepared),
+}
+
+impl std::ops::Deref for Context<'_> {
+    type Target = Prepared;
+    fn deref(&self) -> &Prepared {
+        match &self.prep {
+            Prep::Owned(p) => p,
+            Prep::Borrowed(p) => p,
+        }
+    }
 }
 
 impl<'a> Context<'a> {
+    /// Validates and prepares `scene` + `settings` (see [`Prepared::new`]).
     pub fn new(scene: &'a DopplerScene, settings: &'a DopplerSettings) -> Result<Self> {
-        let step = settings.validate(scene)?;
-        let (pwl, banded) = match settings.integrator {
-            SpectralIntegrator::PiecewiseLinear => (Some(pwl::PwlTables::new(settings)), None),
-            SpectralIntegrator::Banded { bands, shift } => (
-                None,
-                Some(banded::BandTables::new(scene, settings, bands, shift)?),
-            ),
-        };
-        if banded.is_some() && !settings.broadening.is_none() {
-            return Err(Error::parameter(
-                "line broadening (thermal or Gaussian) is implemented in the piecewise-linear \
-                 integrator only: use the pwl integrator or drop the broadening",
-            ));
-        }
-        let profiles = super::profile::Profiles::new(scene, &settings.broadening)?;
         Ok(Self {
             scene,
             settings,
-            step,
-            pwl,
-            banded,
-            profiles,
+            prep: Prep::Owned(Box::new(Prepared::new(scene, settings)?)),
         })
+    }
+
+    /// A context over tables prepared earlier for the same scene and settings.
+    pub fn with_prepared(
+        scene: &'a DopplerScene,
+        settings: &'a DopplerSettings,
+        prepared: &'a Prepared,
+    ) -> Self {
+        Self {
+            scene,
+            settings,
+            prep: Prep::Borrowed(prepared),
+        }
     }
 
     /// The shift factor `k(s)` applied to observed values.
@@ -306,20 +319,11 @@ impl<'a> Context<'a> {
     /// Samples a ray back to front. Returns an empty set if the ray misses the volume.
     pub fn sample(&self, ray: &Ray) -> Result<RaySamples> {
         let g = &self.scene.geometry;
-        let (mut lo, mut hi) = g.world_bounds();
-        if self.settings.cell_domain {
-            lo -= 0.5 * g.spacing;
-            hi += 0.5 * g.spacing;
-        }
         let mut out = RaySamples::default();
-        let Some((t0, t1)) = ray.clip_box(lo, hi) else {
+        let Some(span) = RaySpan::clip(self.scene, self.settings, self.step, ray) else {
             return Ok(out);
         };
-        let len = t1 - t0;
-        if len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-            return Ok(out);
-        }
-        let n_seg = (len / self.step).ceil().max(1.0) as usize;
+        let (t0, len, n_seg) = (span.t0, span.len, span.n_seg as usize);
         let f = self.scene.factors;
         let nsp = self.scene.species.len();
         let dir = ray.dir.normalize();
@@ -433,7 +437,7 @@ pub(crate) fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayO
     }
 }
 
-fn pixel_ray(settings: &DopplerSettings, x: u32, y: u32) -> Result<Ray> {
+pub(crate) fn pixel_ray(settings: &DopplerSettings, x: u32, y: u32) -> Result<Ray> {
     if x >= settings.width || y >= settings.height {
         return Err(Error::parameter(format!(
             "pixel ({x}, {y}) outside the {}x{} image",
@@ -449,21 +453,48 @@ fn pixel_ray(settings: &DopplerSettings, x: u32, y: u32) -> Result<Ray> {
 }
 
 /// Renders the XYZ image; rows in parallel, each pixel independent (deterministic on any
-/// thread count). `progress` is called once per finished row.
+/// thread count). `progress` is called once per finished row. [`crate::DopplerSession`]
+/// keeps the prepared tables between renders and takes an observer (progress, cancel).
 pub fn render_doppler(
     scene: &DopplerScene,
     settings: &DopplerSettings,
     progress: &(dyn Fn() + Sync),
 ) -> Result<DopplerImage> {
     let ctx = Context::new(scene, settings)?;
+    render_rows(&ctx, &RowCallback(progress))
+}
+
+/// Calls a plain closure once per finished row.
+struct RowCallback<'a>(&'a (dyn Fn() + Sync));
+
+impl Observer<DopplerImage> for RowCallback<'_> {
+    fn progress(&self, _: Progress) {
+        (self.0)();
+    }
+}
+
+/// The image loop: rows in parallel, `observer` told after each row and polled before it.
+pub(crate) fn render_rows(
+    ctx: &Context<'_>,
+    observer: &dyn Observer<DopplerImage>,
+) -> Result<DopplerImage> {
+    let settings = ctx.settings;
     let (w, h) = (settings.width, settings.height);
+    let done = AtomicU64::new(0);
     let rows: Vec<Result<Vec<RayOut>>> = (0..h)
         .into_par_iter()
         .map(|y| {
+            if observer.cancelled() {
+                return Err(Error::Cancelled);
+            }
             let row = (0..w)
-                .map(|x| integrate(&ctx, &pixel_ray(settings, x, y)?, Want::Xyz))
+                .map(|x| integrate(ctx, &pixel_ray(settings, x, y)?, Want::Xyz))
                 .collect::<Result<Vec<_>>>();
-            progress();
+            observer.progress(Progress {
+                done: done.fetch_add(1, Ordering::Relaxed) + 1,
+                total: u64::from(h),
+                pass: 0,
+            });
             row
         })
         .collect();
@@ -478,7 +509,7 @@ pub fn render_doppler(
         }
     }
     let n = xyz.len().max(1) as f64;
-    Ok(DopplerImage {
+    let image = DopplerImage {
         width: w,
         height: h,
         xyz,
@@ -487,7 +518,9 @@ pub fn render_doppler(
             max,
             fallback_rays: fb,
         },
-    })
+    };
+    observer.pass(1, &image, None);
+    Ok(image)
 }
 
 /// The final spectrum of pixel `(x, y)` (banded integrators give their step function).

@@ -161,14 +161,22 @@ impl Camera {
         }
     }
 
+    /// The camera's orthonormal frame `(forward, right, up)`: forward from eye to target,
+    /// right = forward x up, up = right x forward (a degenerate camera gives +z, +x, +y).
+    /// Every backend builds its rays from this frame.
+    #[must_use]
+    pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
+        let f = (self.target - self.eye).try_normalize().unwrap_or(Vec3::Z);
+        let r = f.cross(self.up).try_normalize().unwrap_or(Vec3::X);
+        (f, r, r.cross(f))
+    }
+
     /// The ray through continuous pixel position `(px, py)` of a `width x height` image
     /// (pixel `(i, j)` covers `[i, i+1) x [j, j+1)`; row 0 is the top). Call
     /// [`Camera::validate`] first; a degenerate camera gives a ray along +z.
     #[must_use]
     pub fn ray(&self, px: f32, py: f32, width: u32, height: u32) -> Ray {
-        let f = (self.target - self.eye).try_normalize().unwrap_or(Vec3::Z);
-        let r = f.cross(self.up).try_normalize().unwrap_or(Vec3::X);
-        let u = r.cross(f);
+        let (f, r, u) = self.basis();
         let aspect = width as f32 / height.max(1) as f32;
         // Screen coordinates in [-1, 1] vertically, [-aspect, aspect] horizontally.
         let sx = (2.0 * px / width.max(1) as f32 - 1.0) * aspect;

@@ -1,0 +1,44 @@
+//! The crate's error type.
+
+/// Everything that can go wrong in `blueshift-doppler`.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The scene is inconsistent: species of different geometry, a velocity field of
+    /// another shape, non-finite values. The message names the offending field.
+    #[error("invalid scene: {0}")]
+    Scene(String),
+    /// A render parameter is out of range (a zero image size, a non-positive step, a
+    /// wavelength range the wrong way round). The message names the parameter.
+    #[error("invalid parameter: {0}")]
+    Parameter(String),
+    /// A scene file is unreadable or inconsistent; names the file.
+    #[error("scene file {path}: {message}")]
+    SceneFile {
+        /// The scene file (or the data file it names).
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The run was cancelled through its observer.
+    #[error("cancelled")]
+    Cancelled,
+    /// An error from the camera crate (a degenerate camera).
+    #[error(transparent)]
+    Camera(#[from] blueshift_camera::Error),
+    /// An error from the volume crate (grids, readers).
+    #[error(transparent)]
+    Volume(#[from] blueshift_volume::Error),
+}
+
+impl Error {
+    pub(crate) fn scene(msg: impl Into<String>) -> Self {
+        Error::Scene(msg.into())
+    }
+    pub(crate) fn parameter(msg: impl Into<String>) -> Self {
+        Error::Parameter(msg.into())
+    }
+}
+
+/// `Result` with this crate's [`Error`].
+pub type Result<T> = std::result::Result<T, Error>;
