@@ -295,8 +295,9 @@ pub fn check_volume_fits(
     Ok(())
 }
 
-/// The compiled tracking pipelines of one [`GpuContext`]; compile once, upload many scenes.
-#[derive(Debug)]
+/// The compiled tracking pipelines of one [`GpuContext`]; compile once, upload many scenes
+/// (cloning shares the pipelines).
+#[derive(Clone, Debug)]
 pub struct GpuTracker<'c> {
     ctx: &'c GpuContext,
     render: wgpu::ComputePipeline,
@@ -362,8 +363,8 @@ impl<'c> GpuTracker<'c> {
     /// Uploads `scene` (volume, lookup tables, macrocell ranges) and builds its majorant
     /// grids on the device. A volume over the device's limits is refused with
     /// [`Error::LimitExceeded`] naming the limit, before anything is allocated.
-    pub fn upload(&self, scene: Scene) -> Result<GpuScene<'_, 'c>> {
-        GpuScene::new(self, scene)
+    pub fn upload(&self, scene: Scene) -> Result<GpuScene<'c>> {
+        GpuScene::new(self.clone(), scene)
     }
 
     /// Renders `settings.spp` passes (or fewer once `settings.noise_target` is met),
@@ -371,7 +372,7 @@ impl<'c> GpuTracker<'c> {
     /// mean and variance.
     pub fn render_progressive(
         &self,
-        scene: &GpuScene<'_, 'c>,
+        scene: &GpuScene<'c>,
         integrator: &Integrator,
         settings: &RenderSettings,
         mut progress: impl FnMut(u32, f64),
@@ -485,7 +486,7 @@ impl<'c> GpuTracker<'c> {
     /// `blueshift_tracking::render`.
     pub fn render(
         &self,
-        scene: &GpuScene<'_, 'c>,
+        scene: &GpuScene<'c>,
         integrator: &Integrator,
         settings: &RenderSettings,
     ) -> Result<Rgba32FImage> {
@@ -599,8 +600,8 @@ fn fill_integrator(p: &mut Params, integ: &Integrator, scene: &Scene) -> Vec<f32
 /// A scene on the device: the channels' voxels, lookup tables, macrocell ranges and
 /// majorant grids (built on the device), with the CPU scene it came from.
 #[derive(Debug)]
-pub struct GpuScene<'t, 'c> {
-    tracker: &'t GpuTracker<'c>,
+pub struct GpuScene<'c> {
+    tracker: GpuTracker<'c>,
     scene: Scene,
     volume: wgpu::Buffer,
     luts: wgpu::Buffer,
@@ -611,8 +612,8 @@ pub struct GpuScene<'t, 'c> {
     n_cells: u32,
 }
 
-impl<'t, 'c> GpuScene<'t, 'c> {
-    fn new(tracker: &'t GpuTracker<'c>, scene: Scene) -> Result<Self> {
+impl<'c> GpuScene<'c> {
+    fn new(tracker: GpuTracker<'c>, scene: Scene) -> Result<Self> {
         let ctx = tracker.ctx;
         let n = scene.channel_count();
         let g = *scene.geometry();
@@ -705,7 +706,7 @@ impl<'t, 'c> GpuScene<'t, 'c> {
     }
 
     fn build_majorants(&self, channel: Option<usize>) -> Result<()> {
-        let t = self.tracker;
+        let t = &self.tracker;
         let ctx = t.ctx;
         let n = self.scene.channel_count() as u32;
         let mp = MajorantParams {

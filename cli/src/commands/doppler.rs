@@ -314,6 +314,9 @@ fn render(session: &DopplerSession) -> Result<DopplerImage> {
 /// what the GPU does not support, the error with its context otherwise.
 pub(crate) fn device_error(e: anyhow::Error) -> anyhow::Error {
     match e.downcast_ref::<blueshift_gpu::Error>() {
+        Some(blueshift_gpu::Error::Unsupported(what)) if what.contains("--device") => {
+            anyhow!("--device gpu: {what}")
+        }
         Some(blueshift_gpu::Error::Unsupported(what)) => {
             anyhow!("--device gpu: {what}; use --device cpu or auto")
         }

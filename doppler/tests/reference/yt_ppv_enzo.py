@@ -3,7 +3,7 @@
 
 Usage:  python3 yt_ppv_enzo.py [DATA_DIR] [OUT_DIR]
         (defaults: ../../../../shared/data/enzo-moving7 relative to the repo, and
-        tracking/tests/reference/enzo_ppv next to this script)
+        doppler/tests/reference/enzo_ppv next to this script)
 Needs:  pip install "yt==4.4.*" "yt-astro-analysis==1.1.*"  (made with yt 4.4.3,
         yt_astro_analysis 1.1.4, numpy 2.4.6, Python 3.11).
 
@@ -92,7 +92,7 @@ class ExactPPV(PPVCube):
 
 
 meta = {
-    "script": "tracking/tests/reference/yt_ppv_enzo.py",
+    "script": "doppler/tests/reference/yt_ppv_enzo.py",
     "yt": yt.__version__,
     "yt_astro_analysis": yt_astro_analysis.__version__,
     "numpy": np.__version__,

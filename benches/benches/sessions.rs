@@ -1,0 +1,184 @@
+//! Re-rendering after an edit against building a fresh session (the engine API's promise:
+//! a session rebuilds only what an edit touches).
+//!
+//! - `tracking_tf_edit`: 4 channels of `synth::channels12(128)` with 1-DDA MDWT, a 48 x 48
+//!   one-sample preview (the viewer's first frame after an edit). `fresh` builds the scene
+//!   (macrocells and majorant grids of every channel) and the session, then renders;
+//!   `tf_edit` changes one channel's transfer function on a kept session (only that
+//!   channel's majorant grid is rebuilt), then renders.
+//! - `doppler_factor_edit`: the galaxy (`synth::galaxy(64)`, black body + H I, absorption
+//!   on), piecewise-linear, a 32 x 32 preview. `fresh` builds the Doppler scene from the
+//!   volume and the session (validation, CMF and black-body tables, broadening tables),
+//!   then renders; `factor_edit` changes the velocity factor on a kept session, then renders.
+//!
+//! Besides criterion's groups, a single-threaded comparison is written to
+//! `target/blueshift-benches/sessions.csv` with each edit's median time as a ratio to the
+//! fresh session's measured in the same run (`BLUESHIFT_SKIP_TABLES=1` skips it).
+
+use std::fmt::Write as _;
+use std::hint::black_box;
+use std::time::Instant;
+
+use blueshift_benches::{channel_scene, out_dir, ramp_tf};
+use blueshift_camera::Silent;
+use blueshift_doppler::{DopplerScene, DopplerSession, DopplerSettings};
+use blueshift_tracking::{Blend, DdaMode, Integrator, RenderSettings, TrackingSession};
+use blueshift_volume::{Volume, synth};
+use criterion::Criterion;
+
+const RES: usize = 128;
+const SIZE: u32 = 48;
+const DOPPLER_RES: usize = 64;
+const DOPPLER_SIZE: u32 = 32;
+
+fn integrator() -> Integrator {
+    Integrator::Mdwt {
+        dda: DdaMode::OneDda,
+        blend: Blend::Density,
+    }
+}
+
+fn fresh_tracking() -> TrackingSession {
+    let scene = channel_scene(4, RES, 8, 20.0).expect("scene");
+    let mut s = RenderSettings::default_for(&scene, SIZE, SIZE, true);
+    s.seed = 3;
+    TrackingSession::new(scene, integrator(), s).expect("session")
+}
+
+fn doppler_scene(vol: &Volume) -> DopplerScene {
+    let mut scene = DopplerScene::from_volume(vol, &["bb", "H"]).expect("doppler scene");
+    scene.factors.absorption = 1.0;
+    scene
+}
+
+fn fresh_doppler(vol: &Volume) -> DopplerSession {
+    let scene = doppler_scene(vol);
+    let st = DopplerSettings::default_for(&scene, DOPPLER_SIZE, DOPPLER_SIZE);
+    DopplerSession::new(scene, st).expect("doppler session")
+}
+
+/// Two transfer functions to alternate between (so every edit changes the majorants).
+fn tfs() -> [blueshift_tfedit::TransferFunction; 2] {
+    [
+        ramp_tf([1.0, 0.5, 0.2]).expect("tf"),
+        ramp_tf([0.2, 0.5, 1.0])
+            .expect("tf")
+            .with_alpha_g(0.5)
+            .expect("alpha_g"),
+    ]
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Median seconds of `reps` runs of `f` on one thread.
+fn time1(reps: usize, mut f: impl FnMut() + Send) -> f64 {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("pool");
+    pool.install(|| {
+        median(
+            (0..reps)
+                .map(|_| {
+                    let t = Instant::now();
+                    f();
+                    t.elapsed().as_secs_f64()
+                })
+                .collect(),
+        )
+    })
+}
+
+fn table() {
+    if std::env::var_os("BLUESHIFT_SKIP_TABLES").is_some() {
+        return;
+    }
+    let tf = tfs();
+    let t_fresh = time1(5, || {
+        black_box(fresh_tracking().render(&Silent).expect("render"));
+    });
+    let mut session = fresh_tracking();
+    let mut k = 0;
+    let t_edit = time1(5, || {
+        k += 1;
+        session
+            .set_transfer_function(0, tf[k % 2].clone())
+            .expect("tf edit");
+        black_box(session.render(&Silent).expect("render"));
+    });
+    let vol = synth::galaxy(DOPPLER_RES, 1).expect("galaxy");
+    let d_fresh = time1(5, || {
+        black_box(fresh_doppler(&vol).render(&Silent).expect("render"));
+    });
+    let mut ds = fresh_doppler(&vol);
+    let mut j = 0;
+    let d_edit = time1(5, || {
+        j += 1;
+        let mut f = ds.scene().factors;
+        f.velocity = if j % 2 == 0 { 1.0 } else { 2.0 };
+        ds.set_factors(f).expect("factor edit");
+        black_box(ds.render(&Silent).expect("render"));
+    });
+    let mut csv = String::from("case,fresh_s,edit_s,speedup\n");
+    for (name, a, b) in [
+        ("tracking_tf_edit", t_fresh, t_edit),
+        ("doppler_factor_edit", d_fresh, d_edit),
+    ] {
+        let _ = writeln!(csv, "{name},{a:.6},{b:.6},{:.2}", a / b);
+        eprintln!("{name}: fresh {a:.4} s, after edit {b:.4} s, speed-up {:.2}x", a / b);
+    }
+    let path = out_dir().join("sessions.csv");
+    if let Err(e) = std::fs::write(&path, csv) {
+        eprintln!("cannot write {}: {e}", path.display());
+    }
+}
+
+fn criterion_groups(c: &mut Criterion) {
+    let tf = tfs();
+    let mut g = c.benchmark_group("tracking_tf_edit");
+    g.sample_size(10);
+    g.bench_function("fresh", |b| {
+        b.iter(|| black_box(fresh_tracking().render(&Silent).expect("render")));
+    });
+    let mut session = fresh_tracking();
+    let mut k = 0;
+    g.bench_function("tf_edit", |b| {
+        b.iter(|| {
+            k += 1;
+            session
+                .set_transfer_function(0, tf[k % 2].clone())
+                .expect("tf edit");
+            black_box(session.render(&Silent).expect("render"))
+        });
+    });
+    g.finish();
+
+    let vol = synth::galaxy(DOPPLER_RES, 1).expect("galaxy");
+    let mut g = c.benchmark_group("doppler_factor_edit");
+    g.sample_size(10);
+    g.bench_function("fresh", |b| {
+        b.iter(|| black_box(fresh_doppler(&vol).render(&Silent).expect("render")));
+    });
+    let mut ds = fresh_doppler(&vol);
+    let mut j = 0;
+    g.bench_function("factor_edit", |b| {
+        b.iter(|| {
+            j += 1;
+            let mut f = ds.scene().factors;
+            f.velocity = if j % 2 == 0 { 1.0 } else { 2.0 };
+            ds.set_factors(f).expect("factor edit");
+            black_box(ds.render(&Silent).expect("render"))
+        });
+    });
+    g.finish();
+}
+
+fn main() {
+    table();
+    let mut c = Criterion::default().configure_from_args();
+    criterion_groups(&mut c);
+    c.final_summary();
+}
