@@ -11,10 +11,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use blueshift_benches::out_dir;
-use blueshift_spectrum::Catalogue;
 use blueshift_doppler::{
     CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis, los_camera, render_cube,
 };
+use blueshift_spectrum::Catalogue;
 use blueshift_volume::{AnyGrid, synth};
 use criterion::Criterion;
 use glam::Vec3;

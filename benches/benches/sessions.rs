@@ -128,7 +128,10 @@ fn table() {
         ("doppler_factor_edit", d_fresh, d_edit),
     ] {
         let _ = writeln!(csv, "{name},{a:.6},{b:.6},{:.2}", a / b);
-        eprintln!("{name}: fresh {a:.4} s, after edit {b:.4} s, speed-up {:.2}x", a / b);
+        eprintln!(
+            "{name}: fresh {a:.4} s, after edit {b:.4} s, speed-up {:.2}x",
+            a / b
+        );
     }
     let path = out_dir().join("sessions.csv");
     if let Err(e) = std::fs::write(&path, csv) {

@@ -14,9 +14,9 @@
 //! line cube). With absorption the pixel's full spectrum (continuum included) is built and
 //! integrated with [`PiecewiseLinear::integrate`].
 
+use blueshift_camera::{Observer, Progress};
 use blueshift_spectrum::{PiecewiseLinear, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
 use glam::Vec3;
-use blueshift_camera::{Observer, Progress};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 

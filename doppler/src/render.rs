@@ -1,8 +1,8 @@
 //! Settings, ray sampling and the image loop shared by both integrators.
 
+use blueshift_camera::{Observer, Progress};
 use blueshift_spectrum::{DopplerModel, PiecewiseLinear, WavelengthShift, Xyz};
 use glam::Vec3;
-use blueshift_camera::{Observer, Progress};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 

@@ -6,11 +6,11 @@ use std::path::PathBuf;
 
 use blueshift_volume::synth;
 
-use blueshift_spectrum::{EmissionLine, SPEED_OF_LIGHT_M_PER_S};
 use blueshift_doppler::{
     Broadening, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis,
     SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
 };
+use blueshift_spectrum::{EmissionLine, SPEED_OF_LIGHT_M_PER_S};
 use blueshift_volume::{AnyGrid, Geometry, Grid};
 use glam::Vec3;
 

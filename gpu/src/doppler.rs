@@ -143,9 +143,10 @@
 //! bad sigma or mass) are [`Error::InvalidInput`] with the CPU's message. Picked spectra,
 //! traces and spectral cubes stay on the CPU.
 
+use blueshift_camera::{DeviceKind, Observer, Progress, Session};
 use blueshift_doppler::{
-    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSettings, LineEntry, LineKind,
-    PieceStats, Prepared, PwlTables, SpectralIntegrator,
+    BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, LineEntry,
+    LineKind, PieceStats, Prepared, PwlTables, SpectralIntegrator,
 };
 use blueshift_spectrum::RadiationConstants;
 use bytemuck::{Pod, Zeroable};
@@ -595,6 +596,17 @@ pub fn render_doppler_gpu_with(
     precision: DopplerPrecision,
 ) -> Result<DopplerImage> {
     let prep = Prepared::new(scene, settings).map_err(doppler_err)?;
+    render_prepared(ctx, scene, settings, &prep, precision)
+}
+
+/// [`render_doppler_gpu_with`] over tables prepared for `scene` and `settings`.
+fn render_prepared(
+    ctx: &GpuContext,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    prep: &Prepared,
+    precision: DopplerPrecision,
+) -> Result<DopplerImage> {
     supports(scene, settings)?;
     let entry = match (settings.integrator, prep.absorbing()) {
         (SpectralIntegrator::Banded { .. }, _) => "main_banded",
@@ -699,15 +711,18 @@ pub fn render_doppler_gpu_with(
     tables.extend(prep.profiles().k_over_m.iter().copied());
     let off_gauss = tables.len();
     let (mut gx, mut gg) = (Vec::<f64>::new(), Vec::<f64>::new());
-    let _ = prep.profiles().gauss.for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
-        if gx.is_empty() {
-            gx.push(lo);
-            gg.push(v0);
-        }
-        gx.push(hi);
-        gg.push(v1);
-        Ok::<(), ()>(())
-    });
+    let _ = prep
+        .profiles()
+        .gauss
+        .for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
+            if gx.is_empty() {
+                gx.push(lo);
+                gg.push(v0);
+            }
+            gx.push(hi);
+            gg.push(v1);
+            Ok::<(), ()>(())
+        });
     // Integrals of g and z g from the first knot to each knot (exact for linear pieces).
     let (mut c0, mut c1) = (vec![0.0f64], vec![0.0f64]);
     for i in 0..gx.len().saturating_sub(1) {
@@ -739,7 +754,7 @@ pub fn render_doppler_gpu_with(
         settings.merge_tolerance,
         settings.broadening.sigma_m_per_s * settings.broadening.sigma_m_per_s,
     ]);
-    let rays = pixel_rays(&prep, scene, settings);
+    let rays = pixel_rays(prep, scene, settings);
     let params = Params {
         nx: to_u32("dims", nx)?,
         ny: to_u32("dims", ny)?,
@@ -1144,4 +1159,88 @@ fn absorb_rays(
         start += count;
     }
     Ok(out)
+}
+
+/// A Doppler render session on a GPU: the CPU's [`DopplerSession`] (scene, settings and
+/// their [`Prepared`] tables, shared with the CPU integrators) rendered by the GPU kernels
+/// in the working precision `precision`; picks, traces and cubes run on the CPU session.
+#[derive(Debug)]
+pub struct GpuDopplerSession<'c> {
+    ctx: &'c GpuContext,
+    cpu: DopplerSession,
+    precision: DopplerPrecision,
+}
+
+impl<'c> GpuDopplerSession<'c> {
+    /// Prepares `scene` + `settings` as the CPU does and checks that the GPU supports them.
+    ///
+    /// # Errors
+    /// [`Error::InvalidInput`] with the CPU's message; [`Error::Unsupported`] (see
+    /// [`supports`]); [`Error::Unsupported`] for [`DopplerPrecision::F64`] without
+    /// `SHADER_F64`.
+    pub fn new(
+        ctx: &'c GpuContext,
+        scene: DopplerScene,
+        settings: DopplerSettings,
+        precision: DopplerPrecision,
+    ) -> Result<Self> {
+        supports(&scene, &settings)?;
+        precision.is_double_on(ctx)?;
+        let cpu = DopplerSession::new(scene, settings).map_err(doppler_err)?;
+        Ok(Self {
+            ctx,
+            cpu,
+            precision,
+        })
+    }
+
+    /// The CPU session (scene, settings, prepared tables; picks and traces).
+    #[must_use]
+    pub fn cpu(&self) -> &DopplerSession {
+        &self.cpu
+    }
+
+    /// The CPU session, for edits (camera, factors, settings): the next render uses them.
+    pub fn cpu_mut(&mut self) -> &mut DopplerSession {
+        &mut self.cpu
+    }
+
+    /// Renders the XYZ image on the GPU (cancel is polled before the dispatches start).
+    ///
+    /// # Errors
+    /// As [`render_doppler_gpu_with`]; [`Error::Cancelled`].
+    pub fn render(&self, observer: &dyn Observer<DopplerImage>) -> Result<DopplerImage> {
+        if observer.cancelled() {
+            return Err(Error::Cancelled);
+        }
+        let img = render_prepared(
+            self.ctx,
+            self.cpu.scene(),
+            self.cpu.settings(),
+            self.cpu.prepared(),
+            self.precision,
+        )?;
+        let h = u64::from(img.height);
+        observer.progress(Progress {
+            done: h,
+            total: h,
+            pass: 1,
+        });
+        observer.pass(1, &img, None);
+        Ok(img)
+    }
+}
+
+impl Session for GpuDopplerSession<'_> {
+    type Image = DopplerImage;
+    type Output = DopplerImage;
+    type Error = Error;
+
+    fn run(&mut self, observer: &dyn Observer<DopplerImage>) -> Result<DopplerImage> {
+        self.render(observer)
+    }
+
+    fn device(&self) -> DeviceKind {
+        DeviceKind::Gpu
+    }
 }

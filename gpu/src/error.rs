@@ -46,6 +46,9 @@ pub enum Error {
     /// The operation has no GPU implementation (the caller may fall back to the CPU).
     #[error("not supported on the GPU: {0}")]
     Unsupported(String),
+    /// The run was cancelled through its observer.
+    #[error("cancelled")]
+    Cancelled,
     /// An error of the CPU tone-mapping crate (parameters are validated by it).
     #[error(transparent)]
     Tonemap(#[from] blueshift_tonemap::Error),

@@ -43,9 +43,11 @@
 //! f32 bit arithmetic; `Precision::U8` rounds half away from zero to multiples of 1/255 like
 //! the CPU.
 
+use blueshift_camera::{DeviceKind, Observer, Progress, Session};
 use blueshift_tfedit::{DataAxis, TransferFunction};
 use blueshift_tracking::{
     Blend, DdaMode, Integrator, Precision, Progressive, Projection, RenderSettings, Scene,
+    TrackingOutput,
 };
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -369,13 +371,30 @@ impl<'c> GpuTracker<'c> {
 
     /// Renders `settings.spp` passes (or fewer once `settings.noise_target` is met),
     /// calling `progress(samples, noise)` after each dispatch, and returns the per-pixel
-    /// mean and variance.
+    /// mean and variance. [`GpuTrackingSession`] runs the same loop under an observer.
     pub fn render_progressive(
         &self,
         scene: &GpuScene<'c>,
         integrator: &Integrator,
         settings: &RenderSettings,
-        mut progress: impl FnMut(u32, f64),
+        progress: impl FnMut(u32, f64) + Send,
+    ) -> Result<Progressive> {
+        let progress = std::sync::Mutex::new(progress);
+        self.render_observed(scene, integrator, settings, &PassFn(&progress))
+    }
+
+    /// The render loop under `observer`: progress after every dispatch, the accumulation
+    /// buffer whenever it is read back (every pass with a noise target, else at the end),
+    /// cancel polled before every dispatch ([`Error::Cancelled`]).
+    ///
+    /// # Errors
+    /// As [`GpuTracker::render_progressive`]; [`Error::Cancelled`].
+    pub fn render_observed(
+        &self,
+        scene: &GpuScene<'c>,
+        integrator: &Integrator,
+        settings: &RenderSettings,
+        observer: &dyn Observer<Progressive>,
     ) -> Result<Progressive> {
         settings
             .validate()
@@ -445,6 +464,9 @@ impl<'c> GpuTracker<'c> {
         // of several samples that ran out is redone from the start one sample at a time.
         let software = !self.ctx.is_hardware();
         while done < settings.spp {
+            if observer.cancelled() {
+                return Err(Error::Cancelled);
+            }
             let count = batch.min(settings.spp - done);
             params.sample_begin = done;
             params.sample_count = count;
@@ -471,15 +493,29 @@ impl<'c> GpuTracker<'c> {
             if let Some(target) = settings.noise_target {
                 let out = read_progressive(self.ctx, settings, &mean, &m2, done)?;
                 let noise = out.noise();
-                progress(done, noise);
+                observer.progress(Progress {
+                    done: u64::from(done),
+                    total: u64::from(settings.spp),
+                    pass: done,
+                });
+                observer.pass(done, &out, noise.is_finite().then_some(noise));
                 if done >= 2 && noise <= target {
                     return Ok(out);
                 }
             } else {
-                progress(done, f64::INFINITY);
+                observer.progress(Progress {
+                    done: u64::from(done),
+                    total: u64::from(settings.spp),
+                    pass: done,
+                });
             }
         }
-        read_progressive(self.ctx, settings, &mean, &m2, done)
+        let out = read_progressive(self.ctx, settings, &mean, &m2, done)?;
+        if settings.noise_target.is_none() {
+            let noise = out.noise();
+            observer.pass(done, &out, noise.is_finite().then_some(noise));
+        }
+        Ok(out)
     }
 
     /// Renders the mean image (linear HDR RGB, alpha = 1 - transmittance), like
@@ -859,8 +895,14 @@ fn read_progressive(
     let widen = |v: Vec<[f32; 4]>| v.into_iter().map(|p| p.map(f64::from)).collect();
     let mean: Vec<[f32; 4]> = ctx.read_buffer(mean, n)?;
     let m2: Vec<[f32; 4]> = ctx.read_buffer(m2, n)?;
-    Progressive::from_moments(settings.width, settings.height, samples, widen(mean), widen(m2))
-        .map_err(|e| Error::InvalidInput(e.to_string()))
+    Progressive::from_moments(
+        settings.width,
+        settings.height,
+        samples,
+        widen(mean),
+        widen(m2),
+    )
+    .map_err(|e| Error::InvalidInput(e.to_string()))
 }
 
 /// The raw 64-bit outputs of the device's counter-based generator for each key
@@ -916,4 +958,126 @@ fn probe_pipeline(tracker: &GpuTracker<'_>, entry: &str) -> Result<wgpu::Compute
         &tracking_wgsl(tracker.native_f16),
         entry,
     )
+}
+
+/// Forwards each pass's sample count and noise to a closure (`render_progressive`).
+struct PassFn<'a, F>(&'a std::sync::Mutex<F>);
+
+impl<F: FnMut(u32, f64) + Send> Observer<Progressive> for PassFn<'_, F> {
+    fn progress(&self, p: Progress) {
+        if let Ok(mut f) = self.0.lock() {
+            f(p.pass, f64::INFINITY);
+        }
+    }
+    fn pass(&self, pass: u32, image: &Progressive, _noise: Option<f64>) {
+        if let Ok(mut f) = self.0.lock() {
+            f(pass, image.noise());
+        }
+    }
+}
+
+/// A tracking render session on a GPU: the scene uploaded once (volume, lookup tables,
+/// majorant grids on the device), the integrator and the settings; the GPU twin of
+/// `blueshift_tracking::TrackingSession` with the same edits:
+/// [`GpuTrackingSession::set_camera`] rebuilds nothing, [`GpuTrackingSession::set_transfer_function`]
+/// re-uploads one lookup table and rebuilds that channel's majorants on the device.
+#[derive(Debug)]
+pub struct GpuTrackingSession<'c> {
+    scene: GpuScene<'c>,
+    integrator: Integrator,
+    settings: RenderSettings,
+}
+
+impl<'c> GpuTrackingSession<'c> {
+    /// Checks that the GPU supports the job ([`supports`]), validates the settings and the
+    /// integrator as the CPU does, compiles the pipelines and uploads `scene`.
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] (shading, heat maps, the timing protocol),
+    /// [`Error::InvalidInput`] with the CPU's message, limits, GPU errors.
+    pub fn new(
+        ctx: &'c GpuContext,
+        scene: Scene,
+        integrator: Integrator,
+        settings: RenderSettings,
+    ) -> Result<Self> {
+        supports(&scene, &settings)?;
+        settings
+            .validate()
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        integrator
+            .prepared(&scene)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let tracker = GpuTracker::new(ctx)?;
+        let scene = tracker.upload(scene)?;
+        Ok(Self {
+            scene,
+            integrator,
+            settings,
+        })
+    }
+
+    /// The uploaded scene.
+    #[must_use]
+    pub fn scene(&self) -> &GpuScene<'c> {
+        &self.scene
+    }
+
+    /// The settings.
+    #[must_use]
+    pub fn settings(&self) -> &RenderSettings {
+        &self.settings
+    }
+
+    /// Moves the camera; nothing is rebuilt or uploaded.
+    ///
+    /// # Errors
+    /// A degenerate camera.
+    pub fn set_camera(&mut self, camera: blueshift_tracking::Camera) -> Result<()> {
+        camera
+            .validate()
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        self.settings.camera = camera;
+        Ok(())
+    }
+
+    /// Replaces channel `channel`'s transfer function: its table is re-uploaded and its
+    /// majorant grid rebuilt on the device.
+    ///
+    /// # Errors
+    /// As [`GpuScene::set_transfer_function`].
+    pub fn set_transfer_function(&mut self, channel: usize, tf: TransferFunction) -> Result<()> {
+        self.scene.set_transfer_function(channel, tf)
+    }
+
+    /// Renders under `observer`.
+    ///
+    /// # Errors
+    /// As [`GpuTracker::render_observed`].
+    pub fn render(&self, observer: &dyn Observer<Progressive>) -> Result<TrackingOutput> {
+        let image = self.scene.tracker.render_observed(
+            &self.scene,
+            &self.integrator,
+            &self.settings,
+            observer,
+        )?;
+        Ok(TrackingOutput {
+            image,
+            frame_times: None,
+        })
+    }
+}
+
+impl Session for GpuTrackingSession<'_> {
+    type Image = Progressive;
+    type Output = TrackingOutput;
+    type Error = Error;
+
+    fn run(&mut self, observer: &dyn Observer<Progressive>) -> Result<TrackingOutput> {
+        self.render(observer)
+    }
+
+    fn device(&self) -> DeviceKind {
+        DeviceKind::Gpu
+    }
 }

@@ -5,6 +5,9 @@ use std::path::PathBuf;
 /// Everything that can go wrong in `blueshift-relativity`, grouped by who has to act.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// The run was cancelled through its observer.
+    #[error("cancelled")]
+    Cancelled,
     /// A velocity that is not allowed: NaN/infinite components or `|beta| >= 1`.
     #[error("invalid velocity beta = ({x}, {y}, {z}): {reason}")]
     Velocity {

@@ -51,6 +51,7 @@ mod envmap;
 mod error;
 mod lorentz;
 mod render;
+mod session;
 
 pub use colour::{DopplerColourTable, Mat3, SpectralPrimaries, TABLE_D_MAX, TABLE_D_MIN};
 pub use envmap::{
@@ -65,3 +66,4 @@ pub use lorentz::{
 pub use render::{
     Camera, CameraFrame, Effects, parse_ramp, ramp, render, scene_direction, to_srgb8,
 };
+pub use session::RelativitySession;

@@ -61,6 +61,7 @@ pub mod plane;
 pub mod poisson;
 pub mod pseudocolour;
 pub mod sanitize;
+pub mod session;
 
 pub use error::{Error, Result};
 pub use inverse::GlobalCurve;
@@ -73,3 +74,4 @@ pub use pseudocolour::{Palette, PseudocolourParams, pseudocolour};
 pub use sanitize::{
     CleanImage, DynamicRange, SanitizeReport, dynamic_range, sanitize, sanitize_in_place,
 };
+pub use session::TonemapSession;

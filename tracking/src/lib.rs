@@ -61,7 +61,7 @@ pub use render::{
     FrameTimes, HeatMap, Progressive, RenderSettings, TrackingOutput, render, render_progressive,
     render_timed,
 };
-pub use session::TrackingSession;
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};
+pub use session::TrackingSession;
 pub use shading::{Material, Shading};

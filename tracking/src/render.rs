@@ -1,8 +1,8 @@
 //! Rendering an image: progressive accumulation of one sample per pixel per pass, with the
 //! running mean and variance per pixel, rayon over rows, counter-based random numbers.
 
-use image::Rgba32FImage;
 use blueshift_camera::{Observer, Progress, Silent};
+use image::Rgba32FImage;
 use rayon::prelude::*;
 
 use crate::Camera;

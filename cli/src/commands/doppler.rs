@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
-use blueshift_spectrum::{DopplerModel, PiecewiseLinear};
-use blueshift_doppler::{
-    ColourMatrix, DisplayOptions, DopplerImage, DopplerScene, DopplerSettings, Exposure, SceneFile,
-    DopplerSession, SpectralIntegrator,
-};
 use blueshift_camera::OnProgress;
+use blueshift_doppler::{
+    ColourMatrix, DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings,
+    Exposure, SceneFile, SpectralIntegrator,
+};
+use blueshift_spectrum::{DopplerModel, PiecewiseLinear};
 use clap::Parser;
 use plotters::prelude::*;
 

@@ -5,11 +5,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
-use blueshift_spectrum::named_line;
 use blueshift_doppler::{
     Broadening, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Moments, SpectralAxis,
     SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
 };
+use blueshift_spectrum::named_line;
 use clap::Args as ClapArgs;
 use plotters::prelude::*;
 

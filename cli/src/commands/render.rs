@@ -622,7 +622,11 @@ fn run_inner(args: &Args) -> Result<()> {
     // gpu hands the scene to the device; auto keeps it for the CPU in case the adapter
     // cannot run this render.
     let slot = std::cell::RefCell::new(Some(scene));
-    let take = || slot.borrow_mut().take().ok_or_else(|| anyhow!("scene already used"));
+    let take = || {
+        slot.borrow_mut()
+            .take()
+            .ok_or_else(|| anyhow!("scene already used"))
+    };
     let bar = indicatif::ProgressBar::new(u64::from(settings.timed_frames.unwrap_or(settings.spp)));
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]")
@@ -646,7 +650,7 @@ fn run_inner(args: &Args) -> Result<()> {
             .ok_or_else(|| blueshift_gpu::Error::InvalidInput("no scene".into()))?;
             let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx)?;
             let gs = tracker.upload(scene)?;
-            let image = tracker.render_progressive(&gs, &integrator, &settings, &show)?;
+            let image = tracker.render_progressive(&gs, &integrator, &settings, show)?;
             Ok(TrackingOutput {
                 image,
                 frame_times: None,
@@ -677,7 +681,13 @@ fn run_inner(args: &Args) -> Result<()> {
     }
     let noise = acc.noise();
     let adapter = on_gpu
-        .then(|| device.context().ok().flatten().map(|c| c.info().name.clone()))
+        .then(|| {
+            device
+                .context()
+                .ok()
+                .flatten()
+                .map(|c| c.info().name.clone())
+        })
         .flatten();
     if args.json {
         let mut summary = serde_json::json!({
