@@ -517,6 +517,34 @@ struct PixelRay {
     n_seg: u32,
 }
 
+/// [`crate::layout::pod_layouts`] of this module: `Params` and `PixelRay` hold no working
+/// float, so both precisions lay them out alike; each is checked.
+pub(crate) fn pod_layouts() -> Vec<crate::layout::PodLayout> {
+    use crate::layout::pod_layout;
+    let mut out = Vec::new();
+    for (double, shader) in [
+        (false, "doppler.wgsl (f32 prelude)"),
+        (true, "doppler.wgsl (f64 prelude)"),
+    ] {
+        let src = shader_source(double);
+        out.push(pod_layout!(Params => "Params", shader, &src, {
+            nx, ny, nz, nvox, nsp, n_lines, has_bb, has_vel, model, invariant, width, height,
+            step, vel_factor, off_pf, cmf_n, bb_k, shift_mode, off_lambda, off_hat, n_bands,
+            off_band_w, off_band_c, n_abs, absorbing, pix_offset, n_pix, piece_cap, region_l,
+            stride, pass_index, iter_budget, iter_limit, broaden, off_kom, off_gauss, n_gauss,
+            probe_n,
+            g_origin as "g_origin_x", g_origin as "g_origin_y" + 4, g_origin as "g_origin_z" + 8,
+            g_spacing as "g_spacing_x", g_spacing as "g_spacing_y" + 4,
+            g_spacing as "g_spacing_z" + 8,
+            pad0, pad1,
+        }));
+        out.push(pod_layout!(PixelRay => "PixelRay", shader, &src, {
+            origin, t0, dir, len, los, n_seg,
+        }));
+    }
+    out
+}
+
 fn doppler_err(e: blueshift_doppler::Error) -> Error {
     Error::InvalidInput(e.to_string())
 }

@@ -55,13 +55,17 @@
 //! WGSL sources live in `gpu/src/shaders/` and are included with `include_str!`; a test
 //! parses and validates every one of them with naga (`doppler.wgsl` with both of its
 //! precision preludes, the callers of the loop-limiter probe with [`LIMITER_WGSL`]), so a
-//! shader error fails the tests. [`GpuContext::compute_pipeline`]
-//! compiles each (source, entry point) once per context.
+//! shader error fails the tests. The same test compares the size and field offsets of every
+//! `#[repr(C)]` Pod struct uploaded into a WGSL struct with naga's layout of that struct
+//! (`layout::pod_layouts`). [`GpuContext::compute_pipeline`] compiles each (source, entry
+//! point) once per context.
 
 pub mod context;
 pub mod device;
 pub mod doppler;
 pub mod error;
+#[doc(hidden)]
+pub mod layout;
 pub mod relativity;
 pub mod tonemap;
 pub mod tracking;
@@ -84,22 +88,33 @@ pub const SCALE_WGSL: &str = include_str!("shaders/scale.wgsl");
 /// Computes `a * x + b` element-wise on the GPU: the smallest complete pipeline, used by
 /// `blueshift gpu-info --check` and the context tests.
 pub fn scale(ctx: &GpuContext, x: &[f32], a: f32, b: f32) -> Result<Vec<f32>> {
-    #[repr(C)]
-    #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-    struct Params {
-        a: f32,
-        b: f32,
-        n: u32,
-        pad: u32,
-    }
     let n = u32::try_from(x.len())
         .map_err(|_| Error::InvalidInput(format!("{} elements exceed u32", x.len())))?;
     let pipeline = ctx.compute_pipeline("scale", SCALE_WGSL, "main")?;
     let xb = ctx.storage_buffer("scale x", x)?;
     let yb = ctx.storage_buffer_zeroed("scale y", u64::from(n) * 4)?;
-    let pb = ctx.uniform_buffer("scale params", &Params { a, b, n, pad: 0 })?;
+    let pb = ctx.uniform_buffer("scale params", &ScaleParams { a, b, n, pad: 0 })?;
     let bg = ctx.bind_group(&pipeline, 0, &[&xb, &yb, &pb])?;
     let g = ctx.groups("scale", n, WORKGROUP_1D)?;
     ctx.dispatch(&pipeline, &bg, [g, 1, 1])?;
     ctx.read_buffer(&yb, x.len())
+}
+
+/// The uniform of `scale.wgsl` (its `Params`).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ScaleParams {
+    a: f32,
+    b: f32,
+    n: u32,
+    pad: u32,
+}
+
+/// [`layout::pod_layouts`] of this module.
+fn scale_pod_layouts() -> Vec<layout::PodLayout> {
+    vec![
+        layout::pod_layout!(ScaleParams => "Params", "scale.wgsl", SCALE_WGSL, {
+            a, b, n, pad as "_pad",
+        }),
+    ]
 }

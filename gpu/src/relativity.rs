@@ -76,6 +76,17 @@ struct Params {
     line: [f32; 4],
 }
 
+/// [`crate::layout::pod_layouts`] of this module.
+pub(crate) fn pod_layouts() -> Vec<crate::layout::PodLayout> {
+    vec![
+        crate::layout::pod_layout!(Params => "Params", "relativity.wgsl", WGSL, {
+            forward, right, up, beta, width, height, half_w, half_h, gamma, aberration, doppler,
+            searchlight, env_kind, env_w, env_h, table_len, ln_min, ln_max, ln_step, cell_deg,
+            grid_deg, line_deg, one_minus_speed, p1 as "_p1", light, dark, line,
+        }),
+    ]
+}
+
 fn v4(v: DVec3) -> [f32; 4] {
     [v.x as f32, v.y as f32, v.z as f32, 0.0]
 }

@@ -111,7 +111,7 @@ struct SplatParams {
     step: f32,
     cut: f32,
     inv2r2: f32,
-    p0: u32,
+    probe_n: u32,
     p1: u32,
 }
 
@@ -168,8 +168,50 @@ struct DodgeParams {
 struct MinMaxParams {
     w: u32,
     h: u32,
-    p0: u32,
+    probe_n: u32,
     p1: u32,
+}
+
+/// [`crate::layout::pod_layouts`] of this module: each params struct in every shader that
+/// reads it (`PlaneParams` in three: the Fattal divergence and the Poisson divide pad where
+/// the axis transform reads `axis`).
+pub(crate) fn pod_layouts() -> Vec<crate::layout::PodLayout> {
+    use crate::layout::pod_layout;
+    vec![
+        pod_layout!(PlaneParams => "Params", "axis_transform.wgsl", AXIS_WGSL, {
+            w, h, axis, p0 as "_p0",
+        }),
+        pod_layout!(PlaneParams => "Params", "fattal_div.wgsl", FATTAL_DIV_WGSL, {
+            w, h, axis as "_p0", p0 as "_p1",
+        }),
+        pod_layout!(PlaneParams => "Params", "poisson_divide.wgsl", DIVIDE_WGSL, {
+            w, h, axis as "_p0", p0 as "_p1",
+        }),
+        pod_layout!(GlobalParams => "Params", "tonemap_global.wgsl", GLOBAL_WGSL, {
+            mode, n, saturation, c0, c1, c2, c3, pad as "_pad",
+        }),
+        pod_layout!(RecolourParams => "Params", "tonemap_recolour.wgsl", RECOLOUR_WGSL, {
+            n, saturation, p0 as "_p0", p1 as "_p1",
+        }),
+        pod_layout!(SplatParams => "Params", "durand_splat.wgsl (limiter prepended)", SPLAT_WGSL, {
+            w, h, gw, gh, z, nl, lo, step, cut, inv2r2, probe_n, p1 as "_p1",
+        }),
+        pod_layout!(BlurParams => "Params", "blur.wgsl", BLUR_WGSL, {
+            w, h, planes, radius, horizontal, dst_plane, p1 as "_p1", p2 as "_p2",
+        }),
+        pod_layout!(SliceParams => "Params", "durand_slice.wgsl", SLICE_WGSL, {
+            w, h, gw, gh, nl, nseg, lo, step, scale, p0 as "_p0", p1 as "_p1", p2 as "_p2",
+        }),
+        pod_layout!(CombineParams => "Params", "durand_combine.wgsl", COMBINE_WGSL, {
+            n, bmax, gamma, p0 as "_p0",
+        }),
+        pod_layout!(DodgeParams => "Params", "reinhard_dodge.wgsl", DODGE_WGSL, {
+            n_pixels, n_scales, num, epsilon,
+        }),
+        pod_layout!(MinMaxParams => "Params", "row_minmax.wgsl (limiter prepended)", MINMAX_WGSL, {
+            w, h, probe_n, p1 as "_p1",
+        }),
+    ]
 }
 
 /// `Ok` when [`GpuTonemapper`] implements `op` on the GPU, else why not (the operator has
@@ -589,7 +631,7 @@ impl<'a> GpuTonemapper<'a> {
                 step,
                 cut: 4.0 * sigma_r,
                 inv2r2: 1.0 / (2.0 * sigma_r * sigma_r),
-                p0: 2, // the loop-limiter probe's trip count
+                probe_n: 2, // the loop-limiter probe's trip count
                 p1: 0,
             },
         )?;
@@ -687,7 +729,7 @@ impl<'a> GpuTonemapper<'a> {
             &MinMaxParams {
                 w: w32,
                 h: h32,
-                p0: 2, // the loop-limiter probe's trip count
+                probe_n: 2, // the loop-limiter probe's trip count
                 p1: 0,
             },
         )?;

@@ -148,6 +148,32 @@ struct MajorantParams {
     pad: [u32; 2],
 }
 
+/// [`crate::layout::pod_layouts`] of this module, in both f16 variants of the shader.
+pub(crate) fn pod_layouts() -> Vec<crate::layout::PodLayout> {
+    use crate::layout::pod_layout;
+    let mut out = Vec::new();
+    for (native_f16, shader) in [
+        (false, "tracking.wgsl (emulated f16)"),
+        (true, "tracking.wgsl (native f16)"),
+    ] {
+        let src = tracking_wgsl(native_f16);
+        out.push(pod_layout!(Params => "Params", shader, &src, {
+            width, height, sample_begin, sample_count, seed_lo, seed_hi, n_channels, lut_len,
+            dims, k, cdims, n_cells, origin, density_scale, spacing, projection, eye, cam_h, fwd,
+            jitter, right, kind, up, dda, background, blend, light_dir, has_light,
+            light_radiance, ambient, bounds_lo, step, bounds_hi, early_termination,
+            precision as "prec_mode", channel, probe_n, pad1 as "_pad1",
+        }));
+        out.push(
+            pod_layout!(MajorantParams => "MajorantParams", shader, &src, {
+                n_cells, n_channels, lut_len, channel, density_scale, probe_n,
+                pad as "_pad1", pad as "_pad2" + 4,
+            }),
+        );
+    }
+    out
+}
+
 /// Creates a bind group for `pipeline`'s group 0 with explicit `(binding, buffer)` pairs.
 fn bind(
     ctx: &GpuContext,

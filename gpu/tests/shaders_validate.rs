@@ -1,7 +1,8 @@
 //! Every WGSL file in `gpu/src/shaders/` parses and validates with naga (the same naga
 //! wgpu uses), so a shader error fails the tests and not a user's run. Files that call the
 //! loop-limiter probe are validated with `limiter.wgsl` prepended, and `doppler.wgsl` with
-//! each of its precision preludes, as the crate compiles them.
+//! each of its precision preludes, as the crate compiles them. Every `Pod` struct the crate
+//! uploads into a WGSL struct has the size and member offsets naga lays that struct out with.
 
 use std::path::Path;
 
@@ -61,6 +62,88 @@ fn the_doppler_shader_validates_in_both_precisions() {
     }
     // Without a prelude the body does not compile (`fw` is undefined): the check can fail.
     assert!(validate_source(blueshift_gpu::doppler::DOPPLER_WGSL).is_err());
+}
+
+/// What is wrong with `layout` against naga's layout of its WGSL struct (nothing: empty).
+fn layout_mismatches(layout: &blueshift_gpu::layout::PodLayout) -> Vec<String> {
+    let what = format!("{} -> {} in {}", layout.rust, layout.wgsl, layout.shader);
+    let module = match naga::front::wgsl::parse_str(&layout.source) {
+        Ok(m) => m,
+        Err(e) => return vec![format!("{what}: {}", e.emit_to_string(&layout.source))],
+    };
+    let mut layouter = naga::proc::Layouter::default();
+    if let Err(e) = layouter.update(module.to_ctx()) {
+        return vec![format!("{what}: naga's layouter failed: {e}")];
+    }
+    let Some((handle, members)) = module.types.iter().find_map(|(h, ty)| match &ty.inner {
+        naga::TypeInner::Struct { members, .. } if ty.name.as_deref() == Some(layout.wgsl) => {
+            Some((h, members))
+        }
+        _ => None,
+    }) else {
+        return vec![format!("{what}: no struct {} in the shader", layout.wgsl)];
+    };
+    let mut bad = Vec::new();
+    let span = layouter[handle].size as usize;
+    if span != layout.size {
+        bad.push(format!(
+            "{what}: size {} in Rust, span {span} in WGSL",
+            layout.size
+        ));
+    }
+    for (name, offset) in &layout.fields {
+        match members.iter().find(|m| m.name.as_deref() == Some(*name)) {
+            None => bad.push(format!("{what}: no member `{name}` in the WGSL struct")),
+            Some(m) if m.offset as usize != *offset => bad.push(format!(
+                "{what}: `{name}` at offset {offset} in Rust, {} in WGSL",
+                m.offset
+            )),
+            Some(_) => {}
+        }
+    }
+    for m in members {
+        let name = m.name.as_deref().unwrap_or("?");
+        let n = layout.fields.iter().filter(|(f, _)| *f == name).count();
+        if n != 1 {
+            bad.push(format!(
+                "{what}: WGSL member `{name}` (offset {}) is filled by {n} Rust fields",
+                m.offset
+            ));
+        }
+    }
+    bad
+}
+
+#[test]
+fn every_uploaded_pod_struct_has_the_wgsl_layout() {
+    let layouts = blueshift_gpu::layout::pod_layouts();
+    let failures: Vec<String> = layouts.iter().flat_map(layout_mismatches).collect();
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    // Every shader with a uniform is covered (a new one must be added to `pod_layouts`), and
+    // the check can fail.
+    let shaders: std::collections::BTreeSet<_> = layouts
+        .iter()
+        .map(|l| l.shader.split(' ').next().unwrap())
+        .collect();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/shaders");
+    for entry in std::fs::read_dir(&dir).expect("shaders folder") {
+        let path = entry.expect("shaders folder entry").path();
+        let src = std::fs::read_to_string(&path).unwrap_or_default();
+        let name = path.file_name().unwrap().to_string_lossy();
+        if src.contains("var<uniform>") {
+            assert!(
+                shaders.contains(&*name),
+                "{name} has a uniform but no Pod layout checked against it"
+            );
+        }
+    }
+    let mut wrong = layouts[0].clone();
+    wrong.size += 4;
+    let (first, second) = (wrong.fields[0].1, wrong.fields[1].1);
+    (wrong.fields[0].1, wrong.fields[1].1) = (second, first);
+    wrong.fields.push(("no_such_member", 0));
+    let found = layout_mismatches(&wrong);
+    assert_eq!(found.len(), 4, "{found:#?}");
 }
 
 #[test]
