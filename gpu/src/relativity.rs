@@ -29,9 +29,10 @@
 //! `max_storage_buffer_binding_size` (128 MiB on lavapipe: a 6 x 1024^2 cube map fits); a
 //! larger map is refused with [`Error::LimitExceeded`] naming that limit.
 
+use blueshift_camera::{DeviceKind, Observer, Progress, Session};
 use blueshift_relativity::{
-    Camera, CameraFrame, DopplerColourTable, Effects, Environment, TABLE_D_MAX, TABLE_D_MIN,
-    Velocity,
+    Camera, CameraFrame, DopplerColourTable, Effects, Environment, RelativitySession,
+    TABLE_D_MAX, TABLE_D_MIN, Velocity,
 };
 use glam::DVec3;
 use image::Rgb32FImage;
@@ -249,4 +250,72 @@ pub fn render(
     effects: Effects,
 ) -> Result<Rgb32FImage> {
     GpuRelativity::new(ctx, None)?.render(env, cam, velocity, effects)
+}
+
+/// A relativity render session on a GPU: the CPU's [`RelativitySession`] (environment,
+/// camera, velocity, effects: its edits apply here too) rendered by the kernel compiled once.
+#[derive(Debug)]
+pub struct GpuRelativitySession<'c> {
+    gpu: GpuRelativity<'c>,
+    cpu: RelativitySession,
+}
+
+impl<'c> GpuRelativitySession<'c> {
+    /// Compiles the kernel and uploads the colour table for `cpu`'s renders.
+    ///
+    /// # Errors
+    /// GPU errors.
+    pub fn new(ctx: &'c GpuContext, cpu: RelativitySession) -> Result<Self> {
+        Ok(Self {
+            gpu: GpuRelativity::new(ctx, None)?,
+            cpu,
+        })
+    }
+
+    /// The CPU session (state and edits).
+    #[must_use]
+    pub fn cpu(&self) -> &RelativitySession {
+        &self.cpu
+    }
+
+    /// The CPU session, for edits (velocity, camera, effects).
+    pub fn cpu_mut(&mut self) -> &mut RelativitySession {
+        &mut self.cpu
+    }
+
+    /// Renders the frame on the GPU under `observer`.
+    ///
+    /// # Errors
+    /// As [`GpuRelativity::render`]; [`Error::Cancelled`].
+    pub fn render(&self, observer: &dyn Observer<Rgb32FImage>) -> Result<Rgb32FImage> {
+        if observer.cancelled() {
+            return Err(Error::Cancelled);
+        }
+        let c = &self.cpu;
+        let img = self
+            .gpu
+            .render(c.environment(), c.camera(), c.velocity(), c.effects())?;
+        let h = u64::from(img.height());
+        observer.progress(Progress {
+            done: h,
+            total: h,
+            pass: 1,
+        });
+        observer.pass(1, &img, None);
+        Ok(img)
+    }
+}
+
+impl Session for GpuRelativitySession<'_> {
+    type Image = Rgb32FImage;
+    type Output = Rgb32FImage;
+    type Error = Error;
+
+    fn run(&mut self, observer: &dyn Observer<Rgb32FImage>) -> Result<Rgb32FImage> {
+        self.render(observer)
+    }
+
+    fn device(&self) -> DeviceKind {
+        DeviceKind::Gpu
+    }
 }

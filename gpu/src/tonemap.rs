@@ -43,7 +43,8 @@
 //! fused multiply-adds).
 
 use blueshift_tonemap::plane::log_average;
-use blueshift_tonemap::{CleanImage, Operator, Plane};
+use blueshift_camera::{DeviceKind, Observer, Progress, Session};
+use blueshift_tonemap::{CleanImage, Operator, Plane, TonemapSession};
 use image::Rgb32FImage;
 
 use crate::context::{GpuContext, WORKGROUP_1D, WORKGROUP_2D};
@@ -803,4 +804,73 @@ fn to_image(w: u32, h: u32, data: Vec<f32>) -> Result<Rgb32FImage> {
 /// One-shot [`GpuTonemapper::apply`] (compiles the shaders each call).
 pub fn tonemap(ctx: &GpuContext, op: &Operator, img: &Rgb32FImage) -> Result<Rgb32FImage> {
     GpuTonemapper::new(ctx)?.apply(op, img)
+}
+
+/// A tone-mapping session on a GPU: the CPU's [`TonemapSession`] (the image cleaned once,
+/// the operator; its edits apply here too) mapped by the pipelines compiled once.
+#[derive(Debug)]
+pub struct GpuTonemapSession<'c> {
+    gpu: GpuTonemapper<'c>,
+    cpu: TonemapSession,
+}
+
+impl<'c> GpuTonemapSession<'c> {
+    /// Compiles the pipelines for `cpu`'s runs; refuses an operator without a GPU
+    /// implementation.
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] (see [`supports`]); GPU errors.
+    pub fn new(ctx: &'c GpuContext, cpu: TonemapSession) -> Result<Self> {
+        supports(cpu.operator())?;
+        Ok(Self {
+            gpu: GpuTonemapper::new(ctx)?,
+            cpu,
+        })
+    }
+
+    /// The CPU session (state and edits).
+    #[must_use]
+    pub fn cpu(&self) -> &TonemapSession {
+        &self.cpu
+    }
+
+    /// The CPU session, for edits (the operator).
+    pub fn cpu_mut(&mut self) -> &mut TonemapSession {
+        &mut self.cpu
+    }
+
+    /// Tone-maps on the GPU under `observer`.
+    ///
+    /// # Errors
+    /// As [`GpuTonemapper::apply`]; [`Error::Cancelled`].
+    pub fn render(&self, observer: &dyn Observer<Rgb32FImage>) -> Result<Rgb32FImage> {
+        if observer.cancelled() {
+            return Err(Error::Cancelled);
+        }
+        let img = self
+            .gpu
+            .apply(self.cpu.operator(), &self.cpu.clean().image)?;
+        let h = u64::from(img.height());
+        observer.progress(Progress {
+            done: h,
+            total: h,
+            pass: 1,
+        });
+        observer.pass(1, &img, None);
+        Ok(img)
+    }
+}
+
+impl Session for GpuTonemapSession<'_> {
+    type Image = Rgb32FImage;
+    type Output = Rgb32FImage;
+    type Error = Error;
+
+    fn run(&mut self, observer: &dyn Observer<Rgb32FImage>) -> Result<Rgb32FImage> {
+        self.render(observer)
+    }
+
+    fn device(&self) -> DeviceKind {
+        DeviceKind::Gpu
+    }
 }
