@@ -88,6 +88,7 @@ mod front;
 #[cfg(test)]
 mod front_tests;
 mod model;
+mod names;
 mod prepared;
 mod profile;
 mod pwl;
@@ -97,19 +98,19 @@ mod session;
 #[cfg(test)]
 mod tests;
 
+pub use banded::BandTables;
 pub use blueshift_camera::{Camera, Projection, Ray};
-pub use error::{Error, Result};
 pub use cube::{
-    CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
+    CubeLineWidth, CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera,
+    render_cube,
 };
 pub use display::{ColourMatrix, DisplayOptions, Exposure};
+pub use error::{Error, Result};
 pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
 pub use model::{BB_UNIT, DopplerScene, Factors, Species};
-pub use banded::BandTables;
 pub use prepared::{LineEntry, LineKind, Prepared, RaySpan};
 pub use profile::{Broadening, Profiles};
 pub use pwl::PwlTables;
-pub use session::DopplerSession;
 pub use render::{
     BandShift, DopplerImage, DopplerSettings, PieceStats, SpectralIntegrator, TraceStep,
     pixel_spectrum, render_doppler, trace_ray,
@@ -117,3 +118,4 @@ pub use render::{
 pub use scene_file::{
     BlackbodySpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec, catalogue_mass_amu,
 };
+pub use session::DopplerSession;

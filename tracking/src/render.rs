@@ -1,8 +1,8 @@
 //! Rendering an image: progressive accumulation of one sample per pixel per pass, with the
 //! running mean and variance per pixel, rayon over rows, counter-based random numbers.
 
-use image::Rgba32FImage;
 use blueshift_camera::{Observer, Progress, Silent};
+use image::Rgba32FImage;
 use rayon::prelude::*;
 
 use crate::Camera;
@@ -174,6 +174,14 @@ impl std::str::FromStr for HeatMap {
             })
     }
 }
+
+impl std::fmt::Display for HeatMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+crate::names::serde_via_str!(HeatMap);
 
 impl Progressive {
     /// An empty buffer of `width x height` pixels.
