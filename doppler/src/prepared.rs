@@ -204,7 +204,11 @@ impl Prepared {
             LineKind::Absorption => f.absorption,
         };
         let mut out = Vec::new();
-        if let Some(t) = self.banded.as_ref().filter(|t| t.shift() == BandShift::Nearest) {
+        if let Some(t) = self
+            .banded
+            .as_ref()
+            .filter(|t| t.shift() == BandShift::Nearest)
+        {
             for m in 0..scene.species.len() {
                 let rest = match kind {
                     LineKind::Emission => t.rest_emission(m),

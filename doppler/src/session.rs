@@ -14,10 +14,10 @@ use crate::Result;
 /// A Doppler render session on the CPU: the scene, its settings and their [`Prepared`]
 /// tables. Images, picked spectra, traces and cubes all reuse the tables; an edit rebuilds
 /// only what it touches:
-/// - [`DopplerSession::set_camera`]: nothing (the camera is checked);
-/// - [`DopplerSession::set_factors`]: the banded rest-frame values (Table 1's factors scale
+/// - [`DopplerSession::set_camera`][]: nothing (the camera is checked);
+/// - [`DopplerSession::set_factors`][]: the banded rest-frame values (Table 1's factors scale
 ///   them); the piecewise-linear and broadening tables stay;
-/// - [`DopplerSession::set_settings`]: everything.
+/// - [`DopplerSession::set_settings`][]: everything.
 ///
 /// The image is the same, bit for bit, as [`crate::render_doppler`]'s on any thread count.
 #[derive(Debug)]
@@ -135,7 +135,11 @@ impl DopplerSession {
     ///
     /// # Errors
     /// As [`crate::render_cube`]; [`crate::Error::Cancelled`] when the observer cancels.
-    pub fn cube(&self, spec: &CubeSpec, observer: &dyn Observer<DopplerImage>) -> Result<SpectralCube> {
+    pub fn cube(
+        &self,
+        spec: &CubeSpec,
+        observer: &dyn Observer<DopplerImage>,
+    ) -> Result<SpectralCube> {
         render_cube_with(&self.scene, &self.settings, spec, observer)
     }
 }

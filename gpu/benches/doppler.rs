@@ -16,12 +16,12 @@
 //! He I, Doppler off (velocity x 0) and on (x 30)) at 512x512, f32 and f64 (paper, Titan RTX:
 //! 91 ms black body with Doppler ... 78,933 ms H I + C I + He I with Doppler).
 
-use blueshift_gpu::GpuContext;
-use blueshift_gpu::doppler::{DopplerPrecision, render_doppler_gpu_with};
 use blueshift_doppler::Projection;
 use blueshift_doppler::{
     BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
 };
+use blueshift_gpu::GpuContext;
+use blueshift_gpu::doppler::{DopplerPrecision, render_doppler_gpu_with};
 use blueshift_volume::{Volume, synth};
 use criterion::{BenchmarkGroup, Criterion, criterion_group, criterion_main};
 

@@ -699,15 +699,18 @@ pub fn render_doppler_gpu_with(
     tables.extend(prep.profiles().k_over_m.iter().copied());
     let off_gauss = tables.len();
     let (mut gx, mut gg) = (Vec::<f64>::new(), Vec::<f64>::new());
-    let _ = prep.profiles().gauss.for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
-        if gx.is_empty() {
-            gx.push(lo);
-            gg.push(v0);
-        }
-        gx.push(hi);
-        gg.push(v1);
-        Ok::<(), ()>(())
-    });
+    let _ = prep
+        .profiles()
+        .gauss
+        .for_each_piece(0.0, 1.0, 1.0, |lo, hi, v0, v1| {
+            if gx.is_empty() {
+                gx.push(lo);
+                gg.push(v0);
+            }
+            gx.push(hi);
+            gg.push(v1);
+            Ok::<(), ()>(())
+        });
     // Integrals of g and z g from the first knot to each knot (exact for linear pieces).
     let (mut c0, mut c1) = (vec![0.0f64], vec![0.0f64]);
     for i in 0..gx.len().saturating_sub(1) {

@@ -858,8 +858,14 @@ fn read_progressive(
     let widen = |v: Vec<[f32; 4]>| v.into_iter().map(|p| p.map(f64::from)).collect();
     let mean: Vec<[f32; 4]> = ctx.read_buffer(mean, n)?;
     let m2: Vec<[f32; 4]> = ctx.read_buffer(m2, n)?;
-    Progressive::from_moments(settings.width, settings.height, samples, widen(mean), widen(m2))
-        .map_err(|e| Error::InvalidInput(e.to_string()))
+    Progressive::from_moments(
+        settings.width,
+        settings.height,
+        samples,
+        widen(mean),
+        widen(m2),
+    )
+    .map_err(|e| Error::InvalidInput(e.to_string()))
 }
 
 /// The raw 64-bit outputs of the device's counter-based generator for each key

@@ -17,15 +17,15 @@
 //! Every test prints `SKIP: no wgpu adapter: ...` and returns when there is no adapter,
 //! unless `BLUESHIFT_REQUIRE_GPU_TESTS=1`.
 
+use blueshift_doppler::{
+    BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
+};
 use blueshift_gpu::doppler::{
     DEVICE_PIECE_CAP, DopplerPrecision, absorption_layout, absorption_layout_fw, check_supported,
     render_doppler_gpu, render_doppler_gpu_with,
 };
 use blueshift_gpu::{Error, test_context};
 use blueshift_spectrum::DopplerModel;
-use blueshift_doppler::{
-    BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
-};
 use blueshift_volume::synth;
 use std::cell::Cell;
 

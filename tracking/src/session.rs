@@ -3,21 +3,21 @@
 use blueshift_camera::{Camera, DeviceKind, Observer, Session};
 use blueshift_tfedit::TransferFunction;
 
+use crate::Result;
 use crate::integrator::Integrator;
 use crate::render::{Progressive, RenderSettings, TrackingOutput, run_loop};
 use crate::scene::Scene;
-use crate::Result;
 
 /// A tracking render session on the CPU: the scene (volume, transfer functions, majorant
 /// grids), the integrator prepared for it and the settings. Every run is the one render
 /// loop (progressive passes, noise target, heat maps and the timing protocol as the settings
 /// say), bit-reproducible for a seed on any thread count. An edit rebuilds only what it
 /// touches:
-/// - [`TrackingSession::set_camera`]: nothing;
-/// - [`TrackingSession::set_transfer_function`]: that channel's majorant grid (the
+/// - [`TrackingSession::set_camera`][]: nothing;
+/// - [`TrackingSession::set_transfer_function`][]: that channel's majorant grid (the
 ///   macrocells stay; MDWT section 4.3);
-/// - [`TrackingSession::set_density_scale`]: the majorant grids;
-/// - [`TrackingSession::set_settings`]: nothing but the checks.
+/// - [`TrackingSession::set_density_scale`][]: the majorant grids;
+/// - [`TrackingSession::set_settings`][]: nothing but the checks.
 #[derive(Debug)]
 pub struct TrackingSession {
     scene: Scene,
