@@ -12,7 +12,8 @@ use std::time::Instant;
 
 use blueshift_benches::out_dir;
 use blueshift_doppler::{
-    CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis, los_camera, render_cube,
+    CubeLineWidth, CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis, los_camera,
+    render_cube,
 };
 use blueshift_spectrum::Catalogue;
 use blueshift_volume::{AnyGrid, synth};
@@ -87,8 +88,9 @@ fn setup(
         min: vmin * 1e3,
         max: vmax * 1e3,
         channels: 128,
+        // A box one channel wide: yt's tent weights.
+        line_width: CubeLineWidth::OneChannel,
     };
-    st.line_width_nm = HALPHA * spec.width() / blueshift_spectrum::SPEED_OF_LIGHT_M_PER_S;
     st.broadening.thermal = thermal;
     (st, spec)
 }

@@ -6,8 +6,8 @@
 //! Run: `cargo run --release -p blueshift-tracking --example doppler_cube`
 
 use blueshift_doppler::{
-    CubeMeta, CubeSpec, DopplerScene, DopplerSettings, SpectralAxis, fits_bytes, los_camera,
-    nrrd_bytes, render_cube,
+    CubeLineWidth, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, SpectralAxis, fits_bytes,
+    los_camera, nrrd_bytes, render_cube,
 };
 use blueshift_volume::{AnyGrid, Grid, synth};
 use glam::Vec3;
@@ -33,6 +33,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         min: -400e3,
         max: 400e3,
         channels: 32,
+        // The settings' line width (1 nm) under the thermal profile; the default,
+        // `CubeLineWidth::OneChannel`, is a box one channel wide.
+        line_width: CubeLineWidth::Settings,
     };
     let cube = render_cube(&scene, &st, &spec, &|| {})?;
     let dir = std::env::temp_dir();

@@ -25,7 +25,8 @@ use super::profile::Emit;
 use super::render::{Context, DopplerImage, DopplerSettings, SpectralIntegrator, Want};
 use crate::{Camera, Error, Projection, Result};
 
-/// The spectral axis of a cube.
+/// The spectral axis of a cube; spelt `vrad`, `vopt` or `wave` (`FromStr` also reads
+/// `radio`, `optical`, `wavelength`, in any case).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SpectralAxis {
     /// Radio velocity `v = c (1 - lambda_0 / lambda)` (FITS `VRAD`), m/s.
@@ -65,8 +66,35 @@ impl std::str::FromStr for SpectralAxis {
     }
 }
 
+impl std::fmt::Display for SpectralAxis {
+    /// `vrad`, `vopt` or `wave`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::RadioVelocity => "vrad",
+            Self::OpticalVelocity => "vopt",
+            Self::Wavelength => "wave",
+        })
+    }
+}
+
+crate::names::serde_via_str!(SpectralAxis);
+
+/// The rest width of the lines' box in a cube.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CubeLineWidth {
+    /// A box one channel wide (the channel width in nm at the rest wavelength, for a
+    /// velocity axis `rest_nm * width / c`): without broadening its exact channel integrals
+    /// are yt's tent weights `1 - |v_c - v| / dv`. [`DopplerSettings::line_width_nm`] is
+    /// not used.
+    #[default]
+    OneChannel,
+    /// [`DopplerSettings::line_width_nm`].
+    Settings,
+}
+
 /// The channels of a cube: `channels` equal channels from `min` to `max` along `axis`
-/// (m/s for velocity axes, nm for wavelength) around the rest wavelength `rest_nm`.
+/// (m/s for velocity axes, nm for wavelength) around the rest wavelength `rest_nm`, and the
+/// lines' box width (`line_width`, one channel by default).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CubeSpec {
     /// Rest wavelength of the chosen line, nm.
@@ -79,6 +107,8 @@ pub struct CubeSpec {
     pub max: f64,
     /// Number of channels.
     pub channels: usize,
+    /// The lines' box width ([`CubeSpec::line_width_nm`]).
+    pub line_width: CubeLineWidth,
 }
 
 /// Most channels a cube may have.
@@ -144,6 +174,21 @@ impl CubeSpec {
     #[must_use]
     pub fn centre(&self, k: usize) -> f64 {
         self.min + self.width() * (k as f64 + 0.5)
+    }
+
+    /// The lines' rest box width this cube renders with, nm: one channel
+    /// ([`CubeLineWidth::OneChannel`]) or `settings.line_width_nm`.
+    #[must_use]
+    pub fn line_width_nm(&self, settings: &DopplerSettings) -> f64 {
+        match self.line_width {
+            CubeLineWidth::Settings => settings.line_width_nm,
+            CubeLineWidth::OneChannel => match self.axis {
+                SpectralAxis::Wavelength => self.width(),
+                SpectralAxis::RadioVelocity | SpectralAxis::OpticalVelocity => {
+                    self.rest_nm * self.width() / SPEED_OF_LIGHT_M_PER_S
+                }
+            },
+        }
     }
 
     /// Edge `i` as a wavelength, nm.
@@ -457,7 +502,9 @@ fn integrate_clipped(s: &PiecewiseLinear, a: f64, b: f64) -> Result<f64> {
 }
 
 /// Renders a spectral cube: one orthographic ray per pixel of `settings` (use
-/// [`los_camera`] for a view along any direction), channels from `spec`. Rows run in
+/// [`los_camera`] for a view along any direction), channels from `spec`, lines
+/// [`CubeSpec::line_width_nm`] wide (one channel unless `spec.line_width` is
+/// [`CubeLineWidth::Settings`]). Rows run in
 /// parallel, each pixel independently (deterministic on any thread count). Needs the
 /// piecewise-linear integrator; `progress` is called once per finished row.
 pub fn render_cube(
@@ -498,6 +545,17 @@ pub(crate) fn render_cube_with(
             return Err(Error::parameter(
                 "spectral cubes need an orthographic camera",
             ));
+        }
+    };
+    let one_channel;
+    let settings = match spec.line_width {
+        CubeLineWidth::Settings => settings,
+        CubeLineWidth::OneChannel => {
+            one_channel = DopplerSettings {
+                line_width_nm: spec.line_width_nm(settings),
+                ..settings.clone()
+            };
+            &one_channel
         }
     };
     let (w, h) = (settings.width as usize, settings.height as usize);

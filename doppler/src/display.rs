@@ -3,8 +3,10 @@
 use blueshift_spectrum::{XYZ_TO_CIE_RGB_EQ10, mat_mul, srgb_encode, xyz_to_linear_srgb_matrix};
 
 use super::DopplerImage;
+use crate::names::named_enum;
+use crate::{Error, Result};
 
-/// Which RGB primaries.
+/// Which RGB primaries: `srgb` or `cie`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum ColourMatrix {
     /// Linear sRGB (D65).
@@ -14,7 +16,9 @@ pub enum ColourMatrix {
     CieRgbEq10,
 }
 
-/// How luminance is scaled before the matrix.
+named_enum!(ColourMatrix, "colour matrix", [Srgb => "srgb", CieRgbEq10 => "cie"]);
+
+/// How luminance is scaled before the matrix; spelt `pNN`, a number or `per-pixel`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Exposure {
     /// The given percentile (0-100) of the non-zero pixel luminances Y maps to Y = 1.
@@ -24,6 +28,46 @@ pub enum Exposure {
     /// Each pixel divided by its own Y (Fig. 4a: chromaticity only).
     PerPixel,
 }
+
+impl std::str::FromStr for Exposure {
+    type Err = Error;
+    /// `pNN` (percentile, NN in [0, 100]), a number > 0 (fixed) or `per-pixel`; surrounding
+    /// white space is ignored.
+    fn from_str(s: &str) -> Result<Self> {
+        let e = s.trim();
+        if e == "per-pixel" {
+            return Ok(Exposure::PerPixel);
+        }
+        if let Some(p) = e.strip_prefix('p') {
+            match p.parse::<f64>() {
+                Ok(p) if (0.0..=100.0).contains(&p) => Ok(Exposure::Percentile(p)),
+                _ => Err(Error::parameter(format!(
+                    "exposure {e}: a percentile pNN needs NN in [0, 100]"
+                ))),
+            }
+        } else {
+            match e.parse::<f64>() {
+                Ok(k) if k.is_finite() && k > 0.0 => Ok(Exposure::Fixed(k)),
+                _ => Err(Error::parameter(format!(
+                    "exposure {e}: expected a number > 0, pNN (percentile) or per-pixel"
+                ))),
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for Exposure {
+    /// `pNN`, the number or `per-pixel` (what [`std::str::FromStr`] reads).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Exposure::Percentile(p) => write!(f, "p{p}"),
+            Exposure::Fixed(k) => write!(f, "{k}"),
+            Exposure::PerPixel => f.write_str("per-pixel"),
+        }
+    }
+}
+
+crate::names::serde_via_str!(Exposure);
 
 /// Display options.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -20,6 +20,17 @@ pub enum Error {
         /// What is wrong.
         message: String,
     },
+    /// A name that is not one of the accepted spellings (a colour matrix, a band shift);
+    /// lists the accepted ones: `colour matrix: unknown 'x' (srgb, cie)`.
+    #[error("{what}: unknown '{given}' ({})", accepted.join(", "))]
+    UnknownName {
+        /// What kind of name.
+        what: &'static str,
+        /// The spelling given.
+        given: String,
+        /// The accepted spellings.
+        accepted: &'static [&'static str],
+    },
     /// The run was cancelled through its observer.
     #[error("cancelled")]
     Cancelled,
@@ -37,6 +48,18 @@ impl Error {
     }
     pub(crate) fn parameter(msg: impl Into<String>) -> Self {
         Error::Parameter(msg.into())
+    }
+    /// An [`Error::UnknownName`].
+    pub(crate) fn unknown(
+        what: &'static str,
+        given: &str,
+        accepted: &'static [&'static str],
+    ) -> Self {
+        Error::UnknownName {
+            what,
+            given: given.to_owned(),
+            accepted,
+        }
     }
 }
 

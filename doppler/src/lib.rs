@@ -88,6 +88,7 @@ mod front;
 #[cfg(test)]
 mod front_tests;
 mod model;
+mod names;
 mod prepared;
 mod profile;
 mod pwl;
@@ -100,7 +101,8 @@ mod tests;
 pub use banded::BandTables;
 pub use blueshift_camera::{Camera, Projection, Ray};
 pub use cube::{
-    CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera, render_cube,
+    CubeLineWidth, CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera,
+    render_cube,
 };
 pub use display::{ColourMatrix, DisplayOptions, Exposure};
 pub use error::{Error, Result};

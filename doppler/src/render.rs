@@ -9,9 +9,11 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use super::model::{BB_UNIT, DopplerScene};
 use super::prepared::{Prepared, RaySpan};
 use super::{banded, pwl};
+use crate::names::named_enum;
 use crate::{Camera, Error, Ray, Result};
 
-/// How the banded integrator moves band values under a Doppler shift.
+/// How the banded integrator moves band values under a Doppler shift; spelt as the banded
+/// integrators' prefix: `banded` (nearest) or `banded-ec` (energy-conserving).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BandShift {
     /// The paper's Algorithm 1: each rest-frame band value moves whole into the band holding
@@ -21,7 +23,11 @@ pub enum BandShift {
     EnergyConserving,
 }
 
-/// The spectral representation.
+// The spellings are the banded integrators' (`banded:N`, `banded-ec:N`).
+named_enum!(BandShift, "band shift", [Nearest => "banded", EnergyConserving => "banded-ec"]);
+
+/// The spectral representation; spelt `pwl`, `banded:N` or `banded-ec:N` (`FromStr`,
+/// `Display` and serde through the string).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SpectralIntegrator {
     /// Algorithm 2: exact piecewise-linear spectra (emission-only rays accumulate XYZ
@@ -57,18 +63,26 @@ impl std::str::FromStr for SpectralIntegrator {
                 "integrator '{s}': N must be 1..=1000000"
             )));
         }
-        let shift = match kind {
-            "banded" => BandShift::Nearest,
-            "banded-ec" => BandShift::EnergyConserving,
-            _ => {
-                return Err(Error::parameter(format!(
-                    "integrator '{s}': use pwl, banded:N or banded-ec:N"
-                )));
-            }
-        };
+        let shift = kind.parse::<BandShift>().map_err(|_| {
+            Error::parameter(format!(
+                "integrator '{s}': use pwl, banded:N or banded-ec:N"
+            ))
+        })?;
         Ok(Self::Banded { bands, shift })
     }
 }
+
+impl std::fmt::Display for SpectralIntegrator {
+    /// `pwl`, `banded:N` or `banded-ec:N` (what [`std::str::FromStr`] reads).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::PiecewiseLinear => f.write_str("pwl"),
+            Self::Banded { bands, shift } => write!(f, "{shift}:{bands}"),
+        }
+    }
+}
+
+crate::names::serde_via_str!(SpectralIntegrator);
 
 /// Render settings.
 #[derive(Clone, Debug)]

@@ -7,8 +7,8 @@ use std::path::PathBuf;
 use blueshift_volume::synth;
 
 use blueshift_doppler::{
-    Broadening, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis,
-    SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
+    Broadening, CubeLineWidth, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Species,
+    SpectralAxis, SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
 };
 use blueshift_spectrum::{EmissionLine, SPEED_OF_LIGHT_M_PER_S};
 use blueshift_volume::{AnyGrid, Geometry, Grid};
@@ -73,10 +73,10 @@ fn enzo_cube(thermal: bool) -> SpectralCube {
         min: -260e3,
         max: -140e3,
         channels: 16,
+        // Without broadening, a box one channel wide: its exact channel integrals are yt's
+        // tent weights 1 - |v_c - v| / dv.
+        line_width: CubeLineWidth::OneChannel,
     };
-    // Without broadening, a box one channel wide: its exact channel integrals are yt's tent
-    // weights 1 - |v_c - v| / dv.
-    st.line_width_nm = HALPHA * spec.width() / SPEED_OF_LIGHT_M_PER_S;
     st.broadening = Broadening {
         thermal,
         sigma_m_per_s: 0.0,
@@ -215,6 +215,7 @@ fn rotating_shell_moment_1_is_the_analytic_velocity() {
         min: -400e3,
         max: 400e3,
         channels: 40,
+        line_width: CubeLineWidth::Settings,
     };
     st.line_width_nm = 0.05;
     let cube = render_cube(&scene, &st, &spec, &|| {}).unwrap();
@@ -286,6 +287,7 @@ fn thermal_channels_match_the_analytic_gaussian_and_keep_moment_0() {
         min: -60e3,
         max: 120e3,
         channels: 36,
+        line_width: CubeLineWidth::Settings,
     };
     let mut st = DopplerSettings::default_for(&scene, 4, 4);
     st.camera = los_camera(&scene, Vec3::Z, 1.0, false).unwrap();
@@ -334,6 +336,7 @@ fn fits_layout_follows_the_standard() {
         min: -60e3,
         max: 120e3,
         channels: 5,
+        line_width: CubeLineWidth::Settings,
     };
     let mut st = DopplerSettings::default_for(&scene, 3, 2);
     st.camera = los_camera(&scene, Vec3::Z, 1.5, false).unwrap();
@@ -414,6 +417,7 @@ fn bad_cube_input_is_refused() {
         min: -60e3,
         max: 60e3,
         channels: 8,
+        line_width: CubeLineWidth::Settings,
     };
     assert!(render_cube(&scene, &st, &ok, &|| {}).is_ok());
     let bad = [
@@ -512,6 +516,7 @@ fn cubes_are_deterministic_and_absorption_never_brightens() {
         min: -400e3,
         max: 400e3,
         channels: 24,
+        line_width: CubeLineWidth::Settings,
     };
     let many = render_cube(&scene, &st, &spec, &|| {}).unwrap();
     let pool = rayon::ThreadPoolBuilder::new()
@@ -529,4 +534,46 @@ fn cubes_are_deterministic_and_absorption_never_brightens() {
         total += f64::from(*e);
     }
     assert!(lost > 1e-3 * total, "absorption removed nothing");
+}
+
+/// The default [`CubeLineWidth::OneChannel`] is a box one channel wide (the channel width
+/// in nm at the rest wavelength): the same cube, bit for bit, as the settings' line width
+/// set to it by hand, on velocity and wavelength axes; `Settings` keeps the settings' width.
+#[test]
+fn one_channel_line_width_is_a_box_one_channel_wide() {
+    let scene = slab_scene(1e4, -30e3);
+    let mut st = DopplerSettings::default_for(&scene, 4, 4);
+    st.camera = los_camera(&scene, Vec3::Z, 1.0, false).unwrap();
+    for (axis, min, max) in [
+        (SpectralAxis::OpticalVelocity, -60e3, 120e3),
+        (SpectralAxis::RadioVelocity, -90e3, 90e3),
+        (SpectralAxis::Wavelength, HALPHA - 0.2, HALPHA + 0.2),
+    ] {
+        let spec = CubeSpec {
+            rest_nm: HALPHA,
+            axis,
+            min,
+            max,
+            channels: 12,
+            line_width: CubeLineWidth::default(),
+        };
+        assert_eq!(spec.line_width, CubeLineWidth::OneChannel);
+        let one = match axis {
+            SpectralAxis::Wavelength => spec.width(),
+            _ => HALPHA * spec.width() / SPEED_OF_LIGHT_M_PER_S,
+        };
+        assert_eq!(spec.line_width_nm(&st).to_bits(), one.to_bits(), "{axis}");
+        let by_settings = CubeSpec {
+            line_width: CubeLineWidth::Settings,
+            ..spec
+        };
+        assert_eq!(by_settings.line_width_nm(&st), st.line_width_nm);
+        let mut by_hand = st.clone();
+        by_hand.line_width_nm = one;
+        let auto = render_cube(&scene, &st, &spec, &|| {}).unwrap();
+        let manual = render_cube(&scene, &by_hand, &by_settings, &|| {}).unwrap();
+        assert_eq!(auto.data, manual.data, "{axis}");
+        let wide = render_cube(&scene, &st, &by_settings, &|| {}).unwrap();
+        assert_ne!(auto.data, wide.data, "{axis}: the 1 nm box should differ");
+    }
 }

@@ -25,7 +25,8 @@ use crate::error::{Error, Result};
 /// The speed of light in vacuum, m/s (SI, exact).
 pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
 
-/// Which Doppler formula to use.
+/// Which Doppler formula to use; spelt `classical` or `relativistic` (`FromStr`, `Display`
+/// and, with the `serde` feature, serde).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(rename_all = "lowercase"))]
@@ -36,6 +37,43 @@ pub enum DopplerModel {
     /// Special relativity, including the transverse term: `s = gamma (1 + beta . n)` with `n`
     /// the unit line of sight from the observer to the source (Doppler paper Eq. 4).
     Relativistic,
+}
+
+impl DopplerModel {
+    /// Every model, in the order of [`DopplerModel::NAMES`].
+    pub const ALL: [DopplerModel; 2] = [DopplerModel::Classical, DopplerModel::Relativistic];
+    /// The spellings of [`DopplerModel::ALL`] (`FromStr`, `Display` and serde).
+    pub const NAMES: [&'static str; 2] = ["classical", "relativistic"];
+
+    /// Its spelling: `classical` or `relativistic`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            DopplerModel::Classical => "classical",
+            DopplerModel::Relativistic => "relativistic",
+        }
+    }
+}
+
+impl std::str::FromStr for DopplerModel {
+    type Err = Error;
+    /// `classical` or `relativistic`; anything else is an [`Error::UnknownName`].
+    fn from_str(s: &str) -> Result<Self> {
+        DopplerModel::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| Error::UnknownName {
+                what: "Doppler model",
+                name: s.to_owned(),
+                known: "classical, relativistic",
+            })
+    }
+}
+
+impl std::fmt::Display for DopplerModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// How spectral radiance values change when the wavelength axis is scaled by `s`.
@@ -211,4 +249,28 @@ fn check_beta(beta: f64) -> Result<()> {
 
 fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::DopplerModel;
+
+    #[test]
+    fn doppler_model_spellings_round_trip() {
+        for (m, name) in DopplerModel::ALL.into_iter().zip(DopplerModel::NAMES) {
+            assert_eq!(name.parse::<DopplerModel>().unwrap(), m);
+            assert_eq!(m.to_string(), name);
+            assert_eq!(m.name(), name);
+            #[cfg(feature = "serde")]
+            {
+                let json = serde_json::to_string(&m).unwrap();
+                assert_eq!(json, format!("\"{name}\""));
+                assert_eq!(serde_json::from_str::<DopplerModel>(&json).unwrap(), m);
+            }
+        }
+        assert_eq!(
+            "newtonian".parse::<DopplerModel>().unwrap_err().to_string(),
+            "unknown Doppler model \"newtonian\" (known: classical, relativistic)"
+        );
+    }
 }

@@ -30,6 +30,7 @@ use half::f16;
 use crate::Ray;
 use crate::dda::{Dda, DdaMajorantIterator};
 use crate::majorant::MajorantGrid;
+use crate::names::named_enum;
 use crate::rng::Rng;
 use crate::scene::Scene;
 use crate::{Error, Result};
@@ -61,6 +62,45 @@ pub enum Blend {
     },
 }
 
+/// The name of a [`Blend`], without its weights: `density`, `max`, `mix`, `weighted`,
+/// `composite` (the CLI's `--blend` and a scene file's `"blend"`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum BlendKind {
+    /// [`Blend::Density`].
+    #[default]
+    Density,
+    /// [`Blend::Max`].
+    Max,
+    /// [`Blend::Mix`].
+    Mix,
+    /// [`Blend::Weighted`].
+    Weighted,
+    /// [`Blend::Composite`].
+    Composite,
+}
+
+named_enum!(BlendKind, "blend", [
+    Density => "density",
+    Max => "max",
+    Mix => "mix",
+    Weighted => "weighted",
+    Composite => "composite",
+]);
+
+impl BlendKind {
+    /// The blend with these weights (one per channel; density and max ignore them).
+    #[must_use]
+    pub fn with_weights(self, weights: Vec<f32>) -> Blend {
+        match self {
+            BlendKind::Density => Blend::Density,
+            BlendKind::Max => Blend::Max,
+            BlendKind::Mix => Blend::Mix { weights },
+            BlendKind::Weighted => Blend::Weighted { weights },
+            BlendKind::Composite => Blend::Composite { weights },
+        }
+    }
+}
+
 /// Which traversal multi-density Woodcock tracking uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DdaMode {
@@ -75,6 +115,8 @@ pub enum DdaMode {
     Summed,
 }
 
+named_enum!(DdaMode, "dda mode", [NDda => "ndda", OneDda => "1dda", Summed => "summed"]);
+
 /// Compositing precision of the ray marcher: the accumulated colour and alpha are rounded
 /// to this precision after every step, as 8-bit or half-float blending hardware would.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -86,6 +128,8 @@ pub enum Precision {
     /// 8-bit unsigned normalised (values clamped to [0, 1], rounded to multiples of 1/255).
     U8,
 }
+
+named_enum!(Precision, "precision", [F32 => "f32", F16 => "f16", U8 => "u8"]);
 
 /// Most steps the marcher may take across the volume's diagonal.
 pub const MAX_MARCH_STEPS: f32 = 1e6;
@@ -133,6 +177,66 @@ pub enum Integrator {
     Marcher(RayMarcher),
 }
 
+/// The name of an [`Integrator`] (the CLI's `--method` and a scene file's `"method"`):
+/// `woodcock`, `mdwt-ndda`, `mdwt-1dda` (the default), `mdwt-summed`, `marcher`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Method {
+    /// [`Integrator::Woodcock`].
+    Woodcock,
+    /// [`Integrator::Mdwt`] with [`DdaMode::NDda`].
+    MdwtNDda,
+    /// [`Integrator::Mdwt`] with [`DdaMode::OneDda`].
+    #[default]
+    MdwtOneDda,
+    /// [`Integrator::Mdwt`] with [`DdaMode::Summed`].
+    MdwtSummed,
+    /// [`Integrator::Marcher`].
+    Marcher,
+}
+
+named_enum!(Method, "method", [
+    Woodcock => "woodcock",
+    MdwtNDda => "mdwt-ndda",
+    MdwtOneDda => "mdwt-1dda",
+    MdwtSummed => "mdwt-summed",
+    Marcher => "marcher",
+]);
+
+impl Method {
+    /// The multi-density method of a traversal.
+    #[must_use]
+    pub fn mdwt(dda: DdaMode) -> Method {
+        match dda {
+            DdaMode::NDda => Method::MdwtNDda,
+            DdaMode::OneDda => Method::MdwtOneDda,
+            DdaMode::Summed => Method::MdwtSummed,
+        }
+    }
+
+    /// The traversal of a multi-density method (`None` for woodcock and marcher).
+    #[must_use]
+    pub fn dda(self) -> Option<DdaMode> {
+        match self {
+            Method::MdwtNDda => Some(DdaMode::NDda),
+            Method::MdwtOneDda => Some(DdaMode::OneDda),
+            Method::MdwtSummed => Some(DdaMode::Summed),
+            Method::Woodcock | Method::Marcher => None,
+        }
+    }
+}
+
+impl Integrator {
+    /// Its [`Method`].
+    #[must_use]
+    pub fn method(&self) -> Method {
+        match self {
+            Integrator::Woodcock { .. } => Method::Woodcock,
+            Integrator::Mdwt { dda, .. } => Method::mdwt(*dda),
+            Integrator::Marcher(_) => Method::Marcher,
+        }
+    }
+}
+
 fn normalised(weights: &[f32], n: usize, what: &str) -> Result<Vec<f32>> {
     if weights.len() != n {
         return Err(Error::parameter(format!(
@@ -150,6 +254,18 @@ fn normalised(weights: &[f32], n: usize, what: &str) -> Result<Vec<f32>> {
 }
 
 impl Blend {
+    /// Its name.
+    #[must_use]
+    pub fn kind(&self) -> BlendKind {
+        match self {
+            Blend::Density => BlendKind::Density,
+            Blend::Max => BlendKind::Max,
+            Blend::Mix { .. } => BlendKind::Mix,
+            Blend::Weighted { .. } => BlendKind::Weighted,
+            Blend::Composite { .. } => BlendKind::Composite,
+        }
+    }
+
     /// Equal weights for `n` channels.
     #[must_use]
     pub fn equal_weights(n: usize) -> Vec<f32> {

@@ -13,6 +13,9 @@
 //!   `blueshift_volume::Volume` ([`Scene::from_volume`]).
 //! - Pick an [`Integrator`]: `Woodcock { channel }`, `Mdwt { dda, blend }` or
 //!   `Marcher(RayMarcher)`.
+//! - Or load a render scene file ([`RenderSceneFile::read`], then
+//!   [`RenderSceneFile::build`] gives the scene, integrator and settings; format in
+//!   [`scene_file`]).
 //! - [`RenderSettings::default_for`] gives the default view; [`render()`] returns an
 //!   `image::Rgba32FImage` (linear HDR RGB, alpha = 1 - transmittance);
 //!   [`render_progressive`] reports passes and the noise estimate.
@@ -44,9 +47,11 @@ pub mod dda;
 mod error;
 pub mod integrator;
 pub mod majorant;
+mod names;
 pub mod render;
 pub mod rng;
 pub mod scene;
+pub mod scene_file;
 pub mod session;
 pub mod shading;
 
@@ -54,7 +59,8 @@ pub use blueshift_camera::{Camera, Projection, Ray};
 pub use dda::{CellLayout, Dda, DdaCell, DdaMajorantIterator, MajorantSegment};
 pub use error::{Error, Result};
 pub use integrator::{
-    Blend, DdaMode, Integrator, Precision, RayMarcher, RayStats, TentativeCollision, sample_t_maj,
+    Blend, BlendKind, DdaMode, Integrator, Method, Precision, RayMarcher, RayStats,
+    TentativeCollision, sample_t_maj,
 };
 pub use majorant::MajorantGrid;
 pub use render::{
@@ -63,5 +69,6 @@ pub use render::{
 };
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};
+pub use scene_file::{CameraKind, ChannelSpec, LightSpec, MaterialSpec, RenderSceneFile};
 pub use session::TrackingSession;
 pub use shading::{Material, Shading};

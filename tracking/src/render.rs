@@ -175,6 +175,14 @@ impl std::str::FromStr for HeatMap {
     }
 }
 
+impl std::fmt::Display for HeatMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+crate::names::serde_via_str!(HeatMap);
+
 impl Progressive {
     /// An empty buffer of `width x height` pixels.
     pub fn new(width: u32, height: u32) -> Result<Self> {

@@ -202,11 +202,13 @@ fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
     }
     let mut st = DopplerSettings::default_for(&scene, args.width, args.height);
     st.integrator = args.integrator.parse::<SpectralIntegrator>()?;
-    st.model = match args.doppler.as_str() {
-        "classical" => DopplerModel::Classical,
-        "relativistic" => DopplerModel::Relativistic,
-        other => bail!("unknown --doppler '{other}' (classical, relativistic)"),
-    };
+    st.model = args.doppler.parse::<DopplerModel>().map_err(|_| {
+        anyhow!(
+            "unknown --doppler '{}' ({})",
+            args.doppler,
+            DopplerModel::NAMES.join(", ")
+        )
+    })?;
     st.invariant = args.invariant;
     if args.inclination != 0.0 {
         st.incline(&scene, args.inclination)
@@ -220,32 +222,22 @@ fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
 }
 
 fn display(args: &Args) -> Result<DisplayOptions> {
-    Ok(DisplayOptions {
-        matrix: match args.matrix.as_str() {
-            "srgb" => ColourMatrix::Srgb,
-            "cie" => ColourMatrix::CieRgbEq10,
-            other => bail!("unknown --matrix '{other}' (srgb, cie)"),
-        },
-        exposure: match args.exposure.as_deref().map(str::trim) {
-            None => Exposure::Percentile(99.0),
-            Some("per-pixel") => Exposure::PerPixel,
-            Some(e) => {
-                if let Some(p) = e.strip_prefix('p') {
-                    match p.parse::<f64>() {
-                        Ok(p) if (0.0..=100.0).contains(&p) => Exposure::Percentile(p),
-                        _ => bail!("--exposure {e}: a percentile pNN needs NN in [0, 100]"),
-                    }
-                } else {
-                    match e.parse::<f64>() {
-                        Ok(k) if k.is_finite() && k > 0.0 => Exposure::Fixed(k),
-                        _ => bail!(
-                            "--exposure {e}: expected a number > 0, pNN (percentile) or per-pixel"
-                        ),
-                    }
-                }
-            }
-        },
-    })
+    let matrix = args.matrix.parse::<ColourMatrix>().map_err(|_| {
+        anyhow!(
+            "unknown --matrix '{}' ({})",
+            args.matrix,
+            ColourMatrix::NAMES.join(", ")
+        )
+    })?;
+    let exposure = match &args.exposure {
+        None => Exposure::Percentile(99.0),
+        // The library says `exposure E: why`; the flag is `--exposure`.
+        Some(e) => e.parse::<Exposure>().map_err(|err| match err {
+            blueshift_doppler::Error::Parameter(m) => anyhow!("--{m}"),
+            other => other.into(),
+        })?,
+    };
+    Ok(DisplayOptions { matrix, exposure })
 }
 
 /// The names `--tonemap` accepts.

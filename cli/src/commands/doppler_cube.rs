@@ -6,8 +6,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use blueshift_doppler::{
-    Broadening, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Moments, SpectralAxis,
-    SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
+    Broadening, CubeLineWidth, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Moments,
+    SpectralAxis, SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
 };
 use blueshift_spectrum::named_line;
 use clap::Args as ClapArgs;
@@ -181,6 +181,9 @@ pub fn cube_spec(args: &CubeArgs) -> Result<CubeSpec> {
                 min: a * 1e3,
                 max: b * 1e3,
                 channels: n,
+                // A box one channel wide (render_cube's default): its exact channel
+                // integrals are yt's tent weights 1 - |v_c - v| / dv.
+                line_width: CubeLineWidth::OneChannel,
             })
         }
         (None, Some(w)) => {
@@ -191,6 +194,9 @@ pub fn cube_spec(args: &CubeArgs) -> Result<CubeSpec> {
                 min: a,
                 max: b,
                 channels: n,
+                // A box one channel wide (render_cube's default): its exact channel
+                // integrals are yt's tent weights 1 - |v_c - v| / dv.
+                line_width: CubeLineWidth::OneChannel,
             })
         }
         (None, None) => bail!("--cube needs --velocity-bins VMIN:VMAX:N (km/s)"),
@@ -228,14 +234,6 @@ pub fn run_cube(args: &CubeArgs, scene: &DopplerScene, st: &DopplerSettings) -> 
         object: String::new(),
         world_unit,
     };
-    // Unbroadened lines get a box one channel wide: its exact channel integrals are yt's
-    // tent weights 1 - |v_c - v| / dv.
-    let mut st = st.clone();
-    st.line_width_nm = match spec.axis {
-        SpectralAxis::Wavelength => spec.width(),
-        _ => spec.rest_nm * spec.width() / blueshift_spectrum::SPEED_OF_LIGHT_M_PER_S,
-    };
-    let st = &st;
     let bar = indicatif::ProgressBar::new(u64::from(st.height));
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} rows [{elapsed}]")

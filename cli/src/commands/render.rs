@@ -7,37 +7,16 @@
 //! unit) is the transfer function's opacity, times its alpha_g, times `--density-scale`; all
 //! methods use this definition, so images compare across methods at the same scale.
 //!
-//! Scene file (unknown keys are refused; paths are relative to the file):
-//! ```json
-//! { "channels": [ { "volume": "head.nhdr", "tf": "bone.json" } ],
-//!   "method": "mdwt-1dda", "blend": "density", "weights": null,
-//!   "spp": 64, "seed": 1, "width": 512, "height": 512,
-//!   "camera": "perspective", "fov_y_deg": 30, "eye": null, "target": null, "up": null,
-//!   "background": [0, 0, 0], "density_scale": 1.0, "macrocell": 4,
-//!   "precision": "f32", "step": null, "alpha_g": null, "noise_target": null,
-//!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 },
-//!   "shading": false, "heatmaps": ["steps"], "warmup": null, "frames": null }
-//! ```
-//! A channel is `{ "volume": FILE, "channel": NAME?, "tf": SPEC, "material": M? }` or
-//! `{ "synth": NAME, "res": N?, "seed": S?, "channel": NAME?, "tf": SPEC }`. A TF SPEC is a
-//! blueshift or ParaView JSON file, `builtin:NAME` (a built-in map stretched over the
-//! channel's value range) or `log:NAME` (the same on a logarithmic data axis over the
-//! channel's positive values, for data spanning decades). A material `M` for `shading` is
-//! `{ "ambient": 1, "diffuse": 0.8, "specular": 0.2, "shininess": 32 }` (any may be left out).
+//! Scene file: `blueshift_tracking::scene_file` (format, defaults and the loader); this
+//! module maps the flags over it, picks the device and writes the outputs.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
-use blueshift_tfedit::{ColorKnot, DataAxis, OpacityKnot, TransferFunction};
 use blueshift_tracking::{
-    Blend, Camera, DdaMode, DirectionalLight, HeatMap, Integrator, Material, Precision,
-    Progressive, Projection, RayMarcher, RenderSettings, Scene, Shading, TrackingOutput,
-    TrackingSession,
+    ChannelSpec, HeatMap, LightSpec, Progressive, RenderSceneFile, TrackingOutput, TrackingSession,
 };
-use blueshift_volume::{AnyGrid, synth};
-use glam::Vec3;
-use serde::Deserialize;
 
 /// Arguments of `blueshift render`.
 #[derive(Debug, clap::Args)]
@@ -170,87 +149,6 @@ pub struct Args {
     pub device: blueshift_gpu::DeviceChoice,
 }
 
-/// One channel of a scene file.
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ChannelSpec {
-    /// Volume file.
-    pub volume: Option<PathBuf>,
-    /// Synthetic dataset name.
-    pub synth: Option<String>,
-    /// Resolution of the synthetic dataset.
-    pub res: Option<usize>,
-    /// Seed of the synthetic dataset.
-    pub seed: Option<u64>,
-    /// Channel name inside the file or dataset (default: the first).
-    pub channel: Option<String>,
-    /// Transfer function spec.
-    pub tf: String,
-    /// Blinn-Phong material for --shading.
-    pub material: Option<MaterialSpec>,
-}
-
-/// A channel's material in a scene file (defaults: ambient 1, diffuse 0.8, specular 0.2,
-/// shininess 32).
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MaterialSpec {
-    ambient: Option<f32>,
-    diffuse: Option<f32>,
-    specular: Option<f32>,
-    shininess: Option<f32>,
-}
-
-/// Light of a scene file.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LightSpec {
-    direction: [f32; 3],
-    #[serde(default = "ones")]
-    radiance: [f32; 3],
-    #[serde(default = "ambient_default")]
-    ambient: f32,
-}
-
-fn ones() -> [f32; 3] {
-    [1.0; 3]
-}
-fn ambient_default() -> f32 {
-    0.2
-}
-
-/// A scene file (see the module docs).
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SceneFile {
-    channels: Vec<ChannelSpec>,
-    method: Option<String>,
-    woodcock_channel: Option<usize>,
-    blend: Option<String>,
-    weights: Option<Vec<f32>>,
-    spp: Option<u32>,
-    seed: Option<u64>,
-    width: Option<u32>,
-    height: Option<u32>,
-    camera: Option<String>,
-    fov_y_deg: Option<f32>,
-    eye: Option<[f32; 3]>,
-    target: Option<[f32; 3]>,
-    up: Option<[f32; 3]>,
-    background: Option<[f32; 3]>,
-    density_scale: Option<f32>,
-    macrocell: Option<usize>,
-    precision: Option<String>,
-    step: Option<f32>,
-    alpha_g: Option<f32>,
-    noise_target: Option<f64>,
-    light: Option<LightSpec>,
-    shading: Option<bool>,
-    heatmaps: Option<Vec<String>>,
-    warmup: Option<u32>,
-    frames: Option<u32>,
-}
-
 fn triple(v: &[f32], what: &str) -> Result<[f32; 3]> {
     match v {
         [a, b, c] if v.iter().all(|x| x.is_finite()) => Ok([*a, *b, *c]),
@@ -258,26 +156,26 @@ fn triple(v: &[f32], what: &str) -> Result<[f32; 3]> {
     }
 }
 
-/// Resolves `p` against the scene file's folder.
-fn resolve(base: Option<&Path>, p: &Path) -> PathBuf {
-    match base {
-        Some(b) if p.is_relative() => b.join(p),
-        _ => p.to_path_buf(),
-    }
+/// A name flag through its `FromStr` (the library's message lists the accepted spellings).
+fn parse_name<T>(v: Option<&String>) -> Result<Option<T>>
+where
+    T: std::str::FromStr<Err = blueshift_tracking::Error>,
+{
+    Ok(v.map(|s| s.parse::<T>()).transpose()?)
 }
 
-fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
-    let (mut f, base) = match &args.scene {
+/// The scene: the file (if any) with the flags over it.
+fn merge(args: &Args) -> Result<RenderSceneFile> {
+    let mut f = match &args.scene {
         Some(path) => {
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read scene file {}", path.display()))?;
-            let f: SceneFile = serde_json::from_str(&text)
-                .with_context(|| format!("scene file {}", path.display()))?;
-            (f, path.parent().map(Path::to_path_buf))
+            RenderSceneFile::from_json(&text, path)?
         }
-        None => (SceneFile::default(), None),
+        None => RenderSceneFile::default(),
     };
-    // Inline channels replace the file's.
+    // Inline channels replace the file's (their paths are relative to the working
+    // directory); --tf alone replaces the file's transfer functions.
     if !args.volumes.is_empty() || args.synth.is_some() {
         let mut chans = Vec::new();
         for v in &args.volumes {
@@ -287,19 +185,10 @@ fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
             });
         }
         if let Some(name) = &args.synth {
-            let vol =
-                synth::by_name(name, args.res, 1).with_context(|| format!("--synth {name}"))?;
-            for c in vol.channels() {
-                if c.grid.is_vector() {
-                    continue;
-                }
-                chans.push(ChannelSpec {
-                    synth: Some(name.clone()),
-                    res: Some(args.res),
-                    channel: Some(c.name.clone()),
-                    ..ChannelSpec::default()
-                });
-            }
+            chans.extend(
+                ChannelSpec::synth_channels(name, args.res)
+                    .with_context(|| format!("--synth {name}"))?,
+            );
         }
         let tfs = &args.tfs;
         if tfs.is_empty() {
@@ -316,6 +205,7 @@ fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
             c.tf = tfs[if tfs.len() == 1 { 0 } else { i }].clone();
         }
         f.channels = chans;
+        f.base = None;
     } else if !args.tfs.is_empty() {
         if args.tfs.len() != f.channels.len() {
             bail!(
@@ -328,146 +218,70 @@ fn merge(args: &Args) -> Result<(SceneFile, Option<PathBuf>)> {
             c.tf = t.clone();
         }
     }
-    macro_rules! over {
-        ($field:ident, $arg:expr) => {
-            if let Some(v) = $arg.clone() {
-                f.$field = Some(v);
-            }
-        };
-    }
-    over!(method, args.method);
-    over!(woodcock_channel, args.channel);
-    over!(blend, args.blend);
-    over!(weights, args.weights);
-    over!(spp, args.spp);
-    over!(seed, args.seed);
-    over!(width, args.width);
-    over!(height, args.height);
-    over!(camera, args.camera);
-    over!(fov_y_deg, args.fov);
-    over!(density_scale, args.density_scale);
-    over!(macrocell, args.macrocell);
-    over!(precision, args.precision);
-    over!(step, args.step);
-    over!(alpha_g, args.alpha_g);
-    over!(noise_target, args.noise_target);
-    over!(warmup, args.warmup);
-    over!(frames, args.frames);
-    if args.shading {
-        f.shading = Some(true);
-    }
-    if !args.heatmaps.is_empty() {
-        f.heatmaps = Some(args.heatmaps.clone());
-    }
-    if let Some(b) = &args.background {
-        f.background = Some(triple(b, "--background")?);
-    }
-    if let Some(d) = &args.light_dir {
-        let radiance = match (&args.light_radiance, args.light_intensity) {
-            (Some(r), _) => triple(r, "--light-radiance")?,
-            (None, Some(i)) if i.is_finite() && i >= 0.0 => [i; 3],
-            (None, Some(i)) => bail!("--light-intensity: {i} must be finite and non-negative"),
-            (None, None) => ones(),
-        };
-        f.light = Some(LightSpec {
-            direction: triple(d, "--light-dir")?,
-            radiance,
-            ambient: args.ambient.unwrap_or(ambient_default()),
-        });
-    }
+    let background = args
+        .background
+        .as_deref()
+        .map(|b| triple(b, "--background"))
+        .transpose()?;
+    let light = match &args.light_dir {
+        Some(d) => {
+            let radiance = match (&args.light_radiance, args.light_intensity) {
+                (Some(r), _) => triple(r, "--light-radiance")?,
+                (None, Some(i)) if i.is_finite() && i >= 0.0 => [i; 3],
+                (None, Some(i)) => bail!("--light-intensity: {i} must be finite and non-negative"),
+                (None, None) => LightSpec::DEFAULT_RADIANCE,
+            };
+            Some(LightSpec {
+                direction: triple(d, "--light-dir")?,
+                radiance,
+                ambient: args.ambient.unwrap_or(LightSpec::DEFAULT_AMBIENT),
+            })
+        }
+        None => None,
+    };
+    let heatmaps = args
+        .heatmaps
+        .iter()
+        .map(|h| h.parse::<HeatMap>().context("--heatmap"))
+        .collect::<Result<Vec<_>>>()?;
+    f.override_with(RenderSceneFile {
+        channels: Vec::new(),
+        method: parse_name(args.method.as_ref())?,
+        woodcock_channel: args.channel,
+        blend: parse_name(args.blend.as_ref())?,
+        weights: args.weights.clone(),
+        spp: args.spp,
+        seed: args.seed,
+        width: args.width,
+        height: args.height,
+        camera: parse_name(args.camera.as_ref())?,
+        fov_y_deg: args.fov,
+        eye: None,
+        target: None,
+        up: None,
+        background,
+        density_scale: args.density_scale,
+        macrocell: args.macrocell,
+        precision: parse_name(args.precision.as_ref())?,
+        step: args.step,
+        alpha_g: args.alpha_g,
+        noise_target: args.noise_target,
+        light,
+        shading: args.shading.then_some(true),
+        heatmaps: (!heatmaps.is_empty()).then_some(heatmaps),
+        warmup: args.warmup,
+        frames: args.frames,
+        base: None,
+    });
     if f.channels.is_empty() {
         bail!(
             "channels: none given (use a scene file, --volume FILE --tf TF, or --synth NAME --tf TF)"
         );
     }
-    let base = if args.volumes.is_empty() && args.synth.is_none() {
-        base
-    } else {
-        None
-    };
-    Ok((f, base))
-}
-
-fn load_channel(i: usize, c: &ChannelSpec, base: Option<&Path>) -> Result<(String, AnyGrid)> {
-    let vol = match (&c.volume, &c.synth) {
-        (Some(p), None) => {
-            let p = resolve(base, p);
-            blueshift_volume::read(&p)
-                .with_context(|| format!("channels[{i}].volume: cannot read {}", p.display()))?
-        }
-        (None, Some(name)) => synth::by_name(name, c.res.unwrap_or(64), c.seed.unwrap_or(1))
-            .with_context(|| format!("channels[{i}].synth"))?,
-        _ => bail!("channels[{i}]: give exactly one of \"volume\" and \"synth\""),
-    };
-    let ch = match &c.channel {
-        Some(name) => vol
-            .channel(name)
-            .ok_or_else(|| anyhow!("channels[{i}].channel: no channel named '{name}'"))?,
-        None => vol
-            .channels()
-            .iter()
-            .find(|c| !c.grid.is_vector())
-            .ok_or_else(|| anyhow!("channels[{i}].volume: no scalar channel"))?,
-    };
-    Ok((ch.name.clone(), ch.grid.clone()))
-}
-
-/// Builds a transfer function from a spec for a channel's grid.
-fn load_tf(i: usize, spec: &str, grid: &AnyGrid, base: Option<&Path>) -> Result<TransferFunction> {
-    let what = || format!("channels[{i}].tf '{spec}'");
-    if let Some(name) = spec.strip_prefix("builtin:") {
-        let (lo, hi) = grid
-            .finite_range()
-            .ok_or_else(|| anyhow!("{}: no finite values", what()))?;
-        let hi = if hi > lo { hi } else { lo + 1.0 };
-        return blueshift_tfedit::builtin_over(name, [f64::from(lo), f64::from(hi)])
-            .with_context(what);
+    if f.warmup.is_some() && f.frames.is_none() {
+        bail!("--warmup: needs --frames N (the timed frames)");
     }
-    if let Some(name) = spec.strip_prefix("log:") {
-        let g = *grid.geometry();
-        let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
-        for k in 0..g.voxel_count() {
-            let v = grid.scalar_at(k);
-            if v.is_finite() && v > 0.0 {
-                lo = lo.min(v);
-                hi = hi.max(v);
-            }
-        }
-        if hi <= 0.0 {
-            bail!("{}: no positive values for a logarithmic axis", what());
-        }
-        let (lo, hi) = (f64::from(lo), f64::from(hi.max(lo * 1.0001)));
-        let b = blueshift_tfedit::builtin(name).with_context(what)?;
-        let map = |x: f64| lo * (hi / lo).powf(x);
-        let color: Vec<ColorKnot> = b
-            .color_knots()
-            .iter()
-            .map(|k| ColorKnot { x: map(k.x), ..*k })
-            .collect();
-        let opacity: Vec<OpacityKnot> = b
-            .opacity_knots()
-            .iter()
-            .map(|k| OpacityKnot { x: map(k.x), ..*k })
-            .collect();
-        return TransferFunction::new([lo, hi], color, opacity)
-            .and_then(|t| t.with_data_axis(DataAxis::Log))
-            .map(|t| t.with_color_space(b.color_space()))
-            .with_context(what);
-    }
-    let p = resolve(base, Path::new(spec));
-    blueshift_tfedit::load(&p).with_context(what)
-}
-
-fn parse_blend(name: &str, weights: Option<Vec<f32>>, n: usize) -> Result<Blend> {
-    let w = weights.unwrap_or_else(|| Blend::equal_weights(n));
-    Ok(match name {
-        "density" => Blend::Density,
-        "max" => Blend::Max,
-        "mix" => Blend::Mix { weights: w },
-        "composite" => Blend::Composite { weights: w },
-        "weighted" => Blend::Weighted { weights: w },
-        other => bail!("blend: unknown '{other}' (density, max, mix, weighted, composite)"),
-    })
+    Ok(f)
 }
 
 /// Runs `blueshift render`.
@@ -492,131 +306,12 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 fn run_inner(args: &Args) -> Result<()> {
-    let (f, base) = merge(args)?;
-    let base = base.as_deref();
-    let mut triples = Vec::new();
-    for (i, c) in f.channels.iter().enumerate() {
-        let (name, grid) = load_channel(i, c, base)?;
-        let mut tf = load_tf(i, &c.tf, &grid, base)?;
-        if let Some(a) = f.alpha_g {
-            tf = tf.with_alpha_g(a).context("alpha_g")?;
-        }
-        triples.push((name, grid, tf));
-    }
-    let n = triples.len();
-    let k = f.macrocell.unwrap_or(blueshift_volume::DEFAULT_K);
-    let mut scene = Scene::new(triples, f.density_scale.unwrap_or(1.0), k)?;
-    if let Some(b) = f.background {
-        scene.background = b;
-    }
-    if let Some(l) = &f.light {
-        if Vec3::from(l.direction).try_normalize().is_none() {
-            bail!(
-                "light.direction: {:?} must be a non-zero finite vector",
-                l.direction
-            );
-        }
-        scene.light = Some(DirectionalLight {
-            direction: Vec3::from(l.direction),
-            radiance: l.radiance,
-            ambient: l.ambient,
-        });
-    }
-    if f.shading.unwrap_or(false) {
-        let mut materials = Vec::with_capacity(n);
-        for (i, c) in f.channels.iter().enumerate() {
-            let d = Material::default();
-            let m = c.material.as_ref().map_or(d, |m| Material {
-                ambient: m.ambient.unwrap_or(d.ambient),
-                diffuse: m.diffuse.unwrap_or(d.diffuse),
-                specular: m.specular.unwrap_or(d.specular),
-                shininess: m.shininess.unwrap_or(d.shininess),
-            });
-            m.validate(&format!("channels[{i}].material"))?;
-            materials.push(m);
-        }
-        scene.shading = Some(Shading {
-            materials,
-            shadows: true,
-        });
-    }
-    let heatmaps = f
-        .heatmaps
-        .iter()
-        .flatten()
-        .map(|h| h.parse::<HeatMap>().context("--heatmap"))
-        .collect::<Result<Vec<_>>>()?;
-    let weights = match (f.blend.as_deref(), &f.weights) {
-        (Some("weighted"), None) => Some(Blend::majorant_weights(&scene)),
-        _ => f.weights.clone(),
-    };
-    let blend = parse_blend(f.blend.as_deref().unwrap_or("density"), weights, n)?;
-    let method = f.method.as_deref().unwrap_or("mdwt-1dda");
-    let precision = match f.precision.as_deref().unwrap_or("f32") {
-        "f32" => Precision::F32,
-        "f16" => Precision::F16,
-        "u8" => Precision::U8,
-        other => bail!("precision: unknown '{other}' (f32, f16, u8)"),
-    };
-    let integrator = match method {
-        "woodcock" => Integrator::Woodcock {
-            channel: f.woodcock_channel.unwrap_or(0),
-        },
-        "mdwt-ndda" => Integrator::Mdwt {
-            dda: DdaMode::NDda,
-            blend,
-        },
-        "mdwt-1dda" => Integrator::Mdwt {
-            dda: DdaMode::OneDda,
-            blend,
-        },
-        "mdwt-summed" => Integrator::Mdwt {
-            dda: DdaMode::Summed,
-            blend,
-        },
-        "marcher" => Integrator::Marcher(RayMarcher {
-            step: f.step,
-            precision,
-            blend,
-            ..RayMarcher::default()
-        }),
-        other => bail!(
-            "method: unknown '{other}' (woodcock, mdwt-ndda, mdwt-1dda, mdwt-summed, marcher)"
-        ),
-    };
-    let width = f.width.unwrap_or(512);
-    let height = f.height.unwrap_or(512);
-    let ortho = match f.camera.as_deref().unwrap_or("perspective") {
-        "ortho" | "orthographic" => true,
-        "perspective" => false,
-        other => bail!("camera: unknown '{other}' (ortho, perspective)"),
-    };
-    let mut settings = RenderSettings::default_for(&scene, width, height, ortho);
-    settings.spp = f.spp.unwrap_or(16);
-    settings.seed = f.seed.unwrap_or(0);
-    settings.noise_target = f.noise_target;
-    let cam: &mut Camera = &mut settings.camera;
-    if let (Some(fov), Projection::Perspective { fov_y_deg }) = (f.fov_y_deg, &mut cam.projection) {
-        *fov_y_deg = fov;
-    }
-    if let Some(e) = f.eye {
-        cam.eye = Vec3::from(e);
-    }
-    if let Some(t) = f.target {
-        cam.target = Vec3::from(t);
-    }
-    if let Some(u) = f.up {
-        cam.up = Vec3::from(u);
-    }
-    if f.warmup.is_some() && f.frames.is_none() {
-        bail!("--warmup: needs --frames N (the timed frames)");
-    }
-    settings.heatmaps = !heatmaps.is_empty();
-    settings.timed_frames = f.frames;
-    settings.warmup = f.warmup.unwrap_or(0);
-    settings.validate()?;
-    integrator.prepared(&scene)?;
-
+    let f = merge(args)?;
+    let (scene, integrator, settings) = f.build()?;
+    let heatmaps = f.heatmaps();
+    let method = integrator.method().name();
+    let n = scene.channels().len();
+    let (width, height) = (settings.width, settings.height);
     let device = args.device;
     let supported = blueshift_gpu::tracking::supports(&scene, &settings);
     // gpu hands the scene to the device; auto keeps it for the CPU in case the adapter
