@@ -38,7 +38,10 @@ fn a_session_equals_the_one_call_functions() {
         assert_eq!(session.pixel_spectrum(6, 5).unwrap(), pick, "{integ}");
         let t = session.trace(6, 5).unwrap();
         assert_eq!(t.len(), trace.len());
-        assert_eq!(t.last().map(|s| &s.spectrum), trace.last().map(|s| &s.spectrum));
+        assert_eq!(
+            t.last().map(|s| &s.spectrum),
+            trace.last().map(|s| &s.spectrum)
+        );
         assert!(session.pixel_spectrum(12, 0).is_err());
     }
 }
@@ -121,7 +124,10 @@ fn line_entries_are_the_lines_or_the_rest_frame_bands() {
         let area_lines: f64 = sc.species()[m]
             .emission_lines
             .iter()
-            .filter(|l| l.centre_nm - 0.5 * st.line_width_nm >= lo && l.centre_nm + 0.5 * st.line_width_nm <= hi)
+            .filter(|l| {
+                l.centre_nm - 0.5 * st.line_width_nm >= lo
+                    && l.centre_nm + 0.5 * st.line_width_nm <= hi
+            })
             .map(|l| l.strength)
             .sum();
         assert!(

@@ -31,8 +31,8 @@
 
 use blueshift_camera::{DeviceKind, Observer, Progress, Session};
 use blueshift_relativity::{
-    Camera, CameraFrame, DopplerColourTable, Effects, Environment, RelativitySession,
-    TABLE_D_MAX, TABLE_D_MIN, Velocity,
+    Camera, CameraFrame, DopplerColourTable, Effects, Environment, RelativitySession, TABLE_D_MAX,
+    TABLE_D_MIN, Velocity,
 };
 use glam::DVec3;
 use image::Rgb32FImage;

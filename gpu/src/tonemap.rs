@@ -42,8 +42,8 @@
 //! same terms in the same order; the difference is the GPU's `exp`/`pow` rounding and
 //! fused multiply-adds).
 
-use blueshift_tonemap::plane::log_average;
 use blueshift_camera::{DeviceKind, Observer, Progress, Session};
+use blueshift_tonemap::plane::log_average;
 use blueshift_tonemap::{CleanImage, Operator, Plane, TonemapSession};
 use image::Rgb32FImage;
 

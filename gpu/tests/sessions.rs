@@ -96,7 +96,11 @@ fn gpu_doppler_session_equals_the_one_call_render() {
     assert_eq!(img.xyz, direct.xyz);
     // Within the f32 kernels' stated 2e-3 of the CPU's image per pixel (of its peak).
     let reference = cpu.render(&Silent).unwrap();
-    let peak = reference.xyz.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    let peak = reference
+        .xyz
+        .iter()
+        .flatten()
+        .fold(0.0f64, |m, v| m.max(v.abs()));
     for (a, b) in img.xyz.iter().zip(&reference.xyz) {
         for c in 0..3 {
             assert!((a[c] - b[c]).abs() <= 2e-3 * peak, "{a:?} vs {b:?}");

@@ -185,7 +185,11 @@ fn a_noise_target_in_the_settings_stops_early() {
     assert!((2..64).contains(&n), "stopped after {n} samples");
     assert!(early.image.noise() <= st.noise_target.unwrap());
     let passes = rec.passes.lock().unwrap();
-    assert!(passes[..passes.len() - 1].iter().all(|p| p.2.is_none_or(|e| e > st.noise_target.unwrap())));
+    assert!(
+        passes[..passes.len() - 1]
+            .iter()
+            .all(|p| p.2.is_none_or(|e| e > st.noise_target.unwrap()))
+    );
 }
 
 #[test]
@@ -201,7 +205,10 @@ fn heat_maps_and_the_timing_protocol_are_settings() {
         .render(&Silent)
         .unwrap();
     assert_eq!(out.image.samples(), 3);
-    assert_eq!(out.image.mean_image().as_raw(), expected.mean_image().as_raw());
+    assert_eq!(
+        out.image.mean_image().as_raw(),
+        expected.mean_image().as_raw()
+    );
     assert_eq!(
         out.image.heatmap(HeatMap::Steps),
         expected.heatmap(HeatMap::Steps)
