@@ -67,8 +67,8 @@ pub mod tonemap;
 pub mod tracking;
 
 pub use context::{
-    AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext,
-    GpuOptions, GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
+    AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, GpuContext, GpuOptions, GpuReport,
+    Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters,
 };
 pub use device::{Ran, Unsupported, run_with_fallback};
 pub use error::{Error, Result};
