@@ -2,9 +2,10 @@
 //!
 //! wgpu compute backends for blueshift, each mirroring a CPU function of another crate and
 //! checked against it in tests: tone mapping (blueshift-tonemap), the relativistic
-//! environment renderer (blueshift-relativity), and the tracking / Doppler integrators
-//! (blueshift-tracking). It runs on any adapter wgpu finds: a hardware GPU, or the software
-//! Vulkan driver lavapipe (Debian's `mesa-vulkan-drivers`), which is what CI uses.
+//! environment renderer (blueshift-relativity), the tracking integrators
+//! (blueshift-tracking) and the Doppler integrators (blueshift-doppler). It runs on any
+//! adapter wgpu finds: a hardware GPU, or the software Vulkan driver lavapipe (Debian's
+//! `mesa-vulkan-drivers`), which is what CI uses.
 //!
 //! ## Where do I start?
 //! - [`GpuContext::new`] with [`GpuOptions`] picks an adapter ([`AdapterChoice`]; the
