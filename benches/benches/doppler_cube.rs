@@ -1,4 +1,4 @@
-//! Spectral-cube generation (issue 10): a 256^2 x 128-channel H-alpha cube from the 64^3
+//! Spectral-cube generation: a 256^2 x 128-channel H-alpha cube from the 64^3
 //! Enzo snapshot (`shared/data/enzo-moving7`, seen along z, v_los -350..-150 km/s) and from
 //! the 128^3 synthetic galaxy (128 x 128 x 64 voxels, edge-on along x, -300..300 km/s),
 //! thermal broadening off and on, single-threaded (yt's PPVCube, timed by

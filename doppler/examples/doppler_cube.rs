@@ -3,7 +3,7 @@
 //! and `shell_cube.nrrd` into the system's temporary folder and prints moment 1 along the
 //! middle row (it follows the shell's rotation, omega x).
 //!
-//! Run: `cargo run --release -p blueshift-tracking --example doppler_cube`
+//! Run: `cargo run --release -p blueshift-doppler --example doppler_cube`
 
 use blueshift_doppler::{
     CubeLineWidth, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, SpectralAxis, fits_bytes,

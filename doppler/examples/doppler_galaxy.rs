@@ -1,7 +1,7 @@
 //! Renders the synthetic galaxy seen at 60 degrees with Doppler shifts (velocity x30) and line
 //! absorption, and prints the time, the optical-depth pieces per ray and a few pixels' XYZ.
 //!
-//! `cargo run --release -p blueshift-tracking --example doppler_galaxy [RES] [SIZE] [ABSORPTION]`
+//! `cargo run --release -p blueshift-doppler --example doppler_galaxy [RES] [SIZE] [ABSORPTION]`
 
 use std::time::Instant;
 

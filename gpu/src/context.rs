@@ -19,6 +19,8 @@ use crate::error::{Error, Result};
 pub const ENV_ADAPTER: &str = "BLUESHIFT_GPU";
 
 /// Environment variable that turns a test's "SKIP: no wgpu adapter" into a failure (CI).
+/// A test hook: reached at this path only, not re-exported at the crate root.
+#[doc(hidden)]
 pub const ENV_REQUIRE_GPU_TESTS: &str = "BLUESHIFT_REQUIRE_GPU_TESTS";
 
 /// Which adapter to pick.
@@ -791,7 +793,9 @@ impl GpuContext {
 
 /// For tests: the shared context, or `None` after printing `SKIP: no wgpu adapter: <why>`
 /// to stderr. With `BLUESHIFT_REQUIRE_GPU_TESTS=1` a missing adapter panics instead (tests
-/// fail in CI rather than skip).
+/// fail in CI rather than skip). A test hook: reached at this path only
+/// (`blueshift_gpu::context::test_context`), not re-exported at the crate root.
+#[doc(hidden)]
 pub fn test_context() -> Option<&'static GpuContext> {
     match GpuContext::shared() {
         Ok(ctx) => Some(ctx),

@@ -93,9 +93,10 @@
 //! kernel differs from the CPU by the algorithms' own tolerance (the device merges where the
 //! CPU also leaves out its weakest lines; measured 2.1e-6 of the pixel).
 //!
-//! **f32** (no `SHADER_F64` needed, and 2 to 64 times faster on GPUs with slow f64): the
-//! parity tests state the tolerance against the CPU image. With absorption the scheme is the
-//! CPU's, arranged so that f32 loses nothing large:
+//! **f32** (no `SHADER_F64` needed, and faster on GPUs with slow f64; the figures are in
+//! the benchmark section of `gpu/README.md`): the parity tests state the tolerance against
+//! the CPU image. With absorption the scheme is the CPU's, arranged so that f32 loses
+//! nothing large:
 //! - the transmittance of a sub-interval is taken from its end with the smaller `tau`
 //!   (`exp(-tau)` there, times moments of a decaying exponential), so nothing overflows and
 //!   the moments stay in `[0, h^(n+1)/(n+1)]`;

@@ -2,9 +2,10 @@
 //!
 //! wgpu compute backends for blueshift, each mirroring a CPU function of another crate and
 //! checked against it in tests: tone mapping (blueshift-tonemap), the relativistic
-//! environment renderer (blueshift-relativity), and the tracking / Doppler integrators
-//! (blueshift-tracking). It runs on any adapter wgpu finds: a hardware GPU, or the software
-//! Vulkan driver lavapipe (Debian's `mesa-vulkan-drivers`), which is what CI uses.
+//! environment renderer (blueshift-relativity), the tracking integrators
+//! (blueshift-tracking) and the Doppler integrators (blueshift-doppler). It runs on any
+//! adapter wgpu finds: a hardware GPU, or the software Vulkan driver lavapipe (Debian's
+//! `mesa-vulkan-drivers`), which is what CI uses.
 //!
 //! ## Where do I start?
 //! - [`GpuContext::new`] with [`GpuOptions`] picks an adapter ([`AdapterChoice`]; the
@@ -71,8 +72,8 @@ pub mod tonemap;
 pub mod tracking;
 
 pub use context::{
-    AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, ENV_REQUIRE_GPU_TESTS, GpuContext,
-    GpuOptions, GpuReport, Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, test_context,
+    AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, GpuContext, GpuOptions, GpuReport,
+    Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters,
 };
 pub use device::{Ran, Unsupported, run_with_fallback};
 pub use error::{Error, Result};

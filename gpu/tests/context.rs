@@ -1,7 +1,8 @@
 //! The context on a real adapter (lavapipe in CI): a dispatch computes what the CPU does,
 //! and every failure is a typed error.
 
-use blueshift_gpu::{Error, test_context};
+use blueshift_gpu::Error;
+use blueshift_gpu::context::test_context;
 
 #[test]
 fn scale_matches_the_cpu() {

@@ -20,11 +20,12 @@
 use blueshift_doppler::{
     BandShift, DopplerImage, DopplerScene, DopplerSettings, SpectralIntegrator, render_doppler,
 };
+use blueshift_gpu::Error;
+use blueshift_gpu::context::test_context;
 use blueshift_gpu::doppler::{
     DEVICE_PIECE_CAP, DopplerPrecision, absorption_layout, absorption_layout_fw, check_supported,
     render_doppler_gpu, render_doppler_gpu_with,
 };
-use blueshift_gpu::{Error, test_context};
 use blueshift_spectrum::DopplerModel;
 use blueshift_volume::synth;
 use std::cell::Cell;

@@ -3,8 +3,8 @@
 //! f64). Checker
 //! (discontinuous): at least 99.5% of pixels equal within the same tolerance.
 
+use blueshift_gpu::context::test_context;
 use blueshift_gpu::relativity::GpuRelativity;
-use blueshift_gpu::test_context;
 use blueshift_relativity::{
     Camera, Checker, CubeMap, Effects, Environment, EquirectMap, Velocity, cube_dir,
 };

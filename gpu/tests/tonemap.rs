@@ -2,8 +2,9 @@
 //! Tolerances: global operators 1e-4 relative + 1e-6 absolute per channel; Reinhard local
 //! and Durand 2e-4 relative + 1e-6 absolute; Fattal 2e-4 relative + 1e-6 absolute (see the module docs of `blueshift_gpu::tonemap`).
 
+use blueshift_gpu::Error;
+use blueshift_gpu::context::test_context;
 use blueshift_gpu::tonemap::GpuTonemapper;
-use blueshift_gpu::{Error, test_context};
 use blueshift_tonemap::{
     DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
     ReinhardParams, Roi,

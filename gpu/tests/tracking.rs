@@ -9,8 +9,9 @@
 
 use std::sync::OnceLock;
 
+use blueshift_gpu::context::test_context;
 use blueshift_gpu::tracking::{GpuTracker, check_volume_fits, quantise_probe, rng_probe};
-use blueshift_gpu::{Error, GpuContext, test_context};
+use blueshift_gpu::{Error, GpuContext};
 use blueshift_tfedit::{ColorKnot, DataAxis, OpacityKnot, TransferFunction};
 use blueshift_tracking::{
     Blend, DdaMode, DirectionalLight, Integrator, Precision, RayMarcher, RenderSettings, Rng,
