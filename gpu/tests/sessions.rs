@@ -61,7 +61,7 @@ fn gpu_tracking_session_edits_equal_fresh_uploads() {
         direct.as_raw()
     );
     // A transfer-function edit on the device equals uploading the edited scene.
-    let new_tf = tf([0.8, 0.7, 0.1], 2.5);
+    let new_tf = tf([0.8, 0.7, 0.1], 0.4);
     session.set_transfer_function(2, new_tf.clone()).unwrap();
     let mut edited = tfs();
     edited[2] = new_tf;

@@ -1,8 +1,9 @@
 //! # blueshift-tracking: multi-density Woodcock tracking and an HDR ray marcher
 //!
-//! Ray integrators for scientific volumes of N channels (MDWT, Sarton et al.; HDR VolVis,
-//! Yuan et al., section 3): cameras and rays, majorant grids built from the volume crate's
-//! macrocells and each channel's transfer function, a robust 3D DDA, Woodcock tracking,
+//! Ray integrators for scientific volumes of N channels (MDWT, Sahistan et al.; HDR VolVis,
+//! Yuan et al., section 3), with cameras and rays from `blueshift-camera`: majorant grids
+//! built from the volume crate's macrocells and each channel's transfer function, a robust
+//! 3D DDA, Woodcock tracking,
 //! multi-density Woodcock tracking with N traversals (Listing 3) or one (Listing 4), density /
 //! max / mix / composite blending, ratio-tracked volumetric shadows, progressive accumulation
 //! with counter-based random numbers, and an emission-absorption ray marcher with f32, f16
@@ -16,6 +17,9 @@
 //! - Or load a render scene file ([`RenderSceneFile::read`], then
 //!   [`RenderSceneFile::build`] gives the scene, integrator and settings; format in
 //!   [`scene_file`]).
+//! - [`TrackingSession`] renders progressively under an observer (progress, each pass's
+//!   accumulation buffer, cancel) and re-renders after a camera or transfer-function edit
+//!   (only that channel's majorants are rebuilt).
 //! - [`RenderSettings::default_for`] gives the default view; [`render()`] returns an
 //!   `image::Rgba32FImage` (linear HDR RGB, alpha = 1 - transmittance);
 //!   [`render_progressive`] reports passes and the noise estimate.
