@@ -3,7 +3,8 @@
 //!
 //! - `tracking_tf_edit`: 4 channels of `synth::channels12(128)` with 1-DDA MDWT, a 48 x 48
 //!   one-sample preview (the viewer's first frame after an edit). `fresh` builds the scene
-//!   (macrocells and majorant grids of every channel) and the session, then renders;
+//!   from the loaded channels (macrocells and majorant grids of every channel) and the
+//!   session, then renders;
 //!   `tf_edit` changes one channel's transfer function on a kept session (only that
 //!   channel's majorant grid is rebuilt), then renders.
 //! - `doppler_factor_edit`: the galaxy (`synth::galaxy(64)`, black body + H I, absorption
@@ -13,7 +14,8 @@
 //!
 //! Besides criterion's groups, a single-threaded comparison is written to
 //! `target/blueshift-benches/sessions.csv` with each edit's median time as a ratio to the
-//! fresh session's measured in the same run (`BLUESHIFT_SKIP_TABLES=1` skips it).
+//! fresh session's measured in the same run, both with the render and for the building /
+//! rebuilding alone (`BLUESHIFT_SKIP_TABLES=1` skips it).
 
 use std::fmt::Write as _;
 use std::hint::black_box;
@@ -22,8 +24,9 @@ use std::time::Instant;
 use blueshift_benches::{channel_scene, out_dir, ramp_tf};
 use blueshift_camera::Silent;
 use blueshift_doppler::{DopplerScene, DopplerSession, DopplerSettings};
-use blueshift_tracking::{Blend, DdaMode, Integrator, RenderSettings, TrackingSession};
-use blueshift_volume::{Volume, synth};
+use blueshift_tfedit::TransferFunction;
+use blueshift_tracking::{Blend, DdaMode, Integrator, RenderSettings, Scene, TrackingSession};
+use blueshift_volume::{AnyGrid, Volume, synth};
 use criterion::Criterion;
 
 const RES: usize = 128;
@@ -38,8 +41,25 @@ fn integrator() -> Integrator {
     }
 }
 
-fn fresh_tracking() -> TrackingSession {
-    let scene = channel_scene(4, RES, 8, 20.0).expect("scene");
+/// The channels of the tracking scene (made once: the data a session is built from).
+fn tracking_channels() -> Vec<(String, AnyGrid, TransferFunction)> {
+    channel_scene(4, RES, 8, 20.0)
+        .expect("scene")
+        .channels()
+        .iter()
+        .map(|c| {
+            (
+                c.name().to_owned(),
+                c.grid().clone(),
+                c.transfer_function().clone(),
+            )
+        })
+        .collect()
+}
+
+/// A fresh session: macrocells and majorant grids of every channel, then the session.
+fn fresh_tracking(channels: &[(String, AnyGrid, TransferFunction)]) -> TrackingSession {
+    let scene = Scene::new(channels.to_vec(), 20.0, 8).expect("scene");
     let mut s = RenderSettings::default_for(&scene, SIZE, SIZE, true);
     s.seed = 3;
     TrackingSession::new(scene, integrator(), s).expect("session")
@@ -58,7 +78,7 @@ fn fresh_doppler(vol: &Volume) -> DopplerSession {
 }
 
 /// Two transfer functions to alternate between (so every edit changes the majorants).
-fn tfs() -> [blueshift_tfedit::TransferFunction; 2] {
+fn tfs() -> [TransferFunction; 2] {
     [
         ramp_tf([1.0, 0.5, 0.2]).expect("tf"),
         ramp_tf([0.2, 0.5, 1.0])
@@ -97,10 +117,14 @@ fn table() {
         return;
     }
     let tf = tfs();
+    let chans = tracking_channels();
     let t_fresh = time1(5, || {
-        black_box(fresh_tracking().render(&Silent).expect("render"));
+        black_box(fresh_tracking(&chans).render(&Silent).expect("render"));
     });
-    let mut session = fresh_tracking();
+    let t_build = time1(5, || {
+        black_box(fresh_tracking(&chans));
+    });
+    let mut session = fresh_tracking(&chans);
     let mut k = 0;
     let t_edit = time1(5, || {
         k += 1;
@@ -109,28 +133,49 @@ fn table() {
             .expect("tf edit");
         black_box(session.render(&Silent).expect("render"));
     });
+    let t_edit_only = time1(5, || {
+        k += 1;
+        session
+            .set_transfer_function(0, tf[k % 2].clone())
+            .expect("tf edit");
+    });
     let vol = synth::galaxy(DOPPLER_RES, 1).expect("galaxy");
     let d_fresh = time1(5, || {
         black_box(fresh_doppler(&vol).render(&Silent).expect("render"));
     });
+    let d_build = time1(5, || {
+        black_box(fresh_doppler(&vol));
+    });
     let mut ds = fresh_doppler(&vol);
     let mut j = 0;
-    let d_edit = time1(5, || {
+    let mut edit = |ds: &mut DopplerSession| {
         j += 1;
         let mut f = ds.scene().factors;
         f.velocity = if j % 2 == 0 { 1.0 } else { 2.0 };
         ds.set_factors(f).expect("factor edit");
+    };
+    let d_edit = time1(5, || {
+        edit(&mut ds);
         black_box(ds.render(&Silent).expect("render"));
     });
-    let mut csv = String::from("case,fresh_s,edit_s,speedup\n");
-    for (name, a, b) in [
-        ("tracking_tf_edit", t_fresh, t_edit),
-        ("doppler_factor_edit", d_fresh, d_edit),
+    let d_edit_only = time1(5, || edit(&mut ds));
+    let mut csv =
+        String::from("case,fresh_s,edit_s,speedup,fresh_build_s,edit_rebuild_s,rebuild_speedup\n");
+    for (name, a, b, c, d) in [
+        ("tracking_tf_edit", t_fresh, t_edit, t_build, t_edit_only),
+        ("doppler_factor_edit", d_fresh, d_edit, d_build, d_edit_only),
     ] {
-        let _ = writeln!(csv, "{name},{a:.6},{b:.6},{:.2}", a / b);
+        let _ = writeln!(
+            csv,
+            "{name},{a:.6},{b:.6},{:.2},{c:.6},{d:.3e},{:.1}",
+            a / b,
+            c / d
+        );
         eprintln!(
-            "{name}: fresh {a:.4} s, after edit {b:.4} s, speed-up {:.2}x",
-            a / b
+            "{name}: fresh {a:.4} s, after edit {b:.4} s ({:.2}x); building {c:.5} s, \
+             rebuilding after the edit {d:.3e} s ({:.1}x)",
+            a / b,
+            c / d
         );
     }
     let path = out_dir().join("sessions.csv");
@@ -141,12 +186,13 @@ fn table() {
 
 fn criterion_groups(c: &mut Criterion) {
     let tf = tfs();
+    let chans = tracking_channels();
     let mut g = c.benchmark_group("tracking_tf_edit");
     g.sample_size(10);
     g.bench_function("fresh", |b| {
-        b.iter(|| black_box(fresh_tracking().render(&Silent).expect("render")));
+        b.iter(|| black_box(fresh_tracking(&chans).render(&Silent).expect("render")));
     });
-    let mut session = fresh_tracking();
+    let mut session = fresh_tracking(&chans);
     let mut k = 0;
     g.bench_function("tf_edit", |b| {
         b.iter(|| {
