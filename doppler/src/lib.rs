@@ -118,4 +118,4 @@ pub use render::{
 pub use scene_file::{
     BlackbodySpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec, catalogue_mass_amu,
 };
-pub use session::DopplerSession;
+pub use session::{DopplerSession, SAMPLE_CACHE_BYTES};

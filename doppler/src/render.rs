@@ -332,16 +332,22 @@ impl<'a> Context<'a> {
 
     /// Samples a ray back to front. Returns an empty set if the ray misses the volume.
     pub fn sample(&self, ray: &Ray) -> Result<RaySamples> {
+        let mut raw = self.sample_raw(ray);
+        let (t, rho) = (std::mem::take(&mut raw.t), std::mem::take(&mut raw.rho));
+        self.finish_with(&raw, t, rho)
+    }
+
+    /// The factor-independent part of [`Context::sample`]: the trilinear values along the
+    /// ray, before any of the scene's factors (kept by sessions across factor edits).
+    pub fn sample_raw(&self, ray: &Ray) -> RawSamples {
         let g = &self.scene.geometry;
-        let mut out = RaySamples::default();
+        let mut out = RawSamples::default();
         let Some(span) = RaySpan::clip(self.scene, self.settings, self.step, ray) else {
-            return Ok(out);
+            return out;
         };
         let (t0, len, n_seg) = (span.t0, span.len, span.n_seg as usize);
-        let f = self.scene.factors;
-        let nsp = self.scene.species.len();
         let dir = ray.dir.normalize();
-        let los = [f64::from(dir.x), f64::from(dir.y), f64::from(dir.z)];
+        out.los = [f64::from(dir.x), f64::from(dir.y), f64::from(dir.z)];
         for i in (0..=n_seg).rev() {
             let t = if i == n_seg {
                 len
@@ -354,21 +360,46 @@ impl<'a> Context<'a> {
                 out.rho
                     .push(f64::from(sp.density.sample_scalar_index(p)).max(0.0));
             }
-            let _ = nsp;
-            match &self.scene.blackbody {
-                Some((d, temp)) => {
-                    out.bb
-                        .push(f64::from(d.sample_scalar_index(p)).max(0.0) * f.blackbody * BB_UNIT);
-                    out.temp
-                        .push(f64::from(temp.sample_scalar_index(p)).max(0.0) * f.temperature);
-                }
-                None => {
-                    out.bb.push(0.0);
-                    out.temp.push(0.0);
-                }
+            if let Some((d, temp)) = &self.scene.blackbody {
+                out.bb.push(f64::from(d.sample_scalar_index(p)).max(0.0));
+                out.temp
+                    .push(f64::from(temp.sample_scalar_index(p)).max(0.0));
             }
-            let v = match &self.scene.velocity {
-                Some(vg) => vg.sample_trilinear_index(p) * f.velocity as f32,
+            if let Some(vg) = &self.scene.velocity {
+                out.vel.push(vg.sample_trilinear_index(p));
+            }
+        }
+        out
+    }
+
+    /// Applies the scene's factors and the Doppler model to raw samples.
+    pub fn finish(&self, raw: &RawSamples) -> Result<RaySamples> {
+        self.finish_with(raw, raw.t.clone(), raw.rho.clone())
+    }
+
+    /// [`Context::finish`] with the path positions and densities given (moved out of `raw`).
+    fn finish_with(&self, raw: &RawSamples, t: Vec<f32>, rho: Vec<f64>) -> Result<RaySamples> {
+        let f = self.scene.factors;
+        let n = t.len();
+        let los = raw.los;
+        let mut out = RaySamples {
+            t,
+            rho,
+            bb: Vec::with_capacity(n),
+            temp: Vec::with_capacity(n),
+            shift: Vec::with_capacity(n),
+            v_r: Vec::with_capacity(n),
+        };
+        for i in 0..n {
+            if raw.bb.is_empty() {
+                out.bb.push(0.0);
+                out.temp.push(0.0);
+            } else {
+                out.bb.push(raw.bb[i] * f.blackbody * BB_UNIT);
+                out.temp.push(raw.temp[i] * f.temperature);
+            }
+            let v = match raw.vel.get(i) {
+                Some(&v) => v * f.velocity as f32,
                 None => Vec3::ZERO,
             };
             let v = [f64::from(v.x), f64::from(v.y), f64::from(v.z)];
@@ -379,6 +410,23 @@ impl<'a> Context<'a> {
         }
         Ok(out)
     }
+}
+
+/// The samples of one ray before the scene's factors: what a factor edit does not change.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct RawSamples {
+    /// Path position of each sample, far first.
+    pub t: Vec<f32>,
+    /// Densities (>= 0), `species.len()` per sample.
+    pub rho: Vec<f64>,
+    /// Black-body density (>= 0), one per sample; empty without a black body.
+    pub bb: Vec<f64>,
+    /// Temperature (>= 0), K; empty without a black body.
+    pub temp: Vec<f64>,
+    /// Velocity, m/s, before the velocity factor; empty without a velocity field.
+    pub vel: Vec<Vec3>,
+    /// The ray's unit direction (the line of sight).
+    pub los: [f64; 3],
 }
 
 /// Piece counts per ray: in images, the pieces of the optical depth in front kept by rays
@@ -437,7 +485,15 @@ pub(crate) enum Want {
 }
 
 pub(crate) fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayOut> {
-    let samples = ctx.sample(ray)?;
+    integrate_samples(ctx, &ctx.sample(ray)?, want)
+}
+
+/// Integrates a ray's samples with the context's integrator.
+pub(crate) fn integrate_samples(
+    ctx: &Context<'_>,
+    samples: &RaySamples,
+    want: Want,
+) -> Result<RayOut> {
     if samples.len() < 2 {
         return Ok(RayOut {
             spectrum: (want != Want::Xyz).then(PiecewiseLinear::new),
@@ -445,8 +501,8 @@ pub(crate) fn integrate(ctx: &Context<'_>, ray: &Ray, want: Want) -> Result<RayO
         });
     }
     match (&ctx.pwl, &ctx.banded) {
-        (Some(t), _) => pwl::integrate(ctx, t, &samples, want),
-        (_, Some(t)) => banded::integrate(ctx, t, &samples, want),
+        (Some(t), _) => pwl::integrate(ctx, t, samples, want),
+        (_, Some(t)) => banded::integrate(ctx, t, samples, want),
         _ => Err(Error::parameter("no integrator tables")),
     }
 }
@@ -492,30 +548,60 @@ pub(crate) fn render_rows(
     ctx: &Context<'_>,
     observer: &dyn Observer<DopplerImage>,
 ) -> Result<DopplerImage> {
+    Ok(render_rows_cached(ctx, observer, None, false)?.0)
+}
+
+/// [`render_rows`] over raw samples kept from an earlier render of the same view
+/// (`cached`, one per pixel, row-major), or keeping this render's (`keep`) for the next.
+pub(crate) fn render_rows_cached(
+    ctx: &Context<'_>,
+    observer: &dyn Observer<DopplerImage>,
+    cached: Option<&[RawSamples]>,
+    keep: bool,
+) -> Result<(DopplerImage, Option<Vec<RawSamples>>)> {
     let settings = ctx.settings;
     let (w, h) = (settings.width, settings.height);
+    let keep = keep && cached.is_none();
     let done = AtomicU64::new(0);
-    let rows: Vec<Result<Vec<RayOut>>> = (0..h)
+    type Row = (Vec<RayOut>, Vec<RawSamples>);
+    let rows: Vec<Result<Row>> = (0..h)
         .into_par_iter()
         .map(|y| {
             if observer.cancelled() {
                 return Err(Error::Cancelled);
             }
-            let row = (0..w)
-                .map(|x| integrate(ctx, &pixel_ray(settings, x, y)?, Want::Xyz))
-                .collect::<Result<Vec<_>>>();
+            let mut outs = Vec::with_capacity(w as usize);
+            let mut raws = Vec::with_capacity(if keep { w as usize } else { 0 });
+            for x in 0..w {
+                let samples = match cached {
+                    Some(c) => ctx.finish(&c[(y * w + x) as usize])?,
+                    None if keep => {
+                        let raw = ctx.sample_raw(&pixel_ray(settings, x, y)?);
+                        let samples = ctx.finish(&raw)?;
+                        raws.push(raw);
+                        samples
+                    }
+                    None => ctx.sample(&pixel_ray(settings, x, y)?)?,
+                };
+                outs.push(integrate_samples(ctx, &samples, Want::Xyz)?);
+            }
             observer.progress(Progress {
                 done: done.fetch_add(1, Ordering::Relaxed) + 1,
                 total: u64::from(h),
                 pass: 0,
             });
-            row
+            Ok((outs, raws))
         })
         .collect();
+    let mut kept = keep.then(|| Vec::with_capacity(w as usize * h as usize));
     let mut xyz = Vec::with_capacity(w as usize * h as usize);
     let (mut sum, mut max, mut fb) = (0.0f64, 0usize, 0usize);
     for row in rows {
-        for r in row? {
+        let (outs, raws) = row?;
+        if let Some(k) = kept.as_mut() {
+            k.extend(raws);
+        }
+        for r in outs {
             xyz.push(r.xyz.to_array());
             sum += r.max_pieces as f64;
             max = max.max(r.max_pieces);
@@ -534,7 +620,7 @@ pub(crate) fn render_rows(
         },
     };
     observer.pass(1, &image, None);
-    Ok(image)
+    Ok((image, kept))
 }
 
 /// The final spectrum of pixel `(x, y)` (banded integrators give their step function).

@@ -7,16 +7,22 @@ use super::cube::{CubeSpec, SpectralCube, render_cube_with};
 use super::model::{DopplerScene, Factors};
 use super::prepared::Prepared;
 use super::render::{
-    Context, DopplerImage, DopplerSettings, TraceStep, Want, integrate, pixel_ray, render_rows,
+    Context, DopplerImage, DopplerSettings, RawSamples, TraceStep, Want, integrate, pixel_ray,
+    render_rows_cached,
 };
 use crate::Result;
+use std::sync::{Arc, Mutex};
 
 /// A Doppler render session on the CPU: the scene, its settings and their [`Prepared`]
 /// tables. Images, picked spectra, traces and cubes all reuse the tables; an edit rebuilds
 /// only what it touches:
-/// - a camera edit ([`DopplerSession::set_camera`]) rebuilds nothing (the camera is checked);
+/// - a camera edit ([`DopplerSession::set_camera`]) rebuilds nothing (the camera is
+///   checked); the next render samples the volume again;
 /// - a factors edit ([`DopplerSession::set_factors`]) rebuilds the banded rest-frame
-///   values (Table 1's factors scale them); the piecewise-linear and broadening tables stay;
+///   values (Table 1's factors scale them); the piecewise-linear and broadening tables stay,
+///   and so do the samples of the last render (densities, temperatures and velocities along
+///   every pixel's ray before the factors, up to [`SAMPLE_CACHE_BYTES`]): the next render
+///   only applies the factors and integrates;
 /// - a settings edit ([`DopplerSession::set_settings`]) rebuilds everything.
 ///
 /// The image is the same, bit for bit, as [`crate::render_doppler`]'s on any thread count.
@@ -25,7 +31,14 @@ pub struct DopplerSession {
     scene: DopplerScene,
     settings: DopplerSettings,
     prepared: Prepared,
+    /// Every pixel's samples before the factors, from the last render of this view (kept
+    /// when they fit [`SAMPLE_CACHE_BYTES`]): a factor edit re-renders without re-sampling.
+    raw: Mutex<Option<Arc<Vec<RawSamples>>>>,
 }
+
+/// Most bytes of per-pixel samples a [`DopplerSession`] keeps between renders (a view
+/// whose samples would need more re-samples the volume on every render).
+pub const SAMPLE_CACHE_BYTES: usize = 256 << 20;
 
 impl DopplerSession {
     /// Validates `settings` against `scene` and prepares the tables.
@@ -38,6 +51,7 @@ impl DopplerSession {
             scene,
             settings,
             prepared,
+            raw: Mutex::new(None),
         })
     }
 
@@ -72,6 +86,7 @@ impl DopplerSession {
     pub fn set_camera(&mut self, camera: Camera) -> Result<()> {
         camera.validate()?;
         self.settings.camera = camera;
+        self.forget_samples();
         Ok(())
     }
 
@@ -96,7 +111,25 @@ impl DopplerSession {
     pub fn set_settings(&mut self, settings: DopplerSettings) -> Result<()> {
         self.prepared = Prepared::new(&self.scene, &settings)?;
         self.settings = settings;
+        self.forget_samples();
         Ok(())
+    }
+
+    fn forget_samples(&mut self) {
+        if let Ok(raw) = self.raw.get_mut() {
+            *raw = None;
+        }
+    }
+
+    /// Bytes the kept samples of this view would take (an upper bound).
+    fn sample_bytes(&self) -> usize {
+        let g = &self.scene.geometry;
+        let (lo, hi) = g.world_bounds();
+        let diag = (hi - lo + 2.0 * g.spacing).length();
+        let steps = (diag / self.prepared.step()).ceil() as usize + 2;
+        let per_step = 4 + 12 + 8 * (self.scene.species.len() + 2);
+        let pixels = self.settings.width as usize * self.settings.height as usize;
+        pixels.saturating_mul(steps).saturating_mul(per_step)
     }
 
     fn context(&self) -> Context<'_> {
@@ -108,7 +141,18 @@ impl DopplerSession {
     /// # Errors
     /// [`crate::Error::Cancelled`] when the observer cancels; a Doppler shift out of range.
     pub fn render(&self, observer: &dyn Observer<DopplerImage>) -> Result<DopplerImage> {
-        render_rows(&self.context(), observer)
+        let cached = self.raw.lock().ok().and_then(|r| r.clone());
+        let keep = cached.is_none() && self.sample_bytes() <= SAMPLE_CACHE_BYTES;
+        let (img, kept) = render_rows_cached(
+            &self.context(),
+            observer,
+            cached.as_deref().map(Vec::as_slice),
+            keep,
+        )?;
+        if let (Some(k), Ok(mut slot)) = (kept, self.raw.lock()) {
+            *slot = Some(Arc::new(k));
+        }
+        Ok(img)
     }
 
     /// The final spectrum of pixel `(x, y)` (banded integrators give their step function).

@@ -53,6 +53,8 @@ fn a_factor_edit_equals_a_fresh_session_with_those_factors() {
             let sc = galaxy(abs0, 2.0);
             let st = settings(&sc, integ);
             let mut session = DopplerSession::new(sc, st.clone()).unwrap();
+            // The first render keeps the samples; the edited render reuses them.
+            session.render(&Silent).unwrap();
             let mut f = session.scene().factors;
             f.velocity = 0.5;
             f.absorption = abs1;
@@ -85,6 +87,8 @@ fn camera_and_settings_edits_equal_fresh_renders() {
     inclined.incline(&sc, 40.0).unwrap();
     let expected = render_doppler(&sc, &inclined, &|| {}).unwrap();
     let mut session = DopplerSession::new(sc, st.clone()).unwrap();
+    // Kept samples belong to the old view: a camera edit must not reuse them.
+    session.render(&Silent).unwrap();
     session.set_camera(inclined.camera).unwrap();
     assert_eq!(session.render(&Silent).unwrap().xyz, expected.xyz);
     let mut banded = st;
@@ -93,6 +97,7 @@ fn camera_and_settings_edits_equal_fresh_renders() {
         shift: blueshift_doppler::BandShift::Nearest,
     };
     let expected = render_doppler(session.scene(), &banded, &|| {}).unwrap();
+    session.render(&Silent).unwrap();
     session.set_settings(banded).unwrap();
     assert_eq!(session.render(&Silent).unwrap().xyz, expected.xyz);
 }
