@@ -25,4 +25,6 @@ pub mod session;
 
 pub use camera::{Camera, DEFAULT_FOV_Y_DEG, Projection, Ray};
 pub use error::{Error, Result};
-pub use session::{CancelToken, DeviceKind, Observer, OnProgress, Progress, Session, Silent};
+pub use session::{
+    CancelToken, DeviceKind, Observer, OnProgress, Progress, Session, Silent, single_pass_done,
+};

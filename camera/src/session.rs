@@ -106,6 +106,17 @@ impl CancelToken {
     }
 }
 
+/// Tells `observer` that a single-pass render (a deterministic image of `rows` rows)
+/// finished with `image`: one progress event with every row done, then the pass.
+pub fn single_pass_done<I: ?Sized>(observer: &dyn Observer<I>, rows: u64, image: &I) {
+    observer.progress(Progress {
+        done: rows,
+        total: rows,
+        pass: 1,
+    });
+    observer.pass(1, image, None);
+}
+
 /// The device a session runs on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum DeviceKind {

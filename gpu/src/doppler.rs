@@ -144,7 +144,7 @@
 //! bad sigma or mass) are [`Error::InvalidInput`] with the CPU's message. Picked spectra,
 //! traces and spectral cubes stay on the CPU.
 
-use blueshift_camera::{DeviceKind, Observer, Progress, Session};
+use blueshift_camera::{DeviceKind, Observer, Session, single_pass_done};
 use blueshift_doppler::{
     BB_UNIT, BandShift, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, LineEntry,
     LineKind, PieceStats, Prepared, PwlTables, SpectralIntegrator,
@@ -1249,13 +1249,7 @@ impl<'c> GpuDopplerSession<'c> {
             self.cpu.prepared(),
             self.precision,
         )?;
-        let h = u64::from(img.height);
-        observer.progress(Progress {
-            done: h,
-            total: h,
-            pass: 1,
-        });
-        observer.pass(1, &img, None);
+        single_pass_done(observer, u64::from(img.height), &img);
         Ok(img)
     }
 }

@@ -29,7 +29,7 @@
 //! `max_storage_buffer_binding_size` (128 MiB on lavapipe: a 6 x 1024^2 cube map fits); a
 //! larger map is refused with [`Error::LimitExceeded`] naming that limit.
 
-use blueshift_camera::{DeviceKind, Observer, Progress, Session};
+use blueshift_camera::{DeviceKind, Observer, Session, single_pass_done};
 use blueshift_relativity::{
     Camera, CameraFrame, DopplerColourTable, Effects, Environment, RelativitySession, TABLE_D_MAX,
     TABLE_D_MIN, Velocity,
@@ -295,13 +295,7 @@ impl<'c> GpuRelativitySession<'c> {
         let img = self
             .gpu
             .render(c.environment(), c.camera(), c.velocity(), c.effects())?;
-        let h = u64::from(img.height());
-        observer.progress(Progress {
-            done: h,
-            total: h,
-            pass: 1,
-        });
-        observer.pass(1, &img, None);
+        single_pass_done(observer, u64::from(img.height()), &img);
         Ok(img)
     }
 }

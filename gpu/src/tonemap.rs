@@ -42,7 +42,7 @@
 //! same terms in the same order; the difference is the GPU's `exp`/`pow` rounding and
 //! fused multiply-adds).
 
-use blueshift_camera::{DeviceKind, Observer, Progress, Session};
+use blueshift_camera::{DeviceKind, Observer, Session, single_pass_done};
 use blueshift_tonemap::plane::log_average;
 use blueshift_tonemap::{CleanImage, Operator, Plane, TonemapSession};
 use image::Rgb32FImage;
@@ -850,13 +850,7 @@ impl<'c> GpuTonemapSession<'c> {
         let img = self
             .gpu
             .apply(self.cpu.operator(), &self.cpu.clean().image)?;
-        let h = u64::from(img.height());
-        observer.progress(Progress {
-            done: h,
-            total: h,
-            pass: 1,
-        });
-        observer.pass(1, &img, None);
+        single_pass_done(observer, u64::from(img.height()), &img);
         Ok(img)
     }
 }

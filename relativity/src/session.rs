@@ -1,7 +1,7 @@
 //! [`RelativitySession`]: one environment seen by an observer whose speed, view and effects
 //! change between frames.
 
-use blueshift_camera::{DeviceKind, Observer, Progress, Session};
+use blueshift_camera::{DeviceKind, Observer, Session, single_pass_done};
 use image::Rgb32FImage;
 
 use crate::colour::DopplerColourTable;
@@ -104,13 +104,7 @@ impl RelativitySession {
             self.effects,
             Some(self.table),
         )?;
-        let h = u64::from(img.height());
-        observer.progress(Progress {
-            done: h,
-            total: h,
-            pass: 1,
-        });
-        observer.pass(1, &img, None);
+        single_pass_done(observer, u64::from(img.height()), &img);
         Ok(img)
     }
 }
