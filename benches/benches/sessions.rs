@@ -10,7 +10,9 @@
 //! - `doppler_factor_edit`: the galaxy (`synth::galaxy(64)`, black body + H I, absorption
 //!   on), piecewise-linear, a 32 x 32 preview. `fresh` builds the Doppler scene from the
 //!   volume and the session (validation, CMF and black-body tables, broadening tables),
-//!   then renders; `factor_edit` changes the velocity factor on a kept session, then renders.
+//!   then renders; `factor_edit` changes the velocity factor on a kept session (which
+//!   reuses its last render's samples before the factors), then renders. The table also
+//!   has the emission-only case (absorption factor 0: the closed-form image path).
 //!
 //! Besides criterion's groups, a single-threaded comparison is written to
 //! `target/blueshift-benches/sessions.csv` with each edit's median time as a ratio to the
@@ -65,14 +67,18 @@ fn fresh_tracking(channels: &[(String, AnyGrid, TransferFunction)]) -> TrackingS
     TrackingSession::new(scene, integrator(), s).expect("session")
 }
 
-fn doppler_scene(vol: &Volume) -> DopplerScene {
+fn doppler_scene(vol: &Volume, absorption: f64) -> DopplerScene {
     let mut scene = DopplerScene::from_volume(vol, &["bb", "H"]).expect("doppler scene");
-    scene.factors.absorption = 1.0;
+    scene.factors.absorption = absorption;
     scene
 }
 
 fn fresh_doppler(vol: &Volume) -> DopplerSession {
-    let scene = doppler_scene(vol);
+    fresh_doppler_with(vol, 1.0)
+}
+
+fn fresh_doppler_with(vol: &Volume, absorption: f64) -> DopplerSession {
+    let scene = doppler_scene(vol, absorption);
     let st = DopplerSettings::default_for(&scene, DOPPLER_SIZE, DOPPLER_SIZE);
     DopplerSession::new(scene, st).expect("doppler session")
 }
@@ -93,78 +99,118 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// Median seconds of `reps` runs of `f` on one thread.
-fn time1(reps: usize, mut f: impl FnMut() + Send) -> f64 {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
+/// Threads of the comparison table (`BLUESHIFT_BENCH_THREADS`, default 1).
+fn pool() -> rayon::ThreadPool {
+    let n = std::env::var("BLUESHIFT_BENCH_THREADS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
         .build()
-        .expect("pool");
-    pool.install(|| {
-        median(
-            (0..reps)
-                .map(|_| {
-                    let t = Instant::now();
-                    f();
-                    t.elapsed().as_secs_f64()
-                })
-                .collect(),
-        )
-    })
+        .expect("pool")
+}
+
+fn seconds(f: &mut dyn FnMut()) -> f64 {
+    let t = Instant::now();
+    f();
+    t.elapsed().as_secs_f64()
+}
+
+/// Median seconds of `reps` runs of `a` and of `b`, run alternately (so a drift in the
+/// machine's speed hits both alike).
+fn pair(reps: usize, a: &mut dyn FnMut(), b: &mut dyn FnMut()) -> (f64, f64) {
+    let (mut ta, mut tb) = (Vec::new(), Vec::new());
+    for _ in 0..reps {
+        ta.push(seconds(a));
+        tb.push(seconds(b));
+    }
+    (median(ta), median(tb))
 }
 
 fn table() {
     if std::env::var_os("BLUESHIFT_SKIP_TABLES").is_some() {
         return;
     }
+    let pool = pool();
     let tf = tfs();
     let chans = tracking_channels();
-    let t_fresh = time1(5, || {
-        black_box(fresh_tracking(&chans).render(&Silent).expect("render"));
-    });
-    let t_build = time1(5, || {
-        black_box(fresh_tracking(&chans));
-    });
-    let mut session = fresh_tracking(&chans);
-    let mut k = 0;
-    let t_edit = time1(5, || {
-        k += 1;
-        session
-            .set_transfer_function(0, tf[k % 2].clone())
-            .expect("tf edit");
-        black_box(session.render(&Silent).expect("render"));
-    });
-    let t_edit_only = time1(5, || {
-        k += 1;
-        session
-            .set_transfer_function(0, tf[k % 2].clone())
-            .expect("tf edit");
-    });
     let vol = synth::galaxy(DOPPLER_RES, 1).expect("galaxy");
-    let d_fresh = time1(5, || {
-        black_box(fresh_doppler(&vol).render(&Silent).expect("render"));
+    let rows = pool.install(|| {
+        let mut session = fresh_tracking(&chans);
+        let mut k = 0;
+        let mut tf_edit = |s: &mut TrackingSession| {
+            k += 1;
+            s.set_transfer_function(0, tf[k % 2].clone())
+                .expect("tf edit");
+        };
+        let (t_fresh, t_edit) = pair(
+            7,
+            &mut || {
+                black_box(fresh_tracking(&chans).render(&Silent).expect("render"));
+            },
+            &mut || {
+                tf_edit(&mut session);
+                black_box(session.render(&Silent).expect("render"));
+            },
+        );
+        let (t_build, t_rebuild) = pair(
+            7,
+            &mut || {
+                black_box(fresh_tracking(&chans));
+            },
+            &mut || tf_edit(&mut session),
+        );
+        let mut doppler = |absorption: f64| {
+            let mut ds = fresh_doppler_with(&vol, absorption);
+            ds.render(&Silent).expect("render");
+            let mut j = 0;
+            let mut factor_edit = |ds: &mut DopplerSession| {
+                j += 1;
+                let mut f = ds.scene().factors;
+                f.velocity = if j % 2 == 0 { 1.0 } else { 2.0 };
+                ds.set_factors(f).expect("factor edit");
+            };
+            let (fresh, edit) = pair(
+                7,
+                &mut || {
+                    black_box(
+                        fresh_doppler_with(&vol, absorption)
+                            .render(&Silent)
+                            .expect("render"),
+                    );
+                },
+                &mut || {
+                    factor_edit(&mut ds);
+                    black_box(ds.render(&Silent).expect("render"));
+                },
+            );
+            let (build, rebuild) = pair(
+                7,
+                &mut || {
+                    black_box(fresh_doppler_with(&vol, absorption));
+                },
+                &mut || factor_edit(&mut ds),
+            );
+            (fresh, edit, build, rebuild)
+        };
+        let (d_fresh, d_edit, d_build, d_rebuild) = doppler(1.0);
+        let (e_fresh, e_edit, e_build, e_rebuild) = doppler(0.0);
+        [
+            ("tracking_tf_edit", t_fresh, t_edit, t_build, t_rebuild),
+            ("doppler_factor_edit", d_fresh, d_edit, d_build, d_rebuild),
+            (
+                "doppler_factor_edit_emission_only",
+                e_fresh,
+                e_edit,
+                e_build,
+                e_rebuild,
+            ),
+        ]
     });
-    let d_build = time1(5, || {
-        black_box(fresh_doppler(&vol));
-    });
-    let mut ds = fresh_doppler(&vol);
-    let mut j = 0;
-    let mut edit = |ds: &mut DopplerSession| {
-        j += 1;
-        let mut f = ds.scene().factors;
-        f.velocity = if j % 2 == 0 { 1.0 } else { 2.0 };
-        ds.set_factors(f).expect("factor edit");
-    };
-    let d_edit = time1(5, || {
-        edit(&mut ds);
-        black_box(ds.render(&Silent).expect("render"));
-    });
-    let d_edit_only = time1(5, || edit(&mut ds));
     let mut csv =
         String::from("case,fresh_s,edit_s,speedup,fresh_build_s,edit_rebuild_s,rebuild_speedup\n");
-    for (name, a, b, c, d) in [
-        ("tracking_tf_edit", t_fresh, t_edit, t_build, t_edit_only),
-        ("doppler_factor_edit", d_fresh, d_edit, d_build, d_edit_only),
-    ] {
+    for (name, a, b, c, d) in rows {
         let _ = writeln!(
             csv,
             "{name},{a:.6},{b:.6},{:.2},{c:.6},{d:.3e},{:.1}",
