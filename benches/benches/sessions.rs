@@ -161,7 +161,7 @@ fn table() {
             },
             &mut || tf_edit(&mut session),
         );
-        let mut doppler = |absorption: f64| {
+        let doppler = |absorption: f64| {
             let mut ds = fresh_doppler_with(&vol, absorption);
             ds.render(&Silent).expect("render");
             let mut j = 0;
