@@ -34,6 +34,7 @@ pub struct DopplerSession {
     /// Every pixel's samples before the factors, from the last render of this view (kept
     /// when they fit [`SAMPLE_CACHE_BYTES`]): a factor edit re-renders without re-sampling.
     raw: Mutex<Option<Arc<Vec<RawSamples>>>>,
+    keep_samples: bool,
 }
 
 /// Most bytes of per-pixel samples a [`DopplerSession`] keeps between renders (a view
@@ -52,6 +53,7 @@ impl DopplerSession {
             settings,
             prepared,
             raw: Mutex::new(None),
+            keep_samples: true,
         })
     }
 
@@ -115,6 +117,15 @@ impl DopplerSession {
         Ok(())
     }
 
+    /// Whether renders keep their samples for the next factor edit (default on; a caller
+    /// that renders once, like the CLI, turns it off to save the memory).
+    pub fn set_keep_samples(&mut self, keep: bool) {
+        self.keep_samples = keep;
+        if !keep {
+            self.forget_samples();
+        }
+    }
+
     fn forget_samples(&mut self) {
         if let Ok(raw) = self.raw.get_mut() {
             *raw = None;
@@ -142,7 +153,8 @@ impl DopplerSession {
     /// [`crate::Error::Cancelled`] when the observer cancels; a Doppler shift out of range.
     pub fn render(&self, observer: &dyn Observer<DopplerImage>) -> Result<DopplerImage> {
         let cached = self.raw.lock().ok().and_then(|r| r.clone());
-        let keep = cached.is_none() && self.sample_bytes() <= SAMPLE_CACHE_BYTES;
+        let keep =
+            self.keep_samples && cached.is_none() && self.sample_bytes() <= SAMPLE_CACHE_BYTES;
         let (img, kept) = render_rows_cached(
             &self.context(),
             observer,

@@ -418,7 +418,10 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     // One session: the image, the picks and the trace share its prepared tables.
-    let session = DopplerSession::new(scene, st)?;
+    let mut session = DopplerSession::new(scene, st)?;
+    // One render: nothing to keep for a factor edit.
+    session.set_keep_samples(false);
+    let session = session;
     let (scene, st) = (session.scene(), session.settings());
     let start = Instant::now();
     let mut on = "cpu";
