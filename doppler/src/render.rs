@@ -348,6 +348,17 @@ impl<'a> Context<'a> {
         let (t0, len, n_seg) = (span.t0, span.len, span.n_seg as usize);
         let dir = ray.dir.normalize();
         out.los = [f64::from(dir.x), f64::from(dir.y), f64::from(dir.z)];
+        // Exact capacities, so kept samples take what the session's budget counts.
+        let n = n_seg + 1;
+        out.t.reserve_exact(n);
+        out.rho.reserve_exact(n * self.scene.species.len());
+        if self.scene.blackbody.is_some() {
+            out.bb.reserve_exact(n);
+            out.temp.reserve_exact(n);
+        }
+        if self.scene.velocity.is_some() {
+            out.vel.reserve_exact(n);
+        }
         for i in (0..=n_seg).rev() {
             let t = if i == n_seg {
                 len

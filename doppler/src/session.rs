@@ -14,7 +14,8 @@ use crate::Result;
 use std::sync::{Arc, Mutex};
 
 /// A Doppler render session on the CPU: the scene, its settings and their [`Prepared`]
-/// tables. Images, picked spectra, traces and cubes all reuse the tables; an edit rebuilds
+/// tables. Images, picked spectra and traces reuse the tables (a cube prepares its own, for
+/// its one-channel line width); an edit rebuilds
 /// only what it touches:
 /// - a camera edit ([`DopplerSession::set_camera`]) rebuilds nothing (the camera is
 ///   checked); the next render samples the volume again;
@@ -140,7 +141,8 @@ impl DopplerSession {
         let steps = (diag / self.prepared.step()).ceil() as usize + 2;
         let per_step = 4 + 12 + 8 * (self.scene.species.len() + 2);
         let pixels = self.settings.width as usize * self.settings.height as usize;
-        pixels.saturating_mul(steps).saturating_mul(per_step)
+        let per_pixel = std::mem::size_of::<RawSamples>() + steps.saturating_mul(per_step);
+        pixels.saturating_mul(per_pixel)
     }
 
     fn context(&self) -> Context<'_> {

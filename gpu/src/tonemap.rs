@@ -284,11 +284,25 @@ impl<'a> GpuTonemapper<'a> {
             return Err(blueshift_tonemap::Error::EmptyImage.into());
         }
         supports(op)?;
+        self.apply_clean(op, &CleanImage::new(img))
+    }
+
+    /// [`GpuTonemapper::apply`] on an image already cleaned by [`CleanImage`] (its
+    /// luminance and statistics are reused; a [`GpuTonemapSession`] cleans once).
+    ///
+    /// # Errors
+    /// As [`GpuTonemapper::apply`].
+    pub fn apply_clean(&self, op: &Operator, clean: &CleanImage) -> Result<Rgb32FImage> {
+        op.validate()?;
+        let img = &clean.image;
+        if img.width() == 0 || img.height() == 0 {
+            return Err(blueshift_tonemap::Error::EmptyImage.into());
+        }
+        supports(op)?;
         let n = u32::try_from(u64::from(img.width()) * u64::from(img.height()))
             .map_err(|_| Error::InvalidInput("image has more than 2^32 pixels".into()))?;
         self.ctx
             .check_storage_size("tone-mapped image", u64::from(n) * 12)?;
-        let clean = CleanImage::new(img);
         let Some((floor, max)) = clean.positive_range else {
             return Ok(Rgb32FImage::new(img.width(), img.height()));
         };
@@ -343,7 +357,7 @@ impl<'a> GpuTonemapper<'a> {
             Operator::ReinhardLocal(p) => {
                 let scale = (f64::from(p.key) / lavg()) as f32;
                 let scaled = clean.luminance.map(|v| v * scale);
-                return self.reinhard_local(&clean, &scaled, p);
+                return self.reinhard_local(clean, &scaled, p);
             }
             Operator::Fattal(p) => {
                 let h_log = clean.luminance.map(|v| v.max(floor).ln());
@@ -372,7 +386,7 @@ impl<'a> GpuTonemapper<'a> {
             }
             Operator::Durand(p) => {
                 let log_l = clean.luminance.map(|v| v.max(floor).log10());
-                return self.durand(&clean, &log_l, p);
+                return self.durand(clean, &log_l, p);
             }
         }
         let ctx = self.ctx;
@@ -849,7 +863,7 @@ impl<'c> GpuTonemapSession<'c> {
         }
         let img = self
             .gpu
-            .apply(self.cpu.operator(), &self.cpu.clean().image)?;
+            .apply_clean(self.cpu.operator(), self.cpu.clean())?;
         single_pass_done(observer, u64::from(img.height()), &img);
         Ok(img)
     }

@@ -43,7 +43,7 @@
 //! f32 bit arithmetic; `Precision::U8` rounds half away from zero to multiples of 1/255 like
 //! the CPU.
 
-use blueshift_camera::{DeviceKind, Observer, Progress, Session};
+use blueshift_camera::{DeviceKind, Observer, Progress, Session, Silent};
 use blueshift_tfedit::{DataAxis, TransferFunction};
 use blueshift_tracking::{
     Blend, DdaMode, Integrator, Precision, Progressive, Projection, RenderSettings, Scene,
@@ -403,10 +403,9 @@ impl<'c> GpuTracker<'c> {
         scene: &GpuScene<'c>,
         integrator: &Integrator,
         settings: &RenderSettings,
-        progress: impl FnMut(u32, f64) + Send,
+        mut progress: impl FnMut(u32, f64),
     ) -> Result<Progressive> {
-        let progress = std::sync::Mutex::new(progress);
-        self.render_observed(scene, integrator, settings, &PassFn(&progress))
+        self.render_loop(scene, integrator, settings, &Silent, &mut progress)
     }
 
     /// The render loop under `observer`: progress after every dispatch, the accumulation
@@ -421,6 +420,19 @@ impl<'c> GpuTracker<'c> {
         integrator: &Integrator,
         settings: &RenderSettings,
         observer: &dyn Observer<Progressive>,
+    ) -> Result<Progressive> {
+        self.render_loop(scene, integrator, settings, observer, &mut |_, _| {})
+    }
+
+    /// The loop of [`GpuTracker::render_observed`], also calling `on_dispatch(samples,
+    /// noise)` after every dispatch (noise infinite when it was not read back).
+    fn render_loop(
+        &self,
+        scene: &GpuScene<'c>,
+        integrator: &Integrator,
+        settings: &RenderSettings,
+        observer: &dyn Observer<Progressive>,
+        on_dispatch: &mut dyn FnMut(u32, f64),
     ) -> Result<Progressive> {
         settings
             .validate()
@@ -525,6 +537,7 @@ impl<'c> GpuTracker<'c> {
                     pass: done,
                 });
                 observer.pass(done, &out, noise.is_finite().then_some(noise));
+                on_dispatch(done, noise);
                 if done >= 2 && noise <= target {
                     return Ok(out);
                 }
@@ -534,6 +547,7 @@ impl<'c> GpuTracker<'c> {
                     total: u64::from(settings.spp),
                     pass: done,
                 });
+                on_dispatch(done, f64::INFINITY);
             }
         }
         let out = read_progressive(self.ctx, settings, &mean, &m2, done)?;
@@ -986,22 +1000,6 @@ fn probe_pipeline(tracker: &GpuTracker<'_>, entry: &str) -> Result<wgpu::Compute
     )
 }
 
-/// Forwards each pass's sample count and noise to a closure (`render_progressive`).
-struct PassFn<'a, F>(&'a std::sync::Mutex<F>);
-
-impl<F: FnMut(u32, f64) + Send> Observer<Progressive> for PassFn<'_, F> {
-    fn progress(&self, p: Progress) {
-        if let Ok(mut f) = self.0.lock() {
-            f(p.pass, f64::INFINITY);
-        }
-    }
-    fn pass(&self, pass: u32, image: &Progressive, _noise: Option<f64>) {
-        if let Ok(mut f) = self.0.lock() {
-            f(pass, image.noise());
-        }
-    }
-}
-
 /// A tracking render session on a GPU: the scene uploaded once (volume, lookup tables,
 /// majorant grids on the device), the integrator and the settings; the GPU twin of
 /// `blueshift_tracking::TrackingSession` with the same edits:
@@ -1064,6 +1062,37 @@ impl<'c> GpuTrackingSession<'c> {
             .validate()
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
         self.settings.camera = camera;
+        Ok(())
+    }
+
+    /// The uploaded scene, for its device-side edits (background, light).
+    pub fn scene_mut(&mut self) -> &mut GpuScene<'c> {
+        &mut self.scene
+    }
+
+    /// Replaces the settings (image size, spp, seed, noise target); nothing is uploaded.
+    ///
+    /// # Errors
+    /// Invalid settings, [`Error::Unsupported`] for CPU-only ones (the session keeps its
+    /// old settings).
+    pub fn set_settings(&mut self, settings: RenderSettings) -> Result<()> {
+        supports(&self.scene.scene, &settings)?;
+        settings
+            .validate()
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        self.settings = settings;
+        Ok(())
+    }
+
+    /// Replaces the integrator; nothing is uploaded.
+    ///
+    /// # Errors
+    /// An integrator that does not fit the scene (the session keeps its old one).
+    pub fn set_integrator(&mut self, integrator: Integrator) -> Result<()> {
+        integrator
+            .prepared(&self.scene.scene)
+            .map_err(|e| Error::InvalidInput(e.to_string()))?;
+        self.integrator = integrator;
         Ok(())
     }
 

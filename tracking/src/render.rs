@@ -379,34 +379,24 @@ impl Progressive {
     }
 }
 
-/// Renders `settings.spp` passes (or fewer when the noise target is met), calling
+/// Renders `settings.spp` passes (or fewer when the noise target is met; the timing
+/// protocol instead when [`RenderSettings::timed_frames`] is set), calling
 /// `progress(passes_done, noise)` after each pass, and returns the accumulation buffer.
 /// A wrapper of the one render loop, [`crate::TrackingSession`]'s, for borrowed scenes.
 pub fn render_progressive(
     scene: &Scene,
     integrator: &Integrator,
     settings: &RenderSettings,
-    progress: impl FnMut(u32, f64) + Send,
+    mut progress: impl FnMut(u32, f64),
 ) -> Result<Progressive> {
     settings.validate()?;
     let integrator = integrator.prepared(scene)?;
-    let progress = std::sync::Mutex::new(progress);
-    let obs = PassCallback(&progress);
-    Ok(run_loop(scene, &integrator, settings, &obs)?.image)
+    let mut on_pass = |acc: &Progressive| progress(acc.samples(), acc.noise());
+    Ok(run_loop(scene, &integrator, settings, &Silent, &mut on_pass)?.image)
 }
 
-/// Forwards each pass's count and noise to a closure.
-struct PassCallback<'a, F>(&'a std::sync::Mutex<F>);
-
-impl<F: FnMut(u32, f64) + Send> Observer<Progressive> for PassCallback<'_, F> {
-    fn pass(&self, pass: u32, image: &Progressive, _noise: Option<f64>) {
-        if let Ok(mut f) = self.0.lock() {
-            f(pass, image.noise());
-        }
-    }
-}
-
-/// Renders the mean image (HDR, linear RGB; alpha = 1 - transmittance).
+/// Renders the mean image (HDR, linear RGB; alpha = 1 - transmittance) of `settings.spp`
+/// passes (see [`render_progressive`]).
 pub fn render(
     scene: &Scene,
     integrator: &Integrator,
@@ -426,14 +416,18 @@ pub struct TrackingOutput {
 }
 
 /// The one render loop: progressive passes under `observer` (or the timing protocol when
-/// `settings.timed_frames` is set). `integrator` must be prepared for `scene` and
-/// `settings` validated.
+/// `settings.timed_frames` is set), `on_pass` called after every counted pass.
+/// `integrator` must be prepared for `scene` and `settings` validated.
 pub(crate) fn run_loop(
     scene: &Scene,
     integrator: &Integrator,
     settings: &RenderSettings,
     observer: &dyn Observer<Progressive>,
+    on_pass: &mut dyn FnMut(&Progressive),
 ) -> Result<TrackingOutput> {
+    // The CPU has always prepared the integrator once more per render (blend weights
+    // normalised twice, which is not idempotent in f32): kept so images stay bit for bit.
+    let integrator = &integrator.prepared(scene)?;
     let mut acc = Progressive::new(settings.width, settings.height)?;
     if let Some(frames) = settings.timed_frames {
         let total = u64::from(settings.warmup) + u64::from(frames);
@@ -463,6 +457,7 @@ pub(crate) fn run_loop(
             acc.add_prepared_pass(scene, integrator, settings)?;
             times.push(start.elapsed().as_secs_f64());
             report(observer, &acc, u64::from(settings.warmup), total);
+            on_pass(&acc);
         }
         return Ok(TrackingOutput {
             image: acc,
@@ -481,6 +476,7 @@ pub(crate) fn run_loop(
         }
         acc.add_prepared_pass(scene, integrator, settings)?;
         let noise = report(observer, &acc, 0, u64::from(settings.spp));
+        on_pass(&acc);
         if let Some(target) = settings.noise_target
             && acc.samples() >= 2
             && noise <= target
@@ -558,7 +554,7 @@ pub fn render_timed(
     settings.heatmaps = heatmaps;
     settings.validate()?;
     let integrator = integrator.prepared(scene)?;
-    let out = run_loop(scene, &integrator, &settings, &Silent)?;
+    let out = run_loop(scene, &integrator, &settings, &Silent, &mut |_| {})?;
     let times = out.frame_times.unwrap_or(FrameTimes {
         warmup,
         frames: Vec::new(),

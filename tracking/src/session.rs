@@ -122,7 +122,13 @@ impl TrackingSession {
     /// # Errors
     /// [`crate::Error::Cancelled`] when the observer cancels.
     pub fn render(&self, observer: &dyn Observer<Progressive>) -> Result<TrackingOutput> {
-        run_loop(&self.scene, &self.prepared, &self.settings, observer)
+        run_loop(
+            &self.scene,
+            &self.prepared,
+            &self.settings,
+            observer,
+            &mut |_| {},
+        )
     }
 }
 

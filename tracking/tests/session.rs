@@ -232,3 +232,32 @@ fn progressive_from_moments_reproduces_the_noise_formula() {
     assert!((p.variance(0, 0)[1] - 0.2).abs() < 1e-15);
     assert!(Progressive::from_moments(2, 2, 4, vec![[0.0; 4]], vec![[0.0; 4]]).is_err());
 }
+
+#[test]
+fn a_session_equals_the_add_pass_loop_with_unevenly_rounding_weights() {
+    // 12 equal mix weights do not normalise to the same f32s once and twice; a session must
+    // give the bytes of the add_pass loop over a prepared integrator (the CLI's old loop).
+    let vol = synth::channels12(12, 7).unwrap();
+    let tfs: Vec<TransferFunction> = (0..12)
+        .map(|i| tf([1.0, i as f32 / 12.0, 0.5], &[(0.0, 0.0), (1.0, 0.8)]))
+        .collect();
+    let sc = Scene::from_volume(&vol, tfs, 4.0, 4).unwrap();
+    let mdwt_mix = Integrator::Mdwt {
+        dda: DdaMode::NDda,
+        blend: Blend::Mix {
+            weights: vec![1.0; 12],
+        },
+    };
+    let mut st = RenderSettings::default_for(&sc, 10, 8, true);
+    st.spp = 2;
+    let prepared = mdwt_mix.prepared(&sc).unwrap();
+    let mut acc = Progressive::new(10, 8).unwrap();
+    for _ in 0..2 {
+        acc.add_pass(&sc, &prepared, &st).unwrap();
+    }
+    let out = TrackingSession::new(sc, mdwt_mix, st)
+        .unwrap()
+        .render(&Silent)
+        .unwrap();
+    assert_eq!(out.image.mean_image().as_raw(), acc.mean_image().as_raw());
+}

@@ -423,6 +423,15 @@ pub fn run(args: Args) -> Result<()> {
     session.set_keep_samples(false);
     let session = session;
     let (scene, st) = (session.scene(), session.settings());
+    // A precision the adapter lacks is the user's error on gpu and auto alike (not a reason
+    // to fall back), named by its flag.
+    if let Some(ctx) = args.device.context().context("--device")?
+        && blueshift_gpu::doppler::supports(scene, st).is_ok()
+    {
+        args.gpu_precision
+            .is_double_on(ctx)
+            .context("--gpu-precision")?;
+    }
     let start = Instant::now();
     let mut on = "cpu";
     let ran = blueshift_gpu::run_with_fallback(
