@@ -21,6 +21,7 @@
 
 pub mod camera;
 mod error;
+mod names;
 pub mod session;
 
 pub use camera::{Camera, DEFAULT_FOV_Y_DEG, Projection, Ray};

@@ -77,7 +77,7 @@ impl std::fmt::Display for SpectralAxis {
     }
 }
 
-crate::names::serde_via_str!(SpectralAxis);
+blueshift_camera::serde_via_str!(SpectralAxis);
 
 /// The rest width of the lines' box in a cube.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]

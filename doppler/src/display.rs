@@ -3,8 +3,8 @@
 use blueshift_spectrum::{XYZ_TO_CIE_RGB_EQ10, mat_mul, srgb_encode, xyz_to_linear_srgb_matrix};
 
 use super::DopplerImage;
-use crate::names::named_enum;
 use crate::{Error, Result};
+use blueshift_camera::named_enum;
 
 /// Which RGB primaries: `srgb` or `cie`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -67,7 +67,7 @@ impl std::fmt::Display for Exposure {
     }
 }
 
-crate::names::serde_via_str!(Exposure);
+blueshift_camera::serde_via_str!(Exposure);
 
 /// Display options.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -88,6 +88,7 @@ mod front;
 #[cfg(test)]
 mod front_tests;
 mod model;
+#[cfg(test)]
 mod names;
 mod prepared;
 mod profile;

@@ -9,8 +9,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use super::model::{BB_UNIT, DopplerScene};
 use super::prepared::{Prepared, RaySpan};
 use super::{banded, pwl};
-use crate::names::named_enum;
 use crate::{Camera, Error, Ray, Result};
+use blueshift_camera::named_enum;
 
 /// How the banded integrator moves band values under a Doppler shift; spelt as the banded
 /// integrators' prefix: `banded` (nearest) or `banded-ec` (energy-conserving).
@@ -82,7 +82,7 @@ impl std::fmt::Display for SpectralIntegrator {
     }
 }
 
-crate::names::serde_via_str!(SpectralIntegrator);
+blueshift_camera::serde_via_str!(SpectralIntegrator);
 
 /// Render settings.
 #[derive(Clone, Debug)]

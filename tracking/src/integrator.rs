@@ -30,10 +30,10 @@ use half::f16;
 use crate::Ray;
 use crate::dda::{Dda, DdaMajorantIterator};
 use crate::majorant::MajorantGrid;
-use crate::names::named_enum;
 use crate::rng::Rng;
 use crate::scene::Scene;
 use crate::{Error, Result};
+use blueshift_camera::named_enum;
 
 /// How N channels are blended (MDWT section 4.2).
 #[derive(Clone, Debug, PartialEq)]

@@ -51,7 +51,6 @@ pub mod dda;
 mod error;
 pub mod integrator;
 pub mod majorant;
-mod names;
 pub mod render;
 pub mod rng;
 pub mod scene;

@@ -181,7 +181,7 @@ impl std::fmt::Display for HeatMap {
     }
 }
 
-crate::names::serde_via_str!(HeatMap);
+blueshift_camera::serde_via_str!(HeatMap);
 
 impl Progressive {
     /// An empty buffer of `width x height` pixels.

@@ -41,11 +41,11 @@ use blueshift_volume::{AnyGrid, synth};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::names::named_enum;
 use crate::{
     Blend, BlendKind, Camera, DdaMode, DirectionalLight, Error, HeatMap, Integrator, Material,
     Method, Precision, Projection, RayMarcher, RenderSettings, Result, Scene, Shading,
 };
+use blueshift_camera::named_enum;
 
 /// The camera of a scene file: `perspective` or `ortho` (also spelt `orthographic`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]

@@ -1,8 +1,10 @@
-//! String forms of the crate's enums: one spelling per variant (the CLI's and the scene
-//! file's), shared by `FromStr`, `Display` and serde.
+//! String forms of the engines' enums: one spelling per variant (the CLI's and the scene
+//! file's), shared by `FromStr`, `Display` and serde. Used by blueshift-tracking and
+//! blueshift-doppler, which may not import each other.
 
 /// Serde through the string form: serialises with `Display`, deserialises a string with
 /// `FromStr` (so a scene file and a flag refuse a bad spelling with the same message).
+#[macro_export]
 macro_rules! serde_via_str {
     ($t:ty) => {
         impl serde::Serialize for $t {
@@ -24,11 +26,15 @@ macro_rules! serde_via_str {
         }
     };
 }
-pub(crate) use serde_via_str;
 
 /// A unit enum's spellings: `ALL`, `NAMES`, `name()`, `FromStr` (the spellings plus
-/// aliases; anything else is an [`crate::Error::UnknownName`] listing `NAMES`), `Display`
-/// (the spelling) and serde through them.
+/// aliases; anything else is the invoking crate's `Error::UnknownName`, made by its
+/// `Error::unknown(what, given, NAMES)`), `Display` (the spelling) and serde through them.
+/// The invoking crate needs `serde` and an `Error`/`Result` with that constructor.
+#[macro_export]
+// `crate::Error` and `crate::Result` are the invoking crate's on purpose: each engine's
+// names fail with its own error type.
+#[allow(clippy::crate_in_macro_def)]
 macro_rules! named_enum {
     (
         $t:ident, $what:literal,
@@ -67,7 +73,6 @@ macro_rules! named_enum {
             }
         }
 
-        crate::names::serde_via_str!($t);
+        $crate::serde_via_str!($t);
     };
 }
-pub(crate) use named_enum;
