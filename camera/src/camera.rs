@@ -125,40 +125,147 @@ impl Camera {
         }
     }
 
-    /// The default view of a box `[lo, hi]`: looking along +z through the box centre with +y
-    /// up. `orthographic` frames the box's x-y extent exactly for an image of aspect
-    /// `width / height`; the perspective camera (30 degree vertical field of view) stands
-    /// back far enough that the x-y extent of the near face fits.
+    /// The default view of a box `[lo, hi]`, yt's convention: the observer on the +z side
+    /// looking towards -z through the box centre, world +x to the image's right and +y up
+    /// ([`View::Z`]). `orthographic` frames the box's x-y extent exactly for an image of
+    /// aspect `width / height`; the perspective camera (30 degree vertical field of view)
+    /// stands back far enough that the x-y extent of the near face fits.
     #[must_use]
     pub fn default_view(lo: Vec3, hi: Vec3, aspect: f32, orthographic: bool) -> Camera {
+        Camera::framing(
+            lo,
+            hi,
+            Vec3::Z,
+            Vec3::Y,
+            aspect,
+            orthographic,
+            DEFAULT_FOV_Y_DEG,
+        )
+        .unwrap_or(Camera {
+            eye: 0.5 * (lo + hi) + Vec3::Z,
+            target: 0.5 * (lo + hi),
+            up: Vec3::Y,
+            projection: Projection::Orthographic { height: 1.0 },
+        })
+    }
+
+    /// The view of `view` framing the box `[lo, hi]` (see [`Camera::framing`]).
+    #[must_use]
+    pub fn view_of(lo: Vec3, hi: Vec3, view: View, aspect: f32, orthographic: bool) -> Camera {
+        let n = view.normal();
+        Camera::framing(
+            lo,
+            hi,
+            n,
+            up_for(n),
+            aspect,
+            orthographic,
+            DEFAULT_FOV_Y_DEG,
+        )
+        .unwrap_or_else(|_| Camera::default_view(lo, hi, aspect, orthographic))
+    }
+
+    /// A camera on the `normal` side of the box `[lo, hi]` looking through its centre along
+    /// `-normal`, `up` projected to be perpendicular, framing the projection of the box's
+    /// eight corners for an image of aspect `width / height`: orthographic exactly, or
+    /// perspective (vertical field of view `fov_y_deg`) standing back far enough that the
+    /// framed extent fits at the box's nearest depth.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] when `normal` is zero or not finite, `up` is parallel to it, or
+    /// the box or field of view is invalid.
+    pub fn framing(
+        lo: Vec3,
+        hi: Vec3,
+        normal: Vec3,
+        up: Vec3,
+        aspect: f32,
+        orthographic: bool,
+        fov_y_deg: f32,
+    ) -> Result<Camera> {
+        if !(lo.is_finite() && hi.is_finite()) {
+            return Err(Error::parameter("camera: the box must be finite"));
+        }
+        let n = normal
+            .try_normalize()
+            .filter(|n| n.is_finite())
+            .ok_or_else(|| Error::parameter(format!("view normal {normal} must be non-zero")))?;
+        let f = -n;
+        let right = f
+            .cross(up)
+            .try_normalize()
+            .ok_or_else(|| Error::parameter("camera: up is parallel to the view direction"))?;
+        let upv = right.cross(f);
         let centre = 0.5 * (lo + hi);
-        let ext = (hi - lo).max(Vec3::splat(1e-6));
+        let (mut ex, mut ey, mut ez) = (0.0f32, 0.0f32, 0.0f32);
+        for i in 0..8 {
+            let c = Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            ) - centre;
+            ex = ex.max(c.dot(right).abs());
+            ey = ey.max(c.dot(upv).abs());
+            ez = ez.max(c.dot(n).abs());
+        }
         let aspect = if aspect > 0.0 && aspect.is_finite() {
             aspect
         } else {
             1.0
         };
-        let frame_h = ext.y.max(ext.x / aspect);
-        if orthographic {
-            let eye = Vec3::new(centre.x, centre.y, lo.z - ext.z - 1.0);
+        let half_h = ey.max(ex / aspect).max(1e-6);
+        let camera = if orthographic {
             Camera {
-                eye,
-                target: Vec3::new(centre.x, centre.y, centre.z),
-                up: Vec3::Y,
-                projection: Projection::Orthographic { height: frame_h },
-            }
-        } else {
-            let half = (DEFAULT_FOV_Y_DEG.to_radians() * 0.5).tan();
-            let dist = 0.5 * frame_h / half + 0.5 * ext.z;
-            Camera {
-                eye: centre - Vec3::Z * dist,
+                eye: centre + n * (2.0 * ez + 1.0),
                 target: centre,
-                up: Vec3::Y,
-                projection: Projection::Perspective {
-                    fov_y_deg: DEFAULT_FOV_Y_DEG,
+                up: upv,
+                projection: Projection::Orthographic {
+                    height: 2.0 * half_h,
                 },
             }
+        } else {
+            if !(fov_y_deg > 0.0 && fov_y_deg < 180.0) {
+                return Err(Error::parameter(format!(
+                    "camera: field of view {fov_y_deg} must be in (0, 180) degrees"
+                )));
+            }
+            let t = (fov_y_deg.to_radians() * 0.5).tan();
+            Camera {
+                eye: centre + n * (half_h / t + ez),
+                target: centre,
+                up: upv,
+                projection: Projection::Perspective { fov_y_deg },
+            }
+        };
+        camera.validate()?;
+        Ok(camera)
+    }
+
+    /// The camera magnified `zoom` times about its view centre: an orthographic view spans
+    /// `1 / zoom` of its height, a perspective one narrows its field of view so that
+    /// `tan(fov / 2)` shrinks `zoom` times (the eye stays where it is).
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] when `zoom` is not finite and > 0.
+    pub fn zoomed(mut self, zoom: f32) -> Result<Camera> {
+        if !(zoom.is_finite() && zoom > 0.0) {
+            return Err(Error::parameter(format!(
+                "zoom {zoom} must be finite and > 0"
+            )));
         }
+        self.projection = match self.projection {
+            Projection::Orthographic { height } => Projection::Orthographic {
+                height: height / zoom,
+            },
+            Projection::Perspective { fov_y_deg } => Projection::Perspective {
+                fov_y_deg: 2.0
+                    * ((fov_y_deg.to_radians() * 0.5).tan() / zoom)
+                        .atan()
+                        .to_degrees(),
+            },
+        };
+        self.validate()?;
+        Ok(self)
     }
 
     /// The camera's orthonormal frame `(forward, right, up)`: forward from eye to target,
@@ -198,5 +305,105 @@ impl Camera {
                 }
             }
         }
+    }
+}
+
+/// yt's image axes for an observer on the `normal` side: along `z` x right and y up, along
+/// `x` y right and z up, along `y` z right and x up (also for the negative axes, seen from
+/// behind); any other normal gets +z as up (+y when the normal is within 8 degrees of z).
+#[must_use]
+pub fn up_for(normal: Vec3) -> Vec3 {
+    let n = normal.try_normalize().unwrap_or(Vec3::Z);
+    let a = n.abs();
+    if a.abs_diff_eq(Vec3::Z, 1e-6) {
+        Vec3::Y
+    } else if a.abs_diff_eq(Vec3::X, 1e-6) {
+        Vec3::Z
+    } else if a.abs_diff_eq(Vec3::Y, 1e-6) {
+        Vec3::X
+    } else if a.z > 0.99 {
+        Vec3::Y
+    } else {
+        Vec3::Z
+    }
+}
+
+/// A named view: the observer on the +axis side (`x`, `y`, `z`, yt's axis projections), on
+/// the -axis side (`-x`, `-y`, `-z`: the same view from behind, mirrored) or on the (1, 1, 1)
+/// diagonal (`iso`, z up). Image axes follow [`up_for`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum View {
+    /// Observer at +x: y right, z up.
+    X,
+    /// Observer at +y: z right, x up.
+    Y,
+    /// Observer at +z: x right, y up (the default view).
+    Z,
+    /// Observer at -x.
+    NegX,
+    /// Observer at -y.
+    NegY,
+    /// Observer at -z.
+    NegZ,
+    /// Observer on the (1, 1, 1) diagonal, z up.
+    Iso,
+}
+
+impl View {
+    /// Every view, in the order of [`View::NAMES`].
+    pub const ALL: [View; 7] = [
+        View::X,
+        View::Y,
+        View::Z,
+        View::NegX,
+        View::NegY,
+        View::NegZ,
+        View::Iso,
+    ];
+    /// The spellings of [`View::ALL`].
+    pub const NAMES: [&'static str; 7] = ["x", "y", "z", "-x", "-y", "-z", "iso"];
+
+    /// The unit direction from the target towards the observer.
+    #[must_use]
+    pub fn normal(self) -> Vec3 {
+        match self {
+            View::X => Vec3::X,
+            View::Y => Vec3::Y,
+            View::Z => Vec3::Z,
+            View::NegX => -Vec3::X,
+            View::NegY => -Vec3::Y,
+            View::NegZ => -Vec3::Z,
+            View::Iso => Vec3::ONE.normalize(),
+        }
+    }
+
+    /// Its spelling.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        Self::NAMES[Self::ALL.iter().position(|&v| v == self).unwrap_or(0)]
+    }
+}
+
+impl std::str::FromStr for View {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        let t = s.trim().to_ascii_lowercase();
+        let t = t.strip_prefix('+').unwrap_or(&t);
+        Self::NAMES
+            .iter()
+            .position(|&n| n == t)
+            .map(|i| Self::ALL[i])
+            .ok_or_else(|| {
+                Error::parameter(format!(
+                    "view '{s}': expected one of {}",
+                    Self::NAMES.join(", ")
+                ))
+            })
+    }
+}
+
+impl std::fmt::Display for View {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }

@@ -12,7 +12,10 @@
 //! ## Orientation
 //! Right-handed world. A camera looks from `eye` towards `target` with `up` roughly up;
 //! image x grows along `forward x up` (the camera's right), image y grows downwards (row 0
-//! is the top). Ray directions are unit vectors, so a ray parameter is a world length.
+//! is the top). The default view is yt's: the observer on the +z side looking towards -z,
+//! world +x to the right and +y up, so a voxel at (+x, +y) lands top-right in every
+//! renderer, cube and map; [`View`] names the other axis views (yt's image axes, see
+//! [`up_for`]). Ray directions are unit vectors, so a ray parameter is a world length.
 //!
 //! ## Where do I start?
 //! - [`Camera::default_view`] frames a box; [`Camera::ray`] gives the ray through a pixel.
@@ -24,7 +27,7 @@ mod error;
 mod names;
 pub mod session;
 
-pub use camera::{Camera, DEFAULT_FOV_Y_DEG, Projection, Ray};
+pub use camera::{Camera, DEFAULT_FOV_Y_DEG, Projection, Ray, View, up_for};
 pub use error::{Error, Result};
 pub use session::{
     CancelToken, DeviceKind, Observer, OnProgress, Progress, Session, Silent, single_pass_done,

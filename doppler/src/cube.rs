@@ -297,17 +297,7 @@ pub fn los_camera(
         .try_normalize()
         .filter(|n| n.is_finite())
         .ok_or_else(|| Error::parameter(format!("view normal {normal} must be non-zero")))?;
-    let up = if n.abs().abs_diff_eq(Vec3::Z, 1e-6) {
-        Vec3::Y
-    } else if n.abs().abs_diff_eq(Vec3::X, 1e-6) {
-        Vec3::Z
-    } else if n.abs().abs_diff_eq(Vec3::Y, 1e-6) {
-        Vec3::X
-    } else if n.z.abs() > 0.99 {
-        Vec3::Y
-    } else {
-        Vec3::Z
-    };
+    let up = blueshift_camera::up_for(n);
     let f = -n;
     let right = f.cross(up).normalize();
     let up = right.cross(f);

@@ -91,7 +91,7 @@ pub struct DopplerSettings {
     pub width: u32,
     /// Image height, pixels.
     pub height: u32,
-    /// The camera (orthographic along +z by default).
+    /// The camera (by default orthographic, the observer on the +z side looking towards -z).
     pub camera: Camera,
     /// Ray step in world units; `None`: half the smallest voxel spacing.
     pub step: Option<f32>,
@@ -130,7 +130,7 @@ pub struct DopplerSettings {
 }
 
 impl DopplerSettings {
-    /// Defaults for a scene: `width x height`, the orthographic view along +z through the
+    /// Defaults for a scene: `width x height`, the orthographic view from +z (yt's; x right, y up) through the
     /// volume's centre framing its x-y extent, step half a voxel, classical Doppler,
     /// piecewise-linear, 380-780 nm, lines 1 nm wide, 32 black-body samples, merge 1e-4,
     /// budget 4096 pieces.
@@ -157,9 +157,10 @@ impl DopplerSettings {
         }
     }
 
-    /// Views the scene as an astronomer inclines a disc: orthographic, the line of sight
-    /// tilted by `degrees` from +z towards +y about the x axis through the volume's centre (0:
-    /// face-on along +z, 90: edge-on along +y), framing the volume's x-y extent.
+    /// Views the scene as an astronomer inclines a disc: orthographic, the observer on the
+    /// +z side tilted by `degrees` towards +y about the x axis through the volume's centre
+    /// (0: face-on from +z, the default view; 90: edge-on from +y), world +x staying to the
+    /// image's right, framing the projection of the volume's box.
     ///
     /// # Errors
     /// [`Error::Parameter`] when `degrees` is not finite or lies outside [-90, 90].
@@ -170,15 +171,11 @@ impl DopplerSettings {
             )));
         }
         let (lo, hi) = scene.geometry.world_bounds();
-        let (centre, radius) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
         let (si, ci) = degrees.to_radians().sin_cos();
-        let dir = Vec3::new(0.0, si, ci);
-        self.camera.target = centre;
-        self.camera.eye = centre - dir * (radius + 1.0);
-        self.camera.up = Vec3::new(0.0, ci, -si);
-        self.camera.projection = crate::Projection::Orthographic {
-            height: (hi - lo).x.max((hi - lo).y),
-        };
+        let normal = Vec3::new(0.0, si, ci);
+        let up = Vec3::new(0.0, ci, -si);
+        let aspect = self.width as f32 / self.height.max(1) as f32;
+        self.camera = Camera::framing(lo, hi, normal, up, aspect, true, 30.0)?;
         Ok(())
     }
 

@@ -5,7 +5,8 @@
 //! { "channels": [ { "volume": "head.nhdr", "tf": "bone.json" } ],
 //!   "method": "mdwt-1dda", "blend": "density", "weights": null,
 //!   "spp": 64, "seed": 1, "width": 512, "height": 512,
-//!   "camera": "perspective", "fov_y_deg": 30, "eye": null, "target": null, "up": null,
+//!   "camera": "perspective", "fov_y_deg": 30, "view": "z", "zoom": 1.0,
+//!   "eye": null, "target": null, "up": null,
 //!   "background": [0, 0, 0], "density_scale": 1.0, "macrocell": 4,
 //!   "precision": "f32", "step": null, "alpha_g": null, "noise_target": null,
 //!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 },
@@ -41,9 +42,11 @@ use blueshift_volume::{AnyGrid, synth};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
+use blueshift_camera::{DEFAULT_FOV_Y_DEG, View, up_for};
+
 use crate::{
     Blend, BlendKind, Camera, DdaMode, DirectionalLight, Error, HeatMap, Integrator, Material,
-    Method, Precision, Projection, RayMarcher, RenderSettings, Result, Scene, Shading,
+    Method, Precision, RayMarcher, RenderSettings, Result, Scene, Shading,
 };
 use blueshift_camera::named_enum;
 
@@ -171,6 +174,12 @@ pub struct RenderSceneFile {
     pub target: Option<[f32; 3]>,
     /// Up vector.
     pub up: Option<[f32; 3]>,
+    /// View preset framing the volume: `x`, `y`, `z` (default), `-x`, `-y`, `-z` or `iso`
+    /// (`blueshift_camera::View`; the observer on that side, yt's image axes).
+    pub view: Option<String>,
+    /// Magnification about the view centre (orthographic: the framed height / zoom;
+    /// perspective: `tan(fov / 2)` / zoom).
+    pub zoom: Option<f32>,
     /// Background colour (linear RGB).
     pub background: Option<[f32; 3]>,
     /// Extinction per unit world length = opacity x this.
@@ -387,6 +396,8 @@ impl RenderSceneFile {
             eye,
             target,
             up,
+            view,
+            zoom,
             background,
             density_scale,
             macrocell,
@@ -426,6 +437,8 @@ impl RenderSceneFile {
             eye,
             target,
             up,
+            view,
+            zoom,
             background,
             density_scale,
             macrocell,
@@ -439,6 +452,42 @@ impl RenderSceneFile {
             warmup,
             frames
         );
+    }
+
+    /// The camera: the `view` preset (default `z`) framing the scene's box at `fov_y_deg`,
+    /// then `eye`, `target` and `up` where given (an `eye` without `up` whose view is
+    /// parallel to the preset's up takes yt's up for its own direction), then `zoom`.
+    fn camera_for(&self, scene: &Scene, width: u32, height: u32, ortho: bool) -> Result<Camera> {
+        let (lo, hi) = scene.bounds();
+        let view = match &self.view {
+            Some(v) => v
+                .parse::<View>()
+                .map_err(|e| Error::parameter(e.to_string()))?,
+            None => View::Z,
+        };
+        let n = view.normal();
+        let fov = self.fov_y_deg.unwrap_or(DEFAULT_FOV_Y_DEG);
+        let aspect = width as f32 / height.max(1) as f32;
+        let mut cam = Camera::framing(lo, hi, n, up_for(n), aspect, ortho, fov)?;
+        if let Some(e) = self.eye {
+            cam.eye = Vec3::from(e);
+        }
+        if let Some(t) = self.target {
+            cam.target = Vec3::from(t);
+        }
+        match self.up {
+            Some(u) => cam.up = Vec3::from(u),
+            None => {
+                let back = cam.eye - cam.target;
+                if back.cross(cam.up).length_squared() < 1e-12 * back.length_squared().max(1e-30) {
+                    cam.up = up_for(back);
+                }
+            }
+        }
+        if let Some(z) = self.zoom {
+            cam = cam.zoomed(z)?;
+        }
+        Ok(cam)
     }
 
     /// The method (default `mdwt-1dda`).
@@ -545,21 +594,7 @@ impl RenderSceneFile {
         settings.spp = self.spp.unwrap_or(16);
         settings.seed = self.seed.unwrap_or(0);
         settings.noise_target = self.noise_target;
-        let cam: &mut Camera = &mut settings.camera;
-        if let (Some(fov), Projection::Perspective { fov_y_deg }) =
-            (self.fov_y_deg, &mut cam.projection)
-        {
-            *fov_y_deg = fov;
-        }
-        if let Some(e) = self.eye {
-            cam.eye = Vec3::from(e);
-        }
-        if let Some(t) = self.target {
-            cam.target = Vec3::from(t);
-        }
-        if let Some(u) = self.up {
-            cam.up = Vec3::from(u);
-        }
+        settings.camera = self.camera_for(&scene, width, height, ortho)?;
         if self.warmup.is_some() && self.frames.is_none() {
             return Err(Error::parameter("warmup: needs frames (the timed frames)"));
         }
@@ -576,6 +611,7 @@ impl RenderSceneFile {
 mod tests {
     use super::*;
     use crate::DdaMode;
+    use crate::Projection;
 
     /// Every spelling of `T` through `FromStr`, `Display` and serde_json, and a bad one
     /// refused with `what: unknown 'bogus' (the, spellings)`.

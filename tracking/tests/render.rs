@@ -289,16 +289,18 @@ fn default_cameras_frame_the_volume() {
     // Orthographic, 2:1 image: the x-y extent 4 x 2 fills it; corner rays graze the box.
     let cam = Camera::default_view(lo, hi, 2.0, true);
     let r = cam.ray(0.0, 0.0, 200, 100);
-    assert!(r.dir.abs_diff_eq(Vec3::Z, 1e-6));
+    // yt's convention: the observer on the +z side looking towards -z, +x right, +y up.
+    assert!(r.dir.abs_diff_eq(-Vec3::Z, 1e-6));
     let c = cam.ray(100.0, 50.0, 200, 100);
     assert!((c.origin.x - 1.0).abs() < 1e-5 && (c.origin.y - 3.0).abs() < 1e-5);
     assert!((r.origin.y - 4.0).abs() < 1e-4, "{r:?}");
-    assert!((r.origin.x - 1.0).abs() - 2.0 < 1e-4);
-    assert!(r.origin.z < lo.z);
-    // Perspective: the centre ray goes through the box centre along +z.
+    // The top-left pixel corner sees the (-x, +y) edge.
+    assert!((r.origin.x - lo.x).abs() < 1e-4, "{r:?}");
+    assert!(r.origin.z > hi.z);
+    // Perspective: the centre ray goes through the box centre along -z.
     let cam = Camera::default_view(lo, hi, 1.0, false);
     let c = cam.ray(50.0, 50.0, 100, 100);
-    assert!(c.dir.abs_diff_eq(Vec3::Z, 1e-5));
+    assert!(c.dir.abs_diff_eq(-Vec3::Z, 1e-5));
     assert!(c.clip_box(lo, hi).is_some());
 }
 

@@ -85,10 +85,17 @@ pub struct Args {
     /// an animation (GIF).
     #[arg(long, value_parser = parse_xy)]
     pub trace: Option<(u32, u32)>,
-    /// Tilt of the orthographic view about the x axis, degrees (0: along +z, the default
-    /// axis-aligned view; 90: along +y, a disk seen edge-on).
+    /// Tilt of the orthographic view about the x axis, degrees (0: the observer at +z, the
+    /// default view, x right and y up; 90: the observer at +y, a disk seen edge-on).
     #[arg(long, default_value_t = 0.0)]
     pub inclination: f32,
+    /// Vertical field of view, degrees: a perspective camera framing the view (default:
+    /// orthographic; spectral cubes need orthographic).
+    #[arg(long)]
+    pub fov: Option<f32>,
+    /// View preset, eye, target, up and zoom.
+    #[command(flatten)]
+    pub view: super::view_args::ViewArgs,
     /// Image width.
     #[arg(long, default_value_t = 256)]
     pub width: u32,
@@ -219,6 +226,27 @@ fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
     st.step = args.step;
     st.line_width_nm = args.line_width;
     Ok((scene, st))
+}
+
+/// `--view`, `--fov`, `--eye`, `--target`, `--up` and `--zoom` over the view `build` and the
+/// cube flags chose (`--view` is `--normal` of its axis; one view flag at a time).
+fn apply_camera(args: &Args, scene: &DopplerScene, st: &mut DopplerSettings) -> Result<()> {
+    let aspect = st.width as f32 / st.height.max(1) as f32;
+    if let Some(view) = args.view.preset()? {
+        if args.cube.axis.is_some() || args.cube.normal.is_some() || args.inclination != 0.0 {
+            bail!("give one of --view, --axis, --normal and --inclination");
+        }
+        st.camera = blueshift_doppler::los_camera(scene, view.normal(), aspect, st.cell_domain)?;
+    }
+    if let Some(fov) = args.fov {
+        let (lo, hi) = scene.geometry().world_bounds();
+        let back = st.camera.eye - st.camera.target;
+        st.camera =
+            blueshift_camera::Camera::framing(lo, hi, back, st.camera.up, aspect, false, fov)
+                .map_err(|e| anyhow!("--fov: {e}"))?;
+    }
+    st.camera = args.view.apply_over(st.camera)?;
+    Ok(())
 }
 
 fn display(args: &Args) -> Result<DisplayOptions> {
@@ -399,6 +427,7 @@ const COLOURS: [RGBColor; 6] = [
 pub fn run(args: Args) -> Result<()> {
     let (scene, mut st) = build(&args)?;
     super::doppler_cube::apply_view(&args.cube, &scene, &mut st)?;
+    apply_camera(&args, &scene, &mut st)?;
     st.broadening = super::doppler_cube::broadening(&args.cube)?;
     if args.cube.cube.is_some() {
         if args.device == blueshift_gpu::DeviceChoice::Gpu {

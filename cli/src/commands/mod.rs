@@ -12,4 +12,5 @@ pub mod spectrum;
 pub mod synth;
 pub mod tf;
 pub mod tonemap;
+pub mod view_args;
 mod volume_common;

@@ -61,12 +61,17 @@ pub struct Args {
     /// Image height in pixels.
     #[arg(long)]
     pub height: Option<u32>,
-    /// ortho | perspective (default view along +z through the volume centre).
+    /// ortho | perspective [default: perspective]. The default view is yt's: the observer on
+    /// the +z side looking towards -z, world +x right and +y up (see --view).
     #[arg(long)]
     pub camera: Option<String>,
-    /// Vertical field of view of the perspective camera, degrees.
+    /// Vertical field of view of the perspective camera, degrees; the view is framed for it
+    /// [default: 30].
     #[arg(long)]
     pub fov: Option<f32>,
+    /// View preset, eye, target, up and zoom.
+    #[command(flatten)]
+    pub view: super::view_args::ViewArgs,
     /// Background colour R,G,B (linear).
     #[arg(long, value_delimiter = ',')]
     pub background: Option<Vec<f32>>,
@@ -149,12 +154,7 @@ pub struct Args {
     pub device: blueshift_gpu::DeviceChoice,
 }
 
-fn triple(v: &[f32], what: &str) -> Result<[f32; 3]> {
-    match v {
-        [a, b, c] if v.iter().all(|x| x.is_finite()) => Ok([*a, *b, *c]),
-        _ => bail!("{what}: expected three finite numbers, got {v:?}"),
-    }
-}
+use super::view_args::triple;
 
 /// A name flag through its `FromStr` (the library's message lists the accepted spellings).
 fn parse_name<T>(v: Option<&String>) -> Result<Option<T>>
@@ -244,6 +244,7 @@ fn merge(args: &Args) -> Result<RenderSceneFile> {
         .iter()
         .map(|h| h.parse::<HeatMap>().context("--heatmap"))
         .collect::<Result<Vec<_>>>()?;
+    let [view_eye, view_target, view_up] = args.view.points()?;
     f.override_with(RenderSceneFile {
         channels: Vec::new(),
         method: parse_name(args.method.as_ref())?,
@@ -256,9 +257,11 @@ fn merge(args: &Args) -> Result<RenderSceneFile> {
         height: args.height,
         camera: parse_name(args.camera.as_ref())?,
         fov_y_deg: args.fov,
-        eye: None,
-        target: None,
-        up: None,
+        eye: view_eye,
+        target: view_target,
+        up: view_up,
+        view: args.view.preset()?.map(|v| v.to_string()),
+        zoom: args.view.zoom,
         background,
         density_scale: args.density_scale,
         macrocell: args.macrocell,
