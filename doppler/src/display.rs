@@ -112,16 +112,17 @@ impl DisplayOptions {
         }
     }
 
-    /// Linear RGB per pixel (row-major) after the luminance scaling and the colour matrix,
-    /// before any clamping or tone mapping: the input of a tone-mapping operator. Out-of-gamut
-    /// negative components and non-finite values become 0; values above 1 are kept.
-    #[must_use]
-    pub fn to_linear_rgb(&self, image: &DopplerImage) -> Vec<[f64; 3]> {
-        let k = self.scale_for(image);
-        let m = match self.matrix {
+    /// The XYZ-to-RGB matrix of the primaries.
+    fn matrix(&self) -> [[f64; 3]; 3] {
+        match self.matrix {
             ColourMatrix::Srgb => xyz_to_linear_srgb_matrix(),
             ColourMatrix::CieRgbEq10 => XYZ_TO_CIE_RGB_EQ10,
-        };
+        }
+    }
+
+    /// Scaled XYZ per pixel (the exposure applied), non-finite values as 0.
+    fn scaled(&self, image: &DopplerImage) -> Vec<[f64; 3]> {
+        let k = self.scale_for(image);
         image
             .xyz
             .iter()
@@ -130,21 +131,125 @@ impl DisplayOptions {
                     Exposure::PerPixel if x[1] > 0.0 => 1.0 / x[1],
                     _ => k,
                 };
-                mat_mul(&m, [x[0] * kk, x[1] * kk, x[2] * kk])
-                    .map(|c| if c.is_finite() { c.max(0.0) } else { 0.0 })
+                x.map(|c| if c.is_finite() { c * kk } else { 0.0 })
             })
             .collect()
     }
 
-    /// 8-bit sRGB-encoded RGB, row-major, clamped to [0, 1] after scaling.
+    /// Linear RGB per pixel (row-major) after the luminance scaling and the colour matrix,
+    /// before any tone mapping: the input of a tone-mapping operator. Colours outside the
+    /// primaries (negative components: line emission is spectral) are desaturated towards
+    /// the white of the same luminance until they fit ([`GamutMapper`]); values above 1 are
+    /// kept; non-finite values become 0.
+    #[must_use]
+    pub fn to_linear_rgb(&self, image: &DopplerImage) -> Vec<[f64; 3]> {
+        let g = GamutMapper::new(self.matrix());
+        self.scaled(image)
+            .into_iter()
+            .map(|x| g.into_positive(mat_mul(&g.m, x), x[1]))
+            .collect()
+    }
+
+    /// 8-bit sRGB-encoded RGB, row-major: the scaled luminance through the highlight
+    /// shoulder ([`shoulder`]: identity up to 0.8, then a smooth approach to 1, so nothing
+    /// clips), then the colour brought into the display gamut at that luminance keeping its
+    /// hue ([`GamutMapper::map`]), then sRGB encoding.
     #[must_use]
     pub fn to_rgb8(&self, image: &DopplerImage) -> Vec<u8> {
+        let g = GamutMapper::new(self.matrix());
         let mut out = Vec::with_capacity(image.xyz.len() * 3);
-        for rgb in self.to_linear_rgb(image) {
-            for c in rgb {
-                out.push((srgb_encode(c.min(1.0)) * 255.0).round() as u8);
+        for x in self.scaled(image) {
+            for c in g.map(x) {
+                out.push((srgb_encode(c.clamp(0.0, 1.0)) * 255.0).round() as u8);
             }
         }
         out
+    }
+}
+
+/// Where the display shoulder starts: luminances up to this are shown as they are.
+pub const SHOULDER_KNEE: f64 = 0.8;
+
+/// The highlight shoulder of the display luminance: `y` up to [`SHOULDER_KNEE`], then
+/// `k + (1 - k) (1 - exp(-(y - k) / (1 - k)))`, which is continuous with a continuous slope
+/// at the knee and approaches 1 without reaching it, so no luminance clips.
+#[must_use]
+pub fn shoulder(y: f64) -> f64 {
+    let k = SHOULDER_KNEE;
+    if y <= k {
+        y
+    } else {
+        k + (1.0 - k) * (1.0 - (-(y - k) / (1.0 - k)).exp())
+    }
+}
+
+/// Hue-preserving gamut mapping of XYZ into the unit RGB cube of a set of primaries:
+/// desaturation towards the white of the same luminance (constant-luminance clipping
+/// towards the achromatic axis, as in Morovič, *Color Gamut Mapping*, 2008, ch. 10). A
+/// colour `c` with luminance `Y` becomes `w + t (c - w)` with `w` the white of luminance `Y`
+/// and the largest `t` in [0, 1] that puts every channel in [0, 1]. Mixing with white moves
+/// along the straight line through the white point in the chromaticity diagram, so the
+/// dominant wavelength (hue) is kept, and the luminance is kept exactly; only the purity
+/// drops, and only as much as the display needs. Per-channel clipping instead changes hue
+/// and luminance and turns smooth spectral colours into flat saturated patches.
+#[derive(Clone, Copy, Debug)]
+pub struct GamutMapper {
+    /// XYZ to RGB.
+    m: [[f64; 3]; 3],
+    /// The RGB of the white with luminance 1 (the grey axis: `Y * white`).
+    white: [f64; 3],
+}
+
+impl GamutMapper {
+    /// The mapper for an XYZ-to-RGB matrix (its white: RGB (1, 1, 1), scaled to luminance 1).
+    #[must_use]
+    pub fn new(m: [[f64; 3]; 3]) -> Self {
+        let inv = glam::DMat3::from_cols_array_2d(&m).transpose().inverse();
+        // Row 1 of RGB -> XYZ gives the luminance of an RGB colour.
+        let y_white = inv.row(1).dot(glam::DVec3::ONE).max(f64::MIN_POSITIVE);
+        let g = 1.0 / y_white;
+        Self {
+            m,
+            white: [g, g, g],
+        }
+    }
+
+    /// `rgb` (luminance `y`) with negative channels removed by desaturation towards the
+    /// white of luminance `y`; values above 1 are kept (tone-mapping input).
+    #[must_use]
+    pub fn into_positive(&self, rgb: [f64; 3], y: f64) -> [f64; 3] {
+        if !(y > 0.0 && rgb.iter().all(|c| c.is_finite())) {
+            return [0.0; 3];
+        }
+        let w = self.white.map(|c| c * y);
+        let mut t = 1.0f64;
+        for i in 0..3 {
+            if rgb[i] < 0.0 {
+                t = t.min(w[i] / (w[i] - rgb[i]));
+            }
+        }
+        std::array::from_fn(|i| (w[i] + t * (rgb[i] - w[i])).max(0.0))
+    }
+
+    /// Scaled XYZ to display RGB in [0, 1]: the luminance through [`shoulder`], then
+    /// desaturation towards the white of that luminance until every channel is in [0, 1].
+    #[must_use]
+    pub fn map(&self, xyz: [f64; 3]) -> [f64; 3] {
+        let y = xyz[1];
+        if !(y > 0.0 && xyz.iter().all(|c| c.is_finite())) {
+            return [0.0; 3];
+        }
+        let yd = shoulder(y);
+        let rgb = mat_mul(&self.m, xyz.map(|c| c * yd / y));
+        let w = self.white.map(|c| c * yd);
+        let mut t = 1.0f64;
+        for i in 0..3 {
+            if rgb[i] < 0.0 {
+                t = t.min(w[i] / (w[i] - rgb[i]));
+            } else if rgb[i] > 1.0 && w[i] < 1.0 {
+                t = t.min((1.0 - w[i]) / (rgb[i] - w[i]));
+            }
+        }
+        std::array::from_fn(|i| (w[i] + t.max(0.0) * (rgb[i] - w[i])).clamp(0.0, 1.0))
     }
 }

@@ -85,6 +85,7 @@ mod display;
 mod error;
 mod fits;
 mod front;
+mod key;
 #[cfg(test)]
 mod front_tests;
 mod model;
@@ -105,7 +106,8 @@ pub use cube::{
     CubeLineWidth, CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera,
     render_cube,
 };
-pub use display::{ColourMatrix, DisplayOptions, Exposure};
+pub use key::doppler_colour_key;
+pub use display::{ColourMatrix, DisplayOptions, Exposure, GamutMapper, SHOULDER_KNEE, shoulder};
 pub use error::{Error, Result};
 pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
 pub use model::{BB_UNIT, DopplerScene, Factors, Species};

@@ -822,10 +822,10 @@ mod tests {
         m1 / m0
     }
 
-    /// On the real snapshot the H-alpha line of the centre pixel is red-shifted by the bulk
-    /// motion along the view (+z, away from the camera): v_z = 241.2 +- 14.4 km/s (SOURCE.md)
-    /// moves 656.28 nm by about +0.53 nm; with the mean subtracted the shift is the peculiar
-    /// velocity only, an order of magnitude smaller.
+    /// On the real snapshot the H-alpha line of the centre pixel is blue-shifted by the bulk
+    /// motion v_z = 241.2 +- 14.4 km/s (SOURCE.md), towards the default observer at +z (yt's
+    /// convention): 656.28 nm moves by about -0.53 nm; with the mean subtracted the shift is
+    /// the peculiar velocity only, an order of magnitude smaller.
     #[test]
     fn enzo_h_alpha_shows_the_bulk_motion_unless_subtracted() {
         let Some(file) = enzo_scene() else {
@@ -835,7 +835,7 @@ mod tests {
         raw.velocity.as_mut().unwrap().subtract_mean = false;
         let h_alpha = 656.279;
         let c_km = C_M_PER_S / 1e3;
-        for (f, lo, hi) in [(&raw, 200.0, 290.0), (&file, -45.0, 45.0)] {
+        for (f, lo, hi) in [(&raw, -290.0, -200.0), (&file, -45.0, 45.0)] {
             let scene = f.load_selected(Some(&["H I"])).unwrap();
             let mut st = crate::DopplerSettings::default_for(&scene, 16, 16);
             st.line_width_nm = 0.02;

@@ -80,9 +80,10 @@ fn shell_sides_shift_by_their_radial_velocity() {
             m1 += v * l;
         }
         let centroid = m1 / m0;
-        // Truth: v = omega x r has v_z = -omega x along the whole ray (camera looks along +z).
+        // Truth: v = omega x r has v_z = -omega x along the whole ray; the camera at +z looks
+        // along -z, so the radial (receding) velocity v . dir is +omega x.
         let omega = f64::from(synth::SHELL_SPEED_M_PER_S / synth::SHELL_RADIUS);
-        let v_r = -omega * f64::from(ray.origin.x);
+        let v_r = omega * f64::from(ray.origin.x);
         let want = v_r / C;
         let got = centroid / ha - 1.0;
         assert!(
@@ -582,15 +583,17 @@ fn incline_tilts_the_line_of_sight_about_x_and_refuses_bad_angles() {
     let v = synth::galaxy(8, 1).unwrap();
     let scene = DopplerScene::from_volume(&v, &["H"]).unwrap();
     let mut st = DopplerSettings::default_for(&scene, 4, 4);
+    // The observer starts at +z (yt's default view) and tilts towards +y; x stays right.
     for (deg, want) in [
-        (0.0f32, Vec3::Z),
-        (90.0, Vec3::Y),
-        (-90.0, -Vec3::Y),
-        (60.0, Vec3::new(0.0, 0.75f32.sqrt(), 0.5)),
+        (0.0f32, -Vec3::Z),
+        (90.0, -Vec3::Y),
+        (-90.0, Vec3::Y),
+        (60.0, -Vec3::new(0.0, 0.75f32.sqrt(), 0.5)),
     ] {
         st.incline(&scene, deg).unwrap();
         let dir = (st.camera.target - st.camera.eye).normalize();
         assert!((dir - want).length() < 1e-5, "{deg}: {dir} vs {want}");
+        assert!(st.camera.basis().1.abs_diff_eq(Vec3::X, 1e-5), "{deg}: x not right");
         // The up vector is perpendicular to the line of sight.
         assert!(st.camera.up.dot(dir).abs() < 1e-5);
     }
