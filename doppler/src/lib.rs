@@ -85,9 +85,9 @@ mod display;
 mod error;
 mod fits;
 mod front;
-mod key;
 #[cfg(test)]
 mod front_tests;
+mod key;
 mod model;
 #[cfg(test)]
 mod names;
@@ -106,11 +106,13 @@ pub use cube::{
     CubeLineWidth, CubeSpec, MAX_CHANNELS, Moments, SpectralAxis, SpectralCube, los_camera,
     render_cube,
 };
-pub use key::doppler_colour_key;
 pub use display::{ColourMatrix, DisplayOptions, Exposure, GamutMapper, SHOULDER_KNEE, shoulder};
 pub use error::{Error, Result};
 pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
-pub use model::{BB_UNIT, DopplerScene, Factors, Species};
+pub use key::doppler_colour_key;
+pub use model::{
+    BB_REF_NM, BB_UNIT, DopplerScene, Factors, Species, brightness_temperature, planck_factor,
+};
 pub use prepared::{LineEntry, LineKind, Prepared, RaySpan};
 pub use profile::{Broadening, Profiles};
 pub use pwl::PwlTables;

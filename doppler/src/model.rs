@@ -37,6 +37,33 @@ impl Default for Factors {
     }
 }
 
+/// Reference wavelength of the black body's temperature reconstruction, nm.
+pub const BB_REF_NM: f64 = 700.0;
+
+/// `c2 = h c / k_B` in nm K (CODATA), the constant of the temperature reconstruction.
+const C2_NM_K: f64 = 1.438_776_877_5e7;
+
+/// The Planck factor `1 / (exp(c2 / (lambda_ref T)) - 1)` at [`BB_REF_NM`] (0 for `T <= 0`).
+#[must_use]
+pub fn planck_factor(temperature_k: f64) -> f64 {
+    if temperature_k > 0.0 {
+        1.0 / (C2_NM_K / (BB_REF_NM * temperature_k)).exp_m1()
+    } else {
+        0.0
+    }
+}
+
+/// The temperature whose [`planck_factor`] is `factor` (its inverse), 0 for factors below
+/// 1e-30 (under about 300 K; the GPU kernels use the same cut).
+#[must_use]
+pub fn brightness_temperature(factor: f64) -> f64 {
+    if factor > 1e-30 && factor.is_finite() {
+        C2_NM_K / (BB_REF_NM * (1.0 / factor).ln_1p())
+    } else {
+        0.0
+    }
+}
+
 /// One species of Eq. 8: a density channel with emission lines (`E_m`) and absorption lines
 /// (`A_m`, optical depth per unit density and world length, per nm of line area).
 #[derive(Clone, Debug)]
@@ -58,6 +85,9 @@ pub struct DopplerScene {
     pub(crate) geometry: Geometry,
     pub(crate) species: Vec<Species>,
     pub(crate) blackbody: Option<(AnyGrid, AnyGrid)>,
+    /// Black-body density times the Planck factor `1 / (exp(c2 / (lambda_ref T)) - 1)` per
+    /// voxel (see [`DopplerScene::set_blackbody`]).
+    pub(crate) rho_t: Option<Grid<f32>>,
     pub(crate) velocity: Option<Grid<Vec3>>,
     /// User factors.
     pub factors: Factors,
@@ -89,6 +119,7 @@ impl DopplerScene {
             geometry,
             species: Vec::new(),
             blackbody: None,
+            rho_t: None,
             velocity: None,
             factors: Factors::default(),
         })
@@ -138,14 +169,34 @@ impl DopplerScene {
         Ok(())
     }
 
-    /// Black-body emission `density * B(lambda, temperature_k)`.
+    /// Black-body emission `density * B(lambda, temperature_k)`. Between voxels the
+    /// temperature is the brightness temperature at [`BB_REF_NM`] of the interpolated
+    /// emission: `T` such that `rho B(lambda_ref, T) = interp(rho_i B(lambda_ref, T_i))`
+    /// with `rho = interp(rho_i)` ([`brightness_temperature`]), so the black-body emission
+    /// between voxels is the interpolation of theirs (exactly at `lambda_ref`). Interpolating
+    /// `T` itself and then taking the steep `B(T)` makes the emission between two warm
+    /// voxels far less than either (a lattice of bright dots at the voxels on thin hot
+    /// shells, the artefact on the Enzo snapshot). Gas colder than about 300 K comes out at
+    /// 0 K (it glows in no visible band and broadens lines by under 1.6 km/s).
     pub fn set_blackbody(&mut self, density: AnyGrid, temperature_k: AnyGrid) -> Result<()> {
         scalar("black-body density", &density)?;
         scalar("temperature", &temperature_k)?;
         check_geometry("black-body density", density.geometry(), &self.geometry)?;
         check_geometry("temperature", temperature_k.geometry(), &self.geometry)?;
+        let (d, t) = (density.to_f32_vec(), temperature_k.to_f32_vec());
+        self.rho_t = Some(Grid::from_fn(self.geometry, |x, y, z| {
+            let i = self.geometry.index(x, y, z);
+            (f64::from(d[i].max(0.0)) * planck_factor(f64::from(t[i]))) as f32
+        })?);
         self.blackbody = Some((density, temperature_k));
         Ok(())
+    }
+
+    /// Black-body density times [`planck_factor`] per voxel: what the renderers interpolate
+    /// for the temperature between voxels (see [`DopplerScene::set_blackbody`]).
+    #[must_use]
+    pub fn blackbody_rho_t(&self) -> Option<&Grid<f32>> {
+        self.rho_t.as_ref()
     }
 
     /// The velocity field, m/s.

@@ -368,10 +368,17 @@ impl<'a> Context<'a> {
                 out.rho
                     .push(f64::from(sp.density.sample_scalar_index(p)).max(0.0));
             }
-            if let Some((d, temp)) = &self.scene.blackbody {
-                out.bb.push(f64::from(d.sample_scalar_index(p)).max(0.0));
-                out.temp
-                    .push(f64::from(temp.sample_scalar_index(p)).max(0.0));
+            if let (Some((d, _)), Some(rho_t)) = (&self.scene.blackbody, &self.scene.rho_t) {
+                // The brightness temperature of the interpolated emission (see
+                // DopplerScene::set_blackbody), not B of the interpolated T.
+                let rho = f64::from(d.sample_scalar_index(p)).max(0.0);
+                out.bb.push(rho);
+                let g = f64::from(rho_t.sample_trilinear_index(p)).max(0.0);
+                out.temp.push(if rho > 0.0 {
+                    super::model::brightness_temperature(g / rho)
+                } else {
+                    0.0
+                });
             }
             if let Some(vg) = &self.scene.velocity {
                 out.vel.push(vg.sample_trilinear_index(p));

@@ -593,7 +593,10 @@ fn incline_tilts_the_line_of_sight_about_x_and_refuses_bad_angles() {
         st.incline(&scene, deg).unwrap();
         let dir = (st.camera.target - st.camera.eye).normalize();
         assert!((dir - want).length() < 1e-5, "{deg}: {dir} vs {want}");
-        assert!(st.camera.basis().1.abs_diff_eq(Vec3::X, 1e-5), "{deg}: x not right");
+        assert!(
+            st.camera.basis().1.abs_diff_eq(Vec3::X, 1e-5),
+            "{deg}: x not right"
+        );
         // The up vector is perpendicular to the line of sight.
         assert!(st.camera.up.dot(dir).abs() < 1e-5);
     }

@@ -4,8 +4,8 @@
 //! the sRGB standard's luminance row (0.2126, 0.7152, 0.0722) and D65 white (0.3127, 0.3290).
 
 use blueshift_doppler::{
-    DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings,
-    GamutMapper, SHOULDER_KNEE, shoulder,
+    DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, GamutMapper,
+    SHOULDER_KNEE, shoulder,
 };
 use blueshift_spectrum::{Cmf, srgb_decode, xyz_to_linear_srgb_matrix};
 use blueshift_volume::synth;
@@ -40,7 +40,10 @@ fn spectral_colours_keep_their_hue_and_luminance() {
         for y in [0.02, 0.1, 0.3, 0.6, SHOULDER_KNEE] {
             let xyz = bar.map(|c| c * y / bar[1]);
             let rgb = g.map(xyz);
-            assert!(rgb.iter().all(|c| (0.0..=1.0).contains(c)), "{nm} nm {rgb:?}");
+            assert!(
+                rgb.iter().all(|c| (0.0..=1.0).contains(c)),
+                "{nm} nm {rgb:?}"
+            );
             let lum: f64 = rgb.iter().zip(SRGB_Y).map(|(c, w)| c * w).sum();
             assert!((lum - y).abs() < 2e-4 * y.max(0.01), "{nm} nm Y {y}: {lum}");
             // Same hue: the mapped colour lies on the line from white to the spectral colour.
@@ -55,10 +58,13 @@ fn spectral_colours_keep_their_hue_and_luminance() {
     // Per-channel clipping would move the hue: H-alpha's red with its negative green.
     let bar = cmf.eval(656.28);
     let m = xyz_to_linear_srgb_matrix();
-    let clipped = blueshift_spectrum::mat_mul(&m, bar.map(|c| c * 0.3 / bar[1]))
-        .map(|c| c.clamp(0.0, 1.0));
+    let clipped =
+        blueshift_spectrum::mat_mul(&m, bar.map(|c| c * 0.3 / bar[1])).map(|c| c.clamp(0.0, 1.0));
     let lum: f64 = clipped.iter().zip(SRGB_Y).map(|(c, w)| c * w).sum();
-    assert!((lum - 0.3).abs() > 0.05, "the clip happens to keep Y: {lum}");
+    assert!(
+        (lum - 0.3).abs() > 0.05,
+        "the clip happens to keep Y: {lum}"
+    );
 }
 
 #[test]
@@ -109,11 +115,15 @@ fn the_demo_has_no_clipped_saturated_pixels_and_keeps_hue() {
         // display gamut (a negative linear-sRGB channel) and there only on a few pixels.
         let lin = blueshift_spectrum::mat_mul(&m, x.map(|c| c * k));
         if lo && hi {
-            assert!(lin.iter().any(|&c| c < 0.0), "pixel {i}: in gamut, yet {p:?}");
+            assert!(
+                lin.iter().any(|&c| c < 0.0),
+                "pixel {i}: in gamut, yet {p:?}"
+            );
             bad.push((i, p.to_vec()));
         }
         // What per-channel clipping (the old display) gives for this pixel.
-        let clip = lin.map(|c| (blueshift_spectrum::srgb_encode(c.clamp(0.0, 1.0)) * 255.0).round());
+        let clip =
+            lin.map(|c| (blueshift_spectrum::srgb_encode(c.clamp(0.0, 1.0)) * 255.0).round());
         if clip.contains(&0.0) && clip.contains(&255.0) {
             clip_bad += 1;
         }

@@ -169,6 +169,7 @@ fn expm1_fw(x: f32) -> f32 {
     if (x < 1e-3) { return x * (1.0 + 0.5 * x); }
     return exp(x) - 1.0;
 }
+fn ln_fw(x: f32) -> f32 { return log(x); }
 fn u2w(u: u32) -> f32 { return bitcast<f32>(u); }
 fn w2u(x: f32) -> u32 { return bitcast<u32>(x); }
 ";
@@ -235,6 +236,13 @@ fn exp_fw(x: f64) -> f64 {
 fn expm1_fw(x: f64) -> f64 {
     if (abs(x) < 0.25) { return x * exp_tail(x); }
     return exp_fw(x) - 1.0;
+}
+// ln for 1 <= x <= 1e31: f32's log, then two Newton steps on exp (full f64 precision).
+fn ln_fw(x: f64) -> f64 {
+    var y = f64(log(f32(x)));
+    y = y - 1.0 + x * exp_fw(-y);
+    y = y - 1.0 + x * exp_fw(-y);
+    return y;
 }
 fn u2w(u: u32) -> f64 { return f64(u); }
 fn w2u(x: f64) -> u32 { return u32(x); }
@@ -665,9 +673,10 @@ fn render_prepared(
     for sp in scene.species() {
         channels.extend(sp.density.to_f32_vec());
     }
-    if let Some((d, t)) = bb {
+    if let (Some((d, _)), Some(rho_t)) = (bb, scene.blackbody_rho_t()) {
+        // Density times temperature: the shader's gas-weighted temperature, as the CPU's.
         channels.extend(d.to_f32_vec());
-        channels.extend(t.to_f32_vec());
+        channels.extend_from_slice(rho_t.data());
     }
     if channels.is_empty() {
         channels.push(0.0);

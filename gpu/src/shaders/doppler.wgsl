@@ -105,7 +105,7 @@ struct PixelRay {
 }
 
 @group(0) @binding(0) var<storage, read> rays: array<PixelRay>;
-// Scalar channels, nvox each: species densities 0..nsp, then black-body density, temperature.
+// Scalar channels, nvox each: species densities 0..nsp, then black-body density, density x temperature.
 @group(0) @binding(1) var<storage, read> channels: array<f32>;
 @group(0) @binding(2) var<storage, read> velocity: array<f32>;
 // CMF samples (3 per wavelength, cmf_n of them), then the black-body grid and its hat XYZs,
@@ -235,6 +235,18 @@ fn value_factor(s: fw) -> fw {
 }
 
 // Planck's law on the host's constants, in BB_UNIT x W sr^-1 m^-2 nm^-1 (l in nm).
+// The temperature at a sample: the brightness temperature at 700 nm of the interpolated
+// emission (channel nsp + 1 holds rho / (exp(c2 / (700 T)) - 1) per voxel; the CPU's
+// RawSamples do the same, see blueshift_doppler::DopplerScene::set_blackbody).
+fn gas_temperature(c: Corner) -> fw {
+    let rho = max(sample_channel(c, P.nsp), 0.0);
+    let g = max(sample_channel(c, P.nsp + 1u), 0.0);
+    if (rho > 0.0 && g > rho * 1e-30) {
+        return 1.4387768775e7 / (700.0 * ln_fw(1.0 + rho / g));
+    }
+    return 0.0;
+}
+
 fn planck(l: fw, temp: fw) -> fw {
     let x = PF.bb_c2 / (l * temp);
     let den = expm1_fw(x);
@@ -480,7 +492,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (!(s_b > 0.0)) { flag = 1.0; s_b = 1.0; }
         if (P.has_bb == 1u) {
             let rho = max(sample_channel(c, P.nsp), 0.0) * PF.bb_factor;
-            let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * PF.temp_factor;
+            let temp = gas_temperature(c) * PF.temp_factor;
             bb_b = bb_xyz(rho, temp, s_b);
             temp_b = temp;
         }
@@ -681,7 +693,7 @@ fn main_banded(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             if (P.has_bb == 1u) {
                 let brho = max(sample_channel(c, P.nsp), 0.0) * PF.bb_factor;
-                let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * PF.temp_factor;
+                let temp = gas_temperature(c) * PF.temp_factor;
                 if (brho > 0.0 && temp > 0.0) {
                     let k = wt * brho * value_factor(sh);
                     for (var b = 0u; b < P.n_bands; b++) { iters += 1u;
@@ -781,7 +793,7 @@ fn sample_at(r: PixelRay, t: f32, far: bool) -> Samp {
     o.bbx = vec3<fw>(0.0);
     if (P.has_bb == 1u) {
         o.bbr = max(sample_channel(c, P.nsp), 0.0) * PF.bb_factor;
-        o.temp = max(sample_channel(c, P.nsp + 1u), 0.0) * PF.temp_factor;
+        o.temp = gas_temperature(c) * PF.temp_factor;
         o.bbx = bb_xyz(o.bbr, o.temp, s);
     }
     return o;
