@@ -288,6 +288,11 @@ fn every_verb_prints_one_wrote_line_per_output() {
             vec!["s.csv", "s.png"],
         ),
         (vec!["tonemap", "rel.exr", "--out", "t.png"], vec!["t.png"]),
+        // A detached header and its data file are two outputs.
+        (
+            vec!["convert", "ct.nrrd", "c.nhdr"],
+            vec!["c.raw", "c.nhdr"],
+        ),
         (
             vec![
                 "doppler", "--res", "8", "--width", "8", "--height", "8", "--out", "dop.exr",
