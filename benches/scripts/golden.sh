@@ -11,15 +11,15 @@ B=$(realpath "$1"); O=$2; rm -rf "$O"; mkdir -p "$O"; cd "$O"
 D="$ROOT/../shared/data"
 run() { echo "+ $*" >> log.txt; "$B" "$@" >> log.txt 2>&1 || echo "FAILED($?): $*" >> log.txt; }
 run synth galaxy g.nrrd --res 32
-run render --synth galaxy --res 32 --tf builtin:viridis --method marcher --width 48 --height 40 --out marcher.exr --png marcher.png
-run render --synth galaxy --res 32 --tf builtin:viridis --method marcher --precision u8 --width 48 --height 40 --out marcher_u8.exr
+run render --synth galaxy --res 32 --tf builtin:viridis --method marcher --spp 16 --width 48 --height 40 --out marcher.exr --png marcher.png
+run render --synth galaxy --res 32 --tf builtin:viridis --method marcher --spp 16 --precision u8 --width 48 --height 40 --out marcher_u8.exr
 run render --synth three-cubes --res 32 --tf builtin:inferno --method woodcock --spp 4 --seed 7 --width 40 --height 40 --out wood.exr --png wood.png
 run render --synth three-cubes --res 32 --tf builtin:inferno --method mdwt-1dda --blend mix --spp 4 --seed 7 --width 40 --height 40 --out mdwt1.exr
 run render --synth channels12 --res 24 --tf builtin:cool-warm --method mdwt-ndda --blend max --spp 3 --seed 3 --width 32 --height 32 --out ndda.exr --heatmap steps --heatmap collisions
 run render --synth three-cubes --res 24 --tf builtin:viridis --method mdwt-summed --spp 2 --seed 1 --width 32 --height 32 --light 1,1,1 --out summed.exr
 run render --synth galaxy --res 24 --tf builtin:viridis --method woodcock --spp 2 --seed 2 --width 32 --height 32 --shading --out shaded.exr
 run render "$ROOT/examples/enzo/scene.json" --width 48 --height 48 --spp 4 --out enzo.exr --png enzo.png
-run render --volume g.nrrd --tf log:viridis --method marcher --width 40 --height 40 --out vol.exr
+run render --volume g.nrrd --tf log:viridis --method marcher --spp 16 --width 40 --height 40 --out vol.exr
 run render --synth three-cubes --res 24 --tf builtin:viridis --method woodcock --warmup 1 --frames 2 --width 24 --height 24 --out frames.exr
 run doppler --synth galaxy --res 24 --width 40 --height 40 --out d_pwl.exr --pick 20,20 --trace 10,20
 run doppler --synth galaxy --res 24 --width 40 --height 40 --absorption-factor 1 --out d_pwl_abs.exr --pick 20,20

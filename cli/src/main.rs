@@ -11,6 +11,7 @@ use clap::{Parser, Subcommand};
 mod commands;
 mod output;
 mod plot;
+mod progress;
 
 /// blueshift: physically based scientific volume rendering.
 #[derive(Debug, Parser)]
@@ -46,7 +47,25 @@ enum Command {
     GpuInfo(commands::gpu_info::Args),
 }
 
+/// Points `XDG_RUNTIME_DIR` at a fresh private folder (removed when the returned guard drops)
+/// when it is unset or unusable, so the Vulkan loader does not print "XDG_RUNTIME_DIR is
+/// invalid or not set" on the user's terminal when a command creates its wgpu instance.
+#[allow(unsafe_code)]
+fn private_runtime_dir() -> Option<tempfile::TempDir> {
+    blueshift_gpu::runtime_dir_problem()?;
+    // tempfile creates folders with mode 0700.
+    let dir = tempfile::Builder::new()
+        .prefix("blueshift-runtime-")
+        .tempdir()
+        .ok()?;
+    // SAFETY: called first in `main`, before any other thread exists, so nothing reads or
+    // writes the environment at the same time.
+    unsafe { std::env::set_var("XDG_RUNTIME_DIR", dir.path()) };
+    Some(dir)
+}
+
 fn main() -> ExitCode {
+    let _runtime_dir = private_runtime_dir();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(err) => {

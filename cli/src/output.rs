@@ -1,7 +1,8 @@
-//! Output helpers shared by all verbs: atomic file writes and error classes.
+//! Output helpers shared by all verbs: checking output paths before any work, atomic file
+//! writes, the one "wrote PATH" line per output, and error classes.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 
@@ -18,14 +19,106 @@ impl std::fmt::Display for InternalError {
     }
 }
 
+/// Checks, before any work is done, that every output can be written: its folder exists, is
+/// a folder and takes new files, the path itself is not a folder and not one of `inputs`.
+/// The error is one line naming the output (a user error, exit code 1), so a missing folder
+/// fails at once instead of after the render.
+pub fn check_outputs(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
+    let same = |a: &Path, b: &Path| match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    let mut dirs_checked: Vec<PathBuf> = Vec::new();
+    for (i, out) in outputs.iter().enumerate() {
+        let shown = out.display();
+        if out.as_os_str().is_empty() {
+            anyhow::bail!("an output path is empty");
+        }
+        if out.is_dir() {
+            anyhow::bail!("cannot write {shown}: it is a folder (give a file name)");
+        }
+        if let Some(input) = inputs.iter().find(|input| same(out, input)) {
+            anyhow::bail!(
+                "cannot write {shown}: it is the input file {} (choose another output path)",
+                input.display()
+            );
+        }
+        if outputs[..i].iter().any(|o| o == out) {
+            anyhow::bail!("cannot write {shown} twice (two outputs have the same path)");
+        }
+        let dir = folder_of(out);
+        if dirs_checked.iter().any(|d| d == dir) {
+            continue;
+        }
+        match std::fs::metadata(dir) {
+            Err(_) => anyhow::bail!(
+                "cannot write {shown}: the folder {} does not exist",
+                dir.display()
+            ),
+            Ok(m) if !m.is_dir() => {
+                anyhow::bail!("cannot write {shown}: {} is not a folder", dir.display())
+            }
+            Ok(_) => {}
+        }
+        // Whether the folder takes new files is what the final rename needs; a probe file
+        // answers it exactly (permissions, read-only mounts, ACLs).
+        tempfile::Builder::new()
+            .prefix(".blueshift-check-")
+            .tempfile_in(dir)
+            .with_context(|| {
+                format!(
+                    "cannot write {shown}: cannot create files in {}",
+                    dir.display()
+                )
+            })?;
+        dirs_checked.push(dir.to_path_buf());
+    }
+    Ok(())
+}
+
+/// [`check_outputs`] for one output and no inputs.
+pub fn check_output(path: &Path) -> Result<()> {
+    check_outputs(&[path], &[])
+}
+
+/// The one line every verb prints on stderr per output written: `wrote PATH`.
+pub fn wrote(path: &Path) {
+    eprintln!("wrote {}", path.display());
+}
+
+/// `wrote PATH (DETAIL)`, for the main output of a verb with something to say about it.
+pub fn wrote_with(path: &Path, detail: &str) {
+    eprintln!("wrote {} ({detail})", path.display());
+}
+
+/// The folder an output goes to (`.` for a bare file name).
+fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+/// A temporary file in `dir` created with mode 0666 less the umask, the mode a plain
+/// `File::create` gives (tempfile's own default is 0600), so the renamed output is as
+/// readable as any other file the user makes.
+pub fn temp_builder<'a>() -> tempfile::Builder<'a, 'a> {
+    let mut b = tempfile::Builder::new();
+    b.prefix(".blueshift-");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        b.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    b
+}
+
 /// Writes a file atomically: the bytes go to a temporary file in the same folder, which is
 /// renamed over `path` only once it is complete, so a failure never leaves half a file.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir)
+    let dir = folder_of(path);
+    let mut tmp = temp_builder()
+        .tempfile_in(dir)
         .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
     {
         let mut buffered = std::io::BufWriter::new(tmp.as_file_mut());
@@ -34,7 +127,6 @@ pub fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()
             .flush()
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
-    make_readable(tmp.path());
     tmp.persist(path)
         .map_err(|e| e.error)
         .with_context(|| format!("cannot write {}", path.display()))?;
@@ -54,38 +146,22 @@ pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 /// temporary path with the same extension in the same folder, then renames.
 #[allow(dead_code)]
 pub fn write_via_temp_path(path: &Path, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     let ext = path
         .extension()
         .map(|e| format!(".{}", e.to_string_lossy()))
         .unwrap_or_default();
-    let tmp = tempfile::Builder::new()
-        .prefix(".blueshift-")
+    let tmp = temp_builder()
         .suffix(&ext)
         .tempfile_in(dir)
         .with_context(|| format!("cannot create a temporary file in {}", dir.display()))?;
     let tmp_path = tmp.into_temp_path();
     write(&tmp_path)?;
-    make_readable(&tmp_path);
     tmp_path
         .persist(path)
         .map_err(|e| e.error)
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
-}
-
-/// Temporary files are created private (0600); a finished output gets the usual 0644.
-fn make_readable(path: &Path) {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let _ = std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644));
-    }
-    #[cfg(not(unix))]
-    let _ = path;
 }
 
 /// Writes an OpenEXR of 32-bit float channels atomically: `data` holds `width x height`

@@ -156,6 +156,49 @@ fn hardware_rank(t: wgpu::DeviceType) -> u32 {
     }
 }
 
+/// What is wrong with `XDG_RUNTIME_DIR` for the Vulkan loader's window-system layers, which
+/// print "XDG_RUNTIME_DIR is invalid or not set in the environment" on stderr while wgpu
+/// creates its instance: unset or empty, not an absolute path to a folder, or (Linux) a
+/// folder another user owns or others may enter (the XDG spec asks for a 0700 folder of the
+/// user). `None` when it is fine, and always outside Linux.
+///
+/// Programs fix it before any thread starts (setting an environment variable is not
+/// thread-safe), e.g. by pointing it at a fresh private temporary folder; the `blueshift`
+/// CLI does so first thing in `main`.
+#[must_use]
+pub fn runtime_dir_problem() -> Option<&'static str> {
+    if !cfg!(target_os = "linux") {
+        return None;
+    }
+    let Some(dir) = std::env::var_os("XDG_RUNTIME_DIR").filter(|d| !d.is_empty()) else {
+        return Some("not set");
+    };
+    let dir = std::path::Path::new(&dir);
+    if !dir.is_absolute() {
+        return Some("not an absolute path");
+    }
+    let Ok(meta) = std::fs::metadata(dir) else {
+        return Some("does not exist");
+    };
+    if !meta.is_dir() {
+        return Some("not a folder");
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if meta.mode() & 0o077 != 0 {
+            return Some("not private (mode is not 0700)");
+        }
+        // /proc/self belongs to the process's effective user.
+        if let Ok(me) = std::fs::metadata("/proc/self")
+            && me.uid() != meta.uid()
+        {
+            return Some("owned by another user");
+        }
+    }
+    None
+}
+
 fn backends() -> wgpu::Backends {
     wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY)
 }

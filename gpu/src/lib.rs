@@ -73,7 +73,7 @@ pub mod tracking;
 
 pub use context::{
     AdapterChoice, AdapterSummary, DeviceChoice, ENV_ADAPTER, GpuContext, GpuOptions, GpuReport,
-    Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters,
+    Pass, WORKGROUP_1D, WORKGROUP_2D, list_adapters, runtime_dir_problem,
 };
 pub use device::{Ran, Unsupported, run_with_fallback};
 pub use error::{Error, Result};

@@ -191,6 +191,49 @@ impl TransferFunction {
         Ok(self)
     }
 
+    /// The same map stretched over a new domain, ParaView's "rescale to data range": every
+    /// knot keeps its relative position in the domain, measured on the data axis (linear, or
+    /// log10 on a logarithmic axis, where the new domain must be positive). Compare
+    /// [`TransferFunction::with_domain`], which keeps the knots where they are.
+    pub fn rescaled(&self, domain: [f64; 2]) -> Result<Self> {
+        let [lo, hi] = domain;
+        if !(lo.is_finite() && hi.is_finite()) || lo >= hi {
+            return Err(Error::invalid(format!(
+                "domain [{lo}, {hi}] must be finite with min < max"
+            )));
+        }
+        let axis = self.data_axis;
+        if axis == DataAxis::Log && lo <= 0.0 {
+            return Err(Error::invalid(format!(
+                "a logarithmic data axis needs a positive domain, got [{lo}, {hi}]"
+            )));
+        }
+        let (u0, u1) = (axis.coord(self.domain[0]), axis.coord(self.domain[1]));
+        let (v0, v1) = (axis.coord(lo), axis.coord(hi));
+        // Old domain ends map exactly onto the new ones; a knot outside the old domain keeps
+        // its relative distance.
+        let map = |x: f64| {
+            if x == self.domain[0] {
+                return lo;
+            }
+            if x == self.domain[1] {
+                return hi;
+            }
+            let t = (axis.coord(x) - u0) / (u1 - u0);
+            axis.value(v0 + t * (v1 - v0))
+        };
+        let mut tf = self.clone();
+        tf.domain = domain;
+        for k in &mut tf.color {
+            k.x = map(k.x);
+        }
+        for k in &mut tf.opacity {
+            k.x = map(k.x);
+        }
+        tf.validate()?;
+        Ok(tf)
+    }
+
     fn validate(&mut self) -> Result<()> {
         let [lo, hi] = self.domain;
         if !(lo.is_finite() && hi.is_finite()) || lo >= hi {
@@ -584,6 +627,36 @@ mod tests {
             ],
         )
         .unwrap()
+    }
+
+    #[test]
+    fn rescaled_keeps_each_knot_at_its_relative_position() {
+        // ParaView's "rescale to data range": [0, 10] stretched to [100, 4100] puts the knot
+        // at 4 (40 %) at 1700 and evaluates there as the original did at 4.
+        let tf = ramp();
+        let r = tf.rescaled([100.0, 4100.0]).unwrap();
+        assert_eq!(r.domain(), [100.0, 4100.0]);
+        let xs: Vec<f64> = r.opacity_knots().iter().map(|k| k.x).collect();
+        assert_eq!(xs, vec![100.0, 1700.0, 2500.0, 4100.0]);
+        for (a, b) in [(0.0, 100.0), (2.0, 900.0), (5.0, 2100.0), (10.0, 4100.0)] {
+            assert!((tf.opacity(a) - r.opacity(b)).abs() < 1e-6, "{a} vs {b}");
+        }
+        // A logarithmic axis rescales in log10: the middle decade stays the middle decade.
+        let log = TransferFunction::new(
+            [1.0, 100.0],
+            vec![ColorKnot {
+                x: 10.0,
+                rgb: [1.0, 1.0, 1.0],
+            }],
+            vec![OpacityKnot::new(1.0, 0.0), OpacityKnot::new(10.0, 1.0)],
+        )
+        .unwrap()
+        .with_data_axis(DataAxis::Log)
+        .unwrap();
+        let r = log.rescaled([1e3, 1e7]).unwrap();
+        assert!((r.opacity_knots()[1].x - 1e5).abs() < 1e-6);
+        assert!(log.rescaled([0.0, 1.0]).is_err());
+        assert!(tf.rescaled([2.0, 2.0]).is_err());
     }
 
     #[test]

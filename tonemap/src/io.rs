@@ -315,7 +315,8 @@ pub fn read_pfm(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     Rgb32FImage::from_raw(w as u32, h as u32, data).ok_or_else(|| bad("image size overflows"))
 }
 
-/// Writes through a closure into a temporary file beside `path`, then renames it.
+/// Writes through a closure into a temporary file beside `path`, then renames it; the file
+/// gets mode 0666 less the umask, like any file the user creates.
 ///
 /// # Errors
 /// [`Error::Io`] if the folder is not writable; the closure's own errors.
@@ -327,8 +328,15 @@ pub fn write_atomic(
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".blueshift-")
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".blueshift-");
+    // 0666 less the umask, as `File::create` would give (tempfile's default is 0600).
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = builder
         .tempfile_in(dir)
         .map_err(|e| Error::io("cannot create a temporary file in", dir, e))?;
     {

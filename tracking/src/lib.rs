@@ -72,6 +72,6 @@ pub use render::{
 };
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};
-pub use scene_file::{CameraKind, ChannelSpec, LightSpec, MaterialSpec, RenderSceneFile};
+pub use scene_file::{CameraKind, ChannelSpec, LightSpec, MaterialSpec, RenderSceneFile, TfRange};
 pub use session::TrackingSession;
 pub use shading::{Material, Shading};

@@ -10,7 +10,8 @@
 //!   "background": [0, 0, 0], "density_scale": 1.0, "macrocell": 4,
 //!   "precision": "f32", "step": null, "alpha_g": null, "noise_target": null,
 //!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 },
-//!   "shading": false, "heatmaps": ["steps"], "warmup": null, "frames": null }
+//!   "shading": false, "heatmaps": ["steps"], "warmup": null, "frames": null,
+//!   "tf_range": null }
 //! ```
 //! Unknown keys are refused; paths are relative to the file. A channel is
 //! `{ "volume": FILE, "channel": NAME?, "tf": SPEC, "material": M? }` or
@@ -20,12 +21,16 @@
 //! channel's positive values, for data spanning decades). A material `M` for `shading` is
 //! `{ "ambient": 1, "diffuse": 0.8, "specular": 0.2, "shininess": 32 }` (any may be left out).
 //!
+//! `tf_range` ([`TfRange`]) stretches every channel's transfer function over `"data"` (the
+//! channel's value range, ParaView's "rescale to data range") or `"LO:HI"`; without it a
+//! file's TF keeps its own domain (built-in maps are already stretched over the data).
+//!
 //! The names are [`Method`] (`woodcock`, `mdwt-ndda`, `mdwt-1dda` (default), `mdwt-summed`,
 //! `marcher`), [`BlendKind`] (`density` (default), `max`, `mix`, `weighted`, `composite`;
 //! `weighted` without `weights` takes [`Blend::majorant_weights`]), [`CameraKind`]
 //! (`perspective` (default), `ortho`), [`Precision`] (`f32` (default), `f16`, `u8`) and
 //! [`HeatMap`] (`steps`, `collisions`, `rejections`, `time`). Other defaults: 16 samples
-//! per pixel, seed 0, 512 x 512 pixels, density scale 1, macrocells of
+//! per pixel (1 for the `marcher`, which is deterministic but for its jittered start), seed 0, 512 x 512 pixels, density scale 1, macrocells of
 //! `blueshift_volume::DEFAULT_K` voxels, woodcock's channel 0.
 //!
 //! Extinction per unit world length (the volume's spacing unit) is the transfer function's
@@ -141,6 +146,80 @@ impl LightSpec {
     }
 }
 
+/// The data interval the transfer functions are stretched over ([`TransferFunction::rescaled`]:
+/// every knot keeps its relative position): `data` (each channel's value range: its finite
+/// values, its positive ones on a logarithmic axis) or `LO:HI` in data units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TfRange {
+    /// Each channel's own value range.
+    Data,
+    /// A fixed interval `[lo, hi]` in data units.
+    Interval(f64, f64),
+}
+
+impl std::str::FromStr for TfRange {
+    type Err = Error;
+    /// `data` or `LO:HI` (finite, LO < HI).
+    fn from_str(s: &str) -> Result<Self> {
+        let t = s.trim();
+        if t == "data" {
+            return Ok(TfRange::Data);
+        }
+        let bad = || {
+            Error::parameter(format!(
+                "tf-range '{t}': expected data or LO:HI with finite LO < HI"
+            ))
+        };
+        let (a, b) = t.split_once(':').ok_or_else(bad)?;
+        let (lo, hi) = (
+            a.trim().parse::<f64>().map_err(|_| bad())?,
+            b.trim().parse::<f64>().map_err(|_| bad())?,
+        );
+        if lo.is_finite() && hi.is_finite() && lo < hi {
+            Ok(TfRange::Interval(lo, hi))
+        } else {
+            Err(bad())
+        }
+    }
+}
+
+impl std::fmt::Display for TfRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TfRange::Data => f.write_str("data"),
+            TfRange::Interval(lo, hi) => write!(f, "{lo}:{hi}"),
+        }
+    }
+}
+
+blueshift_camera::serde_via_str!(TfRange);
+
+/// The smallest and largest positive finite value of a grid (`None` if there is none).
+fn positive_range(grid: &AnyGrid) -> Option<(f64, f64)> {
+    let g = *grid.geometry();
+    let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
+    for k in 0..g.voxel_count() {
+        let v = grid.scalar_at(k);
+        if v.is_finite() && v > 0.0 {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    (hi > 0.0).then(|| (f64::from(lo), f64::from(hi.max(lo * 1.0001))))
+}
+
+/// The value range a transfer function on `axis` is stretched over for `grid` (a constant
+/// grid gets a unit-wide domain).
+fn data_domain(grid: &AnyGrid, axis: DataAxis) -> Option<[f64; 2]> {
+    match axis {
+        DataAxis::Log => positive_range(grid).map(|(lo, hi)| [lo, hi]),
+        _ => grid.finite_range().map(|(lo, hi)| {
+            let (lo, hi) = (f64::from(lo), f64::from(hi));
+            [lo, if hi > lo { hi } else { lo + 1.0 }]
+        }),
+    }
+}
+
 /// A render scene file (see the module docs for the format and the defaults).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -204,6 +283,8 @@ pub struct RenderSceneFile {
     pub warmup: Option<u32>,
     /// Timing protocol: timed frames of 1 spp each (replaces `spp`).
     pub frames: Option<u32>,
+    /// Stretch every transfer function over each channel's data range or an interval.
+    pub tf_range: Option<TfRange>,
     /// Folder the relative paths start from (the scene file's; set by
     /// [`RenderSceneFile::from_json`] and [`RenderSceneFile::read`]; `None`: the working
     /// directory).
@@ -311,22 +392,8 @@ impl ChannelSpec {
                 .map_err(tf_err);
         }
         if let Some(name) = spec.strip_prefix("log:") {
-            let g = *grid.geometry();
-            let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
-            for k in 0..g.voxel_count() {
-                let v = grid.scalar_at(k);
-                if v.is_finite() && v > 0.0 {
-                    lo = lo.min(v);
-                    hi = hi.max(v);
-                }
-            }
-            if hi <= 0.0 {
-                return Err(Error::field(
-                    what(),
-                    "no positive values for a logarithmic axis",
-                ));
-            }
-            let (lo, hi) = (f64::from(lo), f64::from(hi.max(lo * 1.0001)));
+            let (lo, hi) = positive_range(grid)
+                .ok_or_else(|| Error::field(what(), "no positive values for a logarithmic axis"))?;
             let b = blueshift_tfedit::builtin(name).map_err(tf_err)?;
             let map = |x: f64| lo * (hi / lo).powf(x);
             let color: Vec<ColorKnot> = b
@@ -410,6 +477,7 @@ impl RenderSceneFile {
             heatmaps,
             warmup,
             frames,
+            tf_range,
             base,
         } = flags;
         if !channels.is_empty() {
@@ -450,7 +518,8 @@ impl RenderSceneFile {
             shading,
             heatmaps,
             warmup,
-            frames
+            frames,
+            tf_range
         );
     }
 
@@ -517,6 +586,20 @@ impl RenderSceneFile {
         for (i, c) in self.channels.iter().enumerate() {
             let (name, grid) = c.load(i, base)?;
             let mut tf = c.transfer_function(i, &grid, base)?;
+            if let Some(range) = self.tf_range {
+                let domain = match range {
+                    TfRange::Data => data_domain(&grid, tf.data_axis()).ok_or_else(|| {
+                        Error::field(
+                            "tf_range",
+                            format!("channels[{i}] has no values to stretch the TF over"),
+                        )
+                    })?,
+                    TfRange::Interval(lo, hi) => [lo, hi],
+                };
+                tf = tf
+                    .rescaled(domain)
+                    .map_err(|e| Error::field_from("tf_range", None, e))?;
+            }
             if let Some(a) = self.alpha_g {
                 tf = tf
                     .with_alpha_g(a)
@@ -591,7 +674,14 @@ impl RenderSceneFile {
         let height = self.height.unwrap_or(512);
         let ortho = self.camera.unwrap_or_default() == CameraKind::Ortho;
         let mut settings = RenderSettings::default_for(&scene, width, height, ortho);
-        settings.spp = self.spp.unwrap_or(16);
+        // The marcher is deterministic but for its jittered start: more samples cost time
+        // for a fraction of a per cent.
+        let default_spp = if self.method() == Method::Marcher {
+            1
+        } else {
+            16
+        };
+        settings.spp = self.spp.unwrap_or(default_spp);
         settings.seed = self.seed.unwrap_or(0);
         settings.noise_target = self.noise_target;
         settings.camera = self.camera_for(&scene, width, height, ortho)?;
@@ -811,6 +901,40 @@ mod tests {
             (settings.width, settings.height, settings.spp),
             (256, 256, 64)
         );
+    }
+
+    #[test]
+    fn tf_range_stretches_each_tf_over_its_channel_or_an_interval() {
+        // b.nrrd holds 1..7; tf.json is on [0, 1]; log:viridis already spans 1..7.
+        let scene = r#"{ "channels": [ { "volume": "../b.nrrd", "tf": "tf.json" },
+            { "volume": "../b.nrrd", "tf": "log:viridis" } ], "tf_range": "data" }"#;
+        let (_dir, path) = fixture(scene);
+        let f = RenderSceneFile::read(&path).unwrap();
+        assert_eq!(f.tf_range, Some(TfRange::Data));
+        let (s, _, _) = f.build().unwrap();
+        assert_eq!(s.channels()[0].transfer_function().domain(), [1.0, 7.0]);
+        let log = s.channels()[1].transfer_function().domain();
+        assert!((log[0] - 1.0).abs() < 1e-9 && (log[1] - 7.0).abs() < 1e-6);
+        let mut f = f;
+        f.tf_range = Some("-2:3".parse().unwrap());
+        // A log axis refuses a non-positive interval, naming the field.
+        let e = f.build().err();
+        assert!(e.is_some_and(|e| e.to_string().contains("tf_range")));
+        f.channels.truncate(1);
+        let (s, _, _) = f.build().unwrap();
+        assert_eq!(s.channels()[0].transfer_function().domain(), [-2.0, 3.0]);
+        for bad in ["3:2", "1", "a:b", "0:inf", "date"] {
+            assert!(bad.parse::<TfRange>().is_err(), "{bad}");
+        }
+        assert_eq!(TfRange::Interval(0.5, 2.0).to_string(), "0.5:2");
+    }
+
+    #[test]
+    fn the_marcher_defaults_to_one_sample_per_pixel() {
+        let min = r#"{ "channels": [ { "synth": "three-cubes", "res": 8, "tf": "builtin:grey" } ],
+            "method": "marcher" }"#;
+        let f = RenderSceneFile::from_json(min, Path::new("min.json")).unwrap();
+        assert_eq!(f.build().unwrap().2.spp, 1);
     }
 
     #[test]

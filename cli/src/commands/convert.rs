@@ -61,19 +61,18 @@ fn parse_vec3(s: &str) -> Result<Vec3, String> {
     }
 }
 
-fn progress_bar(total: u64) -> indicatif::ProgressBar {
-    let pb = indicatif::ProgressBar::new(total);
-    if let Ok(style) =
-        indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} slices ({eta})")
-    {
-        pb.set_style(style.progress_chars("=> "));
-    }
-    pb.set_message("bricking");
-    pb
+fn progress_bar(total: u64) -> crate::progress::Progress {
+    crate::progress::Progress::new(
+        total,
+        "bricking [{bar:40}] {pos}/{len} slices ({eta})",
+        "bricking",
+        "slices",
+    )
 }
 
 /// Runs `blueshift convert`.
 pub fn run(args: Args) -> Result<()> {
+    output::check_outputs(&[args.output.as_path()], &[args.input.as_path()])?;
     let fmt = out_format(&args.output)?;
     let ctx = || format!("cannot convert {}", args.input.display());
     let read = |p: &std::path::Path| args.input_args.read(p);
@@ -154,7 +153,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     let written = write_volume(&args.output, &vol, args.channel.as_deref(), &opts)?;
     for p in written {
-        eprintln!("wrote {}", p.display());
+        output::wrote(&p);
     }
     Ok(())
 }
@@ -168,7 +167,7 @@ fn brick(src: &mut dyn SlabSource, args: &Args, name: &str, layout: BrickLayout)
         })
         .with_context(|| format!("cannot convert {}", args.input.display()))
     })?;
-    pb.finish_and_clear();
-    eprintln!("wrote {}", args.output.display());
+    pb.finish();
+    output::wrote(&args.output);
     Ok(())
 }

@@ -108,7 +108,11 @@ pub struct Args {
     /// Display luminance scaling (paper Fig. 4): a number multiplies XYZ (one reference for
     /// all pixels), `pNN` maps the NN-th percentile of Y to 1 (default p99), `per-pixel`
     /// divides each pixel by its own Y (chromaticity only).
-    #[arg(long)]
+    #[arg(long, value_name = "K|pNN|per-pixel")]
+    pub exposure_scale: Option<String>,
+    /// Exposure in stops after the luminance scaling, as in every command: each stop doubles
+    /// the display values (not with --exposure-scale per-pixel).
+    #[arg(long, value_name = "STOPS", allow_hyphen_values = true)]
     pub exposure: Option<String>,
     /// Tone mapping of the display PNG after the scaling and the colour matrix: `none`
     /// (clamp to [0, 1]) or a blueshift-tonemap operator with its paper's default
@@ -257,15 +261,47 @@ fn display(args: &Args) -> Result<DisplayOptions> {
             ColourMatrix::NAMES.join(", ")
         )
     })?;
-    let exposure = match &args.exposure {
+    let exposure = match &args.exposure_scale {
         None => Exposure::Percentile(99.0),
-        // The library says `exposure E: why`; the flag is `--exposure`.
+        // The library says `exposure E: why`; the flag is `--exposure-scale`.
         Some(e) => e.parse::<Exposure>().map_err(|err| match err {
-            blueshift_doppler::Error::Parameter(m) => anyhow!("--{m}"),
+            blueshift_doppler::Error::Parameter(m) => {
+                anyhow!("--{}", m.replacen("exposure", "exposure-scale", 1))
+            }
             other => other.into(),
         })?,
     };
+    if exposure == Exposure::PerPixel && exposure_stops(args)? != 0.0 {
+        bail!("--exposure: per-pixel scaling maps every pixel to Y = 1; stops do not apply");
+    }
     Ok(DisplayOptions { matrix, exposure })
+}
+
+/// `--exposure` in stops (0 without the flag). The multiplier and percentile it took before
+/// are `--exposure-scale` now; those spellings are refused with a pointer there.
+fn exposure_stops(args: &Args) -> Result<f64> {
+    let Some(e) = args.exposure.as_deref().map(str::trim) else {
+        return Ok(0.0);
+    };
+    match e.parse::<f64>() {
+        Ok(s) if s.is_finite() => Ok(s),
+        _ if e == "per-pixel" || e.starts_with('p') => bail!(
+            "--exposure {e}: --exposure is in stops; the percentile and per-pixel scalings are --exposure-scale {e}"
+        ),
+        _ => bail!("--exposure {e}: expected a finite number of stops"),
+    }
+}
+
+/// The display options with `--exposure` stops folded in: the scale the luminance scaling
+/// gives for this image, times 2^stops.
+fn with_stops(disp: &DisplayOptions, stops: f64, img: &DopplerImage) -> DisplayOptions {
+    if stops == 0.0 || disp.exposure == Exposure::PerPixel {
+        return *disp;
+    }
+    DisplayOptions {
+        exposure: Exposure::Fixed(disp.scale_for(img) * stops.exp2()),
+        ..*disp
+    }
 }
 
 /// The names `--tonemap` accepts.
@@ -320,13 +356,14 @@ fn display_rgb8(
 }
 
 fn render(session: &DopplerSession) -> Result<DopplerImage> {
-    let bar = indicatif::ProgressBar::new(u64::from(session.settings().height));
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} rows [{elapsed}]")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    let bar = crate::progress::Progress::new(
+        u64::from(session.settings().height),
+        "{bar:30} {pos}/{len} rows [{elapsed}]",
+        "doppler",
+        "rows",
     );
     let img = session.render(&OnProgress::new(|_| bar.inc(1)))?;
-    bar.finish_and_clear();
+    bar.finish();
     Ok(img)
 }
 
@@ -425,6 +462,15 @@ const COLOURS: [RGBColor; 6] = [
 
 /// Runs `blueshift doppler`.
 pub fn run(args: Args) -> Result<()> {
+    // Refuse an output that cannot be written before loading or rendering anything.
+    let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
+    match &args.cube.cube {
+        Some(cube) => crate::output::check_outputs(&[cube.as_path()], &inputs)?,
+        None => {
+            let png = args.out.with_extension("png");
+            crate::output::check_outputs(&[args.out.as_path(), png.as_path()], &inputs)?;
+        }
+    }
     let (scene, mut st) = build(&args)?;
     super::doppler_cube::apply_view(&args.cube, &scene, &mut st)?;
     apply_camera(&args, &scene, &mut st)?;
@@ -436,6 +482,7 @@ pub fn run(args: Args) -> Result<()> {
         return super::doppler_cube::run_cube(&args.cube, &scene, &st);
     }
     let disp = display(&args)?;
+    let stops = exposure_stops(&args)?;
     let op = tonemap_op(args.tonemap.trim())?;
     for &(x, y) in args.pick.iter().chain(args.trace.iter()) {
         if x >= st.width || y >= st.height {
@@ -483,20 +530,28 @@ pub fn run(args: Args) -> Result<()> {
     let img = ran.value;
     let secs = start.elapsed().as_secs_f64();
     write_exr(&args.out, &img)?;
+    crate::output::wrote_with(
+        &args.out,
+        &format!(
+            "{}x{}, {:.2} s on the {on}, pieces per ray mean {:.1} max {}, budget fallbacks {}",
+            img.width, img.height, secs, img.pieces.mean, img.pieces.max, img.pieces.fallback_rays
+        ),
+    );
     let png = args.out.with_extension("png");
+    let disp = with_stops(&disp, stops, &img);
     write_png(
         &png,
         img.width,
         img.height,
         display_rgb8(&disp, op.as_ref(), &img)?,
     )?;
+    crate::output::wrote(&png);
     let mut series = Vec::new();
     for (i, &(x, y)) in args.pick.iter().enumerate() {
         let s = session.pixel_spectrum(x, y)?;
-        write_bytes_atomic(
-            &sibling(&args.out, &format!("_pick_{x}_{y}.csv")),
-            spectrum_csv(&s, st.range_nm).as_bytes(),
-        )?;
+        let csv = sibling(&args.out, &format!("_pick_{x}_{y}.csv"));
+        write_bytes_atomic(&csv, spectrum_csv(&s, st.range_nm).as_bytes())?;
+        crate::output::wrote(&csv);
         series.push(Series {
             label: format!("pixel {x},{y}"),
             points: samples(&s, st.range_nm),
@@ -504,14 +559,16 @@ pub fn run(args: Args) -> Result<()> {
         });
     }
     if !series.is_empty() {
+        let plot = sibling(&args.out, "_picks.png");
         line_plot(
-            &sibling(&args.out, "_picks.png"),
+            &plot,
             "picked spectra",
             "wavelength (nm)",
             "spectral radiance",
             &series,
             (900, 500),
         )?;
+        crate::output::wrote(&plot);
     }
     if let Some((x, y)) = args.trace {
         let steps = session.trace(x, y)?;
@@ -521,36 +578,23 @@ pub fn run(args: Args) -> Result<()> {
                 let _ = writeln!(csv, "{i},{},{:e},{l},{v:e}", s.t, s.radial_velocity_m_per_s);
             }
         }
-        write_bytes_atomic(
-            &sibling(&args.out, &format!("_trace_{x}_{y}.csv")),
-            csv.as_bytes(),
-        )?;
+        let csv_path = sibling(&args.out, &format!("_trace_{x}_{y}.csv"));
+        write_bytes_atomic(&csv_path, csv.as_bytes())?;
+        crate::output::wrote(&csv_path);
         if !steps.is_empty() {
+            let panels = sibling(&args.out, &format!("_trace_{x}_{y}.png"));
             trace_panels(
-                &sibling(&args.out, &format!("_trace_{x}_{y}.png")),
+                &panels,
                 &format!("pixel {x},{y}: spectrum after each step (back to front)"),
                 &steps,
                 st.range_nm,
             )?;
-            trace_animation(
-                &sibling(&args.out, &format!("_trace_{x}_{y}.gif")),
-                &format!("pixel {x},{y}"),
-                &steps,
-                st.range_nm,
-            )?;
+            crate::output::wrote(&panels);
+            let gif = sibling(&args.out, &format!("_trace_{x}_{y}.gif"));
+            trace_animation(&gif, &format!("pixel {x},{y}"), &steps, st.range_nm)?;
+            crate::output::wrote(&gif);
         }
     }
-    println!(
-        "wrote {} and {} ({}x{}, {:.2} s on the {on}, pieces per ray mean {:.1} max {}, budget fallbacks {})",
-        args.out.display(),
-        png.display(),
-        img.width,
-        img.height,
-        secs,
-        img.pieces.mean,
-        img.pieces.max,
-        img.pieces.fallback_rays
-    );
     Ok(())
 }
 
@@ -571,6 +615,7 @@ pub struct DemoArgs {
 pub fn run_demo(args: DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&args.outdir)
         .with_context(|| format!("cannot create {}", args.outdir.display()))?;
+    crate::output::check_output(&args.outdir.join("demo.png"))?;
     let size = args.size;
     if !(8..=2048).contains(&size) {
         bail!("--size {size} must be 8..=2048");
@@ -608,13 +653,14 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
         session.set_factors(factors)?;
         let st = session.settings();
         let img = render(&session)?;
-        write_exr(&args.outdir.join(format!("{label}.exr")), &img)?;
+        let exr = args.outdir.join(format!("{label}.exr"));
+        write_exr(&exr, &img)?;
+        crate::output::wrote(&exr);
         for (i, &(x, y)) in picks.iter().enumerate() {
             let s = session.pixel_spectrum(x, y)?;
-            write_bytes_atomic(
-                &args.outdir.join(format!("{label}_pick_{x}_{y}.csv")),
-                spectrum_csv(&s, st.range_nm).as_bytes(),
-            )?;
+            let csv = args.outdir.join(format!("{label}_pick_{x}_{y}.csv"));
+            write_bytes_atomic(&csv, spectrum_csv(&s, st.range_nm).as_bytes())?;
+            crate::output::wrote(&csv);
             let pts = samples(&s, st.range_nm);
             if vf > 0.0 {
                 demo_picks[i].on = pts.clone();
@@ -642,8 +688,14 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
         rgb.extend_from_slice(&a[y * row..(y + 1) * row]);
         rgb.extend_from_slice(&b[y * row..(y + 1) * row]);
     }
-    write_png(&args.outdir.join("side_by_side.png"), 2 * size, size, rgb)?;
+    let side = args.outdir.join("side_by_side.png");
+    write_png(&side, 2 * size, size, rgb)?;
+    crate::output::wrote(&side);
     demo_figure(&args.outdir.join("demo.png"), size, &a, &b, &demo_picks)?;
+    crate::output::wrote_with(
+        &args.outdir.join("demo.png"),
+        "Doppler on and off with the picked spectra under them",
+    );
     line_plot(
         &args.outdir.join("spectra.png"),
         "galaxy: picked spectra, inclined 60 deg, Doppler on (velocity x30) and off",
@@ -652,10 +704,9 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
         &series,
         (1000, 500),
     )?;
-    println!(
-        "wrote {}/demo.png (Doppler on and off with the picked spectra under them), side_by_side.png, spectra.png, EXRs and CSVs in {:.1} s",
-        args.outdir.display(),
-        start.elapsed().as_secs_f64()
+    crate::output::wrote_with(
+        &args.outdir.join("spectra.png"),
+        &format!("demo done in {:.1} s", start.elapsed().as_secs_f64()),
     );
     Ok(())
 }

@@ -234,35 +234,38 @@ pub fn run_cube(args: &CubeArgs, scene: &DopplerScene, st: &DopplerSettings) -> 
         object: String::new(),
         world_unit,
     };
-    let bar = indicatif::ProgressBar::new(u64::from(st.height));
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} rows [{elapsed}]")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    let bar = crate::progress::Progress::new(
+        u64::from(st.height),
+        "{bar:30} {pos}/{len} rows [{elapsed}]",
+        "cube",
+        "rows",
     );
     let start = Instant::now();
     let cube = render_cube(scene, st, &spec, &|| bar.inc(1))?;
-    bar.finish_and_clear();
+    bar.finish();
     let secs = start.elapsed().as_secs_f64();
     let fits = fits_bytes(&cube, &meta)?;
     let nrrd = nrrd_bytes(&cube)?;
     write_bytes_atomic(out, &fits)?;
     let nrrd_path = out.with_extension("nrrd");
     write_bytes_atomic(&nrrd_path, &nrrd)?;
+    crate::output::wrote_with(
+        out,
+        &format!(
+            "{}x{}x{} channels {} {:.4}..{:.4} nm, {:.2} s",
+            cube.nx,
+            cube.ny,
+            spec.channels,
+            spec.axis.ctype(),
+            spec.edge_nm(0),
+            spec.edge_nm(spec.channels),
+            secs
+        ),
+    );
+    crate::output::wrote(&nrrd_path);
     if args.moments {
         write_moments(out, &cube)?;
     }
-    println!(
-        "wrote {} and {} ({}x{}x{} channels {} {:.4}..{:.4} nm, {:.2} s)",
-        out.display(),
-        nrrd_path.display(),
-        cube.nx,
-        cube.ny,
-        spec.channels,
-        spec.axis.ctype(),
-        spec.edge_nm(0),
-        spec.edge_nm(spec.channels),
-        secs
-    );
     Ok(())
 }
 
@@ -302,15 +305,11 @@ fn write_moments(out: &Path, cube: &SpectralCube) -> Result<()> {
         let path = sibling(out, &format!("_{name}.exr"));
         // Block after block (the same bytes every run), via a temporary file.
         crate::output::write_exr_f32(&path, w as u32, h as u32, 4, &rgba)?;
+        crate::output::wrote(&path);
         let diverging = name == "mom1" && velocity;
-        colour_png(
-            &sibling(out, &format!("_{name}.png")),
-            &img,
-            w,
-            h,
-            &title,
-            diverging,
-        )?;
+        let png = sibling(out, &format!("_{name}.png"));
+        colour_png(&png, &img, w, h, &title, diverging)?;
+        crate::output::wrote(&png);
     }
     Ok(())
 }

@@ -147,7 +147,14 @@ fn parse_vec(name: &str, s: &str) -> Result<DVec3> {
     Ok(v)
 }
 
+/// Writes the image and says so (`wrote PATH`).
 fn write_image(path: &Path, img: &Rgb32FImage, exposure: f64) -> Result<()> {
+    encode_image(path, img, exposure)?;
+    crate::output::wrote(path);
+    Ok(())
+}
+
+fn encode_image(path: &Path, img: &Rgb32FImage, exposure: f64) -> Result<()> {
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())
@@ -189,6 +196,12 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(p) = &args.png {
         check_ext(p)?;
     }
+    let mut outputs = vec![args.out.as_path()];
+    outputs.extend(args.png.as_deref());
+    crate::output::check_outputs(
+        &outputs,
+        &args.env.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
+    )?;
     if !args.exposure.is_finite() {
         bail!("--exposure must be finite");
     }
@@ -268,8 +281,8 @@ pub fn run(args: Args) -> Result<()> {
                 let v = Velocity::along(direction, b)?;
                 let img = render(&env, &cam, v, effects)?;
                 let path = PathBuf::from(format!("{stem}_{k:04}.{ext}"));
+                eprintln!("frame {k}: beta {b:.4}");
                 write_image(&path, &img, args.exposure)?;
-                eprintln!("frame {k}: beta {b:.4} -> {}", path.display());
             }
         }
     }

@@ -15,7 +15,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use blueshift_tracking::{
-    ChannelSpec, HeatMap, LightSpec, Progressive, RenderSceneFile, TrackingOutput, TrackingSession,
+    ChannelSpec, HeatMap, LightSpec, Progressive, RenderSceneFile, Scene, TfRange, TrackingOutput,
+    TrackingSession,
 };
 
 /// Arguments of `blueshift render`.
@@ -33,9 +34,16 @@ pub struct Args {
     #[arg(long, default_value_t = 64)]
     pub res: usize,
     /// Transfer function per channel (repeat), or one for all: JSON file (blueshift or
-    /// ParaView preset with opacity Points), builtin:NAME or log:NAME.
+    /// ParaView preset with opacity Points), builtin:NAME or log:NAME. Built-in maps
+    /// (builtin:, log:) are already stretched over each channel's value range; a file keeps
+    /// its own domain (see --tf-range).
     #[arg(long = "tf")]
     pub tfs: Vec<String>,
+    /// Stretch every transfer function over `data` (each channel's value range, ParaView's
+    /// "rescale to data range") or `LO:HI` (data units), keeping each knot's relative
+    /// position. Needed for a preset on [0, 1] applied to data such as CT values 0-4000.
+    #[arg(long, value_name = "data|LO:HI", allow_hyphen_values = true)]
+    pub tf_range: Option<String>,
     /// woodcock | mdwt-ndda | mdwt-1dda | mdwt-summed | marcher.
     #[arg(long)]
     pub method: Option<String>,
@@ -49,7 +57,8 @@ pub struct Args {
     /// Weights for mix/composite, comma-separated, one per channel (default equal).
     #[arg(long, value_delimiter = ',')]
     pub weights: Option<Vec<f32>>,
-    /// Samples per pixel (the maximum with --noise-target).
+    /// Samples per pixel (the maximum with --noise-target); default 16, 1 for the marcher
+    /// (deterministic but for its jittered start).
     #[arg(long)]
     pub spp: Option<u32>,
     /// Seed of the random numbers (same seed, same image, any thread count).
@@ -274,6 +283,15 @@ fn merge(args: &Args) -> Result<RenderSceneFile> {
         heatmaps: (!heatmaps.is_empty()).then_some(heatmaps),
         warmup: args.warmup,
         frames: args.frames,
+        tf_range: args
+            .tf_range
+            .as_deref()
+            .map(str::parse::<TfRange>)
+            .transpose()
+            .map_err(|e| match e {
+                blueshift_tracking::Error::Parameter(m) => anyhow!("--{m}"),
+                other => other.into(),
+            })?,
         base: None,
     });
     if f.channels.is_empty() {
@@ -297,6 +315,12 @@ pub fn run(args: Args) -> Result<()> {
             TONEMAPS.join(", ")
         );
     }
+    // Refuse an output that cannot be written before loading or rendering anything.
+    let mut outputs = vec![args.out.as_path()];
+    outputs.extend(args.png.as_deref());
+    let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
+    inputs.extend(args.scene.as_deref());
+    crate::output::check_outputs(&outputs, &inputs)?;
     match args.threads {
         Some(0) => bail!("--threads: must be at least 1"),
         Some(t) => rayon::ThreadPoolBuilder::new()
@@ -311,6 +335,9 @@ pub fn run(args: Args) -> Result<()> {
 fn run_inner(args: &Args) -> Result<()> {
     let f = merge(args)?;
     let (scene, integrator, settings) = f.build()?;
+    if f.tf_range.is_none() {
+        warn_tf_domains(&scene);
+    }
     let heatmaps = f.heatmaps();
     let method = integrator.method().name();
     let n = scene.channels().len();
@@ -325,10 +352,11 @@ fn run_inner(args: &Args) -> Result<()> {
             .take()
             .ok_or_else(|| anyhow!("scene already used"))
     };
-    let bar = indicatif::ProgressBar::new(u64::from(settings.timed_frames.unwrap_or(settings.spp)));
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    let bar = crate::progress::Progress::new(
+        u64::from(settings.timed_frames.unwrap_or(settings.spp)),
+        "{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]",
+        "render",
+        "passes",
     );
     let show = |done: u32, noise: f64| {
         bar.set_position(u64::from(done));
@@ -361,7 +389,7 @@ fn run_inner(args: &Args) -> Result<()> {
         },
     )
     .map_err(crate::commands::doppler::device_error)?;
-    bar.finish_and_clear();
+    bar.finish();
     if let Some(why) = &ran.fallback {
         eprintln!("--device auto: {why}; rendering on the CPU");
     }
@@ -374,9 +402,6 @@ fn run_inner(args: &Args) -> Result<()> {
     let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
     crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
-    if let Some(png) = &args.png {
-        write_png_preview(&img, png, &args.tonemap, args.exposure)?;
-    }
     let noise = acc.noise();
     let adapter = on_gpu
         .then(|| {
@@ -412,15 +437,60 @@ fn run_inner(args: &Args) -> Result<()> {
             summary["adapter"] = serde_json::json!(a);
         }
         println!("{summary}");
+    }
+    let on = adapter.map(|a| format!(" on {a}")).unwrap_or_default();
+    // One sample has no noise estimate: say nothing rather than "noise inf".
+    let noise = if noise.is_finite() {
+        format!(", noise {noise:.4}")
     } else {
-        let on = adapter.map(|a| format!(" on {a}")).unwrap_or_default();
-        eprintln!(
-            "wrote {} ({} spp, noise {noise:.4}, {seconds:.2} s{on})",
-            args.out.display(),
-            acc.samples(),
-        );
+        String::new()
+    };
+    crate::output::wrote_with(
+        &args.out,
+        &format!("{} spp{noise}, {seconds:.2} s{on}", acc.samples()),
+    );
+    if let Some(png) = &args.png {
+        write_png_preview(&img, png, &args.tonemap, args.exposure)?;
+        crate::output::wrote(png);
     }
     Ok(())
+}
+
+/// The fraction of a channel's value range its transfer function must cover before the
+/// render runs without a warning.
+const TF_MIN_COVER: f64 = 0.01;
+
+/// Warns on stderr about each channel whose transfer function's domain misses its data (or
+/// covers under [`TF_MIN_COVER`] of it): values beyond the domain take the end knots, so a
+/// ParaView preset on [0, 1] over CT values 0-3926 renders an opaque silhouette.
+fn warn_tf_domains(scene: &Scene) {
+    for (i, c) in scene.channels().iter().enumerate() {
+        let Some((lo, hi)) = c.grid().finite_range() else {
+            continue;
+        };
+        let [tlo, thi] = c.transfer_function().domain();
+        let (dlo, dhi) = (f64::from(lo), f64::from(hi));
+        let overlap = (dhi.min(thi) - dlo.max(tlo)).max(0.0);
+        let how = if dhi > dlo {
+            let cover = overlap / (dhi - dlo);
+            if cover >= TF_MIN_COVER {
+                continue;
+            }
+            if overlap > 0.0 || (dlo..=dhi).contains(&tlo) || (dlo..=dhi).contains(&thi) {
+                format!("covers only {:.2} % of", 100.0 * cover)
+            } else {
+                "does not overlap".to_owned()
+            }
+        } else if (tlo..=thi).contains(&dlo) {
+            continue;
+        } else {
+            "does not contain".to_owned()
+        };
+        eprintln!(
+            "warning: channel {i} ({}): the transfer function's domain [{tlo}, {thi}] {how} the data range [{lo}, {hi}]; use --tf-range data to stretch it over the data (built-in maps are already stretched)",
+            c.name()
+        );
+    }
 }
 
 /// Forwards each finished pass (samples, noise) to the progress bar.
@@ -459,7 +529,7 @@ fn write_png_preview(
         "exposure" => None,
         "linear" => Some(Operator::Linear(LinearParams {
             exposure_stops: exposure,
-            ..LinearParams::default()
+            white: None,
         })),
         "drago" => Some(Operator::Drago(DragoParams::default())),
         "reinhard" => Some(Operator::Reinhard(ReinhardParams::default())),
@@ -475,6 +545,14 @@ fn write_png_preview(
         let p = img.get_pixel(x, y).0;
         image::Rgb([p[0], p[1], p[2]])
     });
+    // The linear operator's white: the 99th percentile, as `blueshift tonemap` takes it.
+    let op = match op {
+        Some(Operator::Linear(p)) => Some(Operator::Linear(LinearParams {
+            white: crate::commands::tonemap::default_linear_white(&rgb),
+            ..p
+        })),
+        other => other,
+    };
     let display = match op {
         Some(op) => op
             .apply(&rgb)

@@ -63,6 +63,7 @@ pub fn write_heatmaps(
             .to_file(p)
             .with_context(|| format!("cannot write {}", exr_path.display()))
     })?;
+    crate::output::wrote(&exr_path);
     let mut summary = serde_json::Map::new();
     summary.insert("exr".into(), serde_json::json!(exr_path));
     for (m, v) in &layers {
@@ -70,6 +71,7 @@ pub fn write_heatmaps(
         let max = v.iter().copied().fold(0.0f32, f32::max);
         let mean = v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len().max(1) as f64;
         colour_mapped_png(&png, v, w, h, max, *m)?;
+        crate::output::wrote(&png);
         summary.insert(
             m.name().into(),
             serde_json::json!({ "png": png, "mean": mean, "max": max }),

@@ -164,6 +164,14 @@ fn polyline(s: &PiecewiseLinear, lo: f64, hi: f64) -> Vec<(f64, f64)> {
 
 /// Runs `blueshift spectrum`.
 pub fn run(args: Args) -> Result<()> {
+    let outputs: Vec<&std::path::Path> = args
+        .csv
+        .iter()
+        .chain(&args.plot)
+        .map(PathBuf::as_path)
+        .collect();
+    let inputs: Vec<&std::path::Path> = args.line_list.iter().map(PathBuf::as_path).collect();
+    crate::output::check_outputs(&outputs, &inputs)?;
     let (lo, hi) = parse_range(&args.range)?;
     if args.blackbody.is_none() && args.lines.is_empty() && args.line_list.is_empty() {
         bail!("nothing to build: give --blackbody T_K and/or --lines H,He,C or --line-list FILE");
@@ -252,6 +260,7 @@ pub fn run(args: Args) -> Result<()> {
             }
             Ok(())
         })?;
+        crate::output::wrote(path);
     }
     if let Some(path) = &args.plot {
         let mut series = Vec::new();
@@ -289,6 +298,7 @@ pub fn run(args: Args) -> Result<()> {
             &series,
             (1000, 600),
         )?;
+        crate::output::wrote(path);
     }
 
     let observed_t = blackbody.map(|bb| match transform {

@@ -37,6 +37,7 @@ pub struct Args {
 
 /// Runs `blueshift synth`.
 pub fn run(args: Args) -> Result<()> {
+    crate::output::check_output(&args.output)?;
     let vol = synth::by_name(&args.name, args.res, args.seed)
         .with_context(|| format!("cannot make '{}'", args.name))?;
     let opts = nrrd::WriteOptions {
@@ -44,7 +45,7 @@ pub fn run(args: Args) -> Result<()> {
         disk: None,
     };
     for p in write_volume(&args.output, &vol, args.channel.as_deref(), &opts)? {
-        eprintln!("wrote {}", p.display());
+        crate::output::wrote(&p);
     }
     Ok(())
 }

@@ -98,6 +98,16 @@ struct LutArgs {
 
 /// Runs `blueshift tf`.
 pub fn run(args: Args) -> Result<()> {
+    // Refuse an output that cannot be written before reading anything.
+    let (out, input): (Option<&Path>, &Path) = match &args.command {
+        TfCommand::Show(a) => (Some(&a.out), Path::new(&a.tf)),
+        TfCommand::ImportParaview(a) => (a.out.as_deref(), &a.file),
+        TfCommand::ExportParaview(a) => (a.out.as_deref(), Path::new(&a.tf)),
+        TfCommand::Lut(a) => (Some(&a.out), Path::new(&a.tf)),
+    };
+    if let Some(out) = out {
+        crate::output::check_outputs(&[out], &[input])?;
+    }
     match args.command {
         TfCommand::Show(a) => show(a),
         TfCommand::ImportParaview(a) => import(a),
@@ -193,19 +203,25 @@ fn show(a: ShowArgs) -> Result<()> {
         img.save_with_format(p, image::ImageFormat::Png)
             .with_context(|| format!("cannot write {}", a.out.display()))
     })?;
-    println!(
-        "wrote {} ({} x {}, M_min = {:.4})",
-        a.out.display(),
-        a.width,
-        a.height,
-        view.fisheye.m_min()
+    crate::output::wrote_with(
+        &a.out,
+        &format!(
+            "{} x {}, M_min = {:.4}",
+            a.width,
+            a.height,
+            view.fisheye.m_min()
+        ),
     );
     Ok(())
 }
 
 fn emit(out: Option<&Path>, text: &str) -> Result<()> {
     match out {
-        Some(p) => write_bytes_atomic(p, text.as_bytes()),
+        Some(p) => {
+            write_bytes_atomic(p, text.as_bytes())?;
+            crate::output::wrote(p);
+            Ok(())
+        }
         None => {
             print!("{text}");
             Ok(())
@@ -258,6 +274,6 @@ fn lut(a: LutArgs) -> Result<()> {
         .context("lookup table buffer has the wrong size")?;
     // Block after block, so the same table always gives the same bytes.
     crate::output::write_exr_f32(&a.out, w32, h32, 4, img.as_raw())?;
-    println!("wrote {} ({w} x {h} RGBA f32)", a.out.display());
+    crate::output::wrote_with(&a.out, &format!("{w} x {h} RGBA f32"));
     Ok(())
 }

@@ -25,7 +25,8 @@ pub enum Op {
     Durand,
     /// Fattal et al. 2002 gradient domain compression.
     Fattal,
-    /// Linear with exposure.
+    /// Linear with exposure: by default the 99th percentile of the lit pixels' luminance
+    /// maps to display 1 (--white sets that luminance; --exposure adds stops).
     Linear,
 }
 
@@ -49,7 +50,7 @@ pub struct Args {
     /// PNG bits per channel (8 or 16).
     #[arg(long, default_value_t = 8, value_parser = parse_depth)]
     pub depth: u8,
-    /// Exposure in stops (linear, drago).
+    /// Exposure in stops (linear, drago): each stop doubles the display values.
     #[arg(long)]
     pub exposure: Option<f32>,
     /// Drago bias b (0.85).
@@ -65,7 +66,8 @@ pub struct Args {
     #[arg(long)]
     pub key: Option<f32>,
     /// Reinhard global L_white in scaled units (default: the largest scaled luminance);
-    /// linear: the luminance that maps to 1.
+    /// linear: the luminance that maps to 1 (default: the 99th percentile of the lit
+    /// pixels, so a few hot pixels do not turn the rest black).
     #[arg(long)]
     pub white: Option<f32>,
     /// Reinhard local sharpening phi (8).
@@ -131,6 +133,29 @@ fn parse_roi(s: &str) -> std::result::Result<Roi, String> {
         }),
         _ => Err(format!("--roi expects X,Y,R with R > 0, got {s:?}")),
     }
+}
+
+/// The percentile of the lit pixels' luminance that the linear operator maps to display 1
+/// by default.
+pub const LINEAR_WHITE_PERCENTILE: f64 = 99.0;
+
+/// The default white of the linear operator: the [`LINEAR_WHITE_PERCENTILE`]-th percentile
+/// of the luminance of the lit (positive, finite) pixels, so the brightest 1 % clip and a
+/// hot pixel or a small bright source no longer maps everything else to black, as the
+/// maximum did. `None` when no pixel is lit.
+pub fn default_linear_white(img: &Rgb32FImage) -> Option<f32> {
+    let mut lum: Vec<f32> = img
+        .pixels()
+        .map(|p| blueshift_tonemap::luminance(p.0))
+        .filter(|y| y.is_finite() && *y > 0.0)
+        .collect();
+    if lum.is_empty() {
+        return None;
+    }
+    let last = lum.len() - 1;
+    let k = ((LINEAR_WHITE_PERCENTILE / 100.0) * last as f64).round() as usize;
+    let (_, v, _) = lum.select_nth_unstable_by(k.min(last), f32::total_cmp);
+    Some(*v)
 }
 
 /// Builds the operator from the flags.
@@ -223,6 +248,7 @@ fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
 
 /// Runs `blueshift tonemap`.
 pub fn run(args: Args) -> Result<()> {
+    crate::output::check_outputs(&[args.out.as_path()], &[args.input.as_path()])?;
     let ext = extension(&args.out);
     if !["png", "exr", "hdr", "pfm"].contains(&ext.as_str()) {
         bail!(
@@ -240,7 +266,12 @@ pub fn run(args: Args) -> Result<()> {
     let report = clean.report;
     let dr = clean.dynamic_range();
     let hdr = &clean.image;
-    let op = operator(&args);
+    let mut op = operator(&args);
+    if let Operator::Linear(p) = &mut op
+        && p.white.is_none()
+    {
+        p.white = default_linear_white(hdr);
+    }
     let mut outputs = Vec::new();
     let t1 = Instant::now();
     let kind;
@@ -311,9 +342,9 @@ pub fn run(args: Args) -> Result<()> {
                 report.nan, report.negative, report.positive_infinite
             );
         }
-        for o in &outputs {
-            println!("wrote {}", o.display());
-        }
+    }
+    for o in &outputs {
+        crate::output::wrote(o);
     }
     Ok(())
 }

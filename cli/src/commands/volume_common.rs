@@ -107,7 +107,8 @@ pub fn write_channel(
 }
 
 /// Writes the channels of `vol` (or only `only`): the first to `path`, each further one to
-/// `stem_<channel>.ext` beside it. Returns the paths written.
+/// `stem_<channel>.ext` beside it. Returns the paths written (a detached header after its
+/// data file).
 pub fn write_volume(
     path: &Path,
     vol: &Volume,
@@ -130,6 +131,10 @@ pub fn write_volume(
             sibling(path, &c.name)
         };
         write_channel(&p, c, fmt, opts)?;
+        if fmt == OutFormat::Nhdr {
+            // The detached data file beside the header is an output too.
+            written.push(p.with_extension(if opts.gzip { "raw.gz" } else { "raw" }));
+        }
         written.push(p);
     }
     Ok(written)
