@@ -110,7 +110,8 @@ fn fbm(p: Vec3, octaves: u32, seed: u64) -> f32 {
 ///
 /// Geometry: `res x res x res/2` voxels spanning x, y in [-15, 15] kpc and z in [-7.5, 7.5]
 /// kpc (spacing in **kpc**), the disk in the xy plane, rotating counter-clockwise seen from
-/// +z. Channels:
+/// +z; all gas fades to zero over the outer 20 % of each half-side (no emission reaches the
+/// box's faces). Channels:
 /// - `hi_density`, `he_density`, `c_density`, `dust_density`: number densities in cm^-3
 ///   (H I exponential disk, scale length 4 kpc, scale height 0.4 kpc, a bar of half-length
 ///   4 kpc at 25 degrees, two log-spiral arms and seeded clumps; He ≈ 0.08 H I plus a
@@ -147,15 +148,24 @@ pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
         let clump = (1.2 * fbm(p * 0.8, 4, seed)).exp();
         (r, 1.0 + 2.0 * bar + 2.5 * arms, clump)
     };
+    // The gas fades to zero over the outer 20 % of each half-side (smoothstep), so no
+    // emission is cut off by the box: a render shows the galaxy, not a glowing slab.
+    let window = |p: Vec3| -> f32 {
+        let s = |u: f32, half: f32| {
+            let e = ((1.0 - u.abs() / half) / 0.2).clamp(0.0, 1.0);
+            e * e * (3.0 - 2.0 * e)
+        };
+        s(p.x, 15.0) * s(p.y, 15.0) * s(p.z, 7.5)
+    };
     let hi = Grid::from_fn(geom, |x, y, z| {
         let p = pos(x, y, z);
         let (r, s, clump) = structure(p);
         let vertical = 1.0 / (p.z / hz).cosh().powi(2);
-        1.0 * (-r / rd).exp() * vertical * s * clump
+        1.0 * (-r / rd).exp() * vertical * s * clump * window(p)
     })?;
     let he = Grid::from_fn(geom, |x, y, z| {
         let p = pos(x, y, z);
-        let halo = 0.002 * (-(p.length() / 10.0)).exp();
+        let halo = 0.002 * (-(p.length() / 10.0)).exp() * window(p);
         0.08 * hi.data()[geom.index(x, y, z)] + halo
     })?;
     let c = Grid::from_fn(geom, |x, y, z| {

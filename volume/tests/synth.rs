@@ -167,3 +167,32 @@ fn datasets_are_deterministic_by_seed_and_thread_count() {
     assert!(synth::by_name("nope", 8, 1).is_err());
     assert!(synth::by_name("galaxy", 1, 1).is_err());
 }
+
+/// No gas on the box's faces: a render of the galaxy shows its disk fading out, not a slab
+/// cut off by the box (which the old galaxy drew as a glowing rectangle).
+#[test]
+fn galaxy_gas_fades_to_zero_at_the_box_faces() {
+    let v = synth::galaxy(32, 1).unwrap();
+    let [nx, ny, nz] = v.geometry().dims;
+    for name in ["hi_density", "he_density"] {
+        let g = v.channel(name).unwrap().grid.to_f32_vec();
+        let (mut face_max, mut inner_max) = (0.0f32, 0.0f32);
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let d = g[(z * ny + y) * nx + x];
+                    if x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1 {
+                        face_max = face_max.max(d);
+                    } else {
+                        inner_max = inner_max.max(d);
+                    }
+                }
+            }
+        }
+        assert!(inner_max > 0.0);
+        assert!(
+            face_max <= 1e-6 * inner_max,
+            "{name}: {face_max} on a face vs {inner_max}"
+        );
+    }
+}

@@ -119,6 +119,12 @@ pub struct Args {
     /// parameters: linear, drago, reinhard, reinhard-local, durand, fattal.
     #[arg(long, default_value = "none")]
     pub tonemap: String,
+    /// Also write a figure (PNG): the true-colour image with a scale bar and the Doppler
+    /// colour key, the velocity-coded panel (H-alpha moment 1, km/s, masked below 1 % of the
+    /// emission) with its colour bar, and the picked spectra (--pick; default three pixels
+    /// across the middle row).
+    #[arg(long)]
+    pub figure: Option<PathBuf>,
     /// Output EXR (XYZ); the PNG goes next to it.
     #[arg(long, default_value = "doppler.exr")]
     pub out: PathBuf,
@@ -468,7 +474,9 @@ pub fn run(args: Args) -> Result<()> {
         Some(cube) => crate::output::check_outputs(&[cube.as_path()], &inputs)?,
         None => {
             let png = args.out.with_extension("png");
-            crate::output::check_outputs(&[args.out.as_path(), png.as_path()], &inputs)?;
+            let mut outs = vec![args.out.as_path(), png.as_path()];
+            outs.extend(args.figure.as_deref());
+            crate::output::check_outputs(&outs, &inputs)?;
         }
     }
     let (scene, mut st) = build(&args)?;
@@ -533,8 +541,18 @@ pub fn run(args: Args) -> Result<()> {
     crate::output::wrote_with(
         &args.out,
         &format!(
-            "{}x{}, {:.2} s on the {on}, pieces per ray mean {:.1} max {}, budget fallbacks {}",
-            img.width, img.height, secs, img.pieces.mean, img.pieces.max, img.pieces.fallback_rays
+            "{}x{}, {:.2} s on the {on}, {}",
+            img.width,
+            img.height,
+            secs,
+            if img.pieces.max == 0 {
+                "emission only: the rays sum XYZ and keep no spectrum pieces".to_owned()
+            } else {
+                format!(
+                    "pieces per ray mean {:.1} max {}, budget fallbacks {}",
+                    img.pieces.mean, img.pieces.max, img.pieces.fallback_rays
+                )
+            }
         ),
     );
     let png = args.out.with_extension("png");
@@ -569,6 +587,68 @@ pub fn run(args: Args) -> Result<()> {
             (900, 500),
         )?;
         crate::output::wrote(&plot);
+    }
+    if let Some(fig) = &args.figure {
+        let (w, h) = (st.width, st.height);
+        let picks: Vec<(u32, u32)> = if args.pick.is_empty() {
+            vec![(w / 4, h / 2), (w / 2, h / 2), (3 * w / 4, h / 2)]
+        } else {
+            args.pick.clone()
+        };
+        let mut fpicks = Vec::new();
+        for &(x, y) in &picks {
+            let s = session.pixel_spectrum(x, y)?;
+            fpicks.push(crate::figure::Pick {
+                xy: (x, y),
+                on: samples(&s, st.range_nm),
+                off: Vec::new(),
+            });
+        }
+        let mut phys = scene.clone();
+        phys.factors.velocity = 1.0;
+        let vmax = crate::figure::los_speed_kms(&phys, st);
+        let mut panels = vec![crate::figure::Panel {
+            title: if (scene.factors.velocity - 1.0).abs() > 1e-12 {
+                format!("true colour (velocity x{})", scene.factors.velocity)
+            } else {
+                "true colour".into()
+            },
+            rgb: display_rgb8(&disp, op.as_ref(), &img)?,
+        }];
+        let mut strips = vec![Some(crate::figure::colour_key(scene, st, vmax)?)];
+        if let Some(map) = crate::figure::velocity_map(&phys, st, vmax, 0.01)? {
+            let (rgb, bar) = crate::figure::velocity_panel(&map, vmax);
+            panels.push(crate::figure::Panel {
+                title: "line-of-sight velocity".into(),
+                rgb,
+            });
+            strips.push(Some(bar));
+        }
+        let unit = match &args.cube.world_unit {
+            Some(u) => {
+                let (name, k) = u
+                    .split_once(':')
+                    .and_then(|(n, k)| Some((n.trim().to_owned(), k.trim().parse::<f64>().ok()?)))
+                    .filter(|(_, k)| k.is_finite() && *k > 0.0)
+                    .ok_or_else(|| anyhow!("--world-unit '{u}': expected UNIT:SCALE"))?;
+                readable_length(name, k)
+            }
+            None if args.scene.is_none() && args.synth == "galaxy" => ("kpc".into(), 1.0),
+            None => ("world units".into(), 1.0),
+        };
+        crate::figure::write_figure(
+            fig,
+            &crate::figure::Figure {
+                size: (w, h),
+                panels,
+                strips,
+                ringed: 1,
+                scale: (pixel_world(st) > 0.0).then(|| (pixel_world(st), unit.0, unit.1)),
+                picks: fpicks,
+                spectra_title: "picked spectra".into(),
+            },
+        )?;
+        crate::output::wrote(fig);
     }
     if let Some((x, y)) = args.trace {
         let steps = session.trace(x, y)?;
@@ -609,6 +689,35 @@ pub struct DemoArgs {
     /// Galaxy voxels per edge.
     #[arg(long, default_value_t = 64)]
     pub res: usize,
+}
+
+/// A length unit a reader knows: cm or m scales become pc, kpc or Mpc (value = world x
+/// scale); other units stay as given.
+fn readable_length(unit: String, scale: f64) -> (String, f64) {
+    const PC_CM: f64 = 3.085_677_581e18;
+    let per_cm = match unit.as_str() {
+        "cm" => 1.0,
+        "m" => 100.0,
+        _ => return (unit, scale),
+    };
+    let pc = scale * per_cm / PC_CM;
+    if pc >= 1e5 {
+        ("Mpc".into(), pc / 1e6)
+    } else if pc >= 100.0 {
+        ("kpc".into(), pc / 1e3)
+    } else {
+        ("pc".into(), pc)
+    }
+}
+
+/// World length of one pixel of an orthographic camera (vertically); 0 for perspective.
+fn pixel_world(st: &DopplerSettings) -> f64 {
+    match st.camera.projection {
+        blueshift_camera::Projection::Orthographic { height } => {
+            f64::from(height) / f64::from(st.height.max(1))
+        }
+        blueshift_camera::Projection::Perspective { .. } => 0.0,
+    }
 }
 
 /// Runs `blueshift demo`: the galaxy with Doppler on and off side by side, plus picked spectra.
@@ -691,7 +800,52 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
     let side = args.outdir.join("side_by_side.png");
     write_png(&side, 2 * size, size, rgb)?;
     crate::output::wrote(&side);
-    demo_figure(&args.outdir.join("demo.png"), size, &a, &b, &demo_picks)?;
+    let st = session.settings().clone();
+    let mut phys = session.scene().clone();
+    phys.factors.velocity = 1.0;
+    let vmax = crate::figure::los_speed_kms(&phys, &st);
+    let mut shown = session.scene().clone();
+    shown.factors.velocity = 30.0;
+    let key = crate::figure::colour_key(&shown, &st, vmax)?;
+    let mut panels = vec![
+        crate::figure::Panel {
+            title: "true colour, Doppler on (velocity x30)".into(),
+            rgb: a,
+        },
+        crate::figure::Panel {
+            title: "true colour, Doppler off".into(),
+            rgb: b,
+        },
+    ];
+    let mut strips = vec![Some(key), None];
+    if let Some(map) = crate::figure::velocity_map(&phys, &st, vmax, 0.01)? {
+        let (rgb, bar) = crate::figure::velocity_panel(&map, vmax);
+        panels.push(crate::figure::Panel {
+            title: "line-of-sight velocity".into(),
+            rgb,
+        });
+        strips.push(Some(bar));
+    }
+    crate::figure::write_figure(
+        &args.outdir.join("demo.png"),
+        &crate::figure::Figure {
+            size: (size, size),
+            panels,
+            strips,
+            ringed: 2,
+            scale: Some((pixel_world(&st), "kpc".into(), 1.0)),
+            picks: demo_picks
+                .into_iter()
+                .map(|p| crate::figure::Pick {
+                    xy: p.xy,
+                    on: p.on,
+                    off: p.off,
+                })
+                .collect(),
+            spectra_title:
+                "galaxy inclined 60 deg: picked spectra (solid: Doppler on x30, thin: off)".into(),
+        },
+    )?;
     crate::output::wrote_with(
         &args.outdir.join("demo.png"),
         "Doppler on and off with the picked spectra under them",
@@ -882,109 +1036,4 @@ struct DemoPick {
     xy: (u32, u32),
     on: Vec<(f64, f64)>,
     off: Vec<(f64, f64)>,
-}
-
-/// The demo figure (as at the bottom of the paper's Figs. 12 and 14-16): the Doppler-on and
-/// Doppler-off images side by side, a ring in each image at every picked pixel, and the
-/// picked spectra plotted under the images in the rings' colours (solid: Doppler on,
-/// thin: off).
-fn demo_figure(path: &Path, size: u32, on: &[u8], off: &[u8], picks: &[DemoPick]) -> Result<()> {
-    register_font();
-    let width = (2 * size + 30).max(900);
-    let scale = ((width / 2 - 15) / size).clamp(1, 4);
-    let shown = size * scale;
-    let top = 36 + shown + 10;
-    let plot_h = 420;
-    let dims = (width, top + plot_h);
-    let mut buf = vec![255u8; (dims.0 * dims.1 * 3) as usize];
-    let x_of = [width / 2 - 5 - shown, width / 2 + 5];
-    for (img, &x0) in [on, off].iter().zip(&x_of) {
-        for y in 0..shown {
-            for x in 0..shown {
-                let s = (((y / scale) * size + x / scale) * 3) as usize;
-                let d = (((36 + y) * dims.0 + x0 + x) * 3) as usize;
-                buf[d..d + 3].copy_from_slice(&img[s..s + 3]);
-            }
-        }
-    }
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, dims).into_drawing_area();
-        let (head, plot) = root.split_vertically(top);
-        for (label, &x0) in ["Doppler on (velocity x30)", "Doppler off"]
-            .iter()
-            .zip(&x_of)
-        {
-            head.draw(&Text::new(
-                (*label).to_owned(),
-                (x0 as i32, 8),
-                (FONT, 18).into_font().color(&BLACK),
-            ))
-            .map_err(plot_err)?;
-        }
-        for (k, p) in picks.iter().enumerate() {
-            let c = COLOURS[k % COLOURS.len()];
-            for &x0 in &x_of {
-                let cx = (x0 + p.xy.0 * scale + scale / 2) as i32;
-                let cy = (36 + p.xy.1 * scale + scale / 2) as i32;
-                head.draw(&Circle::new((cx, cy), 7, c.stroke_width(2)))
-                    .map_err(plot_err)?;
-            }
-        }
-        let (mut x0, mut x1, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
-        for p in picks {
-            for &(x, y) in p.on.iter().chain(&p.off) {
-                x0 = x0.min(x);
-                x1 = x1.max(x);
-                y1 = y1.max(y);
-            }
-        }
-        if x0.partial_cmp(&x1) != Some(std::cmp::Ordering::Less) {
-            bail!("demo: no spectrum to plot");
-        }
-        if y1.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-            y1 = 1.0;
-        }
-        let mut chart = ChartBuilder::on(&plot)
-            .caption("picked spectra (solid: Doppler on, thin: off)", (FONT, 16))
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(80)
-            .build_cartesian_2d(x0..x1, 0.0..y1 * 1.05)
-            .map_err(plot_err)?;
-        chart
-            .configure_mesh()
-            .x_desc("wavelength (nm)")
-            .y_desc("spectral radiance")
-            .label_style((FONT, 13))
-            .y_label_formatter(&|v| format!("{v:.2e}"))
-            .draw()
-            .map_err(plot_err)?;
-        for (k, p) in picks.iter().enumerate() {
-            let c = COLOURS[k % COLOURS.len()];
-            chart
-                .draw_series(LineSeries::new(
-                    p.off.iter().copied(),
-                    c.mix(0.6).stroke_width(1),
-                ))
-                .map_err(plot_err)?;
-            chart
-                .draw_series(LineSeries::new(p.on.iter().copied(), c.stroke_width(2)))
-                .map_err(plot_err)?
-                .label(format!("pixel {},{}", p.xy.0, p.xy.1))
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
-        }
-        chart
-            .configure_series_labels()
-            .label_font((FONT, 13))
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(plot_err)?;
-        root.present().map_err(plot_err)?;
-    }
-    let img = image::RgbImage::from_raw(dims.0, dims.1, buf).context("figure buffer size")?;
-    write_via_temp_path(path, |p| {
-        img.save_with_format(p, image::ImageFormat::Png)
-            .with_context(|| format!("cannot write {}", path.display()))
-    })
 }
