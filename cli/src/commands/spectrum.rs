@@ -12,7 +12,7 @@ use clap::ValueEnum;
 use serde_json::json;
 
 use crate::output::write_atomic;
-use crate::plot::{Series, line_plot};
+use crate::plot::{Series, exact_polyline as polyline, line_plot};
 
 /// Doppler model (flag value).
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -130,36 +130,6 @@ fn parse_range(text: &str) -> Result<(f64, f64)> {
         bail!("--range {text:?}: need 0 < MIN < MAX");
     }
     Ok((a, b))
-}
-
-/// The points of a spectrum for CSV and plots: both ends of every piece, with zeros at gaps.
-fn polyline(s: &PiecewiseLinear, lo: f64, hi: f64) -> Vec<(f64, f64)> {
-    let mut pts: Vec<(f64, f64)> = vec![(lo, s.eval(lo))];
-    for p in s.pieces() {
-        if p.end_nm <= lo || p.start_nm >= hi {
-            continue;
-        }
-        let a = p.start_nm.max(lo);
-        let b = p.end_nm.min(hi);
-        let last = *pts.last().expect("non-empty");
-        if last.0 < a && last.1 != 0.0 {
-            pts.push((last.0, 0.0));
-        }
-        if last.0 < a {
-            pts.push((a, 0.0));
-        }
-        pts.push((a, p.at(a)));
-        pts.push((b, p.at(b)));
-    }
-    let last = *pts.last().expect("non-empty");
-    if last.0 < hi {
-        if last.1 != 0.0 {
-            pts.push((last.0, 0.0));
-        }
-        pts.push((hi, 0.0));
-    }
-    pts.dedup();
-    pts
 }
 
 /// Runs `blueshift spectrum`.
