@@ -149,13 +149,7 @@ fn a_narrow_shifted_line_is_drawn_full_height_in_the_plot() {
     let out = blueshift()
         .args(["spectrum", "--line-list"])
         .arg(&list)
-        .args([
-            "--line-width",
-            "0.02",
-            "--radial-velocity",
-            "3e6",
-            "--csv",
-        ])
+        .args(["--line-width", "0.02", "--radial-velocity", "3e6", "--csv"])
         .arg(&csv)
         .arg("--plot")
         .arg(&png)

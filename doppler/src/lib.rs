@@ -107,7 +107,7 @@ pub use cube::{
 };
 pub use display::{ColourMatrix, DisplayOptions, Exposure};
 pub use error::{Error, Result};
-pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
+pub use fits::{CubeMeta, FitsHeader, FitsValue, WcsAxis, fits_bytes, nrrd_bytes, read_fits};
 pub use model::{BB_UNIT, DopplerScene, Factors, Species};
 pub use prepared::{LineEntry, LineKind, Prepared, RaySpan};
 pub use profile::{Broadening, Profiles};
