@@ -55,7 +55,7 @@ mod session;
 
 pub use colour::{DopplerColourTable, Mat3, SpectralPrimaries, TABLE_D_MAX, TABLE_D_MIN};
 pub use envmap::{
-    Checker, CubeMap, Environment, EquirectMap, FACE_NAMES, MAX_MAP_BYTES, MAX_MAP_SIDE, Rgb,
+    Checker, CubeMap, Environment, EquirectMap, FACE_NAMES, MAX_MAP_BYTES, MAX_MAP_SIDE, MapLayout, Rgb,
     check_size, cube_dir, cube_face_st, from_lon_polar, lon_polar, read_linear,
 };
 pub use error::{Error, Result};
