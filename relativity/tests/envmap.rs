@@ -280,8 +280,12 @@ fn strip_faces_keep_the_opengl_orientation() {
 /// show the same sky in every direction (log-luminance correlation over 2,000 directions).
 #[test]
 fn kerner_cube_strip_matches_its_lat_long_map() {
-    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/envmap-kerner");
-    let (cube, ll) = (data.join("KernerEnvCube.exr"), data.join("KernerEnvLatLong.exr"));
+    let data =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/envmap-kerner");
+    let (cube, ll) = (
+        data.join("KernerEnvCube.exr"),
+        data.join("KernerEnvLatLong.exr"),
+    );
     if !cube.exists() || !ll.exists() {
         eprintln!("SKIP: {} not present", data.display());
         return;
@@ -290,7 +294,11 @@ fn kerner_cube_strip_matches_its_lat_long_map() {
     assert!(matches!(cube, Environment::Cube(_)));
     let ll = Environment::load(&ll).unwrap();
     assert!(matches!(ll, Environment::Equirect(_)));
-    let lum = |c: [f32; 3]| (0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]).max(1e-6).ln();
+    let lum = |c: [f32; 3]| {
+        (0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2])
+            .max(1e-6)
+            .ln()
+    };
     let (a, b): (Vec<f64>, Vec<f64>) = dirs()
         .iter()
         .map(|&d| (f64::from(lum(cube.sample(d))), f64::from(lum(ll.sample(d)))))
@@ -312,5 +320,8 @@ fn other_aspect_ratios_are_refused() {
     let p = dir.path().join("odd.png");
     image::RgbImage::new(30, 10).save(&p).unwrap();
     let e = Environment::load(&p).unwrap_err().to_string();
-    assert!(e.contains("30x10") && e.contains("2:1") && e.contains("6:1"), "{e}");
+    assert!(
+        e.contains("30x10") && e.contains("2:1") && e.contains("6:1"),
+        "{e}"
+    );
 }
