@@ -117,6 +117,7 @@ pub use render::{
     pixel_spectrum, render_doppler, trace_ray,
 };
 pub use scene_file::{
-    BlackbodySpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec, catalogue_mass_amu,
+    BlackbodySpec, CubeUnitsSpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec,
+    catalogue_mass_amu,
 };
 pub use session::{DopplerSession, SAMPLE_CACHE_BYTES};

@@ -417,7 +417,11 @@ pub fn run(args: Args) -> Result<()> {
         if args.device == blueshift_gpu::DeviceChoice::Gpu {
             bail!("--device gpu: spectral cubes are CPU-only; use --device cpu or auto");
         }
-        return super::doppler_cube::run_cube(&args.cube, &scene, &st);
+        let units = match &args.scene {
+            Some(p) => SceneFile::read(p)?.cube,
+            None => None,
+        };
+        return super::doppler_cube::run_cube(&args.cube, &scene, &st, units.as_ref());
     }
     let disp = display(&args)?;
     let op = tonemap_op(args.tonemap.trim())?;
