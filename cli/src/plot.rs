@@ -157,11 +157,12 @@ pub fn tick_formatter(lo: f64, hi: f64) -> impl Fn(&f64) -> String {
     } else {
         1.0
     };
-    // Decimals that resolve one step (rounded down to 1, 2 or 5 x 10^k).
-    let step_exp = step.log10().floor();
+    // Digits that resolve a tenth of a step (ticks at 2.5 x 10^k need one more than the
+    // step's decade); trailing zeros are trimmed.
+    let step_exp = step.log10().floor() - 1.0;
     let mag = lo.abs().max(hi.abs());
     let mag_exp = if mag > 0.0 { mag.log10().floor() } else { 0.0 };
-    let scientific = mag_exp >= 5.0 || mag_exp <= -4.0;
+    let scientific = mag_exp >= 4.0 || mag_exp <= -4.0;
     move |v: &f64| {
         let v = *v;
         if v == 0.0 {

@@ -228,7 +228,8 @@ pub fn run(args: Args) -> Result<()> {
         if s != 1.0 {
             series.push(Series {
                 label: "rest frame".into(),
-                points: polyline(&rest, lo, hi),
+                // The rest frame was built over [lo / s, hi / s] only: it ends there.
+                points: polyline(&rest, lo.max(lo / s), hi.min(hi / s)),
                 colour: plotters::style::RGBColor(160, 160, 160),
             });
         }
