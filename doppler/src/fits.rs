@@ -408,3 +408,85 @@ pub fn nrrd_bytes(cube: &SpectralCube) -> Result<Vec<u8>> {
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{CubeLineWidth, CubeSpec};
+
+    fn cube() -> SpectralCube {
+        SpectralCube {
+            nx: 3,
+            ny: 2,
+            spec: CubeSpec {
+                rest_nm: 656.28,
+                axis: SpectralAxis::OpticalVelocity,
+                min: -1e5,
+                max: 1e5,
+                channels: 4,
+                line_width: CubeLineWidth::OneChannel,
+            },
+            data: (0..24).map(|i| i as f32 - 3.0).collect(),
+            pixel_world: (0.5, 0.25),
+        }
+    }
+
+    #[test]
+    fn fits_written_is_read_back_with_its_wcs() {
+        let meta = CubeMeta {
+            bunit: "cm-2".into(),
+            object: "it's".into(),
+            world_unit: Some(("pc".into(), 4.0)),
+        };
+        let h = read_fits(&fits_bytes(&cube(), &meta).unwrap()).unwrap();
+        assert_eq!(h.bitpix, -32);
+        assert_eq!(h.bunit, "cm-2");
+        assert_eq!(h.get("OBJECT"), Some(&FitsValue::Text("it's".into())));
+        let lens: Vec<usize> = h.axes.iter().map(|a| a.length).collect();
+        assert_eq!(lens, [3, 2, 4]);
+        let (x, y, v) = (&h.axes[0], &h.axes[1], &h.axes[2]);
+        assert_eq!((x.ctype.as_str(), x.cunit.as_str()), ("LINEAR", "pc"));
+        assert_eq!((x.crpix, x.crval, x.cdelt), (2.0, 0.0, 2.0));
+        assert_eq!((y.crpix, y.cdelt), (1.5, 1.0));
+        assert_eq!((v.ctype.as_str(), v.cunit.as_str()), ("VOPT", "m/s"));
+        // Channels 50 km/s wide from -100 km/s: the first centre at -75 km/s.
+        assert!((v.crval + 7.5e4).abs() < 1e-6 && (v.cdelt - 5e4).abs() < 1e-6);
+        assert_eq!(v.crpix, 1.0);
+        assert_eq!(h.data_range, Some((-3.0, 20.0)));
+    }
+
+    #[test]
+    fn fits_malformed_headers_are_refused() {
+        let good = fits_bytes(&cube(), &CubeMeta::default()).unwrap();
+        let no_end = String::from_utf8_lossy(&good[..2880]).replace("END     ", "XEND    ");
+        let bad_bitpix = String::from_utf8_lossy(&good).replace(
+            "BITPIX  =                  -32",
+            "BITPIX  =                  -31",
+        );
+        for (bytes, why) in [
+            (good[..100].to_vec(), "shorter"),
+            (no_end.into_bytes(), "END"),
+            (bad_bitpix.into_bytes(), "BITPIX"),
+            (good[..2880 + 10].to_vec(), "data"),
+            (b"P".repeat(2880), "SIMPLE"),
+        ] {
+            let e = read_fits(&bytes).unwrap_err();
+            assert!(matches!(e, Error::MalformedFits(_)), "{e}");
+            assert!(e.to_string().contains(why), "{e}");
+        }
+    }
+
+    #[test]
+    fn fits_units_of_a_scene_file_are_parsed_and_checked() {
+        let base = std::path::Path::new(".");
+        let s = crate::SceneFile::parse(
+            r#"{"cube": {"bunit": "cm-2", "world_unit": "cm:3e18"}}"#,
+            base,
+        )
+        .unwrap();
+        let c = s.cube.unwrap();
+        assert_eq!(c.bunit.as_deref(), Some("cm-2"));
+        assert_eq!(c.world_unit.as_deref(), Some("cm:3e18"));
+        assert!(crate::SceneFile::parse(r#"{"cube": {"bunits": "cm-2"}}"#, base).is_err());
+    }
+}
