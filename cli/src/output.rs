@@ -164,6 +164,17 @@ pub fn write_via_temp_path(path: &Path, write: impl FnOnce(&Path) -> Result<()>)
     Ok(())
 }
 
+/// What the three colour channels of an EXR hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExrSpace {
+    /// CIE 1931 XYZ in the R, G, B channels, with the `chromaticities` attribute for XYZ
+    /// (red (1, 0), green (0, 1), blue (0, 0), white (1/3, 1/3)), so that colour-managed
+    /// readers show the right colours.
+    Xyz,
+    /// Linear sRGB (Rec. 709 primaries, D65): the OpenEXR default, no attribute written.
+    LinearSrgb,
+}
+
 /// Writes an OpenEXR of 32-bit float channels atomically: `data` holds `width x height`
 /// pixels row by row with `channels` values each (3: RGB, 4: RGBA). The blocks are
 /// compressed one after the other, so the same picture always gives the same bytes (the
@@ -176,6 +187,19 @@ pub fn write_exr_f32(
     channels: usize,
     data: &[f32],
 ) -> Result<()> {
+    write_exr_f32_in(path, width, height, channels, data, ExrSpace::LinearSrgb)
+}
+
+/// [`write_exr_f32`] for channels in `space` (XYZ gets its `chromaticities` attribute).
+pub fn write_exr_f32_in(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: usize,
+    data: &[f32],
+    space: ExrSpace,
+) -> Result<()> {
+    use exr::meta::attribute::Chromaticities;
     use exr::prelude::{Image, SpecificChannels, Vec2, WritableImage};
     let size = (width as usize, height as usize);
     if width == 0 || height == 0 || data.len() != size.0 * size.1 * channels {
@@ -185,23 +209,36 @@ pub fn write_exr_f32(
             data.len()
         );
     }
+    let chromaticities = match space {
+        ExrSpace::Xyz => Some(Chromaticities {
+            red: Vec2(1.0, 0.0),
+            green: Vec2(0.0, 1.0),
+            blue: Vec2(0.0, 0.0),
+            white: Vec2(1.0 / 3.0, 1.0 / 3.0),
+        }),
+        ExrSpace::LinearSrgb => None,
+    };
     let at = move |p: Vec2<usize>, c: usize| data[(p.y() * size.0 + p.x()) * channels + c];
     write_via_temp_path(path, |tmp| {
         let result = match channels {
-            4 => Image::from_channels(
-                size,
-                SpecificChannels::rgba(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2), at(p, 3))),
-            )
-            .write()
-            .non_parallel()
-            .to_file(tmp),
-            3 => Image::from_channels(
-                size,
-                SpecificChannels::rgb(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2))),
-            )
-            .write()
-            .non_parallel()
-            .to_file(tmp),
+            4 => {
+                let mut img = Image::from_channels(
+                    size,
+                    SpecificChannels::rgba(|p: Vec2<usize>| {
+                        (at(p, 0), at(p, 1), at(p, 2), at(p, 3))
+                    }),
+                );
+                img.attributes.chromaticities = chromaticities;
+                img.write().non_parallel().to_file(tmp)
+            }
+            3 => {
+                let mut img = Image::from_channels(
+                    size,
+                    SpecificChannels::rgb(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2))),
+                );
+                img.attributes.chromaticities = chromaticities;
+                img.write().non_parallel().to_file(tmp)
+            }
             _ => anyhow::bail!("an EXR of {channels} channels: use 3 or 4"),
         };
         result.with_context(|| format!("cannot write {}", path.display()))

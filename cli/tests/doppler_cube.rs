@@ -116,3 +116,146 @@ fn bad_cube_input_exits_1_without_files() {
         assert!(left.is_empty(), "{extra:?} left files");
     }
 }
+
+/// `--mask 50%`: moments 1 and 2 are NaN exactly where moment 0 is below half its peak;
+/// without it those faint pixels have a (noisy) finite moment 1.
+#[test]
+fn mask_blanks_moments_1_and_2_of_faint_pixels() {
+    let dir = tempfile::tempdir().unwrap();
+    let read = |p: &std::path::Path| -> Vec<f32> {
+        image::open(p)
+            .unwrap()
+            .into_rgba32f()
+            .pixels()
+            .map(|p| p[0])
+            .collect()
+    };
+    let mut runs = Vec::new();
+    for (stem, mask) in [("plain", None), ("masked", Some("50%"))] {
+        let out = dir.path().join(format!("{stem}.fits"));
+        let mut a: Vec<&str> = BASE.to_vec();
+        a.extend([
+            "--cube",
+            out.to_str().unwrap(),
+            "--line",
+            "Halpha",
+            "--velocity-bins",
+            "-400:400:32",
+            "--axis",
+            "z",
+            "--moments",
+            "--line-sigma",
+            "15",
+        ]);
+        if let Some(m) = mask {
+            a.extend(["--mask", m]);
+        }
+        let r = blueshift(&a);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let m = |k: &str| read(&dir.path().join(format!("{stem}_{k}.exr")));
+        runs.push((m("mom0"), m("mom1"), m("mom2")));
+    }
+    let (m0, plain1, _) = &runs[0];
+    let (m0_masked, m1, m2) = &runs[1];
+    assert_eq!(m0, m0_masked, "moment 0 is never masked");
+    let peak = m0.iter().copied().fold(0.0f32, f32::max);
+    let faint = m0.iter().filter(|&&v| v > 0.0 && v < 0.5 * peak).count();
+    assert!(faint > 0, "the shell has faint pixels");
+    for i in 0..m0.len() {
+        let below = m0[i] < 0.5 * peak;
+        assert_eq!(
+            m1[i].is_nan(),
+            below,
+            "pixel {i}: m0 {} m1 {}",
+            m0[i],
+            m1[i]
+        );
+        assert_eq!(m2[i].is_nan(), below, "pixel {i}");
+        if m0[i] > 0.0 {
+            assert!(plain1[i].is_finite());
+        }
+    }
+    // A bad threshold is a user error.
+    let out = dir.path().join("bad.fits");
+    let mut a: Vec<&str> = BASE.to_vec();
+    a.extend([
+        "--cube",
+        out.to_str().unwrap(),
+        "--line",
+        "Halpha",
+        "--velocity-bins",
+        "-400:400:8",
+        "--moments",
+        "--mask",
+        "lots",
+    ]);
+    assert_eq!(blueshift(&a).status.code(), Some(1));
+    assert!(!out.exists());
+}
+
+/// A scene file's `cube` units become the FITS BUNIT and the sky axes' CUNIT / CDELT;
+/// `--bunit` overrides the file.
+#[test]
+fn scene_file_cube_units_label_the_fits() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let n = 8usize;
+    let mut b = format!(
+        "NRRD0004\ntype: float\ndimension: 3\nsizes: {n} {n} {n}\nendian: little\nencoding: raw\n\n"
+    )
+    .into_bytes();
+    for _ in 0..n * n * n {
+        b.extend_from_slice(&2.0f32.to_le_bytes());
+    }
+    std::fs::write(d.join("h.nrrd"), b).unwrap();
+    let scene = r#"{"species": [{"name": "hydrogen", "lines": "H",
+        "density": {"file": "h.nrrd", "unit": "cm-3"}}],
+        "cube": {"bunit": "cm-2", "world_unit": "cm:3e18"}}"#;
+    std::fs::write(d.join("scene.json"), scene).unwrap();
+    let s = d.join("scene.json");
+    let header = |extra: &[&str]| -> String {
+        let out = d.join("c.fits");
+        let mut a = vec![
+            "doppler",
+            "--scene",
+            s.to_str().unwrap(),
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--axis",
+            "z",
+            "--cube",
+            out.to_str().unwrap(),
+            "--line",
+            "Halpha",
+            "--velocity-bins",
+            "-100:100:4",
+        ];
+        a.extend_from_slice(extra);
+        let r = blueshift(&a);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let bytes = std::fs::read(&out).unwrap();
+        String::from_utf8_lossy(&bytes[..2880]).into_owned()
+    };
+    let cards = |h: &str, key: &str| -> String {
+        (0..h.len() / 80)
+            .map(|i| &h[i * 80..i * 80 + 80])
+            .find(|c| c.starts_with(&format!("{key:<8}=")))
+            .unwrap_or_else(|| panic!("no {key}"))[10..]
+            .split('/')
+            .next()
+            .unwrap()
+            .trim()
+            .to_owned()
+    };
+    let h = header(&[]);
+    assert_eq!(cards(&h, "BUNIT"), "'cm-2    '");
+    assert_eq!(cards(&h, "CUNIT1"), "'cm      '");
+    // 8 voxel centres span 7 spacings (1 world unit each), framed by 8 pixels seen from +z:
+    // 7/8 world unit per pixel, 3e18 cm per world unit.
+    let cdelt: f64 = cards(&h, "CDELT1").parse().unwrap();
+    assert!((cdelt / (3e18 * 7.0 / 8.0) - 1.0).abs() < 1e-6, "{cdelt}");
+    let h = header(&["--bunit", "K km s-1"]);
+    assert_eq!(cards(&h, "BUNIT"), "'K km s-1'");
+}

@@ -144,3 +144,101 @@ fn raw_input_layout_can_come_from_arguments() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("file holds"));
 }
+
+/// `info` reads back the FITS cube `doppler --cube` writes: the dimensions, the WCS the
+/// flags asked for (channel centres from -400 km/s in 25 km/s steps, sky axes in cm) and
+/// BUNIT; a truncated or non-FITS file is a one-line error with exit code 1.
+#[test]
+fn info_reads_the_fits_cubes_the_tool_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let fits = dir.path().join("cube.fits");
+    let out = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args([
+            "doppler",
+            "--synth",
+            "shell",
+            "--res",
+            "16",
+            "--species",
+            "H",
+            "--width",
+            "20",
+            "--height",
+            "12",
+            "--line",
+            "H-alpha",
+            "--velocity-bins",
+            "-400:400:32",
+            "--bunit",
+            "erg/s/cm2",
+            "--world-unit",
+            "cm:2",
+            "--cube",
+        ])
+        .arg(&fits)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .arg("info")
+        .arg(&fits)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["format"], "fits");
+    assert_eq!(v["bitpix"], -32);
+    assert_eq!(v["dims"], serde_json::json!([20, 12, 32]));
+    assert_eq!(v["bunit"], "erg/s/cm2");
+    let ax = &v["axes"];
+    assert_eq!(ax[0]["ctype"], "LINEAR");
+    assert_eq!(ax[0]["cunit"], "cm");
+    assert_eq!(ax[0]["crpix"], 10.5);
+    assert_eq!(ax[1]["crpix"], 6.5);
+    assert_eq!(ax[2]["ctype"], "VRAD");
+    assert_eq!(ax[2]["cunit"], "m/s");
+    assert_eq!(ax[2]["crpix"], 1.0);
+    let close = |a: &serde_json::Value, b: f64| (a.as_f64().unwrap() - b).abs() <= 1e-9 * b.abs();
+    assert!(close(&ax[2]["crval"], -387_500.0), "{}", ax[2]["crval"]);
+    assert!(close(&ax[2]["cdelt"], 25_000.0), "{}", ax[2]["cdelt"]);
+    let rest = v["restwav_m"].as_f64().unwrap();
+    assert!((656.2e-9..656.3e-9).contains(&rest), "{rest}");
+    assert!(v["max"].as_f64().unwrap() > 0.0);
+    // Text output names the same WCS.
+    let out = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .arg("info")
+        .arg(&fits)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("dims: 20 x 12 x 32"), "{text}");
+    assert!(text.contains("axis 3: VRAD"), "{text}");
+    assert!(text.contains("BUNIT: erg/s/cm2"), "{text}");
+
+    // Malformed: the data cut short, and a text file named .fits.
+    let bytes = std::fs::read(&fits).unwrap();
+    let cut = dir.path().join("cut.fits");
+    std::fs::write(&cut, &bytes[..2880 + 100]).unwrap();
+    let junk = dir.path().join("junk.fits");
+    std::fs::write(&junk, "not a FITS file\n".repeat(300)).unwrap();
+    for (p, why) in [(&cut, "data"), (&junk, "SIMPLE")] {
+        let out = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+            .arg("info")
+            .arg(p)
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(err.contains("malformed FITS") && err.contains(why), "{err}");
+    }
+}

@@ -289,3 +289,67 @@ fn gpu_matches_cpu_on_detailed_maps_and_near_the_speed_of_light() {
         assert!(frac >= *min_frac, "case {k}: only {frac} of pixels agree");
     }
 }
+
+/// At beta 0.9 looking along the motion the centre of the view is the black disc: stderr
+/// says so once, with the share of black pixels the EXR really has; at beta 0.1 it is quiet.
+#[test]
+fn out_of_map_pixels_are_reported_once_with_their_fraction() {
+    let dir = tempfile::tempdir().unwrap();
+    let exr = dir.path().join("ahead.exr");
+    let run = |beta: &str| {
+        let out = blueshift()
+            .args(["relativity", "--synth", "checker", "--beta", beta])
+            .args([
+                "--look", "0,0,-1", "--fov", "90", "--width", "40", "--height", "30",
+            ])
+            .arg("--out")
+            .arg(&exr)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = run("0.9");
+    let notes: Vec<&str> = err.lines().filter(|l| l.contains("black")).collect();
+    assert_eq!(notes.len(), 1, "{err}");
+    let pct: f64 = notes[0]
+        .split('%')
+        .next()
+        .unwrap()
+        .rsplit(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let img = image::open(&exr).unwrap().into_rgb32f();
+    let black = img.pixels().filter(|p| p.0 == [0.0; 3]).count() as f64;
+    let real = 100.0 * black / f64::from(img.width() * img.height());
+    assert!(
+        real > 1.0 && (pct - real).abs() <= 0.06,
+        "{pct} % vs {real} %"
+    );
+    assert!(!run("0.1").contains("black"));
+}
+
+/// A single file whose aspect ratio is no environment layout is refused in one line.
+#[test]
+fn odd_aspect_environment_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let env = dir.path().join("odd.png");
+    image::RgbImage::new(30, 10).save(&env).unwrap();
+    let out = blueshift()
+        .arg("relativity")
+        .arg(&env)
+        .args(["--beta", "0.5", "--out"])
+        .arg(dir.path().join("o.exr"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("2:1") && err.contains("cube"), "{err}");
+}

@@ -123,6 +123,65 @@ fn plot_is_a_png() {
     assert_eq!((img.width(), img.height()), (1000, 600));
 }
 
+/// The tallest run of pixels of exactly `colour` in any one column of the PNG.
+fn tallest_column(img: &image::RgbImage, colour: [u8; 3]) -> u32 {
+    (0..img.width())
+        .map(|x| {
+            (0..img.height())
+                .filter(|&y| img.get_pixel(x, y).0 == colour)
+                .count() as u32
+        })
+        .max()
+        .unwrap_or(0)
+}
+
+#[test]
+fn a_narrow_shifted_line_is_drawn_full_height_in_the_plot() {
+    // One H-beta box 0.02 nm wide (a fraction of a pixel at 1000 px over 470 nm), shifted
+    // by 3e6 m/s: the plot's y range is the box height, so its box must draw a vertical
+    // stroke over most of the plot's height, in the rest frame (grey) and observed (blue).
+    // Plotters filled the whole polyline as one polygon, in which such a spike had no area.
+    let dir = tempfile::tempdir().unwrap();
+    let list = dir.path().join("hb.csv");
+    std::fs::write(&list, "wavelength_nm,relative_intensity\n486.135,1\n").unwrap();
+    let png = dir.path().join("hb.png");
+    let csv = dir.path().join("hb_obs.csv");
+    let out = blueshift()
+        .args(["spectrum", "--line-list"])
+        .arg(&list)
+        .args(["--line-width", "0.02", "--radial-velocity", "3e6", "--csv"])
+        .arg(&csv)
+        .arg("--plot")
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // The CSV (the plotted polyline) holds the exact shifted box edges.
+    let s = 1.0 + 3e6 / 299_792_458.0;
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let xs: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    for edge in [(486.135 - 0.01) * s, (486.135 + 0.01) * s] {
+        assert!(
+            xs.iter().any(|x| (x - edge).abs() < 1e-9),
+            "edge {edge} missing from {xs:?}"
+        );
+    }
+    let img = image::open(&png).unwrap().to_rgb8();
+    let plot_height = img.height() - 100;
+    let blue = tallest_column(&img, [20, 60, 200]);
+    let grey = tallest_column(&img, [160, 160, 160]);
+    assert!(blue > plot_height * 3 / 4, "observed line {blue} px tall");
+    assert!(grey > plot_height * 3 / 4, "rest-frame line {grey} px tall");
+}
+
 #[test]
 fn bad_input_is_a_one_line_error_and_exit_code_1() {
     for args in [

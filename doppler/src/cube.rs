@@ -280,6 +280,23 @@ pub struct Moments {
     pub m2: Vec<f32>,
 }
 
+impl Moments {
+    /// The maps with moments 1 and 2 blanked (NaN) where moment 0 is below `min_m0`: a
+    /// velocity mean or dispersion of a pixel with little signal is noise. Moment 0 is kept
+    /// as it is; a NaN `min_m0` blanks nothing.
+    #[must_use]
+    pub fn masked(&self, min_m0: f32) -> Moments {
+        let mut m = self.clone();
+        for ((m0, m1), m2) in m.m0.iter().zip(&mut m.m1).zip(&mut m.m2) {
+            if *m0 < min_m0 {
+                *m1 = f32::NAN;
+                *m2 = f32::NAN;
+            }
+        }
+        m
+    }
+}
+
 /// An orthographic camera for an observer along `normal` (yt's convention: the observer
 /// sits at `+normal`, rays travel along `-normal`, and a positive line-of-sight velocity,
 /// `-v . normal`, recedes). Axis-aligned normals get yt's image axes (`z`: x right, y up;

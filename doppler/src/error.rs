@@ -31,6 +31,10 @@ pub enum Error {
         /// The accepted spellings.
         accepted: &'static [&'static str],
     },
+    /// A FITS file that [`crate::read_fits`] cannot read: no `SIMPLE = T`, a missing or bad
+    /// mandatory card, no `END`, or less data than the header announces.
+    #[error("malformed FITS: {0}")]
+    MalformedFits(String),
     /// The run was cancelled through its observer.
     #[error("cancelled")]
     Cancelled,

@@ -108,7 +108,7 @@ pub use cube::{
 };
 pub use display::{ColourMatrix, DisplayOptions, Exposure, GamutMapper, SHOULDER_KNEE, shoulder};
 pub use error::{Error, Result};
-pub use fits::{CubeMeta, fits_bytes, nrrd_bytes};
+pub use fits::{CubeMeta, FitsHeader, FitsValue, WcsAxis, fits_bytes, nrrd_bytes, read_fits};
 pub use key::doppler_colour_key;
 pub use model::{
     BB_REF_NM, BB_UNIT, DopplerScene, Factors, Species, brightness_temperature, planck_factor,
@@ -121,6 +121,7 @@ pub use render::{
     pixel_spectrum, render_doppler, trace_ray,
 };
 pub use scene_file::{
-    BlackbodySpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec, catalogue_mass_amu,
+    BlackbodySpec, CubeUnitsSpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec,
+    catalogue_mass_amu,
 };
 pub use session::{DopplerSession, SAMPLE_CACHE_BYTES};

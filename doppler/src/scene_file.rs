@@ -42,6 +42,12 @@
 //!   the absorption factor, as in the paper).
 //! - `factors` are the paper's Table 1 multipliers (see [`Factors`]); omitted ones keep
 //!   their defaults.
+//! - `cube` (optional) labels the spectral cubes rendered from the scene:
+//!   `{ "bunit": "cm-2", "world_unit": "cm:3.0857e24" }`. `bunit` is the FITS `BUNIT` of
+//!   the cube's channels (the line emission integrated along the ray and over the channel;
+//!   with densities in cm^-3, strength-1 lines and world lengths in cm that is `cm-2`);
+//!   `world_unit` is `UNIT:SCALE`, one world length = SCALE UNIT (FITS `CUNIT1/2` and the
+//!   `CDELT` scale). The CLI's `--bunit` and `--world-unit` override them.
 //!
 //! Unknown keys are refused, so a misspelt unit or key is an error, not a silent default.
 
@@ -141,6 +147,19 @@ pub struct FactorSpec {
     pub blackbody: Option<f64>,
 }
 
+/// Units of the spectral cubes rendered from a scene (see the module docs).
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CubeUnitsSpec {
+    /// FITS `BUNIT` of the channels, for example `cm-2`.
+    #[serde(default)]
+    pub bunit: Option<String>,
+    /// The spatial unit as `UNIT:SCALE` (one world length = SCALE UNIT), for example
+    /// `cm:3.0857e24`.
+    #[serde(default)]
+    pub world_unit: Option<String>,
+}
+
 /// A parsed scene file (see the module docs for the format).
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -166,6 +185,9 @@ pub struct SceneFile {
     /// Table 1 factors.
     #[serde(default)]
     pub factors: FactorSpec,
+    /// Units of the spectral cubes rendered from the scene.
+    #[serde(default)]
+    pub cube: Option<CubeUnitsSpec>,
     /// Folder the relative paths start from (set by [`SceneFile::read`]).
     #[serde(skip)]
     pub base: PathBuf,

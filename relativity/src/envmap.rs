@@ -14,6 +14,22 @@
 //! face coordinates are (`sc`, `tc`): `+X: (-z, -y)`, `-X: (+z, -y)`, `+Y: (+x, +z)`,
 //! `-Y: (+x, -z)`, `+Z: (+x, -y)`, `-Z: (-x, -y)`; `s = (sc / |ma| + 1) / 2` runs along
 //! image columns and `t = (tc / |ma| + 1) / 2` along rows from the top row of the file.
+//!
+//! **Single-file layouts** ([`MapLayout`], chosen by the aspect ratio; any other ratio is
+//! refused, never read as a distorted equirectangular map):
+//! - 2:1: equirectangular (above).
+//! - 1:6 vertical strip: OpenEXR's `envmap = CUBE` layout (`ImfEnvmap.h`), faces `+X, -X,
+//!   +Y, -Y, +Z, -Z` from top to bottom in OpenEXR's own per-face orientation and frame.
+//!   OpenEXR's lat-long frame is this module's turned 180 degrees about `+Y` (its image
+//!   centre looks along `+Z`, ours along `-Z`), so a direction `(x, y, z)` here is looked
+//!   up at `(-x, y, -z)` in the OpenEXR cube: an OpenEXR lat-long map and its cube map
+//!   then show the same sky (`KernerEnvLatLong.exr` / `KernerEnvCube.exr`).
+//! - 6:1 horizontal strip: faces `+X, -X, +Y, -Y, +Z, -Z` from left to right, each in this
+//!   module's OpenGL orientation (the six files of a folder side by side).
+//! - 4:3 horizontal cross: `+Y` above `+Z`, the middle row `-X, +Z, +X, -Z`, `-Y` below
+//!   `+Z`, all in the OpenGL orientation (the unfolded cube is continuous across edges).
+//! - 3:4 vertical cross: `+Y`, then `-X, +Z, +X`, then `-Y`, then `-Z` turned 180 degrees,
+//!   in the second column (continuous across edges too).
 
 use std::path::{Path, PathBuf};
 
@@ -311,10 +327,16 @@ impl Environment {
 
     /// Loads an environment: a folder holding `px, nx, py, ny, pz, nz` with any supported
     /// extension is a cube map; so is a path prefix `P` with files `Ppx.*` ... `Pnz.*`; a
-    /// single `.exr`, `.hdr` or `.png` file is an equirectangular map.
+    /// single `.exr`, `.hdr` or `.png` file is read by its aspect ratio ([`MapLayout`]):
+    /// 2:1 equirectangular, a cube strip or cross as a cube map, anything else refused.
     pub fn load(path: &Path) -> Result<Self> {
         if path.is_file() {
-            return Ok(Self::Equirect(EquirectMap::new_at(path)?));
+            let img = read_linear(path)?;
+            check_image(path, &img)?;
+            return Self::from_single_image(img).map_err(|e| match e {
+                Error::MalformedMap { reason, .. } => Error::map(path, reason),
+                other => other,
+            });
         }
         let (dir, prefix) = if path.is_dir() {
             (path.to_path_buf(), String::new())
@@ -406,6 +428,134 @@ impl Environment {
             img
         });
         CubeMap::new(faces)
+    }
+}
+
+/// The layout of a single-file environment map, told by its aspect ratio (see the module
+/// docs for each layout's face order and orientation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MapLayout {
+    /// 2:1 latitude-longitude.
+    Equirect,
+    /// 1:6: OpenEXR's vertical cube strip (`envmap = CUBE`).
+    StripVertical,
+    /// 6:1: the six OpenGL-oriented faces side by side.
+    StripHorizontal,
+    /// 4:3: the unfolded cube, `-X, +Z, +X, -Z` across the middle row.
+    CrossHorizontal,
+    /// 3:4: the unfolded cube, `-Z` at the bottom turned 180 degrees.
+    CrossVertical,
+}
+
+impl MapLayout {
+    /// The layout of a `width x height` image, or `None` for any other aspect ratio.
+    #[must_use]
+    pub fn detect(width: u32, height: u32) -> Option<Self> {
+        let (w, h) = (u64::from(width), u64::from(height));
+        if w == 0 || h == 0 {
+            None
+        } else if w == 2 * h {
+            Some(Self::Equirect)
+        } else if h == 6 * w {
+            Some(Self::StripVertical)
+        } else if w == 6 * h {
+            Some(Self::StripHorizontal)
+        } else if 3 * w == 4 * h && w % 4 == 0 {
+            Some(Self::CrossHorizontal)
+        } else if 4 * w == 3 * h && w % 3 == 0 {
+            Some(Self::CrossVertical)
+        } else {
+            None
+        }
+    }
+
+    /// The face side in pixels of a cube layout of an image `width` wide.
+    fn face_size(self, width: u32) -> u32 {
+        match self {
+            Self::Equirect => 0,
+            Self::StripVertical => width,
+            Self::StripHorizontal => width / 6,
+            Self::CrossHorizontal => width / 4,
+            Self::CrossVertical => width / 3,
+        }
+    }
+
+    /// The texel (column, row) of the whole image seen in unit direction `d` (this module's
+    /// frame), for a cube layout with faces of `n` pixels.
+    fn texel(self, d: DVec3, n: u32) -> (u32, u32) {
+        let nf = f64::from(n);
+        let cell = |s: f64| ((s * nf).floor().max(0.0) as u32).min(n - 1);
+        if self == Self::StripVertical {
+            // OpenEXR frame and per-face (u, v) in [-1, 1], u right, v down (ImfEnvmap).
+            let e = DVec3::new(-d.x, d.y, -d.z);
+            let a = e.abs();
+            let (face, u, v) = if a.x >= a.y && a.x >= a.z {
+                (if e.x > 0.0 { 0 } else { 1 }, e.z / e.x, -e.y / a.x)
+            } else if a.y >= a.z {
+                if e.y > 0.0 {
+                    (2, e.x / a.y, -e.z / a.y)
+                } else {
+                    (3, e.x / a.y, e.z / a.y)
+                }
+            } else if e.z > 0.0 {
+                (4, -e.x / a.z, -e.y / a.z)
+            } else {
+                (5, e.x / a.z, -e.y / a.z)
+            };
+            return (cell(0.5 * (u + 1.0)), face * n + cell(0.5 * (v + 1.0)));
+        }
+        let (face, s, t) = cube_face_st(d);
+        let (i, j) = (cell(s), cell(t));
+        // (column, row) of each face's cell and whether it is turned 180 degrees.
+        let (cx, cy, turned) = match (self, face) {
+            (Self::StripHorizontal, f) => (f as u32, 0, false),
+            (_, 2) => (1, 0, false),
+            (_, 3) => (1, 2, false),
+            (_, 0) => (2, 1, false),
+            (_, 1) => (0, 1, false),
+            (_, 4) => (1, 1, false),
+            (Self::CrossHorizontal, _) => (3, 1, false),
+            (_, _) => (1, 3, true),
+        };
+        let (i, j) = if turned {
+            (n - 1 - i, n - 1 - j)
+        } else {
+            (i, j)
+        };
+        (cx * n + i, cy * n + j)
+    }
+}
+
+impl Environment {
+    /// An environment from one linear RGB image, by its [`MapLayout`]; an aspect ratio that
+    /// is none of the layouts is refused with [`Error::MalformedMap`].
+    pub fn from_single_image(img: Rgb32FImage) -> Result<Self> {
+        let (w, h) = img.dimensions();
+        let layout = MapLayout::detect(w, h).ok_or_else(|| {
+            Error::map(
+                "<image>",
+                format!(
+                    "{w}x{h} is neither a 2:1 equirectangular map nor a cube map (a 1:6 or \
+                     6:1 strip of six faces, a 4:3 or 3:4 cross); give six face files in a \
+                     folder instead"
+                ),
+            )
+        })?;
+        if layout == MapLayout::Equirect {
+            return EquirectMap::new(img).map(Self::Equirect);
+        }
+        let n = layout.face_size(w);
+        let nf = f64::from(n);
+        let faces: [Rgb32FImage; 6] = std::array::from_fn(|f| {
+            let mut face = Rgb32FImage::new(n, n);
+            for (i, j, p) in face.enumerate_pixels_mut() {
+                let d = cube_dir(f, (f64::from(i) + 0.5) / nf, (f64::from(j) + 0.5) / nf);
+                let (x, y) = layout.texel(d.normalize(), n);
+                p.0 = texel(&img, x, y);
+            }
+            face
+        });
+        CubeMap::new(faces).map(Self::Cube)
     }
 }
 

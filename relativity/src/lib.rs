@@ -55,8 +55,8 @@ mod session;
 
 pub use colour::{DopplerColourTable, Mat3, SpectralPrimaries, TABLE_D_MAX, TABLE_D_MIN};
 pub use envmap::{
-    Checker, CubeMap, Environment, EquirectMap, FACE_NAMES, MAX_MAP_BYTES, MAX_MAP_SIDE, Rgb,
-    check_size, cube_dir, cube_face_st, from_lon_polar, lon_polar, read_linear,
+    Checker, CubeMap, Environment, EquirectMap, FACE_NAMES, MAX_MAP_BYTES, MAX_MAP_SIDE, MapLayout,
+    Rgb, check_size, cube_dir, cube_face_st, from_lon_polar, lon_polar, read_linear,
 };
 pub use error::{Error, Result};
 pub use lorentz::{
@@ -64,6 +64,7 @@ pub use lorentz::{
     searchlight_per_wavelength, unit,
 };
 pub use render::{
-    Camera, CameraFrame, Effects, parse_ramp, ramp, render, scene_direction, to_srgb8,
+    Camera, CameraFrame, Effects, out_of_map_fraction, parse_ramp, ramp, render, scene_direction,
+    to_srgb8,
 };
 pub use session::RelativitySession;

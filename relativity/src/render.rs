@@ -224,6 +224,36 @@ pub fn render(
         .ok_or_else(|| Error::param("image size", f64::from(w), "buffer mismatch"))
 }
 
+/// The fraction of the image's pixels whose Doppler colour shift has no answer in an RGB
+/// map: the visible window then sees only ultraviolet or infrared that an RGB triple's
+/// spectrum (380-780 nm) does not hold, `K(D)` is zero and the pixel is black whatever the
+/// map holds (the black disc ahead at `beta = 0.9`: `D` above about 780 / 360, or behind,
+/// below about 380 / 830). Counted with `table` (default [`DopplerColourTable::global`]),
+/// the one the render uses. 0 when `effects.doppler` is off.
+pub fn out_of_map_fraction(
+    cam: &Camera,
+    velocity: Velocity,
+    effects: Effects,
+    table: Option<&DopplerColourTable>,
+) -> Result<f64> {
+    if !effects.doppler {
+        return Ok(0.0);
+    }
+    let table = table.unwrap_or_else(|| DopplerColourTable::global());
+    let frame = CameraFrame::new(cam)?;
+    let mut outside = 0u64;
+    for y in 0..cam.height {
+        for x in 0..cam.width {
+            let d = frame.pixel_direction(f64::from(x), f64::from(y));
+            let m = table.matrix(velocity.doppler_factor_observer(d));
+            if m.iter().flatten().all(|&v| v == 0.0) {
+                outside += 1;
+            }
+        }
+    }
+    Ok(outside as f64 / (f64::from(cam.width) * f64::from(cam.height)))
+}
+
 /// The speeds of a ramp `start:end:frames` (for example `0:0.99:60`): `frames` values
 /// evenly spaced from `start` to `end` inclusive, each in `[0, 1)`.
 pub fn parse_ramp(spec: &str) -> Result<Vec<f64>> {

@@ -191,3 +191,137 @@ fn png_is_srgb_decoded_and_prefix_cube_loads() {
     assert!((cube.sample(DVec3::NEG_Y)[0] - 3.5).abs() < 1e-6);
     assert!((cube.sample(DVec3::Z)[0] - 4.5).abs() < 1e-6);
 }
+
+/// An image of `cells` (column, row) face cells of `n` pixels, cell `k` filled with colour
+/// `[k + 1, 10 (k + 1), 0]`, other texels black.
+fn layout_image(cols: u32, rows: u32, n: u32, cells: &[(u32, u32)]) -> Rgb32FImage {
+    Rgb32FImage::from_fn(cols * n, rows * n, |x, y| {
+        let c = (x / n, y / n);
+        match cells.iter().position(|&p| p == c) {
+            Some(k) => image::Rgb([(k + 1) as f32, 10.0 * (k + 1) as f32, 0.0]),
+            None => image::Rgb([0.0; 3]),
+        }
+    })
+}
+
+const AXES: [DVec3; 6] = [
+    DVec3::X,
+    DVec3::NEG_X,
+    DVec3::Y,
+    DVec3::NEG_Y,
+    DVec3::Z,
+    DVec3::NEG_Z,
+];
+
+/// Which cell (index into the layout's list) the environment shows along each axis.
+fn cell_seen(env: &Environment, axis: DVec3) -> usize {
+    let c = env.sample(axis);
+    assert!((c[1] - 10.0 * c[0]).abs() < 1e-4 && c[0] >= 1.0, "{c:?}");
+    c[0].round() as usize - 1
+}
+
+/// Single files with cube layouts are cube maps: the axis directions land on the faces the
+/// layouts define (independent truths: the face order +X, -X, +Y, -Y, +Z, -Z of a strip;
+/// the unfolded cross with +Y above +Z and -X, +Z, +X, -Z across; OpenEXR's frame turned
+/// 180 degrees about +Y for its 1:6 strip).
+#[test]
+fn single_file_cube_layouts_are_read_as_cube_maps() {
+    let n = 8;
+    // 6:1 strip, faces left to right.
+    let cells: Vec<(u32, u32)> = (0..6).map(|k| (k, 0)).collect();
+    let env = Environment::from_single_image(layout_image(6, 1, n, &cells)).unwrap();
+    assert!(matches!(env, Environment::Cube(_)));
+    for (k, a) in AXES.iter().enumerate() {
+        assert_eq!(cell_seen(&env, *a), k, "6:1 strip, axis {a}");
+    }
+    // 4:3 cross: +Y (1,0); -X (0,1), +Z (1,1), +X (2,1), -Z (3,1); -Y (1,2).
+    let cells = [(2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (3, 1)];
+    let env = Environment::from_single_image(layout_image(4, 3, n, &cells)).unwrap();
+    for (k, a) in AXES.iter().enumerate() {
+        assert_eq!(cell_seen(&env, *a), k, "4:3 cross, axis {a}");
+    }
+    // 3:4 cross: +Y (1,0); -X (0,1), +Z (1,1), +X (2,1); -Y (1,2); -Z (1,3).
+    let cells = [(2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (1, 3)];
+    let env = Environment::from_single_image(layout_image(3, 4, n, &cells)).unwrap();
+    for (k, a) in AXES.iter().enumerate() {
+        assert_eq!(cell_seen(&env, *a), k, "3:4 cross, axis {a}");
+    }
+    // 1:6 OpenEXR strip: faces top to bottom in OpenEXR's frame, (x, y, z) -> (-x, y, -z).
+    let cells: Vec<(u32, u32)> = (0..6).map(|k| (0, k)).collect();
+    let env = Environment::from_single_image(layout_image(1, 6, n, &cells)).unwrap();
+    for (a, want) in AXES.iter().zip([1, 0, 2, 3, 5, 4]) {
+        assert_eq!(cell_seen(&env, *a), want, "1:6 strip, axis {a}");
+    }
+}
+
+/// Orientation within a face: in a 6:1 strip the top-left texel of the +X face looks along
+/// (1, 1, 1) (OpenGL table 8.19: +X has sc = -z, tc = -y), its bottom-right along (1, -1, -1).
+#[test]
+fn strip_faces_keep_the_opengl_orientation() {
+    let n = 16;
+    let mut img = Rgb32FImage::new(6 * n, n);
+    img.put_pixel(0, 0, image::Rgb([5.0, 0.0, 0.0]));
+    img.put_pixel(n - 1, n - 1, image::Rgb([0.0, 7.0, 0.0]));
+    let env = Environment::from_single_image(img).unwrap();
+    let Environment::Cube(cube) = &env else {
+        panic!("not a cube map")
+    };
+    assert_eq!(cube.faces()[0].get_pixel(0, 0).0, [5.0, 0.0, 0.0]);
+    let corner = |d: DVec3| {
+        let (f, s, t) = cube_face_st(d);
+        (f, (s * f64::from(n)) as u32, (t * f64::from(n)) as u32)
+    };
+    assert_eq!(corner(DVec3::new(1.0, 0.99, 0.99)), (0, 0, 0));
+    assert_eq!(corner(DVec3::new(1.0, -0.99, -0.99)), (0, n - 1, n - 1));
+    assert_eq!(cube.faces()[0].get_pixel(n - 1, n - 1).0, [0.0, 7.0, 0.0]);
+}
+
+/// The real OpenEXR pair: the Kerner parking lot as a 1:6 cube strip and as a lat-long map
+/// show the same sky in every direction (log-luminance correlation over 2,000 directions).
+#[test]
+fn kerner_cube_strip_matches_its_lat_long_map() {
+    let data =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/envmap-kerner");
+    let (cube, ll) = (
+        data.join("KernerEnvCube.exr"),
+        data.join("KernerEnvLatLong.exr"),
+    );
+    if !cube.exists() || !ll.exists() {
+        eprintln!("SKIP: {} not present", data.display());
+        return;
+    }
+    let cube = Environment::load(&cube).unwrap();
+    assert!(matches!(cube, Environment::Cube(_)));
+    let ll = Environment::load(&ll).unwrap();
+    assert!(matches!(ll, Environment::Equirect(_)));
+    let lum = |c: [f32; 3]| {
+        (0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2])
+            .max(1e-6)
+            .ln()
+    };
+    let (a, b): (Vec<f64>, Vec<f64>) = dirs()
+        .iter()
+        .map(|&d| (f64::from(lum(cube.sample(d))), f64::from(lum(ll.sample(d)))))
+        .unzip();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (ma, mb) = (mean(&a), mean(&b));
+    let cov: f64 = a.iter().zip(&b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+    let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+    let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+    let r = cov / (va * vb).sqrt();
+    eprintln!("log-luminance correlation {r}");
+    assert!(r > 0.95, "log-luminance correlation {r}");
+}
+
+/// Aspect ratios that are no layout are refused with a message naming the layouts.
+#[test]
+fn other_aspect_ratios_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("odd.png");
+    image::RgbImage::new(30, 10).save(&p).unwrap();
+    let e = Environment::load(&p).unwrap_err().to_string();
+    assert!(
+        e.contains("30x10") && e.contains("2:1") && e.contains("6:1"),
+        "{e}"
+    );
+}

@@ -1,7 +1,8 @@
 //! The renderer: pixels land on the analytically expected scene directions.
 
 use blueshift_relativity::{
-    Camera, Checker, Effects, Environment, Velocity, parse_ramp, render, scene_direction,
+    Camera, Checker, Effects, Environment, Velocity, out_of_map_fraction, parse_ramp, render,
+    scene_direction,
 };
 use glam::DVec3;
 
@@ -223,4 +224,60 @@ fn bad_camera_and_ramp_are_errors() {
     ] {
         assert!(parse_ramp(bad).is_err(), "{bad}");
     }
+}
+
+/// At beta 0.9 the view ahead has Doppler factors above the RGB map's reach: exactly the
+/// pixels `out_of_map_fraction` counts render black from a white sky (the black disc), and
+/// the fraction is the share of the view inside the analytic cone D > 780 / 360 (360 nm
+/// observed came from beyond the RGB spectrum's 780 nm),
+/// D = 1 / (gamma (1 - beta cos theta')) for the observer-frame angle theta' to the motion.
+#[test]
+fn out_of_map_fraction_counts_the_black_disc() {
+    let white = Checker {
+        light: [1.0; 3],
+        dark: [1.0; 3],
+        grid_deg: 0.0,
+        ..Checker::default()
+    };
+    let env = Environment::Checker(white);
+    let b: f64 = 0.9;
+    let v = Velocity::along(DVec3::Z, b).unwrap();
+    let cam = Camera {
+        look: DVec3::Z,
+        width: 64,
+        height: 48,
+        fov_y_deg: 90.0,
+        ..Camera::default()
+    };
+    let fx = Effects::ALL;
+    let f = out_of_map_fraction(&cam, v, fx, None).unwrap();
+    let img = render(&env, &cam, v, fx, None).unwrap();
+    let black = img.pixels().filter(|p| p.0 == [0.0; 3]).count();
+    assert!(black > 0, "no black disc at beta 0.9");
+    assert_eq!(black as f64 / (64.0 * 48.0), f);
+    // The analytic cone: cos theta' > (1 - 1 / (gamma D_max)) / beta.
+    let g = 1.0 / (1.0 - b * b).sqrt();
+    let cos_max = (1.0 - 1.0 / (g * (780.0 / 360.0))) / b;
+    let frame = blueshift_relativity::CameraFrame::new(&cam).unwrap();
+    let mut inside = 0;
+    for y in 0..48 {
+        for x in 0..64 {
+            let d = frame.pixel_direction(f64::from(x), f64::from(y));
+            if d.normalize().z > cos_max {
+                inside += 1;
+            }
+        }
+    }
+    assert!(
+        (f - f64::from(inside) / (64.0 * 48.0)).abs() < 0.01,
+        "{f} vs cone {inside}"
+    );
+    // Without the Doppler colour shift nothing is out of the map; at rest neither.
+    let no_doppler = Effects {
+        doppler: false,
+        ..Effects::ALL
+    };
+    assert_eq!(out_of_map_fraction(&cam, v, no_doppler, None).unwrap(), 0.0);
+    let rest = Velocity::along(DVec3::Z, 0.0).unwrap();
+    assert_eq!(out_of_map_fraction(&cam, rest, fx, None).unwrap(), 0.0);
 }

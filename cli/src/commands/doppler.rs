@@ -105,6 +105,10 @@ pub struct Args {
     /// Display colour matrix: srgb or cie (Eq. 10).
     #[arg(long, default_value = "srgb")]
     pub matrix: String,
+    /// Colour space of the output EXR: xyz (CIE 1931 XYZ in R, G, B with the XYZ
+    /// `chromaticities` attribute) or linear-srgb (converted with the sRGB matrix).
+    #[arg(long, value_enum, default_value = "xyz")]
+    pub exr_space: crate::output::ExrSpace,
     /// Display luminance scaling (paper Fig. 4): a number multiplies XYZ (one reference for
     /// all pixels), `pNN` maps the NN-th percentile of Y to 1 (default p99), `per-pixel`
     /// divides each pixel by its own Y (chromaticity only).
@@ -388,14 +392,23 @@ pub(crate) fn device_error(e: anyhow::Error) -> anyhow::Error {
     }
 }
 
-fn write_exr(path: &Path, img: &DopplerImage) -> Result<()> {
+fn write_exr(path: &Path, img: &DopplerImage, space: crate::output::ExrSpace) -> Result<()> {
     // Block after block (the same bytes every run), via a temporary file.
+    let m = blueshift_spectrum::xyz_to_linear_srgb_matrix();
     let data: Vec<f32> = img
         .xyz
         .iter()
-        .flat_map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 1.0])
+        .flat_map(|p| {
+            let c = match space {
+                crate::output::ExrSpace::Xyz => *p,
+                crate::output::ExrSpace::LinearSrgb => {
+                    std::array::from_fn(|i| m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2])
+                }
+            };
+            [c[0] as f32, c[1] as f32, c[2] as f32, 1.0]
+        })
         .collect();
-    crate::output::write_exr_f32(path, img.width, img.height, 4, &data)
+    crate::output::write_exr_f32_in(path, img.width, img.height, 4, &data, space)
 }
 
 fn write_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
@@ -487,7 +500,11 @@ pub fn run(args: Args) -> Result<()> {
         if args.device == blueshift_gpu::DeviceChoice::Gpu {
             bail!("--device gpu: spectral cubes are CPU-only; use --device cpu or auto");
         }
-        return super::doppler_cube::run_cube(&args.cube, &scene, &st);
+        let units = match &args.scene {
+            Some(p) => SceneFile::read(p)?.cube,
+            None => None,
+        };
+        return super::doppler_cube::run_cube(&args.cube, &scene, &st, units.as_ref());
     }
     let disp = display(&args)?;
     let stops = exposure_stops(&args)?;
@@ -537,7 +554,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     let img = ran.value;
     let secs = start.elapsed().as_secs_f64();
-    write_exr(&args.out, &img)?;
+    write_exr(&args.out, &img, args.exr_space)?;
     crate::output::wrote_with(
         &args.out,
         &format!(
@@ -763,7 +780,7 @@ pub fn run_demo(args: DemoArgs) -> Result<()> {
         let st = session.settings();
         let img = render(&session)?;
         let exr = args.outdir.join(format!("{label}.exr"));
-        write_exr(&exr, &img)?;
+        write_exr(&exr, &img, crate::output::ExrSpace::Xyz)?;
         crate::output::wrote(&exr);
         for (i, &(x, y)) in picks.iter().enumerate() {
             let s = session.pixel_spectrum(x, y)?;

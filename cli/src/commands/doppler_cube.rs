@@ -1,20 +1,21 @@
 //! `blueshift doppler --cube`: position-position-velocity cubes (FITS + NRRD), moment maps
-//! (EXR + colour-mapped PNGs with colour bars in km/s) and views along any direction.
+//! (EXR + colour-mapped PNGs with sky axes in world units and colour bars naming quantity
+//! and unit) and views along any direction.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use blueshift_doppler::{
-    Broadening, CubeLineWidth, CubeMeta, CubeSpec, DopplerScene, DopplerSettings, Moments,
-    SpectralAxis, SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
+    Broadening, CubeLineWidth, CubeMeta, CubeSpec, CubeUnitsSpec, DopplerScene, DopplerSettings,
+    Moments, SpectralAxis, SpectralCube, fits_bytes, los_camera, nrrd_bytes, render_cube,
 };
 use blueshift_spectrum::named_line;
 use clap::Args as ClapArgs;
 use plotters::prelude::*;
 
 use crate::output::{write_bytes_atomic, write_via_temp_path};
-use crate::plot::{FONT, blue_red, inferno, register_font};
+use crate::plot::{FONT, blue_red, inferno, register_font, tick_formatter};
 
 /// Cube, broadening and view flags of `blueshift doppler`.
 #[derive(Debug, Clone, Default, ClapArgs)]
@@ -61,13 +62,17 @@ pub struct CubeArgs {
     /// Voxels are cells (Enzo, yt): rays cross the voxel centres' box grown by half a voxel.
     #[arg(long)]
     pub cell_domain: bool,
-    /// FITS BUNIT of the cube.
+    /// FITS BUNIT of the cube (default: the scene file's `cube.bunit`, else `arbitrary`).
     #[arg(long, default_value = "")]
     pub bunit: String,
     /// Spatial unit of the cube's sky axes, UNIT:SCALE (one world unit = SCALE UNIT), e.g.
-    /// cm:5.6149e23.
+    /// cm:5.6149e23 (default: the scene file's `cube.world_unit`, else world units).
     #[arg(long)]
     pub world_unit: Option<String>,
+    /// Blank (NaN in the EXR, grey in the PNG) moments 1 and 2 where moment 0 is below a
+    /// threshold: `NN%` of the peak moment 0, or a moment-0 value. Moment 0 is never masked.
+    #[arg(long, value_name = "NN%|VALUE")]
+    pub mask: Option<String>,
 }
 
 fn parse_triple(s: &str, what: &str) -> Result<(f64, f64, usize)> {
@@ -208,12 +213,46 @@ fn sibling(out: &Path, suffix: &str) -> PathBuf {
     out.with_file_name(format!("{stem}{suffix}"))
 }
 
+/// The moment-0 threshold of `--mask`: `NN%` of `peak`, or a value.
+fn mask_threshold(text: &str, peak: f32) -> Result<f32> {
+    let t = text.trim();
+    let (num, percent) = match t.strip_suffix('%') {
+        Some(n) => (n.trim(), true),
+        None => (t, false),
+    };
+    let v: f32 = num
+        .parse()
+        .map_err(|_| anyhow!("--mask '{text}': expected NN% of the peak or a moment-0 value"))?;
+    if !(v.is_finite() && v >= 0.0) {
+        bail!("--mask '{text}': the threshold must be finite and >= 0");
+    }
+    Ok(if percent { v / 100.0 * peak } else { v })
+}
+
 /// Renders and writes the cube (and moments): called by `blueshift doppler --cube`.
-pub fn run_cube(args: &CubeArgs, scene: &DopplerScene, st: &DopplerSettings) -> Result<()> {
+/// `units` are the scene file's cube units (the flags override them).
+pub fn run_cube(
+    args: &CubeArgs,
+    scene: &DopplerScene,
+    st: &DopplerSettings,
+    units: Option<&CubeUnitsSpec>,
+) -> Result<()> {
     let out = args.cube.as_ref().ok_or_else(|| anyhow!("no --cube"))?;
     let spec = cube_spec(args)?;
     spec.validate(st.range_nm)?;
-    let world_unit = match &args.world_unit {
+    if let Some(m) = &args.mask {
+        mask_threshold(m, 1.0)?;
+    }
+    let world_unit_text = args
+        .world_unit
+        .clone()
+        .or_else(|| units.and_then(|u| u.world_unit.clone()));
+    let bunit = if args.bunit.is_empty() {
+        units.and_then(|u| u.bunit.clone()).unwrap_or_default()
+    } else {
+        args.bunit.clone()
+    };
+    let world_unit = match &world_unit_text {
         None => None,
         Some(w) => {
             let (u, k) = w
@@ -230,7 +269,7 @@ pub fn run_cube(args: &CubeArgs, scene: &DopplerScene, st: &DopplerSettings) -> 
         }
     };
     let meta = CubeMeta {
-        bunit: args.bunit.clone(),
+        bunit: bunit.clone(),
         object: String::new(),
         world_unit,
     };
@@ -264,37 +303,71 @@ pub fn run_cube(args: &CubeArgs, scene: &DopplerScene, st: &DopplerSettings) -> 
     );
     crate::output::wrote(&nrrd_path);
     if args.moments {
-        write_moments(out, &cube)?;
+        write_moments(out, &cube, args.mask.as_deref(), &meta)?;
     }
     Ok(())
 }
 
-fn write_moments(out: &Path, cube: &SpectralCube) -> Result<()> {
-    let m: Moments = cube.moments();
+fn write_moments(
+    out: &Path,
+    cube: &SpectralCube,
+    mask: Option<&str>,
+    meta: &CubeMeta,
+) -> Result<()> {
+    let mut m: Moments = cube.moments();
+    if let Some(text) = mask {
+        let peak =
+            m.m0.iter()
+                .copied()
+                .filter(|v| v.is_finite())
+                .fold(0.0, f32::max);
+        m = m.masked(mask_threshold(text, peak)?);
+    }
     let velocity = cube.spec.axis != SpectralAxis::Wavelength;
     let (k, unit) = if velocity {
         (1e-3, "km/s")
     } else {
         (1.0, "nm")
     };
-    let maps: [(&str, Vec<f32>, String); 3] = [
+    let bunit = if meta.bunit.is_empty() {
+        "arbitrary units"
+    } else {
+        meta.bunit.as_str()
+    };
+    let maps: [(&str, Vec<f32>, String, String); 3] = [
         (
             "mom0",
             m.m0.clone(),
             "moment 0: integrated line emission".to_owned(),
+            bunit.to_owned(),
         ),
         (
             "mom1",
             m.m1.iter().map(|v| (f64::from(*v) * k) as f32).collect(),
-            format!("moment 1: mean ({unit})"),
+            format!(
+                "moment 1: mean {}",
+                if velocity { "velocity" } else { "wavelength" }
+            ),
+            unit.to_owned(),
         ),
         (
             "mom2",
             m.m2.iter().map(|v| (f64::from(*v) * k) as f32).collect(),
             format!("moment 2: dispersion ({unit})"),
+            unit.to_owned(),
         ),
     ];
-    for (name, v, title) in maps {
+    // Sky axes: offsets from the view centre in world units, or in the --world-unit.
+    let (scale, sky_unit) = match &meta.world_unit {
+        Some((u, s)) => (*s, u.clone()),
+        None => (1.0, "world units".to_owned()),
+    };
+    let sky = Sky {
+        half_x: 0.5 * cube.pixel_world.0 * cube.nx as f64 * scale,
+        half_y: 0.5 * cube.pixel_world.1 * cube.ny as f64 * scale,
+        unit: sky_unit,
+    };
+    for (name, v, title, bar_unit) in maps {
         // Flip to image order (row 0 at the top).
         let (w, h) = (m.nx, m.ny);
         let mut img = Vec::with_capacity(v.len());
@@ -308,20 +381,29 @@ fn write_moments(out: &Path, cube: &SpectralCube) -> Result<()> {
         crate::output::wrote(&path);
         let diverging = name == "mom1" && velocity;
         let png = sibling(out, &format!("_{name}.png"));
-        colour_png(&png, &img, w, h, &title, diverging)?;
+        colour_png(&png, &img, (w, h), &title, &bar_unit, &sky, diverging)?;
         crate::output::wrote(&png);
     }
     Ok(())
 }
 
-/// A colour-mapped picture (NaN grey) scaled up to at least 256 pixels, with a labelled
-/// colour bar: inferno from the minimum to the maximum, or blue-white-red symmetric about 0.
+/// The sky extent of a moment map: half widths from the view centre, in `unit`.
+struct Sky {
+    half_x: f64,
+    half_y: f64,
+    unit: String,
+}
+
+/// A colour-mapped picture (NaN grey) at least 256 pixels across, with sky axes (offsets
+/// from the view centre) and a colour bar labelled with `bar_unit`: inferno from the
+/// minimum to the maximum, or blue-white-red symmetric about 0.
 fn colour_png(
     path: &Path,
     v: &[f32],
-    w: usize,
-    h: usize,
+    (w, h): (usize, usize),
     title: &str,
+    bar_unit: &str,
+    sky: &Sky,
     diverging: bool,
 ) -> Result<()> {
     register_font();
@@ -341,8 +423,11 @@ fn colour_png(
     }
     let zoom = (256 / w.max(h).max(1)).max(1);
     let (pw, ph) = (w * zoom, h * zoom);
-    let bar_w = 170usize;
-    let (iw, ih) = ((pw + bar_w) as u32, (ph.max(200) + 30) as u32);
+    let (left, bottom, top, bar_w) = (70usize, 45usize, 30usize, 150usize);
+    let (iw, ih) = (
+        (left + pw + 10 + bar_w) as u32,
+        (top + ph.max(200) + bottom) as u32,
+    );
     let mut buf = vec![0u8; iw as usize * ih as usize * 3];
     let map = |x: f32| {
         if !x.is_finite() {
@@ -360,38 +445,59 @@ fn colour_png(
         let style = (FONT, 13).into_font().color(&BLACK);
         root.draw(&Text::new(title.to_owned(), (4, 6), style.clone()))
             .map_err(err)?;
-        for y in 0..ph {
-            for x in 0..pw {
-                root.draw_pixel(
-                    (x as i32, 30 + y as i32),
-                    &map(v[(y / zoom) * w + x / zoom]),
-                )
-                .map_err(err)?;
-            }
-        }
-        let (x0, y0, y1) = (pw as i32 + 14, 40i32, ih as i32 - 14);
-        for y in y0..=y1 {
-            let t = (y1 - y) as f32 / (y1 - y0).max(1) as f32;
-            root.draw(&Rectangle::new(
-                [(x0, y), (x0 + 16, y + 1)],
-                map(lo + t * (hi - lo)).filled(),
+        let (image_area, bar_area) = root.split_horizontally((left + pw + 10) as u32);
+        let image_area = image_area.margin(top as u32, (ih as usize - top - ph) as u32 - 45, 0, 10);
+        let (sx, sy) = (sky.half_x, sky.half_y);
+        let mut chart = ChartBuilder::on(&image_area)
+            .x_label_area_size(40)
+            .y_label_area_size(left as u32 - 10)
+            .build_cartesian_2d(-sx..sx, -sy..sy)
+            .map_err(err)?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(format!("x ({})", sky.unit))
+            .y_desc(format!("y ({})", sky.unit))
+            .label_style((FONT, 12))
+            .x_labels(5)
+            .y_labels(5)
+            .x_label_formatter(&tick_formatter(-sx, sx))
+            .y_label_formatter(&tick_formatter(-sy, sy))
+            .draw()
+            .map_err(err)?;
+        let (dx, dy) = (2.0 * sx / w as f64, 2.0 * sy / h as f64);
+        chart
+            .draw_series((0..h).flat_map(|y| {
+                (0..w).map(move |x| {
+                    let x0 = -sx + x as f64 * dx;
+                    let y0 = sy - y as f64 * dy;
+                    Rectangle::new([(x0, y0), (x0 + dx, y0 - dy)], map(v[y * w + x]).filled())
+                })
+            }))
+            .map_err(err)?;
+        let (x0, y0, y1) = (14i32, (top + 10) as i32, (top + ph.max(200)) as i32 - 10);
+        bar_area
+            .draw(&Text::new(
+                bar_unit.to_owned(),
+                (x0, top as i32 - 8),
+                style.clone(),
             ))
             .map_err(err)?;
+        for y in y0..=y1 {
+            let t = (y1 - y) as f32 / (y1 - y0).max(1) as f32;
+            bar_area
+                .draw(&Rectangle::new(
+                    [(x0, y), (x0 + 16, y + 1)],
+                    map(lo + t * (hi - lo)).filled(),
+                ))
+                .map_err(err)?;
         }
-        for (t, y) in [
-            (1.0f32, y0),
-            (0.75, y0 + (y1 - y0) / 4),
-            (0.5, (y0 + y1) / 2),
-            (0.25, y0 + 3 * (y1 - y0) / 4),
-            (0.0, y1),
-        ] {
-            let val = lo + t * (hi - lo);
-            let label = if val.abs() >= 1e4 || (val != 0.0 && val.abs() < 1e-2) {
-                format!("{val:.3e}")
-            } else {
-                format!("{val:.2}")
-            };
-            root.draw(&Text::new(label, (x0 + 22, y - 6), style.clone()))
+        let fmt = tick_formatter(f64::from(lo), f64::from(hi));
+        for t in [1.0f32, 0.75, 0.5, 0.25, 0.0] {
+            let y = y1 - (t * (y1 - y0) as f32).round() as i32;
+            let val = f64::from(lo + t * (hi - lo));
+            bar_area
+                .draw(&Text::new(fmt(&val), (x0 + 22, y - 6), style.clone()))
                 .map_err(err)?;
         }
         root.present().map_err(err)?;

@@ -13,7 +13,8 @@ use serde_json::json;
 /// Arguments of `blueshift info`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Volume file: .raw (Open SciVis name_XxYxZ_dtype.raw), .nrrd, .nhdr, .mhd, .mha, .vtk or .bsv.
+    /// Volume file: .raw (Open SciVis name_XxYxZ_dtype.raw), .nrrd, .nhdr, .mhd, .mha, .vtk or
+    /// .bsv; or a FITS file (.fits, the cubes `doppler --cube` writes): dimensions, WCS, BUNIT.
     pub file: PathBuf,
     /// Print one JSON object instead of text.
     #[arg(long)]
@@ -87,8 +88,105 @@ fn type_name(c: &Channel) -> String {
     }
 }
 
+/// True for `.fits`, `.fit`, `.fts` names and files that start with the FITS `SIMPLE` card.
+fn is_fits(path: &std::path::Path) -> bool {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if ["fits", "fit", "fts"].contains(&ext.as_str()) {
+        return true;
+    }
+    let mut head = [0u8; 9];
+    std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok()
+        && &head == b"SIMPLE  ="
+}
+
+/// `blueshift info` of a FITS file (the cubes `doppler --cube` writes, or any FITS image):
+/// dimensions, the WCS of every axis, BUNIT and the data range.
+fn run_fits(args: &Args) -> Result<()> {
+    let path = &args.file;
+    let bytes =
+        std::fs::read(path).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?;
+    let h = blueshift_doppler::read_fits(&bytes)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let dims: Vec<usize> = h.axes.iter().map(|a| a.length).collect();
+    let restwav = h.get("RESTWAV").and_then(|v| v.as_f64());
+    if args.json {
+        let axes: Vec<_> = h
+            .axes
+            .iter()
+            .map(|a| {
+                json!({"length": a.length, "ctype": a.ctype, "cunit": a.cunit,
+                       "crval": a.crval, "cdelt": a.cdelt, "crpix": a.crpix})
+            })
+            .collect();
+        let out = json!({
+            "file": path.display().to_string(),
+            "format": "fits",
+            "bitpix": h.bitpix,
+            "dims": dims,
+            "axes": axes,
+            "bunit": h.bunit,
+            "restwav_m": restwav,
+            "min": h.data_range.map(|r| r.0),
+            "max": h.data_range.map(|r| r.1),
+        });
+        return emit(&format!("{out}\n"));
+    }
+    let mut t = String::new();
+    writeln!(t, "file: {}", path.display())?;
+    let kind = match h.bitpix {
+        -32 => "IEEE f32",
+        -64 => "IEEE f64",
+        _ => "integer",
+    };
+    writeln!(t, "format: FITS (BITPIX {}, {kind})", h.bitpix)?;
+    let d: Vec<String> = dims.iter().map(ToString::to_string).collect();
+    writeln!(
+        t,
+        "dims: {} ({} values)",
+        d.join(" x "),
+        dims.iter().product::<usize>()
+    )?;
+    for (i, a) in h.axes.iter().enumerate() {
+        let unit = if a.cunit.is_empty() {
+            String::new()
+        } else {
+            format!(" {}", a.cunit)
+        };
+        writeln!(
+            t,
+            "axis {}: {:<8} {} pixels, CRVAL {:e}{unit} at CRPIX {}, CDELT {:e}{unit}",
+            i + 1,
+            if a.ctype.is_empty() { "-" } else { &a.ctype },
+            a.length,
+            a.crval,
+            a.crpix,
+            a.cdelt
+        )?;
+    }
+    if let Some(r) = restwav {
+        writeln!(t, "RESTWAV: {r:e} m")?;
+    }
+    writeln!(
+        t,
+        "BUNIT: {}",
+        if h.bunit.is_empty() { "-" } else { &h.bunit }
+    )?;
+    if let Some((lo, hi)) = h.data_range {
+        writeln!(t, "data: min {lo:.6e}  max {hi:.6e}")?;
+    }
+    emit(&t)
+}
+
 /// Runs `blueshift info`.
 pub fn run(args: Args) -> Result<()> {
+    if args.input.raw_dims.is_none() && is_fits(&args.file) {
+        return run_fits(&args);
+    }
     let format = if args.input.raw_dims.is_some() {
         blueshift_volume::io::Format::Raw
     } else {

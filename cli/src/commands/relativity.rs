@@ -260,9 +260,23 @@ pub fn run(args: Args) -> Result<()> {
         }
         Ok(ran.value)
     };
+    // Pixels the Doppler colour shift sends outside what an RGB map holds: said once.
+    let out_of_map =
+        |v: Velocity| blueshift_relativity::out_of_map_fraction(&cam, v, effects, None);
+    let warn = |fraction: f64, which: &str| {
+        eprintln!(
+            "note: {:.1}% of the pixels{which} are black: their Doppler factor shifts the \
+             visible window outside the 380-780 nm an RGB map's spectrum holds",
+            100.0 * fraction
+        );
+    };
     match speeds {
         None => {
             let v = Velocity::along(direction, args.beta)?;
+            let f = out_of_map(v)?;
+            if f > 0.0 {
+                warn(f, "");
+            }
             let img = render(&env, &cam, v, effects)?;
             write_image(&args.out, &img, args.exposure)?;
             if let Some(p) = &args.png {
@@ -277,12 +291,20 @@ pub fn run(args: Args) -> Result<()> {
                 .map(|e| e.to_string_lossy().into_owned())
                 .unwrap_or_default();
             let stem = stem.to_string_lossy().into_owned();
+            let mut worst: Option<(usize, f64)> = None;
             for (k, &b) in speeds.iter().enumerate() {
                 let v = Velocity::along(direction, b)?;
+                let f = out_of_map(v)?;
+                if f > worst.map_or(0.0, |w| w.1) {
+                    worst = Some((k, f));
+                }
                 let img = render(&env, &cam, v, effects)?;
                 let path = PathBuf::from(format!("{stem}_{k:04}.{ext}"));
                 eprintln!("frame {k}: beta {b:.4}");
                 write_image(&path, &img, args.exposure)?;
+            }
+            if let Some((k, f)) = worst {
+                warn(f, &format!(" of frame {k} (the most of any frame)"));
             }
         }
     }

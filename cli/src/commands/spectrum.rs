@@ -12,7 +12,7 @@ use clap::ValueEnum;
 use serde_json::json;
 
 use crate::output::write_atomic;
-use crate::plot::{Series, line_plot};
+use crate::plot::{Series, exact_polyline as polyline, line_plot};
 
 /// Doppler model (flag value).
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -132,36 +132,6 @@ fn parse_range(text: &str) -> Result<(f64, f64)> {
     Ok((a, b))
 }
 
-/// The points of a spectrum for CSV and plots: both ends of every piece, with zeros at gaps.
-fn polyline(s: &PiecewiseLinear, lo: f64, hi: f64) -> Vec<(f64, f64)> {
-    let mut pts: Vec<(f64, f64)> = vec![(lo, s.eval(lo))];
-    for p in s.pieces() {
-        if p.end_nm <= lo || p.start_nm >= hi {
-            continue;
-        }
-        let a = p.start_nm.max(lo);
-        let b = p.end_nm.min(hi);
-        let last = *pts.last().expect("non-empty");
-        if last.0 < a && last.1 != 0.0 {
-            pts.push((last.0, 0.0));
-        }
-        if last.0 < a {
-            pts.push((a, 0.0));
-        }
-        pts.push((a, p.at(a)));
-        pts.push((b, p.at(b)));
-    }
-    let last = *pts.last().expect("non-empty");
-    if last.0 < hi {
-        if last.1 != 0.0 {
-            pts.push((last.0, 0.0));
-        }
-        pts.push((hi, 0.0));
-    }
-    pts.dedup();
-    pts
-}
-
 /// Runs `blueshift spectrum`.
 pub fn run(args: Args) -> Result<()> {
     let outputs: Vec<&std::path::Path> = args
@@ -267,7 +237,8 @@ pub fn run(args: Args) -> Result<()> {
         if s != 1.0 {
             series.push(Series {
                 label: "rest frame".into(),
-                points: polyline(&rest, lo, hi),
+                // The rest frame was built over [lo / s, hi / s] only: it ends there.
+                points: polyline(&rest, lo.max(lo / s), hi.min(hi / s)),
                 colour: plotters::style::RGBColor(160, 160, 160),
             });
         }
