@@ -54,7 +54,14 @@ pub fn axis_label(v: f64) -> String {
         return "0".into();
     }
     if !(1e-3..1e6).contains(&v.abs()) {
-        return format!("{v:.2e}");
+        let t = format!("{v:.3e}");
+        let (m, e) = t.split_once('e').unwrap_or((&t, "0"));
+        let m = if m.contains('.') {
+            m.trim_end_matches('0').trim_end_matches('.')
+        } else {
+            m
+        };
+        return format!("{m}e{e}");
     }
     let t = format!("{v:.4}");
     let t = t.trim_end_matches('0').trim_end_matches('.');
@@ -466,8 +473,10 @@ mod tests {
     #[test]
     fn ticks_are_round_and_labels_readable() {
         let (t, s) = nice_ticks(0.0, 3.7, 6);
+        assert_eq!(s, 1.0);
+        assert_eq!(t, vec![0.0, 1.0, 2.0, 3.0]);
+        let (_, s) = nice_ticks(0.0, 3.7, 8);
         assert_eq!(s, 0.5);
-        assert_eq!(t.len(), 8);
         assert_eq!(tick_label(3.5, s), "3.5");
         assert_eq!(tick_label(0.0, s), "0");
         assert_eq!(tick_label(450.0, 50.0), "450");
@@ -480,6 +489,8 @@ mod tests {
         assert_eq!(axis_label(2.0), "2");
         assert_eq!(axis_label(0.25), "0.25");
         assert_eq!(axis_label(656.3), "656.3");
+        assert_eq!(axis_label(2.5e-4), "2.5e-4");
+        assert_eq!(axis_label(1e-5), "1e-5");
     }
 
     #[test]

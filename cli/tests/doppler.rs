@@ -167,20 +167,20 @@ fn demo_figure_has_images_marks_and_spectra_under_them() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let fig = image::open(demo.join("demo.png")).unwrap().to_rgb8();
-    // Layout: 900 wide; the 32-pixel images are shown 4x (128 pixels) from y = 36, left one
-    // ending 5 pixels left of the centre, right one starting 5 right of it; the plot below.
+    // Layout: 900 wide; three panels (Doppler on, off, velocity) of the 32-pixel images shown
+    // 6x (192 pixels) from y = 34 at x = 20, 236, 452, the keys under them, the plot below.
     assert_eq!(fig.width(), 900);
-    let (top, bottom) = (36, 36 + 128 + 10);
-    assert_eq!(fig.height(), bottom + 420);
-    // Both images hold the rendered galaxy: the side-by-side PNG's pixels, enlarged.
+    let (top, bottom) = (34, 34 + 192 + 62 + 14);
+    assert_eq!(fig.height(), bottom + 400);
+    // Both true-colour panels hold the rendered galaxy: the side-by-side PNG's pixels, enlarged.
     let sbs = image::open(demo.join("side_by_side.png"))
         .unwrap()
         .to_rgb8();
-    let (lx, rx) = (450 - 5 - 128, 455);
+    let (lx, rx) = (20, 236);
     for (x0, off) in [(lx, 0u32), (rx, 32)] {
         let (sx, sy) = (3u32, 3u32);
         assert_eq!(
-            fig.get_pixel(x0 + sx * 4 + 1, top + sy * 4 + 1),
+            fig.get_pixel(x0 + sx * 6 + 1, top + sy * 6 + 1),
             sbs.get_pixel(off + sx, sy)
         );
     }
@@ -190,7 +190,7 @@ fn demo_figure_has_images_marks_and_spectra_under_them() {
     for (k, c) in colours.iter().enumerate() {
         let px = 8 + 8 * k as u32;
         for x0 in [lx, rx] {
-            let (cx, cy) = (x0 + px * 4 + 2, top + 16 * 4 + 2);
+            let (cx, cy) = (x0 + px * 6 + 3, top + 16 * 6 + 3);
             assert!(
                 count_colour(&fig, *c, cx - 10, cx + 11, cy - 10, cy + 11) > 10,
                 "no ring of colour {c:?} at pick {k}"
@@ -386,7 +386,8 @@ fn scene_file_renders_with_units_and_flag_overrides() {
     let s = d.join("scene.json");
     let s = s.to_str().unwrap();
     let c = 299_792.458;
-    for (vf, want) in [("1", 656.279 * (1.0 + 300.0 / c)), ("0", 656.279)] {
+    // v_z = +300 km/s moves towards the default observer at +z (yt's view): blue-shifted.
+    for (vf, want) in [("1", 656.279 * (1.0 - 300.0 / c)), ("0", 656.279)] {
         let out = d.join(format!("v{vf}.exr"));
         let o = blueshift(&[
             "doppler",

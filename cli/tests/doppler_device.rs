@@ -43,12 +43,12 @@ fn gpu_image_matches_the_cpu_image() {
     let dir = tempfile::tempdir().unwrap();
     let c = run(dir.path(), &[], "cpu.exr", "cpu");
     assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
-    assert!(String::from_utf8_lossy(&c.stdout).contains("on the cpu"));
+    assert!(String::from_utf8_lossy(&c.stderr).contains("on the cpu"));
     let g = run(dir.path(), &[], "gpu.exr", "gpu");
     if !gpu_ok("doppler", &g) {
         return;
     }
-    assert!(String::from_utf8_lossy(&g.stdout).contains("on the gpu"));
+    assert!(String::from_utf8_lossy(&g.stderr).contains("on the gpu"));
     let (a, b) = (
         read_exr(&dir.path().join("cpu.exr")),
         read_exr(&dir.path().join("gpu.exr")),
@@ -109,7 +109,7 @@ fn unsupported_settings_are_refused_on_gpu_and_fall_back_on_auto() {
         if !gpu_ok("doppler", &g) {
             continue;
         }
-        assert!(String::from_utf8_lossy(&g.stdout).contains("on the gpu"));
+        assert!(String::from_utf8_lossy(&g.stderr).contains("on the gpu"));
         let (a, b) = (
             read_exr(&dir.path().join("bc.exr")),
             read_exr(&dir.path().join("bg.exr")),
@@ -165,7 +165,7 @@ fn the_gpu_precision_flag_picks_the_kernels() {
     if !gpu_ok("doppler", &g) {
         return;
     }
-    let out = String::from_utf8_lossy(&g.stdout);
+    let out = String::from_utf8_lossy(&g.stderr);
     if g.status.success() && out.contains("gpu (f64)") {
         let w = worst(&read_exr(&dir.path().join("p64.exr")));
         eprintln!("--gpu-precision f64: worst relative difference {w:e}");
@@ -176,7 +176,7 @@ fn the_gpu_precision_flag_picks_the_kernels() {
     x.extend(["--gpu-precision", "f32"]);
     let g = run(dir.path(), &x, "p32.exr", "gpu");
     assert!(g.status.success(), "{}", String::from_utf8_lossy(&g.stderr));
-    assert!(String::from_utf8_lossy(&g.stdout).contains("gpu (f32)"));
+    assert!(String::from_utf8_lossy(&g.stderr).contains("gpu (f32)"));
     let w = worst(&read_exr(&dir.path().join("p32.exr")));
     eprintln!("--gpu-precision f32: worst relative difference {w:e}");
     assert!(w <= 2e-3 && w > 0.0, "{w}");
@@ -236,7 +236,7 @@ fn auto_falls_back_to_the_cpu_where_the_adapter_cannot_run_it() {
     assert!(!dir.path().join("g.exr").exists());
     let a = go("auto", "a.exr");
     assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
-    assert!(String::from_utf8_lossy(&a.stdout).contains("on the cpu"));
+    assert!(String::from_utf8_lossy(&a.stderr).contains("on the cpu"));
     assert!(String::from_utf8_lossy(&a.stderr).contains("rendering on the CPU"));
     assert_eq!(
         std::fs::read(dir.path().join("c.exr")).unwrap(),

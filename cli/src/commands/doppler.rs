@@ -607,8 +607,12 @@ pub fn run(args: Args) -> Result<()> {
     }
     if let Some(fig) = &args.figure {
         let (w, h) = (st.width, st.height);
+        let mut phys = scene.clone();
+        phys.factors.velocity = 1.0;
+        let vmax = crate::figure::los_speed_kms(&phys, st);
+        let vmap = crate::figure::velocity_map(&phys, st, vmax, 0.01)?;
         let picks: Vec<(u32, u32)> = if args.pick.is_empty() {
-            vec![(w / 4, h / 2), (w / 2, h / 2), (3 * w / 4, h / 2)]
+            auto_picks(&img, vmap.as_deref())
         } else {
             args.pick.clone()
         };
@@ -621,9 +625,6 @@ pub fn run(args: Args) -> Result<()> {
                 off: Vec::new(),
             });
         }
-        let mut phys = scene.clone();
-        phys.factors.velocity = 1.0;
-        let vmax = crate::figure::los_speed_kms(&phys, st);
         let mut panels = vec![crate::figure::Panel {
             title: if (scene.factors.velocity - 1.0).abs() > 1e-12 {
                 format!("true colour (velocity x{})", scene.factors.velocity)
@@ -633,8 +634,8 @@ pub fn run(args: Args) -> Result<()> {
             rgb: display_rgb8(&disp, op.as_ref(), &img)?,
         }];
         let mut strips = vec![Some(crate::figure::colour_key(scene, st, vmax)?)];
-        if let Some(map) = crate::figure::velocity_map(&phys, st, vmax, 0.01)? {
-            let (rgb, bar) = crate::figure::velocity_panel(&map, vmax);
+        if let Some(map) = &vmap {
+            let (rgb, bar) = crate::figure::velocity_panel(map, vmax);
             panels.push(crate::figure::Panel {
                 title: "line-of-sight velocity".into(),
                 rgb,
@@ -706,6 +707,44 @@ pub struct DemoArgs {
     /// Galaxy voxels per edge.
     #[arg(long, default_value_t = 64)]
     pub res: usize,
+}
+
+/// The figure's default picks: the brightest pixel, then the most approaching and the most
+/// receding pixel of the velocity map among those with at least a tenth of the brightest
+/// luminance (distinct pixels only).
+fn auto_picks(img: &DopplerImage, vmap: Option<&[Option<f32>]>) -> Vec<(u32, u32)> {
+    let w = img.width as usize;
+    let y: Vec<f64> = img
+        .xyz
+        .iter()
+        .map(|p| if p[1].is_finite() { p[1] } else { 0.0 })
+        .collect();
+    let Some((best, &ymax)) = y.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)) else {
+        return Vec::new();
+    };
+    let mut out = vec![best];
+    if let Some(v) = vmap {
+        let lit = |i: usize| y[i] >= 0.1 * ymax;
+        let cands: Vec<(usize, f32)> = v
+            .iter()
+            .enumerate()
+            .filter_map(|(i, v)| v.filter(|_| lit(i)).map(|v| (i, v)))
+            .collect();
+        for pick in [
+            cands.iter().min_by(|a, b| a.1.total_cmp(&b.1)),
+            cands.iter().max_by(|a, b| a.1.total_cmp(&b.1)),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            if !out.contains(&pick.0) {
+                out.push(pick.0);
+            }
+        }
+    }
+    out.into_iter()
+        .map(|i| ((i % w) as u32, (i / w) as u32))
+        .collect()
 }
 
 /// A length unit a reader knows: cm or m scales become pc, kpc or Mpc (value = world x
