@@ -10,8 +10,10 @@
 //!   one GPU pass (`shaders/tonemap_global.wgsl`), f32 arithmetic like the CPU.
 //! - Durand & Dorsey: the fast bilateral filter runs on the GPU in the CPU's scheme (splat
 //!   into a down-sampled grid of intensity levels, separable Gaussian blur of every level,
-//!   slice), then the base min/max (GPU per-row reduction, host fold), the base compression
-//!   and the recolouring, all on the GPU.
+//!   slice), then the base max (GPU per-row reduction, host fold) and the base's low end
+//!   (its 1st percentile over lit pixels, on the host with the tonemap crate's percentile
+//!   function, the base read back), then the base compression and the recolouring on the
+//!   GPU.
 //! - Reinhard local: the key scaling on the CPU (log-average), then the n + 1 Gaussian
 //!   blurs (separable, the CPU's kernels), the scale selection (Eq. 7-9) and the
 //!   recolouring on the GPU.
@@ -22,6 +24,8 @@
 //!   product along one axis (O(N (W + H)) work, exact up to f32 rounding; the matrices need
 //!   W^2 and H^2 floats within `max_storage_buffer_binding_size`). The display scaling
 //!   (percentiles) and recolouring run on the host.
+//! - The local operators (Reinhard local, Durand, Fattal) recolour in gamut like the CPU
+//!   (`recolour_in_gamut`: the ratio step, then `fit_to_display`).
 //!
 //! lavapipe stops every loop of an invocation batch after 65535 iterations in all, silently;
 //! Durand's splat (each grid cell sums (sigma_s / 4)^2 pixels) and the row min/max (a row
@@ -95,7 +99,8 @@ struct GlobalParams {
 struct RecolourParams {
     n: u32,
     saturation: f32,
-    p0: u32,
+    /// Non-zero: `fit_to_display` after the ratio step (the local operators).
+    fit: u32,
     p1: u32,
 }
 
@@ -192,7 +197,7 @@ pub(crate) fn pod_layouts() -> Vec<crate::layout::PodLayout> {
             mode, n, saturation, c0, c1, c2, c3, pad as "_pad",
         }),
         pod_layout!(RecolourParams => "Params", "tonemap_recolour.wgsl", RECOLOUR_WGSL, {
-            n, saturation, p0 as "_p0", p1 as "_p1",
+            n, saturation, fit, p1 as "_p1",
         }),
         pod_layout!(SplatParams => "Params", "durand_splat.wgsl (limiter prepended)", SPLAT_WGSL, {
             w, h, gw, gh, z, nl, lo, step, cut, inv2r2, probe_n, p1 as "_p1",
@@ -377,7 +382,7 @@ impl<'a> GpuTonemapper<'a> {
                 let hi = pct(&lit, 100.0 - p.white_clip_percent);
                 let span = (hi - lo).max(f32::MIN_POSITIVE);
                 let lum_out = l_out.map(|v| ((v - lo) / span).max(0.0));
-                return Ok(blueshift_tonemap::plane::recolour(
+                return Ok(blueshift_tonemap::plane::recolour_in_gamut(
                     &clean.image,
                     &clean.luminance,
                     &lum_out,
@@ -572,7 +577,7 @@ impl<'a> GpuTonemapper<'a> {
             &RecolourParams {
                 n,
                 saturation: p.saturation,
-                p0: 0,
+                fit: 1,
                 p1: 0,
             },
         )?;
@@ -761,11 +766,29 @@ impl<'a> GpuTonemapper<'a> {
             "a smaller --sigma-s",
         )?;
         let rows = ctx.read_buffer::<f32>(&mm, h * 2)?;
-        let (bmin, bmax) = rows
+        let (bmin_all, bmax) = rows
             .chunks_exact(2)
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), r| {
                 (a.min(r[0]), b.max(r[1]))
             });
+        // The low end of the base range: its BASE_LOW_PERCENTILE-th percentile over lit
+        // pixels (luminance > 0), as blueshift_tonemap::ops::durand::durand_log_lit, with the
+        // same percentile function; the base is read back for it.
+        let base_host = ctx.read_buffer::<f32>(&base, n as usize)?;
+        let lit: Vec<f32> = base_host
+            .iter()
+            .zip(&clean.luminance.data)
+            .filter(|(_, l)| **l > 0.0)
+            .map(|(b, _)| *b)
+            .collect();
+        let bmin = if lit.is_empty() {
+            bmin_all
+        } else {
+            blueshift_tonemap::ops::fattal::percentile(
+                &lit,
+                blueshift_tonemap::ops::durand::BASE_LOW_PERCENTILE,
+            )
+        };
         let span = (bmax - bmin).max(1e-6);
         let gamma = (p.base_contrast.log10() / span).min(1.0);
         let lum_out = ctx.storage_buffer_zeroed("durand lum out", u64::from(n) * 4)?;
@@ -787,7 +810,7 @@ impl<'a> GpuTonemapper<'a> {
             &RecolourParams {
                 n,
                 saturation: p.saturation,
-                p0: 0,
+                fit: 1,
                 p1: 0,
             },
         )?;

@@ -256,6 +256,73 @@ pub fn recolour_with(
     recolour_by(img, lum_in, saturation, |_, l| curve(l))
 }
 
+/// [`recolour`] followed by [`fit_to_display`] on every pixel: the
+/// recolouring of the local operators (Reinhard local, Durand, Fattal), whose display
+/// image must lie in [0, 1] without clipping channels one by one (which changes hue).
+///
+/// Every output channel lies in [0, 1]; a pixel whose recoloured colour was already inside
+/// the display cube is unchanged; otherwise its luminance (capped at 1) and its hue are kept
+/// (see [`fit_to_display`]).
+#[must_use]
+pub fn recolour_in_gamut(
+    img: &Rgb32FImage,
+    lum_in: &Plane,
+    lum_out: &Plane,
+    saturation: f32,
+) -> Rgb32FImage {
+    let mut out = recolour(img, lum_in, lum_out, saturation);
+    let w = (out.width() as usize * 3).max(3);
+    out.par_chunks_mut(w).for_each(|row| {
+        for px in row.chunks_exact_mut(3) {
+            let fitted = fit_to_display([px[0], px[1], px[2]]);
+            px.copy_from_slice(&fitted);
+        }
+    });
+    out
+}
+
+/// Brings a linear RGB colour into the display cube [0, 1]^3 by **constant-luminance
+/// desaturation towards the achromatic axis**, by the smallest amount that fits.
+///
+/// With `Y` the colour's luminance ([`luminance`], Rec. 709 weights, which sum to 1), the
+/// result is `Y + t (C - Y)` per channel with the largest `t` in [0, 1] that puts every
+/// channel in [0, 1]. Adding or removing grey leaves `Y` unchanged, and the chroma vector
+/// `C - Y` only shrinks: the hue (its direction) is kept exactly, and in CIE xy the
+/// chromaticity moves along the straight line towards the white point (D65). A channel
+/// clip per channel would instead lower the luminance and turn the hue towards the
+/// unclipped channels (an orange wood pixel whose red clips goes yellow-white; a dark pixel
+/// with red and blue ratios far above 1 turns magenta).
+///
+/// Colours already inside the cube are returned unchanged. `Y >= 1` cannot be shown with
+/// any chroma and gives white `[1, 1, 1]` (the nearest displayable luminance); `Y <= 0` or
+/// NaN (in any channel) gives black. Channels below 0 (not produced by the operators, whose inputs are
+/// cleaned) are handled the same way as channels above 1.
+#[must_use]
+pub fn fit_to_display(rgb: [f32; 3]) -> [f32; 3] {
+    let in_cube = |c: f32| (0.0..=1.0).contains(&c);
+    if rgb.iter().all(|&c| in_cube(c)) {
+        return rgb;
+    }
+    let y = luminance(rgb);
+    // `y > 0` is false for NaN too.
+    if y.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return [0.0; 3];
+    }
+    if y >= 1.0 {
+        return [1.0; 3];
+    }
+    let mut t = 1.0f32;
+    for c in rgb {
+        if c > 1.0 {
+            t = t.min((1.0 - y) / (c - y));
+        } else if c < 0.0 {
+            t = t.min(y / (y - c));
+        }
+    }
+    // Rounding can leave a channel a few ulps outside: clamp those (no hue change).
+    rgb.map(|c| (y + t * (c - y)).clamp(0.0, 1.0))
+}
+
 fn recolour_by(
     img: &Rgb32FImage,
     lum_in: &Plane,

@@ -1,4 +1,5 @@
-// Fattal et al. 2002: attenuated gradients G = grad(H) * Phi (forward differences, zero
+// Fattal et al. 2002: attenuated gradients G = grad(H) * Phi (forward differences, each
+// attenuated by Phi at the edge midpoint, (Phi(x) + Phi(x+1)) / 2 in x and likewise in y; zero
 // at the far border) and their divergence div G (backward differences), as
 // blueshift_tonemap::ops::fattal::compressed_log_luminance builds the Poisson right side.
 
@@ -17,7 +18,7 @@ struct Params {
 fn gx(x: u32, y: u32) -> f32 {
     if x + 1u < p.w {
         let i = y * p.w + x;
-        return (hlog[i + 1u] - hlog[i]) * phi[i];
+        return (hlog[i + 1u] - hlog[i]) * 0.5 * (phi[i] + phi[i + 1u]);
     }
     return 0.0;
 }
@@ -25,7 +26,7 @@ fn gx(x: u32, y: u32) -> f32 {
 fn gy(x: u32, y: u32) -> f32 {
     if y + 1u < p.h {
         let i = y * p.w + x;
-        return (hlog[i + p.w] - hlog[i]) * phi[i];
+        return (hlog[i + p.w] - hlog[i]) * 0.5 * (phi[i] + phi[i + p.w]);
     }
     return 0.0;
 }

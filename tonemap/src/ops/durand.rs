@@ -3,7 +3,9 @@
 //! bilateral filter, contrast reduction of the base only.
 //!
 //! Units follow the paper: log10 luminance, `sigma_r` in log10 units, the base contrast as
-//! a ratio (5:1), the maximum of the base mapped to display 1. `pfstmo_durand02` works in
+//! a ratio (5:1), the maximum of the base mapped to display 1. One deviation: the base
+//! range runs from the 1st percentile of the base, not its minimum, so isolated noise
+//! pixels cannot set the compression factor ([`durand_log_lit`]). `pfstmo_durand02` works in
 //! natural log and takes its base contrast as a log-unit range, so the same settings there
 //! read `--sigma-r 0.921 --base-contrast 1.609 --original` (see `tonemap/peers/RESULTS.md`).
 
@@ -72,15 +74,52 @@ impl DurandParams {
     }
 }
 
+/// Percentile of the base layer (over lit pixels) taken as its lower end when the
+/// compression factor is computed (see [`durand_log`]); pfstmo_durand02 uses the same.
+pub const BASE_LOW_PERCENTILE: f32 = 1.0;
+
 /// Durand-Dorsey on log10 luminance: `base = bilateral(log L)`, `detail = log L - base`,
 /// output `log10 Ld = (base - max base) * gamma + detail` with
-/// `gamma = log10(contrast) / (max base - min base)` (paper Sec. 6), so the brightest base
-/// maps to display 1.
+/// `gamma = log10(contrast) / (max base - low base)` (paper Sec. 6), so the brightest base
+/// maps to display 1. Every pixel counts as lit; see [`durand_log_lit`].
 #[must_use]
 pub fn durand_log(log_l: &Plane, params: &DurandParams) -> Plane {
+    durand_log_lit(log_l, None, params)
+}
+
+/// [`durand_log`] where only the pixels with `luminance > 0` (when given) enter the base
+/// range.
+///
+/// The low end of the base range is the [`BASE_LOW_PERCENTILE`]th percentile of the base
+/// over lit pixels, not its minimum. The paper's minimum is set by isolated pixels: the
+/// edge-preserving filter keeps a lone pixel its own base, and real photographs carry
+/// noise pixels whose channels the dirty-input rule sets to 0 (Desk.exr: the darkest
+/// positive luminance is 10^-6.4 while the 0.1th percentile is 10^-3.1). Those few pixels
+/// widened the base range by almost four orders of magnitude (base minimum 10^-6.4, 1st
+/// percentile 10^-2.5), shrank `gamma` to 0.082 (0.152 with the 1st-percentile low end)
+/// and flattened the whole base (the low frequencies), so every dark region came out lifted
+/// towards the highlights: a washed-out picture, hazy along the rail in front of the window.
+/// The top stays the maximum (the paper's brightest base maps to display 1).
+#[must_use]
+pub fn durand_log_lit(log_l: &Plane, luminance: Option<&Plane>, params: &DurandParams) -> Plane {
     let sigma_s = params.sigma_spatial_for(log_l.width, log_l.height);
     let base = fast_bilateral(log_l, sigma_s, params.sigma_range);
-    let (bmin, bmax) = base.min_max();
+    let (bmin_all, bmax) = base.min_max();
+    let lit: Vec<f32> = match luminance {
+        Some(l) => base
+            .data
+            .iter()
+            .zip(&l.data)
+            .filter(|(_, l)| **l > 0.0)
+            .map(|(b, _)| *b)
+            .collect(),
+        None => base.data.clone(),
+    };
+    let bmin = if lit.is_empty() {
+        bmin_all
+    } else {
+        crate::ops::fattal::percentile(&lit, BASE_LOW_PERCENTILE)
+    };
     let span = (bmax - bmin).max(1e-6);
     let gamma = (params.base_contrast.log10() / span).min(1.0);
     Plane::from_fn(log_l.width, log_l.height, |x, y| {

@@ -131,6 +131,15 @@ pub fn attenuation(h: &Plane, params: &FattalParams) -> Plane {
 /// `G = grad H * Phi` with forward differences (zero flux across the border),
 /// `div G` with backward differences, then the Neumann Poisson solve.
 ///
+/// A forward difference `H(x+1) - H(x)` lives on the edge between the two pixels, so it is
+/// attenuated by `Phi` at that edge's midpoint, `(Phi(x) + Phi(x+1)) / 2` (likewise in y).
+/// Taking `Phi(x)` alone, the value at the left (top) pixel, biases the field: the rising
+/// and the falling edge of a bright object are scaled by `Phi` on different sides of the
+/// object, so their attenuated steps no longer cancel, the field gains a curl, and the
+/// least-squares Poisson solve spreads that inconsistency over the whole image as a smooth
+/// ramp: a low-frequency glow to the right of and below bright features. With the
+/// midpoint the operator commutes with mirroring the image.
+///
 /// With `beta = 1` (no attenuation) `I = H - mean(H)` up to the solver's rounding.
 ///
 /// # Errors
@@ -143,16 +152,17 @@ pub fn compressed_log_luminance(h: &Plane, params: &FattalParams) -> Result<Plan
     }
     let phi = attenuation(h, params);
     let at = |x: usize, y: usize| h.data[y * w + x];
+    let phi_at = |x: usize, y: usize| phi.data[y * w + x];
     let gx = Plane::from_fn(w, hgt, |x, y| {
         if x + 1 < w {
-            (at(x + 1, y) - at(x, y)) * phi.data[y * w + x]
+            (at(x + 1, y) - at(x, y)) * 0.5 * (phi_at(x, y) + phi_at(x + 1, y))
         } else {
             0.0
         }
     });
     let gy = Plane::from_fn(w, hgt, |x, y| {
         if y + 1 < hgt {
-            (at(x, y + 1) - at(x, y)) * phi.data[y * w + x]
+            (at(x, y + 1) - at(x, y)) * 0.5 * (phi_at(x, y) + phi_at(x, y + 1))
         } else {
             0.0
         }

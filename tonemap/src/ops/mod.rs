@@ -10,7 +10,7 @@ use image::Rgb32FImage;
 
 use crate::error::{Error, Result};
 use crate::inverse::GlobalCurve;
-use crate::plane::{log_average, recolour};
+use crate::plane::{log_average, recolour_in_gamut};
 use crate::sanitize::CleanImage;
 
 pub use drago::{DragoParams, Roi};
@@ -115,6 +115,14 @@ impl Operator {
     /// The dirty-input rule of [`crate::sanitize()`] is applied first; the output never
     /// contains NaN, and pixels of zero luminance stay black.
     ///
+    /// The local operators (Reinhard local, Durand, Fattal) return every channel in
+    /// [0, 1]: after the colour-ratio step `C_out = (C/L)^s L_out` a colour outside the
+    /// display cube is brought in by constant-luminance desaturation towards the grey of
+    /// the same luminance ([`crate::plane::fit_to_display`]), which keeps its hue, instead
+    /// of a per-channel clip at display time, which turns it. The global operators keep
+    /// the plain ratio step (their curve and recolouring are inverted exactly by
+    /// [`GlobalCurve::invert`]); their channels above 1 clip when written.
+    ///
     /// # Errors
     /// [`Error::Parameter`] for invalid parameters (or a region of interest with no lit
     /// pixel), [`Error::EmptyImage`] for a 0-pixel image.
@@ -152,7 +160,7 @@ impl Operator {
             }
             Operator::Durand(params) => {
                 let log_l = p.luminance.map(|v| v.max(floor).log10());
-                let out = durand::durand_log(&log_l, params);
+                let out = durand::durand_log_lit(&log_l, Some(&p.luminance), params);
                 (out.map(|v| 10f32.powf(v)), params.saturation)
             }
             Operator::Fattal(params) => {
@@ -175,7 +183,12 @@ impl Operator {
             _ => unreachable!("global operators handled above"),
         };
         debug_assert_eq!((lum_out.width, lum_out.height), (w, h));
-        Ok(recolour(&p.image, &p.luminance, &lum_out, saturation))
+        Ok(recolour_in_gamut(
+            &p.image,
+            &p.luminance,
+            &lum_out,
+            saturation,
+        ))
     }
 
     /// The resolved global curve of this operator for `img`: the operator's parameters plus
