@@ -501,3 +501,55 @@ mod tests {
         assert_eq!(diverging(0.5), [247, 247, 247]);
     }
 }
+
+/// An orientation triad for an image of a camera: world x (red), y (green) and z (blue)
+/// drawn from a corner as the camera projects them (`right`, `up` of its basis), labelled;
+/// an axis along the view shows as a short stub. Returns an RGB8 overlay, black where
+/// nothing is drawn.
+pub fn triad_overlay(w: u32, h: u32, camera: &blueshift_camera::Camera) -> Result<Vec<u8>> {
+    register_font();
+    let (_, right, up) = camera.basis();
+    let len = (f64::from(w.min(h)) / 8.0).clamp(10.0, 60.0);
+    let (ox, oy) = (f64::from(w) - len - 14.0, f64::from(h) - len - 14.0);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        for (axis, name, colour) in [
+            (glam::Vec3::X, "x", RGBColor(255, 64, 64)),
+            (glam::Vec3::Y, "y", RGBColor(64, 230, 64)),
+            (glam::Vec3::Z, "z", RGBColor(90, 140, 255)),
+        ] {
+            let (dx, dy) = (f64::from(axis.dot(right)), -f64::from(axis.dot(up)));
+            let tip = (
+                (ox + dx * len).round() as i32,
+                (oy + dy * len).round() as i32,
+            );
+            root.draw(&PathElement::new(
+                [(ox as i32, oy as i32), tip],
+                colour.stroke_width(2),
+            ))
+            .map_err(err)?;
+            if dx.hypot(dy) > 0.2 {
+                let lx = tip.0 + (dx * 8.0).round() as i32 - 3;
+                let ly = tip.1 + (dy * 8.0).round() as i32 - 6;
+                root.draw(&Text::new(
+                    name,
+                    (lx, ly),
+                    (FONT, 12).into_font().color(&colour),
+                ))
+                .map_err(err)?;
+            }
+        }
+        root.present().map_err(err)?;
+    }
+    Ok(buf)
+}
+
+/// Lays an RGB8 overlay (black = transparent) over an RGB8 image.
+pub fn apply_overlay(rgb: &mut [u8], overlay: &[u8]) {
+    for (p, o) in rgb.chunks_exact_mut(3).zip(overlay.chunks_exact(3)) {
+        if o.iter().any(|&c| c > 0) {
+            p.copy_from_slice(o);
+        }
+    }
+}

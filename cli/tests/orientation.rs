@@ -279,3 +279,72 @@ fn doppler_images_and_cube_moment_maps_agree_with_render() {
     }
     assert_eq!(seen, 1, "no moment-0 EXR among the cube's outputs");
 }
+
+/// The triad on a PNG: from the default view world x points right (red pixels right of the
+/// triad's origin) and y up (green above it); from +x, y points right instead.
+#[test]
+fn the_triad_shows_the_axes_as_the_camera_sees_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let count = |png: &Path, red: bool, x: std::ops::Range<u32>, y: std::ops::Range<u32>| {
+        let img = image::open(png).unwrap().to_rgb8();
+        let mut n = 0;
+        for yy in y.clone() {
+            for xx in x.clone() {
+                let p = img.get_pixel(xx, yy).0;
+                let hit = if red {
+                    p[0] > 200 && p[1] < 120 && p[2] < 120
+                } else {
+                    p[1] > 200 && p[0] < 120 && p[2] < 120
+                };
+                n += usize::from(hit);
+            }
+        }
+        n
+    };
+    for (view, x_right) in [("z", true), ("x", false)] {
+        let png = dir.path().join(format!("t-{view}.png"));
+        let out = dir.path().join(format!("t-{view}.exr"));
+        ok(&blueshift(&[
+            "render",
+            "--synth",
+            "three-cubes",
+            "--res",
+            "8",
+            "--tf",
+            "builtin:grey",
+            "--density-scale",
+            "0",
+            "--width",
+            "160",
+            "--height",
+            "160",
+            "--spp",
+            "1",
+            "--camera",
+            "ortho",
+            "--view",
+            view,
+            "--triad",
+            "--out",
+            out.to_str().unwrap(),
+            "--png",
+            png.to_str().unwrap(),
+        ]));
+        // The triad's origin: 20 + 14 pixels in from the bottom-right corner.
+        let (ox, oy) = (160 - 20 - 14, 160 - 20 - 14);
+        let red_right = count(&png, true, ox + 4..ox + 20, oy - 2..oy + 3);
+        let green_up = count(&png, false, ox - 2..ox + 3, oy - 20..oy - 4);
+        let green_right = count(&png, false, ox + 4..ox + 20, oy - 2..oy + 3);
+        if x_right {
+            assert!(
+                red_right > 10 && green_up > 10,
+                "{view}: {red_right} {green_up}"
+            );
+        } else {
+            assert!(
+                red_right == 0 && green_right > 10,
+                "{view}: {red_right} {green_right}"
+            );
+        }
+    }
+}

@@ -402,3 +402,29 @@ fn png_preview_through_tone_mapping_operators() {
         "refused before rendering"
     );
 }
+
+/// `render --help` shows every default a user relies on (image size, samples, method, blend,
+/// camera and the view convention).
+#[test]
+fn help_shows_the_defaults() {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(["render", "--help"])
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&o.stdout);
+    for want in [
+        "[default: 512]",
+        "[default: 16; 1 for the marcher",
+        "[default: mdwt-1dda]",
+        "[default: density]",
+        "[default: perspective]",
+        "[default: 30]",
+        "[default: z]",
+        "[default: 0]",
+        "[default: 1]",
+        "[default: f32]",
+        "observer on the +z side",
+    ] {
+        assert!(help.contains(want), "render --help lacks {want:?}");
+    }
+}

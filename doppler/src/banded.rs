@@ -231,7 +231,7 @@ pub(crate) fn integrate(
                 }
             }
         }
-        let (rho, temp) = (s.bb[j], s.temp[j]);
+        let (rho, temp) = (s.bb[j], s.bb_temp[j]);
         if rho > 0.0 && temp > 0.0 {
             let bb = Blackbody::new(temp).map_err(|e| Error::parameter(e.to_string()))?;
             let k = wt * rho * ctx.value_factor(sh);

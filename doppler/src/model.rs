@@ -169,15 +169,16 @@ impl DopplerScene {
         Ok(())
     }
 
-    /// Black-body emission `density * B(lambda, temperature_k)`. Between voxels the
-    /// temperature is the brightness temperature at [`BB_REF_NM`] of the interpolated
+    /// Black-body emission `density * B(lambda, temperature_k)`. Between voxels the black
+    /// body's temperature is the brightness temperature at [`BB_REF_NM`] of the interpolated
     /// emission: `T` such that `rho B(lambda_ref, T) = interp(rho_i B(lambda_ref, T_i))`
     /// with `rho = interp(rho_i)` ([`brightness_temperature`]), so the black-body emission
     /// between voxels is the interpolation of theirs (exactly at `lambda_ref`). Interpolating
     /// `T` itself and then taking the steep `B(T)` makes the emission between two warm
     /// voxels far less than either (a lattice of bright dots at the voxels on thin hot
-    /// shells, the artefact on the Enzo snapshot). Gas colder than about 300 K comes out at
-    /// 0 K (it glows in no visible band and broadens lines by under 1.6 km/s).
+    /// shells, the artefact on the Enzo snapshot). Gas colder than about 300 K glows at 0 K
+    /// (nothing in any visible band either way). Thermal line broadening keeps the
+    /// trilinearly interpolated temperature.
     pub fn set_blackbody(&mut self, density: AnyGrid, temperature_k: AnyGrid) -> Result<()> {
         scalar("black-body density", &density)?;
         scalar("temperature", &temperature_k)?;

@@ -165,7 +165,7 @@ pub(crate) fn bb_row(
     j: usize,
     out: &mut [f64],
 ) -> Result<bool> {
-    let (rho, temp) = (s.bb[j], s.temp[j]);
+    let (rho, temp) = (s.bb[j], s.bb_temp[j]);
     if rho <= 0.0 || temp <= 0.0 {
         out.iter_mut().for_each(|v| *v = 0.0);
         return Ok(false);

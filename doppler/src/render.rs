@@ -256,8 +256,11 @@ pub(crate) struct RaySamples {
     pub rho: Vec<f64>,
     /// Black-body density x factor x BB_UNIT.
     pub bb: Vec<f64>,
-    /// Temperature x factor, K.
+    /// Temperature x factor, K (thermal broadening).
     pub temp: Vec<f64>,
+    /// The black body's temperature x factor, K: the brightness temperature of the
+    /// interpolated emission (see [`DopplerScene::set_blackbody`]).
+    pub bb_temp: Vec<f64>,
     /// Wavelength shift s.
     pub shift: Vec<f64>,
     /// Radial velocity (scaled), m/s.
@@ -352,6 +355,7 @@ impl<'a> Context<'a> {
         if self.scene.blackbody.is_some() {
             out.bb.reserve_exact(n);
             out.temp.reserve_exact(n);
+            out.bb_temp.reserve_exact(n);
         }
         if self.scene.velocity.is_some() {
             out.vel.reserve_exact(n);
@@ -368,13 +372,16 @@ impl<'a> Context<'a> {
                 out.rho
                     .push(f64::from(sp.density.sample_scalar_index(p)).max(0.0));
             }
-            if let (Some((d, _)), Some(rho_t)) = (&self.scene.blackbody, &self.scene.rho_t) {
-                // The brightness temperature of the interpolated emission (see
+            if let (Some((d, temp)), Some(rho_t)) = (&self.scene.blackbody, &self.scene.rho_t) {
+                // Thermal broadening takes the interpolated T; the black body the brightness
+                // temperature of the interpolated emission (see
                 // DopplerScene::set_blackbody), not B of the interpolated T.
                 let rho = f64::from(d.sample_scalar_index(p)).max(0.0);
                 out.bb.push(rho);
+                out.temp
+                    .push(f64::from(temp.sample_scalar_index(p)).max(0.0));
                 let g = f64::from(rho_t.sample_trilinear_index(p)).max(0.0);
-                out.temp.push(if rho > 0.0 {
+                out.bb_temp.push(if rho > 0.0 {
                     super::model::brightness_temperature(g / rho)
                 } else {
                     0.0
@@ -402,6 +409,7 @@ impl<'a> Context<'a> {
             rho,
             bb: Vec::with_capacity(n),
             temp: Vec::with_capacity(n),
+            bb_temp: Vec::with_capacity(n),
             shift: Vec::with_capacity(n),
             v_r: Vec::with_capacity(n),
         };
@@ -409,9 +417,11 @@ impl<'a> Context<'a> {
             if raw.bb.is_empty() {
                 out.bb.push(0.0);
                 out.temp.push(0.0);
+                out.bb_temp.push(0.0);
             } else {
                 out.bb.push(raw.bb[i] * f.blackbody * BB_UNIT);
                 out.temp.push(raw.temp[i] * f.temperature);
+                out.bb_temp.push(raw.bb_temp[i] * f.temperature);
             }
             let v = match raw.vel.get(i) {
                 Some(&v) => v * f.velocity as f32,
@@ -438,6 +448,8 @@ pub(crate) struct RawSamples {
     pub bb: Vec<f64>,
     /// Temperature (>= 0), K; empty without a black body.
     pub temp: Vec<f64>,
+    /// The black body's temperature (>= 0), K; empty without a black body.
+    pub bb_temp: Vec<f64>,
     /// Velocity, m/s, before the velocity factor; empty without a velocity field.
     pub vel: Vec<Vec3>,
     /// The ray's unit direction (the line of sight).

@@ -139,7 +139,7 @@ impl DopplerSession {
         let (lo, hi) = g.world_bounds();
         let diag = (hi - lo + 2.0 * g.spacing).length();
         let steps = (diag / self.prepared.step()).ceil() as usize + 2;
-        let per_step = 4 + 12 + 8 * (self.scene.species.len() + 2);
+        let per_step = 4 + 12 + 8 * (self.scene.species.len() + 3);
         let pixels = self.settings.width as usize * self.settings.height as usize;
         let per_pixel = std::mem::size_of::<RawSamples>() + steps.saturating_mul(per_step);
         pixels.saturating_mul(per_pixel)

@@ -658,7 +658,7 @@ fn render_prepared(
     let f = scene.factors;
     let nsp = scene.species().len();
     let bb = scene.blackbody();
-    let n_channels = nsp + if bb.is_some() { 2 } else { 0 };
+    let n_channels = nsp + if bb.is_some() { 3 } else { 0 };
     // Check the largest buffer before building it.
     ctx.check_storage_size(
         "doppler channels",
@@ -673,9 +673,11 @@ fn render_prepared(
     for sp in scene.species() {
         channels.extend(sp.density.to_f32_vec());
     }
-    if let (Some((d, _)), Some(rho_t)) = (bb, scene.blackbody_rho_t()) {
-        // Density times temperature: the shader's gas-weighted temperature, as the CPU's.
+    if let (Some((d, t)), Some(rho_t)) = (bb, scene.blackbody_rho_t()) {
+        // Density, temperature (thermal broadening) and density x Planck factor (the black
+        // body's temperature, as the CPU's).
         channels.extend(d.to_f32_vec());
+        channels.extend(t.to_f32_vec());
         channels.extend_from_slice(rho_t.data());
     }
     if channels.is_empty() {

@@ -123,6 +123,10 @@ pub struct Args {
     /// parameters: linear, drago, reinhard, reinhard-local, durand, fattal.
     #[arg(long, default_value = "none")]
     pub tonemap: String,
+    /// Draw an orientation triad (world x red, y green, z blue, as the camera sees them) in
+    /// the PNG's bottom-right corner.
+    #[arg(long)]
+    pub triad: bool,
     /// Also write a figure (PNG): the true-colour image with a scale bar and the Doppler
     /// colour key, the velocity-coded panel (H-alpha moment 1, km/s, masked below 1 % of the
     /// emission) with its colour bar, and the picked spectra (--pick; default three pixels
@@ -574,12 +578,12 @@ pub fn run(args: Args) -> Result<()> {
     );
     let png = args.out.with_extension("png");
     let disp = with_stops(&disp, stops, &img);
-    write_png(
-        &png,
-        img.width,
-        img.height,
-        display_rgb8(&disp, op.as_ref(), &img)?,
-    )?;
+    let mut shown = display_rgb8(&disp, op.as_ref(), &img)?;
+    if args.triad {
+        let o = crate::figure::triad_overlay(img.width, img.height, &st.camera)?;
+        crate::figure::apply_overlay(&mut shown, &o);
+    }
+    write_png(&png, img.width, img.height, shown)?;
     crate::output::wrote(&png);
     let mut series = Vec::new();
     for (i, &(x, y)) in args.pick.iter().enumerate() {

@@ -44,30 +44,30 @@ pub struct Args {
     /// position. Needed for a preset on [0, 1] applied to data such as CT values 0-4000.
     #[arg(long, value_name = "data|LO:HI", allow_hyphen_values = true)]
     pub tf_range: Option<String>,
-    /// woodcock | mdwt-ndda | mdwt-1dda | mdwt-summed | marcher.
+    /// woodcock | mdwt-ndda | mdwt-1dda | mdwt-summed | marcher [default: mdwt-1dda].
     #[arg(long)]
     pub method: Option<String>,
-    /// Channel index tracked by --method woodcock.
+    /// Channel index tracked by --method woodcock [default: 0].
     #[arg(long)]
     pub channel: Option<usize>,
     /// density | max | mix | weighted | composite (weighted without --weights: majorant
-    /// weights, every channel peaking at the weakest channel's extinction).
+    /// weights, every channel peaking at the weakest channel's extinction) [default: density].
     #[arg(long)]
     pub blend: Option<String>,
     /// Weights for mix/composite, comma-separated, one per channel (default equal).
     #[arg(long, value_delimiter = ',')]
     pub weights: Option<Vec<f32>>,
-    /// Samples per pixel (the maximum with --noise-target); default 16, 1 for the marcher
-    /// (deterministic but for its jittered start).
+    /// Samples per pixel (the maximum with --noise-target) [default: 16; 1 for the marcher,
+    /// which is deterministic but for its jittered start].
     #[arg(long)]
     pub spp: Option<u32>,
-    /// Seed of the random numbers (same seed, same image, any thread count).
+    /// Seed of the random numbers (same seed, same image, any thread count) [default: 0].
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Image width in pixels.
+    /// Image width in pixels [default: 512].
     #[arg(long)]
     pub width: Option<u32>,
-    /// Image height in pixels.
+    /// Image height in pixels [default: 512].
     #[arg(long)]
     pub height: Option<u32>,
     /// ortho | perspective [default: perspective]. The default view is yt's: the observer on
@@ -81,22 +81,22 @@ pub struct Args {
     /// View preset, eye, target, up and zoom.
     #[command(flatten)]
     pub view: super::view_args::ViewArgs,
-    /// Background colour R,G,B (linear).
+    /// Background colour R,G,B (linear) [default: 0,0,0].
     #[arg(long, value_delimiter = ',')]
     pub background: Option<Vec<f32>>,
-    /// Extinction per unit world length = opacity x this.
+    /// Extinction per unit world length = opacity x this [default: 1].
     #[arg(long)]
     pub density_scale: Option<f32>,
-    /// Macrocell edge in voxels.
+    /// Macrocell edge in voxels [default: 4].
     #[arg(long)]
     pub macrocell: Option<usize>,
-    /// Marcher compositing precision: f32 | f16 | u8.
+    /// Marcher compositing precision: f32 | f16 | u8 [default: f32].
     #[arg(long)]
     pub precision: Option<String>,
     /// Marcher step in world units (default half the smallest spacing).
     #[arg(long)]
     pub step: Option<f32>,
-    /// Global opacity alpha_g applied to every transfer function.
+    /// Global opacity alpha_g applied to every transfer function [default: the TF's own, 1].
     #[arg(long)]
     pub alpha_g: Option<f32>,
     /// Direction towards a directional light X,Y,Z (enables shadows; tracking methods only).
@@ -137,6 +137,10 @@ pub struct Args {
     /// Output OpenEXR file.
     #[arg(long)]
     pub out: PathBuf,
+    /// Draw an orientation triad (world x red, y green, z blue, as the camera sees them) in
+    /// the PNG preview's bottom-right corner.
+    #[arg(long)]
+    pub triad: bool,
     /// Also write a PNG preview (exposure, clamp, sRGB; or a tone-mapping operator).
     #[arg(long)]
     pub png: Option<PathBuf>,
@@ -335,6 +339,7 @@ pub fn run(args: Args) -> Result<()> {
 fn run_inner(args: &Args) -> Result<()> {
     let f = merge(args)?;
     let (scene, integrator, settings) = f.build()?;
+    let settings_camera = settings.camera;
     if f.tf_range.is_none() {
         warn_tf_domains(&scene);
     }
@@ -450,7 +455,16 @@ fn run_inner(args: &Args) -> Result<()> {
         &format!("{} spp{noise}, {seconds:.2} s{on}", acc.samples()),
     );
     if let Some(png) = &args.png {
-        write_png_preview(&img, png, &args.tonemap, args.exposure)?;
+        let triad = if args.triad {
+            Some(crate::figure::triad_overlay(
+                img.width(),
+                img.height(),
+                &settings_camera,
+            )?)
+        } else {
+            None
+        };
+        write_png_preview(&img, png, &args.tonemap, args.exposure, triad.as_deref())?;
         crate::output::wrote(png);
     }
     Ok(())
@@ -520,6 +534,7 @@ fn write_png_preview(
     png: &Path,
     tonemap: &str,
     exposure: f32,
+    overlay: Option<&[u8]>,
 ) -> Result<()> {
     use blueshift_tonemap::{
         DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
@@ -561,6 +576,20 @@ fn write_png_preview(
             let p = rgb.get_pixel(x, y).0;
             image::Rgb(p.map(|v| (v * gain).clamp(0.0, 1.0)))
         }),
+    };
+    let display = match overlay {
+        None => display,
+        Some(o) => {
+            // The overlay's sRGB-encoded colours, decoded so the PNG writer encodes them back.
+            let mut d = display;
+            for (p, c) in d.pixels_mut().zip(o.chunks_exact(3)) {
+                if c.iter().any(|&v| v > 0) {
+                    p.0 = [0, 1, 2]
+                        .map(|k| blueshift_spectrum::srgb_decode(f64::from(c[k]) / 255.0) as f32);
+                }
+            }
+            d
+        }
     };
     blueshift_tonemap::io::write_png(png, &display, blueshift_tonemap::io::PngDepth::Eight)
         .with_context(|| format!("cannot write {}", png.display()))

@@ -105,7 +105,8 @@ struct PixelRay {
 }
 
 @group(0) @binding(0) var<storage, read> rays: array<PixelRay>;
-// Scalar channels, nvox each: species densities 0..nsp, then black-body density, density x temperature.
+// Scalar channels, nvox each: species densities 0..nsp, then black-body density,
+// temperature, density x Planck factor (gas_temperature).
 @group(0) @binding(1) var<storage, read> channels: array<f32>;
 @group(0) @binding(2) var<storage, read> velocity: array<f32>;
 // CMF samples (3 per wavelength, cmf_n of them), then the black-body grid and its hat XYZs,
@@ -235,12 +236,13 @@ fn value_factor(s: fw) -> fw {
 }
 
 // Planck's law on the host's constants, in BB_UNIT x W sr^-1 m^-2 nm^-1 (l in nm).
-// The temperature at a sample: the brightness temperature at 700 nm of the interpolated
-// emission (channel nsp + 1 holds rho / (exp(c2 / (700 T)) - 1) per voxel; the CPU's
-// RawSamples do the same, see blueshift_doppler::DopplerScene::set_blackbody).
+// The black body's temperature at a sample: the brightness temperature at 700 nm of the
+// interpolated emission (channel nsp + 2 holds rho / (exp(c2 / (700 T)) - 1) per voxel; the
+// CPU's RawSamples do the same, see blueshift_doppler::DopplerScene::set_blackbody).
+// Thermal broadening keeps the interpolated temperature (channel nsp + 1).
 fn gas_temperature(c: Corner) -> fw {
     let rho = max(sample_channel(c, P.nsp), 0.0);
-    let g = max(sample_channel(c, P.nsp + 1u), 0.0);
+    let g = max(sample_channel(c, P.nsp + 2u), 0.0);
     if (rho > 0.0 && g > rho * 1e-30) {
         return 1.4387768775e7 / (700.0 * ln_fw(1.0 + rho / g));
     }
@@ -492,8 +494,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (!(s_b > 0.0)) { flag = 1.0; s_b = 1.0; }
         if (P.has_bb == 1u) {
             let rho = max(sample_channel(c, P.nsp), 0.0) * PF.bb_factor;
-            let temp = gas_temperature(c) * PF.temp_factor;
-            bb_b = bb_xyz(rho, temp, s_b);
+            let temp = max(sample_channel(c, P.nsp + 1u), 0.0) * PF.temp_factor;
+            bb_b = bb_xyz(rho, gas_temperature(c) * PF.temp_factor, s_b);
             temp_b = temp;
         }
         if (ii > 0u) {
@@ -747,7 +749,8 @@ struct Samp {
     t: f32,         // path position (f32, as the CPU's samples)
     s: fw,
     bbr: fw,       // black-body density x factor x BB_UNIT (0: none)
-    temp: fw,      // temperature x factor
+    temp: fw,      // temperature x factor (thermal broadening)
+    btemp: fw,     // the black body's temperature x factor (see gas_temperature)
     bbx: vec3<fw>, // XYZ of the sample's black-body row (hat weights)
     bad: bool,      // the shift was invalid
 }
@@ -790,21 +793,23 @@ fn sample_at(r: PixelRay, t: f32, far: bool) -> Samp {
     o.s = s;
     o.bbr = 0.0;
     o.temp = 0.0;
+    o.btemp = 0.0;
     o.bbx = vec3<fw>(0.0);
     if (P.has_bb == 1u) {
         o.bbr = max(sample_channel(c, P.nsp), 0.0) * PF.bb_factor;
-        o.temp = gas_temperature(c) * PF.temp_factor;
-        o.bbx = bb_xyz(o.bbr, o.temp, s);
+        o.temp = max(sample_channel(c, P.nsp + 1u), 0.0) * PF.temp_factor;
+        o.btemp = gas_temperature(c) * PF.temp_factor;
+        o.bbx = bb_xyz(o.bbr, o.btemp, s);
     }
     return o;
 }
 
-fn has_bb_row(a: Samp) -> bool { return a.bbr > 0.0 && a.temp > 0.0; }
+fn has_bb_row(a: Samp) -> bool { return a.bbr > 0.0 && a.btemp > 0.0; }
 
 // One sample's black-body value on grid point i (the CPU's `bb_row`).
 fn bb_value(a: Samp, i: u32) -> fw {
     if (!has_bb_row(a)) { return 0.0; }
-    return value_factor(a.s) * a.bbr * planck(tables[P.off_lambda + i] / a.s, a.temp);
+    return value_factor(a.s) * a.bbr * planck(tables[P.off_lambda + i] / a.s, a.btemp);
 }
 
 struct Trap {
@@ -1367,6 +1372,8 @@ fn save_state(xyz: vec3<fw>, taken: vec3<fw>, na: u32, merges: u32, merge_at: u3
     fset(12u, u2w(seg));
     fset(13u, fw(near.t)); fset(14u, near.s); fset(15u, near.bbr); fset(16u, near.temp);
     fset(17u, near.bbx.x); fset(18u, near.bbx.y); fset(19u, near.bbx.z);
+    // Slot 28: after the species (20 + MAX_SPECIES), before the pieces (4 ST_PIECES).
+    fset(28u, near.btemp);
     for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; fset(20u + m, rho_n[m]); }
 }
 
@@ -1422,6 +1429,7 @@ fn main_absorb(@builtin(global_invocation_id) gid: vec3<u32>) {
         near.bbr = fget(15u);
         near.temp = fget(16u);
         near.bbx = vec3<fw>(fget(17u), fget(18u), fget(19u));
+        near.btemp = fget(28u);
         near.bad = false;
         for (var m = 0u; m < MAX_SPECIES; m++) { iters += 1u; rho_n[m] = fget(20u + m); }
     }
