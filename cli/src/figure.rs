@@ -466,42 +466,6 @@ pub fn velocity_panel(map: &[Option<f32>], vmax_kms: f64) -> (Vec<u8>, Strip) {
     )
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn ticks_are_round_and_labels_readable() {
-        let (t, s) = nice_ticks(0.0, 3.7, 6);
-        assert_eq!(s, 1.0);
-        assert_eq!(t, vec![0.0, 1.0, 2.0, 3.0]);
-        let (_, s) = nice_ticks(0.0, 3.7, 8);
-        assert_eq!(s, 0.5);
-        assert_eq!(tick_label(3.5, s), "3.5");
-        assert_eq!(tick_label(0.0, s), "0");
-        assert_eq!(tick_label(450.0, 50.0), "450");
-        assert_eq!(tick_label(0.004, 0.002), "0.004");
-        let (t, s) = nice_ticks(-300.0, 300.0, 4);
-        assert_eq!(s, 200.0);
-        assert_eq!(t, vec![-200.0, 0.0, 200.0]);
-        assert!(tick_label(2.5e-7, 1e-7).contains('e'));
-        assert_eq!(axis_label(3.5), "3.5");
-        assert_eq!(axis_label(2.0), "2");
-        assert_eq!(axis_label(0.25), "0.25");
-        assert_eq!(axis_label(656.3), "656.3");
-        assert_eq!(axis_label(2.5e-4), "2.5e-4");
-        assert_eq!(axis_label(1e-5), "1e-5");
-    }
-
-    #[test]
-    fn the_velocity_map_is_blue_white_red() {
-        let [r0, _, b0] = diverging(0.0);
-        let [r1, _, b1] = diverging(1.0);
-        assert!(b0 > r0 && r1 > b1);
-        assert_eq!(diverging(0.5), [247, 247, 247]);
-    }
-}
-
 /// An orientation triad for an image of a camera: world x (red), y (green) and z (blue)
 /// drawn from a corner as the camera projects them (`right`, `up` of its basis), labelled;
 /// an axis along the view shows as a short stub. Returns an RGB8 overlay, black where
@@ -551,5 +515,41 @@ pub fn apply_overlay(rgb: &mut [u8], overlay: &[u8]) {
         if o.iter().any(|&c| c > 0) {
             p.copy_from_slice(o);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ticks_are_round_and_labels_readable() {
+        let (t, s) = nice_ticks(0.0, 3.7, 6);
+        assert_eq!(s, 1.0);
+        assert_eq!(t, vec![0.0, 1.0, 2.0, 3.0]);
+        let (_, s) = nice_ticks(0.0, 3.7, 8);
+        assert_eq!(s, 0.5);
+        assert_eq!(tick_label(3.5, s), "3.5");
+        assert_eq!(tick_label(0.0, s), "0");
+        assert_eq!(tick_label(450.0, 50.0), "450");
+        assert_eq!(tick_label(0.004, 0.002), "0.004");
+        let (t, s) = nice_ticks(-300.0, 300.0, 4);
+        assert_eq!(s, 200.0);
+        assert_eq!(t, vec![-200.0, 0.0, 200.0]);
+        assert!(tick_label(2.5e-7, 1e-7).contains('e'));
+        assert_eq!(axis_label(3.5), "3.5");
+        assert_eq!(axis_label(2.0), "2");
+        assert_eq!(axis_label(0.25), "0.25");
+        assert_eq!(axis_label(656.3), "656.3");
+        assert_eq!(axis_label(2.5e-4), "2.5e-4");
+        assert_eq!(axis_label(1e-5), "1e-5");
+    }
+
+    #[test]
+    fn the_velocity_map_is_blue_white_red() {
+        let [r0, _, b0] = diverging(0.0);
+        let [r1, _, b1] = diverging(1.0);
+        assert!(b0 > r0 && r1 > b1);
+        assert_eq!(diverging(0.5), [247, 247, 247]);
     }
 }

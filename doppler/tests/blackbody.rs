@@ -4,8 +4,7 @@
 //! of dots. Truth: Planck's law at 700 nm.
 
 use blueshift_doppler::{
-    BB_REF_NM, DopplerScene, DopplerSettings, brightness_temperature, pixel_spectrum,
-    planck_factor,
+    BB_REF_NM, DopplerScene, DopplerSettings, brightness_temperature, pixel_spectrum, planck_factor,
 };
 use blueshift_spectrum::planck;
 use blueshift_volume::{AnyGrid, Geometry, Grid};
@@ -19,7 +18,8 @@ fn emission_between_a_hot_and_a_cold_voxel_is_their_interpolation() {
         spacing: Vec3::ONE,
     };
     let (hot, cold) = (8000.0f32, 10.0f32);
-    let grid = |f: fn(usize) -> f32| AnyGrid::F32(Grid::from_fn(geom, move |x, _, _| f(x)).unwrap());
+    let grid =
+        |f: fn(usize) -> f32| AnyGrid::F32(Grid::from_fn(geom, move |x, _, _| f(x)).unwrap());
     let mut scene = DopplerScene::new(geom).unwrap();
     scene
         .set_blackbody(grid(|_| 1.0), grid(|x| if x == 0 { 8000.0 } else { 10.0 }))

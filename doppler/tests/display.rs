@@ -134,7 +134,7 @@ fn the_demo_has_no_clipped_saturated_pixels_and_keeps_hue() {
             let dh = dh.min(std::f64::consts::TAU - dh);
             // 8-bit rounding near the white point moves hue angles most; skip the greys.
             let shown = xy(srgb_to_xyz(rgb));
-            let purity = ((shown[0] - D65_XY[0]).powi(2) + (shown[1] - D65_XY[1]).powi(2)).sqrt();
+            let purity = (shown[0] - D65_XY[0]).hypot(shown[1] - D65_XY[1]);
             if purity > 0.03 {
                 assert!(dh < 0.08, "pixel {i}: hue moved {dh} rad ({p:?})");
             }
