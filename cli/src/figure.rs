@@ -280,14 +280,14 @@ pub fn write_figure(path: &Path, fig: &Figure) -> Result<()> {
     register_font();
     let (w, h) = fig.size;
     let np = fig.panels.len().max(1) as u32;
-    let scale = (420 / w.max(h)).clamp(1, 6);
+    let scale = ((420.0 / f64::from(w.max(h).max(1))).round() as u32).clamp(1, 6);
     let (sw, sh) = (w * scale, h * scale);
     let gap = 24;
     let left = 20;
     let width = (left * 2 + np * sw + (np - 1) * gap).max(900);
     let top = 34;
     let strip_h = if fig.strips.iter().any(Option::is_some) {
-        62
+        66
     } else {
         0
     };
@@ -375,7 +375,15 @@ pub fn write_figure(path: &Path, fig: &Figure) -> Result<()> {
                 let l = tick_label(t, step);
                 text(&l, x - 4 * l.len() as i32, y0 + 21, 13, &BLACK)?;
             }
-            text(&s.label, x0 as i32, y0 + 38, 13, &BLACK)?;
+            // One line when it fits the panel (about 7 pixels a character), else two.
+            let fits = s.label.len() * 7 <= sw as usize;
+            match s.label.split_once(": ").filter(|_| !fits) {
+                Some((a, b)) => {
+                    text(a, x0 as i32, y0 + 34, 13, &BLACK)?;
+                    text(b, x0 as i32, y0 + 48, 13, &BLACK)?;
+                }
+                None => text(&s.label, x0 as i32, y0 + 38, 13, &BLACK)?,
+            }
         }
         if !fig.picks.is_empty() {
             let (_, plot) = root.split_vertically(plot_y);
@@ -461,7 +469,7 @@ pub fn velocity_panel(map: &[Option<f32>], vmax_kms: f64) -> (Vec<u8>, Strip) {
         Strip {
             colours,
             range: (-vmax_kms, vmax_kms),
-            label: "line-of-sight velocity (km/s, + receding), H-alpha moment 1".into(),
+            label: "H-alpha moment 1: line-of-sight velocity (km/s, + receding)".into(),
         },
     )
 }

@@ -170,7 +170,7 @@ fn demo_figure_has_images_marks_and_spectra_under_them() {
     // Layout: 900 wide; three panels (Doppler on, off, velocity) of the 32-pixel images shown
     // 6x (192 pixels) from y = 34 at x = 20, 236, 452, the keys under them, the plot below.
     assert_eq!(fig.width(), 900);
-    let (top, bottom) = (34, 34 + 192 + 62 + 14);
+    let (top, bottom) = (34, 34 + 192 + 66 + 14);
     assert_eq!(fig.height(), bottom + 400);
     // Both true-colour panels hold the rendered galaxy: the side-by-side PNG's pixels, enlarged.
     let sbs = image::open(demo.join("side_by_side.png"))
