@@ -4,7 +4,8 @@
 # and without absorption, cubes, tone mapping, relativity, spectrum, LUT, demo) into OUTDIR
 # and prints the sha256 of every output. A refactoring that must not change behaviour
 # compares this list before and after (`benches/reference/golden-sha256.txt` is the list of
-# the engine refactoring, issue 18). Needs ../shared/data beside the repository.
+# the engine refactoring, issue 18, re-recorded after issue 19 changed the orientation,
+# the display mapping and the figures on purpose). Needs ../shared/data beside the repository.
 set -u
 ROOT="$(cd "$(dirname "$0")/../.." && pwd)"
 B=$(realpath "$1"); O=$2; rm -rf "$O"; mkdir -p "$O"; cd "$O"
