@@ -66,6 +66,13 @@ pub struct PseudocolourParams {
     pub range: Option<(f32, f32)>,
     /// Whether to append a colour bar with labelled decades on the right.
     pub colour_bar: bool,
+    /// The quantity the bar shows, written above it (default `luminance`).
+    #[cfg_attr(feature = "serde", serde(default = "default_label"))]
+    pub label: String,
+}
+
+fn default_label() -> String {
+    "luminance".to_owned()
 }
 
 impl Default for PseudocolourParams {
@@ -74,6 +81,7 @@ impl Default for PseudocolourParams {
             palette: Palette::Rainbow,
             range: None,
             colour_bar: true,
+            label: default_label(),
         }
     }
 }
@@ -117,14 +125,26 @@ pub fn pseudocolour(img: &Rgb32FImage, params: &PseudocolourParams) -> Result<Rg
         }
     }
     if params.colour_bar {
-        draw_bar(&mut out, w, h, llo, lhi, params.palette);
+        draw_bar(&mut out, w, h, llo, lhi, params.palette, &params.label);
     }
     Ok(out)
 }
 
-fn draw_bar(out: &mut RgbImage, x0: u32, h: u32, llo: f32, lhi: f32, palette: Palette) {
+fn draw_bar(
+    out: &mut RgbImage,
+    x0: u32,
+    h: u32,
+    llo: f32,
+    lhi: f32,
+    palette: Palette,
+    label: &str,
+) {
+    let px = (h as f32 / 20.0).clamp(8.0, 14.0);
     let margin = 8u32.min(h / 4);
-    let (top, bottom) = (margin, h.saturating_sub(margin).max(margin + 1));
+    // Room for the quantity's name above the bar.
+    let title_h = (px * 1.4).ceil() as u32 + 2;
+    let top = (margin + title_h).min(h / 3);
+    let bottom = h.saturating_sub(margin).max(top + 1);
     let (bx0, bx1) = (x0 + 8, x0 + 28);
     let span = (bottom - top).max(1) as f32;
     for y in top..bottom {
@@ -135,8 +155,7 @@ fn draw_bar(out: &mut RgbImage, x0: u32, h: u32, llo: f32, lhi: f32, palette: Pa
         }
     }
     let font = FontRef::try_from_slice(FONT).expect("bundled font parses");
-    let px = (h as f32 / 20.0).clamp(8.0, 14.0);
-    let scaled = font.as_scaled(PxScale::from(px));
+    draw_text(out, &font, label, (x0 + 6) as f32, top as f32 - 4.0, px);
     // Ticks at integer decades; if the range spans less than one decade, at its ends.
     let mut ticks: Vec<f32> = (llo.ceil() as i32..=lhi.floor() as i32)
         .map(|e| e as f32)
@@ -161,27 +180,31 @@ fn draw_bar(out: &mut RgbImage, x0: u32, h: u32, llo: f32, lhi: f32, palette: Pa
         } else {
             format!("{:.2e}", 10f32.powf(e))
         };
-        let mut caret = (bx1 + 8) as f32;
-        let baseline = y + px * 0.35;
-        for ch in label.chars() {
-            let gid = font.glyph_id(ch);
-            let glyph =
-                gid.with_scale_and_position(PxScale::from(px), ab_glyph::point(caret, baseline));
-            caret += scaled.h_advance(gid);
-            if let Some(outline) = font.outline_glyph(glyph) {
-                let b = outline.px_bounds();
-                outline.draw(|gx, gy, cov| {
-                    let xx = b.min.x as i64 + i64::from(gx);
-                    let yy = b.min.y as i64 + i64::from(gy);
-                    if xx >= 0 && yy >= 0 && (xx as u32) < out.width() && (yy as u32) < out.height()
-                    {
-                        let p = out.get_pixel_mut(xx as u32, yy as u32);
-                        let v = (255.0 * (1.0 - cov.clamp(0.0, 1.0))) as u8;
-                        let v = v.min(p[0]);
-                        *p = Rgb([v, v, v]);
-                    }
-                });
-            }
+        draw_text(out, &font, &label, (bx1 + 8) as f32, y + px * 0.35, px);
+    }
+}
+
+/// Draws `text` in black from `(x, baseline)` at `px` pixels (darkening only).
+fn draw_text(out: &mut RgbImage, font: &FontRef<'_>, text: &str, x: f32, baseline: f32, px: f32) {
+    let scaled = font.as_scaled(PxScale::from(px));
+    let mut caret = x;
+    for ch in text.chars() {
+        let gid = font.glyph_id(ch);
+        let glyph =
+            gid.with_scale_and_position(PxScale::from(px), ab_glyph::point(caret, baseline));
+        caret += scaled.h_advance(gid);
+        if let Some(outline) = font.outline_glyph(glyph) {
+            let b = outline.px_bounds();
+            outline.draw(|gx, gy, cov| {
+                let xx = b.min.x as i64 + i64::from(gx);
+                let yy = b.min.y as i64 + i64::from(gy);
+                if xx >= 0 && yy >= 0 && (xx as u32) < out.width() && (yy as u32) < out.height() {
+                    let p = out.get_pixel_mut(xx as u32, yy as u32);
+                    let v = (255.0 * (1.0 - cov.clamp(0.0, 1.0))) as u8;
+                    let v = v.min(p[0]);
+                    *p = Rgb([v, v, v]);
+                }
+            });
         }
     }
 }

@@ -587,3 +587,22 @@ fn clean_image_matches_sanitize_and_dynamic_range_and_apply() {
         );
     }
 }
+
+/// The colour bar names its quantity: text above the bar (the old bar had only decades).
+#[test]
+fn pseudocolour_bar_names_its_quantity() {
+    let img = Rgb32FImage::from_fn(64, 200, |x, _| {
+        let v = 10f32.powf(x as f32 / 63.0 * 3.0);
+        Rgb([v, v, v])
+    });
+    let pic = pseudocolour(&img, &PseudocolourParams::default()).unwrap();
+    // The bar starts below the title line; above it, in the bar's column, dark glyph pixels.
+    let mut dark = 0;
+    for y in 0..20 {
+        for x in 64..pic.width() {
+            dark += usize::from(pic.get_pixel(x, y).0[0] < 100);
+        }
+    }
+    assert!(dark > 20, "no label above the bar ({dark} dark pixels)");
+    assert_eq!(PseudocolourParams::default().label, "luminance");
+}
