@@ -153,3 +153,60 @@ fn the_demo_has_no_clipped_saturated_pixels_and_keeps_hue() {
     // in luminance terms (not every channel at 255).
     assert!(rgb8.chunks_exact(3).all(|p| p != [255, 255, 255]));
 }
+
+/// The Doppler colour key of one 1 nm H-alpha box line: at each line-of-sight velocity its
+/// chromaticity is that of the CIE 1931 functions averaged over the box shifted to
+/// `656.28 (1 + v / c)` (classical Doppler, receding positive); with the velocity factor 0
+/// every velocity gives the rest colour.
+#[test]
+fn the_colour_key_is_the_shifted_line_colour() {
+    use blueshift_doppler::{Species, doppler_colour_key};
+    use blueshift_spectrum::EmissionLine;
+    use blueshift_volume::{AnyGrid, Geometry, Grid};
+    let geom = Geometry {
+        dims: [4, 4, 4],
+        origin: glam::Vec3::ZERO,
+        spacing: glam::Vec3::ONE,
+    };
+    let mut scene = DopplerScene::new(geom).unwrap();
+    let line = EmissionLine {
+        centre_nm: 656.28,
+        strength: 1.0,
+    };
+    scene
+        .add_species(Species {
+            name: "H-alpha".into(),
+            density: AnyGrid::F32(Grid::from_fn(geom, |x, _, _| 0.5 + x as f32).unwrap()),
+            emission_lines: vec![line],
+            absorption_lines: vec![],
+        })
+        .unwrap();
+    let st = DopplerSettings::default_for(&scene, 8, 8);
+    let c = 299_792_458.0;
+    let cmf = Cmf::cie1931_2deg();
+    let vs = [-2.0e7, -5.0e6, 0.0, 5.0e6, 1.0e7];
+    let key = doppler_colour_key(&scene, &st, &vs).unwrap();
+    for (v, xyz) in vs.iter().zip(&key) {
+        let centre = 656.28 * (1.0 + v / c);
+        let mut bar = [0.0f64; 3];
+        for i in 0..1000 {
+            let l = centre - 0.5 + (f64::from(i) + 0.5) / 1000.0;
+            let e = cmf.eval(l);
+            for k in 0..3 {
+                bar[k] += e[k];
+            }
+        }
+        let (got, want) = (xy(*xyz), xy(bar));
+        assert!(
+            (got[0] - want[0]).abs() < 2e-3 && (got[1] - want[1]).abs() < 2e-3,
+            "v {v}: key xy {got:?}, shifted line {want:?}"
+        );
+    }
+    let mut still = scene.clone();
+    still.factors.velocity = 0.0;
+    let key0 = doppler_colour_key(&still, &st, &vs).unwrap();
+    for x in &key0 {
+        assert_eq!(x, &key0[2]);
+    }
+    assert!(doppler_colour_key(&scene, &st, &[f64::NAN]).is_err());
+}
