@@ -91,7 +91,7 @@ pub struct Args {
     pub inclination: f32,
     /// Vertical field of view, degrees: a perspective camera framing the view (default:
     /// orthographic; spectral cubes need orthographic).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub fov: Option<f32>,
     /// View preset, eye, target, up and zoom.
     #[command(flatten)]

@@ -76,7 +76,7 @@ pub struct Args {
     pub camera: Option<String>,
     /// Vertical field of view of the perspective camera, degrees; the view is framed for it
     /// [default: 30].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub fov: Option<f32>,
     /// View preset, eye, target, up and zoom.
     #[command(flatten)]

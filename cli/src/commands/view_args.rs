@@ -23,7 +23,7 @@ pub struct ViewArgs {
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub up: Option<Vec<f32>>,
     /// Magnification about the view centre [default: 1].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pub zoom: Option<f32>,
 }
 
