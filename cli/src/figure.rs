@@ -329,17 +329,21 @@ pub fn write_figure(path: &Path, fig: &Figure) -> Result<()> {
             for &x0 in &x0s {
                 let (bx, by) = (x0 as i32 + 12, (top + sh) as i32 - 16);
                 root.draw(&Rectangle::new(
+                    [(bx - 1, by - 1), (bx + px + 1, by + 5)],
+                    BLACK.filled(),
+                ))
+                .map_err(err)?;
+                root.draw(&Rectangle::new(
                     [(bx, by), (bx + px, by + 4)],
                     WHITE.filled(),
                 ))
                 .map_err(err)?;
-                text(
-                    &format!("{} {unit}", tick_label(len, step)),
-                    bx,
-                    by - 18,
-                    14,
-                    &WHITE,
-                )?;
+                let label = format!("{} {unit}", tick_label(len, step));
+                // A black outline around white text: readable on any panel.
+                for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1), (1, 1), (-1, -1)] {
+                    text(&label, bx + dx, by - 18 + dy, 14, &BLACK)?;
+                }
+                text(&label, bx, by - 18, 14, &WHITE)?;
             }
         }
         for (k, p) in fig.picks.iter().enumerate() {

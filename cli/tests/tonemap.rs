@@ -281,3 +281,45 @@ fn durand_past_the_loop_limit_is_refused_on_gpu_and_done_on_the_cpu_by_auto() {
     assert!(aerr.contains("--device auto"), "{aerr}");
     assert_eq!(std::fs::read(&cpu).unwrap(), std::fs::read(&auto).unwrap());
 }
+
+/// `--exposure` is stops for every operator: the local operators (which normalise their
+/// input's scale away) get it on their display output, so +1 stop brightens Durand's and
+/// Fattal's pictures instead of being ignored.
+#[test]
+fn exposure_stops_brighten_every_operator() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (48usize, 32usize);
+    let mut pfm = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
+    for y in 0..h {
+        for x in 0..w {
+            let v = 10f32.powf(-2.0 + 4.0 * x as f32 / w as f32) * (1.0 + 0.2 * (y % 5) as f32);
+            for c in [v, 0.7 * v, 0.4 * v] {
+                pfm.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+    }
+    let input = dir.path().join("ramp.pfm");
+    std::fs::write(&input, pfm).unwrap();
+    for op in ["durand", "fattal", "reinhard", "reinhard-local"] {
+        let mean = |stops: &str| {
+            let out = dir.path().join(format!("{op}{stops}.png"));
+            let o = std::process::Command::new(env!("CARGO_BIN_EXE_blueshift"))
+                .args([
+                    "tonemap",
+                    input.to_str().unwrap(),
+                    "--op",
+                    op,
+                    "--exposure",
+                    stops,
+                ])
+                .args(["--out", out.to_str().unwrap()])
+                .output()
+                .unwrap();
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            let img = image::open(&out).unwrap().to_luma8();
+            img.pixels().map(|p| f64::from(p.0[0])).sum::<f64>() / (w * h) as f64
+        };
+        let (m0, m1) = (mean("0"), mean("1"));
+        assert!(m1 > m0 * 1.1, "{op}: +1 stop gave mean {m1} against {m0}");
+    }
+}

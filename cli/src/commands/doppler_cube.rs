@@ -226,6 +226,9 @@ fn mask_threshold(text: &str, peak: f32) -> Result<f32> {
     if !(v.is_finite() && v >= 0.0) {
         bail!("--mask '{text}': the threshold must be finite and >= 0");
     }
+    if percent && v > 100.0 {
+        bail!("--mask '{text}': a percentage of the peak must be at most 100%");
+    }
     Ok(if percent { v / 100.0 * peak } else { v })
 }
 

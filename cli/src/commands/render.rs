@@ -311,6 +311,12 @@ fn merge(args: &Args) -> Result<RenderSceneFile> {
 
 /// Runs `blueshift render`.
 pub fn run(args: Args) -> Result<()> {
+    if !args.exposure.is_finite() {
+        bail!(
+            "--exposure {}: must be a finite number of stops",
+            args.exposure
+        );
+    }
     // Refuse a bad preview operator before spending time on the render.
     if !TONEMAPS.contains(&args.tonemap.as_str()) {
         bail!(

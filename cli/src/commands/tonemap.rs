@@ -50,7 +50,8 @@ pub struct Args {
     /// PNG bits per channel (8 or 16).
     #[arg(long, default_value_t = 8, value_parser = parse_depth)]
     pub depth: u8,
-    /// Exposure in stops (linear, drago): each stop doubles the display values.
+    /// Exposure in stops: each stop doubles the display values (linear and drago before
+    /// their curve; the other operators on their display output, gamut-mapped).
     #[arg(long)]
     pub exposure: Option<f32>,
     /// Drago bias b (0.85).
@@ -308,7 +309,18 @@ pub fn run(args: Args) -> Result<()> {
         if let Some(why) = &ran.fallback {
             eprintln!("--device auto: {why}; tone-mapping on the CPU");
         }
-        let display = ran.value;
+        let mut display = ran.value;
+        // Operators without an exposure of their own (Reinhard, Reinhard local, Durand,
+        // Fattal normalise their input's scale away): the stops scale the display, brought
+        // back into the display gamut keeping hue and luminance.
+        if let Some(stops) = args.exposure.filter(|s| *s != 0.0)
+            && !matches!(args.op, Op::Linear | Op::Drago)
+        {
+            let gain = 2f32.powf(stops);
+            for p in display.pixels_mut() {
+                p.0 = blueshift_tonemap::plane::fit_to_display(p.0.map(|c| c * gain));
+            }
+        }
         write_display(&args.out, &display, args.depth)?;
         outputs.push(args.out.clone());
     }

@@ -40,7 +40,12 @@ impl ViewArgs {
     pub fn preset(&self) -> Result<Option<View>> {
         self.view
             .as_deref()
-            .map(|v| v.parse::<View>().map_err(|e| anyhow::anyhow!("--{e}")))
+            .map(|v| {
+                v.parse::<View>().map_err(|e| match e {
+                    blueshift_camera::Error::Parameter(m) => anyhow::anyhow!("--{m}"),
+                    other => anyhow::anyhow!("--view: {other}"),
+                })
+            })
             .transpose()
     }
 
