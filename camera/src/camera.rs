@@ -241,6 +241,34 @@ impl Camera {
         Ok(camera)
     }
 
+    /// The camera with `eye`, `target` and `up` replaced where given. Without `up`, a view
+    /// that has become parallel to the current up takes yt's up for its own direction
+    /// ([`up_for`]), so an eye placed on an axis needs no up of its own. Not validated.
+    #[must_use]
+    pub fn with_overrides(
+        mut self,
+        eye: Option<Vec3>,
+        target: Option<Vec3>,
+        up: Option<Vec3>,
+    ) -> Camera {
+        if let Some(e) = eye {
+            self.eye = e;
+        }
+        if let Some(t) = target {
+            self.target = t;
+        }
+        match up {
+            Some(u) => self.up = u,
+            None => {
+                let back = self.eye - self.target;
+                if back.cross(self.up).length_squared() < 1e-12 * back.length_squared().max(1e-30) {
+                    self.up = up_for(back);
+                }
+            }
+        }
+        self
+    }
+
     /// The camera magnified `zoom` times about its view centre: an orthographic view spans
     /// `1 / zoom` of its height, a perspective one narrows its field of view so that
     /// `tan(fov / 2)` shrinks `zoom` times (the eye stays where it is).

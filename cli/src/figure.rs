@@ -2,6 +2,7 @@
 //! Doppler colour key, a velocity-coded (moment-1) panel with its colour bar in km/s, and the
 //! picked spectra with readable ticks.
 
+use crate::plot::PALETTE as RING;
 use std::path::Path;
 
 use anyhow::{Context, Result, anyhow};
@@ -221,15 +222,6 @@ pub struct Figure {
     /// Title of the spectra plot.
     pub spectra_title: String,
 }
-
-const RING: [RGBColor; 6] = [
-    RGBColor(31, 119, 180),
-    RGBColor(214, 39, 40),
-    RGBColor(44, 160, 44),
-    RGBColor(148, 103, 189),
-    RGBColor(255, 127, 14),
-    RGBColor(23, 190, 207),
-];
 
 fn err(e: impl std::fmt::Display) -> anyhow::Error {
     anyhow!("figure: {e}")

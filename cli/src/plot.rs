@@ -24,6 +24,16 @@ pub fn register_font() {
     });
 }
 
+/// The curve and pick-ring colours of every plot and figure, in order.
+pub const PALETTE: [RGBColor; 6] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(148, 103, 189),
+    RGBColor(255, 127, 14),
+    RGBColor(23, 190, 207),
+];
+
 /// One curve of a line plot: points in order (a repeated x draws a vertical jump).
 #[derive(Debug)]
 pub struct Series {

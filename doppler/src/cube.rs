@@ -314,40 +314,23 @@ pub fn los_camera(
         .try_normalize()
         .filter(|n| n.is_finite())
         .ok_or_else(|| Error::parameter(format!("view normal {normal} must be non-zero")))?;
-    let up = blueshift_camera::up_for(n);
-    let f = -n;
-    let right = f.cross(up).normalize();
-    let up = right.cross(f);
     let (mut lo, mut hi) = scene.geometry.world_bounds();
     if cell_domain {
         lo -= 0.5 * scene.geometry.spacing;
         hi += 0.5 * scene.geometry.spacing;
     }
-    let centre = 0.5 * (lo + hi);
-    let (mut ex, mut ey) = (0.0f32, 0.0f32);
-    for i in 0..8 {
-        let c = Vec3::new(
-            if i & 1 == 0 { lo.x } else { hi.x },
-            if i & 2 == 0 { lo.y } else { hi.y },
-            if i & 4 == 0 { lo.z } else { hi.z },
-        ) - centre;
-        ex = ex.max(c.dot(right).abs());
-        ey = ey.max(c.dot(up).abs());
-    }
-    let aspect = if aspect > 0.0 && aspect.is_finite() {
-        aspect
-    } else {
-        1.0
-    };
-    let radius = 0.5 * (hi - lo).length();
-    Ok(Camera {
-        eye: centre + n * (radius + 1.0),
-        target: centre,
-        up,
-        projection: Projection::Orthographic {
-            height: (2.0 * ey).max(2.0 * ex / aspect).max(1e-6),
-        },
-    })
+    let mut camera = Camera::framing(
+        lo,
+        hi,
+        n,
+        blueshift_camera::up_for(n),
+        aspect,
+        true,
+        blueshift_camera::DEFAULT_FOV_Y_DEG,
+    )?;
+    // Rays start a bounding radius plus one from the centre (as the cube tests were recorded).
+    camera.eye = camera.target + n * (0.5 * (hi - lo).length() + 1.0);
+    Ok(camera)
 }
 
 /// Adds the integral of the trapezoid `(lo, hi, h0, h1)` over each channel `[e[k], e[k+1]]`.

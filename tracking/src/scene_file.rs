@@ -537,22 +537,11 @@ impl RenderSceneFile {
         let n = view.normal();
         let fov = self.fov_y_deg.unwrap_or(DEFAULT_FOV_Y_DEG);
         let aspect = width as f32 / height.max(1) as f32;
-        let mut cam = Camera::framing(lo, hi, n, up_for(n), aspect, ortho, fov)?;
-        if let Some(e) = self.eye {
-            cam.eye = Vec3::from(e);
-        }
-        if let Some(t) = self.target {
-            cam.target = Vec3::from(t);
-        }
-        match self.up {
-            Some(u) => cam.up = Vec3::from(u),
-            None => {
-                let back = cam.eye - cam.target;
-                if back.cross(cam.up).length_squared() < 1e-12 * back.length_squared().max(1e-30) {
-                    cam.up = up_for(back);
-                }
-            }
-        }
+        let mut cam = Camera::framing(lo, hi, n, up_for(n), aspect, ortho, fov)?.with_overrides(
+            self.eye.map(Vec3::from),
+            self.target.map(Vec3::from),
+            self.up.map(Vec3::from),
+        );
         if let Some(z) = self.zoom {
             cam = cam.zoomed(z)?;
         }

@@ -1,6 +1,7 @@
 //! `blueshift doppler` and `blueshift demo`: Doppler volume rendering of the synthetic galaxy
 //! and hydrogen shell (EXR + PNG, picked spectra as CSV and plots, step-by-step traces).
 
+use crate::plot::PALETTE as COLOURS;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -473,15 +474,6 @@ fn sibling(out: &Path, suffix: &str) -> PathBuf {
         .unwrap_or("doppler");
     out.with_file_name(format!("{stem}{suffix}"))
 }
-
-const COLOURS: [RGBColor; 6] = [
-    RGBColor(31, 119, 180),
-    RGBColor(214, 39, 40),
-    RGBColor(44, 160, 44),
-    RGBColor(148, 103, 189),
-    RGBColor(255, 127, 14),
-    RGBColor(23, 190, 207),
-];
 
 /// Runs `blueshift doppler`.
 pub fn run(args: Args) -> Result<()> {

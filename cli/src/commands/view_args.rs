@@ -1,7 +1,7 @@
 //! The camera flags `render` and `doppler` share: a view preset, eye / target / up and zoom.
 
 use anyhow::{Result, bail};
-use blueshift_camera::{Camera, View, up_for};
+use blueshift_camera::{Camera, View};
 use glam::Vec3;
 
 /// Camera flags (world units; the volume's box frames the view).
@@ -61,23 +61,13 @@ impl ViewArgs {
 
     /// Applies eye, target, up and zoom over `cam` (an eye without `--up` whose view is
     /// parallel to the current up takes yt's up for its own direction).
-    pub fn apply_over(&self, mut cam: Camera) -> Result<Camera> {
+    pub fn apply_over(&self, cam: Camera) -> Result<Camera> {
         let [eye, target, up] = self.points()?;
-        if let Some(e) = eye {
-            cam.eye = Vec3::from(e);
-        }
-        if let Some(t) = target {
-            cam.target = Vec3::from(t);
-        }
-        match up {
-            Some(u) => cam.up = Vec3::from(u),
-            None => {
-                let back = cam.eye - cam.target;
-                if back.cross(cam.up).length_squared() < 1e-12 * back.length_squared() {
-                    cam.up = up_for(back);
-                }
-            }
-        }
+        let mut cam = cam.with_overrides(
+            eye.map(Vec3::from),
+            target.map(Vec3::from),
+            up.map(Vec3::from),
+        );
         if let Some(z) = self.zoom {
             cam = cam.zoomed(z).map_err(|e| anyhow::anyhow!("--{e}"))?;
         }
