@@ -46,6 +46,9 @@ enum Command {
     Demo(commands::doppler::DemoArgs),
     /// Print the wgpu adapter blueshift would use: backend, features, limits (--json).
     GpuInfo(commands::gpu_info::Args),
+    /// Explore a scene in the browser: a local server streams progressive renders to a page
+    /// with the transfer-function editor, camera, Doppler picks and saving (prints the URL).
+    View(Box<commands::view::Args>),
 }
 
 /// Points `XDG_RUNTIME_DIR` at a fresh private folder (removed when the returned guard drops)
@@ -88,6 +91,7 @@ fn main() -> ExitCode {
         Command::Doppler(args) => commands::doppler::run(*args),
         Command::Demo(args) => commands::doppler::run_demo(args),
         Command::GpuInfo(args) => commands::gpu_info::run(args),
+        Command::View(args) => commands::view::run(*args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

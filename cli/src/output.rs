@@ -190,7 +190,8 @@ pub fn write_exr_f32(
     write_exr_f32_in(path, width, height, channels, data, ExrSpace::LinearSrgb)
 }
 
-/// [`write_exr_f32`] for channels in `space` (XYZ gets its `chromaticities` attribute).
+/// [`write_exr_f32`] for channels in `space` (XYZ gets its `chromaticities` attribute):
+/// blueshift-tonemap's writer, so the viewer's saved frames are the same bytes.
 pub fn write_exr_f32_in(
     path: &Path,
     width: u32,
@@ -199,48 +200,10 @@ pub fn write_exr_f32_in(
     data: &[f32],
     space: ExrSpace,
 ) -> Result<()> {
-    use exr::meta::attribute::Chromaticities;
-    use exr::prelude::{Image, SpecificChannels, Vec2, WritableImage};
-    let size = (width as usize, height as usize);
-    if width == 0 || height == 0 || data.len() != size.0 * size.1 * channels {
-        anyhow::bail!(
-            "cannot write {}: {} values for a {width}x{height} image of {channels} channels",
-            path.display(),
-            data.len()
-        );
-    }
-    let chromaticities = match space {
-        ExrSpace::Xyz => Some(Chromaticities {
-            red: Vec2(1.0, 0.0),
-            green: Vec2(0.0, 1.0),
-            blue: Vec2(0.0, 0.0),
-            white: Vec2(1.0 / 3.0, 1.0 / 3.0),
-        }),
-        ExrSpace::LinearSrgb => None,
+    let space = match space {
+        ExrSpace::Xyz => blueshift_tonemap::io::ExrSpace::Xyz,
+        ExrSpace::LinearSrgb => blueshift_tonemap::io::ExrSpace::LinearSrgb,
     };
-    let at = move |p: Vec2<usize>, c: usize| data[(p.y() * size.0 + p.x()) * channels + c];
-    write_via_temp_path(path, |tmp| {
-        let result = match channels {
-            4 => {
-                let mut img = Image::from_channels(
-                    size,
-                    SpecificChannels::rgba(|p: Vec2<usize>| {
-                        (at(p, 0), at(p, 1), at(p, 2), at(p, 3))
-                    }),
-                );
-                img.attributes.chromaticities = chromaticities;
-                img.write().non_parallel().to_file(tmp)
-            }
-            3 => {
-                let mut img = Image::from_channels(
-                    size,
-                    SpecificChannels::rgb(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2))),
-                );
-                img.attributes.chromaticities = chromaticities;
-                img.write().non_parallel().to_file(tmp)
-            }
-            _ => anyhow::bail!("an EXR of {channels} channels: use 3 or 4"),
-        };
-        result.with_context(|| format!("cannot write {}", path.display()))
-    })
+    blueshift_tonemap::io::write_exr_f32_channels(path, width, height, channels, data, space)
+        .map_err(anyhow::Error::from)
 }

@@ -405,6 +405,83 @@ pub fn write_exr(path: impl AsRef<Path>, img: &Rgb32FImage, precision: ExrPrecis
     })
 }
 
+/// What the three colour channels of an EXR written by [`write_exr_f32_channels`] hold.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ExrSpace {
+    /// CIE 1931 XYZ in the R, G, B channels, with the `chromaticities` attribute for XYZ
+    /// (red (1, 0), green (0, 1), blue (0, 0), white (1/3, 1/3)), so that colour-managed
+    /// readers show the right colours.
+    Xyz,
+    /// Linear sRGB (Rec. 709 primaries, D65): the OpenEXR default, no attribute written.
+    #[default]
+    LinearSrgb,
+}
+
+/// Writes an OpenEXR of 32-bit float channels atomically: `data` holds `width x height`
+/// pixels row by row with `channels` values each (3: RGB, 4: RGBA). The blocks are
+/// compressed one after the other, so the same picture always gives the same bytes (a
+/// parallel writer emits the blocks in the order they finish).
+///
+/// # Errors
+/// [`Error::Io`]; [`Error::Parameter`] for a size that does not match `data` or a channel
+/// count other than 3 or 4.
+pub fn write_exr_f32_channels(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    channels: usize,
+    data: &[f32],
+    space: ExrSpace,
+) -> Result<()> {
+    use exr::meta::attribute::Chromaticities;
+    use exr::prelude::{Image, SpecificChannels, Vec2, WritableImage};
+    let path = path.as_ref();
+    let size = (width as usize, height as usize);
+    if width == 0 || height == 0 || data.len() != size.0 * size.1 * channels {
+        return Err(Error::parameter(format!(
+            "cannot write {}: {} values for a {width}x{height} image of {channels} channels",
+            path.display(),
+            data.len()
+        )));
+    }
+    if channels != 3 && channels != 4 {
+        return Err(Error::parameter(format!(
+            "an EXR of {channels} channels: use 3 or 4"
+        )));
+    }
+    let chromaticities = match space {
+        ExrSpace::Xyz => Some(Chromaticities {
+            red: Vec2(1.0, 0.0),
+            green: Vec2(0.0, 1.0),
+            blue: Vec2(0.0, 0.0),
+            white: Vec2(1.0 / 3.0, 1.0 / 3.0),
+        }),
+        ExrSpace::LinearSrgb => None,
+    };
+    let at = move |p: Vec2<usize>, c: usize| data[(p.y() * size.0 + p.x()) * channels + c];
+    write_atomic(path, |w| {
+        let result = if channels == 4 {
+            let mut img = Image::from_channels(
+                size,
+                SpecificChannels::rgba(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2), at(p, 3))),
+            );
+            img.attributes.chromaticities = chromaticities;
+            img.write().non_parallel().to_buffered(w)
+        } else {
+            let mut img = Image::from_channels(
+                size,
+                SpecificChannels::rgb(|p: Vec2<usize>| (at(p, 0), at(p, 1), at(p, 2))),
+            );
+            img.attributes.chromaticities = chromaticities;
+            img.write().non_parallel().to_buffered(w)
+        };
+        result.map_err(|e| match e {
+            exr::error::Error::Io(io) => Error::io("cannot write", path, io),
+            other => Error::invalid("OpenEXR", other.to_string(), path),
+        })
+    })
+}
+
 /// Writes a Radiance RGBE `.hdr` file (negative and non-finite values become 0).
 ///
 /// # Errors

@@ -210,7 +210,7 @@ fn positive_range(grid: &AnyGrid) -> Option<(f64, f64)> {
 
 /// The value range a transfer function on `axis` is stretched over for `grid` (a constant
 /// grid gets a unit-wide domain).
-fn data_domain(grid: &AnyGrid, axis: DataAxis) -> Option<[f64; 2]> {
+pub fn data_domain(grid: &AnyGrid, axis: DataAxis) -> Option<[f64; 2]> {
     match axis {
         DataAxis::Log => positive_range(grid).map(|(lo, hi)| [lo, hi]),
         _ => grid.finite_range().map(|(lo, hi)| {
@@ -560,6 +560,117 @@ impl RenderSceneFile {
         self.heatmaps.clone().unwrap_or_default()
     }
 
+    /// Sets `scene`'s background, directional light and gradient shading from this file
+    /// (none where the file has none).
+    ///
+    /// # Errors
+    /// [`Error::Field`] for a zero `light.direction`, [`Error::Parameter`] for a bad material.
+    pub fn apply_lighting(&self, scene: &mut Scene) -> Result<()> {
+        scene.background = self.background.unwrap_or_default();
+        scene.light = None;
+        if let Some(l) = &self.light {
+            if Vec3::from(l.direction).try_normalize().is_none() {
+                return Err(Error::field(
+                    "light.direction",
+                    format!("{:?} must be a non-zero finite vector", l.direction),
+                ));
+            }
+            scene.light = Some(DirectionalLight {
+                direction: Vec3::from(l.direction),
+                radiance: l.radiance,
+                ambient: l.ambient,
+            });
+        }
+        scene.shading = None;
+        if self.shading.unwrap_or(false) {
+            let mut materials = Vec::with_capacity(self.channels.len());
+            for (i, c) in self.channels.iter().enumerate() {
+                let m = c
+                    .material
+                    .as_ref()
+                    .map_or_else(Material::default, MaterialSpec::material);
+                m.validate(&format!("channels[{i}].material"))?;
+                materials.push(m);
+            }
+            scene.shading = Some(Shading {
+                materials,
+                shadows: true,
+            });
+        }
+        Ok(())
+    }
+
+    /// The integrator this file names (method, blend and weights, marcher step and
+    /// precision), prepared against `scene` as a check.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for weights or a channel that do not fit the scene.
+    pub fn integrator(&self, scene: &Scene) -> Result<Integrator> {
+        let n = scene.channel_count();
+        let kind = self.blend.unwrap_or_default();
+        let weights = match (kind, &self.weights) {
+            (BlendKind::Weighted, None) => Blend::majorant_weights(scene),
+            (_, w) => w.clone().unwrap_or_else(|| Blend::equal_weights(n)),
+        };
+        let blend = kind.with_weights(weights);
+        let integrator = match self.method() {
+            Method::Woodcock => Integrator::Woodcock {
+                channel: self.woodcock_channel.unwrap_or(0),
+            },
+            Method::Marcher => Integrator::Marcher(RayMarcher {
+                step: self.step,
+                precision: self.precision.unwrap_or(Precision::F32),
+                blend,
+                ..RayMarcher::default()
+            }),
+            Method::MdwtNDda => Integrator::Mdwt {
+                dda: DdaMode::NDda,
+                blend,
+            },
+            Method::MdwtOneDda => Integrator::Mdwt {
+                dda: DdaMode::OneDda,
+                blend,
+            },
+            Method::MdwtSummed => Integrator::Mdwt {
+                dda: DdaMode::Summed,
+                blend,
+            },
+        };
+        integrator.prepared(scene)?;
+        Ok(integrator)
+    }
+
+    /// The render settings this file names for `scene` (size, spp, seed, noise target,
+    /// camera, heat maps, timing protocol), validated.
+    ///
+    /// # Errors
+    /// [`Error::Parameter`] for sizes, spp, the camera or `warmup` without `frames`.
+    pub fn settings(&self, scene: &Scene) -> Result<RenderSettings> {
+        let width = self.width.unwrap_or(512);
+        let height = self.height.unwrap_or(512);
+        let ortho = self.camera.unwrap_or_default() == CameraKind::Ortho;
+        let mut settings = RenderSettings::default_for(scene, width, height, ortho);
+        // The marcher is deterministic but for its jittered start: more samples cost time
+        // for a fraction of a per cent.
+        let default_spp = if self.method() == Method::Marcher {
+            1
+        } else {
+            16
+        };
+        settings.spp = self.spp.unwrap_or(default_spp);
+        settings.seed = self.seed.unwrap_or(0);
+        settings.noise_target = self.noise_target;
+        settings.camera = self.camera_for(scene, width, height, ortho)?;
+        if self.warmup.is_some() && self.frames.is_none() {
+            return Err(Error::parameter("warmup: needs frames (the timed frames)"));
+        }
+        settings.heatmaps = self.heatmaps.as_ref().is_some_and(|h| !h.is_empty());
+        settings.timed_frames = self.frames;
+        settings.warmup = self.warmup.unwrap_or(0);
+        settings.validate()?;
+        Ok(settings)
+    }
+
     /// Loads the channels and transfer functions and builds the scene, the integrator and
     /// the settings, validated ([`RenderSettings::validate`], the integrator against the
     /// scene).
@@ -596,92 +707,11 @@ impl RenderSceneFile {
             }
             triples.push((name, grid, tf));
         }
-        let n = triples.len();
         let k = self.macrocell.unwrap_or(blueshift_volume::DEFAULT_K);
         let mut scene = Scene::new(triples, self.density_scale.unwrap_or(1.0), k)?;
-        if let Some(b) = self.background {
-            scene.background = b;
-        }
-        if let Some(l) = &self.light {
-            if Vec3::from(l.direction).try_normalize().is_none() {
-                return Err(Error::field(
-                    "light.direction",
-                    format!("{:?} must be a non-zero finite vector", l.direction),
-                ));
-            }
-            scene.light = Some(DirectionalLight {
-                direction: Vec3::from(l.direction),
-                radiance: l.radiance,
-                ambient: l.ambient,
-            });
-        }
-        if self.shading.unwrap_or(false) {
-            let mut materials = Vec::with_capacity(n);
-            for (i, c) in self.channels.iter().enumerate() {
-                let m = c
-                    .material
-                    .as_ref()
-                    .map_or_else(Material::default, MaterialSpec::material);
-                m.validate(&format!("channels[{i}].material"))?;
-                materials.push(m);
-            }
-            scene.shading = Some(Shading {
-                materials,
-                shadows: true,
-            });
-        }
-        let kind = self.blend.unwrap_or_default();
-        let weights = match (kind, &self.weights) {
-            (BlendKind::Weighted, None) => Blend::majorant_weights(&scene),
-            (_, w) => w.clone().unwrap_or_else(|| Blend::equal_weights(n)),
-        };
-        let blend = kind.with_weights(weights);
-        let integrator = match self.method() {
-            Method::Woodcock => Integrator::Woodcock {
-                channel: self.woodcock_channel.unwrap_or(0),
-            },
-            Method::Marcher => Integrator::Marcher(RayMarcher {
-                step: self.step,
-                precision: self.precision.unwrap_or(Precision::F32),
-                blend,
-                ..RayMarcher::default()
-            }),
-            Method::MdwtNDda => Integrator::Mdwt {
-                dda: DdaMode::NDda,
-                blend,
-            },
-            Method::MdwtOneDda => Integrator::Mdwt {
-                dda: DdaMode::OneDda,
-                blend,
-            },
-            Method::MdwtSummed => Integrator::Mdwt {
-                dda: DdaMode::Summed,
-                blend,
-            },
-        };
-        let width = self.width.unwrap_or(512);
-        let height = self.height.unwrap_or(512);
-        let ortho = self.camera.unwrap_or_default() == CameraKind::Ortho;
-        let mut settings = RenderSettings::default_for(&scene, width, height, ortho);
-        // The marcher is deterministic but for its jittered start: more samples cost time
-        // for a fraction of a per cent.
-        let default_spp = if self.method() == Method::Marcher {
-            1
-        } else {
-            16
-        };
-        settings.spp = self.spp.unwrap_or(default_spp);
-        settings.seed = self.seed.unwrap_or(0);
-        settings.noise_target = self.noise_target;
-        settings.camera = self.camera_for(&scene, width, height, ortho)?;
-        if self.warmup.is_some() && self.frames.is_none() {
-            return Err(Error::parameter("warmup: needs frames (the timed frames)"));
-        }
-        settings.heatmaps = self.heatmaps.as_ref().is_some_and(|h| !h.is_empty());
-        settings.timed_frames = self.frames;
-        settings.warmup = self.warmup.unwrap_or(0);
-        settings.validate()?;
-        integrator.prepared(&scene)?;
+        self.apply_lighting(&mut scene)?;
+        let integrator = self.integrator(&scene)?;
+        let settings = self.settings(&scene)?;
         Ok((scene, integrator, settings))
     }
 }

@@ -163,7 +163,7 @@ fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
     ))
 }
 
-fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
+pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
     let mut scene = if let Some(path) = &args.scene {
         let file = SceneFile::read(path)?;
         let tokens: Option<Vec<&str>> = args
@@ -249,7 +249,7 @@ fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
 
 /// `--view`, `--fov`, `--eye`, `--target`, `--up` and `--zoom` over the view `build` and the
 /// cube flags chose (`--view` is `--normal` of its axis; one view flag at a time).
-fn apply_camera(args: &Args, scene: &DopplerScene, st: &mut DopplerSettings) -> Result<()> {
+pub(crate) fn apply_camera(args: &Args, scene: &DopplerScene, st: &mut DopplerSettings) -> Result<()> {
     let aspect = st.width as f32 / st.height.max(1) as f32;
     if let Some(view) = args.view.preset()? {
         if args.cube.axis.is_some() || args.cube.normal.is_some() || args.inclination != 0.0 {
@@ -268,7 +268,7 @@ fn apply_camera(args: &Args, scene: &DopplerScene, st: &mut DopplerSettings) -> 
     Ok(())
 }
 
-fn display(args: &Args) -> Result<DisplayOptions> {
+pub(crate) fn display(args: &Args) -> Result<DisplayOptions> {
     let matrix = args.matrix.parse::<ColourMatrix>().map_err(|_| {
         anyhow!(
             "unknown --matrix '{}' ({})",
@@ -294,7 +294,7 @@ fn display(args: &Args) -> Result<DisplayOptions> {
 
 /// `--exposure` in stops (0 without the flag). The multiplier and percentile it took before
 /// are `--exposure-scale` now; those spellings are refused with a pointer there.
-fn exposure_stops(args: &Args) -> Result<f64> {
+pub(crate) fn exposure_stops(args: &Args) -> Result<f64> {
     let Some(e) = args.exposure.as_deref().map(str::trim) else {
         return Ok(0.0);
     };

@@ -12,5 +12,6 @@ pub mod spectrum;
 pub mod synth;
 pub mod tf;
 pub mod tonemap;
+pub mod view;
 pub mod view_args;
 mod volume_common;

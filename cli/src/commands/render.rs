@@ -178,7 +178,7 @@ where
 }
 
 /// The scene: the file (if any) with the flags over it.
-fn merge(args: &Args) -> Result<RenderSceneFile> {
+pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
     let mut f = match &args.scene {
         Some(path) => {
             let text = std::fs::read_to_string(path)

@@ -1,0 +1,83 @@
+//! Display mapping of the HDR frames (the HDR frame stays on the server) and PNG encoding.
+
+use blueshift_tonemap::{
+    DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
+    ReinhardParams,
+};
+use image::{ImageEncoder, Rgb32FImage, RgbImage};
+
+use crate::{Error, Result};
+
+/// The display operators of the tracking view, as `blueshift render --tonemap` names them.
+pub(crate) const TONEMAPS: &[&str] = &[
+    "exposure",
+    "linear",
+    "drago",
+    "reinhard",
+    "reinhard-local",
+    "durand",
+    "fattal",
+];
+
+/// An operator of blueshift-tonemap with its paper's default parameters (`exposure`:
+/// `None`, plain exposure and clamp).
+pub(crate) fn operator(name: &str, exposure_stops: f32) -> Result<Option<Operator>> {
+    Ok(match name {
+        "exposure" => None,
+        "linear" => Some(Operator::Linear(LinearParams {
+            exposure_stops,
+            white: None,
+        })),
+        "drago" => Some(Operator::Drago(DragoParams::default())),
+        "reinhard" => Some(Operator::Reinhard(ReinhardParams::default())),
+        "reinhard-local" => Some(Operator::ReinhardLocal(ReinhardLocalParams::default())),
+        "durand" => Some(Operator::Durand(DurandParams::default())),
+        "fattal" => Some(Operator::Fattal(FattalParams::default())),
+        other => {
+            return Err(Error::invalid(format!(
+                "tonemap '{other}' (one of {})",
+                TONEMAPS.join(", ")
+            )));
+        }
+    })
+}
+
+/// Linear values in [0, 1] to 8-bit sRGB (non-finite: 0).
+pub(crate) fn encode_srgb8(v: f32) -> u8 {
+    let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+    (blueshift_tonemap::io::srgb_encode(v) * 255.0).round() as u8
+}
+
+/// A linear HDR image for display: `op` (or exposure in stops and a clamp), sRGB, 8 bits.
+pub(crate) fn to_rgb8(img: &Rgb32FImage, op: Option<&Operator>, stops: f32) -> Result<RgbImage> {
+    let display = match op {
+        Some(op) => op.apply(img)?,
+        None => {
+            let gain = stops.exp2();
+            Rgb32FImage::from_fn(img.width(), img.height(), |x, y| {
+                image::Rgb(img.get_pixel(x, y).0.map(|v| v * gain))
+            })
+        }
+    };
+    Ok(RgbImage::from_fn(display.width(), display.height(), |x, y| {
+        image::Rgb(display.get_pixel(x, y).0.map(encode_srgb8))
+    }))
+}
+
+/// PNG bytes of an 8-bit RGB image, compressed for speed (frames are re-sent often).
+pub(crate) fn png_bytes(img: &RgbImage) -> Result<Vec<u8>> {
+    let mut out = Vec::with_capacity(img.as_raw().len() / 2 + 1024);
+    image::codecs::png::PngEncoder::new_with_quality(
+        &mut out,
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Sub,
+    )
+    .write_image(
+        img.as_raw(),
+        img.width(),
+        img.height(),
+        image::ExtendedColorType::Rgb8,
+    )
+    .map_err(|e| Error::invalid(format!("cannot encode a PNG frame: {e}")))?;
+    Ok(out)
+}

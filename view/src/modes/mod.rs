@@ -1,0 +1,291 @@
+//! The four things the viewer shows, each over its engine session: tracking scenes
+//! (Woodcock, MDWT, marcher), Doppler scenes, the relativistic observer and HDR images.
+
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value, json};
+
+use crate::protocol::Incoming;
+use crate::worker::{Ctx, Stage};
+use crate::{Error, Result};
+
+mod doppler;
+mod hdr;
+mod relativity;
+mod tracking;
+
+pub use doppler::{DopplerSource, PanelFn};
+pub use hdr::HdrSource;
+pub use relativity::RelativitySource;
+pub use tracking::TrackingSource;
+
+/// What `blueshift view` shows.
+#[derive(Debug)]
+pub enum Source {
+    /// A volume scene rendered by Woodcock / MDWT / the marcher.
+    Tracking(Box<TrackingSource>),
+    /// A Doppler scene.
+    Doppler(Box<DopplerSource>),
+    /// An environment seen by a fast observer.
+    Relativity(Box<RelativitySource>),
+    /// An HDR image to tone-map.
+    Hdr(Box<HdrSource>),
+}
+
+/// One tab's state over its session.
+pub(crate) trait Mode: Send {
+    /// The `info` message.
+    fn info(&self) -> Value;
+    /// Applies an edit or answers a request; returns what must be rendered again.
+    fn handle(&mut self, msg: Incoming, ctx: &Ctx) -> Result<Option<Stage>>;
+    /// Renders (preview and refinement as `stage` says), streaming frames.
+    fn render(&mut self, stage: Stage, ctx: &Ctx) -> Result<()>;
+}
+
+/// A tab's mode over its own copy of the source.
+pub(crate) fn build(source: &Source) -> Result<Box<dyn Mode + '_>> {
+    Ok(match source {
+        Source::Tracking(s) => Box::new(tracking::TrackingMode::new(s)?),
+        Source::Doppler(s) => Box::new(doppler::DopplerMode::new(s)?),
+        Source::Relativity(s) => Box::new(relativity::RelativityMode::new(s)?),
+        Source::Hdr(s) => Box::new(hdr::HdrMode::new(s)?),
+    })
+}
+
+/// The size of a quarter-resolution preview.
+pub(crate) fn preview_size(width: u32, height: u32) -> (u32, u32) {
+    (width.div_ceil(4).max(1), height.div_ceil(4).max(1))
+}
+
+/// A histogram of `n` bins of the finite values of `values` over their range.
+pub(crate) fn histogram(values: impl Iterator<Item = f32> + Clone, n: usize) -> Value {
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for v in values.clone().filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if lo > hi {
+        return json!({ "lo": 0.0, "hi": 1.0, "counts": vec![0u64; n] });
+    }
+    let mut counts = vec![0u64; n];
+    let width = f64::from(hi) - f64::from(lo);
+    for v in values.filter(|v| v.is_finite()) {
+        let f = if width > 0.0 {
+            (f64::from(v) - f64::from(lo)) / width
+        } else {
+            0.0
+        };
+        counts[((f * n as f64) as usize).min(n - 1)] += 1;
+    }
+    json!({ "lo": lo, "hi": hi, "counts": counts })
+}
+
+/// The flux-weighted centroid of a piecewise-linear spectrum over `[a, b]` nm (exact: each
+/// piece's first and zeroth moments in closed form); `None` where it has no flux there.
+#[must_use]
+pub fn centroid(s: &blueshift_spectrum::PiecewiseLinear, a: f64, b: f64) -> Option<f64> {
+    let (mut m0, mut m1) = (0.0, 0.0);
+    for p in s.pieces() {
+        let (l0, l1) = (p.start_nm.max(a), p.end_nm.min(b));
+        if l1 <= l0 {
+            continue;
+        }
+        let (f0, f1) = (p.at(l0), p.at(l1));
+        let d = l1 - l0;
+        m0 += 0.5 * (f0 + f1) * d;
+        // The first moment of the line from (l0, f0) to (l1, f1).
+        m1 += d * (f0 * (2.0 * l0 + l1) + f1 * (l0 + 2.0 * l1)) / 6.0;
+    }
+    (m0 > 0.0).then(|| m1 / m0)
+}
+
+/// A piecewise-linear spectrum as the points of its exact polyline (a jump appears as two
+/// points at one wavelength; gaps drop to zero).
+pub(crate) fn spectrum_points(s: &blueshift_spectrum::PiecewiseLinear) -> (Vec<f64>, Vec<f64>) {
+    let (mut w, mut v) = (Vec::new(), Vec::new());
+    let mut prev_end: Option<f64> = None;
+    for p in s.pieces() {
+        if prev_end != Some(p.start_nm) {
+            if let Some(e) = prev_end {
+                w.push(e);
+                v.push(0.0);
+            }
+            w.push(p.start_nm);
+            v.push(0.0);
+        }
+        w.push(p.start_nm);
+        v.push(p.value_start);
+        w.push(p.end_nm);
+        v.push(p.value_end);
+        prev_end = Some(p.end_nm);
+    }
+    if let Some(e) = prev_end {
+        w.push(e);
+        v.push(0.0);
+    }
+    (w, v)
+}
+
+/// The files of one save: a stem in the save folder, chosen so no existing file is
+/// replaced unless this server wrote it, and no input named on the command line.
+pub(crate) struct SaveSet {
+    pub stem: PathBuf,
+}
+
+impl SaveSet {
+    /// Picks the stem: `name`, or the first free `view-NNN`.
+    pub(crate) fn new(
+        ctx: &Ctx,
+        name: Option<&str>,
+        suffixes: &[&str],
+        inputs: &[PathBuf],
+    ) -> Result<Self> {
+        let written = ctx.written.lock().unwrap_or_else(|e| e.into_inner());
+        let free = |stem: &Path| -> Result<bool> {
+            for s in suffixes {
+                let p = with_suffix(stem, s);
+                if inputs.iter().any(|i| same_file(i, &p)) {
+                    return Err(Error::invalid(format!(
+                        "save: {} is an input of this viewer; choose another name",
+                        p.display()
+                    )));
+                }
+                if p.exists() && !written.contains(&p) {
+                    return Ok(false);
+                }
+            }
+            Ok(true)
+        };
+        let stem = match name {
+            Some(n) => {
+                let stem = ctx.save_dir.join(n);
+                if !free(&stem)? {
+                    return Err(Error::invalid(format!(
+                        "save: files named {n}.* already exist in {} and were not written by this viewer; choose another name",
+                        ctx.save_dir.display()
+                    )));
+                }
+                stem
+            }
+            None => {
+                let mut found = None;
+                for i in 1..10_000 {
+                    let stem = ctx.save_dir.join(format!("view-{i:03}"));
+                    if free(&stem)? {
+                        found = Some(stem);
+                        break;
+                    }
+                }
+                found.ok_or_else(|| Error::invalid("save: no free view-NNN name left"))?
+            }
+        };
+        Ok(Self { stem })
+    }
+
+    /// The path of one file of the set.
+    pub(crate) fn path(&self, suffix: &str) -> PathBuf {
+        with_suffix(&self.stem, suffix)
+    }
+
+    /// Records the files as written by this server (a later save may replace them).
+    pub(crate) fn commit(&self, ctx: &Ctx, files: &[PathBuf]) {
+        let mut written = ctx.written.lock().unwrap_or_else(|e| e.into_inner());
+        written.extend(files.iter().cloned());
+    }
+}
+
+fn with_suffix(stem: &Path, suffix: &str) -> PathBuf {
+    let mut s = stem.as_os_str().to_owned();
+    s.push(suffix);
+    PathBuf::from(s)
+}
+
+/// Whether two paths name the same existing file.
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+/// Writes bytes atomically (a temporary file in the same folder, then a rename).
+pub(crate) fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    blueshift_tonemap::io::write_atomic(path, |w| {
+        std::io::Write::write_all(w, bytes)
+            .map_err(|e| blueshift_tonemap::Error::Io {
+                message: "cannot write".into(),
+                path: path.to_path_buf(),
+                source: e,
+            })
+    })
+    .map_err(Error::from)
+}
+
+/// Writes an 8-bit PNG atomically.
+pub(crate) fn write_png(path: &Path, img: &image::RgbImage) -> Result<()> {
+    blueshift_tonemap::io::write_rgb8_png(path, img).map_err(Error::from)
+}
+
+/// Quotes one argument for a POSIX shell when it needs it.
+pub(crate) fn shell_quote(s: &str) -> String {
+    let plain = !s.is_empty()
+        && s.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b"-_./,:=+@%".contains(&b));
+    if plain {
+        s.to_owned()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
+/// A command line from its arguments.
+pub(crate) fn command_line(args: &[String]) -> String {
+    args.iter()
+        .map(|a| shell_quote(a))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Three f32 as `X,Y,Z` (shortest round-trip spelling).
+pub(crate) fn triple(v: [f32; 3]) -> String {
+    format!("{},{},{}", v[0], v[1], v[2])
+}
+
+/// The `saved` reply.
+pub(crate) fn saved_reply(files: &[PathBuf], command: &str, scene: Option<&Path>) -> Value {
+    json!({
+        "type": "saved",
+        "files": files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "command": command,
+        "scene": scene.map(|p| p.display().to_string()),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use blueshift_spectrum::PiecewiseLinear;
+
+    #[test]
+    fn the_centroid_of_a_triangle_is_its_mean() {
+        // A symmetric triangle 650-660 nm peaking at 655: centroid 655; a right triangle
+        // rising from 0 at 650 to 1 at 660: centroid at 2/3 of the way, 656.667.
+        let tri = PiecewiseLinear::from_samples(&[(650.0, 0.0), (655.0, 1.0), (660.0, 0.0)]).unwrap();
+        assert!((centroid(&tri, 600.0, 700.0).unwrap() - 655.0).abs() < 1e-12);
+        let ramp = PiecewiseLinear::from_samples(&[(650.0, 0.0), (660.0, 1.0)]).unwrap();
+        let c = centroid(&ramp, 600.0, 700.0).unwrap();
+        assert!((c - (650.0 + 20.0 / 3.0)).abs() < 1e-9, "{c}");
+        // A window cutting the ramp at 655: the part 650-655 (a smaller right triangle).
+        let c = centroid(&ramp, 640.0, 655.0).unwrap();
+        assert!((c - (650.0 + 10.0 / 3.0)).abs() < 1e-9, "{c}");
+        assert!(centroid(&ramp, 700.0, 710.0).is_none());
+    }
+
+    #[test]
+    fn shell_quoting_leaves_plain_words_alone() {
+        assert_eq!(shell_quote("--eye"), "--eye");
+        assert_eq!(shell_quote("1.5,-2,3e-5"), "1.5,-2,3e-5");
+        assert_eq!(shell_quote("a b"), "'a b'");
+        assert_eq!(shell_quote("it's"), "'it'\\''s'");
+    }
+}

@@ -1,0 +1,697 @@
+//! Tracking scenes (Woodcock, MDWT N-DDA / 1-DDA / summed, the marcher) over a
+//! [`TrackingSession`] (CPU) or a [`GpuTrackingSession`].
+//!
+//! The state is a [`RenderSceneFile`]: every edit changes the file's fields and the session
+//! is brought to what [`RenderSceneFile::integrator`] and [`RenderSceneFile::settings`]
+//! build from it, so `save` writes a scene file (plus one transfer-function JSON per
+//! channel) from which `blueshift render SCENE.json` makes the same image bit for bit.
+
+use std::path::PathBuf;
+
+use blueshift_camera::{Observer, Progress};
+use blueshift_gpu::DeviceChoice;
+use blueshift_gpu::tracking::GpuTrackingSession;
+use blueshift_tfedit::TransferFunction;
+use blueshift_tracking::{
+    BlendKind, LightSpec, Method, Precision, Progressive, RenderSceneFile,
+    RenderSettings, Scene, TrackingSession,
+};
+use image::Rgb32FImage;
+use serde_json::{Value, json};
+
+use super::{Mode, SaveSet, command_line, histogram, preview_size, saved_reply, write_file};
+use crate::display;
+use crate::protocol::{Incoming, RangeMsg, SettingsMsg};
+use crate::worker::{Ctx, Stage};
+use crate::{Error, Result};
+
+/// A tracking scene for the viewer: the scene file as the CLI merged it from the command
+/// line (its `base` resolves relative paths) and what it built.
+#[derive(Debug)]
+pub struct TrackingSource {
+    /// The merged scene file (channels, method, camera, ...).
+    pub file: RenderSceneFile,
+    /// The scene it built.
+    pub scene: Scene,
+    /// The files named on the command line (never written by a save).
+    pub inputs: Vec<PathBuf>,
+    /// The PNG preview operator of `blueshift render --tonemap`.
+    pub tonemap: String,
+    /// Exposure of the display in stops.
+    pub exposure: f32,
+    /// Where to render.
+    pub device: DeviceChoice,
+}
+
+pub(crate) struct TrackingMode {
+    file: RenderSceneFile,
+    session: TrackingSession,
+    gpu: Option<GpuTrackingSession<'static>>,
+    device: DeviceChoice,
+    inputs: Vec<PathBuf>,
+    tonemap: String,
+    exposure: f32,
+    histograms: Vec<Value>,
+    /// The last full-resolution accumulation and whether it reached its target.
+    last: Option<Progressive>,
+}
+
+impl std::fmt::Debug for TrackingMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TrackingMode").finish_non_exhaustive()
+    }
+}
+
+fn parse<T: std::str::FromStr<Err = blueshift_tracking::Error>>(s: &str) -> Result<T> {
+    Ok(s.parse::<T>()?)
+}
+
+impl TrackingMode {
+    pub(crate) fn new(src: &TrackingSource) -> Result<Self> {
+        let mut file = src.file.clone();
+        // The viewer refines progressively; heat maps and the timing protocol are batch
+        // features of `blueshift render`.
+        file.heatmaps = None;
+        file.frames = None;
+        file.warmup = None;
+        let scene = src.scene.clone();
+        let integrator = file.integrator(&scene)?;
+        let settings = file.settings(&scene)?;
+        let histograms = scene
+            .channels()
+            .iter()
+            .map(|c| {
+                let g = c.grid();
+                let n = g.geometry().voxel_count();
+                histogram((0..n).map(|i| g.scalar_at(i)), 256)
+            })
+            .collect();
+        display::operator(&src.tonemap, src.exposure)?;
+        let mut mode = Self {
+            session: TrackingSession::new(scene, integrator, settings)?,
+            file,
+            gpu: None,
+            device: DeviceChoice::Cpu,
+            inputs: src.inputs.clone(),
+            tonemap: src.tonemap.clone(),
+            exposure: src.exposure,
+            histograms,
+            last: None,
+        };
+        mode.set_device(src.device)?;
+        Ok(mode)
+    }
+
+    fn camera_json(&self) -> Value {
+        let c = self.session.settings().camera;
+        let (projection, fov) = match c.projection {
+            blueshift_camera::Projection::Perspective { fov_y_deg } => ("perspective", fov_y_deg),
+            blueshift_camera::Projection::Orthographic { .. } => ("orthographic", 0.0),
+        };
+        let (lo, hi) = self.session.scene().bounds();
+        json!({
+            "type": "camera",
+            "eye": c.eye.to_array(), "target": c.target.to_array(), "up": c.up.to_array(),
+            "fov": fov, "projection": projection, "zoom": self.file.zoom.unwrap_or(1.0),
+            "view": self.file.view,
+            "bounds": [lo.to_array(), hi.to_array()],
+        })
+    }
+
+    fn settings_json(&self) -> Value {
+        let st = self.session.settings();
+        json!({
+            "type": "settings",
+            "method": self.file.method().to_string(),
+            "blend": self.file.blend.unwrap_or_default().to_string(),
+            "spp": st.spp, "noise_target": st.noise_target,
+            "density_scale": self.session.scene().density_scale(),
+            "light_dir": self.file.light.map(|l| l.direction),
+            "shading": self.file.shading.unwrap_or(false),
+            "precision": self.file.precision.unwrap_or(Precision::F32).to_string(),
+            "device": self.device.to_string(),
+            "width": st.width, "height": st.height, "seed": st.seed,
+            "exposure": self.exposure, "tonemap": self.tonemap,
+        })
+    }
+
+    fn tf_json(&self, channel: usize) -> Value {
+        json!({
+            "type": "tf", "channel": channel,
+            "tf": self.session.scene().channels()[channel].transfer_function(),
+        })
+    }
+
+    fn devices() -> Value {
+        let gpu = blueshift_gpu::GpuContext::shared().ok().map(|c| {
+            let i = c.info();
+            format!(
+                "{} ({:?}{})",
+                i.name,
+                i.backend,
+                if c.is_hardware() { "" } else { ", software" }
+            )
+        });
+        json!({ "cpu": format!("{} threads", rayon::current_num_threads()), "gpu": gpu })
+    }
+
+    fn channel(&self, c: usize) -> Result<()> {
+        let n = self.session.scene().channel_count();
+        if c >= n {
+            return Err(Error::invalid(format!(
+                "channel {c}: the scene has {n} channel(s)"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Brings the session (and the GPU twin) to what the file builds.
+    fn sync(&mut self) -> Result<()> {
+        let scene = self.session.scene();
+        let integrator = self.file.integrator(scene)?;
+        let settings = self.file.settings(scene)?;
+        self.session.set_integrator(integrator.clone())?;
+        self.session.set_settings(settings.clone())?;
+        if let Some(g) = &mut self.gpu {
+            g.set_integrator(integrator)?;
+            g.set_settings(settings)?;
+        }
+        Ok(())
+    }
+
+    /// Rebuilds the CPU session around its scene after a scene-level edit (light,
+    /// shading, density scale), and the GPU twin from it.
+    fn rebuild(&mut self, edit: impl FnOnce(&mut Scene, &RenderSceneFile) -> Result<()>) -> Result<()> {
+        let integrator = self.session.integrator().clone();
+        let settings = self.session.settings().clone();
+        let mut scene = self.session.scene().clone();
+        edit(&mut scene, &self.file)?;
+        let integrator = self.file.integrator(&scene).unwrap_or(integrator);
+        self.session = TrackingSession::new(scene, integrator, settings)?;
+        if self.gpu.is_some() {
+            self.gpu = None;
+            self.set_device(self.device)?;
+        }
+        Ok(())
+    }
+
+    fn set_device(&mut self, device: DeviceChoice) -> Result<()> {
+        self.device = device;
+        self.gpu = None;
+        let Some(ctx) = device.context()? else {
+            return Ok(());
+        };
+        let scene = self.session.scene().clone();
+        let made = GpuTrackingSession::new(
+            ctx,
+            scene,
+            self.session.integrator().clone(),
+            self.session.settings().clone(),
+        );
+        match made {
+            Ok(g) => self.gpu = Some(g),
+            Err(e) if device.falls_back_on(&e) => {}
+            Err(e) => return Err(e.into()),
+        }
+        Ok(())
+    }
+
+    fn apply_settings(&mut self, s: SettingsMsg) -> Result<Stage> {
+        let mut stage = Stage::Full;
+        let old = (self.file.clone(), self.exposure, self.tonemap.clone());
+        let result = (|| -> Result<Stage> {
+            if let Some(m) = &s.method {
+                self.file.method = Some(parse::<Method>(m)?);
+            }
+            if let Some(b) = &s.blend {
+                self.file.blend = Some(parse::<BlendKind>(b)?);
+            }
+            if let Some(p) = &s.precision {
+                self.file.precision = Some(parse::<Precision>(p)?);
+            }
+            if let Some(n) = s.spp {
+                if !(1..=1 << 20).contains(&n) {
+                    return Err(Error::invalid(format!("spp {n}: 1 to 1048576")));
+                }
+                self.file.spp = Some(n);
+            }
+            if let Some(n) = s.noise_target {
+                self.file.noise_target = n;
+            }
+            if let Some(seed) = s.seed {
+                self.file.seed = Some(seed);
+            }
+            if let Some(w) = s.width {
+                self.file.width = Some(w);
+                stage = Stage::Preview;
+            }
+            if let Some(h) = s.height {
+                self.file.height = Some(h);
+                stage = Stage::Preview;
+            }
+            if let Some(e) = s.exposure {
+                self.exposure = e;
+            }
+            if let Some(t) = &s.tonemap {
+                display::operator(t, self.exposure)?;
+                self.tonemap = t.clone();
+            }
+            let relight = s.light_dir.is_some() || s.shading.is_some();
+            if let Some(l) = s.light_dir {
+                self.file.light = l.map(|direction| LightSpec {
+                    direction,
+                    radiance: self.file.light.map_or(LightSpec::DEFAULT_RADIANCE, |l| l.radiance),
+                    ambient: self.file.light.map_or(LightSpec::DEFAULT_AMBIENT, |l| l.ambient),
+                });
+            }
+            if let Some(sh) = s.shading {
+                self.file.shading = Some(sh);
+            }
+            if relight {
+                self.rebuild(|scene, file| Ok(file.apply_lighting(scene)?))?;
+                stage = Stage::Preview;
+            }
+            if let Some(d) = s.density_scale {
+                self.session.set_density_scale(d)?;
+                self.file.density_scale = Some(d);
+                if self.gpu.is_some() {
+                    self.set_device(self.device)?;
+                }
+                stage = Stage::Preview;
+            }
+            if let Some(d) = &s.device {
+                let d = d.parse::<DeviceChoice>().map_err(Error::Invalid)?;
+                self.set_device(d)?;
+                stage = Stage::Preview;
+            }
+            if s.method.is_some() || s.blend.is_some() || s.precision.is_some() {
+                stage = Stage::Preview;
+            }
+            self.sync()?;
+            Ok(stage)
+        })();
+        if result.is_err() {
+            // Keep the old state whole: the file, the display and the session built from it.
+            (self.file, self.exposure, self.tonemap) = old;
+            let _ = self.sync();
+        }
+        result
+    }
+
+    fn set_tf(&mut self, channel: usize, tf: TransferFunction) -> Result<()> {
+        self.channel(channel)?;
+        if let Some(g) = &mut self.gpu {
+            g.set_transfer_function(channel, tf.clone())?;
+        }
+        self.session.set_transfer_function(channel, tf)?;
+        // A weighted blend without weights follows the majorants.
+        self.sync()
+    }
+
+    fn display_image(&self, acc: &Progressive) -> Result<image::RgbImage> {
+        let img = acc.mean_image();
+        let rgb = Rgb32FImage::from_fn(img.width(), img.height(), |x, y| {
+            let p = img.get_pixel(x, y).0;
+            image::Rgb([p[0], p[1], p[2]])
+        });
+        let op = display::operator(&self.tonemap, self.exposure)?;
+        let op = match op {
+            Some(blueshift_tonemap::Operator::Linear(p)) => {
+                Some(blueshift_tonemap::Operator::Linear(blueshift_tonemap::LinearParams {
+                    white: linear_white(&rgb),
+                    ..p
+                }))
+            }
+            other => other,
+        };
+        display::to_rgb8(&rgb, op.as_ref(), self.exposure)
+    }
+
+    fn send_frame(&self, ctx: &Ctx, acc: &Progressive, preview: bool, done: bool, ms: f64) -> Result<()> {
+        let img = self.display_image(acc)?;
+        let st = self.session.settings();
+        let noise = acc.noise();
+        ctx.send_image(
+            "frame",
+            &img,
+            json!({ "pass": acc.samples(), "spp": acc.samples(), "preview": preview }),
+        )?;
+        ctx.send(&json!({
+            "type": "status", "pass": acc.samples(), "spp": acc.samples(),
+            "target_spp": st.spp, "noise": noise.is_finite().then_some(noise), "ms": ms,
+            "device": self.device_name(), "preview": preview, "done": done,
+            "level": if preview { "preview" } else { "full" },
+        }));
+        Ok(())
+    }
+
+    fn device_name(&self) -> String {
+        match &self.gpu {
+            Some(_) => blueshift_gpu::GpuContext::shared()
+                .map(|c| c.info().name.clone())
+                .unwrap_or_else(|_| "gpu".into()),
+            None => "cpu".into(),
+        }
+    }
+
+    fn run_session(&self, observer: &dyn Observer<Progressive>) -> Result<Progressive> {
+        match &self.gpu {
+            Some(g) => match g.render(observer) {
+                Ok(out) => Ok(out.image),
+                Err(e) => Err(e.into()),
+            },
+            None => Ok(self.session.render(observer)?.image),
+        }
+    }
+
+    /// Writes the HDR frame, its PNG, the transfer functions and the scene file, and
+    /// returns the `saved` reply with the command that reproduces the EXR.
+    fn save(&self, ctx: &Ctx, name: Option<&str>, acc: &Progressive) -> Result<Value> {
+        let n = self.session.scene().channel_count();
+        let mut suffixes = vec![".exr".to_string(), ".png".into(), ".json".into()];
+        suffixes.extend((0..n).map(|i| format!("-tf{i}.json")));
+        let refs: Vec<&str> = suffixes.iter().map(String::as_str).collect();
+        let set = SaveSet::new(ctx, name, &refs, &self.inputs)?;
+        let mut file = self.file.clone();
+        let base = file.base.take();
+        let mut files = Vec::new();
+        for (i, (spec, ch)) in file
+            .channels
+            .iter_mut()
+            .zip(self.session.scene().channels())
+            .enumerate()
+        {
+            let tf_path = set.path(&format!("-tf{i}.json"));
+            write_file(&tf_path, ch.transfer_function().to_json_string().as_bytes())?;
+            files.push(tf_path.clone());
+            spec.tf = tf_path.display().to_string();
+            if let Some(v) = &spec.volume {
+                let p = match &base {
+                    Some(b) if v.is_relative() => b.join(v),
+                    _ => v.clone(),
+                };
+                spec.volume = Some(std::fs::canonicalize(&p).unwrap_or(p));
+            }
+        }
+        // The transfer functions are saved with their alpha_g and range applied.
+        file.alpha_g = None;
+        file.tf_range = None;
+        file.spp = Some(acc.samples());
+        file.noise_target = None;
+        let scene_path = set.path(".json");
+        let text = serde_json::to_string_pretty(&file)
+            .map_err(|e| Error::invalid(format!("cannot write the scene file: {e}")))?;
+        write_file(&scene_path, format!("{text}\n").as_bytes())?;
+        files.push(scene_path.clone());
+        let img = acc.mean_image();
+        let exr = set.path(".exr");
+        blueshift_tonemap::io::write_exr_f32_channels(
+            &exr,
+            img.width(),
+            img.height(),
+            4,
+            img.as_raw(),
+            blueshift_tonemap::io::ExrSpace::LinearSrgb,
+        )?;
+        files.push(exr.clone());
+        let png = set.path(".png");
+        super::write_png(&png, &self.display_image(acc)?)?;
+        files.push(png.clone());
+        set.commit(ctx, &files);
+        let mut args: Vec<String> = vec![
+            "blueshift".into(),
+            "render".into(),
+            scene_path.display().to_string(),
+            "--out".into(),
+            exr.display().to_string(),
+        ];
+        if self.gpu.is_some() {
+            args.extend(["--device".into(), "gpu".into()]);
+        }
+        Ok(saved_reply(&files, &command_line(&args), Some(&scene_path)))
+    }
+
+    fn export_tf(&self, channel: usize, paraview: bool) -> Result<Value> {
+        self.channel(channel)?;
+        let tf = self.session.scene().channels()[channel].transfer_function();
+        let text = if paraview {
+            blueshift_tfedit::paraview::to_paraview_string(tf)
+        } else {
+            tf.to_json_string()
+        };
+        Ok(json!({
+            "type": "tf_text", "channel": channel,
+            "format": if paraview { "paraview" } else { "blueshift" }, "text": text,
+        }))
+    }
+}
+
+/// The linear operator's white: the 99th percentile of the lit pixels' luminance, as
+/// `blueshift render --tonemap linear` takes it.
+fn linear_white(img: &Rgb32FImage) -> Option<f32> {
+    let mut lum: Vec<f32> = img
+        .pixels()
+        .map(|p| blueshift_tonemap::luminance(p.0))
+        .filter(|y| y.is_finite() && *y > 0.0)
+        .collect();
+    if lum.is_empty() {
+        return None;
+    }
+    let last = lum.len() - 1;
+    let k = (0.99 * last as f64).round() as usize;
+    let (_, v, _) = lum.select_nth_unstable_by(k.min(last), f32::total_cmp);
+    Some(*v)
+}
+
+/// Streams the passes and serves `save`, `hello` and `tf_export` between them.
+struct Streamer<'a> {
+    mode: &'a TrackingMode,
+    ctx: &'a Ctx,
+    preview: bool,
+    target: u32,
+    last_pass: std::sync::Mutex<std::time::Instant>,
+}
+
+impl Observer<Progressive> for Streamer<'_> {
+    fn progress(&self, _: Progress) {}
+
+    fn pass(&self, _pass: u32, acc: &Progressive, _noise: Option<f64>) {
+        let ms = {
+            let mut t = self.last_pass.lock().unwrap_or_else(|e| e.into_inner());
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            *t = std::time::Instant::now();
+            ms
+        };
+        let done = acc.samples() >= self.target;
+        if self.ctx.frame_due(done || self.preview) {
+            if let Err(e) = self.mode.send_frame(self.ctx, acc, self.preview, false, ms) {
+                self.ctx.error(&e.to_string(), None);
+            }
+        }
+        if self.preview {
+            return;
+        }
+        self.ctx.poll(|m| match m {
+            Incoming::Save { name } => Some(
+                self.mode
+                    .save(self.ctx, name.as_deref(), acc)
+                    .map(|v| self.ctx.send(&v)),
+            ),
+            Incoming::Hello => Some(Ok(self
+                .ctx
+                .send(&crate::worker::info_with_dir(self.mode, self.ctx)))),
+            Incoming::TfExport { channel, paraview } => Some(
+                self.mode
+                    .export_tf(*channel, *paraview)
+                    .map(|v| self.ctx.send(&v)),
+            ),
+            _ => None,
+        });
+    }
+
+    fn cancelled(&self) -> bool {
+        self.ctx.cancel.is_cancelled()
+    }
+}
+
+impl Mode for TrackingMode {
+    fn info(&self) -> Value {
+        let scene = self.session.scene();
+        let channels: Vec<Value> = scene
+            .channels()
+            .iter()
+            .zip(&self.histograms)
+            .map(|(c, h)| {
+                let range = c.grid().finite_range().map(|(a, b)| [a, b]);
+                json!({ "name": c.name(), "range": range, "histogram": h, "tf": c.transfer_function() })
+            })
+            .collect();
+        let st = self.session.settings();
+        json!({
+            "type": "info", "version": 1, "mode": "tracking",
+            "width": st.width, "height": st.height,
+            "channels": channels,
+            "camera": self.camera_json(),
+            "settings": self.settings_json(),
+            "doppler": null, "relativity": null, "tonemap": null,
+            "devices": Self::devices(),
+            "views": blueshift_camera::View::NAMES,
+            "methods": Method::NAMES, "blends": BlendKind::NAMES, "precisions": Precision::NAMES,
+            "tonemaps": display::TONEMAPS,
+        })
+    }
+
+    fn handle(&mut self, msg: Incoming, ctx: &Ctx) -> Result<Option<Stage>> {
+        match msg {
+            Incoming::Camera(c) => {
+                let old = self.file.clone();
+                self.file.eye = Some(c.eye);
+                self.file.target = Some(c.target);
+                self.file.up = Some(c.up);
+                if let Some(f) = c.fov {
+                    self.file.fov_y_deg = Some(f);
+                }
+                if let Some(z) = c.zoom {
+                    self.file.zoom = Some(z);
+                }
+                if let Err(e) = self.sync() {
+                    self.file = old;
+                    let _ = self.sync();
+                    return Err(e);
+                }
+                ctx.send(&self.camera_json());
+                Ok(Some(Stage::Preview))
+            }
+            Incoming::View(v) => {
+                let view = v.name.parse::<blueshift_camera::View>()?;
+                let old = self.file.clone();
+                self.file.view = Some(view.to_string());
+                self.file.eye = None;
+                self.file.target = None;
+                self.file.up = None;
+                self.file.zoom = v.zoom;
+                if let Err(e) = self.sync() {
+                    self.file = old;
+                    let _ = self.sync();
+                    return Err(e);
+                }
+                ctx.send(&self.camera_json());
+                Ok(Some(Stage::Preview))
+            }
+            Incoming::Tf { channel, tf } => {
+                let tf: TransferFunction = serde_json::from_value(tf)
+                    .map_err(|e| Error::invalid(format!("tf: {e}")))?;
+                self.set_tf(channel, tf)?;
+                ctx.send(&self.tf_json(channel));
+                Ok(Some(Stage::Preview))
+            }
+            Incoming::TfLoad { channel, text } => {
+                let (tf, _) = blueshift_tfedit::parse_any(&text)?;
+                self.set_tf(channel, tf)?;
+                ctx.send(&self.tf_json(channel));
+                Ok(Some(Stage::Preview))
+            }
+            Incoming::TfRange { channel, range } => {
+                let n = self.session.scene().channel_count();
+                let which: Vec<usize> = match channel {
+                    Some(c) => {
+                        self.channel(c)?;
+                        vec![c]
+                    }
+                    None => (0..n).collect(),
+                };
+                for c in which {
+                    let ch = &self.session.scene().channels()[c];
+                    let tf = ch.transfer_function();
+                    let domain = match range {
+                        RangeMsg::Data => blueshift_tracking::scene_file::data_domain(
+                            ch.grid(),
+                            tf.data_axis(),
+                        )
+                        .ok_or_else(|| {
+                            Error::invalid(format!("tf_range: channel {c} has no values"))
+                        })?,
+                        RangeMsg::Interval(lo, hi) => [lo, hi],
+                    };
+                    let tf = tf.rescaled(domain)?;
+                    self.set_tf(c, tf)?;
+                    ctx.send(&self.tf_json(c));
+                }
+                Ok(Some(Stage::Preview))
+            }
+            Incoming::TfExport { channel, paraview } => {
+                ctx.send(&self.export_tf(channel, paraview)?);
+                Ok(None)
+            }
+            Incoming::Settings(s) => {
+                let stage = self.apply_settings(s)?;
+                ctx.send(&self.settings_json());
+                Ok(Some(stage))
+            }
+            Incoming::Save { name } => {
+                let Some(acc) = &self.last else {
+                    return Err(Error::invalid(
+                        "save: no finished frame yet; wait for the first pass",
+                    ));
+                };
+                ctx.send(&self.save(ctx, name.as_deref(), acc)?);
+                Ok(None)
+            }
+            other => Err(Error::invalid(format!(
+                "{}: not available for a tracking scene",
+                other.kind()
+            ))),
+        }
+    }
+
+    fn render(&mut self, stage: Stage, ctx: &Ctx) -> Result<()> {
+        let full: RenderSettings = self.session.settings().clone();
+        if stage == Stage::Display {
+            if let Some(acc) = &self.last {
+                self.send_frame(ctx, acc, false, true, 0.0)?;
+            }
+            return Ok(());
+        }
+        self.last = None;
+        if stage == Stage::Preview {
+            let (w, h) = preview_size(full.width, full.height);
+            let mut p = full.clone();
+            p.width = w;
+            p.height = h;
+            p.spp = 1;
+            p.noise_target = None;
+            self.set_render_settings(p)?;
+            let streamer = Streamer {
+                mode: self,
+                ctx,
+                preview: true,
+                target: 1,
+                last_pass: std::sync::Mutex::new(std::time::Instant::now()),
+            };
+            let r = self.run_session(&streamer);
+            self.set_render_settings(full.clone())?;
+            r?;
+        }
+        let streamer = Streamer {
+            mode: self,
+            ctx,
+            preview: false,
+            target: full.spp,
+            last_pass: std::sync::Mutex::new(std::time::Instant::now()),
+        };
+        let acc = self.run_session(&streamer)?;
+        self.send_frame(ctx, &acc, false, true, 0.0)?;
+        self.last = Some(acc);
+        Ok(())
+    }
+}
+
+impl TrackingMode {
+    fn set_render_settings(&mut self, s: RenderSettings) -> Result<()> {
+        self.session.set_settings(s.clone())?;
+        if let Some(g) = &mut self.gpu {
+            g.set_settings(s)?;
+        }
+        Ok(())
+    }
+}
