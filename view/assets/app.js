@@ -4,7 +4,7 @@
 import { Connection, Throttle } from './net.js';
 import { View3D } from './view3d.js';
 import { TfEditor } from './tf.js';
-import { drawSpectrum, drawTrace, drawColourbar } from './plot.js';
+import { SpectrumPlot, drawTrace, drawColourbar } from './plot.js';
 import { RenderPanel, DopplerPanel, RelativityPanel, HdrPanel } from './panels.js';
 
 const $ = (id) => document.getElementById(id);
@@ -26,7 +26,9 @@ const camThrottle = new Throttle(send);
 const view = new View3D($('view'), $('overlay'), {
   sendCamera(cam, final) {
     const msg = { type: 'camera', eye: cam.eye, target: cam.target, up: cam.up };
-    if (cam.projection !== 'orthographic' && Number.isFinite(cam.fov)) msg.fov = cam.fov;
+    if (cam.projection === 'orthographic') {
+      if (Number.isFinite(cam.zoom)) msg.zoom = cam.zoom;
+    } else if (Number.isFinite(cam.fov)) msg.fov = cam.fov;
     camThrottle.push(msg);
     if (final) camThrottle.flush();
   },
@@ -45,6 +47,7 @@ const view = new View3D($('view'), $('overlay'), {
 });
 
 const editor = new TfEditor(send);
+const spectrum = new SpectrumPlot($('spectrum-canvas'));
 
 function requestView(name) {
   view.presetRequested();
@@ -121,7 +124,7 @@ function onFrame(header, png) {
       if (header.kind === 'frame') {
         if (header.seq < drawnSeq) return; // an older frame decoded late
         drawnSeq = header.seq;
-        view.drawFrame(bitmap);
+        view.drawFrame(bitmap, header.preview);
         hooks.frames += 1;
         hooks.lastFrame = {
           seq: header.seq,
@@ -137,7 +140,8 @@ function onFrame(header, png) {
         cv.height = bitmap.height;
         cv.getContext('2d').drawImage(bitmap, 0, 0);
       } else if (header.kind === 'colourbar') {
-        drawColourbar($('colourbar'), bitmap);
+        const bar = $('colourbar');
+        if (bar) drawColourbar(bar, bitmap);
       }
       bitmap.close();
     }),
@@ -177,7 +181,7 @@ function onMessage(msg) {
     case 'spectrum':
       hooks.lastSpectrum = msg;
       $('doppler-section').hidden = false;
-      drawSpectrum($('spectrum-canvas'), msg);
+      spectrum.set(msg);
       break;
     case 'trace':
       hooks.lastTrace = msg;
@@ -210,7 +214,7 @@ function showSaved(msg) {
   $('panel-save').hidden = false;
   $('command').textContent = msg.command;
   $('files').replaceChildren(
-    ...[...msg.files, ...(msg.scene ? [msg.scene] : [])].map((f) =>
+    ...[...new Set([...msg.files, ...(msg.scene ? [msg.scene] : [])])].map((f) =>
       Object.assign(document.createElement('li'), { textContent: f }),
     ),
   );
@@ -259,12 +263,15 @@ function setupInfo(msg) {
     msg.mode === 'relativity' ? new RelativityPanel($('panel-relativity'), send, msg.relativity) : null;
 
   $('panel-hdr').hidden = msg.mode !== 'hdr' || !msg.tonemap;
-  hdr = msg.mode === 'hdr' && msg.tonemap ? new HdrPanel($('panel-hdr'), send, msg.tonemap) : null;
-  if (hdr)
-    hdr.onRoiChange = (roi) => {
-      view.roi = roi;
-      view.drawOverlay();
-    };
+  hdr =
+    msg.mode === 'hdr' && msg.tonemap
+      ? new HdrPanel($('panel-hdr'), send, msg.tonemap, {
+          onRoiChange: (circle) => {
+            view.roiCircle = circle;
+            view.drawOverlay();
+          },
+        })
+      : null;
 
   resolveReady(msg);
 }

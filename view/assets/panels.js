@@ -54,6 +54,25 @@ function logSlider(min, max, onValue, { zero = false } = {}) {
   return { nodes: [s, n], set };
 }
 
+/** An exposure slider in stops; onValue(stops, final). */
+function exposureSlider(onValue) {
+  const s = el('input', { type: 'range', min: -10, max: 10, step: 0.1 });
+  const v = el('span', { className: 'val' });
+  const show = (e) => (v.textContent = `${Number(e).toFixed(1)} EV`);
+  s.addEventListener('input', () => {
+    show(s.value);
+    onValue(Number(s.value), false);
+  });
+  s.addEventListener('change', () => onValue(Number(s.value), true));
+  return {
+    nodes: [s, v],
+    set(e) {
+      put(s, e);
+      show(e);
+    },
+  };
+}
+
 const METHODS = ['woodcock', 'mdwt-ndda', 'mdwt-1dda', 'mdwt-summed', 'marcher'];
 const BLENDS = ['density', 'max', 'mix', 'weighted', 'composite'];
 const PRECISIONS = ['f32', 'f16', 'u8'];
@@ -109,28 +128,29 @@ export class RenderPanel {
       className: 'note',
       textContent: `cpu: ${info.devices?.cpu ?? '?'} · gpu: ${gpu ?? 'none'}`,
     });
-    w.exposure = el('input', { type: 'range', min: -10, max: 10, step: 0.1 });
-    w.exposureVal = el('span', { className: 'val' });
-    w.exposure.addEventListener('input', () => {
-      w.exposureVal.textContent = `${Number(w.exposure.value).toFixed(1)} EV`;
-      set({ exposure: Number(w.exposure.value) }, false);
-    });
+    w.exposure = exposureSlider((e, final) => set({ exposure: e }, final));
     w.tonemap = select(DISPLAY_OPS, s.tonemap);
     w.tonemap.addEventListener('change', () => set({ tonemap: w.tonemap.value }, true));
     this.progress = el('div', { className: 'note' });
+    // Only the rows whose fields this mode's settings have (Doppler and relativity scenes
+    // have few: their own panels carry the rest).
+    const has = (k) => k in s;
+    const rows = [
+      [has('method'), row('method', w.method)],
+      [has('blend'), row('blend', w.blend)],
+      [has('spp'), row('spp target', w.spp, el('label', { textContent: 'noise' }), w.noise)],
+      [has('density_scale'), row('density scale', w.density)],
+      [has('light_dir'), row('', light.label, w.lx, w.ly, w.lz, shading.label)],
+      [has('precision'), row('precision', w.precision, el('span', { className: 'note', textContent: '(marcher)' }))],
+      [has('device'), row('device', w.device)],
+      [has('device'), devText],
+      [has('exposure') || has('tonemap'), el('h3', { textContent: 'Display' })],
+      [has('exposure'), row('exposure', ...w.exposure.nodes)],
+      [has('tonemap'), row('tone map', w.tonemap)],
+    ];
     root.replaceChildren(
       el('h3', { textContent: 'Render' }),
-      row('method', w.method),
-      row('blend', w.blend),
-      row('spp target', w.spp, el('label', { textContent: 'noise' }), w.noise),
-      row('density scale', w.density),
-      row('', light.label, w.lx, w.ly, w.lz, shading.label),
-      row('precision', w.precision, el('span', { className: 'note', textContent: '(marcher)' })),
-      row('device', w.device),
-      devText,
-      el('h3', { textContent: 'Display' }),
-      row('exposure', w.exposure, w.exposureVal),
-      row('tone map', w.tonemap),
+      ...rows.filter(([show]) => show).map(([, node]) => node),
       this.progress,
     );
     this.update(s);
@@ -151,10 +171,7 @@ export class RenderPanel {
     if (s.shading !== undefined) put(w.shading, s.shading);
     if (s.precision !== undefined) put(w.precision, s.precision);
     if (s.device !== undefined) put(w.device, s.device);
-    if (s.exposure !== undefined) {
-      put(w.exposure, s.exposure);
-      w.exposureVal.textContent = `${Number(s.exposure).toFixed(1)} EV`;
-    }
+    if (s.exposure !== undefined) w.exposure.set(s.exposure);
     if (s.tonemap !== undefined) put(w.tonemap, s.tonemap);
   }
 
@@ -207,11 +224,13 @@ export class DopplerPanel {
     const panelsBtn = el('button', { textContent: 'velocity panel' });
     panelsBtn.addEventListener('click', onPanels);
     this.lines = el('div', { className: 'note' });
+    this.exposure = exposureSlider((e, final) => set({ exposure: e }, final));
     root.replaceChildren(
       el('h3', { textContent: 'Doppler (Table 1 factors)' }),
       row('', enabled.label),
       ...rows,
       row('integrator', this.integrator, el('label', { textContent: 'merge tol.' }), this.tol),
+      ...(state && 'exposure' in state ? [row('exposure', ...this.exposure.nodes)] : []),
       el('div', { className: 'note', textContent: 'click the image to plot a pixel\u2019s spectrum' }),
       row('', this.traceBtn, panelsBtn),
       this.lines,
@@ -227,6 +246,7 @@ export class DopplerPanel {
       for (const f of FACTORS) if (d.factors[f] !== undefined) this.sliders[f].set(d.factors[f]);
     }
     if (d.integrator !== undefined) put(this.integrator, d.integrator);
+    if (d.exposure !== undefined) this.exposure.set(d.exposure);
     if (d.merge_tolerance !== undefined) put(this.tol, d.merge_tolerance);
     if (d.lines)
       this.lines.textContent = `lines: ${d.lines.map((l) => `${l.name} ${l.rest_nm} nm`).join(', ')}`;
@@ -278,9 +298,11 @@ export class RelativityPanel {
       this._set({ fov: this.state.fov }, true);
     });
     this.lookText = el('span', { className: 'val' });
+    this.exposure = exposureSlider((e, final) => this._set({ exposure: e }, final));
     root.replaceChildren(
       el('h3', { textContent: 'Relativity' }),
       row('beta', this.beta, this.betaVal),
+      ...(state && 'exposure' in state ? [row('exposure', ...this.exposure.nodes)] : []),
       row('', ...labels),
       row('motion', this.sphere, this.dirText),
       row('look', this.lookText, el('label', { textContent: 'fov' }), this.fov),
@@ -383,66 +405,65 @@ export class RelativityPanel {
     this.betaVal.textContent = Number(this.state.beta).toFixed(3);
     for (const k of Object.keys(this.toggles)) put(this.toggles[k], this.state.effects?.[k]);
     put(this.fov, this.state.fov);
+    if (this.state.exposure !== undefined) this.exposure.set(this.state.exposure);
     this.lookText.textContent = `yaw ${Number(this.state.yaw).toFixed(1)}°, pitch ${Number(this.state.pitch).toFixed(1)}°`;
     this._drawSphere();
   }
 }
 
-/** HDR image mode: operator and its parameters, exposure, pseudocolour, Drago's ROI. */
+/**
+ * HDR image mode: operator and its parameters, exposure, pseudocolour, Drago's region of
+ * interest. The server keeps the exposure in the operator's `exposure_stops` parameter and
+ * the ROI in Drago's `roi` parameter (a circle: centre and radius in pixels); the page sends
+ * them as the message's `exposure` and `roi` fields (the ROI only to Drago).
+ */
 export class HdrPanel {
-  constructor(root, send, state) {
-    this.send = send;
-    this.th = new Throttle(send);
+  constructor(root, send, state, { onRoiChange }) {
+    this.onRoiChange = onRoiChange;
+    this.th = new Throttle(send, { merge: true });
     this.defaults = state.defaults || {};
     this.state = {
       operator: state.operator,
       params: { ...(state.params || {}) },
-      exposure: state.exposure ?? 0,
       pseudocolour: Boolean(state.pseudocolour),
-      roi: state.roi ?? null,
     };
     this.op = select(Object.keys(this.defaults), state.operator);
     this.op.addEventListener('change', () => {
       this.state.operator = this.op.value;
       this.state.params = { ...this.defaults[this.op.value] };
       this._buildParams();
-      this._send(true);
+      this._send({ operator: this.op.value }, true);
+      this._show();
     });
     this.paramsBox = el('div');
-    this.exposure = el('input', { type: 'range', min: -10, max: 10, step: 0.1 });
-    this.exposureVal = el('span', { className: 'val' });
-    this.exposure.addEventListener('input', () => {
-      this.state.exposure = Number(this.exposure.value);
-      this.exposureVal.textContent = `${this.state.exposure.toFixed(1)} EV`;
-      this._send(false);
-    });
-    this.exposure.addEventListener('change', () => this._send(true));
+    this.exposure = exposureSlider((e, final) => this._send({ exposure: e }, final));
+    this.exposureRow = row('exposure', ...this.exposure.nodes);
     const pc = check('pseudocolour');
     this.pseudo = pc.box;
     this.pseudo.addEventListener('change', () => {
       this.state.pseudocolour = this.pseudo.checked;
-      this._send(true);
+      this._send({ pseudocolour: this.pseudo.checked }, true);
+      this._show();
     });
     this.colourbar = el('canvas', { id: 'colourbar', width: 256, height: 16 });
     this.roiText = el('span', { className: 'val' });
     const clear = el('button', { textContent: 'clear ROI' });
-    clear.addEventListener('click', () => {
-      this.state.roi = null;
-      this.onRoiChange?.(null);
-      this._send(true);
-    });
+    clear.addEventListener('click', () => this.roiActive() && this._send({ roi: null }, true));
+    this.roiRows = [
+      row('ROI', this.roiText, clear),
+      el('div', { className: 'note', textContent: 'drag a rectangle on the image: the region of interest is its inscribed circle' }),
+    ];
     root.replaceChildren(
       el('h3', { textContent: 'HDR image: tone mapping' }),
       row('operator', this.op),
       this.paramsBox,
-      row('exposure', this.exposure, this.exposureVal),
+      this.exposureRow,
       row('', pc.label),
       this.colourbar,
-      row('ROI', this.roiText, clear),
-      el('div', { className: 'note', textContent: 'Drago: drag a rectangle on the image to set the region of interest' }),
+      ...this.roiRows,
     );
     this._buildParams();
-    this.update(this.state);
+    this._show();
   }
 
   /** Whether a drag on the image sets the ROI (Drago only). */
@@ -450,46 +471,42 @@ export class HdrPanel {
     return this.state.operator === 'drago';
   }
 
+  /** A rectangle [x0, y0, x1, y1] dragged on the image. */
   setRoi(roi) {
-    this.state.roi = roi;
-    this.roiText.textContent = `[${roi.join(', ')}]`;
-    this._send(true);
+    this._send({ roi }, true);
   }
 
-  _send(final) {
-    this.th.push({ type: 'tonemap', ...structuredClone(this.state) });
+  _send(fields, final) {
+    this.th.push({ type: 'tonemap', operator: this.state.operator, ...fields });
     if (final) this.th.flush();
   }
 
-  /** One input per parameter of the operator; null-able ones get an 'auto' checkbox. */
+  /**
+   * One input per numeric or boolean parameter of the operator (exposure and ROI have
+   * their own controls); null-able ones get an 'auto' checkbox.
+   */
   _buildParams() {
     const defs = this.defaults[this.state.operator] || {};
     this.paramInputs = {};
-    const rows = Object.keys(defs).map((name) => {
+    const rows = [];
+    for (const name of Object.keys(defs)) {
+      if (name === 'exposure_stops' || name === 'roi') continue;
       const d = defs[name];
       if (typeof d === 'boolean') {
         const c = check('');
-        c.box.checked = Boolean(this.state.params[name] ?? d);
-        c.box.addEventListener('change', () => {
-          this.state.params[name] = c.box.checked;
-          this._send(true);
-        });
+        c.box.addEventListener('change', () => this._send({ params: { [name]: c.box.checked } }, true));
         this.paramInputs[name] = { input: c.box };
-        return row(name, c.label);
+        rows.push(row(name, c.label));
+        continue;
       }
+      if (d !== null && typeof d !== 'number') continue;
       const input = number('any', { className: 'narrow' });
-      const auto = check('auto');
       const nullable = d === null;
-      const v = this.state.params[name];
-      input.value = v === null || v === undefined ? (d ?? '') : String(v);
-      auto.box.checked = nullable && (v === null || v === undefined);
-      input.disabled = auto.box.checked;
+      const auto = check('auto');
       const apply = () => {
-        if (auto.box.checked) this.state.params[name] = null;
-        else if (finite(input.value)) this.state.params[name] = Number(input.value);
-        else return;
-        input.disabled = auto.box.checked;
-        this._send(true);
+        if (nullable && auto.box.checked) this._send({ params: { [name]: null } }, true);
+        else if (finite(input.value)) this._send({ params: { [name]: Number(input.value) } }, true);
+        input.disabled = nullable && auto.box.checked;
       };
       input.addEventListener('change', apply);
       auto.box.addEventListener('change', () => {
@@ -497,33 +514,46 @@ export class HdrPanel {
         apply();
       });
       this.paramInputs[name] = { input, auto: nullable ? auto.box : null };
-      return nullable ? row(name, input, auto.label) : row(name, input);
-    });
+      rows.push(nullable ? row(name, input, auto.label) : row(name, input));
+    }
     this.paramsBox.replaceChildren(...rows);
+  }
+
+  /** Shows the state in the widgets. */
+  _show() {
+    const p = this.state.params || {};
+    put(this.op, this.state.operator);
+    for (const [name, w] of Object.entries(this.paramInputs)) {
+      const v = p[name];
+      if (w.input.type === 'checkbox') put(w.input, v);
+      else {
+        if (w.auto) w.auto.checked = v === null || v === undefined;
+        w.input.disabled = Boolean(w.auto && w.auto.checked);
+        if (typeof v === 'number') put(w.input, short(v));
+      }
+    }
+    const hasExposure = 'exposure_stops' in p;
+    this.exposureRow.hidden = !hasExposure;
+    if (hasExposure) this.exposure.set(p.exposure_stops);
+    put(this.pseudo, this.state.pseudocolour);
+    // The server may put the bar into the frame itself; show ours once one arrived.
+    this.colourbar.hidden = !this.state.pseudocolour || !this.colourbar.dataset.drawn;
+    for (const r of this.roiRows) r.hidden = !this.roiActive();
+    const roi = this.roiActive() ? p.roi : null;
+    this.roiText.textContent = roi
+      ? `centre (${roi.x_px.toFixed(0)}, ${roi.y_px.toFixed(0)}), radius ${roi.radius_px.toFixed(0)} px`
+      : 'none (whole image)';
+    this.onRoiChange(roi ?? null);
   }
 
   /** Shows a `tonemap` reply. */
   update(t) {
-    const rebuild = t.operator !== undefined && t.operator !== this.op.value;
-    Object.assign(this.state, structuredClone(t));
-    delete this.state.defaults;
-    delete this.state.type;
-    put(this.op, this.state.operator);
+    const rebuild = t.operator !== undefined && t.operator !== this.state.operator;
+    if (t.defaults) this.defaults = t.defaults;
+    if (t.operator !== undefined) this.state.operator = t.operator;
+    if (t.params) this.state.params = { ...t.params };
+    if (t.pseudocolour !== undefined) this.state.pseudocolour = t.pseudocolour;
     if (rebuild) this._buildParams();
-    for (const [name, w] of Object.entries(this.paramInputs)) {
-      const v = this.state.params?.[name];
-      if (w.input.type === 'checkbox') put(w.input, v);
-      else if (v === null) {
-        if (w.auto) w.auto.checked = true;
-        w.input.disabled = true;
-      } else if (v !== undefined) put(w.input, v);
-    }
-    put(this.exposure, this.state.exposure);
-    this.exposureVal.textContent = `${Number(this.state.exposure).toFixed(1)} EV`;
-    put(this.pseudo, this.state.pseudocolour);
-    this.colourbar.style.display = this.state.pseudocolour ? '' : 'none';
-    const r = this.state.roi;
-    this.roiText.textContent = r ? `[${r.join(', ')}]` : 'none (whole image)';
-    this.onRoiChange?.(r);
+    this._show();
   }
 }

@@ -76,79 +76,167 @@ function axes(c, box, [x0, x1], [y0, y1], { xTicks = 6, yTicks = 4, labels = tru
   return { sx, sy };
 }
 
-/** Draws a `spectrum` reply into the canvas. */
-export function drawSpectrum(canvas, spec) {
-  const { c, w, h } = prepare(canvas);
-  const off = spec.off || { wavelengths: [], values: [] };
-  let [x0, x1] = extent(spec.wavelengths, off.wavelengths);
-  let [, y1] = extent(spec.values, off.values);
-  if (!Number.isFinite(x0)) {
-    c.fillStyle = '#9aa3ad';
-    c.fillText('empty spectrum', 10, 20);
-    return;
+const SPEC_BOX = { l: 58, t: 34, r: 12, b: 32 };
+
+/**
+ * The spectrum plot of a picked pixel. The wheel zooms the wavelength axis about the
+ * mouse, a drag pans it, a double-click shows the whole spectrum again. The value axis fits
+ * the visible part.
+ */
+export class SpectrumPlot {
+  constructor(canvas) {
+    this.canvas = canvas;
+    this.spec = null;
+    this.range = null; // visible [lo, hi] nm, null: everything
+    const nmAt = (ev) => {
+      const r = canvas.getBoundingClientRect();
+      const [lo, hi] = this._range();
+      return lo + ((ev.clientX - r.left - SPEC_BOX.l) / (r.width - SPEC_BOX.l - SPEC_BOX.r)) * (hi - lo);
+    };
+    canvas.addEventListener(
+      'wheel',
+      (ev) => {
+        if (!this.spec) return;
+        ev.preventDefault();
+        const [lo, hi] = this._range();
+        const at = nmAt(ev);
+        const f = Math.exp(ev.deltaY * 0.002);
+        this.range = [at - (at - lo) * f, at + (hi - at) * f];
+        this.draw();
+      },
+      { passive: false },
+    );
+    let drag = null;
+    canvas.addEventListener('pointerdown', (ev) => {
+      if (!this.spec) return;
+      canvas.setPointerCapture(ev.pointerId);
+      drag = { x: ev.clientX, range: this._range() };
+    });
+    canvas.addEventListener('pointermove', (ev) => {
+      if (!drag) return;
+      const r = canvas.getBoundingClientRect();
+      const [lo, hi] = drag.range;
+      const d = ((ev.clientX - drag.x) / (r.width - SPEC_BOX.l - SPEC_BOX.r)) * (hi - lo);
+      this.range = [lo - d, hi - d];
+      this.draw();
+    });
+    canvas.addEventListener('pointerup', () => (drag = null));
+    canvas.addEventListener('dblclick', () => {
+      this.range = null;
+      this.draw();
+    });
   }
-  if (x1 <= x0) [x0, x1] = [x0 - 1, x1 + 1];
-  if (!(y1 > 0)) y1 = 1;
-  y1 *= 1.08;
-  const box = { l: 58, t: 26, w: w - 70, h: h - 58 };
-  const { sx, sy } = axes(c, box, [x0, x1], [0, y1]);
-  c.fillStyle = '#9aa3ad';
-  c.textAlign = 'center';
-  c.textBaseline = 'bottom';
-  c.fillText('wavelength (nm)', box.l + box.w / 2, h - 2);
-  c.textAlign = 'left';
-  c.textBaseline = 'top';
-  c.fillText(`pixel (${spec.x}, ${spec.y})   W m⁻² sr⁻¹ nm⁻¹`, box.l, 2);
-  c.save();
-  c.beginPath();
-  c.rect(box.l, box.t, box.w, box.h);
-  c.clip();
-  c.strokeStyle = 'rgba(190,190,190,0.6)';
-  c.lineWidth = 0.8;
-  polyline(c, off.wavelengths, off.values, sx, sy);
-  c.strokeStyle = '#5cf';
-  c.lineWidth = 1.6;
-  polyline(c, spec.wavelengths, spec.values, sx, sy);
-  c.restore();
-  // Lines: a dashed mark at the rest wavelength with the name, a triangle at the centroid.
-  c.lineWidth = 1;
-  (spec.lines || []).forEach((line, i) => {
-    const xr = sx(line.rest_nm);
-    if (xr >= box.l && xr <= box.l + box.w) {
-      c.strokeStyle = 'rgba(255,200,80,0.6)';
-      c.setLineDash([3, 3]);
-      c.beginPath();
-      c.moveTo(xr, box.t);
-      c.lineTo(xr, box.t + box.h);
-      c.stroke();
-      c.setLineDash([]);
-      c.fillStyle = '#fc6';
-      c.textAlign = 'center';
-      c.textBaseline = 'bottom';
-      c.fillText(line.name, xr, box.t - 2 - (i % 2) * 10);
+
+  /** Shows a `spectrum` reply (keeping the zoom). */
+  set(spec) {
+    this.spec = spec;
+    this.draw();
+  }
+
+  _full() {
+    const off = this.spec.off || { wavelengths: [] };
+    const [lo, hi] = extent(this.spec.wavelengths, off.wavelengths);
+    return hi > lo ? [lo, hi] : [lo - 1, lo + 1];
+  }
+
+  _range() {
+    return this.range || this._full();
+  }
+
+  draw() {
+    const spec = this.spec;
+    const { c, w, h } = prepare(this.canvas);
+    if (!spec) return;
+    const off = spec.off || { wavelengths: [], values: [] };
+    if (!Number.isFinite(this._full()[0])) {
+      c.fillStyle = '#9aa3ad';
+      c.fillText('empty spectrum', 10, 20);
+      return;
     }
-    if (Number.isFinite(line.centroid_nm)) {
-      const xc = sx(line.centroid_nm);
-      c.fillStyle = '#f66';
-      c.beginPath();
-      c.moveTo(xc, box.t + 9);
-      c.lineTo(xc - 4, box.t + 1);
-      c.lineTo(xc + 4, box.t + 1);
-      c.fill();
-      c.textAlign = 'left';
-      c.textBaseline = 'top';
-      c.fillText(line.centroid_nm.toFixed(3), xc + 5, box.t + 2 + (i % 2) * 10);
+    const [x0, x1] = this._range();
+    // Fit the value axis to what is visible.
+    let y1 = 0;
+    for (const [ws, vs] of [[spec.wavelengths, spec.values], [off.wavelengths, off.values]])
+      ws.forEach((l, i) => {
+        if (l >= x0 && l <= x1 && Number.isFinite(vs[i])) y1 = Math.max(y1, vs[i]);
+      });
+    if (!(y1 > 0)) y1 = 1;
+    y1 *= 1.08;
+    const box = { l: SPEC_BOX.l, t: SPEC_BOX.t, w: w - SPEC_BOX.l - SPEC_BOX.r, h: h - SPEC_BOX.t - SPEC_BOX.b };
+    const { sx, sy } = axes(c, box, [x0, x1], [0, y1]);
+    c.fillStyle = '#9aa3ad';
+    c.textBaseline = 'bottom';
+    c.textAlign = 'center';
+    c.fillText('wavelength (nm)', box.l + box.w / 2, h - 2);
+    c.textAlign = 'left';
+    c.fillText(`pixel (${spec.x}, ${spec.y})`, 4, h - 2);
+    c.textAlign = 'right';
+    c.fillText('W m⁻² sr⁻¹ nm⁻¹', w - 4, h - 2);
+    c.save();
+    c.beginPath();
+    c.rect(box.l, box.t, box.w, box.h);
+    c.clip();
+    c.strokeStyle = 'rgba(190,190,190,0.7)';
+    c.lineWidth = 0.8;
+    polyline(c, off.wavelengths, off.values, sx, sy);
+    c.strokeStyle = '#5cf';
+    c.lineWidth = 1.6;
+    polyline(c, spec.wavelengths, spec.values, sx, sy);
+    c.restore();
+    this._drawLines(c, box, sx);
+    c.textAlign = 'right';
+    c.textBaseline = 'top';
+    c.fillStyle = '#5cf';
+    c.fillText('Doppler on', box.l + box.w - 4, box.t + 4);
+    c.fillStyle = '#bbb';
+    c.fillText('Doppler off', box.l + box.w - 4, box.t + 16);
+    c.fillStyle = '#f66';
+    c.fillText('▼ centroid', box.l + box.w - 4, box.t + 28);
+  }
+
+  /** Lines: dashed at the rest wavelength with the name, a triangle at the centroid. */
+  _drawLines(c, box, sx) {
+    const inside = (x) => x >= box.l && x <= box.l + box.w;
+    const rows = [-Infinity, -Infinity]; // right end of the last label in each row
+    c.lineWidth = 1;
+    c.font = '10px sans-serif';
+    for (const line of this.spec.lines || []) {
+      const xr = sx(line.rest_nm);
+      if (inside(xr)) {
+        c.strokeStyle = 'rgba(255,200,80,0.55)';
+        c.setLineDash([3, 3]);
+        c.beginPath();
+        c.moveTo(xr, box.t);
+        c.lineTo(xr, box.t + box.h);
+        c.stroke();
+        c.setLineDash([]);
+        // The name in the first row with room; none when both rows are taken.
+        const tw = c.measureText(line.name).width;
+        const k = rows.findIndex((end) => xr - tw / 2 > end + 4);
+        if (k >= 0) {
+          rows[k] = xr + tw / 2;
+          c.fillStyle = '#fc6';
+          c.textAlign = 'center';
+          c.textBaseline = 'bottom';
+          c.fillText(line.name, xr, box.t - 13 + k * 11);
+        }
+      }
+      if (Number.isFinite(line.centroid_nm) && inside(sx(line.centroid_nm))) {
+        const xc = sx(line.centroid_nm);
+        c.fillStyle = '#f66';
+        c.beginPath();
+        c.moveTo(xc, box.t + 8);
+        c.lineTo(xc - 4, box.t);
+        c.lineTo(xc + 4, box.t);
+        c.fill();
+        c.textAlign = 'left';
+        c.textBaseline = 'top';
+        // The centroid's value only where the view is zoomed enough to read it.
+        if (box.w / (this._range()[1] - this._range()[0]) > 20)
+          c.fillText(line.centroid_nm.toFixed(3), xc + 5, box.t + 2);
+      }
     }
-  });
-  // Legend.
-  c.textAlign = 'right';
-  c.textBaseline = 'top';
-  c.fillStyle = '#5cf';
-  c.fillText('Doppler on', box.l + box.w - 4, box.t + 22);
-  c.fillStyle = '#bbb';
-  c.fillText('Doppler off', box.l + box.w - 4, box.t + 34);
-  c.fillStyle = '#f66';
-  c.fillText('▼ centroid', box.l + box.w - 4, box.t + 46);
+  }
 }
 
 /** Draws a `trace` reply as small multiples into the container (one canvas per step). */
@@ -187,6 +275,7 @@ export function drawTrace(container, trace) {
 
 /** Draws a decoded colour-bar image into its canvas. */
 export function drawColourbar(canvas, bitmap) {
+  canvas.dataset.drawn = 'yes';
   canvas.width = bitmap.width;
   canvas.height = bitmap.height;
   canvas.getContext('2d').drawImage(bitmap, 0, 0);

@@ -893,14 +893,17 @@ export class TfEditor {
       c.fillStyle = css(evalColour(tf, this._xOf(this._tAt(g, g.L + px))));
       c.fillRect(g.L + px, g.stripTop, 1, STRIP_H);
     }
-    tf.color.forEach((k, i) => {
-      const x = this._sx(g, this._tOf(k.x));
+    const xs = tf.color.map((k) => this._sx(g, this._tOf(k.x)));
+    xs.forEach((x, i) => {
+      // Markers as wide as the gap to the neighbours allows (dense maps have many knots).
+      const gap = Math.min(i > 0 ? x - xs[i - 1] : Infinity, i + 1 < xs.length ? xs[i + 1] - x : Infinity);
+      const half = clamp((gap - 1) / 2, 1.5, 4);
       const sel = this.ch.sel && this.ch.sel.kind === 'colour' && this.ch.sel.i === i;
-      c.fillStyle = css(k.rgb);
-      c.strokeStyle = sel ? '#ffcc33' : '#fff';
+      c.fillStyle = css(tf.color[i].rgb);
+      c.strokeStyle = sel ? '#ffcc33' : 'rgba(255,255,255,0.8)';
       c.lineWidth = sel ? 2 : 1;
-      c.fillRect(x - 4, g.stripTop + 1, 8, STRIP_H - 2);
-      c.strokeRect(x - 4, g.stripTop + 1, 8, STRIP_H - 2);
+      c.fillRect(x - half, g.stripTop + 1, 2 * half, STRIP_H - 2);
+      c.strokeRect(x - half, g.stripTop + 1, 2 * half, STRIP_H - 2);
     });
     c.lineWidth = 1;
   }

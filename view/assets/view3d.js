@@ -47,11 +47,10 @@ export class View3D {
     this.ctx = canvas.getContext('2d', { willReadFrequently: true });
     this.mode = 'tracking';
     this.camera = null;
-    this.width = canvas.width;
-    this.height = canvas.height;
     this.drag = null;
     this.pickMark = null; // [x, y] full-resolution pixel
-    this.roi = null; // [x0, y0, x1, y1]
+    this.roi = null; // [x0, y0, x1, y1] while a rectangle is dragged
+    this.roiCircle = null; // Drago's region of interest {x_px, y_px, radius_px}
     this.lastLocalMove = -Infinity;
     this._bindMouse();
     new ResizeObserver(() => this.drawOverlay()).observe(canvas);
@@ -59,8 +58,6 @@ export class View3D {
 
   setInfo(info) {
     this.mode = info.mode;
-    this.width = info.width;
-    this.height = info.height;
     if (this.canvas.width !== info.width || this.canvas.height !== info.height) {
       this.canvas.width = info.width;
       this.canvas.height = info.height;
@@ -81,8 +78,17 @@ export class View3D {
     this.drawOverlay();
   }
 
-  /** Draws a decoded frame, scaling a (smaller) preview up to the canvas. */
-  drawFrame(bitmap) {
+  /**
+   * Draws a decoded frame, scaling a (smaller) preview up to the canvas. A full frame of
+   * another size than the canvas (e.g. the HDR pseudocolour view with its colour bar beside
+   * the image) resizes the canvas: canvas pixels stay image pixels.
+   */
+  drawFrame(bitmap, preview) {
+    if (!preview && (bitmap.width !== this.canvas.width || bitmap.height !== this.canvas.height)) {
+      this.canvas.width = bitmap.width;
+      this.canvas.height = bitmap.height;
+      this.canvas.style.aspectRatio = `${bitmap.width} / ${bitmap.height}`;
+    }
     const c = this.ctx;
     c.imageSmoothingEnabled = true;
     c.imageSmoothingQuality = 'high';
@@ -101,9 +107,10 @@ export class View3D {
   /** Full-resolution pixel under a mouse event. */
   pixelAt(ev) {
     const rect = this.canvas.getBoundingClientRect();
-    const x = Math.floor(((ev.clientX - rect.left) / rect.width) * this.width);
-    const y = Math.floor(((ev.clientY - rect.top) / rect.height) * this.height);
-    return [Math.min(this.width - 1, Math.max(0, x)), Math.min(this.height - 1, Math.max(0, y))];
+    const x = Math.floor(((ev.clientX - rect.left) / rect.width) * this.canvas.width);
+    const y = Math.floor(((ev.clientY - rect.top) / rect.height) * this.canvas.height);
+    const { width, height } = this.canvas;
+    return [Math.min(width - 1, Math.max(0, x)), Math.min(height - 1, Math.max(0, y))];
   }
 
   _bindMouse() {
@@ -153,7 +160,11 @@ export class View3D {
       }
       if (d.kind === 'orbit' || d.kind === 'pan') this.cb.sendCamera(this.camera, true);
       else if (d.kind === 'look') this.cb.onLook(0, 0, true);
-      else if (d.kind === 'roi' && this.roi) this.cb.onRoi(this.roi);
+      else if (d.kind === 'roi' && this.roi) {
+        this.cb.onRoi(this.roi);
+        this.roi = null;
+        this.drawOverlay();
+      }
     };
     el.addEventListener('pointerup', end);
     el.addEventListener('pointercancel', end);
@@ -229,8 +240,15 @@ export class View3D {
     const { r, u } = cameraBasis(cam);
     const dist = norm(sub(cam.eye, cam.target));
     const rect = this.canvas.getBoundingClientRect();
-    const fov = ((cam.fov ?? 30) * Math.PI) / 180;
-    const worldPerPx = (2 * dist * Math.tan(fov / 2)) / rect.height;
+    let worldPerPx;
+    if (cam.projection === 'orthographic' || !(cam.fov > 0)) {
+      // The orthographic window spans about the volume's diagonal at zoom 1.
+      const [b0, b1] = cam.bounds || [[-1, -1, -1], [1, 1, 1]];
+      worldPerPx = norm(sub(b1, b0)) / (cam.zoom || 1) / rect.height;
+    } else {
+      const fov = (cam.fov * Math.PI) / 180;
+      worldPerPx = (2 * dist * Math.tan(fov / 2)) / rect.height;
+    }
     const move = add(scale(r, -dx * worldPerPx), scale(u, dy * worldPerPx));
     cam.eye = add(cam.eye, move);
     cam.target = add(cam.target, move);
@@ -238,9 +256,15 @@ export class View3D {
     this.cb.sendCamera(cam, final);
   }
 
-  /** Dollies the eye towards (factor < 1) or away from the target. */
+  /** Dollies the eye towards (factor < 1) or away from the target; orthographic: scales. */
   zoom(factor, final) {
     const cam = this.camera;
+    if (cam.projection === 'orthographic') {
+      cam.zoom = (cam.zoom || 1) / factor;
+      this.lastLocalMove = performance.now();
+      this.cb.sendCamera(cam, final);
+      return;
+    }
     const off = scale(sub(cam.eye, cam.target), factor);
     if (norm(off) < 1e-6) return;
     cam.eye = add(cam.target, off);
@@ -260,14 +284,24 @@ export class View3D {
     const c = el.getContext('2d');
     c.setTransform(dpr, 0, 0, dpr, 0, 0);
     c.clearRect(0, 0, w, h);
-    const sx = w / this.width;
-    const sy = h / this.height;
+    const sx = w / this.canvas.width;
+    const sy = h / this.canvas.height;
     if (this.roi && this.mode === 'hdr') {
       const [x0, y0, x1, y1] = this.roi;
       c.strokeStyle = '#fff';
       c.setLineDash([4, 3]);
       c.strokeRect(x0 * sx, y0 * sy, (x1 - x0) * sx, (y1 - y0) * sy);
       c.setLineDash([]);
+    }
+    if (this.roiCircle && this.mode === 'hdr') {
+      // The white circle of HDR VolVis Fig. 4c.
+      const r = this.roiCircle;
+      c.strokeStyle = '#fff';
+      c.lineWidth = 1.5;
+      c.beginPath();
+      c.ellipse(r.x_px * sx, r.y_px * sy, r.radius_px * sx, r.radius_px * sy, 0, 0, 2 * Math.PI);
+      c.stroke();
+      c.lineWidth = 1;
     }
     if (this.pickMark && this.mode === 'doppler') {
       const [px, py] = this.pickMark;

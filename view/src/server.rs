@@ -8,8 +8,8 @@ use std::sync::Arc;
 use axum::Router;
 use axum::body::Body;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path as UrlPath, Request, State};
-use axum::http::{HeaderMap, StatusCode, header};
+use axum::extract::{FromRequestParts, Path as UrlPath, Request, State};
+use axum::http::{StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
@@ -285,13 +285,17 @@ async fn asset(
 async fn ws(
     State(app): State<Arc<App>>,
     UrlPath(token): UrlPath<String>,
-    headers: HeaderMap,
-    upgrade: WebSocketUpgrade,
+    req: Request,
 ) -> Response {
+    // A wrong token is a plain 404, whatever the request looks like.
     if !token_matches(&token, &app.token) {
         return not_found().await;
     }
-    let _ = headers;
+    let (mut parts, _) = req.into_parts();
+    let upgrade = match WebSocketUpgrade::from_request_parts(&mut parts, &()).await {
+        Ok(u) => u,
+        Err(e) => return e.into_response(),
+    };
     let app2 = app.clone();
     upgrade
         .max_message_size(MAX_MESSAGE_BYTES)

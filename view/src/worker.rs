@@ -166,10 +166,11 @@ impl Worker {
     pub(crate) fn submit(&self, text: &str) {
         match protocol::parse(text) {
             Ok(m) => {
-                let edit = m.is_edit();
-                if self.tx.send(m).is_ok() && edit {
+                // Cancel first, then queue: the worker clears the flag only after reading.
+                if m.is_edit() {
                     self.cancel.cancel();
                 }
+                let _ = self.tx.send(m);
             }
             Err(e) => {
                 let _ = self
@@ -202,7 +203,6 @@ fn run(mut mode: Box<dyn Mode + '_>, ctx: &Ctx) {
     ctx.send(&info_with_dir(mode.as_ref(), ctx));
     let mut need = Some(Stage::Preview);
     loop {
-        ctx.cancel.reset();
         let mut msgs: Vec<Incoming> = ctx
             .deferred
             .lock()
@@ -218,13 +218,20 @@ fn run(mut mode: Box<dyn Mode + '_>, ctx: &Ctx) {
                     Err(_) => return,
                 }
             }
-            loop {
-                match rx.try_recv() {
-                    Ok(m) => msgs.push(m),
-                    Err(mpsc::TryRecvError::Empty) => break,
-                    Err(mpsc::TryRecvError::Disconnected) => {
-                        closed = true;
-                        break;
+            // An edit raises the cancel flag before it is queued: clear the flag between two
+            // reads, so an edit that comes later still stops the render that follows.
+            for round in 0..2 {
+                if round == 1 {
+                    ctx.cancel.reset();
+                }
+                loop {
+                    match rx.try_recv() {
+                        Ok(m) => msgs.push(m),
+                        Err(mpsc::TryRecvError::Empty) => break,
+                        Err(mpsc::TryRecvError::Disconnected) => {
+                            closed = true;
+                            break;
+                        }
                     }
                 }
             }

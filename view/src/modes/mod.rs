@@ -141,6 +141,9 @@ impl SaveSet {
         inputs: &[PathBuf],
     ) -> Result<Self> {
         let written = ctx.written.lock().unwrap_or_else(|e| e.into_inner());
+        // A named save may replace this server's own files of that name; an unnamed one
+        // always takes a fresh name.
+        let replace_own = name.is_some();
         let free = |stem: &Path| -> Result<bool> {
             for s in suffixes {
                 let p = with_suffix(stem, s);
@@ -150,7 +153,7 @@ impl SaveSet {
                         p.display()
                     )));
                 }
-                if p.exists() && !written.contains(&p) {
+                if p.exists() && !(replace_own && written.contains(&p)) {
                     return Ok(false);
                 }
             }
