@@ -64,7 +64,12 @@ impl Viewer {
     }
 
     fn token(&self) -> String {
-        self.url.trim_end_matches('/').rsplit('/').next().unwrap().to_owned()
+        self.url
+            .trim_end_matches('/')
+            .rsplit('/')
+            .next()
+            .unwrap()
+            .to_owned()
     }
 
     fn connect(&self) -> Tab {
@@ -83,8 +88,14 @@ impl Viewer {
 /// The status code of a GET with the given Host and Origin headers.
 fn get(authority: &str, path: &str, host: &str, origin: Option<&str>) -> u16 {
     let mut s = TcpStream::connect(authority).unwrap();
-    let origin = origin.map(|o| format!("Origin: {o}\r\n")).unwrap_or_default();
-    write!(s, "GET {path} HTTP/1.1\r\nHost: {host}\r\n{origin}Connection: close\r\n\r\n").unwrap();
+    let origin = origin
+        .map(|o| format!("Origin: {o}\r\n"))
+        .unwrap_or_default();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {host}\r\n{origin}Connection: close\r\n\r\n"
+    )
+    .unwrap();
     let mut buf = String::new();
     let _ = s.read_to_string(&mut buf);
     buf.split_whitespace().nth(1).unwrap().parse().unwrap()
@@ -182,7 +193,11 @@ impl Tab {
 fn run_command(cmd: &str, extra: &[&str]) -> std::process::Output {
     let words: Vec<&str> = cmd.split_whitespace().collect();
     assert_eq!(words[0], "blueshift", "{cmd}");
-    let out = Command::new(BIN).args(&words[1..]).args(extra).output().unwrap();
+    let out = Command::new(BIN)
+        .args(&words[1..])
+        .args(extra)
+        .output()
+        .unwrap();
     assert!(
         out.status.success(),
         "{cmd}: {}",
@@ -210,32 +225,68 @@ fn command_reproduces(saved: &Value, ext: &str) {
     let aside = file.with_extension(format!("viewer{ext}"));
     std::fs::rename(&file, &aside).unwrap();
     run_command(saved["command"].as_str().unwrap(), &[]);
-    let (a, b) = (std::fs::read(&aside).unwrap(), std::fs::read(&file).unwrap());
-    assert!(a == b, "{}: the command's {ext} differs from the viewer's", saved["command"]);
+    let (a, b) = (
+        std::fs::read(&aside).unwrap(),
+        std::fs::read(&file).unwrap(),
+    );
+    assert!(
+        a == b,
+        "{}: the command's {ext} differs from the viewer's",
+        saved["command"]
+    );
 }
 
 #[test]
 fn the_viewer_refuses_without_its_token_or_from_a_foreign_host() {
-    let v = Viewer::start(&["--synth", "three-cubes", "--res", "16", "--width", "16", "--height", "16"]);
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--width",
+        "16",
+        "--height",
+        "16",
+    ]);
     let a = v.authority();
     let port = a.rsplit(':').next().unwrap().to_owned();
     let t = v.token();
     assert!(v.url.starts_with("http://127.0.0.1:"), "{}", v.url);
     assert_eq!(get(&a, &format!("/{t}/"), &a, None), 200);
     assert_eq!(get(&a, &format!("/{t}/app.js"), &a, None), 200);
-    assert_eq!(get(&a, &format!("/{t}/"), &format!("localhost:{port}"), None), 200);
+    assert_eq!(
+        get(&a, &format!("/{t}/"), &format!("localhost:{port}"), None),
+        200
+    );
     let wrong = "0".repeat(t.len());
-    for path in ["/", "/app.js", &format!("/{wrong}/"), &format!("/{wrong}/app.js"), &format!("/{wrong}/ws")] {
+    for path in [
+        "/",
+        "/app.js",
+        &format!("/{wrong}/"),
+        &format!("/{wrong}/app.js"),
+        &format!("/{wrong}/ws"),
+    ] {
         assert_eq!(get(&a, path, &a, None), 404, "{path}");
     }
     // DNS rebinding: the right token under a foreign Host or Origin.
-    assert_eq!(get(&a, &format!("/{t}/"), &format!("evil.example:{port}"), None), 403);
-    assert_eq!(get(&a, &format!("/{t}/"), "evil.example", None), 403);
     assert_eq!(
-        get(&a, &format!("/{t}/"), &a, Some(&format!("http://evil.example:{port}"))),
+        get(&a, &format!("/{t}/"), &format!("evil.example:{port}"), None),
         403
     );
-    assert_eq!(get(&a, &format!("/{t}/"), &a, Some(&format!("http://{a}"))), 200);
+    assert_eq!(get(&a, &format!("/{t}/"), "evil.example", None), 403);
+    assert_eq!(
+        get(
+            &a,
+            &format!("/{t}/"),
+            &a,
+            Some(&format!("http://evil.example:{port}"))
+        ),
+        403
+    );
+    assert_eq!(
+        get(&a, &format!("/{t}/"), &a, Some(&format!("http://{a}"))),
+        200
+    );
     // The WebSocket without the token does not open.
     assert!(tungstenite::connect(format!("ws://{a}/{wrong}/ws")).is_err());
     assert!(tungstenite::connect(format!("ws://{a}/ws")).is_err());
@@ -243,7 +294,18 @@ fn the_viewer_refuses_without_its_token_or_from_a_foreign_host() {
 
 #[test]
 fn a_malformed_message_gets_an_error_and_the_next_frame_still_arrives() {
-    let v = Viewer::start(&["--synth", "three-cubes", "--res", "16", "--width", "24", "--height", "24", "--spp", "2"]);
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--width",
+        "24",
+        "--height",
+        "24",
+        "--spp",
+        "2",
+    ]);
     let mut tab = v.connect();
     let info = tab.expect("info");
     assert_eq!(info["mode"], "tracking");
@@ -273,7 +335,18 @@ fn a_malformed_message_gets_an_error_and_the_next_frame_still_arrives() {
 
 #[test]
 fn tabs_have_their_own_sessions() {
-    let v = Viewer::start(&["--synth", "three-cubes", "--res", "16", "--width", "20", "--height", "20", "--spp", "1"]);
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--width",
+        "20",
+        "--height",
+        "20",
+        "--spp",
+        "1",
+    ]);
     let mut a = v.connect();
     let mut b = v.connect();
     a.expect("info");
@@ -306,7 +379,16 @@ fn tabs_have_their_own_sessions() {
 #[test]
 fn a_tracking_save_writes_the_exr_its_command_writes() {
     let v = Viewer::start(&[
-        "--synth", "three-cubes", "--res", "20", "--width", "40", "--height", "32", "--spp", "3",
+        "--synth",
+        "three-cubes",
+        "--res",
+        "20",
+        "--width",
+        "40",
+        "--height",
+        "32",
+        "--spp",
+        "3",
     ]);
     let mut tab = v.connect();
     let info = tab.expect("info");
@@ -318,9 +400,16 @@ fn a_tracking_save_writes_the_exr_its_command_writes() {
     tab.send(&json!({"type": "tf", "channel": 0, "tf": tf}));
     tab.expect("tf");
     let cam = &info["camera"];
-    let eye: Vec<f64> = cam["eye"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-    tab.send(&json!({"type": "camera", "eye": [eye[0] + 0.7, eye[1] - 0.3, eye[2]],
-                     "target": cam["target"], "up": cam["up"], "fov": 25.0}));
+    let eye: Vec<f64> = cam["eye"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    tab.send(
+        &json!({"type": "camera", "eye": [eye[0] + 0.7, eye[1] - 0.3, eye[2]],
+                     "target": cam["target"], "up": cam["up"], "fov": 25.0}),
+    );
     tab.expect("camera");
     tab.send(&json!({"type": "settings", "method": "mdwt-ndda", "blend": "max", "seed": 7}));
     tab.expect("settings");
@@ -369,7 +458,17 @@ fn csv_centroid(csv: &str, a: f64, b: f64) -> f64 {
 
 #[test]
 fn a_doppler_pick_has_the_centroids_of_the_cli_pick_and_save_reproduces() {
-    let v = Viewer::start(&["--synth", "galaxy", "--doppler", "--res", "24", "--width", "48", "--height", "48"]);
+    let v = Viewer::start(&[
+        "--synth",
+        "galaxy",
+        "--doppler",
+        "--res",
+        "24",
+        "--width",
+        "48",
+        "--height",
+        "48",
+    ]);
     let mut tab = v.connect();
     let info = tab.expect("info");
     assert_eq!(info["mode"], "doppler");
@@ -397,19 +496,27 @@ fn a_doppler_pick_has_the_centroids_of_the_cli_pick_and_save_reproduces() {
     let csv = std::fs::read_to_string(&csv_path).unwrap();
     let mut checked = 0;
     for line in sp["lines"].as_array().unwrap() {
-        let Some(c) = line["centroid_nm"].as_f64() else { continue };
+        let Some(c) = line["centroid_nm"].as_f64() else {
+            continue;
+        };
         let w = line["window_nm"].as_array().unwrap();
         let (a, b) = (w[0].as_f64().unwrap(), w[1].as_f64().unwrap());
         let cli = csv_centroid(&csv, a, b);
-        assert!((c - cli).abs() < 1e-9, "{}: viewer {c} nm, CLI {cli} nm", line["name"]);
+        assert!(
+            (c - cli).abs() < 1e-9,
+            "{}: viewer {c} nm, CLI {cli} nm",
+            line["name"]
+        );
         checked += 1;
     }
     assert!(checked >= 1, "no line with flux at the pick: {sp}");
     // Doppler on: the H-alpha centroid is shifted from the rest wavelength; Doppler off
     // (the thin spectrum) has it at rest.
-    let ha = sp["lines"].as_array().unwrap().iter().find(|l| {
-        (l["rest_nm"].as_f64().unwrap() - 656.28).abs() < 0.1
-    });
+    let ha = sp["lines"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|l| (l["rest_nm"].as_f64().unwrap() - 656.28).abs() < 0.1);
     if let Some(ha) = ha {
         let c = ha["centroid_nm"].as_f64().unwrap();
         assert!((c - 656.28).abs() > 0.01, "H-alpha not shifted: {c}");
@@ -418,17 +525,25 @@ fn a_doppler_pick_has_the_centroids_of_the_cli_pick_and_save_reproduces() {
 
 #[test]
 fn a_relativity_save_writes_the_exr_its_command_writes() {
-    let v = Viewer::start(&["--env", "checker", "--width", "40", "--height", "24", "--beta", "0.6"]);
+    let v = Viewer::start(&[
+        "--env", "checker", "--width", "40", "--height", "24", "--beta", "0.6",
+    ]);
     let mut tab = v.connect();
     assert_eq!(tab.expect("info")["mode"], "relativity");
     tab.until_done();
-    tab.send(&json!({"type": "relativity", "beta": 0.8, "direction": [1, 0, -1], "yaw": 30, "pitch": 10,
-                     "effects": {"searchlight": false}}));
+    tab.send(
+        &json!({"type": "relativity", "beta": 0.8, "direction": [1, 0, -1], "yaw": 30, "pitch": 10,
+                     "effects": {"searchlight": false}}),
+    );
     tab.expect("relativity");
     tab.until_done();
     tab.send(&json!({"type": "relativity", "beta": 1.0}));
     let e = tab.expect("error");
-    assert!(e["message"].as_str().unwrap().contains("beta") || e["message"].as_str().unwrap().contains("speed"), "{e}");
+    assert!(
+        e["message"].as_str().unwrap().contains("beta")
+            || e["message"].as_str().unwrap().contains("speed"),
+        "{e}"
+    );
     tab.send(&json!({"type": "save"}));
     let saved = tab.expect("saved");
     command_reproduces(&saved, ".exr");
@@ -436,7 +551,18 @@ fn a_relativity_save_writes_the_exr_its_command_writes() {
 
 #[test]
 fn save_never_replaces_an_input_or_a_foreign_file() {
-    let v = Viewer::start(&["--synth", "three-cubes", "--res", "12", "--width", "12", "--height", "12", "--spp", "1"]);
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "12",
+        "--width",
+        "12",
+        "--height",
+        "12",
+        "--spp",
+        "1",
+    ]);
     let saved_dir = v.dir.path().join("saved");
     std::fs::write(saved_dir.join("mine.png"), b"not the viewer's").unwrap();
     let mut tab = v.connect();
@@ -444,8 +570,17 @@ fn save_never_replaces_an_input_or_a_foreign_file() {
     tab.until_done();
     tab.send(&json!({"type": "save", "name": "mine"}));
     let e = tab.expect("error");
-    assert!(e["message"].as_str().unwrap().contains("choose another name"), "{e}");
-    assert_eq!(std::fs::read(saved_dir.join("mine.png")).unwrap(), b"not the viewer's");
+    assert!(
+        e["message"]
+            .as_str()
+            .unwrap()
+            .contains("choose another name"),
+        "{e}"
+    );
+    assert_eq!(
+        std::fs::read(saved_dir.join("mine.png")).unwrap(),
+        b"not the viewer's"
+    );
     for bad in ["../escape", "/etc/passwd", "a/b"] {
         tab.send(&json!({"type": "save", "name": bad}));
         tab.expect("error");
@@ -458,4 +593,75 @@ fn save_never_replaces_an_input_or_a_foreign_file() {
     let s2 = tab.expect("saved");
     assert_ne!(s1["files"], s2["files"]);
     let _: &Path = &saved_dir;
+}
+
+fn rss_kib(pid: u32) -> u64 {
+    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    s.lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap()
+}
+
+#[test]
+fn ten_thousand_edits_do_not_grow_memory() {
+    if !Path::new("/proc/self/status").exists() {
+        eprintln!("SKIP: no /proc to read resident memory from");
+        return;
+    }
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "24",
+        "--width",
+        "32",
+        "--height",
+        "32",
+        "--spp",
+        "2",
+    ]);
+    let mut tab = v.connect();
+    let info = tab.expect("info");
+    tab.until_done();
+    let cam = info["camera"].clone();
+    let tf0 = info["channels"][0]["tf"].clone();
+    let pid = v.child.id();
+    let mut at = Vec::new();
+    // Camera moves and transfer-function edits, alternating, sent in batches of 100 (the
+    // worker applies a batch and renders once); every reply is read.
+    for batch in 0..100u32 {
+        for j in 0..100u32 {
+            let i = batch * 100 + j;
+            if i.is_multiple_of(2) {
+                let dx = f64::from(i % 7) * 0.01;
+                let eye = cam["eye"].as_array().unwrap();
+                tab.send(&json!({"type": "camera",
+                    "eye": [eye[0].as_f64().unwrap() + dx, eye[1], eye[2]],
+                    "target": cam["target"], "up": cam["up"]}));
+            } else {
+                let mut tf = tf0.clone();
+                tf["opacity"][0]["alpha"] = json!(f64::from(i % 5) * 0.1);
+                tab.send(&json!({"type": "tf", "channel": 0, "tf": tf}));
+            }
+        }
+        for j in 0..100u32 {
+            tab.expect(if j.is_multiple_of(2) { "camera" } else { "tf" });
+        }
+        tab.frames.clear();
+        if batch == 19 || batch == 99 {
+            at.push(rss_kib(pid));
+        }
+    }
+    tab.until_done();
+    let growth = at[1] as i64 - at[0] as i64;
+    eprintln!(
+        "resident memory after 2,000 edits: {} KiB, after 10,000: {} KiB",
+        at[0], at[1]
+    );
+    // 8,000 more edits: a leak of 1 KiB per edit would add 8 MiB.
+    assert!(
+        growth < 4 * 1024,
+        "memory grew {growth} KiB over 8,000 edits"
+    );
 }

@@ -1,4 +1,5 @@
-//! Display mapping of the HDR frames (the HDR frame stays on the server) and PNG encoding.
+//! Display mapping of the HDR frames (the HDR frame stays on the server) and the PNG
+//! encoding of the streamed frames.
 
 use blueshift_tonemap::{
     DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
@@ -9,7 +10,7 @@ use image::{ImageEncoder, Rgb32FImage, RgbImage};
 use crate::{Error, Result};
 
 /// The display operators of the tracking view, as `blueshift render --tonemap` names them.
-pub(crate) const TONEMAPS: &[&str] = &[
+pub const TONEMAPS: &[&str] = &[
     "exposure",
     "linear",
     "drago",
@@ -21,7 +22,10 @@ pub(crate) const TONEMAPS: &[&str] = &[
 
 /// An operator of blueshift-tonemap with its paper's default parameters (`exposure`:
 /// `None`, plain exposure and clamp).
-pub(crate) fn operator(name: &str, exposure_stops: f32) -> Result<Option<Operator>> {
+///
+/// # Errors
+/// [`Error::Invalid`] for a name not in [`TONEMAPS`].
+pub fn operator(name: &str, exposure_stops: f32) -> Result<Option<Operator>> {
     Ok(match name {
         "exposure" => None,
         "linear" => Some(Operator::Linear(LinearParams {
@@ -43,13 +47,20 @@ pub(crate) fn operator(name: &str, exposure_stops: f32) -> Result<Option<Operato
 }
 
 /// Linear values in [0, 1] to 8-bit sRGB (non-finite: 0).
-pub(crate) fn encode_srgb8(v: f32) -> u8 {
-    let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+pub fn encode_srgb8(v: f32) -> u8 {
+    let v = if v.is_finite() {
+        v.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     (blueshift_tonemap::io::srgb_encode(v) * 255.0).round() as u8
 }
 
 /// A linear HDR image for display: `op` (or exposure in stops and a clamp), sRGB, 8 bits.
-pub(crate) fn to_rgb8(img: &Rgb32FImage, op: Option<&Operator>, stops: f32) -> Result<RgbImage> {
+///
+/// # Errors
+/// The operator's own.
+pub fn to_rgb8(img: &Rgb32FImage, op: Option<&Operator>, stops: f32) -> Result<RgbImage> {
     let display = match op {
         Some(op) => op.apply(img)?,
         None => {
@@ -59,13 +70,18 @@ pub(crate) fn to_rgb8(img: &Rgb32FImage, op: Option<&Operator>, stops: f32) -> R
             })
         }
     };
-    Ok(RgbImage::from_fn(display.width(), display.height(), |x, y| {
-        image::Rgb(display.get_pixel(x, y).0.map(encode_srgb8))
-    }))
+    Ok(RgbImage::from_fn(
+        display.width(),
+        display.height(),
+        |x, y| image::Rgb(display.get_pixel(x, y).0.map(encode_srgb8)),
+    ))
 }
 
 /// PNG bytes of an 8-bit RGB image, compressed for speed (frames are re-sent often).
-pub(crate) fn png_bytes(img: &RgbImage) -> Result<Vec<u8>> {
+///
+/// # Errors
+/// [`Error::Invalid`] when the encoder fails.
+pub fn png_bytes(img: &RgbImage) -> Result<Vec<u8>> {
     let mut out = Vec::with_capacity(img.as_raw().len() / 2 + 1024);
     image::codecs::png::PngEncoder::new_with_quality(
         &mut out,

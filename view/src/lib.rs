@@ -29,7 +29,7 @@
 //! | pixel spectrum and its step-by-step accumulation (Doppler paper Figs. 8, 9) | the `pick` and `trace` messages |
 
 mod assets;
-mod display;
+pub mod display;
 mod error;
 mod modes;
 mod protocol;

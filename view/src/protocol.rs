@@ -116,18 +116,38 @@ pub(crate) enum Incoming {
     Hello,
     Camera(CameraMsg),
     View(ViewMsg),
-    Tf { channel: usize, tf: Value },
-    TfLoad { channel: usize, text: String },
-    TfExport { channel: usize, paraview: bool },
-    TfRange { channel: Option<usize>, range: RangeMsg },
+    Tf {
+        channel: usize,
+        tf: Value,
+    },
+    TfLoad {
+        channel: usize,
+        text: String,
+    },
+    TfExport {
+        channel: usize,
+        paraview: bool,
+    },
+    TfRange {
+        channel: Option<usize>,
+        range: RangeMsg,
+    },
     Settings(SettingsMsg),
     Doppler(DopplerMsg),
-    Pick { x: u32, y: u32 },
-    Trace { x: u32, y: u32 },
+    Pick {
+        x: u32,
+        y: u32,
+    },
+    Trace {
+        x: u32,
+        y: u32,
+    },
     Panels,
     Relativity(RelativityMsg),
     Tonemap(TonemapMsg),
-    Save { name: Option<String> },
+    Save {
+        name: Option<String>,
+    },
     Cancel,
 }
 
@@ -180,9 +200,11 @@ where
     Option::<T>::deserialize(d).map(Some)
 }
 
-fn fields<T: for<'de> Deserialize<'de>>(kind: &str, obj: serde_json::Map<String, Value>) -> Result<T> {
-    serde_json::from_value(Value::Object(obj))
-        .map_err(|e| Error::invalid(format!("{kind}: {e}")))
+fn fields<T: for<'de> Deserialize<'de>>(
+    kind: &str,
+    obj: serde_json::Map<String, Value>,
+) -> Result<T> {
+    serde_json::from_value(Value::Object(obj)).map_err(|e| Error::invalid(format!("{kind}: {e}")))
 }
 
 /// Rejects any non-finite number anywhere in the message (JSON cannot spell NaN, but a
@@ -207,7 +229,11 @@ fn take_u32(obj: &mut serde_json::Map<String, Value>, kind: &str, key: &str) -> 
     obj.remove(key)
         .and_then(|v| v.as_u64())
         .and_then(|v| u32::try_from(v).ok())
-        .ok_or_else(|| Error::invalid(format!("{kind}: '{key}' must be a pixel index (integer >= 0)")))
+        .ok_or_else(|| {
+            Error::invalid(format!(
+                "{kind}: '{key}' must be a pixel index (integer >= 0)"
+            ))
+        })
 }
 
 fn no_more(kind: &str, obj: &serde_json::Map<String, Value>) -> Result<()> {
@@ -232,7 +258,9 @@ pub(crate) fn parse(text: &str) -> Result<Incoming> {
     let v: Value =
         serde_json::from_str(text).map_err(|e| Error::invalid(format!("not JSON: {e}")))?;
     let Value::Object(mut obj) = v else {
-        return Err(Error::invalid("a message must be a JSON object with a \"type\""));
+        return Err(Error::invalid(
+            "a message must be a JSON object with a \"type\"",
+        ));
     };
     if !all_finite(&Value::Object(obj.clone())) {
         return Err(Error::invalid("numbers must be finite"));
@@ -290,7 +318,9 @@ pub(crate) fn parse(text: &str) -> Result<Incoming> {
                 Some(v) => Some(
                     v.as_u64()
                         .and_then(|c| usize::try_from(c).ok())
-                        .ok_or_else(|| Error::invalid("tf_range: 'channel' must be an integer or null"))?,
+                        .ok_or_else(|| {
+                            Error::invalid("tf_range: 'channel' must be an integer or null")
+                        })?,
                 ),
             };
             let range = match obj.remove("range") {
@@ -380,16 +410,28 @@ mod tests {
             ("{\"x\":1}", "\"type\""),
             ("{\"type\":\"warp\"}", "unknown message type 'warp'"),
             ("{\"type\":\"pick\",\"x\":-1,\"y\":2}", "pixel index"),
-            ("{\"type\":\"pick\",\"x\":1,\"y\":2,\"z\":3}", "unknown field 'z'"),
-            ("{\"type\":\"camera\",\"eye\":[1,2],\"target\":[0,0,0],\"up\":[0,1,0]}", "camera"),
+            (
+                "{\"type\":\"pick\",\"x\":1,\"y\":2,\"z\":3}",
+                "unknown field 'z'",
+            ),
+            (
+                "{\"type\":\"camera\",\"eye\":[1,2],\"target\":[0,0,0],\"up\":[0,1,0]}",
+                "camera",
+            ),
             ("{\"type\":\"settings\",\"spp\":1e999}", "finite"),
-            ("{\"type\":\"save\",\"name\":\"../etc/passwd\"}", "save folder only"),
+            (
+                "{\"type\":\"save\",\"name\":\"../etc/passwd\"}",
+                "save folder only",
+            ),
             ("{\"type\":\"tf_range\",\"range\":[3,1]}", "lo < hi"),
         ] {
             let e = parse(text).unwrap_err().to_string();
             assert!(e.contains(says), "{text}: {e}");
         }
-        let big = format!("{{\"type\":\"hello\",\"pad\":\"{}\"}}", "x".repeat(MAX_MESSAGE_BYTES));
+        let big = format!(
+            "{{\"type\":\"hello\",\"pad\":\"{}\"}}",
+            "x".repeat(MAX_MESSAGE_BYTES)
+        );
         assert!(parse(&big).unwrap_err().to_string().contains("limit"));
     }
 
@@ -403,7 +445,11 @@ mod tests {
         let Incoming::Settings(s) = s else { panic!() };
         assert_eq!(s.noise_target, Some(None));
         assert_eq!(s.spp, Some(8));
-        assert!(parse("{\"type\":\"settings\",\"spp\":8}").unwrap().is_edit());
+        assert!(
+            parse("{\"type\":\"settings\",\"spp\":8}")
+                .unwrap()
+                .is_edit()
+        );
         assert!(!parse("{\"type\":\"save\"}").unwrap().is_edit());
     }
 

@@ -113,9 +113,8 @@ impl Server {
                 e,
             )
         })?;
-        let save_dir = std::fs::canonicalize(&config.save_dir).map_err(|e| {
-            Error::io(format!("--save-dir {}", config.save_dir.display()), e)
-        })?;
+        let save_dir = std::fs::canonicalize(&config.save_dir)
+            .map_err(|e| Error::io(format!("--save-dir {}", config.save_dir.display()), e))?;
         let addr = SocketAddr::new(config.address, config.port);
         let listener = std::net::TcpListener::bind(addr)
             .map_err(|e| Error::io(format!("cannot listen on {addr}"), e))?;

@@ -249,7 +249,11 @@ pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
 
 /// `--view`, `--fov`, `--eye`, `--target`, `--up` and `--zoom` over the view `build` and the
 /// cube flags chose (`--view` is `--normal` of its axis; one view flag at a time).
-pub(crate) fn apply_camera(args: &Args, scene: &DopplerScene, st: &mut DopplerSettings) -> Result<()> {
+pub(crate) fn apply_camera(
+    args: &Args,
+    scene: &DopplerScene,
+    st: &mut DopplerSettings,
+) -> Result<()> {
     let aspect = st.width as f32 / st.height.max(1) as f32;
     if let Some(view) = args.view.preset()? {
         if args.cube.axis.is_some() || args.cube.normal.is_some() || args.inclination != 0.0 {

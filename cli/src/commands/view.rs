@@ -6,7 +6,9 @@ use std::net::IpAddr;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use blueshift_view::{Config, DopplerSource, HdrSource, RelativitySource, Server, Source, TrackingSource};
+use blueshift_view::{
+    Config, DopplerSource, HdrSource, RelativitySource, Server, Source, TrackingSource,
+};
 use clap::Parser;
 
 /// Arguments of `blueshift view`.
@@ -100,7 +102,12 @@ fn tracking(args: &Args) -> Result<Source> {
         flags.extend(["--volume".into(), v.display().to_string()]);
     }
     if let Some(s) = &args.synth {
-        flags.extend(["--synth".into(), s.clone(), "--res".into(), args.res.to_string()]);
+        flags.extend([
+            "--synth".into(),
+            s.clone(),
+            "--res".into(),
+            args.res.to_string(),
+        ]);
     }
     let inline = !args.volumes.is_empty() || args.synth.is_some();
     if args.tfs.is_empty() && inline {
@@ -117,7 +124,14 @@ fn tracking(args: &Args) -> Result<Source> {
     }
     flags.extend(["--out".into(), "unused.exr".into()]);
     let parsed = RenderFlags::try_parse_from(&flags).map_err(|e| {
-        anyhow::anyhow!("{}", e.to_string().lines().next().unwrap_or("bad flags").trim_start_matches("error: "))
+        anyhow::anyhow!(
+            "{}",
+            e.to_string()
+                .lines()
+                .next()
+                .unwrap_or("bad flags")
+                .trim_start_matches("error: ")
+        )
     })?;
     let mut file = super::render::merge(&parsed.args)?;
     let size = |v: Option<u32>, file_v: Option<u32>| v.or(file_v).or(Some(256));
@@ -127,7 +141,12 @@ fn tracking(args: &Args) -> Result<Source> {
     let (scene, _, _) = file.build()?;
     let mut inputs: Vec<PathBuf> = args.volumes.clone();
     inputs.extend(args.scene.clone());
-    inputs.extend(args.tfs.iter().filter(|t| !t.contains(':')).map(PathBuf::from));
+    inputs.extend(
+        args.tfs
+            .iter()
+            .filter(|t| !t.contains(':'))
+            .map(PathBuf::from),
+    );
     Ok(Source::Tracking(Box::new(TrackingSource {
         file,
         scene,
@@ -151,7 +170,12 @@ fn doppler(args: &Args) -> Result<Source> {
     match (&args.doppler_scene, &args.synth) {
         (Some(p), _) => base.extend(["--scene".into(), p.display().to_string()]),
         (None, Some(s)) => {
-            base.extend(["--synth".into(), s.clone(), "--res".into(), args.res.to_string()]);
+            base.extend([
+                "--synth".into(),
+                s.clone(),
+                "--res".into(),
+                args.res.to_string(),
+            ]);
         }
         (None, None) => base.extend(["--synth".into(), "galaxy".into()]),
     }
@@ -164,7 +188,14 @@ fn doppler(args: &Args) -> Result<Source> {
         h.to_string(),
     ]);
     let parsed = DopplerFlags::try_parse_from(&flags).map_err(|e| {
-        anyhow::anyhow!("{}", e.to_string().lines().next().unwrap_or("bad flags").trim_start_matches("error: "))
+        anyhow::anyhow!(
+            "{}",
+            e.to_string()
+                .lines()
+                .next()
+                .unwrap_or("bad flags")
+                .trim_start_matches("error: ")
+        )
     })?;
     let d = &parsed.args;
     let (scene, mut st) = super::doppler::build(d)?;
@@ -180,8 +211,8 @@ fn doppler(args: &Args) -> Result<Source> {
             .map_err(|e| format!("{e:#}"))?
             .ok_or("panels: the scene has no H-alpha line for the velocity panel")?;
         let (rgb, _) = crate::figure::velocity_panel(&map, vmax);
-        let img = image::RgbImage::from_raw(st.width, st.height, rgb)
-            .ok_or("panels: image size")?;
+        let img =
+            image::RgbImage::from_raw(st.width, st.height, rgb).ok_or("panels: image size")?;
         Ok((
             img,
             serde_json::json!({

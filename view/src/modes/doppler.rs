@@ -10,8 +10,8 @@ use std::path::PathBuf;
 
 use blueshift_camera::{Camera, Observer, Progress, View};
 use blueshift_doppler::{
-    DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, Exposure,
-    Factors, SpectralIntegrator,
+    DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, Exposure, Factors,
+    SpectralIntegrator,
 };
 use glam::Vec3;
 use image::RgbImage;
@@ -358,7 +358,11 @@ impl<'a> DopplerMode<'a> {
             let _ = self.session.set_factors(self.effective_factors());
             return Err(e);
         }
-        if m.factors.is_none() && m.enabled.is_none() && m.integrator.is_none() && m.merge_tolerance.is_none() {
+        if m.factors.is_none()
+            && m.enabled.is_none()
+            && m.integrator.is_none()
+            && m.merge_tolerance.is_none()
+        {
             stage = Stage::Display;
         }
         Ok(stage)
@@ -508,7 +512,11 @@ impl Mode for DopplerMode<'_> {
             Incoming::Doppler(m) => {
                 let stage = self.apply_doppler(m)?;
                 ctx.send(&self.doppler_json());
-                Ok(Some(if self.view_current { stage } else { stage.max(Stage::Preview) }))
+                Ok(Some(if self.view_current {
+                    stage
+                } else {
+                    stage.max(Stage::Preview)
+                }))
             }
             Incoming::Pick { x, y } => {
                 let v = self.spectrum(x, y)?;

@@ -114,10 +114,10 @@ impl<'a> HdrMode<'a> {
                 params.insert(k, v);
             }
         }
-        if let Some(e) = m.exposure {
-            if params.contains_key("exposure_stops") {
-                params.insert("exposure_stops".into(), json!(e));
-            }
+        if let Some(e) = m.exposure
+            && params.contains_key("exposure_stops")
+        {
+            params.insert("exposure_stops".into(), json!(e));
         }
         if let Some(roi) = m.roi {
             if tag != "Drago" {
@@ -221,7 +221,12 @@ impl Mode for HdrMode<'_> {
                 let Some(img) = &self.last else {
                     return Err(Error::invalid("save: no finished frame yet"));
                 };
-                let set = SaveSet::new(ctx, name.as_deref(), &[".png"], &[self.src.path.clone()])?;
+                let set = SaveSet::new(
+                    ctx,
+                    name.as_deref(),
+                    &[".png"],
+                    std::slice::from_ref(&self.src.path),
+                )?;
                 let png = set.path(".png");
                 super::write_png(&png, img)?;
                 set.commit(ctx, std::slice::from_ref(&png));
@@ -246,7 +251,11 @@ impl Mode for HdrMode<'_> {
                 image::Rgb(display.get_pixel(x, y).0.map(encode_srgb8))
             })
         };
-        ctx.send_image("frame", &rgb, json!({ "pass": 1, "spp": 1, "preview": false }))?;
+        ctx.send_image(
+            "frame",
+            &rgb,
+            json!({ "pass": 1, "spp": 1, "preview": false }),
+        )?;
         ctx.send(&json!({
             "type": "status", "pass": 1, "spp": 1, "target_spp": 1, "noise": null,
             "ms": t.elapsed().as_secs_f64() * 1e3, "device": "cpu", "preview": false,

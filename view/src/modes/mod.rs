@@ -214,12 +214,11 @@ fn same_file(a: &Path, b: &Path) -> bool {
 /// Writes bytes atomically (a temporary file in the same folder, then a rename).
 pub(crate) fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
     blueshift_tonemap::io::write_atomic(path, |w| {
-        std::io::Write::write_all(w, bytes)
-            .map_err(|e| blueshift_tonemap::Error::Io {
-                message: "cannot write".into(),
-                path: path.to_path_buf(),
-                source: e,
-            })
+        std::io::Write::write_all(w, bytes).map_err(|e| blueshift_tonemap::Error::Io {
+            message: "cannot write".into(),
+            path: path.to_path_buf(),
+            source: e,
+        })
     })
     .map_err(Error::from)
 }
@@ -273,7 +272,8 @@ mod tests {
     fn the_centroid_of_a_triangle_is_its_mean() {
         // A symmetric triangle 650-660 nm peaking at 655: centroid 655; a right triangle
         // rising from 0 at 650 to 1 at 660: centroid at 2/3 of the way, 656.667.
-        let tri = PiecewiseLinear::from_samples(&[(650.0, 0.0), (655.0, 1.0), (660.0, 0.0)]).unwrap();
+        let tri =
+            PiecewiseLinear::from_samples(&[(650.0, 0.0), (655.0, 1.0), (660.0, 0.0)]).unwrap();
         assert!((centroid(&tri, 600.0, 700.0).unwrap() - 655.0).abs() < 1e-12);
         let ramp = PiecewiseLinear::from_samples(&[(650.0, 0.0), (660.0, 1.0)]).unwrap();
         let c = centroid(&ramp, 600.0, 700.0).unwrap();

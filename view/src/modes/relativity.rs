@@ -101,12 +101,20 @@ impl<'a> RelativityMode<'a> {
         if self.effects.searchlight {
             v.push("searchlight");
         }
-        if v.is_empty() { "none".into() } else { v.join(",") }
+        if v.is_empty() {
+            "none".into()
+        } else {
+            v.join(",")
+        }
     }
 
     fn send_frame(&self, ctx: &Ctx, img: &Rgb32FImage, preview: bool, ms: f64) -> Result<()> {
         let rgb = blueshift_relativity::to_srgb8(img, self.exposure);
-        ctx.send_image("frame", &rgb, json!({ "pass": 1, "spp": 1, "preview": preview }))?;
+        ctx.send_image(
+            "frame",
+            &rgb,
+            json!({ "pass": 1, "spp": 1, "preview": preview }),
+        )?;
         ctx.send(&json!({
             "type": "status", "pass": 1, "spp": 1, "target_spp": 1, "noise": null, "ms": ms,
             "device": "cpu", "preview": preview, "done": !preview,

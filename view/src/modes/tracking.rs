@@ -13,8 +13,8 @@ use blueshift_gpu::DeviceChoice;
 use blueshift_gpu::tracking::GpuTrackingSession;
 use blueshift_tfedit::TransferFunction;
 use blueshift_tracking::{
-    BlendKind, LightSpec, Method, Precision, Progressive, RenderSceneFile,
-    RenderSettings, Scene, TrackingSession,
+    BlendKind, LightSpec, Method, Precision, Progressive, RenderSceneFile, RenderSettings, Scene,
+    TrackingSession,
 };
 use image::Rgb32FImage;
 use serde_json::{Value, json};
@@ -181,7 +181,10 @@ impl TrackingMode {
 
     /// Rebuilds the CPU session around its scene after a scene-level edit (light,
     /// shading, density scale), and the GPU twin from it.
-    fn rebuild(&mut self, edit: impl FnOnce(&mut Scene, &RenderSceneFile) -> Result<()>) -> Result<()> {
+    fn rebuild(
+        &mut self,
+        edit: impl FnOnce(&mut Scene, &RenderSceneFile) -> Result<()>,
+    ) -> Result<()> {
         let integrator = self.session.integrator().clone();
         let settings = self.session.settings().clone();
         let mut scene = self.session.scene().clone();
@@ -260,8 +263,14 @@ impl TrackingMode {
             if let Some(l) = s.light_dir {
                 self.file.light = l.map(|direction| LightSpec {
                     direction,
-                    radiance: self.file.light.map_or(LightSpec::DEFAULT_RADIANCE, |l| l.radiance),
-                    ambient: self.file.light.map_or(LightSpec::DEFAULT_AMBIENT, |l| l.ambient),
+                    radiance: self
+                        .file
+                        .light
+                        .map_or(LightSpec::DEFAULT_RADIANCE, |l| l.radiance),
+                    ambient: self
+                        .file
+                        .light
+                        .map_or(LightSpec::DEFAULT_AMBIENT, |l| l.ambient),
                 });
             }
             if let Some(sh) = s.shading {
@@ -316,18 +325,25 @@ impl TrackingMode {
         });
         let op = display::operator(&self.tonemap, self.exposure)?;
         let op = match op {
-            Some(blueshift_tonemap::Operator::Linear(p)) => {
-                Some(blueshift_tonemap::Operator::Linear(blueshift_tonemap::LinearParams {
+            Some(blueshift_tonemap::Operator::Linear(p)) => Some(
+                blueshift_tonemap::Operator::Linear(blueshift_tonemap::LinearParams {
                     white: linear_white(&rgb),
                     ..p
-                }))
-            }
+                }),
+            ),
             other => other,
         };
         display::to_rgb8(&rgb, op.as_ref(), self.exposure)
     }
 
-    fn send_frame(&self, ctx: &Ctx, acc: &Progressive, preview: bool, done: bool, ms: f64) -> Result<()> {
+    fn send_frame(
+        &self,
+        ctx: &Ctx,
+        acc: &Progressive,
+        preview: bool,
+        done: bool,
+        ms: f64,
+    ) -> Result<()> {
         let img = self.display_image(acc)?;
         let st = self.session.settings();
         let noise = acc.noise();
@@ -470,6 +486,8 @@ struct Streamer<'a> {
     preview: bool,
     target: u32,
     last_pass: std::sync::Mutex<std::time::Instant>,
+    /// The time of the last pass, ms (for the final status).
+    last_ms: std::sync::Mutex<f64>,
 }
 
 impl Observer<Progressive> for Streamer<'_> {
@@ -483,10 +501,11 @@ impl Observer<Progressive> for Streamer<'_> {
             ms
         };
         let done = acc.samples() >= self.target;
-        if self.ctx.frame_due(done || self.preview) {
-            if let Err(e) = self.mode.send_frame(self.ctx, acc, self.preview, false, ms) {
-                self.ctx.error(&e.to_string(), None);
-            }
+        *self.last_ms.lock().unwrap_or_else(|e| e.into_inner()) = ms;
+        if self.ctx.frame_due(done || self.preview)
+            && let Err(e) = self.mode.send_frame(self.ctx, acc, self.preview, false, ms)
+        {
+            self.ctx.error(&e.to_string(), None);
         }
         if self.preview {
             return;
@@ -497,9 +516,11 @@ impl Observer<Progressive> for Streamer<'_> {
                     .save(self.ctx, name.as_deref(), acc)
                     .map(|v| self.ctx.send(&v)),
             ),
-            Incoming::Hello => Some(Ok(self
-                .ctx
-                .send(&crate::worker::info_with_dir(self.mode, self.ctx)))),
+            Incoming::Hello => {
+                self.ctx
+                    .send(&crate::worker::info_with_dir(self.mode, self.ctx));
+                Some(Ok(()))
+            }
             Incoming::TfExport { channel, paraview } => Some(
                 self.mode
                     .export_tf(*channel, *paraview)
@@ -579,8 +600,8 @@ impl Mode for TrackingMode {
                 Ok(Some(Stage::Preview))
             }
             Incoming::Tf { channel, tf } => {
-                let tf: TransferFunction = serde_json::from_value(tf)
-                    .map_err(|e| Error::invalid(format!("tf: {e}")))?;
+                let tf: TransferFunction =
+                    serde_json::from_value(tf).map_err(|e| Error::invalid(format!("tf: {e}")))?;
                 self.set_tf(channel, tf)?;
                 ctx.send(&self.tf_json(channel));
                 Ok(Some(Stage::Preview))
@@ -604,13 +625,12 @@ impl Mode for TrackingMode {
                     let ch = &self.session.scene().channels()[c];
                     let tf = ch.transfer_function();
                     let domain = match range {
-                        RangeMsg::Data => blueshift_tracking::scene_file::data_domain(
-                            ch.grid(),
-                            tf.data_axis(),
-                        )
-                        .ok_or_else(|| {
-                            Error::invalid(format!("tf_range: channel {c} has no values"))
-                        })?,
+                        RangeMsg::Data => {
+                            blueshift_tracking::scene_file::data_domain(ch.grid(), tf.data_axis())
+                                .ok_or_else(|| {
+                                Error::invalid(format!("tf_range: channel {c} has no values"))
+                            })?
+                        }
                         RangeMsg::Interval(lo, hi) => [lo, hi],
                     };
                     let tf = tf.rescaled(domain)?;
@@ -667,6 +687,7 @@ impl Mode for TrackingMode {
                 preview: true,
                 target: 1,
                 last_pass: std::sync::Mutex::new(std::time::Instant::now()),
+                last_ms: std::sync::Mutex::new(0.0),
             };
             let r = self.run_session(&streamer);
             self.set_render_settings(full.clone())?;
@@ -678,9 +699,11 @@ impl Mode for TrackingMode {
             preview: false,
             target: full.spp,
             last_pass: std::sync::Mutex::new(std::time::Instant::now()),
+            last_ms: std::sync::Mutex::new(0.0),
         };
         let acc = self.run_session(&streamer)?;
-        self.send_frame(ctx, &acc, false, true, 0.0)?;
+        let ms = *streamer.last_ms.lock().unwrap_or_else(|e| e.into_inner());
+        self.send_frame(ctx, &acc, false, true, ms)?;
         self.last = Some(acc);
         Ok(())
     }
