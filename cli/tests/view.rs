@@ -665,3 +665,31 @@ fn ten_thousand_edits_do_not_grow_memory() {
         "memory grew {growth} KiB over 8,000 edits"
     );
 }
+
+#[test]
+fn the_device_can_be_switched_to_the_gpu() {
+    let v = Viewer::start(&["--synth", "three-cubes", "--res", "16", "--width", "24", "--height", "24", "--spp", "4"]);
+    let mut tab = v.connect();
+    let info = tab.expect("info");
+    tab.until_done();
+    if info["devices"]["gpu"].is_null() {
+        let require = std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1");
+        assert!(!require, "BLUESHIFT_REQUIRE_GPU_TESTS=1 but the viewer found no adapter");
+        eprintln!("SKIP: no wgpu adapter");
+        return;
+    }
+    tab.send(&json!({"type": "settings", "device": "gpu"}));
+    assert_eq!(tab.expect("settings")["device"], "gpu");
+    let done = tab.until_done();
+    assert_ne!(done["device"], "cpu", "{done}");
+    assert_eq!(done["spp"], 4);
+    // Edits keep working on the device: a transfer function and a camera preset.
+    let mut tf = info["channels"][1]["tf"].clone();
+    tf["alpha_g"] = json!(0.5);
+    tab.send(&json!({"type": "tf", "channel": 1, "tf": tf}));
+    tab.expect("tf");
+    tab.until_done();
+    tab.send(&json!({"type": "settings", "device": "cpu"}));
+    tab.expect("settings");
+    assert_eq!(tab.until_done()["device"], "cpu");
+}
