@@ -81,6 +81,7 @@ impl Viewer {
         Tab {
             socket,
             frames: Default::default(),
+            texts: Default::default(),
         }
     }
 }
@@ -106,6 +107,8 @@ struct Tab {
     /// Frames that arrived while a text message was awaited (the page gets frames and text
     /// on separate queues, so their order is not fixed).
     frames: std::collections::VecDeque<Frame>,
+    /// Text messages that arrived while a frame was awaited.
+    texts: std::collections::VecDeque<Value>,
 }
 
 /// A frame's JSON header and PNG.
@@ -148,6 +151,12 @@ impl Tab {
     /// The next text message of `kind` (others are skipped); panics on an `error` unless
     /// that is what is awaited.
     fn expect(&mut self, kind: &str) -> Value {
+        while let Some(v) = self.texts.pop_front() {
+            if v["type"] == kind {
+                return v;
+            }
+            assert_ne!(v["type"], "error", "waiting for {kind}: {v}");
+        }
         let t0 = Instant::now();
         loop {
             assert!(t0.elapsed() < Duration::from_secs(120), "no {kind} message");
@@ -182,7 +191,10 @@ impl Tab {
             assert!(t0.elapsed() < Duration::from_secs(120), "no frame");
             match self.next() {
                 Got::Frame(f) => return f,
-                Got::Text(v) => assert_ne!(v["type"], "error", "waiting for a frame: {v}"),
+                Got::Text(v) => {
+                    assert_ne!(v["type"], "error", "waiting for a frame: {v}");
+                    self.texts.push_back(v);
+                }
             }
         }
     }
@@ -366,6 +378,7 @@ fn tabs_have_their_own_sessions() {
     b.until_done();
     for (tab, width) in [(&mut a, 12), (&mut b, 20)] {
         tab.frames.clear();
+        tab.texts.clear();
         tab.send(&json!({"type": "settings", "seed": 4}));
         let mut f = tab.frame();
         while f.header["preview"] == true {
@@ -668,13 +681,27 @@ fn ten_thousand_edits_do_not_grow_memory() {
 
 #[test]
 fn the_device_can_be_switched_to_the_gpu() {
-    let v = Viewer::start(&["--synth", "three-cubes", "--res", "16", "--width", "24", "--height", "24", "--spp", "4"]);
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--width",
+        "24",
+        "--height",
+        "24",
+        "--spp",
+        "4",
+    ]);
     let mut tab = v.connect();
     let info = tab.expect("info");
     tab.until_done();
     if info["devices"]["gpu"].is_null() {
         let require = std::env::var("BLUESHIFT_REQUIRE_GPU_TESTS").is_ok_and(|v| v == "1");
-        assert!(!require, "BLUESHIFT_REQUIRE_GPU_TESTS=1 but the viewer found no adapter");
+        assert!(
+            !require,
+            "BLUESHIFT_REQUIRE_GPU_TESTS=1 but the viewer found no adapter"
+        );
         eprintln!("SKIP: no wgpu adapter");
         return;
     }
@@ -692,4 +719,124 @@ fn the_device_can_be_switched_to_the_gpu() {
     tab.send(&json!({"type": "settings", "device": "cpu"}));
     tab.expect("settings");
     assert_eq!(tab.until_done()["device"], "cpu");
+}
+
+#[test]
+fn a_save_right_after_an_edit_saves_the_edited_image() {
+    // The edit and the save arrive together: the save waits for the edit's render.
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--width",
+        "24",
+        "--height",
+        "20",
+        "--spp",
+        "2",
+    ]);
+    let mut tab = v.connect();
+    let info = tab.expect("info");
+    tab.until_done();
+    let cam = &info["camera"];
+    let eye: Vec<f64> = cam["eye"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    tab.send(
+        &json!({"type": "camera", "eye": [eye[0] - 0.9, eye[1] + 0.4, eye[2]],
+                     "target": cam["target"], "up": cam["up"]}),
+    );
+    tab.send(&json!({"type": "save", "name": "at-once"}));
+    let saved = tab.expect("saved");
+    command_reproduces(&saved, ".exr");
+    // A Doppler view change and a save together.
+    let d = Viewer::start(&[
+        "--synth",
+        "galaxy",
+        "--doppler",
+        "--res",
+        "16",
+        "--width",
+        "24",
+        "--height",
+        "24",
+    ]);
+    let mut tab = d.connect();
+    tab.expect("info");
+    tab.until_done();
+    tab.send(&json!({"type": "view", "name": "-x"}));
+    tab.send(&json!({"type": "save", "name": "at-once"}));
+    command_reproduces(&tab.expect("saved"), ".exr");
+}
+
+#[test]
+fn a_refused_setting_leaves_the_state_as_it_was() {
+    let v = Viewer::start(&[
+        "--synth",
+        "three-cubes",
+        "--res",
+        "16",
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--spp",
+        "1",
+    ]);
+    let mut tab = v.connect();
+    tab.expect("info");
+    tab.until_done();
+    for bad in [
+        json!({"type": "settings", "density_scale": 1e30}),
+        json!({"type": "settings", "density_scale": 5, "device": "bogus"}),
+        json!({"type": "settings", "light_dir": [1, 1, 0], "width": 0}),
+        json!({"type": "settings", "width": 16384, "height": 4096}),
+    ] {
+        tab.send(&bad);
+        let e = tab.expect("error");
+        assert!(!e["message"].as_str().unwrap().is_empty(), "{bad}");
+    }
+    tab.send(&json!({"type": "settings", "seed": 1}));
+    let s = tab.expect("settings");
+    assert_eq!(s["density_scale"], 1.0, "{s}");
+    assert_eq!(s["light_dir"], Value::Null, "{s}");
+    assert_eq!(s["width"], 16, "{s}");
+    tab.until_done();
+    tab.send(&json!({"type": "save", "name": "after"}));
+    command_reproduces(&tab.expect("saved"), ".exr");
+}
+
+#[test]
+fn a_bad_command_line_fails_before_the_url() {
+    for args in [
+        &["--env", "checker", "--width", "0"][..],
+        &["--synth", "three-cubes", "--tonemap", "bogus"][..],
+        &[
+            "--synth",
+            "three-cubes",
+            "--width",
+            "4096",
+            "--height",
+            "4096",
+        ][..],
+    ] {
+        let out = Command::new(BIN)
+            .arg("view")
+            .args(args)
+            .args(["--port", "0"])
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        assert!(
+            out.stdout.is_empty(),
+            "{args:?}: printed {:?}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+    }
 }

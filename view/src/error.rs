@@ -64,6 +64,7 @@ impl Error {
                 | Error::Tracking(blueshift_tracking::Error::Cancelled)
                 | Error::Doppler(blueshift_doppler::Error::Cancelled)
                 | Error::Relativity(blueshift_relativity::Error::Cancelled)
+                | Error::Gpu(blueshift_gpu::Error::Cancelled)
         )
     }
 }

@@ -38,7 +38,8 @@ mod worker;
 
 pub use error::{Error, Result};
 pub use modes::{
-    DopplerSource, HdrSource, PanelFn, RelativitySource, Source, TrackingSource, centroid,
+    DopplerSource, HdrSource, MAX_VIEW_PIXELS, PanelFn, RelativitySource, Source, TrackingSource,
+    centroid,
 };
 pub use server::{Config, Server, allowed_host, new_token};
 

@@ -47,6 +47,18 @@ pub(crate) struct SettingsMsg {
     pub tonemap: Option<String>,
 }
 
+impl SettingsMsg {
+    /// Whether only the display mapping changes.
+    pub(crate) fn display_only(&self) -> bool {
+        let display = SettingsMsg {
+            exposure: self.exposure,
+            tonemap: self.tonemap.clone(),
+            ..SettingsMsg::default()
+        };
+        format!("{self:?}") == format!("{display:?}")
+    }
+}
+
 /// Table 1's factors.
 #[derive(Clone, Copy, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -174,8 +186,13 @@ impl Incoming {
         }
     }
 
-    /// Whether the message changes the picture (and so cancels the running render).
+    /// Whether the message changes the picture (and so cancels the running render). A
+    /// settings message that changes only the display mapping (exposure, tone map) is not
+    /// an edit: the last HDR frame is mapped again.
     pub(crate) fn is_edit(&self) -> bool {
+        if let Incoming::Settings(s) = self {
+            return !s.display_only();
+        }
         matches!(
             self,
             Incoming::Camera(_)
@@ -207,17 +224,6 @@ fn fields<T: for<'de> Deserialize<'de>>(
     serde_json::from_value(Value::Object(obj)).map_err(|e| Error::invalid(format!("{kind}: {e}")))
 }
 
-/// Rejects any non-finite number anywhere in the message (JSON cannot spell NaN, but a
-/// number too large for f64 parses as infinity).
-fn all_finite(v: &Value) -> bool {
-    match v {
-        Value::Number(n) => n.as_f64().is_none_or(f64::is_finite),
-        Value::Array(a) => a.iter().all(all_finite),
-        Value::Object(o) => o.values().all(all_finite),
-        _ => true,
-    }
-}
-
 fn take_usize(obj: &mut serde_json::Map<String, Value>, kind: &str, key: &str) -> Result<usize> {
     obj.remove(key)
         .and_then(|v| v.as_u64())
@@ -243,11 +249,23 @@ fn no_more(kind: &str, obj: &serde_json::Map<String, Value>) -> Result<()> {
     }
 }
 
+/// Numbers that fit f64 can still overflow f32 (1e39 becomes infinity).
+fn finite_f32<'a>(kind: &str, mut v: impl Iterator<Item = &'a f32>) -> Result<()> {
+    if v.all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(Error::invalid(format!(
+            "{kind}: a number is too large (beyond single precision)"
+        )))
+    }
+}
+
 /// Parses one text message.
 ///
 /// # Errors
-/// [`Error::Invalid`] naming what is wrong: too long, not JSON, not an object, an unknown
-/// type or field, a wrong value type, a non-finite number.
+/// [`Error::Invalid`] naming what is wrong: too long, not JSON (serde_json also refuses
+/// numbers beyond f64), not an object, an unknown type or field, a wrong value type, a
+/// number beyond f32 where the engines take f32.
 pub(crate) fn parse(text: &str) -> Result<Incoming> {
     if text.len() > MAX_MESSAGE_BYTES {
         return Err(Error::invalid(format!(
@@ -262,9 +280,6 @@ pub(crate) fn parse(text: &str) -> Result<Incoming> {
             "a message must be a JSON object with a \"type\"",
         ));
     };
-    if !all_finite(&Value::Object(obj.clone())) {
-        return Err(Error::invalid("numbers must be finite"));
-    }
     let kind = match obj.remove("type") {
         Some(Value::String(s)) => s,
         _ => return Err(Error::invalid("a message needs a string \"type\"")),
@@ -279,8 +294,23 @@ pub(crate) fn parse(text: &str) -> Result<Incoming> {
                 _ => Incoming::Cancel,
             }
         }
-        "camera" => Incoming::Camera(fields(k, obj)?),
-        "view" => Incoming::View(fields(k, obj)?),
+        "camera" => {
+            let c: CameraMsg = fields(k, obj)?;
+            let all = c
+                .eye
+                .iter()
+                .chain(&c.target)
+                .chain(&c.up)
+                .chain(&c.fov)
+                .chain(&c.zoom);
+            finite_f32(k, all)?;
+            Incoming::Camera(c)
+        }
+        "view" => {
+            let v: ViewMsg = fields(k, obj)?;
+            finite_f32(k, v.zoom.iter())?;
+            Incoming::View(v)
+        }
         "tf" => {
             let channel = take_usize(&mut obj, k, "channel")?;
             let tf = obj
@@ -342,10 +372,19 @@ pub(crate) fn parse(text: &str) -> Result<Incoming> {
             no_more(k, &obj)?;
             Incoming::TfRange { channel, range }
         }
-        "settings" => Incoming::Settings(fields(k, obj)?),
+        "settings" => {
+            let st: SettingsMsg = fields(k, obj)?;
+            let light = st.light_dir.iter().flatten().flatten();
+            finite_f32(k, st.exposure.iter().chain(&st.density_scale).chain(light))?;
+            Incoming::Settings(st)
+        }
         "doppler" => Incoming::Doppler(fields(k, obj)?),
         "relativity" => Incoming::Relativity(fields(k, obj)?),
-        "tonemap" => Incoming::Tonemap(fields(k, obj)?),
+        "tonemap" => {
+            let t: TonemapMsg = fields(k, obj)?;
+            finite_f32(k, t.exposure.iter())?;
+            Incoming::Tonemap(t)
+        }
         "pick" | "trace" => {
             let x = take_u32(&mut obj, k, "x")?;
             let y = take_u32(&mut obj, k, "y")?;
@@ -418,12 +457,20 @@ mod tests {
                 "{\"type\":\"camera\",\"eye\":[1,2],\"target\":[0,0,0],\"up\":[0,1,0]}",
                 "camera",
             ),
-            ("{\"type\":\"settings\",\"spp\":1e999}", "finite"),
+            ("{\"type\":\"settings\",\"spp\":1e999}", "out of range"),
             (
                 "{\"type\":\"save\",\"name\":\"../etc/passwd\"}",
                 "save folder only",
             ),
             ("{\"type\":\"tf_range\",\"range\":[3,1]}", "lo < hi"),
+            (
+                "{\"type\":\"settings\",\"exposure\":1e39}",
+                "single precision",
+            ),
+            (
+                "{\"type\":\"camera\",\"eye\":[1e39,0,0],\"target\":[0,0,0],\"up\":[0,1,0]}",
+                "single precision",
+            ),
         ] {
             let e = parse(text).unwrap_err().to_string();
             assert!(e.contains(says), "{text}: {e}");
@@ -451,6 +498,16 @@ mod tests {
                 .is_edit()
         );
         assert!(!parse("{\"type\":\"save\"}").unwrap().is_edit());
+        assert!(
+            !parse("{\"type\":\"settings\",\"exposure\":1}")
+                .unwrap()
+                .is_edit()
+        );
+        assert!(
+            parse("{\"type\":\"settings\",\"exposure\":1,\"seed\":2}")
+                .unwrap()
+                .is_edit()
+        );
     }
 
     #[test]

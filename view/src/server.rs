@@ -53,10 +53,18 @@ pub fn new_token() -> Result<String> {
 }
 
 /// Whether a `Host` header value names this server: the bound address, 127.0.0.1,
-/// localhost or [::1], each with the bound port.
+/// localhost or [::1], each with the bound port. Bound to an unspecified address
+/// (`--bind 0.0.0.0`), any IP literal with the port is accepted too (the address the other
+/// machine reached this one by; DNS rebinding needs a host name, which stays refused), but
+/// never the unspecified address itself.
 #[must_use]
 pub fn allowed_host(host: &str, bound: SocketAddr) -> bool {
     let port = bound.port();
+    if bound.ip().is_unspecified()
+        && let Ok(addr) = host.parse::<SocketAddr>()
+    {
+        return addr.port() == port && !addr.ip().is_unspecified();
+    }
     let mut ok = vec![
         format!("127.0.0.1:{port}"),
         format!("localhost:{port}"),
@@ -75,7 +83,12 @@ struct App {
     bound: SocketAddr,
     source: Arc<Source>,
     save_dir: PathBuf,
+    written: crate::worker::Written,
+    tabs: std::sync::atomic::AtomicUsize,
 }
+
+/// Most tabs served at once (each has its own session: a copy of the scene).
+pub const MAX_TABS: usize = 8;
 
 /// A bound server, ready to [`Server::run`].
 #[derive(Debug)]
@@ -115,6 +128,8 @@ impl Server {
         })?;
         let save_dir = std::fs::canonicalize(&config.save_dir)
             .map_err(|e| Error::io(format!("--save-dir {}", config.save_dir.display()), e))?;
+        // Refuse a source the sessions cannot be built from before printing any URL.
+        drop(crate::modes::build(&source)?);
         let addr = SocketAddr::new(config.address, config.port);
         let listener = std::net::TcpListener::bind(addr)
             .map_err(|e| Error::io(format!("cannot listen on {addr}"), e))?;
@@ -169,6 +184,8 @@ impl Server {
                 bound: self.bound,
                 source: self.source,
                 save_dir: self.save_dir,
+                written: Default::default(),
+                tabs: std::sync::atomic::AtomicUsize::new(0),
             });
             axum::serve(listener, router(app))
                 .with_graceful_shutdown(shutdown())
@@ -304,15 +321,33 @@ async fn ws(
 
 /// One tab: its worker thread renders; this task moves messages both ways.
 async fn connection(mut socket: WebSocket, app: Arc<App>) {
-    let (worker, mut text_rx, mut frame_rx) =
-        match Worker::spawn(app.source.clone(), app.save_dir.clone()) {
-            Ok(w) => w,
-            Err(e) => {
-                let msg = crate::protocol::error_json(&e.to_string(), None);
-                let _ = socket.send(Message::Text(msg.into())).await;
-                return;
-            }
-        };
+    use std::sync::atomic::Ordering;
+    if app.tabs.fetch_add(1, Ordering::SeqCst) >= MAX_TABS {
+        app.tabs.fetch_sub(1, Ordering::SeqCst);
+        let msg = crate::protocol::error_json(
+            &format!("this viewer serves at most {MAX_TABS} tabs at once; close one"),
+            None,
+        );
+        let _ = socket.send(Message::Text(msg.into())).await;
+        return;
+    }
+    serve_tab(&mut socket, &app).await;
+    app.tabs.fetch_sub(1, Ordering::SeqCst);
+}
+
+async fn serve_tab(socket: &mut WebSocket, app: &App) {
+    let (worker, mut text_rx, mut frame_rx) = match Worker::spawn(
+        app.source.clone(),
+        app.save_dir.clone(),
+        app.written.clone(),
+    ) {
+        Ok(w) => w,
+        Err(e) => {
+            let msg = crate::protocol::error_json(&e.to_string(), None);
+            let _ = socket.send(Message::Text(msg.into())).await;
+            return;
+        }
+    };
     loop {
         tokio::select! {
             incoming = socket.recv() => {
@@ -348,4 +383,57 @@ async fn connection(mut socket: WebSocket, app: Arc<App>) {
         }
     }
     worker.stop();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_this_servers_names_are_hosts() {
+        let lo: SocketAddr = "127.0.0.1:8765".parse().unwrap();
+        for ok in [
+            "127.0.0.1:8765",
+            "localhost:8765",
+            "LOCALHOST:8765",
+            "[::1]:8765",
+        ] {
+            assert!(allowed_host(ok, lo), "{ok}");
+        }
+        for bad in [
+            "127.0.0.1",
+            "127.0.0.1:8766",
+            "evil.example:8765",
+            "localhost.:8765",
+            "192.168.1.5:8765",
+            "0.0.0.0:8765",
+            "",
+        ] {
+            assert!(!allowed_host(bad, lo), "{bad}");
+        }
+        // Bound to every interface: IP literals of the machine are fine, names are not
+        // (DNS rebinding needs one), nor the unspecified address.
+        let any: SocketAddr = "0.0.0.0:8765".parse().unwrap();
+        assert!(allowed_host("192.168.1.5:8765", any));
+        assert!(allowed_host("localhost:8765", any));
+        for bad in [
+            "evil.example:8765",
+            "0.0.0.0:8765",
+            "[::]:8765",
+            "192.168.1.5:1",
+        ] {
+            assert!(!allowed_host(bad, any), "{bad}");
+        }
+    }
+
+    #[test]
+    fn tokens_are_random_hex() {
+        let (a, b) = (new_token().unwrap(), new_token().unwrap());
+        assert_eq!(a.len(), 32);
+        assert!(a.bytes().all(|c| c.is_ascii_hexdigit()));
+        assert_ne!(a, b);
+        assert!(token_matches(&a, &a.clone()));
+        assert!(!token_matches(&a, &b));
+        assert!(!token_matches(&a[..31], &a));
+    }
 }

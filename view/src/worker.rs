@@ -26,19 +26,26 @@ pub(crate) enum Outgoing {
     Binary(Vec<u8>),
 }
 
+/// The files the server wrote, shared by the tabs.
+pub(crate) type Written = Arc<Mutex<std::collections::HashSet<PathBuf>>>;
+
 /// The newest main frame (header + PNG), or none yet.
 pub(crate) type FrameSlot = Option<Arc<Vec<u8>>>;
 
 /// The handle the connection task keeps.
 pub(crate) struct Worker {
-    tx: mpsc::Sender<Incoming>,
+    tx: mpsc::SyncSender<Incoming>,
     cancel: CancelToken,
-    text: tmpsc::UnboundedSender<Outgoing>,
+    text: tmpsc::Sender<Outgoing>,
 }
+
+/// Messages a tab may have waiting for its worker; more are refused with an error (the page
+/// must read its replies: the worker waits for the socket, so the queues stay bounded).
+const QUEUE: usize = 256;
 
 /// What a render needs to reach the page, shared with the observers.
 pub(crate) struct Ctx {
-    text: tmpsc::UnboundedSender<Outgoing>,
+    text: tmpsc::Sender<Outgoing>,
     frame: watch::Sender<FrameSlot>,
     pub(crate) cancel: CancelToken,
     seq: AtomicU64,
@@ -47,8 +54,9 @@ pub(crate) struct Ctx {
     rx: Mutex<mpsc::Receiver<Incoming>>,
     /// Where `save` writes.
     pub(crate) save_dir: PathBuf,
-    /// Files this server wrote (a save may replace them, nothing else).
-    pub(crate) written: Mutex<std::collections::HashSet<PathBuf>>,
+    /// Files this server wrote, shared by all tabs (a named save may replace them, nothing
+    /// else); held for the whole of a save, so two tabs never pick one name.
+    pub(crate) written: Written,
     last_frame: Mutex<Option<Instant>>,
 }
 
@@ -59,14 +67,16 @@ const FRAME_INTERVAL: Duration = Duration::from_millis(33);
 impl Ctx {
     /// Sends a JSON message.
     pub(crate) fn send(&self, v: &Value) {
-        let _ = self.text.send(Outgoing::Text(v.to_string()));
+        // Waits while the page is not reading (back-pressure instead of an unbounded queue);
+        // fails only when the tab is gone.
+        let _ = self.text.blocking_send(Outgoing::Text(v.to_string()));
     }
 
     /// Sends an `error` reply.
     pub(crate) fn error(&self, message: &str, request: Option<&str>) {
         let _ = self
             .text
-            .send(Outgoing::Text(protocol::error_json(message, request)));
+            .blocking_send(Outgoing::Text(protocol::error_json(message, request)));
     }
 
     /// Whether a refinement frame is due now (`last` frames always are).
@@ -94,7 +104,7 @@ impl Ctx {
         if kind == "frame" {
             let _ = self.frame.send(Some(Arc::new(bytes)));
         } else {
-            let _ = self.text.send(Outgoing::Binary(bytes));
+            let _ = self.text.blocking_send(Outgoing::Binary(bytes));
         }
         Ok(())
     }
@@ -102,10 +112,34 @@ impl Ctx {
     /// Reads the messages that arrived during a render: the ones `now` can serve are
     /// served at once (with the render's current state), the rest wait for the render's
     /// end. Called by the observers between passes.
+    /// An edit among them cancels the render (it is applied after); once one message
+    /// waits, every later one waits too, so replies keep the order of the requests.
     pub(crate) fn poll(&self, mut now: impl FnMut(&Incoming) -> Option<Result<()>>) {
         let rx = self.rx.lock().unwrap_or_else(|e| e.into_inner());
-        while let Ok(m) = rx.try_recv() {
-            match now(&m) {
+        loop {
+            let m = match rx.try_recv() {
+                Ok(m) => m,
+                Err(mpsc::TryRecvError::Empty) => break,
+                Err(mpsc::TryRecvError::Disconnected) => {
+                    // The tab is gone: stop rendering for it.
+                    self.cancel.cancel();
+                    break;
+                }
+            };
+            if m.is_edit() {
+                self.cancel.cancel();
+            }
+            let waiting = !self
+                .deferred
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .is_empty();
+            let served = if waiting || m.is_edit() {
+                None
+            } else {
+                now(&m)
+            };
+            match served {
                 Some(Ok(())) => {}
                 Some(Err(e)) => self.error(&e.to_string(), Some(m.kind())),
                 None => self
@@ -123,13 +157,14 @@ impl Worker {
     pub(crate) fn spawn(
         source: Arc<Source>,
         save_dir: PathBuf,
+        written: Written,
     ) -> Result<(
         Worker,
-        tmpsc::UnboundedReceiver<Outgoing>,
+        tmpsc::Receiver<Outgoing>,
         watch::Receiver<FrameSlot>,
     )> {
-        let (tx, rx) = mpsc::channel();
-        let (text_tx, text_rx) = tmpsc::unbounded_channel();
+        let (tx, rx) = mpsc::sync_channel(QUEUE);
+        let (text_tx, text_rx) = tmpsc::channel(QUEUE);
         let (frame_tx, frame_rx) = watch::channel(None);
         let cancel = CancelToken::new();
         let ctx = Ctx {
@@ -140,7 +175,7 @@ impl Worker {
             deferred: Mutex::new(VecDeque::new()),
             rx: Mutex::new(rx),
             save_dir,
-            written: Mutex::new(Default::default()),
+            written,
             last_frame: Mutex::new(None),
         };
         std::thread::Builder::new()
@@ -167,15 +202,24 @@ impl Worker {
         match protocol::parse(text) {
             Ok(m) => {
                 // Cancel first, then queue: the worker clears the flag only after reading.
-                if m.is_edit() {
+                let edit = m.is_edit();
+                let kind = m.kind();
+                if edit {
                     self.cancel.cancel();
                 }
-                let _ = self.tx.send(m);
+                if let Err(mpsc::TrySendError::Full(_)) = self.tx.try_send(m) {
+                    let msg = format!(
+                        "{kind}: refused, {QUEUE} messages are already waiting; read the replies before sending more"
+                    );
+                    let _ = self
+                        .text
+                        .try_send(Outgoing::Text(protocol::error_json(&msg, Some(kind))));
+                }
             }
             Err(e) => {
                 let _ = self
                     .text
-                    .send(Outgoing::Text(protocol::error_json(&e.to_string(), None)));
+                    .try_send(Outgoing::Text(protocol::error_json(&e.to_string(), None)));
             }
         }
     }
@@ -183,8 +227,8 @@ impl Worker {
     /// Stops the worker (the tab went away): the render is cancelled and the thread ends
     /// when it sees its channel closed.
     pub(crate) fn stop(self) {
-        self.cancel.cancel();
         drop(self.tx);
+        self.cancel.cancel();
     }
 }
 
@@ -239,10 +283,17 @@ fn run(mut mode: Box<dyn Mode + '_>, ctx: &Ctx) {
         if closed {
             return;
         }
+        // Requests that follow an edit in the same batch (save, pick, ...) wait for the
+        // render of that edit, so they see its result.
+        let mut after: Vec<Incoming> = Vec::new();
         for m in msgs {
             let kind = m.kind();
             if matches!(m, Incoming::Cancel) {
                 need = None;
+                continue;
+            }
+            if need.is_some_and(|s| s > Stage::Display) && !m.is_edit() {
+                after.push(m);
                 continue;
             }
             if matches!(m, Incoming::Hello) {
@@ -256,10 +307,21 @@ fn run(mut mode: Box<dyn Mode + '_>, ctx: &Ctx) {
             }
         }
         if let Some(stage) = need.take() {
+            if stage > Stage::Display {
+                // The last frame no longer shows the state: nothing may be saved from it.
+                mode.invalidate();
+            }
             match mode.render(stage, ctx) {
                 Ok(()) => {}
-                Err(e) if e.is_cancelled() => {}
+                // Render again after reading what cancelled it (unless that was `cancel`).
+                Err(e) if e.is_cancelled() => need = Some(stage),
                 Err(e) => ctx.error(&e.to_string(), None),
+            }
+        }
+        if !after.is_empty() {
+            let mut d = ctx.deferred.lock().unwrap_or_else(|e| e.into_inner());
+            for m in after.into_iter().rev() {
+                d.push_front(m);
             }
         }
     }

@@ -168,7 +168,12 @@ struct DopplerFlags {
 fn doppler(args: &Args) -> Result<Source> {
     let mut base: Vec<String> = Vec::new();
     match (&args.doppler_scene, &args.synth) {
-        (Some(p), _) => base.extend(["--scene".into(), p.display().to_string()]),
+        (Some(p), _) => {
+            // An absolute path, so the printed command works from any folder.
+            let p = std::fs::canonicalize(p)
+                .with_context(|| format!("--doppler-scene {}", p.display()))?;
+            base.extend(["--scene".into(), p.display().to_string()]);
+        }
         (None, Some(s)) => {
             base.extend([
                 "--synth".into(),
@@ -240,10 +245,11 @@ fn relativity(args: &Args, env: &std::path::Path) -> Result<Source> {
             Vec::new(),
         )
     } else {
+        let abs = std::fs::canonicalize(env).with_context(|| format!("--env {}", env.display()))?;
         (
-            blueshift_relativity::Environment::load(env)?,
-            vec![env.display().to_string()],
-            vec![env.to_path_buf()],
+            blueshift_relativity::Environment::load(&abs)?,
+            vec![abs.display().to_string()],
+            vec![abs],
         )
     };
     blueshift_relativity::Velocity::along(glam::DVec3::NEG_Z, args.beta)?;

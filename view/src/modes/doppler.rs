@@ -390,7 +390,7 @@ impl<'a> DopplerMode<'a> {
         let png = set.path(".png");
         super::write_png(&png, &self.rgb8(img)?)?;
         let files = vec![exr.clone(), png];
-        set.commit(ctx, &files);
+        set.commit(&files);
         let st = self.session.settings();
         let f = self.effective_factors();
         let mut args: Vec<String> = vec!["blueshift".into(), "doppler".into()];
@@ -486,28 +486,47 @@ impl Mode for DopplerMode<'_> {
                 Ok(Some(Stage::Preview))
             }
             Incoming::Settings(s) => {
+                let unsupported = [
+                    ("method", s.method.is_some()),
+                    ("blend", s.blend.is_some()),
+                    ("spp", s.spp.is_some()),
+                    ("noise_target", s.noise_target.is_some()),
+                    ("density_scale", s.density_scale.is_some()),
+                    ("light_dir", s.light_dir.is_some()),
+                    ("shading", s.shading.is_some()),
+                    ("precision", s.precision.is_some()),
+                    ("seed", s.seed.is_some()),
+                    ("tonemap", s.tonemap.is_some()),
+                    ("device", s.device.as_deref().is_some_and(|d| d != "cpu")),
+                ];
+                if let Some((name, _)) = unsupported.iter().find(|(_, set)| *set) {
+                    return Err(Error::invalid(format!(
+                        "settings: '{name}' does not apply to a Doppler scene (the viewer renders it on the CPU, deterministically; the Doppler message sets its factors and integrator)"
+                    )));
+                }
                 let mut st = self.session.settings().clone();
-                if let Some(w) = s.width {
-                    st.width = w;
-                }
-                if let Some(h) = s.height {
-                    st.height = h;
-                }
-                if let Some(d) = &s.device
-                    && d != "cpu"
-                {
-                    return Err(Error::invalid(
-                        "settings: the viewer renders Doppler scenes on the CPU (use blueshift doppler --device gpu for batch GPU renders)",
-                    ));
+                st.width = s.width.unwrap_or(st.width);
+                st.height = s.height.unwrap_or(st.height);
+                super::check_view_size(st.width, st.height)?;
+                st.camera = self.camera(&st)?;
+                let resized = (st.width, st.height)
+                    != (
+                        self.session.settings().width,
+                        self.session.settings().height,
+                    );
+                if resized {
+                    self.session.set_settings(st)?;
                 }
                 if let Some(e) = s.exposure {
                     self.exposure = f64::from(e);
                 }
-                st.camera = self.camera(&st)?;
-                self.session.set_settings(st)?;
-                self.view_current = false;
                 ctx.send(&self.info());
-                Ok(Some(Stage::Preview))
+                if resized {
+                    self.view_current = false;
+                    Ok(Some(Stage::Preview))
+                } else {
+                    Ok(Some(Stage::Display))
+                }
             }
             Incoming::Doppler(m) => {
                 let stage = self.apply_doppler(m)?;
@@ -546,6 +565,10 @@ impl Mode for DopplerMode<'_> {
                 other.kind()
             ))),
         }
+    }
+
+    fn invalidate(&mut self) {
+        self.last = None;
     }
 
     fn render(&mut self, stage: Stage, ctx: &Ctx) -> Result<()> {

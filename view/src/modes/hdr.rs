@@ -111,6 +111,13 @@ impl<'a> HdrMode<'a> {
                         "tonemap: {name} has no parameter '{k}'"
                     )));
                 }
+                // Only what `blueshift tonemap` can be told, so "save" prints a command
+                // that makes the same picture.
+                if k != "roi" && cli_flag(&k).is_none() && params.get(&k) != Some(&v) {
+                    return Err(Error::invalid(format!(
+                        "tonemap: {name}'s '{k}' keeps its default here (blueshift tonemap has no flag for it)"
+                    )));
+                }
                 params.insert(k, v);
             }
         }
@@ -155,25 +162,6 @@ impl<'a> HdrMode<'a> {
             "--op".into(),
             self.name.clone(),
         ];
-        let flag_of = |k: &str| -> Option<&'static str> {
-            Some(match k {
-                "bias" => "--bias",
-                "max_display_luminance" => "--ld-max",
-                "exposure_stops" => "--exposure",
-                "key" => "--key",
-                "white" => "--white",
-                "phi" => "--phi",
-                "epsilon" => "--epsilon",
-                "scales" => "--scales",
-                "sigma_spatial_px" => "--sigma-s",
-                "sigma_range" => "--sigma-r",
-                "base_contrast" => "--contrast",
-                "alpha_ratio" => "--alpha",
-                "beta" => "--beta",
-                "saturation" => "--saturation",
-                _ => return None,
-            })
-        };
         for (k, v) in &self.params {
             if k == "roi" {
                 if let Ok(Some(r)) = serde_json::from_value::<Option<Roi>>(v.clone()) {
@@ -182,7 +170,7 @@ impl<'a> HdrMode<'a> {
                 }
                 continue;
             }
-            if let (Some(f), Some(n)) = (flag_of(k), v.as_f64()) {
+            if let (Some(f), Some(n)) = (cli_flag(k), v.as_f64()) {
                 args.push(f.into());
                 args.push(n.to_string());
             }
@@ -194,6 +182,27 @@ impl<'a> HdrMode<'a> {
         args.push(out.display().to_string());
         command_line(&args)
     }
+}
+
+/// The `blueshift tonemap` flag of an operator parameter (serde name).
+fn cli_flag(k: &str) -> Option<&'static str> {
+    Some(match k {
+        "bias" => "--bias",
+        "max_display_luminance" => "--ld-max",
+        "exposure_stops" => "--exposure",
+        "key" => "--key",
+        "white" => "--white",
+        "phi" => "--phi",
+        "epsilon" => "--epsilon",
+        "scales" => "--scales",
+        "sigma_spatial_px" => "--sigma-s",
+        "sigma_range" => "--sigma-r",
+        "base_contrast" => "--contrast",
+        "alpha_ratio" => "--alpha",
+        "beta" => "--beta",
+        "saturation" => "--saturation",
+        _ => return None,
+    })
 }
 
 impl Mode for HdrMode<'_> {
@@ -229,7 +238,7 @@ impl Mode for HdrMode<'_> {
                 )?;
                 let png = set.path(".png");
                 super::write_png(&png, img)?;
-                set.commit(ctx, std::slice::from_ref(&png));
+                set.commit(std::slice::from_ref(&png));
                 let cmd = self.command(&png);
                 ctx.send(&saved_reply(&[png], &cmd, None));
                 Ok(None)
@@ -239,6 +248,10 @@ impl Mode for HdrMode<'_> {
                 other.kind()
             ))),
         }
+    }
+
+    fn invalidate(&mut self) {
+        self.last = None;
     }
 
     fn render(&mut self, _stage: Stage, ctx: &Ctx) -> Result<()> {

@@ -40,16 +40,39 @@ pub(crate) trait Mode: Send {
     fn handle(&mut self, msg: Incoming, ctx: &Ctx) -> Result<Option<Stage>>;
     /// Renders (preview and refinement as `stage` says), streaming frames.
     fn render(&mut self, stage: Stage, ctx: &Ctx) -> Result<()>;
+    /// Forgets the last finished frame (the state changed since).
+    fn invalidate(&mut self);
 }
 
 /// A tab's mode over its own copy of the source.
 pub(crate) fn build(source: &Source) -> Result<Box<dyn Mode + '_>> {
+    let (w, h) = match source {
+        Source::Tracking(s) => (s.file.width.unwrap_or(512), s.file.height.unwrap_or(512)),
+        Source::Doppler(s) => (s.settings.width, s.settings.height),
+        Source::Relativity(s) => s.size,
+        Source::Hdr(s) => (s.image.width(), s.image.height()),
+    };
+    check_view_size(w, h)?;
     Ok(match source {
         Source::Tracking(s) => Box::new(tracking::TrackingMode::new(s)?),
         Source::Doppler(s) => Box::new(doppler::DopplerMode::new(s)?),
         Source::Relativity(s) => Box::new(relativity::RelativityMode::new(s)?),
         Source::Hdr(s) => Box::new(hdr::HdrMode::new(s)?),
     })
+}
+
+/// Largest image the viewer renders, pixels (2048 x 2048: a tab's accumulation buffers
+/// then stay under 300 MB; batch renders of any size are the CLI's).
+pub const MAX_VIEW_PIXELS: u64 = 1 << 22;
+
+/// Refuses an image size over [`MAX_VIEW_PIXELS`] (or empty).
+pub(crate) fn check_view_size(width: u32, height: u32) -> Result<()> {
+    if width == 0 || height == 0 || u64::from(width) * u64::from(height) > MAX_VIEW_PIXELS {
+        return Err(Error::invalid(format!(
+            "image size {width}x{height}: the viewer renders 1 to {MAX_VIEW_PIXELS} pixels (2048x2048); use the batch command for larger images"
+        )));
+    }
+    Ok(())
 }
 
 /// The size of a quarter-resolution preview.
@@ -128,14 +151,16 @@ pub(crate) fn spectrum_points(s: &blueshift_spectrum::PiecewiseLinear) -> (Vec<f
 
 /// The files of one save: a stem in the save folder, chosen so no existing file is
 /// replaced unless this server wrote it, and no input named on the command line.
-pub(crate) struct SaveSet {
+pub(crate) struct SaveSet<'a> {
     pub stem: PathBuf,
+    /// The server's written files, locked for the whole save.
+    written: std::sync::MutexGuard<'a, std::collections::HashSet<PathBuf>>,
 }
 
-impl SaveSet {
+impl<'a> SaveSet<'a> {
     /// Picks the stem: `name`, or the first free `view-NNN`.
     pub(crate) fn new(
-        ctx: &Ctx,
+        ctx: &'a Ctx,
         name: Option<&str>,
         suffixes: &[&str],
         inputs: &[PathBuf],
@@ -182,7 +207,7 @@ impl SaveSet {
                 found.ok_or_else(|| Error::invalid("save: no free view-NNN name left"))?
             }
         };
-        Ok(Self { stem })
+        Ok(Self { stem, written })
     }
 
     /// The path of one file of the set.
@@ -191,9 +216,8 @@ impl SaveSet {
     }
 
     /// Records the files as written by this server (a later save may replace them).
-    pub(crate) fn commit(&self, ctx: &Ctx, files: &[PathBuf]) {
-        let mut written = ctx.written.lock().unwrap_or_else(|e| e.into_inner());
-        written.extend(files.iter().cloned());
+    pub(crate) fn commit(mut self, files: &[PathBuf]) {
+        self.written.extend(files.iter().cloned());
     }
 }
 

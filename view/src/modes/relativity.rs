@@ -140,7 +140,7 @@ impl<'a> RelativityMode<'a> {
         let png = set.path(".png");
         super::write_png(&png, &blueshift_relativity::to_srgb8(img, self.exposure))?;
         let files = vec![exr.clone(), png];
-        set.commit(ctx, &files);
+        set.commit(&files);
         let c = self.session.camera();
         let v3 = |v: DVec3| format!("{},{},{}", v.x, v.y, v.z);
         let mut args: Vec<String> = vec!["blueshift".into(), "relativity".into()];
@@ -225,6 +225,10 @@ impl Mode for RelativityMode<'_> {
                 other.kind()
             ))),
         }
+    }
+
+    fn invalidate(&mut self) {
+        self.last = None;
     }
 
     fn render(&mut self, stage: Stage, ctx: &Ctx) -> Result<()> {

@@ -220,8 +220,14 @@ impl TrackingMode {
     }
 
     fn apply_settings(&mut self, s: SettingsMsg) -> Result<Stage> {
-        let mut stage = Stage::Full;
+        let mut stage = if s.display_only() {
+            Stage::Display
+        } else {
+            Stage::Full
+        };
         let old = (self.file.clone(), self.exposure, self.tonemap.clone());
+        let old_density = self.session.scene().density_scale();
+        let old_device = self.device;
         let result = (|| -> Result<Stage> {
             if let Some(m) = &s.method {
                 self.file.method = Some(parse::<Method>(m)?);
@@ -244,11 +250,11 @@ impl TrackingMode {
             if let Some(seed) = s.seed {
                 self.file.seed = Some(seed);
             }
-            if let Some(w) = s.width {
+            if s.width.is_some() || s.height.is_some() {
+                let w = s.width.or(self.file.width).unwrap_or(512);
+                let h = s.height.or(self.file.height).unwrap_or(512);
+                super::check_view_size(w, h)?;
                 self.file.width = Some(w);
-                stage = Stage::Preview;
-            }
-            if let Some(h) = s.height {
                 self.file.height = Some(h);
                 stage = Stage::Preview;
             }
@@ -300,8 +306,14 @@ impl TrackingMode {
             Ok(stage)
         })();
         if result.is_err() {
-            // Keep the old state whole: the file, the display and the session built from it.
+            // Keep the old state whole: the file, the display, and the session and its GPU
+            // twin rebuilt from them (density scale, light and shading, device).
             (self.file, self.exposure, self.tonemap) = old;
+            if self.session.scene().density_scale() != old_density {
+                let _ = self.session.set_density_scale(old_density);
+            }
+            let _ = self.rebuild(|scene, file| Ok(file.apply_lighting(scene)?));
+            let _ = self.set_device(old_device);
             let _ = self.sync();
         }
         result
@@ -433,7 +445,7 @@ impl TrackingMode {
         let png = set.path(".png");
         super::write_png(&png, &self.display_image(acc)?)?;
         files.push(png.clone());
-        set.commit(ctx, &files);
+        set.commit(&files);
         let mut args: Vec<String> = vec![
             "blueshift".into(),
             "render".into(),
@@ -662,6 +674,10 @@ impl Mode for TrackingMode {
                 other.kind()
             ))),
         }
+    }
+
+    fn invalidate(&mut self) {
+        self.last = None;
     }
 
     fn render(&mut self, stage: Stage, ctx: &Ctx) -> Result<()> {
