@@ -248,6 +248,27 @@ impl PiecewiseLinear {
         Some((first.0.0, last.1.end))
     }
 
+    /// The flux-weighted centroid over `[min_nm, max_nm]`: the exact first moment over the
+    /// zeroth (each piece's `∫ λ f dλ` and `∫ f dλ` in closed form); `None` where the
+    /// spectrum has no flux there. A line's centroid over a window around it is where its
+    /// Doppler shift puts it.
+    #[must_use]
+    pub fn centroid(&self, min_nm: f64, max_nm: f64) -> Option<f64> {
+        let (mut m0, mut m1) = (0.0, 0.0);
+        for p in self.pieces() {
+            let (l0, l1) = (p.start_nm.max(min_nm), p.end_nm.min(max_nm));
+            if l1 <= l0 {
+                continue;
+            }
+            let (f0, f1) = (p.at(l0), p.at(l1));
+            let d = l1 - l0;
+            m0 += 0.5 * (f0 + f1) * d;
+            // The first moment of the line from (l0, f0) to (l1, f1).
+            m1 += d * (f0 * (2.0 * l0 + l1) + f1 * (l0 + 2.0 * l1)) / 6.0;
+        }
+        (m0 > 0.0).then(|| m1 / m0)
+    }
+
     /// Value at `wavelength_nm` (zero outside the pieces; pieces are half-open `[start, end)`).
     #[must_use]
     pub fn eval(&self, wavelength_nm: f64) -> f64 {
@@ -687,6 +708,22 @@ fn check_piece(p: &Piece) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_centroid_of_a_triangle_is_its_mean() {
+        // A symmetric triangle 650-660 nm peaking at 655: centroid 655; a right triangle
+        // rising from 0 at 650 to 1 at 660: centroid at 2/3 of the way, 656.667.
+        let tri =
+            PiecewiseLinear::from_samples(&[(650.0, 0.0), (655.0, 1.0), (660.0, 0.0)]).unwrap();
+        assert!((tri.centroid(600.0, 700.0).unwrap() - 655.0).abs() < 1e-12);
+        let ramp = PiecewiseLinear::from_samples(&[(650.0, 0.0), (660.0, 1.0)]).unwrap();
+        let c = ramp.centroid(600.0, 700.0).unwrap();
+        assert!((c - (650.0 + 20.0 / 3.0)).abs() < 1e-9, "{c}");
+        // A window cutting the ramp at 655: the part 650-655 (a smaller right triangle).
+        let c = ramp.centroid(640.0, 655.0).unwrap();
+        assert!((c - (650.0 + 10.0 / 3.0)).abs() < 1e-9, "{c}");
+        assert!(ramp.centroid(700.0, 710.0).is_none());
+    }
 
     fn close(a: f64, b: f64, tol: f64) {
         assert!(

@@ -65,6 +65,7 @@ pub mod session;
 
 pub use error::{Error, Result};
 pub use inverse::GlobalCurve;
+pub use ops::linear::{LINEAR_WHITE_PERCENTILE, default_linear_white};
 pub use ops::{
     DragoParams, DurandParams, ExposureSeries, FattalParams, LinearParams, Operator,
     ReinhardLocalParams, ReinhardParams, Roi, exposure_series,

@@ -11,7 +11,7 @@
 //! Each WebSocket connection (each browser tab) gets its own worker thread and its own
 //! engine session, so several tabs see their own edits. An edit cancels the running pass at
 //! once (the engines poll [`blueshift_camera::Observer::cancelled`] between rows and
-//! passes); the worker then renders a quarter-resolution 1-spp preview and refines at full
+//! passes); the worker then renders a quarter-resolution 1-spp preview (then a half-resolution one for images of 256x256 or more) and refines at full
 //! resolution, sending every pass as an 8-bit PNG tone-mapped on the server. Only the newest
 //! frame waits for the socket: frames never queue up behind a slow page.
 //!
@@ -39,7 +39,6 @@ mod worker;
 pub use error::{Error, Result};
 pub use modes::{
     DopplerSource, HdrSource, MAX_VIEW_PIXELS, PanelFn, RelativitySource, Source, TrackingSource,
-    centroid,
 };
 pub use server::{Config, Server, allowed_host, new_token};
 

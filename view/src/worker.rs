@@ -239,7 +239,8 @@ pub(crate) enum Stage {
     Display,
     /// The full-resolution render without a preview (cheap edits).
     Full,
-    /// A quarter-resolution 1-spp preview, then the full-resolution refinement.
+    /// Quarter- (and, from 256x256, half-) resolution 1-spp previews, then the
+    /// full-resolution refinement.
     Preview,
 }
 

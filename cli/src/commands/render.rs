@@ -522,16 +522,8 @@ impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for OnPass<
     }
 }
 
-/// The names `--tonemap` accepts.
-const TONEMAPS: [&str; 7] = [
-    "exposure",
-    "linear",
-    "drago",
-    "reinhard",
-    "reinhard-local",
-    "durand",
-    "fattal",
-];
+// The names `--tonemap` accepts: the viewer's display operators.
+use blueshift_view::display::TONEMAPS;
 
 /// Writes the PNG preview of an HDR render: plain exposure + clamp + sRGB, or a tone-mapping
 /// operator of blueshift-tonemap (the alpha channel is dropped; the background shows).
@@ -542,25 +534,9 @@ fn write_png_preview(
     exposure: f32,
     overlay: Option<&[u8]>,
 ) -> Result<()> {
-    use blueshift_tonemap::{
-        DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
-        ReinhardParams,
-    };
-    let op = match tonemap {
-        "exposure" => None,
-        "linear" => Some(Operator::Linear(LinearParams {
-            exposure_stops: exposure,
-            white: None,
-        })),
-        "drago" => Some(Operator::Drago(DragoParams::default())),
-        "reinhard" => Some(Operator::Reinhard(ReinhardParams::default())),
-        "reinhard-local" => Some(Operator::ReinhardLocal(ReinhardLocalParams::default())),
-        "durand" => Some(Operator::Durand(DurandParams::default())),
-        "fattal" => Some(Operator::Fattal(FattalParams::default())),
-        other => bail!(
-            "--tonemap {other:?}: expected exposure, linear, drago, reinhard, reinhard-local, durand or fattal"
-        ),
-    };
+    use blueshift_tonemap::{LinearParams, Operator};
+    let op = blueshift_view::display::operator(tonemap, exposure)
+        .map_err(|e| anyhow::anyhow!("--{e}"))?;
     let gain = 2f32.powf(exposure);
     let rgb = image::Rgb32FImage::from_fn(img.width(), img.height(), |x, y| {
         let p = img.get_pixel(x, y).0;
@@ -569,7 +545,7 @@ fn write_png_preview(
     // The linear operator's white: the 99th percentile, as `blueshift tonemap` takes it.
     let op = match op {
         Some(Operator::Linear(p)) => Some(Operator::Linear(LinearParams {
-            white: crate::commands::tonemap::default_linear_white(&rgb),
+            white: blueshift_tonemap::default_linear_white(&rgb),
             ..p
         })),
         other => other,

@@ -136,29 +136,6 @@ fn parse_roi(s: &str) -> std::result::Result<Roi, String> {
     }
 }
 
-/// The percentile of the lit pixels' luminance that the linear operator maps to display 1
-/// by default.
-pub const LINEAR_WHITE_PERCENTILE: f64 = 99.0;
-
-/// The default white of the linear operator: the [`LINEAR_WHITE_PERCENTILE`]-th percentile
-/// of the luminance of the lit (positive, finite) pixels, so the brightest 1 % clip and a
-/// hot pixel or a small bright source no longer maps everything else to black, as the
-/// maximum did. `None` when no pixel is lit.
-pub fn default_linear_white(img: &Rgb32FImage) -> Option<f32> {
-    let mut lum: Vec<f32> = img
-        .pixels()
-        .map(|p| blueshift_tonemap::luminance(p.0))
-        .filter(|y| y.is_finite() && *y > 0.0)
-        .collect();
-    if lum.is_empty() {
-        return None;
-    }
-    let last = lum.len() - 1;
-    let k = ((LINEAR_WHITE_PERCENTILE / 100.0) * last as f64).round() as usize;
-    let (_, v, _) = lum.select_nth_unstable_by(k.min(last), f32::total_cmp);
-    Some(*v)
-}
-
 /// Builds the operator from the flags.
 pub fn operator(args: &Args) -> Operator {
     match args.op {
@@ -271,7 +248,7 @@ pub fn run(args: Args) -> Result<()> {
     if let Operator::Linear(p) = &mut op
         && p.white.is_none()
     {
-        p.white = default_linear_white(hdr);
+        p.white = blueshift_tonemap::default_linear_white(hdr);
     }
     let mut outputs = Vec::new();
     let t1 = Instant::now();

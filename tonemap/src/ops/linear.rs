@@ -114,3 +114,27 @@ pub fn exposure_series(img: &Rgb32FImage, series: &ExposureSeries) -> Result<Vec
         })
         .collect()
 }
+
+/// The percentile of the lit pixels' luminance that the linear operator maps to display 1
+/// by default (`blueshift tonemap --op linear`, `render --tonemap linear`, the viewer).
+pub const LINEAR_WHITE_PERCENTILE: f64 = 99.0;
+
+/// The default white of the linear operator: the [`LINEAR_WHITE_PERCENTILE`]-th percentile
+/// of the luminance of the lit (positive, finite) pixels, so the brightest 1 % clip and a
+/// hot pixel or a small bright source no longer maps everything else to black, as the
+/// maximum did. `None` when no pixel is lit.
+#[must_use]
+pub fn default_linear_white(img: &image::Rgb32FImage) -> Option<f32> {
+    let mut lum: Vec<f32> = img
+        .pixels()
+        .map(|p| crate::luminance(p.0))
+        .filter(|y| y.is_finite() && *y > 0.0)
+        .collect();
+    if lum.is_empty() {
+        return None;
+    }
+    let last = lum.len() - 1;
+    let k = ((LINEAR_WHITE_PERCENTILE / 100.0) * last as f64).round() as usize;
+    let (_, v, _) = lum.select_nth_unstable_by(k.min(last), f32::total_cmp);
+    Some(*v)
+}

@@ -17,9 +17,7 @@ use glam::Vec3;
 use image::RgbImage;
 use serde_json::{Value, json};
 
-use super::{
-    Mode, SaveSet, centroid, command_line, preview_size, saved_reply, spectrum_points, triple,
-};
+use super::{Mode, SaveSet, command_line, preview_sizes, saved_reply, spectrum_points, triple};
 use crate::protocol::{DopplerMsg, Incoming};
 use crate::worker::{Ctx, Stage};
 use crate::{Error, Result};
@@ -268,7 +266,7 @@ impl<'a> DopplerMode<'a> {
                 let half = half.max(0.5);
                 json!({ "name": name, "rest_nm": rest,
                         "window_nm": [rest - half, rest + half],
-                        "centroid_nm": centroid(&on, rest - half, rest + half) })
+                        "centroid_nm": on.centroid(rest - half, rest + half) })
             })
             .collect();
         let xyz = blueshift_spectrum::Cmf::cie1931_2deg().xyz_of(&on);
@@ -579,8 +577,12 @@ impl Mode for DopplerMode<'_> {
             return Ok(());
         }
         let full = self.session.settings().clone();
-        if stage == Stage::Preview && !self.view_current {
-            let (w, h) = preview_size(full.width, full.height);
+        let previews = if stage == Stage::Preview && !self.view_current {
+            preview_sizes(full.width, full.height)
+        } else {
+            Vec::new()
+        };
+        for (w, h) in previews {
             let mut p = full.clone();
             p.width = w;
             p.height = h;

@@ -75,9 +75,15 @@ pub(crate) fn check_view_size(width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
-/// The size of a quarter-resolution preview.
-pub(crate) fn preview_size(width: u32, height: u32) -> (u32, u32) {
-    (width.div_ceil(4).max(1), height.div_ceil(4).max(1))
+/// The preview sizes shown before the full-resolution frame: a quarter of each edge, then
+/// half for images of 256 x 256 pixels or more (so a slow full frame has a sharper
+/// stand-in sooner).
+pub(crate) fn preview_sizes(width: u32, height: u32) -> Vec<(u32, u32)> {
+    let mut v = vec![(width.div_ceil(4).max(1), height.div_ceil(4).max(1))];
+    if u64::from(width) * u64::from(height) >= 256 * 256 {
+        v.push((width.div_ceil(2), height.div_ceil(2)));
+    }
+    v
 }
 
 /// A histogram of `n` bins of the finite values of `values` over their range.
@@ -101,25 +107,6 @@ pub(crate) fn histogram(values: impl Iterator<Item = f32> + Clone, n: usize) -> 
         counts[((f * n as f64) as usize).min(n - 1)] += 1;
     }
     json!({ "lo": lo, "hi": hi, "counts": counts })
-}
-
-/// The flux-weighted centroid of a piecewise-linear spectrum over `[a, b]` nm (exact: each
-/// piece's first and zeroth moments in closed form); `None` where it has no flux there.
-#[must_use]
-pub fn centroid(s: &blueshift_spectrum::PiecewiseLinear, a: f64, b: f64) -> Option<f64> {
-    let (mut m0, mut m1) = (0.0, 0.0);
-    for p in s.pieces() {
-        let (l0, l1) = (p.start_nm.max(a), p.end_nm.min(b));
-        if l1 <= l0 {
-            continue;
-        }
-        let (f0, f1) = (p.at(l0), p.at(l1));
-        let d = l1 - l0;
-        m0 += 0.5 * (f0 + f1) * d;
-        // The first moment of the line from (l0, f0) to (l1, f1).
-        m1 += d * (f0 * (2.0 * l0 + l1) + f1 * (l0 + 2.0 * l1)) / 6.0;
-    }
-    (m0 > 0.0).then(|| m1 / m0)
 }
 
 /// A piecewise-linear spectrum as the points of its exact polyline (a jump appears as two
@@ -290,23 +277,6 @@ pub(crate) fn saved_reply(files: &[PathBuf], command: &str, scene: Option<&Path>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use blueshift_spectrum::PiecewiseLinear;
-
-    #[test]
-    fn the_centroid_of_a_triangle_is_its_mean() {
-        // A symmetric triangle 650-660 nm peaking at 655: centroid 655; a right triangle
-        // rising from 0 at 650 to 1 at 660: centroid at 2/3 of the way, 656.667.
-        let tri =
-            PiecewiseLinear::from_samples(&[(650.0, 0.0), (655.0, 1.0), (660.0, 0.0)]).unwrap();
-        assert!((centroid(&tri, 600.0, 700.0).unwrap() - 655.0).abs() < 1e-12);
-        let ramp = PiecewiseLinear::from_samples(&[(650.0, 0.0), (660.0, 1.0)]).unwrap();
-        let c = centroid(&ramp, 600.0, 700.0).unwrap();
-        assert!((c - (650.0 + 20.0 / 3.0)).abs() < 1e-9, "{c}");
-        // A window cutting the ramp at 655: the part 650-655 (a smaller right triangle).
-        let c = centroid(&ramp, 640.0, 655.0).unwrap();
-        assert!((c - (650.0 + 10.0 / 3.0)).abs() < 1e-9, "{c}");
-        assert!(centroid(&ramp, 700.0, 710.0).is_none());
-    }
 
     #[test]
     fn shell_quoting_leaves_plain_words_alone() {

@@ -9,7 +9,7 @@ use glam::DVec3;
 use image::Rgb32FImage;
 use serde_json::{Value, json};
 
-use super::{Mode, SaveSet, command_line, preview_size, saved_reply};
+use super::{Mode, SaveSet, command_line, preview_sizes, saved_reply};
 use crate::protocol::Incoming;
 use crate::worker::{Ctx, Stage};
 use crate::{Error, Result};
@@ -239,8 +239,12 @@ impl Mode for RelativityMode<'_> {
             return Ok(());
         }
         let full = self.session.camera().clone();
-        if stage == Stage::Preview {
-            let (w, h) = preview_size(full.width, full.height);
+        let previews = if stage == Stage::Preview {
+            preview_sizes(full.width, full.height)
+        } else {
+            Vec::new()
+        };
+        for (w, h) in previews {
             self.session.set_camera(Camera {
                 width: w,
                 height: h,
@@ -248,7 +252,7 @@ impl Mode for RelativityMode<'_> {
             })?;
             let t = std::time::Instant::now();
             let r = self.session.render(&Cancel(ctx));
-            self.session.set_camera(full)?;
+            self.session.set_camera(full.clone())?;
             self.send_frame(ctx, &r?, true, t.elapsed().as_secs_f64() * 1e3)?;
         }
         let t = std::time::Instant::now();

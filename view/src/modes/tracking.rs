@@ -19,7 +19,7 @@ use blueshift_tracking::{
 use image::Rgb32FImage;
 use serde_json::{Value, json};
 
-use super::{Mode, SaveSet, command_line, histogram, preview_size, saved_reply, write_file};
+use super::{Mode, SaveSet, command_line, histogram, preview_sizes, saved_reply, write_file};
 use crate::display;
 use crate::protocol::{Incoming, RangeMsg, SettingsMsg};
 use crate::worker::{Ctx, Stage};
@@ -339,7 +339,7 @@ impl TrackingMode {
         let op = match op {
             Some(blueshift_tonemap::Operator::Linear(p)) => Some(
                 blueshift_tonemap::Operator::Linear(blueshift_tonemap::LinearParams {
-                    white: linear_white(&rgb),
+                    white: blueshift_tonemap::default_linear_white(&rgb),
                     ..p
                 }),
             ),
@@ -472,23 +472,6 @@ impl TrackingMode {
             "format": if paraview { "paraview" } else { "blueshift" }, "text": text,
         }))
     }
-}
-
-/// The linear operator's white: the 99th percentile of the lit pixels' luminance, as
-/// `blueshift render --tonemap linear` takes it.
-fn linear_white(img: &Rgb32FImage) -> Option<f32> {
-    let mut lum: Vec<f32> = img
-        .pixels()
-        .map(|p| blueshift_tonemap::luminance(p.0))
-        .filter(|y| y.is_finite() && *y > 0.0)
-        .collect();
-    if lum.is_empty() {
-        return None;
-    }
-    let last = lum.len() - 1;
-    let k = (0.99 * last as f64).round() as usize;
-    let (_, v, _) = lum.select_nth_unstable_by(k.min(last), f32::total_cmp);
-    Some(*v)
 }
 
 /// Streams the passes and serves `save`, `hello` and `tf_export` between them.
@@ -689,8 +672,12 @@ impl Mode for TrackingMode {
             return Ok(());
         }
         self.last = None;
-        if stage == Stage::Preview {
-            let (w, h) = preview_size(full.width, full.height);
+        let previews = if stage == Stage::Preview {
+            preview_sizes(full.width, full.height)
+        } else {
+            Vec::new()
+        };
+        for (w, h) in previews {
             let mut p = full.clone();
             p.width = w;
             p.height = h;
