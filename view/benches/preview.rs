@@ -113,9 +113,12 @@ fn main() {
     let st = settings(&scene, SIZE);
     let mut g = c.benchmark_group("view_preview");
     g.sample_size(10);
+    let mut f = 0;
     g.bench_function("lidc2_fresh", |b| {
         b.iter(|| {
-            let s = build(&tfs[1]);
+            // The same alternation of transfer functions as the edit below.
+            f += 1;
+            let s = build(&tfs[f % 2]);
             let session = TrackingSession::new(s, integrator(), st.clone()).expect("session");
             black_box(frame_bytes(&session.render(&Silent).expect("render").image))
         });
