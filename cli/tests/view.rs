@@ -840,3 +840,56 @@ fn a_bad_command_line_fails_before_the_url() {
         assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
     }
 }
+
+#[test]
+fn an_hdr_save_writes_the_png_its_tonemap_command_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.exr");
+    let out = Command::new(BIN)
+        .args([
+            "render",
+            "--synth",
+            "three-cubes",
+            "--res",
+            "16",
+            "--tf",
+            "builtin:inferno",
+        ])
+        .args(["--width", "40", "--height", "32", "--spp", "2", "--out"])
+        .arg(&input)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = Viewer::start(&["--hdr", input.to_str().unwrap()]);
+    let mut tab = v.connect();
+    assert_eq!(tab.expect("info")["mode"], "hdr");
+    tab.until_done();
+    for (i, msg) in [
+        json!({"type": "tonemap", "operator": "drago", "params": {"bias": 0.7}, "roi": [4, 4, 20, 16]}),
+        json!({"type": "tonemap", "operator": "fattal"}),
+        json!({"type": "tonemap", "operator": "reinhard", "params": {"key": 0.3}}),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        tab.send(&msg);
+        tab.expect("tonemap");
+        tab.until_done();
+        tab.send(&json!({"type": "save", "name": format!("hdr{i}")}));
+        command_reproduces(&tab.expect("saved"), ".png");
+    }
+    // A parameter `blueshift tonemap` has no flag for stays at its default.
+    tab.send(
+        &json!({"type": "tonemap", "operator": "fattal", "params": {"black_clip_percent": 3.0}}),
+    );
+    assert!(
+        tab.expect("error")["message"]
+            .as_str()
+            .unwrap()
+            .contains("no flag")
+    );
+}
