@@ -88,6 +88,19 @@ impl Default for DisplayOptions {
 }
 
 impl DisplayOptions {
+    /// These options with an exposure of `stops` folded in: the scale the luminance
+    /// scaling gives for `image`, times 2^stops (`PerPixel` and 0 stops are unchanged).
+    #[must_use]
+    pub fn with_stops(&self, stops: f64, image: &DopplerImage) -> DisplayOptions {
+        if stops == 0.0 || self.exposure == Exposure::PerPixel {
+            return *self;
+        }
+        DisplayOptions {
+            exposure: Exposure::Fixed(self.scale_for(image) * stops.exp2()),
+            ..*self
+        }
+    }
+
     /// The scale factor `Exposure::Percentile` or `Fixed` gives for an image (1 for
     /// `PerPixel`).
     #[must_use]

@@ -311,18 +311,6 @@ pub(crate) fn exposure_stops(args: &Args) -> Result<f64> {
     }
 }
 
-/// The display options with `--exposure` stops folded in: the scale the luminance scaling
-/// gives for this image, times 2^stops.
-fn with_stops(disp: &DisplayOptions, stops: f64, img: &DopplerImage) -> DisplayOptions {
-    if stops == 0.0 || disp.exposure == Exposure::PerPixel {
-        return *disp;
-    }
-    DisplayOptions {
-        exposure: Exposure::Fixed(disp.scale_for(img) * stops.exp2()),
-        ..*disp
-    }
-}
-
 /// The names `--tonemap` accepts.
 const TONEMAPS: &str = "none, linear, drago, reinhard, reinhard-local, durand, fattal";
 
@@ -573,7 +561,7 @@ pub fn run(args: Args) -> Result<()> {
         ),
     );
     let png = args.out.with_extension("png");
-    let disp = with_stops(&disp, stops, &img);
+    let disp = disp.with_stops(stops, &img);
     let mut shown = display_rgb8(&disp, op.as_ref(), &img)?;
     if args.triad {
         let o = crate::figure::triad_overlay(img.width, img.height, &st.camera)?;

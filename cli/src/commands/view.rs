@@ -85,6 +85,13 @@ pub struct Args {
     pub threads: Option<usize>,
 }
 
+/// A clap error as one line (its first, without clap's `error: `).
+fn flag_error(e: clap::Error) -> anyhow::Error {
+    let text = e.to_string();
+    let line = text.lines().next().unwrap_or("bad flags");
+    anyhow::anyhow!("{}", line.trim_start_matches("error: "))
+}
+
 /// `render` flags, parsed by clap exactly as `blueshift render` parses them.
 #[derive(Debug, Parser)]
 #[command(no_binary_name = true)]
@@ -123,16 +130,7 @@ fn tracking(args: &Args) -> Result<Source> {
         flags.extend(["--method".into(), m.clone()]);
     }
     flags.extend(["--out".into(), "unused.exr".into()]);
-    let parsed = RenderFlags::try_parse_from(&flags).map_err(|e| {
-        anyhow::anyhow!(
-            "{}",
-            e.to_string()
-                .lines()
-                .next()
-                .unwrap_or("bad flags")
-                .trim_start_matches("error: ")
-        )
-    })?;
+    let parsed = RenderFlags::try_parse_from(&flags).map_err(flag_error)?;
     let mut file = super::render::merge(&parsed.args)?;
     let size = |v: Option<u32>, file_v: Option<u32>| v.or(file_v).or(Some(256));
     file.width = size(args.width, file.width);
@@ -192,16 +190,7 @@ fn doppler(args: &Args) -> Result<Source> {
         "--height".into(),
         h.to_string(),
     ]);
-    let parsed = DopplerFlags::try_parse_from(&flags).map_err(|e| {
-        anyhow::anyhow!(
-            "{}",
-            e.to_string()
-                .lines()
-                .next()
-                .unwrap_or("bad flags")
-                .trim_start_matches("error: ")
-        )
-    })?;
+    let parsed = DopplerFlags::try_parse_from(&flags).map_err(flag_error)?;
     let d = &parsed.args;
     let (scene, mut st) = super::doppler::build(d)?;
     super::doppler_cube::apply_view(&d.cube, &scene, &mut st)?;

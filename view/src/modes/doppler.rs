@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 use blueshift_camera::{Camera, Observer, Progress, View};
 use blueshift_doppler::{
-    DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, Exposure, Factors,
+    DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, Factors,
     SpectralIntegrator,
 };
 use glam::Vec3;
@@ -197,19 +197,8 @@ impl<'a> DopplerMode<'a> {
         })
     }
 
-    fn display_for(&self, img: &DopplerImage) -> DisplayOptions {
-        let d = self.src.display;
-        if self.exposure == 0.0 || d.exposure == Exposure::PerPixel {
-            return d;
-        }
-        DisplayOptions {
-            exposure: Exposure::Fixed(d.scale_for(img) * self.exposure.exp2()),
-            ..d
-        }
-    }
-
     fn rgb8(&self, img: &DopplerImage) -> Result<RgbImage> {
-        let rgb = self.display_for(img).to_rgb8(img);
+        let rgb = self.src.display.with_stops(self.exposure, img).to_rgb8(img);
         RgbImage::from_raw(img.width, img.height, rgb)
             .ok_or_else(|| Error::invalid("display image size"))
     }
