@@ -121,7 +121,7 @@ pub use render::{
     pixel_spectrum, render_doppler, trace_ray,
 };
 pub use scene_file::{
-    BlackbodySpec, CubeUnitsSpec, FactorSpec, FieldSpec, SceneFile, SpeciesSpec, VelocitySpec,
-    catalogue_mass_amu,
+    BlackbodySpec, CubeUnitsSpec, FactorSpec, FieldSpec, MemoryVolumes, SceneFile, SpeciesSpec,
+    VelocitySpec, catalogue_mass_amu,
 };
 pub use session::{DopplerSession, SAMPLE_CACHE_BYTES};

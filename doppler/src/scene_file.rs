@@ -37,7 +37,8 @@
 //! - Velocity units: `"m/s"` (default), `"km/s"`, `"cm/s"`, `"c"` (fraction of the speed of
 //!   light). `"subtract_mean": true` removes the bulk motion (the mean over all voxels).
 //! - Species lines: `"lines"` names a built-in catalogue (`H`, `He`, `C`) or
-//!   `"line_list"` a CSV file (`wavelength_nm,relative_intensity`, relative to `data_dir`).
+//!   `"line_list"` a CSV file (`wavelength_nm,relative_intensity`, relative to `data_dir`) or
+//!   `"line_table"` the lines inline (`[[656.28, 1.0], [486.13, 0.35]]`).
 //!   `"absorb": false` makes a species emit only (by default its lines also absorb, scaled by
 //!   the absorption factor, as in the paper).
 //! - `factors` are the paper's Table 1 multipliers (see [`Factors`]); omitted ones keep
@@ -120,6 +121,8 @@ pub struct SpeciesSpec {
     pub lines: Option<String>,
     /// CSV line list, relative to the data folder.
     pub line_list: Option<PathBuf>,
+    /// The lines themselves: `[[wavelength_nm, relative_intensity], ...]`.
+    pub line_table: Option<Vec<[f64; 2]>>,
     /// Number density.
     pub density: FieldSpec,
     /// Whether the lines also absorb (default true).
@@ -252,6 +255,17 @@ impl SceneFile {
     /// Builds the scene with only the named parts (`bb` for the black body, species names,
     /// case-insensitive); `None` takes all.
     pub fn load_selected(&self, select: Option<&[&str]>) -> Result<DopplerScene> {
+        self.load_with(select, &MemoryVolumes::new())
+    }
+
+    /// [`SceneFile::load_selected`] where a field's `"file"` that names a key of `memory`
+    /// takes that volume instead of reading a file (how the Python package hands numpy
+    /// arrays to the same loader, units and checks as scene files).
+    pub fn load_with(
+        &self,
+        select: Option<&[&str]>,
+        memory: &MemoryVolumes,
+    ) -> Result<DopplerScene> {
         let wanted = |name: &str| {
             select.is_none_or(|s| s.iter().any(|t| t.trim().eq_ignore_ascii_case(name)))
         };
@@ -279,6 +293,7 @@ impl SceneFile {
         let mut loader = Loader {
             base: &self.base,
             geometry: None,
+            memory,
         };
         let mut files: Vec<&FieldSpec> = Vec::new();
         if let Some(t) = &self.temperature {
@@ -309,21 +324,36 @@ impl SceneFile {
             scene.set_blackbody(dens, temp)?;
         }
         for s in species {
-            let (lines, mass) = match (&s.lines, &s.line_list) {
-                (Some(name), None) => {
+            let (lines, mass) = match (&s.lines, &s.line_list, &s.line_table) {
+                (Some(name), None, None) => {
                     let cat = Catalogue::parse(name)
                         .map_err(|e| Error::scene(format!("species '{}': {e}", s.name)))?;
                     (cat.lines(), catalogue_mass_amu(cat))
                 }
-                (None, Some(p)) => {
+                (None, Some(p), None) => {
                     let path = self.base.join(p);
                     let l = blueshift_spectrum::read_line_list(&path)
                         .map_err(|e| Error::scene(format!("species '{}': {e}", s.name)))?;
                     (l, 1.008)
                 }
+                (None, None, Some(table)) => {
+                    let mut l = Vec::with_capacity(table.len());
+                    for &[nm, strength] in table {
+                        l.push(EmissionLine::new(nm, strength).map_err(|e| {
+                            Error::scene(format!("species '{}': line_table: {e}", s.name))
+                        })?);
+                    }
+                    if l.is_empty() {
+                        return Err(Error::scene(format!(
+                            "species '{}': line_table has no lines",
+                            s.name
+                        )));
+                    }
+                    (l, 1.008)
+                }
                 _ => {
                     return Err(Error::scene(format!(
-                        "species '{}' needs exactly one of \"lines\" (H, He, C) or \"line_list\"",
+                        "species '{}' needs exactly one of \"lines\" (H, He, C), \"line_list\" or \"line_table\"",
                         s.name
                     )));
                 }
@@ -383,18 +413,32 @@ pub fn catalogue_mass_amu(cat: Catalogue) -> f64 {
     }
 }
 
+/// Volumes held in memory, by the `"file"` string that names them in a scene.
+pub type MemoryVolumes = std::collections::BTreeMap<String, Volume>;
+
 struct Loader<'a> {
     base: &'a Path,
     geometry: Option<Geometry>,
+    memory: &'a MemoryVolumes,
 }
 
 impl Loader<'_> {
     /// Reads a field's file and picks its channel.
     fn volume(&self, f: &FieldSpec) -> Result<(AnyGrid, PathBuf)> {
         let rel = f.file.as_ref().expect("caller checks file");
-        let path = self.base.join(rel);
-        let vol: Volume =
-            blueshift_volume::read(&path).map_err(|e| file_err(&path, e.to_string()))?;
+        let in_memory = rel.to_str().and_then(|k| self.memory.get(k));
+        let path = match in_memory {
+            Some(_) => rel.clone(),
+            None => self.base.join(rel),
+        };
+        let read;
+        let vol: &Volume = match in_memory {
+            Some(v) => v,
+            None => {
+                read = blueshift_volume::read(&path).map_err(|e| file_err(&path, e.to_string()))?;
+                &read
+            }
+        };
         let grid = match &f.channel {
             Some(name) => vol
                 .channel(name)

@@ -72,6 +72,8 @@ pub use render::{
 };
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};
-pub use scene_file::{CameraKind, ChannelSpec, LightSpec, MaterialSpec, RenderSceneFile, TfRange};
+pub use scene_file::{
+    CameraKind, ChannelSpec, LightSpec, MaterialSpec, Preloaded, RenderSceneFile, TfRange,
+};
 pub use session::TrackingSession;
 pub use shading::{Material, Shading};

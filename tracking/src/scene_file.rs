@@ -220,6 +220,16 @@ pub fn data_domain(grid: &AnyGrid, axis: DataAxis) -> Option<[f64; 2]> {
     }
 }
 
+/// Volumes and transfer functions held in memory, by the `volume` and `tf` strings that
+/// name them in a scene ([`RenderSceneFile::build_with`]).
+#[derive(Clone, Debug, Default)]
+pub struct Preloaded {
+    /// Volumes by name.
+    pub volumes: std::collections::BTreeMap<String, blueshift_volume::Volume>,
+    /// Transfer functions by name.
+    pub tfs: std::collections::BTreeMap<String, TransferFunction>,
+}
+
 /// A render scene file (see the module docs for the format and the defaults).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -328,20 +338,43 @@ impl ChannelSpec {
     /// [`Error::Field`] naming `channels[i]`: an unreadable file, an unknown dataset or
     /// channel, both or neither of `volume` and `synth`, no scalar channel.
     pub fn load(&self, i: usize, base: Option<&Path>) -> Result<(String, AnyGrid)> {
+        self.load_with(i, base, &Preloaded::default())
+    }
+
+    /// [`ChannelSpec::load`] where a `volume` naming a key of `memory.volumes` takes that
+    /// volume instead of reading a file.
+    ///
+    /// # Errors
+    /// As [`ChannelSpec::load`].
+    pub fn load_with(
+        &self,
+        i: usize,
+        base: Option<&Path>,
+        memory: &Preloaded,
+    ) -> Result<(String, AnyGrid)> {
+        let in_memory = self
+            .volume
+            .as_deref()
+            .and_then(Path::to_str)
+            .and_then(|k| memory.volumes.get(k));
+        let read;
         let vol = match (&self.volume, &self.synth) {
+            (Some(_), None) if in_memory.is_some() => in_memory.expect("checked"),
             (Some(p), None) => {
                 let p = resolve(base, p);
-                blueshift_volume::read(&p).map_err(|e| {
+                read = blueshift_volume::read(&p).map_err(|e| {
                     Error::field_from(
                         format!("channels[{i}].volume"),
                         Some(format!("cannot read {}", p.display())),
                         e,
                     )
-                })?
+                })?;
+                &read
             }
             (None, Some(name)) => {
-                synth::by_name(name, self.res.unwrap_or(64), self.seed.unwrap_or(1))
-                    .map_err(|e| Error::field_from(format!("channels[{i}].synth"), None, e))?
+                read = synth::by_name(name, self.res.unwrap_or(64), self.seed.unwrap_or(1))
+                    .map_err(|e| Error::field_from(format!("channels[{i}].synth"), None, e))?;
+                &read
             }
             _ => {
                 return Err(Error::field(
@@ -380,7 +413,25 @@ impl ChannelSpec {
         grid: &AnyGrid,
         base: Option<&Path>,
     ) -> Result<TransferFunction> {
+        self.transfer_function_with(i, grid, base, &Preloaded::default())
+    }
+
+    /// [`ChannelSpec::transfer_function`] where a `tf` naming a key of `memory.tfs` takes
+    /// that transfer function.
+    ///
+    /// # Errors
+    /// As [`ChannelSpec::transfer_function`].
+    pub fn transfer_function_with(
+        &self,
+        i: usize,
+        grid: &AnyGrid,
+        base: Option<&Path>,
+        memory: &Preloaded,
+    ) -> Result<TransferFunction> {
         let spec = self.tf.as_str();
+        if let Some(tf) = memory.tfs.get(spec) {
+            return Ok(tf.clone());
+        }
         let what = || format!("channels[{i}].tf '{spec}'");
         let tf_err = |e: blueshift_tfedit::Error| Error::field_from(what(), None, e);
         if let Some(name) = spec.strip_prefix("builtin:") {
@@ -681,11 +732,21 @@ impl RenderSceneFile {
     /// channels), [`Error::Parameter`] (weights, sizes, spp, materials, `warmup` without
     /// `frames`).
     pub fn build(&self) -> Result<(Scene, Integrator, RenderSettings)> {
+        self.build_with(&Preloaded::default())
+    }
+
+    /// [`RenderSceneFile::build`] with channels' volumes and transfer functions taken from
+    /// `memory` where their `volume` and `tf` strings name its keys (how the Python package
+    /// renders numpy arrays through the same loader as scene files).
+    ///
+    /// # Errors
+    /// As [`RenderSceneFile::build`].
+    pub fn build_with(&self, memory: &Preloaded) -> Result<(Scene, Integrator, RenderSettings)> {
         let base = self.base.as_deref();
         let mut triples = Vec::with_capacity(self.channels.len());
         for (i, c) in self.channels.iter().enumerate() {
-            let (name, grid) = c.load(i, base)?;
-            let mut tf = c.transfer_function(i, &grid, base)?;
+            let (name, grid) = c.load_with(i, base, memory)?;
+            let mut tf = c.transfer_function_with(i, &grid, base, memory)?;
             if let Some(range) = self.tf_range {
                 let domain = match range {
                     TfRange::Data => data_domain(&grid, tf.data_axis()).ok_or_else(|| {

@@ -40,7 +40,7 @@ pub use error::{Error, Result};
 pub use modes::{
     DopplerSource, HdrSource, MAX_VIEW_PIXELS, PanelFn, RelativitySource, Source, TrackingSource,
 };
-pub use server::{Config, Server, allowed_host, new_token};
+pub use server::{Config, Running, Server, allowed_host, new_token};
 
 /// Largest WebSocket message the server accepts, bytes.
 pub const MAX_MESSAGE_BYTES: usize = 1 << 20;

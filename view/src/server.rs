@@ -171,6 +171,37 @@ impl Server {
     /// # Errors
     /// [`Error::Io`] when the runtime cannot start or the socket fails.
     pub fn run(self) -> Result<()> {
+        self.serve_until(shutdown())
+    }
+
+    /// Serves on a thread of its own until [`Running::stop`] (or the handle is dropped),
+    /// installing no signal handler: for a host program (a Python kernel) that keeps its
+    /// own Ctrl-C.
+    ///
+    /// # Errors
+    /// [`Error::Io`] when the thread cannot start.
+    pub fn spawn(self) -> Result<Running> {
+        let url = self.url();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::Builder::new()
+            .name("blueshift-view".into())
+            .spawn(move || {
+                self.serve_until(async move {
+                    let _ = rx.await;
+                })
+            })
+            .map_err(|e| Error::io("cannot start the server thread", e))?;
+        Ok(Running {
+            url,
+            stop: Some(tx),
+            thread: Some(thread),
+        })
+    }
+
+    fn serve_until(
+        self,
+        stop: impl std::future::Future<Output = ()> + Send + 'static,
+    ) -> Result<()> {
         let rt = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(2)
             .enable_all()
@@ -188,10 +219,53 @@ impl Server {
                 tabs: std::sync::atomic::AtomicUsize::new(0),
             });
             axum::serve(listener, router(app))
-                .with_graceful_shutdown(shutdown())
+                .with_graceful_shutdown(stop)
                 .await
                 .map_err(|e| Error::io("server", e))
         })
+    }
+}
+
+/// A server serving on its own thread ([`Server::spawn`]).
+#[derive(Debug)]
+pub struct Running {
+    url: String,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<Result<()>>>,
+}
+
+impl Running {
+    /// The URL of the page, with its token.
+    #[must_use]
+    pub fn url(&self) -> &str {
+        &self.url
+    }
+
+    /// Whether the server still serves.
+    #[must_use]
+    pub fn is_running(&self) -> bool {
+        self.thread.as_ref().is_some_and(|t| !t.is_finished())
+    }
+
+    /// Stops serving (open pages lose their connection) and waits for the thread.
+    ///
+    /// # Errors
+    /// What the server failed with, if it did.
+    pub fn stop(&mut self) -> Result<()> {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        match self.thread.take().map(std::thread::JoinHandle::join) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(Error::invalid("the server thread panicked")),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        let _ = self.stop();
     }
 }
 

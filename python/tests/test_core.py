@@ -1,0 +1,228 @@
+"""Spectra, tracking renders, tone mapping and relativity against the CLI and analytic
+truths."""
+
+import json
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import blueshift
+from blueshift import spectrum
+from conftest import read_png, write_nrrd
+
+C = 299_792_458.0
+
+
+def test_blackbody_colour_equals_the_cli(cli):
+    bb = spectrum.blackbody(5800.0)
+    ref = cli("spectrum", "--blackbody", 5800, "--json", json_out=True)
+    assert bb.xyz() == tuple(ref["xyz"])
+    assert bb.xy() == pytest.approx(ref["xy"], abs=1e-15)
+    assert bb.srgb() == tuple(ref["srgb_display"])
+    assert bb.srgb(display=False) == tuple(ref["srgb_linear"])
+    assert bb.integral() == ref["integral"]
+    assert len(bb.pieces()) == ref["pieces"]
+
+
+def test_planck_values_match_the_analytic_law():
+    # Planck's law in W sr^-1 m^-2 nm^-1 (CODATA constants), independent of the library.
+    h, k = 6.62607015e-34, 1.380649e-23
+    t = 5800.0
+    bb = spectrum.blackbody(t, max_error=1e-6)
+    wl = np.linspace(400, 800, 41)
+    lam = wl * 1e-9
+    ref = 2 * h * C**2 / lam**5 / np.expm1(h * C / (lam * k * t)) * 1e-9
+    np.testing.assert_allclose(bb.eval(wl), ref, rtol=2e-6)
+
+
+def test_shifted_lines_equal_the_cli(cli):
+    s = spectrum.build(lines="H,He", radial_velocity=3.0e6, doppler="relativistic", line_width=0.5)
+    ref = cli("spectrum", "--lines", "H,He", "--radial-velocity", 3.0e6, "--doppler", "relativistic",
+              "--line-width", 0.5, "--json", json_out=True)
+    assert s.xyz() == tuple(ref["xyz"])
+    assert s.shift == ref["shift"]
+    beta = 3.0e6 / C
+    assert s.shift == pytest.approx(math.sqrt((1 + beta) / (1 - beta)), rel=1e-14)
+
+
+def test_doppler_shift_formulas():
+    assert spectrum.doppler_shift(1.0e6) == pytest.approx(1 + 1.0e6 / C, rel=1e-15)
+    b = 0.3
+    assert spectrum.doppler_shift(b * C, "relativistic") == pytest.approx(math.sqrt((1 + b) / (1 - b)), rel=1e-12)
+    h = dict(spectrum.catalogue("H"))
+    assert any(abs(w - 656.28) < 0.05 for w in h)
+
+
+def test_invariant_black_body_stays_a_black_body_at_t_over_s():
+    s = spectrum.build(blackbody=6000.0, shift=1.2, radiometric="invariant")
+    assert s.observed_temperature_k == pytest.approx(5000.0, rel=1e-12)
+    ref = spectrum.blackbody(5000.0)
+    assert s.xy() == pytest.approx(ref.xy(), abs=2e-4)
+
+
+def _blob(n=24):
+    x, y, z = np.meshgrid(*(np.linspace(-1, 1, n),) * 3, indexing="ij")
+    # Asymmetric along x and y so a transposed layout would show.
+    return np.exp(-((x - 0.3) ** 2 + (y + 0.2) ** 2 * 2 + z**2) * 4.0)
+
+
+def test_render_from_numpy_equals_the_cli_on_the_same_file(cli, tmp_path):
+    d = _blob()
+    write_nrrd(tmp_path / "blob.nhdr", d)
+    settings = dict(method="mdwt-1dda", spp=4, width=40, height=32, seed=3)
+    img = blueshift.render(volume=d, tf="builtin:viridis", **settings)
+    cli("render", "--volume", tmp_path / "blob.nhdr", "--tf", "builtin:viridis", "--method", "mdwt-1dda",
+        "--spp", 4, "--width", 40, "--height", 32, "--seed", 3, "--out", tmp_path / "r.exr")
+    ref = blueshift.read_hdr(tmp_path / "r.exr")
+    assert img.shape == (32, 40, 4) and img.dtype == np.float32
+    np.testing.assert_array_equal(np.asarray(img)[:, :, :3], np.asarray(ref))
+    assert img.spp == 4 and img.noise is not None and img.noise > 0
+
+
+def test_layouts_and_dtypes_give_the_same_image():
+    d = _blob(16)
+    kw = dict(method="marcher", width=24, height=24)
+    a = blueshift.render(volume=d.astype(np.float64), tf="builtin:grey", **kw)
+    b = blueshift.render(volume=np.asfortranarray(d, dtype=np.float32), tf="builtin:grey", **kw)
+    c = blueshift.render(volume=d.astype(np.float32)[:, ::-1, :][:, ::-1, :], tf="builtin:grey", **kw)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(a, c)
+    # The Volume round trip keeps [x, y, z].
+    v = blueshift.Volume.from_arrays({"d": d}, spacing=(1, 2, 3))
+    np.testing.assert_array_equal(v.array("d"), d.astype(np.float32))
+    assert v.dims == (16, 16, 16) and v.spacing == (1.0, 2.0, 3.0)
+
+
+def test_progressive_passes_end_in_the_one_call_image():
+    d = _blob(16)
+    kw = dict(method="woodcock", spp=5, width=20, height=20, seed=9)
+    passes = list(blueshift.render_progressive(volume=d, tf="builtin:viridis", **kw))
+    assert [p for p, _, _ in passes] == [1, 2, 3, 4, 5]
+    assert passes[0][2] is None and passes[-1][2] > 0
+    final = blueshift.render(volume=d, tf="builtin:viridis", **kw)
+    np.testing.assert_array_equal(passes[-1][1], final)
+    # Stopping early cancels the render without waiting for the remaining passes.
+    it = blueshift.render_progressive(volume=d, tf="builtin:viridis", method="woodcock", spp=10_000, width=20, height=20)
+    next(it)
+    it.close()
+
+
+def test_transfer_functions_and_a_scene_dict(cli, tmp_path):
+    tf = blueshift.TransferFunction.from_knots((0.0, 1.0), [(0, 1, 0, 0), (1, 0, 0, 1)], [(0, 0.0), (1, 1.0)])
+    rgba = tf.eval([0.0, 0.5, 1.0])
+    np.testing.assert_allclose(rgba[1], [0.5, 0.0, 0.5, 0.5], atol=1e-6)
+    tf.save(tmp_path / "tf.json")
+    with pytest.raises(FileExistsError):
+        tf.save(tmp_path / "tf.json")
+    d = _blob(16)
+    write_nrrd(tmp_path / "b.nhdr", d)
+    scene = {"channels": [{"volume": str(tmp_path / "b.nhdr"), "tf": str(tmp_path / "tf.json")}],
+             "method": "mdwt-ndda", "spp": 3, "width": 16, "height": 16, "density_scale": 4.0}
+    (tmp_path / "scene.json").write_text(json.dumps(scene))
+    a = blueshift.render(scene)
+    b = blueshift.render(channels=[{"volume": d, "tf": tf}], method="mdwt-ndda", spp=3, width=16, height=16, density_scale=4.0)
+    np.testing.assert_array_equal(a, b)
+    cli("render", tmp_path / "scene.json", "--out", tmp_path / "s.exr")
+    np.testing.assert_array_equal(np.asarray(a)[:, :, :3], blueshift.read_hdr(tmp_path / "s.exr"))
+
+
+def test_tonemap_equals_the_cli_png(cli, tmp_path):
+    rng = np.random.default_rng(1)
+    hdr = (10 ** rng.uniform(-2, 3, size=(20, 30, 1)) * rng.uniform(0.2, 1, size=(20, 30, 3))).astype(np.float32)
+    r = blueshift.relativity.render("checker", beta=0.0, effects="none", width=30, height=20)
+    cli("relativity", "--synth", "checker", "--beta", 0.0, "--effects", "none", "--width", 30, "--height", 20,
+        "--out", tmp_path / "env.exr")
+    np.testing.assert_array_equal(r, blueshift.read_hdr(tmp_path / "env.exr"))
+    src = blueshift.read_hdr(tmp_path / "env.exr") * hdr
+    # Through an EXR the CLI reads the same floats.
+    for op, flags in [("drago", []), ("reinhard", []), ("linear", [])]:
+        disp = blueshift.tonemap(src, op=op)
+        assert disp.kind == "display" and disp.shape == src.shape
+        assert np.all(np.isfinite(disp)) and float(np.min(disp)) >= 0.0
+        assert disp.to_srgb8().dtype == np.uint8
+    params = blueshift.tonemap_parameters("drago")
+    assert "bias" in params
+    with pytest.raises(TypeError, match="no parameter 'nope'"):
+        blueshift.tonemap(src, op="drago", nope=1)
+    with pytest.raises(ValueError, match="is not one of"):
+        blueshift.tonemap(src, op="bogus")
+
+
+def test_tonemap_of_a_file_equals_the_cli(cli, tmp_path):
+    cli("relativity", "--synth", "checker", "--beta", 0.8, "--width", 48, "--height", 24, "--out", tmp_path / "in.exr")
+    src = blueshift.read_hdr(tmp_path / "in.exr")
+    for op in ("drago", "reinhard", "fattal"):
+        cli("tonemap", tmp_path / "in.exr", "--op", op, "--out", tmp_path / f"{op}.png")
+        ours = blueshift.tonemap(src, op=op).to_srgb8()
+        np.testing.assert_array_equal(ours, read_png(tmp_path / f"{op}.png"), err_msg=op)
+
+
+def test_relativity_equals_the_cli(cli, tmp_path):
+    img = blueshift.relativity.render("checker", beta=0.6, direction=(1, 0, -1), width=64, height=32, fov=100)
+    cli("relativity", "--synth", "checker", "--beta", 0.6, "--direction", "1,0,-1", "--width", 64, "--height", 32,
+        "--fov", 100, "--out", tmp_path / "r.exr")
+    np.testing.assert_array_equal(img, blueshift.read_hdr(tmp_path / "r.exr"))
+    with pytest.raises(ValueError, match="below 1"):
+        blueshift.relativity.render("checker", beta=1.0)
+
+
+def test_bad_input_raises_with_the_library_message(tmp_path):
+    d = _blob(8)
+    with pytest.raises(blueshift.BlueshiftError, match="method"):
+        blueshift.render(volume=d, method="bogus")
+    with pytest.raises(blueshift.BlueshiftError):
+        blueshift.render(volume=d, width=0)
+    with pytest.raises(TypeError, match="array 'value': dtype complex128"):
+        blueshift.render(volume=d.astype(complex))
+    with pytest.raises(ValueError, match=r"shape \(8, 8\)"):
+        blueshift.render(volume=d[:, :, 0])
+    with pytest.raises(blueshift.BlueshiftError, match="nope.nhdr"):
+        blueshift.Volume.read(tmp_path / "nope.nhdr")
+    assert issubclass(blueshift.BlueshiftError, ValueError)
+
+
+def test_the_gil_is_released_during_a_render():
+    d = _blob(32)
+    ticks = []
+    stop = threading.Event()
+
+    def count():
+        while not stop.is_set():
+            ticks.append(time.perf_counter())
+            time.sleep(0.001)
+
+    t = threading.Thread(target=count)
+    t.start()
+    time.sleep(0.02)
+    start = time.perf_counter()
+    blueshift.render(volume=d, method="woodcock", spp=64, width=96, height=96)
+    end = time.perf_counter()
+    stop.set()
+    t.join()
+    during = [x for x in ticks if start < x < end]
+    # Holding the GIL would freeze the counter for the whole render.
+    assert len(during) > 5, (len(during), end - start)
+
+
+def test_ctrl_c_cancels_a_render():
+    import _thread
+
+    d = _blob(32)
+    timer = threading.Timer(0.3, _thread.interrupt_main)
+    timer.start()
+    t0 = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        blueshift.render(volume=d, method="woodcock", spp=100_000, width=128, height=128)
+    assert time.perf_counter() - t0 < 60
+    timer.cancel()
+
+
+def test_images_show_in_jupyter():
+    img = blueshift.relativity.render("checker", beta=0.5, width=32, height=16)
+    png = img._repr_png_()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    r = blueshift.render(volume=_blob(8), method="marcher", width=16, height=16)
+    assert r._repr_png_()[:4] == b"\x89PNG"

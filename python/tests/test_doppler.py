@@ -1,0 +1,254 @@
+"""Doppler scenes from files, numpy and yt against the CLI and analytic truths."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import blueshift
+from blueshift import doppler
+from conftest import ROOT, read_csv, read_png, write_nrrd
+
+C = 299_792_458.0
+ENZO = ROOT / "scenes" / "enzo-moving7.json"
+ENZO_DATA = ROOT.parent / "shared" / "data" / "enzo-moving7"
+
+
+def _shell(n=24, omega=2.0e5):
+    """A rotating hydrogen shell (rigid rotation about z, omega in m/s per world unit)."""
+    ax = (np.arange(n) - (n - 1) / 2) / (n / 2)
+    x, y, z = np.meshgrid(ax, ax, ax, indexing="ij")
+    r = np.sqrt(x**2 + y**2 + z**2)
+    dens = np.exp(-(((r - 0.6) / 0.12) ** 2))
+    vel = np.stack([-omega * y, omega * x, 0 * z], axis=-1)
+    temp = np.full_like(dens, 8000.0)
+    return dens, vel, temp
+
+
+needs_enzo = pytest.mark.skipif(not ENZO_DATA.exists(), reason="no ../shared/data/enzo-moving7")
+
+
+@needs_enzo
+def test_enzo_scene_file_render_and_pick_equal_the_cli(cli, tmp_path):
+    s = doppler.Scene.read(ENZO)
+    r = s.render(width=48, height=40)
+    cli("doppler", "--scene", ENZO, "--width", 48, "--height", 40, "--pick", "20,17", "--out", tmp_path / "e.exr")
+    np.testing.assert_array_equal(r.xyz.astype(np.float32), blueshift.read_hdr(tmp_path / "e.exr"))
+    np.testing.assert_array_equal(r.rgb, read_png(tmp_path / "e.png"))
+    w, v = s.spectrum(20, 17, width=48, height=40)
+    csv = sorted(Path(tmp_path).glob("*.csv"))
+    assert csv, list(Path(tmp_path).iterdir())
+    ref = read_csv(csv[0])
+    # The CLI's CSV is the same exact polyline (with extra grid points): both agree
+    # everywhere between break points.
+    xs = np.unique(np.concatenate([ref[:, 0], w]))
+    mid = 0.5 * (xs[1:] + xs[:-1])
+    np.testing.assert_allclose(np.interp(mid, w, v), np.interp(mid, ref[:, 0], ref[:, 1]), rtol=1e-12, atol=1e-300)
+    assert v.max() > 0
+
+
+def test_numpy_scene_equals_the_cli_on_the_same_files(cli, tmp_path):
+    dens, vel, temp = _shell()
+    scene = doppler.Scene(velocity=vel, temperature=temp, blackbody={"density": dens, "scale": 0.02},
+                          species={"H": {"density": dens, "scale": 5.0}})
+    path = scene.save(tmp_path / "scene")
+    r = scene.render(width=32, height=32, exposure=1.0)
+    cli("doppler", "--scene", path, "--width", 32, "--height", 32, "--exposure", 1.0, "--out", tmp_path / "n.exr")
+    np.testing.assert_array_equal(r.xyz.astype(np.float32), blueshift.read_hdr(tmp_path / "n.exr"))
+    np.testing.assert_array_equal(r.rgb, read_png(tmp_path / "n.png"))
+    # A file the scene wrote is never replaced.
+    with pytest.raises(FileExistsError):
+        scene.save(tmp_path / "scene")
+
+
+def test_rotating_shell_centroid_is_minus_omega_x(tmp_path):
+    omega = 2.0e5
+    dens, vel, temp = _shell(omega=omega)
+    scene = doppler.Scene(velocity=vel, temperature=temp, species={"H": dens})
+    # Seen from +y the line of sight is -y: v_los = -v_y = -omega x for every point of a
+    # column at x, so each pixel's centroid sits at lambda0 (1 - omega x / c).
+    cube = scene.cube(line="H-alpha", velocity_bins=(-300, 300, 120), axis="y", width=24, height=24, cell_domain=True)
+    m = cube.moments()
+    n = 24
+    xs = (np.arange(n) - (n - 1) / 2) / (n / 2)
+    m0 = m["m0"]
+    good = m0 > 0.05 * m0.max()
+    # With cell_domain the 24 pixels span the 24 voxels' cells: pixel centres sit on voxel
+    # centres. yt's y view: image right is world z, image up is world x; moments are [x_img, y_img]
+    # with y_img = 0 at the bottom, so column j of the map sits at world x = xs[j].
+    checked = 0
+    for j in range(n):
+        row = good[:, j]
+        if row.any():
+            np.testing.assert_allclose(m["m1"][row, j], -omega * xs[j], atol=0.01 * omega)
+            checked += 1
+    assert checked > n // 2
+    # The picked spectrum's line centroid too (H-alpha window): row r from the top is
+    # world x = xs[n - 1 - r].
+    lam0 = [w for w, _ in blueshift.spectrum.catalogue("H") if 650 < w < 660][0]
+    r = 5
+    w, v = scene.spectrum(12, r, width=24, height=24, axis="y", cell_domain=True)
+    win = (w > lam0 - 2) & (w < lam0 + 2)
+    cen = np.trapezoid(w[win] * v[win], w[win]) / np.trapezoid(v[win], w[win])
+    expect = lam0 * (1 - omega * xs[n - 1 - r] / C)
+    assert abs(cen - expect) < 0.02 * abs(lam0 - expect)
+
+
+def test_units_cm_per_s_give_the_km_per_s_picture():
+    unyt = pytest.importorskip("unyt")
+    dens, vel, temp = _shell()
+    a = doppler.Scene(velocity=unyt.unyt_array(vel * 100.0, "cm/s"), temperature=unyt.unyt_array(temp, "K"),
+                      species={"H": dens})
+    b = doppler.Scene(velocity=unyt.unyt_array(vel / 1000.0, "km/s"), temperature=temp, species={"H": dens})
+    c = doppler.Scene(velocity=vel, temperature=temp, species={"H": dens})
+    ra, rb, rc = (s.render(width=24, height=24) for s in (a, b, c))
+    np.testing.assert_allclose(ra.xyz, rc.xyz, rtol=1e-5, atol=1e-12 * rc.xyz.max())
+    np.testing.assert_allclose(rb.xyz, rc.xyz, rtol=1e-5, atol=1e-12 * rc.xyz.max())
+    with pytest.raises(TypeError, match="velocity: cannot convert"):
+        doppler.Scene(velocity=unyt.unyt_array(vel, "K"), species={"H": dens})
+
+
+def test_mass_density_quantities_convert_as_scene_files_do(cli, tmp_path):
+    unyt = pytest.importorskip("unyt")
+    dens, vel, temp = _shell(16)
+    rho = dens * 1e-24
+    write_nrrd(tmp_path / "rho.nhdr", rho)
+    doc = {"species": [{"name": "H", "lines": "H",
+                        "density": {"file": "rho.nhdr", "unit": "g/cm3", "mass_fraction": 0.76, "scale": 1e-2}}]}
+    (tmp_path / "s.json").write_text(json.dumps(doc))
+    a = doppler.Scene.read(tmp_path / "s.json").render(width=16, height=16)
+    b = doppler.Scene(species={"H": {"density": unyt.unyt_array(rho, "g/cm**3"), "mass_fraction": 0.76,
+                                     "scale": 1e-2}}).render(width=16, height=16)
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+
+
+def test_bad_scenes_raise_clearly():
+    dens, vel, temp = _shell(8)
+    with pytest.raises(ValueError, match="NaN"):
+        doppler.Scene(species={"H": np.where(dens > 0.5, np.nan, dens)})
+    with pytest.raises(ValueError, match="not a catalogue name"):
+        doppler.Scene(species={"Fe": dens})
+    with pytest.raises(ValueError, match=r"expected \[nx, ny, nz, 3\]"):
+        doppler.Scene(velocity=vel[..., :2], species={"H": dens})
+    s = doppler.Scene(species={"H": dens})
+    with pytest.raises(blueshift.BlueshiftError, match="outside"):
+        s.spectrum(99, 0, width=8, height=8)
+    with pytest.raises(blueshift.BlueshiftError, match="unknown field"):
+        s.render(width=8, height=8, bogus_option=1)
+    with pytest.raises(blueshift.BlueshiftError, match="black body"):
+        doppler.Scene(species={}).render()
+
+
+def _uniform_ds(n=16):
+    yt = pytest.importorskip("yt")
+    dens, vel, temp = _shell(n)
+    data = {
+        ("gas", "density"): (dens * 1e-24, "g/cm**3"),
+        ("gas", "temperature"): (temp, "K"),
+        ("gas", "velocity_x"): (vel[..., 0] * 100.0, "cm/s"),
+        ("gas", "velocity_y"): (vel[..., 1] * 100.0, "cm/s"),
+        ("gas", "velocity_z"): (vel[..., 2] * 100.0, "cm/s"),
+    }
+    bbox = np.array([[0.0, 1.0]] * 3)
+    return yt.load_uniform_grid(data, dens.shape, length_unit="Mpc", bbox=bbox, nprocs=1), (dens, vel, temp)
+
+
+def _amr_ds(n=8):
+    yt = pytest.importorskip("yt")
+    grids = []
+    for level, (le, re, dims) in enumerate([((0, 0, 0), (1, 1, 1), (n, n, n)), ((0.25, 0.25, 0.25), (0.75, 0.75, 0.75), (n, n, n))]):
+        le, re = np.array(le, float), np.array(re, float)
+        ax = [np.linspace(le[i], re[i], dims[i], endpoint=False) + (re[i] - le[i]) / dims[i] / 2 for i in range(3)]
+        x, y, z = np.meshgrid(*ax, indexing="ij")
+        r = np.sqrt((x - 0.5) ** 2 + (y - 0.5) ** 2 + (z - 0.5) ** 2)
+        dens = np.exp(-((r / 0.2) ** 2)) * 1e-24 + 1e-28
+        g = {"left_edge": le, "right_edge": re, "level": level, "dimensions": np.array(dims)}
+        g[("gas", "density")] = (dens, "g/cm**3")
+        g[("gas", "temperature")] = (np.full(dims, 9000.0), "K")
+        g[("gas", "velocity_x")] = (-(y - 0.5) * 3e7, "cm/s")
+        g[("gas", "velocity_y")] = ((x - 0.5) * 3e7, "cm/s")
+        g[("gas", "velocity_z")] = (np.zeros(dims), "cm/s")
+        grids.append(g)
+    return yt.load_amr_grids(grids, [n, n, n], length_unit="Mpc", bbox=np.array([[0.0, 1.0]] * 3))
+
+
+FIELDS = {"velocity": ("gas", "velocity"), "temperature": ("gas", "temperature"), "density": ("gas", "density")}
+
+
+@pytest.mark.parametrize("which", ["uniform", "amr"])
+def test_from_yt_cube_equals_the_cli_cube_on_exported_files(cli, tmp_path, which):
+    if which == "uniform":
+        ds, _ = _uniform_ds()
+        level, dims = 0, None
+    else:
+        ds = _amr_ds()
+        level, dims = 1, (16, 16, 16)
+    scene = blueshift.from_yt(ds, FIELDS, level=level, dims=dims, species={"H I": {"mass_fraction": 0.76, "lines": "H", "scale": 1e30}})
+    cube = scene.cube(line="H-alpha", velocity_bins=(-100, 100, 24), axis="z", width=16, height=16, cell_domain=True)
+    path = scene.save(tmp_path / "export")
+    cli("doppler", "--scene", path, "--cube", tmp_path / "c.fits", "--line", "H-alpha", "--velocity-bins", "-100:100:24",
+        "--axis", "z", "--width", 16, "--height", 16, "--cell-domain")
+    assert cube.fits_bytes() == (tmp_path / "c.fits").read_bytes()
+    assert cube.data.shape == (16, 16, 24)
+    assert cube.wcs["CTYPE3"] == "VRAD"
+    assert cube.data.sum() > 0
+    cube.to_fits(tmp_path / "mine.fits")
+    assert (tmp_path / "mine.fits").read_bytes() == (tmp_path / "c.fits").read_bytes()
+    with pytest.raises(blueshift.BlueshiftError, match="exists"):
+        cube.to_fits(tmp_path / "mine.fits")
+
+
+def test_blueshift_source_in_a_yt_scene():
+    yt = pytest.importorskip("yt")
+    from yt.visualization.volume_rendering.api import Scene
+
+    ds, _ = _uniform_ds()
+    scene = blueshift.from_yt(ds, FIELDS, species={"H I": {"mass_fraction": 0.76, "lines": "H", "scale": 1e30}})
+    from blueshift.yt import BlueshiftSource
+
+    sc = Scene()
+    cam = sc.add_camera(ds, lens_type="plane-parallel")
+    cam.resolution = (32, 24)
+    cam.set_width(ds.domain_width)
+    src = BlueshiftSource(scene)
+    sc.add_source(src)
+    im = np.asarray(sc.render())
+    assert im.shape[:2] == (32, 24)
+    assert im[..., :3].max() > 0
+    # What yt shows is blueshift's picture of the same camera.
+    rgb = np.asarray(src.last.rgb, dtype=np.float64) / 255.0
+    lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    np.testing.assert_allclose(im[..., :3], np.transpose(lin[::-1], (1, 0, 2)), atol=1e-12)
+
+
+def test_the_viewer_serves_a_python_scene_on_loopback():
+    import urllib.error
+    import urllib.request
+
+    dens, vel, temp = _shell(8)
+    s = doppler.Scene(velocity=vel, temperature=temp, species={"H": dens})
+    with s.view(width=32, height=32) as v:
+        assert v.url.startswith("http://127.0.0.1:")
+        page = urllib.request.urlopen(v.url, timeout=10).read().decode()
+        assert "<html" in page.lower()
+        bad = v.url.rsplit("/", 2)[0] + "/" + "0" * 32 + "/"
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(bad, timeout=10)
+        assert e.value.code == 404
+        assert f'src="{v.url}"' in v._repr_html_()
+    assert not v.running
+
+
+def test_a_trace_ends_in_the_picked_spectrum():
+    dens, vel, temp = _shell(12)
+    s = doppler.Scene(velocity=vel, temperature=temp, species={"H": dens})
+    steps = s.trace(6, 6, width=12, height=12)
+    assert len(steps) > 3
+    ts = [st.t for st in steps]
+    assert ts == sorted(ts) or ts == sorted(ts, reverse=True)
+    w, v = s.spectrum(6, 6, width=12, height=12)
+    grid = np.linspace(640, 670, 601)
+    np.testing.assert_allclose(np.interp(grid, steps[-1].wavelengths, steps[-1].values), np.interp(grid, w, v),
+                               rtol=1e-9, atol=1e-12 * v.max())
