@@ -149,10 +149,11 @@ def _make_source_class() -> Any:
             self.last = r
             rgb = np.asarray(r.rgb, dtype=np.float64) / 255.0
             lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
-            # blueshift's row 0 is the top; yt rotates the composite by 180 degrees and
-            # indexes [x, y]: hand over [x, y] with y up, rotated by 180 degrees.
+            # yt's composite image is indexed [x, row from the top] (its PNGs put x right
+            # and y up, as blueshift's images do) and yt rotates it by 180 degrees after
+            # the sources render: hand over blueshift's picture transposed, pre-rotated.
             img = np.ones((w, h, 4))
-            img[:, :, :3] = np.transpose(lin[::-1, :, :], (1, 0, 2))
+            img[:, :, :3] = np.transpose(lin, (1, 0, 2))
             img = np.rot90(img, k=2)
             if zbuffer is not None:
                 zbuffer.rgba = img

@@ -226,3 +226,33 @@ def test_images_show_in_jupyter():
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     r = blueshift.render(volume=_blob(8), method="marcher", width=16, height=16)
     assert r._repr_png_()[:4] == b"\x89PNG"
+
+
+def test_a_paraview_preset_loads_with_its_knots(tmp_path):
+    preset = [{"Name": "two", "ColorSpace": "RGB",
+               "RGBPoints": [0.0, 1.0, 0.0, 0.0, 10.0, 0.0, 0.0, 1.0],
+               "Points": [0.0, 0.0, 0.5, 0.0, 10.0, 0.8, 0.5, 0.0]}]
+    (tmp_path / "p.json").write_text(json.dumps(preset))
+    tf = blueshift.TransferFunction.load(tmp_path / "p.json")
+    assert tf.domain == (0.0, 10.0)
+    rgba = tf.eval([0.0, 5.0, 10.0])
+    np.testing.assert_allclose(rgba[:, 3], [0.0, 0.4, 0.8], atol=1e-6)
+    np.testing.assert_allclose(rgba[2, :3], [0.0, 0.0, 1.0], atol=1e-6)
+    lut = tf.lut(11)
+    assert lut.shape == (11, 4)
+    np.testing.assert_allclose(lut[:, 3], np.linspace(0, 0.8, 11), atol=1e-6)
+
+
+def test_the_viewer_serves_a_tracking_scene_from_numpy():
+    import urllib.request
+
+    v = blueshift.view(volume=_blob(12), tf="builtin:viridis", width=32, height=32)
+    try:
+        assert v.running
+        page = urllib.request.urlopen(v.url, timeout=10).read().decode()
+        assert "<html" in page.lower()
+        assert v._repr_html_().startswith("<iframe")
+    finally:
+        v.stop()
+    assert not v.running
+    v.stop()  # a second stop is harmless

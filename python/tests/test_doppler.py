@@ -200,27 +200,55 @@ def test_from_yt_cube_equals_the_cli_cube_on_exported_files(cli, tmp_path, which
         cube.to_fits(tmp_path / "mine.fits")
 
 
-def test_blueshift_source_in_a_yt_scene():
+def _blob_ds(n=24):
+    yt = pytest.importorskip("yt")
+    ax = (np.arange(n) + 0.5) / n
+    x, y, z = np.meshgrid(ax, ax, ax, indexing="ij")
+    # Off centre in x and y, so a flip or a transpose shows.
+    blob = np.exp(-(((x - 0.8) ** 2 + (y - 0.65) ** 2 + (z - 0.5) ** 2) / 0.006))
+    zero = np.zeros(blob.shape)
+    data = {("gas", "density"): (blob * 1e-24 + 1e-30, "g/cm**3"), ("gas", "temperature"): (zero + 8000.0, "K"),
+            ("gas", "velocity_x"): (zero, "cm/s"), ("gas", "velocity_y"): (zero, "cm/s"),
+            ("gas", "velocity_z"): (zero, "cm/s")}
+    return yt.load_uniform_grid(data, blob.shape, length_unit="Mpc", bbox=np.array([[0.0, 1.0]] * 3), nprocs=1)
+
+
+def _centroid(img):
+    lum = np.asarray(img)[..., :3].sum(-1)
+    i, j = np.indices(lum.shape)
+    return np.array([(i * lum).sum(), (j * lum).sum()]) / lum.sum()
+
+
+def test_blueshift_source_lands_where_yts_own_volume_rendering_does():
     yt = pytest.importorskip("yt")
     from yt.visualization.volume_rendering.api import Scene
 
-    ds, _ = _uniform_ds()
-    scene = blueshift.from_yt(ds, FIELDS, species={"H I": {"mass_fraction": 0.76, "lines": "H", "scale": 1e30}})
     from blueshift.yt import BlueshiftSource
 
-    sc = Scene()
-    cam = sc.add_camera(ds, lens_type="plane-parallel")
-    cam.resolution = (32, 24)
+    ds = _blob_ds()
+    # yt's own renderer of the same density, as the independent reference.
+    ref = yt.create_scene(ds, ("gas", "density"), lens_type="plane-parallel")
+    cam = ref.camera
+    cam.resolution = (32, 32)
     cam.set_width(ds.domain_width)
+    cam.set_position(ds.arr([0.5, 0.5, 3.0], "code_length"), north_vector=[0, 1, 0])
+    cam.set_focus(ds.arr([0.5, 0.5, 0.5], "code_length"))
+    im_yt = np.asarray(ref.render())
+    scene = blueshift.from_yt(ds, FIELDS, species={"H I": {"mass_fraction": 0.76, "lines": "H", "scale": 1e30}})
+    sc = Scene()
+    sc.camera = cam
     src = BlueshiftSource(scene)
     sc.add_source(src)
     im = np.asarray(sc.render())
-    assert im.shape[:2] == (32, 24)
-    assert im[..., :3].max() > 0
-    # What yt shows is blueshift's picture of the same camera.
+    assert im.shape == im_yt.shape == (32, 32, 4)
+    np.testing.assert_allclose(_centroid(im), _centroid(im_yt), atol=1.5)
+    # What yt shows is blueshift's own picture of the camera, [x, row from the top].
     rgb = np.asarray(src.last.rgb, dtype=np.float64) / 255.0
     lin = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
-    np.testing.assert_allclose(im[..., :3], np.transpose(lin[::-1], (1, 0, 2)), atol=1e-12)
+    np.testing.assert_allclose(im[..., :3], np.transpose(lin, (1, 0, 2)), atol=1e-12)
+    # And blueshift's picture has the blob at x = 0.8 (right), y = 0.65 (up).
+    row, col = np.unravel_index(np.argmax(rgb.sum(-1)), rgb.shape[:2])
+    assert abs(col - 0.8 * 32) < 2 and abs(row - 0.35 * 32) < 2
 
 
 def test_the_viewer_serves_a_python_scene_on_loopback():
@@ -252,3 +280,24 @@ def test_a_trace_ends_in_the_picked_spectrum():
     grid = np.linspace(640, 670, 601)
     np.testing.assert_allclose(np.interp(grid, steps[-1].wavelengths, steps[-1].values), np.interp(grid, w, v),
                                rtol=1e-9, atol=1e-12 * v.max())
+
+
+@needs_enzo
+def test_yt_style_cm_per_s_gives_the_scene_files_km_per_s_picture():
+    unyt = pytest.importorskip("unyt")
+    vol = {n: blueshift.Volume.read(ENZO_DATA / f) for n, f in [
+        ("rho", "density_gcm3_64x64x64_f32le.nhdr"), ("t", "temperature_K_64x64x64_f32le.nhdr"),
+        ("v", "velocity_kms_64x64x64x3_f32le.nhdr")]}
+    rho = unyt.unyt_array(vol["rho"].array(), "g/cm**3")
+    # What yt hands over: velocities in cm/s, float64.
+    v_cms = unyt.unyt_array(vol["v"].array().astype(np.float64) * 1e5, "cm/s")
+    ours = doppler.Scene(
+        velocity=v_cms, temperature=unyt.unyt_array(vol["t"].array(), "K"),
+        blackbody={"density": rho, "mass_fraction": 0.76, "scale": 1e9},
+        species={"H I": {"density": rho, "mass_fraction": 0.76, "lines": "H"},
+                 "He I": {"density": rho, "mass_fraction": 0.24, "lines": "He"}},
+        spacing=vol["rho"].spacing, origin=vol["rho"].origin, subtract_mean_velocity=True,
+    ).render(width=48, height=48)
+    ref = doppler.Scene.read(ENZO).render(width=48, height=48)
+    np.testing.assert_allclose(ours.xyz, ref.xyz, rtol=2e-5, atol=1e-6 * ref.xyz.max())
+    assert np.mean(ours.rgb == ref.rgb) > 0.99
