@@ -61,6 +61,7 @@ def scene_from_yt() -> doppler.Scene:
         level=2,
         dims=(64, 64, 64),
         species={"H I": {"mass_fraction": 0.76, "lines": "H"}, "He I": {"mass_fraction": 0.24, "lines": "He"}},
+        blackbody={"mass_fraction": 0.76, "scale": 1e9},
         subtract_mean_velocity=True,
     )
 

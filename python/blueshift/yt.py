@@ -32,6 +32,7 @@ def from_yt(
     left_edge: Any = None,
     dims: Optional[Sequence[int]] = None,
     species: Optional[Mapping[str, Any]] = None,
+    blackbody: Optional[Mapping[str, Any]] = None,
     kind: str = "doppler",
     length_unit: str = "code_length",
     **scene_options: Any,
@@ -46,7 +47,8 @@ def from_yt(
     density the species take, with their mass fractions). ``species`` maps species names
     to a mass fraction or a dict (``mass_fraction``, ``lines``, ``scale``, ``absorb``,
     ``field``: another yt field for its density); default ``{"H I": 0.76}`` with hydrogen
-    lines. For ``kind="volume"`` every ``fields`` entry becomes a channel of that name.
+    lines. ``blackbody`` gives the black body's ``mass_fraction`` and ``scale`` (and
+    optionally its ``field``, instead of ``fields["blackbody"]``). For ``kind="volume"`` every ``fields`` entry becomes a channel of that name.
     World lengths are in ``length_unit`` (default the code length), so a scene file over
     files exported from the same grid (spacing in code units) renders the same picture.
     """
@@ -70,9 +72,16 @@ def from_yt(
     elif any(f"velocity_{a}" in fields for a in "xyz"):
         velocity = _stack([cg[fields[f"velocity_{a}"]] for a in "xyz"])
     temperature = cg[fields["temperature"]] if "temperature" in fields else None
-    blackbody = None
-    if "blackbody" in fields:
-        blackbody = cg[fields["blackbody"]]
+    bb_opts = dict(blackbody or {})
+    bb_field = bb_opts.pop("field", None) or fields.get("blackbody")
+    unknown_bb = set(bb_opts) - {"mass_fraction", "particle_mass_amu", "scale"}
+    if unknown_bb:
+        raise ValueError(f"blackbody: unknown keys {sorted(unknown_bb)}")
+    bb = None
+    if bb_field is not None:
+        bb = dict(bb_opts, density=cg[bb_field])
+    elif bb_opts:
+        raise ValueError("blackbody options need fields['blackbody'] or blackbody['field']")
     sp: Dict[str, Any] = {}
     if species is None:
         species = {"H I": 0.76}
@@ -83,7 +92,7 @@ def from_yt(
             raise ValueError(f"species '{name}': give fields['density'] or its own 'field'")
         spec["density"] = cg[f]
         sp[name] = spec
-    return Scene(velocity=velocity, temperature=temperature, blackbody=blackbody, species=sp,
+    return Scene(velocity=velocity, temperature=temperature, blackbody=bb, species=sp,
                  spacing=spacing, origin=origin, **scene_options)
 
 
