@@ -86,7 +86,7 @@ def main() -> int:
     cube = scene.cube(line="H-alpha", velocity_bins=(-120, 120, 48), axis="z", width=n, height=n, cell_domain=True)
     m = cube.moments()
     m0 = m["m0"]
-    v1 = np.where(m0 > 0.01 * np.nanmax(m0), m["m1"] / 1e3, np.nan)  # km/s
+    v1 = np.where(m0 > 0.01 * np.nanmax(m0), m["m1"], np.nan)  # km/s
     # Picks: the brightest pixel and the most receding bright one.
     lum = img.xyz[:, :, 1]
     bright = np.unravel_index(np.argmax(lum), lum.shape)

@@ -94,7 +94,8 @@ def field(a: Any, name: str, vector: bool = False, finite: bool = True) -> np.nd
     float32 ``[z, y, x]`` array the native module takes (x fastest in memory).
 
     float64, integer, non-contiguous and C-ordered inputs are converted; a Fortran-ordered
-    float32 input is used without a copy. Complex, object or string arrays, a wrong number
+    float32 input needs no conversion (it is viewed, not copied, here; the native side
+    copies it once into its grid). Complex, object or string arrays, a wrong number
     of dimensions, and empty arrays raise ``TypeError``/``ValueError`` naming the array;
     with ``finite``, so do NaN and infinite values.
     """

@@ -33,7 +33,12 @@ class Image(np.ndarray):
 
     def __array_finalize__(self, obj: Any) -> None:
         self.kind = getattr(obj, "kind", "array")
-        self.meta = getattr(obj, "meta", {})
+        meta = dict(getattr(obj, "meta", {}))
+        # A slice or a reshape keeps no display image of another shape.
+        disp = meta.get("display")
+        if disp is not None and np.shape(disp)[:2] != self.shape[:2]:
+            del meta["display"]
+        self.meta = meta
 
     def __getattr__(self, name: str) -> Any:
         meta = self.__dict__.get("meta", {})
@@ -82,8 +87,8 @@ class Volume:
         """A volume from ``{"name": array}`` (or one array, named ``value``).
 
         float64, integer and C-ordered arrays are converted to float32 x-fastest (a
-        Fortran-ordered float32 array is taken without a copy); ``finite=True`` also
-        refuses NaN and infinities.
+        Fortran-ordered float32 array needs no conversion: its buffer is copied once, into
+        the grid); ``finite=True`` also refuses NaN and infinities.
         """
         if not isinstance(channels, Mapping):
             channels = {"value": channels}
@@ -269,8 +274,14 @@ def _scene_request(
             out.append(c)
         doc["channels"] = out
     for k, v in settings.items():
-        if v is not None:
-            doc[k] = list(v) if isinstance(v, tuple) else v
+        if v is None:
+            continue
+        if isinstance(v, (tuple, np.ndarray)):
+            v = [float(c) for c in v]
+        for c in v if isinstance(v, list) else [v]:
+            if isinstance(c, float) and not np.isfinite(c):
+                raise ValueError(f"{k} = {v}: must be finite")
+        doc[k] = v
     if not doc.get("channels"):
         raise ValueError("nothing to render: give scene, channels or volume")
     return json.dumps(doc), base, volumes, tfs
@@ -315,14 +326,19 @@ def render_progressive(
 ) -> Iterator[Tuple[int, Image, Optional[float]]]:
     """:func:`render`, yielding ``(pass, image, noise)`` after every pass of one sample per
     pixel (``image`` the mean so far; ``noise`` the RMS standard error, None after one
-    pass). Stop iterating (or ``close()`` the generator) to cancel the render."""
+    pass). Stop iterating (or ``close()`` the generator) to cancel the render. A bad scene
+    raises here, before the first pass."""
     req = _scene_request(scene, channels, volume, tf, settings)
     run = _native.TrackingRun(*req)
-    try:
-        for k, img, noise in run:
-            yield k, Image(img, "linear-rgba", {"noise": noise, "spp": k}), noise
-    finally:
-        run.close()
+
+    def passes() -> Iterator[Tuple[int, Image, Optional[float]]]:
+        try:
+            for k, img, noise in run:
+                yield k, Image(img, "linear-rgba", {"noise": noise, "spp": k}), noise
+        finally:
+            run.close()
+
+    return passes()
 
 
 # --- images ------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -167,18 +168,30 @@ class Scene:
             raise ValueError("only a scene built from arrays can be saved (this one was read from a file)")
         os.makedirs(folder, exist_ok=True)
         doc = json.loads(json.dumps(self._doc))
-        names = {key: key.replace(" ", "_") + ".nhdr" for key in self._arrays}
+        names: Dict[str, str] = {}
+        for key in self._arrays:
+            stem = re.sub(r"[^A-Za-z0-9_-]", "_", key) or "field"
+            fname, k = stem + ".nhdr", 2
+            while fname in names.values():
+                fname, k = f"{stem}_{k}.nhdr", k + 1
+            names[key] = fname
         targets = [os.path.join(folder, name)] + [os.path.join(folder, f) for f in names.values()]
-        targets += [t[: -len(".nhdr")] + ".raw" for t in targets if t.endswith(".nhdr")]
         taken = [t for t in targets if os.path.exists(t)]
         if taken:
             raise FileExistsError(f"{taken[0]} exists: Scene.save never replaces a file (use an empty folder)")
         files: Dict[str, str] = {}
-        for key, (arr, _) in self._arrays.items():
-            fname = names[key]
-            vol = _native.Volume.from_arrays([(key, arr)], self._spacing, self._origin)
-            vol.write_nrrd(key, os.path.join(folder, fname))
-            files[key] = fname
+        written: List[str] = []
+        try:
+            for key, (arr, _) in self._arrays.items():
+                fname = names[key]
+                vol = _native.Volume.from_arrays([(key, arr)], self._spacing, self._origin)
+                vol.write_nrrd(key, os.path.join(folder, fname))
+                written.append(os.path.join(folder, fname))
+                files[key] = fname
+        except BaseException:
+            for f in written:  # no half-written scene: the files this save made go again
+                os.remove(f)
+            raise
 
         def fix(node: Any) -> None:
             if isinstance(node, dict):
@@ -192,8 +205,13 @@ class Scene:
 
         fix(doc)
         path = os.path.join(folder, name)
-        with open(path, "x", encoding="utf-8") as f:
-            json.dump(doc, f, indent=2)
+        try:
+            with open(path, "x", encoding="utf-8") as f:
+                json.dump(doc, f, indent=2)
+        except BaseException:
+            for f in written:
+                os.remove(f)
+            raise
         return path
 
     @property
@@ -214,10 +232,21 @@ class Scene:
                 continue
             if k == "line_sigma":
                 v = cv.as_float(v, "km/s", k) if cv.is_quantity(v) else float(v)
-            if isinstance(v, (tuple, np.ndarray)):
+            if isinstance(v, (tuple, list, np.ndarray)):
                 v = [float(c) for c in v]
+                if not all(np.isfinite(v)):
+                    raise ValueError(f"{k} {v}: every component must be finite")
+            elif isinstance(v, float) and not np.isfinite(v):
+                raise ValueError(f"{k} = {v}: must be finite")
             o[k] = v
         return json.dumps(o)
+
+    @staticmethod
+    def _pixel(x: int, y: int) -> Tuple[int, int]:
+        x, y = int(x), int(y)
+        if x < 0 or y < 0:
+            raise ValueError(f"pixel ({x}, {y}): columns and rows count from 0")
+        return x, y
 
     def render(self, width: int = 256, height: int = 256, **opts: Any) -> "Render":
         """Renders the image ``blueshift doppler`` renders with the same options.
@@ -239,13 +268,15 @@ class Scene:
         :meth:`render` makes with the same size and options: ``(wavelengths_nm, values)``,
         the exact piecewise-linear polyline (a jump is two points at one wavelength; gaps
         fall to zero), as ``blueshift doppler --pick`` writes it."""
-        pieces, rng = self._native.spectrum(int(x), int(y), self._opts(width, height, opts))
+        x, y = self._pixel(x, y)
+        pieces, rng = self._native.spectrum(x, y, self._opts(width, height, opts))
         return polyline(pieces, rng)
 
     def trace(self, x: int, y: int, width: int = 256, height: int = 256, **opts: Any) -> List["TraceStep"]:
         """The ray of pixel ``(x, y)`` step by step (paper Fig. 5): the spectrum after each
         segment, back to front."""
-        steps, rng = self._native.trace(int(x), int(y), self._opts(width, height, opts))
+        x, y = self._pixel(x, y)
+        steps, rng = self._native.trace(x, y, self._opts(width, height, opts))
         return [TraceStep(t, v, *polyline(p, rng)) for t, v, p in steps]
 
     def cube(
@@ -360,10 +391,12 @@ class Cube:
         self.ctype = native.ctype
 
     def moments(self) -> Dict[str, np.ndarray]:
-        """Moment maps ``m0`` (integrated line), ``m1`` (mean velocity, m/s; nm for a
-        wavelength axis) and ``m2`` (dispersion), each float32 ``[x, y]``."""
+        """Moment maps ``m0`` (integrated line), ``m1`` (mean velocity) and ``m2``
+        (dispersion), each float32 ``[x, y]``; velocities in km/s as ``velocities`` (nm for
+        a wavelength axis). The FITS file and ``wcs`` keep the FITS unit, m/s."""
         m0, m1, m2 = self._native.moments()
-        return {"m0": m0.T, "m1": m1.T, "m2": m2.T}
+        k = 1e-3 if self.ctype != "WAVE" else 1.0
+        return {"m0": m0.T, "m1": m1.T * np.float32(k), "m2": m2.T * np.float32(k)}
 
     def to_fits(self, path: Union[str, "os.PathLike[str]"], overwrite: bool = False) -> None:
         """Writes the FITS file the CLI writes (atomically; no overwrite unless asked)."""

@@ -145,6 +145,12 @@ def _make_source_class() -> Any:
             focus = np.asarray(camera.focus.to(self.length_unit), dtype=np.float64)
             north = np.asarray(camera.north_vector, dtype=np.float64)
             width = np.asarray(camera.width.to(self.length_unit), dtype=np.float64)
+            w, h = (int(v) for v in camera.resolution)
+            if not np.isclose(width[0] / width[1], w / h, rtol=1e-6):
+                raise ValueError(
+                    f"BlueshiftSource renders square pixels: the camera's width {width[0]:g} x {width[1]:g} "
+                    f"does not have the resolution's aspect {w} x {h} (set_width to match it)"
+                )
             return {"eye": tuple(pos), "target": tuple(focus), "up": tuple(north), "ortho_height": float(width[1])}
 
         def render(self, camera: Any, zbuffer: Any = None) -> Any:

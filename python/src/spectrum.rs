@@ -54,81 +54,12 @@ fn observer(name: &str) -> PyResult<&'static blueshift_spectrum::Cmf> {
 
 #[pymethods]
 impl PySpectrum {
-    /// Builds a spectrum as `blueshift spectrum` does from the same options (JSON).
+    /// Builds a spectrum as `blueshift spectrum` does from the same options (JSON), with
+    /// the GIL released.
     #[staticmethod]
-    fn build(recipe: &str) -> PyResult<Self> {
+    fn build(py: Python<'_>, recipe: &str) -> PyResult<Self> {
         let r: Recipe = options("spectrum", recipe)?;
-        let (lo, hi) = r.range.unwrap_or((360.0, 830.0));
-        if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo < hi) {
-            return Err(err(format!("range ({lo}, {hi}): need 0 < min < max")));
-        }
-        let table_lines = r.line_table.as_ref().is_some_and(|t| !t.is_empty());
-        if r.blackbody.is_none() && r.lines.as_ref().is_none_or(Vec::is_empty) && !table_lines {
-            return Err(err(
-                "nothing to build: give blackbody (K) and/or lines or a line table",
-            ));
-        }
-        let model = match r.doppler.as_deref().unwrap_or("classical") {
-            "classical" => DopplerModel::Classical,
-            "relativistic" => DopplerModel::Relativistic,
-            other => return Err(err(format!("doppler '{other}': classical or relativistic"))),
-        };
-        let shift = match (r.shift, r.radial_velocity) {
-            (Some(_), Some(_)) => return Err(err("give shift or radial_velocity, not both")),
-            (Some(s), None) => WavelengthShift::new(s).map_err(|e| err(format!("shift: {e}")))?,
-            (None, Some(v)) => WavelengthShift::from_radial_velocity(model, v)
-                .map_err(|e| err(format!("radial_velocity: {e}")))?,
-            (None, None) => WavelengthShift::IDENTITY,
-        };
-        let transform = match r.radiometric.as_deref().unwrap_or("none") {
-            "none" => RadiometricTransform::None,
-            "invariant" => RadiometricTransform::Invariant,
-            other => return Err(err(format!("radiometric '{other}': none or invariant"))),
-        };
-        let width = r.line_width.unwrap_or(1.0);
-        let profile = match r.line_profile.as_deref().unwrap_or("box") {
-            "box" => LineProfile::Box { width_nm: width },
-            "triangle" => LineProfile::Triangle { fwhm_nm: width },
-            other => return Err(err(format!("line_profile '{other}': box or triangle"))),
-        };
-        let strength = r.line_strength.unwrap_or(1.0);
-        let s = shift.value();
-        let mut rest = PiecewiseLinear::new();
-        let mut bb = None;
-        if let Some(t) = r.blackbody {
-            let b = Blackbody::new(t).map_err(|e| err(format!("blackbody: {e}")))?;
-            let approx = b
-                .to_piecewise(lo / s, hi / s, r.max_error.unwrap_or(1e-4))
-                .map_err(|e| err(format!("max_error: {e}")))?;
-            rest.add(&approx);
-            bb = Some(b);
-        }
-        let mut all: Vec<EmissionLine> = Vec::new();
-        for name in r.lines.iter().flatten() {
-            all.extend(
-                Catalogue::parse(name)
-                    .map_err(|e| err(format!("lines: {e}")))?
-                    .lines(),
-            );
-        }
-        for &[nm, rel] in r.line_table.iter().flatten() {
-            all.push(EmissionLine::new(nm, rel).map_err(|e| err(format!("line_table: {e}")))?);
-        }
-        for line in &all {
-            line.add_to(&mut rest, profile, strength)
-                .map_err(|e| err(format!("line_strength/line_width: {e}")))?;
-        }
-        let observed = rest.shifted(shift, transform);
-        let observed_temperature_k = bb.and_then(|b| match transform {
-            RadiometricTransform::Invariant => Some(b.shifted(shift).temperature_k()),
-            RadiometricTransform::None => None,
-        });
-        Ok(Self {
-            observed,
-            range: (lo, hi),
-            shift: s,
-            observed_temperature_k,
-        })
+        crate::run_cancellable(py, |_| Ok(Self::make(&r)))?
     }
 
     /// CIE XYZ over the range (observer `1931` or `1964`).
@@ -209,6 +140,82 @@ impl PySpectrum {
     #[getter]
     fn observed_temperature_k(&self) -> Option<f64> {
         self.observed_temperature_k
+    }
+}
+
+impl PySpectrum {
+    fn make(r: &Recipe) -> PyResult<Self> {
+        let (lo, hi) = r.range.unwrap_or((360.0, 830.0));
+        if !(lo.is_finite() && hi.is_finite() && lo > 0.0 && lo < hi) {
+            return Err(err(format!("range ({lo}, {hi}): need 0 < min < max")));
+        }
+        let table_lines = r.line_table.as_ref().is_some_and(|t| !t.is_empty());
+        if r.blackbody.is_none() && r.lines.as_ref().is_none_or(Vec::is_empty) && !table_lines {
+            return Err(err(
+                "nothing to build: give blackbody (K) and/or lines or a line table",
+            ));
+        }
+        let model = match r.doppler.as_deref().unwrap_or("classical") {
+            "classical" => DopplerModel::Classical,
+            "relativistic" => DopplerModel::Relativistic,
+            other => return Err(err(format!("doppler '{other}': classical or relativistic"))),
+        };
+        let shift = match (r.shift, r.radial_velocity) {
+            (Some(_), Some(_)) => return Err(err("give shift or radial_velocity, not both")),
+            (Some(s), None) => WavelengthShift::new(s).map_err(|e| err(format!("shift: {e}")))?,
+            (None, Some(v)) => WavelengthShift::from_radial_velocity(model, v)
+                .map_err(|e| err(format!("radial_velocity: {e}")))?,
+            (None, None) => WavelengthShift::IDENTITY,
+        };
+        let transform = match r.radiometric.as_deref().unwrap_or("none") {
+            "none" => RadiometricTransform::None,
+            "invariant" => RadiometricTransform::Invariant,
+            other => return Err(err(format!("radiometric '{other}': none or invariant"))),
+        };
+        let width = r.line_width.unwrap_or(1.0);
+        let profile = match r.line_profile.as_deref().unwrap_or("box") {
+            "box" => LineProfile::Box { width_nm: width },
+            "triangle" => LineProfile::Triangle { fwhm_nm: width },
+            other => return Err(err(format!("line_profile '{other}': box or triangle"))),
+        };
+        let strength = r.line_strength.unwrap_or(1.0);
+        let s = shift.value();
+        let mut rest = PiecewiseLinear::new();
+        let mut bb = None;
+        if let Some(t) = r.blackbody {
+            let b = Blackbody::new(t).map_err(|e| err(format!("blackbody: {e}")))?;
+            let approx = b
+                .to_piecewise(lo / s, hi / s, r.max_error.unwrap_or(1e-4))
+                .map_err(|e| err(format!("max_error: {e}")))?;
+            rest.add(&approx);
+            bb = Some(b);
+        }
+        let mut all: Vec<EmissionLine> = Vec::new();
+        for name in r.lines.iter().flatten() {
+            all.extend(
+                Catalogue::parse(name)
+                    .map_err(|e| err(format!("lines: {e}")))?
+                    .lines(),
+            );
+        }
+        for &[nm, rel] in r.line_table.iter().flatten() {
+            all.push(EmissionLine::new(nm, rel).map_err(|e| err(format!("line_table: {e}")))?);
+        }
+        for line in &all {
+            line.add_to(&mut rest, profile, strength)
+                .map_err(|e| err(format!("line_strength/line_width: {e}")))?;
+        }
+        let observed = rest.shifted(shift, transform);
+        let observed_temperature_k = bb.and_then(|b| match transform {
+            RadiometricTransform::Invariant => Some(b.shifted(shift).temperature_k()),
+            RadiometricTransform::None => None,
+        });
+        Ok(Self {
+            observed,
+            range: (lo, hi),
+            shift: s,
+            observed_temperature_k,
+        })
     }
 }
 

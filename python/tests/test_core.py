@@ -105,9 +105,15 @@ def test_progressive_passes_end_in_the_one_call_image():
     final = blueshift.render(volume=d, tf="builtin:viridis", **kw)
     np.testing.assert_array_equal(passes[-1][1], final)
     # Stopping early cancels the render without waiting for the remaining passes.
-    it = blueshift.render_progressive(volume=d, tf="builtin:viridis", method="woodcock", spp=10_000, width=20, height=20)
+    it = blueshift.render_progressive(volume=d, tf="builtin:viridis", method="woodcock", spp=1_000_000, width=64, height=64)
     next(it)
+    t0 = time.perf_counter()
     it.close()
+    # A million passes would take hours; closing waits for one pass at most.
+    assert time.perf_counter() - t0 < 30
+    # A bad scene is refused at the call, not at the first pass.
+    with pytest.raises(blueshift.BlueshiftError, match="method"):
+        blueshift.render_progressive(volume=d, method="bogus")
 
 
 def test_transfer_functions_and_a_scene_dict(cli, tmp_path):
@@ -129,26 +135,24 @@ def test_transfer_functions_and_a_scene_dict(cli, tmp_path):
     np.testing.assert_array_equal(np.asarray(a)[:, :, :3], blueshift.read_hdr(tmp_path / "s.exr"))
 
 
-def test_tonemap_equals_the_cli_png(cli, tmp_path):
+def test_tonemap_checks_its_arguments_and_keeps_the_shape():
     rng = np.random.default_rng(1)
     hdr = (10 ** rng.uniform(-2, 3, size=(20, 30, 1)) * rng.uniform(0.2, 1, size=(20, 30, 3))).astype(np.float32)
-    r = blueshift.relativity.render("checker", beta=0.0, effects="none", width=30, height=20)
-    cli("relativity", "--synth", "checker", "--beta", 0.0, "--effects", "none", "--width", 30, "--height", 20,
-        "--out", tmp_path / "env.exr")
-    np.testing.assert_array_equal(r, blueshift.read_hdr(tmp_path / "env.exr"))
-    src = blueshift.read_hdr(tmp_path / "env.exr") * hdr
-    # Through an EXR the CLI reads the same floats.
-    for op, flags in [("drago", []), ("reinhard", []), ("linear", [])]:
-        disp = blueshift.tonemap(src, op=op)
-        assert disp.kind == "display" and disp.shape == src.shape
+    for op in ("drago", "reinhard", "linear", "durand"):
+        disp = blueshift.tonemap(hdr, op=op)
+        assert disp.kind == "display" and disp.shape == hdr.shape
         assert np.all(np.isfinite(disp)) and float(np.min(disp)) >= 0.0
-        assert disp.to_srgb8().dtype == np.uint8
+    # Drago maps the brightest pixel to Ld_max / 100 = 1 (Drago et al. 2003, Eq. 4).
+    lum = hdr @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    d = blueshift.tonemap(hdr, op="drago")
+    k = np.unravel_index(np.argmax(lum), lum.shape)
+    assert float(np.asarray(d)[k] @ np.array([0.2126, 0.7152, 0.0722])) == pytest.approx(1.0, rel=2e-3)
     params = blueshift.tonemap_parameters("drago")
     assert "bias" in params
     with pytest.raises(TypeError, match="no parameter 'nope'"):
-        blueshift.tonemap(src, op="drago", nope=1)
+        blueshift.tonemap(hdr, op="drago", nope=1)
     with pytest.raises(ValueError, match="is not one of"):
-        blueshift.tonemap(src, op="bogus")
+        blueshift.tonemap(hdr, op="bogus")
 
 
 def test_tonemap_of_a_file_equals_the_cli(cli, tmp_path):
@@ -221,11 +225,31 @@ def test_ctrl_c_cancels_a_render():
 
 
 def test_images_show_in_jupyter():
+    import io
+
+    from PIL import Image as PILImage
+
     img = blueshift.relativity.render("checker", beta=0.5, width=32, height=16)
     png = img._repr_png_()
-    assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    r = blueshift.render(volume=_blob(8), method="marcher", width=16, height=16)
-    assert r._repr_png_()[:4] == b"\x89PNG"
+    shown = np.asarray(PILImage.open(io.BytesIO(png)).convert("RGB"))
+    np.testing.assert_array_equal(shown, img.to_srgb8())
+    assert shown.shape == (16, 32, 3) and shown.max() > 0
+    r = blueshift.render(volume=_blob(8), method="marcher", width=16, height=12)
+    assert np.asarray(PILImage.open(io.BytesIO(r._repr_png_()))).shape[:2] == (12, 16)
+    # A slice shows itself, not the whole picture.
+    part = img[:8]
+    assert np.asarray(PILImage.open(io.BytesIO(part._repr_png_()))).shape[:2] == (8, 32)
+
+
+def test_absurd_requests_are_refused_before_any_work():
+    with pytest.raises(blueshift.BlueshiftError, match="pieces"):
+        spectrum.blackbody(5000.0, max_error=1e-300)
+    with pytest.raises(blueshift.BlueshiftError, match="pieces"):
+        spectrum.blackbody(1e300)
+    with pytest.raises(blueshift.BlueshiftError, match="4 GiB"):
+        blueshift.relativity.render("checker", beta=0.5, width=32768, height=32768)
+    with pytest.raises(ValueError, match="finite"):
+        blueshift.render(volume=_blob(8), zoom=float("nan"))
 
 
 def test_a_paraview_preset_loads_with_its_knots(tmp_path):

@@ -559,12 +559,21 @@ impl Environment {
     }
 }
 
-/// Refuses zero and absurd image sizes.
+/// Refuses zero and absurd image sizes: each edge 1 to 32768 pixels, and at most
+/// [`MAX_MAP_BYTES`] of linear RGB f32 in all (so no size asks for more than 4 GiB).
 pub fn check_size(width: u32, height: u32) -> Result<()> {
     for (name, v) in [("width (pixels)", width), ("height (pixels)", height)] {
         if v == 0 || v > MAX_MAP_SIDE {
             return Err(Error::param(name, f64::from(v), "must be in 1..=32768"));
         }
+    }
+    let bytes = u64::from(width) * u64::from(height) * 12;
+    if bytes > MAX_MAP_BYTES {
+        return Err(Error::param(
+            "image size (pixels)",
+            f64::from(width) * f64::from(height),
+            "needs more than 4 GiB of RGB f32: at most 357,913,941 pixels",
+        ));
     }
     Ok(())
 }

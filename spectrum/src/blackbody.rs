@@ -6,6 +6,8 @@ use crate::doppler::{SPEED_OF_LIGHT_M_PER_S, WavelengthShift};
 use crate::error::{Error, Result, positive, range};
 use crate::piecewise::{Piece, PiecewiseLinear};
 
+/// Most pieces [`Blackbody::to_piecewise`] makes (1,048,576: 32 MiB).
+pub const MAX_BLACKBODY_PIECES: usize = 1 << 20;
 /// Planck constant, J s (SI 2019, exact).
 pub const PLANCK_J_S: f64 = 6.626_070_15e-34;
 /// Boltzmann constant, J/K (SI 2019, exact).
@@ -186,7 +188,9 @@ impl Blackbody {
     /// Each candidate piece is checked at 32 interior points against the exact curve with a
     /// safety factor of 2 (the chord error of a smooth function is a smooth bump, so a dense
     /// check with margin bounds it); the test suite verifies the bound on a 100x denser grid.
-    /// `max_relative_error` must lie in (0, 1).
+    /// `max_relative_error` must lie in (0, 1); an approximation that would need more than
+    /// [`MAX_BLACKBODY_PIECES`] pieces (an error bound near the f64 precision, or a
+    /// temperature whose curve overflows) is an error instead of unbounded work.
     pub fn to_piecewise(
         &self,
         min_nm: f64,
@@ -212,6 +216,13 @@ impl Blackbody {
         let target = 0.5 * max_relative_error;
         let mut pieces = Vec::new();
         let mut stack = vec![(lo, hi, 0u32)];
+        let too_many = || {
+            Error::param(
+                "maximum relative error",
+                max_relative_error,
+                "needs more than 1,048,576 pieces over the range (raise it, or check the temperature)",
+            )
+        };
         // Depth-first, right half pushed first so pieces come out in order.
         while let Some((a, b, depth)) = stack.pop() {
             let (va, vb) = (self.eval(a), self.eval(b));
@@ -230,6 +241,9 @@ impl Blackbody {
                     value_end: vb,
                 });
             } else {
+                if pieces.len() + stack.len() >= MAX_BLACKBODY_PIECES {
+                    return Err(too_many());
+                }
                 let m = 0.5 * (a + b);
                 stack.push((m, b, depth + 1));
                 stack.push((a, m, depth + 1));

@@ -68,7 +68,8 @@ mod profiles;
 
 pub use banded::{BandLayout, BandWeights, Banded};
 pub use blackbody::{
-    BOLTZMANN_J_PER_K, Blackbody, PLANCK_J_S, RadiationConstants, WIEN_M_K, planck, wien_peak_nm,
+    BOLTZMANN_J_PER_K, Blackbody, MAX_BLACKBODY_PIECES, PLANCK_J_S, RadiationConstants, WIEN_M_K,
+    planck, wien_peak_nm,
 };
 pub use cie::{
     Cmf, LuminanceScaling, Observer, XYZ_TO_CIE_RGB_EQ10, Xyz, d65, linear_srgb_to_xyz_matrix,
