@@ -391,3 +391,22 @@ def test_from_yt_on_the_original_enzo_snapshot_gives_the_scene_files_picture():
     ref = doppler.Scene.read(ENZO).render(width=48, height=48)
     # The files are yt's float32 covering grids (velocity in km/s); yt hands float64 cm/s.
     np.testing.assert_allclose(ours.xyz, ref.xyz, rtol=2e-5, atol=1e-6 * ref.xyz.max())
+
+
+def test_astropy_quantities_convert_like_unyt_ones():
+    u = pytest.importorskip("astropy.units")
+    unyt = pytest.importorskip("unyt")
+    dens, vel, temp = _shell(12)
+    rho = dens * 1e-24
+    a = doppler.Scene(velocity=(vel / 1e3) * u.km / u.s, temperature=temp * u.K,
+                      species={"H": {"density": rho * u.g / u.cm**3, "mass_fraction": 0.76}}).render(width=12, height=12)
+    b = doppler.Scene(velocity=unyt.unyt_array(vel / 1e3, "km/s"), temperature=unyt.unyt_array(temp, "K"),
+                      species={"H": {"density": unyt.unyt_array(rho, "g/cm**3"), "mass_fraction": 0.76}}).render(width=12, height=12)
+    np.testing.assert_array_equal(a.xyz, b.xyz)
+    # A number density in m^-3 is the cm^-3 one times 1e6.
+    c = doppler.Scene(species={"H": dens * 1e6 / u.m**3}).render(width=12, height=12)
+    d = doppler.Scene(species={"H": dens}).render(width=12, height=12)
+    np.testing.assert_allclose(c.xyz, d.xyz, rtol=1e-6)
+    assert blueshift.spectrum.doppler_shift(3000 * u.km / u.s) == pytest.approx(1 + 3e6 / C, rel=1e-15)
+    with pytest.raises(TypeError, match="cannot convert"):
+        doppler.Scene(velocity=vel * u.K, species={"H": dens})
