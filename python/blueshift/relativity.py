@@ -4,7 +4,7 @@ searchlight effect on an environment map."""
 from __future__ import annotations
 
 import os
-from typing import Any, Optional, Sequence
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
@@ -17,7 +17,7 @@ def render(
     envmap: Any = "checker",
     beta: float = 0.9,
     direction: Optional[Sequence[float]] = None,
-    effects: str = "aberration,doppler,searchlight",
+    effects: Union[str, Sequence[str]] = "aberration,doppler,searchlight",
     look: Sequence[float] = (0.0, 0.0, -1.0),
     up: Sequence[float] = (0.0, 1.0, 0.0),
     fov: float = 90.0,
@@ -29,7 +29,8 @@ def render(
 
     ``envmap`` is a file (equirectangular ``.exr``/``.hdr``/``.pfm``, or a cube-map
     folder), ``"checker"``, or a float32 ``[h, w, 3]`` equirectangular array of linear RGB.
-    ``effects`` lists ``aberration``, ``doppler``, ``searchlight`` (or ``all``, ``none``).
+    ``effects`` lists ``aberration``, ``doppler``, ``searchlight`` (or ``all``, ``none``),
+    comma-separated or as a sequence.
     Returns linear RGB float32 ``[height, width, 3]`` (``blueshift relativity``'s EXR).
     """
     if cv.is_quantity(beta):
@@ -42,6 +43,8 @@ def render(
         env = os.fspath(envmap)
     else:
         env = cv.rgb(envmap, "envmap")
+    if not isinstance(effects, str):
+        effects = ",".join(effects) or "none"
     look3 = cv.triple(look, "look")
     d = look3 if direction is None else cv.triple(direction, "direction")
     img = _native.relativity_render(env, beta, d, look3, cv.triple(up, "up"), float(fov), int(width), int(height), effects)

@@ -149,10 +149,18 @@ pub(crate) fn options<T: serde::de::DeserializeOwned>(what: &str, json: &str) ->
     serde_json::from_str(json).map_err(|e| BlueshiftError::new_err(format!("{what}: {e}")))
 }
 
+/// Panics inside the work thread: the tests' proof that a panic becomes a
+/// `RuntimeError` instead of aborting the interpreter.
+#[pyfunction]
+fn _panic_in_work(py: Python<'_>) -> PyResult<()> {
+    run_cancellable(py, |_| -> Result<(), Fail> { panic!("deliberate test panic") })
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("BlueshiftError", m.py().get_type::<BlueshiftError>())?;
+    m.add_function(wrap_pyfunction!(_panic_in_work, m)?)?;
     volume::register(m)?;
     tracking::register(m)?;
     doppler::register(m)?;

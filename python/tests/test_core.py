@@ -280,3 +280,31 @@ def test_the_viewer_serves_a_tracking_scene_from_numpy():
         v.stop()
     assert not v.running
     v.stop()  # a second stop is harmless
+
+
+def test_a_panic_is_an_exception_not_an_abort():
+    with pytest.raises(RuntimeError, match="deliberate test panic"):
+        blueshift._native._panic_in_work()
+    # The interpreter and the module go on working.
+    assert blueshift.spectrum.doppler_shift(0.0) == 1.0
+
+
+def test_importing_blueshift_needs_no_yt():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['yt'] = None\n"
+        "import blueshift, blueshift.yt\n"
+        "print(blueshift.spectrum.blackbody(5800).xy() is not None)\n"
+        "try:\n    blueshift.yt.BlueshiftSource\nexcept ImportError:\n    print('no yt')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "no", "yt"]
+
+
+def test_relativity_effects_as_a_list():
+    a = blueshift.relativity.render("checker", beta=0.5, effects=["aberration", "doppler"], width=16, height=8)
+    b = blueshift.relativity.render("checker", beta=0.5, effects="aberration,doppler", width=16, height=8)
+    np.testing.assert_array_equal(a, b)
