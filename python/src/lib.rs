@@ -153,7 +153,9 @@ pub(crate) fn options<T: serde::de::DeserializeOwned>(what: &str, json: &str) ->
 /// `RuntimeError` instead of aborting the interpreter.
 #[pyfunction]
 fn _panic_in_work(py: Python<'_>) -> PyResult<()> {
-    run_cancellable(py, |_| -> Result<(), Fail> { panic!("deliberate test panic") })
+    run_cancellable(py, |_| -> Result<(), Fail> {
+        panic!("deliberate test panic")
+    })
 }
 
 #[pymodule]
