@@ -293,6 +293,7 @@ def render(
     channels: Optional[Sequence[Mapping[str, Any]]] = None,
     volume: Any = None,
     tf: Any = None,
+    device: str = "cpu",
     **settings: Any,
 ) -> Image:
     """Renders a volume scene with Woodcock, multi-density Woodcock or the HDR marcher.
@@ -307,13 +308,21 @@ def render(
     ``background``, ``density_scale``, ``macrocell``, ``precision``, ``step``, ``alpha_g``,
     ``noise_target``, ``light``, ``shading``, ``heatmaps``, ``tf_range``.
 
+    ``device`` is ``blueshift render --device``'s: ``cpu`` (the bit-reproducible reference),
+    ``gpu`` (any wgpu adapter, or an error) or ``auto`` (a hardware GPU when it supports the
+    job, else the CPU; the reason lands in ``fallback``).
+
     Returns the mean image, float32 ``[height, width, 4]`` linear RGBA (an :class:`Image`
-    with ``noise``, ``spp`` and ``heatmaps``), the same numbers ``blueshift render``
-    writes to its EXR. The GIL is released while rendering; Ctrl-C cancels.
+    with ``noise``, ``spp``, ``heatmaps``, ``backend`` (``cpu`` or ``gpu``: where it ran)
+    and ``fallback``), the same numbers
+    ``blueshift render`` writes to its EXR. The GIL is released while rendering; Ctrl-C
+    cancels (between passes).
     """
     req = _scene_request(scene, channels, volume, tf, settings)
-    out = _native.render_tracking(*req)
-    return Image(out["image"], "linear-rgba", {"noise": out["noise"], "spp": out["spp"], "heatmaps": out["heatmaps"]})
+    out = _native.render_tracking(*req, device=device)
+    meta = {k: out[k] for k in ("noise", "spp", "heatmaps", "fallback")}
+    meta["backend"] = out["device"]  # not "device": numpy arrays have a .device of their own
+    return Image(out["image"], "linear-rgba", meta)
 
 
 def render_progressive(

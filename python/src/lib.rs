@@ -74,6 +74,12 @@ fn is_cancel_message(m: &str) -> bool {
     m.contains("cancelled")
 }
 
+impl From<blueshift_gpu::Error> for Fail {
+    fn from(e: blueshift_gpu::Error) -> Self {
+        Fail::err(e)
+    }
+}
+
 impl From<Fail> for PyErr {
     fn from(f: Fail) -> PyErr {
         match f {

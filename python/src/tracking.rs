@@ -7,6 +7,8 @@ use std::sync::Mutex;
 use std::sync::mpsc::{Receiver, SyncSender};
 
 use blueshift_camera::{CancelToken, Observer};
+use blueshift_gpu::DeviceChoice;
+use blueshift_gpu::tracking::GpuTrackingSession;
 use blueshift_tracking::{
     Preloaded, Progressive, RenderSceneFile, Scene, TrackingOutput, TrackingSession,
 };
@@ -86,22 +88,62 @@ impl Observer<Progressive> for Cancel<'_> {
     }
 }
 
-/// Renders a scene: `{"image", "noise", "spp", "heatmaps"}`.
+/// Renders a scene: `{"image", "noise", "spp", "heatmaps", "device", "fallback"}`, on
+/// the device `blueshift render --device` names (`cpu`, `gpu`, `auto`) with its fallback
+/// rule.
 #[pyfunction]
-#[pyo3(signature = (scene_json, base=None, volumes=HashMap::new(), tfs=HashMap::new()))]
+#[pyo3(signature = (scene_json, base=None, volumes=HashMap::new(), tfs=HashMap::new(), device="cpu"))]
 fn render_tracking<'py>(
     py: Python<'py>,
     scene_json: &str,
     base: Option<PathBuf>,
     volumes: HashMap<String, PyRef<'_, PyVolume>>,
     tfs: HashMap<String, PyRef<'_, PyTransferFunction>>,
+    device: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let choice: DeviceChoice = device
+        .parse()
+        .map_err(|e: String| BlueshiftError::new_err(format!("device: {e}")))?;
     let (file, memory) = scene_file(scene_json, base, volumes, tfs)?;
-    let out: TrackingOutput = run_cancellable(py, |token| {
-        let s = session(&file, &memory)?;
-        s.render(&Cancel(token)).map_err(|e| fail(token)(&e))
+    let ran = run_cancellable(py, |token| {
+        let (scene, integrator, settings) = file.build_with(&memory).map_err(Fail::err)?;
+        let supported = blueshift_gpu::tracking::supports(&scene, &settings);
+        // `gpu` hands the scene to the device; `auto` keeps it for the CPU in case the
+        // adapter cannot run this render (as `blueshift render` does).
+        let slot = std::cell::RefCell::new(Some(scene));
+        let ran = blueshift_gpu::run_with_fallback(
+            choice,
+            || supported.clone(),
+            |ctx| {
+                let scene = match choice {
+                    DeviceChoice::Auto => slot.borrow().clone(),
+                    _ => slot.borrow_mut().take(),
+                }
+                .ok_or_else(|| blueshift_gpu::Error::InvalidInput("no scene".into()))?;
+                GpuTrackingSession::new(ctx, scene, integrator.clone(), settings.clone())?
+                    .render(&Cancel(token))
+            },
+            || -> Result<TrackingOutput, Fail> {
+                let scene = slot
+                    .borrow_mut()
+                    .take()
+                    .ok_or_else(|| Fail::msg("no scene"))?;
+                let s = TrackingSession::new(scene, integrator.clone(), settings.clone())
+                    .map_err(Fail::err)?;
+                s.render(&Cancel(token)).map_err(|e| fail(token)(&e))
+            },
+        );
+        match ran {
+            Err(Fail::Message(m)) if token.is_cancelled() && m.contains("cancelled") => {
+                Err(Fail::Cancelled)
+            }
+            other => other,
+        }
     })?;
-    output(py, &out.image, &file)
+    let d = output(py, &ran.value.image, &file)?;
+    d.set_item("device", ran.device.to_string())?;
+    d.set_item("fallback", ran.fallback)?;
+    Ok(d)
 }
 
 /// One pass of a progressive render, as the iterator hands it over.

@@ -308,3 +308,28 @@ def test_relativity_effects_as_a_list():
     a = blueshift.relativity.render("checker", beta=0.5, effects=["aberration", "doppler"], width=16, height=8)
     b = blueshift.relativity.render("checker", beta=0.5, effects="aberration,doppler", width=16, height=8)
     np.testing.assert_array_equal(a, b)
+
+
+def test_gpu_render_equals_the_clis_gpu_render(cli, tmp_path):
+    import os
+
+    d = _blob(16)
+    write_nrrd(tmp_path / "b.nhdr", d)
+    kw = dict(method="mdwt-1dda", spp=4, width=24, height=20, seed=5)
+    try:
+        img = blueshift.render(volume=d, tf="builtin:viridis", device="gpu", **kw)
+    except blueshift.BlueshiftError as e:
+        if os.environ.get("BLUESHIFT_REQUIRE_GPU_TESTS") == "1":
+            raise
+        pytest.skip(f"no wgpu adapter: {e}")
+    assert img.backend == "gpu" and img.fallback is None
+    cli("render", "--volume", tmp_path / "b.nhdr", "--tf", "builtin:viridis", "--method", "mdwt-1dda", "--spp", 4,
+        "--width", 24, "--height", 20, "--seed", 5, "--device", "gpu", "--out", tmp_path / "g.exr")
+    np.testing.assert_array_equal(np.asarray(img)[:, :, :3], blueshift.read_hdr(tmp_path / "g.exr"))
+    # The GPU estimates the same image as the CPU reference (Monte Carlo: within the noise).
+    cpu = blueshift.render(volume=d, tf="builtin:viridis", spp=256, method="mdwt-1dda", width=24, height=20)
+    gpu = blueshift.render(volume=d, tf="builtin:viridis", spp=256, method="mdwt-1dda", width=24, height=20, device="gpu")
+    sigma = math.hypot(cpu.noise, gpu.noise) / math.sqrt(24 * 20)
+    assert abs(float(np.mean(cpu[..., :3])) - float(np.mean(gpu[..., :3]))) < 6 * sigma
+    with pytest.raises(blueshift.BlueshiftError, match="device"):
+        blueshift.render(volume=d, device="tpu")
