@@ -256,12 +256,16 @@ class Scene:
         ``merge_tol``, ``piece_budget``, ``step``, ``line_width`` (nm), ``inclination``,
         ``axis``, ``normal``, ``cell_domain``, ``view``, ``fov``, ``eye``, ``target``,
         ``up``, ``zoom``; display: ``matrix`` (``srgb``, ``cie``), ``exposure_scale`` (a
-        number, ``pNN``, ``per-pixel``), ``exposure`` (stops).
+        number, ``pNN``, ``per-pixel``), ``exposure`` (stops); ``device`` (``cpu``, the
+        reference; ``gpu``; ``auto``: a hardware GPU when it supports the scene) and
+        ``gpu_precision`` (``auto``, ``f32``, ``f64``). ``Render.backend`` says where it ran.
         """
         out = self._native.render(self._opts(width, height, opts))
         rgb = Image(out["rgb8"], "srgb8")
         xyz = Image(out["xyz"], "xyz", {"display": out["rgb8"], "pieces": out["pieces"]})
-        return Render(xyz, rgb, out["pieces"])
+        r = Render(xyz, rgb, out["pieces"])
+        r.backend, r.fallback = out["device"], out["fallback"]
+        return r
 
     def spectrum(self, x: int, y: int, width: int = 256, height: int = 256, **opts: Any) -> Tuple[np.ndarray, np.ndarray]:
         """The spectrum reaching pixel ``(x, y)`` (column, row from the top) of the image

@@ -10,6 +10,8 @@ use blueshift_doppler::{
     DopplerScene, DopplerSession, DopplerSettings, Exposure, FitsValue, MemoryVolumes, SceneFile,
     SpectralAxis, SpectralCube, SpectralIntegrator,
 };
+use blueshift_gpu::DeviceChoice;
+use blueshift_gpu::doppler::DopplerPrecision;
 use blueshift_spectrum::{DopplerModel, PiecewiseLinear};
 use glam::Vec3;
 use numpy::prelude::*;
@@ -51,6 +53,10 @@ pub(crate) struct Opts {
     /// km/s.
     line_sigma: Option<f64>,
     masses: Option<BTreeMap<String, f64>>,
+    /// `cpu`, `gpu` or `auto` (images only; picks, traces and cubes run on the CPU).
+    device: Option<String>,
+    /// `auto`, `f32` or `f64` on the GPU.
+    gpu_precision: Option<String>,
     // Display.
     matrix: Option<String>,
     exposure_scale: Option<String>,
@@ -296,15 +302,42 @@ impl PyDopplerScene {
         self.scene.blackbody().is_some()
     }
 
-    /// Renders: `{"xyz": float64 [h, w, 3], "rgb8": uint8 [h, w, 3], "pieces": {...}}`.
+    /// Renders: `{"xyz": float64 [h, w, 3], "rgb8": uint8 [h, w, 3], "pieces": {...},
+    /// "device": "cpu" | "gpu", "fallback": why auto stayed on the CPU}`, on the device
+    /// `blueshift doppler --device` names, with its fallback rule.
     fn render<'py>(&self, py: Python<'py>, opts: &str) -> PyResult<Bound<'py, PyDict>> {
         let o: Opts = options("render", opts)?;
-        let (img, rgb) = run_cancellable(py, |token| {
+        let choice: DeviceChoice = o
+            .device
+            .as_deref()
+            .unwrap_or("cpu")
+            .parse()
+            .map_err(|e: String| BlueshiftError::new_err(format!("device: {e}")))?;
+        let precision: DopplerPrecision = o
+            .gpu_precision
+            .as_deref()
+            .unwrap_or("auto")
+            .parse()
+            .map_err(|e| BlueshiftError::new_err(format!("gpu_precision: {e}")))?;
+        let (img, rgb, ran_on, fallback) = run_cancellable(py, |token| {
             let s = self.session(&o)?;
-            let img = s.render(&Cancel(token)).map_err(|e| fail(token)(&e))?;
+            let (scene, st) = (s.scene(), s.settings());
+            // A precision the adapter lacks is the caller's error, as in the CLI.
+            if let Some(ctx) = choice.context()?
+                && blueshift_gpu::doppler::supports(scene, st).is_ok()
+            {
+                precision.is_double_on(ctx)?;
+            }
+            let ran = blueshift_gpu::run_with_fallback(
+                choice,
+                || blueshift_gpu::doppler::supports(scene, st),
+                |ctx| blueshift_gpu::doppler::render_doppler_gpu_with(ctx, scene, st, precision),
+                || s.render(&Cancel(token)).map_err(|e| fail(token)(&e)),
+            )?;
+            let img = ran.value;
             let disp = o.display(&img)?;
             let rgb = disp.to_rgb8(&img);
-            Ok((img, rgb))
+            Ok((img, rgb, ran.device, ran.fallback))
         })?;
         let (w, h) = (img.width as usize, img.height as usize);
         let d = PyDict::new(py);
@@ -318,6 +351,8 @@ impl PyDopplerScene {
         p.set_item("max", img.pieces.max)?;
         p.set_item("fallback_rays", img.pieces.fallback_rays)?;
         d.set_item("pieces", p)?;
+        d.set_item("device", ran_on.to_string())?;
+        d.set_item("fallback", fallback)?;
         Ok(d)
     }
 

@@ -410,3 +410,25 @@ def test_astropy_quantities_convert_like_unyt_ones():
     assert blueshift.spectrum.doppler_shift(3000 * u.km / u.s) == pytest.approx(1 + 3e6 / C, rel=1e-15)
     with pytest.raises(TypeError, match="cannot convert"):
         doppler.Scene(velocity=vel * u.K, species={"H": dens})
+
+
+def test_gpu_doppler_render_equals_the_clis(cli, tmp_path):
+    import os
+
+    dens, vel, temp = _shell(16)
+    scene = doppler.Scene(velocity=vel, temperature=temp, blackbody={"density": dens, "scale": 0.02},
+                          species={"H": {"density": dens, "scale": 5.0}})
+    try:
+        g = scene.render(width=24, height=24, device="gpu", gpu_precision="f32")
+    except blueshift.BlueshiftError as e:
+        if os.environ.get("BLUESHIFT_REQUIRE_GPU_TESTS") == "1":
+            raise
+        pytest.skip(f"no wgpu adapter: {e}")
+    assert g.backend == "gpu"
+    path = scene.save(tmp_path / "s")
+    cli("doppler", "--scene", path, "--width", 24, "--height", 24, "--device", "gpu", "--gpu-precision", "f32",
+        "--out", tmp_path / "g.exr")
+    np.testing.assert_array_equal(g.xyz.astype(np.float32), blueshift.read_hdr(tmp_path / "g.exr"))
+    c = scene.render(width=24, height=24)
+    assert c.backend == "cpu"
+    np.testing.assert_allclose(g.xyz, c.xyz, rtol=2e-3, atol=1e-4 * c.xyz.max())
