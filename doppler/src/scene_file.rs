@@ -426,17 +426,13 @@ impl Loader<'_> {
     /// Reads a field's file and picks its channel.
     fn volume(&self, f: &FieldSpec) -> Result<(AnyGrid, PathBuf)> {
         let rel = f.file.as_ref().expect("caller checks file");
-        let in_memory = rel.to_str().and_then(|k| self.memory.get(k));
-        let path = match in_memory {
-            Some(_) => rel.clone(),
-            None => self.base.join(rel),
-        };
         let read;
-        let vol: &Volume = match in_memory {
-            Some(v) => v,
+        let (vol, path): (&Volume, PathBuf) = match rel.to_str().and_then(|k| self.memory.get(k)) {
+            Some(v) => (v, rel.clone()),
             None => {
+                let path = self.base.join(rel);
                 read = blueshift_volume::read(&path).map_err(|e| file_err(&path, e.to_string()))?;
-                &read
+                (&read, path)
             }
         };
         let grid = match &f.channel {

@@ -103,8 +103,8 @@ class Scene:
     def _vector(self, name: str, x: Any) -> Dict[str, Any]:
         return {"file": self._put(name, cv.to_unit(x, "m/s", name), True), "unit": "m/s"}
 
-    def _density(self, name: str, x: Any, extra: Optional[Mapping[str, Any]] = None) -> Dict[str, Any]:
-        spec: Dict[str, Any] = {}
+    def _density(self, name: str, x: Any) -> Dict[str, Any]:
+        extra: Optional[Mapping[str, Any]] = None
         if isinstance(x, Mapping):
             extra = {k: v for k, v in x.items() if k != "density"}
             x = x["density"]
@@ -149,7 +149,7 @@ class Scene:
             d["line_table"] = [[float(a), float(b)] for a, b in lines]
         if "absorb" in extra:
             d["absorb"] = bool(extra["absorb"])
-        d["density"] = self._density(name, spec if isinstance(spec, Mapping) else spec)
+        d["density"] = self._density(name, spec)
         return d
 
     # -- reading and writing -----------------------------------------------------------

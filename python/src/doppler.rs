@@ -63,10 +63,6 @@ pub(crate) struct Opts {
     exposure: Option<f64>,
 }
 
-fn param(m: impl Into<String>) -> Fail {
-    Fail::Message(m.into())
-}
-
 impl Opts {
     /// The settings `blueshift doppler` makes from the same flags (in its order: the
     /// integrator and model, the inclination, the cube's view, the camera flags).
@@ -81,7 +77,7 @@ impl Opts {
             .map_err(Fail::err)?;
         let model = self.doppler.as_deref().unwrap_or("classical");
         st.model = model.parse::<DopplerModel>().map_err(|_| {
-            param(format!(
+            Fail::msg(format!(
                 "doppler '{model}': one of {}",
                 DopplerModel::NAMES.join(", ")
             ))
@@ -89,7 +85,7 @@ impl Opts {
         st.invariant = self.invariant.unwrap_or(false);
         if let Some(i) = self.inclination.filter(|i| *i != 0.0) {
             st.incline(scene, i)
-                .map_err(|e| param(format!("inclination: {e}")))?;
+                .map_err(|e| Fail::msg(format!("inclination: {e}")))?;
         }
         st.merge_tolerance = self.merge_tol.unwrap_or(1e-4);
         st.piece_budget = self.piece_budget.unwrap_or(4096);
@@ -99,12 +95,12 @@ impl Opts {
         st.cell_domain = self.cell_domain.unwrap_or(false);
         let aspect = st.width as f32 / st.height.max(1) as f32;
         let normal = match (&self.axis, self.normal) {
-            (Some(_), Some(_)) => return Err(param("give axis or normal, not both")),
+            (Some(_), Some(_)) => return Err(Fail::msg("give axis or normal, not both")),
             (Some(a), None) => Some(match a.trim().to_ascii_lowercase().as_str() {
                 "x" => Vec3::X,
                 "y" => Vec3::Y,
                 "z" => Vec3::Z,
-                other => return Err(param(format!("unknown axis '{other}' (x, y, z)"))),
+                other => return Err(Fail::msg(format!("unknown axis '{other}' (x, y, z)"))),
             }),
             (None, Some(n)) => Some(Vec3::from(n)),
             (None, None) => None,
@@ -116,7 +112,7 @@ impl Opts {
         // The camera flags.
         if let Some(v) = &self.view {
             if normal.is_some() || self.inclination.is_some_and(|i| i != 0.0) {
-                return Err(param("give one of view, axis, normal and inclination"));
+                return Err(Fail::msg("give one of view, axis, normal and inclination"));
             }
             let view = v.parse::<View>().map_err(Fail::err)?;
             st.camera = blueshift_doppler::los_camera(scene, view.normal(), aspect, st.cell_domain)
@@ -126,7 +122,7 @@ impl Opts {
             let (lo, hi) = scene.geometry().world_bounds();
             let back = st.camera.eye - st.camera.target;
             st.camera = Camera::framing(lo, hi, back, st.camera.up, aspect, false, fov)
-                .map_err(|e| param(format!("fov: {e}")))?;
+                .map_err(|e| Fail::msg(format!("fov: {e}")))?;
         }
         let mut cam = st.camera.with_overrides(
             self.eye.map(Vec3::from),
@@ -140,7 +136,7 @@ impl Opts {
             cam.projection = blueshift_camera::Projection::Orthographic { height: h };
         }
         cam.validate()
-            .map_err(|e| param(format!("eye/target/up: {e}")))?;
+            .map_err(|e| Fail::msg(format!("eye/target/up: {e}")))?;
         st.camera = cam;
         st.broadening = self.broadening()?;
         Ok(st)
@@ -149,12 +145,16 @@ impl Opts {
     fn broadening(&self) -> Result<Broadening, Fail> {
         let sigma = self.line_sigma.unwrap_or(0.0);
         if !(sigma.is_finite() && sigma >= 0.0) {
-            return Err(param(format!("line_sigma {sigma} must be finite and >= 0")));
+            return Err(Fail::msg(format!(
+                "line_sigma {sigma} must be finite and >= 0"
+            )));
         }
         let mut masses = Vec::new();
         for (n, &m) in self.masses.iter().flatten() {
             if !(m.is_finite() && m > 0.0) {
-                return Err(param(format!("masses['{n}'] = {m} must be finite and > 0")));
+                return Err(Fail::msg(format!(
+                    "masses['{n}'] = {m} must be finite and > 0"
+                )));
             }
             masses.push((n.clone(), m));
         }
@@ -169,7 +169,7 @@ impl Opts {
     fn display(&self, img: &DopplerImage) -> Result<DisplayOptions, Fail> {
         let m = self.matrix.as_deref().unwrap_or("srgb");
         let matrix = m.parse::<ColourMatrix>().map_err(|_| {
-            param(format!(
+            Fail::msg(format!(
                 "matrix '{m}': one of {}",
                 ColourMatrix::NAMES.join(", ")
             ))
@@ -180,10 +180,10 @@ impl Opts {
         };
         let stops = self.exposure.unwrap_or(0.0);
         if !stops.is_finite() {
-            return Err(param("exposure: expected a finite number of stops"));
+            return Err(Fail::msg("exposure: expected a finite number of stops"));
         }
         if exposure == Exposure::PerPixel && stops != 0.0 {
-            return Err(param(
+            return Err(Fail::msg(
                 "exposure: per-pixel scaling maps every pixel to Y = 1; stops do not apply",
             ));
         }
@@ -208,7 +208,10 @@ impl Observer<DopplerImage> for Cancel<'_> {
     }
 }
 
-fn pieces_array<'py>(py: Python<'py>, s: &PiecewiseLinear) -> PyResult<Bound<'py, PyArray2<f64>>> {
+pub(crate) fn pieces_array<'py>(
+    py: Python<'py>,
+    s: &PiecewiseLinear,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let flat: Vec<f64> = s
         .pieces()
         .flat_map(|p| [p.start_nm, p.end_nm, p.value_start, p.value_end])
@@ -227,7 +230,7 @@ impl PyDopplerScene {
 
     fn check_pixel(x: u32, y: u32, s: &DopplerSettings) -> Result<(), Fail> {
         if x >= s.width || y >= s.height {
-            return Err(param(format!(
+            return Err(Fail::msg(format!(
                 "pixel {x},{y} is outside the {}x{} image",
                 s.width, s.height
             )));
@@ -438,12 +441,12 @@ enum LineName {
 
 fn bins(what: &str, (a, b, n): (f64, f64, usize)) -> Result<(f64, f64, usize), Fail> {
     if !(a.is_finite() && b.is_finite()) || a >= b {
-        return Err(param(format!(
+        return Err(Fail::msg(format!(
             "{what} ({a}, {b}, {n}): the range is empty (min must be below max)"
         )));
     }
     if n == 0 {
-        return Err(param(format!("{what}: zero channels")));
+        return Err(Fail::msg(format!("{what}: zero channels")));
     }
     Ok((a, b, n))
 }
@@ -453,7 +456,7 @@ impl CubeOpts {
         let rest_nm = match &self.line {
             LineName::Nm(v) if v.is_finite() && *v > 0.0 => *v,
             LineName::Nm(v) => {
-                return Err(param(format!(
+                return Err(Fail::msg(format!(
                     "line {v}: a wavelength must be finite and > 0 nm"
                 )));
             }
@@ -469,7 +472,7 @@ impl CubeOpts {
         };
         let line_width = CubeLineWidth::OneChannel;
         match (self.velocity_bins, self.wavelength_bins) {
-            (Some(_), Some(_)) => Err(param("give velocity_bins or wavelength_bins, not both")),
+            (Some(_), Some(_)) => Err(Fail::msg("give velocity_bins or wavelength_bins, not both")),
             (Some(v), None) => {
                 let (a, b, n) = bins("velocity_bins", v)?;
                 let axis: SpectralAxis = self
@@ -479,7 +482,7 @@ impl CubeOpts {
                     .parse()
                     .map_err(Fail::err)?;
                 if axis == SpectralAxis::Wavelength {
-                    return Err(param("spectral_axis wave needs wavelength_bins"));
+                    return Err(Fail::msg("spectral_axis wave needs wavelength_bins"));
                 }
                 Ok(CubeSpec {
                     rest_nm,
@@ -501,7 +504,7 @@ impl CubeOpts {
                     line_width,
                 })
             }
-            (None, None) => Err(param(
+            (None, None) => Err(Fail::msg(
                 "a cube needs velocity_bins (vmin_kms, vmax_kms, n) or wavelength_bins",
             )),
         }
@@ -511,7 +514,7 @@ impl CubeOpts {
         if let Some((_, k)) = &self.world_unit
             && !(k.is_finite() && *k > 0.0)
         {
-            return Err(param(format!(
+            return Err(Fail::msg(format!(
                 "world_unit scale {k} must be finite and > 0"
             )));
         }
@@ -629,12 +632,12 @@ pub(crate) fn write_new(path: &Path, bytes: &[u8], overwrite: bool) -> Result<()
         _ => Path::new("."),
     };
     if !overwrite && path.exists() {
-        return Err(param(format!(
+        return Err(Fail::msg(format!(
             "{} exists (pass overwrite=True to replace it)",
             path.display()
         )));
     }
-    let err = |e: std::io::Error| param(format!("cannot write {}: {e}", path.display()));
+    let err = |e: std::io::Error| Fail::msg(format!("cannot write {}: {e}", path.display()));
     let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(err)?;
     tmp.write_all(bytes).map_err(err)?;
     tmp.flush().map_err(err)?;

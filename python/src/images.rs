@@ -155,21 +155,15 @@ fn relativity_render<'py>(
     };
     blueshift_relativity::CameraFrame::new(&cam).map_err(err)?;
     let v = Velocity::along(dvec("direction", direction)?, beta).map_err(err)?;
-    let environment = if let Ok(s) = env.extract::<String>() {
-        if s == "checker" {
+    let environment = if let Ok(p) = env.extract::<PathBuf>() {
+        if p.as_os_str() == "checker" {
             Environment::Checker(Checker::default())
         } else {
-            let p = PathBuf::from(&s);
             run_cancellable(py, |_| {
                 Environment::load(&p)
                     .map_err(|e| Fail::msg(format!("{}: {}", p.display(), crate::chain(&e))))
             })?
         }
-    } else if let Ok(p) = env.extract::<PathBuf>() {
-        run_cancellable(py, |_| {
-            Environment::load(&p)
-                .map_err(|e| Fail::msg(format!("{}: {}", p.display(), crate::chain(&e))))
-        })?
     } else {
         let a: PyReadonlyArray3<'_, f32> = env.extract().map_err(|_| {
             err("env: a path, \"checker\" or a float32 [h, w, 3] equirectangular array")

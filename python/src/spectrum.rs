@@ -4,7 +4,6 @@ use blueshift_spectrum::{
     Blackbody, Catalogue, DopplerModel, EmissionLine, LineProfile, Observer, PiecewiseLinear,
     RadiometricTransform, WavelengthShift, srgb_encode,
 };
-use numpy::prelude::*;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1};
 use pyo3::prelude::*;
 use serde::Deserialize;
@@ -115,13 +114,7 @@ impl PySpectrum {
 
     /// The exact pieces, float64 `[n, 4]`: `(start_nm, end_nm, value_start, value_end)`.
     fn pieces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let flat: Vec<f64> = self
-            .observed
-            .pieces()
-            .flat_map(|p| [p.start_nm, p.end_nm, p.value_start, p.value_end])
-            .collect();
-        let n = flat.len() / 4;
-        flat.into_pyarray(py).reshape([n, 2 * 2])
+        crate::doppler::pieces_array(py, &self.observed)
     }
 
     /// Observed wavelength range, nm.

@@ -359,7 +359,7 @@ impl ChannelSpec {
             .and_then(|k| memory.volumes.get(k));
         let read;
         let vol = match (&self.volume, &self.synth) {
-            (Some(_), None) if in_memory.is_some() => in_memory.expect("checked"),
+            (Some(_), None) if let Some(v) = in_memory => v,
             (Some(p), None) => {
                 let p = resolve(base, p);
                 read = blueshift_volume::read(&p).map_err(|e| {
