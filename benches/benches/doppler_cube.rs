@@ -54,7 +54,7 @@ fn enzo_scene() -> Option<DopplerScene> {
     scene
         .add_species(Species {
             name: "H".into(),
-            density: rho.clone(),
+            density: rho.clone().into(),
             emission_lines: Catalogue::HydrogenBalmer.lines(),
             absorption_lines: vec![],
         })

@@ -28,7 +28,7 @@ use blueshift_camera::Silent;
 use blueshift_doppler::{DopplerScene, DopplerSession, DopplerSettings};
 use blueshift_tfedit::TransferFunction;
 use blueshift_tracking::{Blend, DdaMode, Integrator, RenderSettings, Scene, TrackingSession};
-use blueshift_volume::{AnyGrid, Volume, synth};
+use blueshift_volume::{Field, Volume, synth};
 use criterion::Criterion;
 
 const RES: usize = 128;
@@ -44,7 +44,7 @@ fn integrator() -> Integrator {
 }
 
 /// The channels of the tracking scene (made once: the data a session is built from).
-fn tracking_channels() -> Vec<(String, AnyGrid, TransferFunction)> {
+fn tracking_channels() -> Vec<(String, Field, TransferFunction)> {
     channel_scene(4, RES, 8, 20.0)
         .expect("scene")
         .channels()
@@ -60,7 +60,7 @@ fn tracking_channels() -> Vec<(String, AnyGrid, TransferFunction)> {
 }
 
 /// A fresh session: macrocells and majorant grids of every channel, then the session.
-fn fresh_tracking(channels: &[(String, AnyGrid, TransferFunction)]) -> TrackingSession {
+fn fresh_tracking(channels: &[(String, Field, TransferFunction)]) -> TrackingSession {
     let scene = Scene::new(channels.to_vec(), 20.0, 8).expect("scene");
     let mut s = RenderSettings::default_for(&scene, SIZE, SIZE, true);
     s.seed = 3;

@@ -306,6 +306,22 @@ impl Camera {
         (f, r, r.cross(f))
     }
 
+    /// World size of one pixel of an image `height` pixels high where the box `[lo, hi]` is
+    /// nearest to the camera: the orthographic view's height over `height`; for a perspective
+    /// camera `2 d tan(fov / 2) / height` at the distance `d` from the eye to the box (0 when
+    /// the eye is inside it). Levels of detail are chosen from this.
+    #[must_use]
+    pub fn pixel_footprint(&self, lo: Vec3, hi: Vec3, height: u32) -> f32 {
+        let h = height.max(1) as f32;
+        match self.projection {
+            Projection::Orthographic { height: world } => world / h,
+            Projection::Perspective { fov_y_deg } => {
+                let d = (self.eye.clamp(lo.min(hi), lo.max(hi)) - self.eye).length();
+                2.0 * d * (fov_y_deg.to_radians() * 0.5).tan() / h
+            }
+        }
+    }
+
     /// The ray through continuous pixel position `(px, py)` of a `width x height` image
     /// (pixel `(i, j)` covers `[i, i+1) x [j, j+1)`; row 0 is the top). Call
     /// [`Camera::validate`] first; a degenerate camera gives a ray along +z.

@@ -145,6 +145,24 @@ pub fn velocity_map(
     Ok(Some(out))
 }
 
+/// Density and velocity voxels for figure statistics: the scene's own in memory, the
+/// coarsest level of detail when they are bricked.
+fn figure_samples(
+    scene: &DopplerScene,
+    density: &blueshift_volume::Field,
+    v: &blueshift_volume::VectorField,
+) -> Option<(Vec<f32>, blueshift_volume::Grid<glam::Vec3>)> {
+    let limits = blueshift_volume::Limits::default();
+    match scene.levels() {
+        Some(levels) if levels.len() > 1 => {
+            let coarse = scene.at_level(levels.len() - 1).ok()?;
+            let d = coarse.species().first()?.density.dense_f32().ok()?;
+            Some((d, coarse.velocity()?.to_dense(&limits).ok()?))
+        }
+        _ => Some((density.dense_f32().ok()?, v.to_dense(&limits).ok()?)),
+    }
+}
+
 /// The largest line-of-sight speed (km/s, physical) of gas whose first species' density is
 /// above 1e-3 of its maximum, seen along the camera of `settings` (the velocity panel's
 /// range); 100 km/s without a velocity field.
@@ -153,9 +171,12 @@ pub fn los_speed_kms(scene: &DopplerScene, settings: &DopplerSettings) -> f64 {
         return 100.0;
     };
     let dir = settings.camera.basis().0;
-    let d = sp.density.to_f32_vec();
+    // Out-of-core scenes: the coarsest level (a few bricks) stands in for the voxels.
+    let Some((d, vel)) = figure_samples(scene, &sp.density, v) else {
+        return 100.0;
+    };
     let dmax = d.iter().copied().fold(0.0f32, f32::max);
-    let mut speeds: Vec<f32> = v
+    let mut speeds: Vec<f32> = vel
         .data()
         .iter()
         .zip(&d)

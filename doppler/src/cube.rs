@@ -375,11 +375,11 @@ fn bin_gaussian(g: &PwlGaussian, edges: &[f64], acc: &mut [f64], c: f64, sigma: 
 /// the thermal width (8 sigma), plus the box width.
 fn reachable_lines(ctx: &Context<'_>, edges: &[f64]) -> Vec<Vec<blueshift_spectrum::EmissionLine>> {
     let scene = ctx.scene;
-    let vmax = scene.velocity.as_ref().map_or(0.0, |v| {
-        v.data()
-            .iter()
-            .fold(0.0f64, |m, x| m.max(f64::from(x.length())))
-    }) * scene.factors.velocity;
+    let vmax = scene
+        .velocity
+        .as_ref()
+        .map_or(0.0, blueshift_volume::VectorField::max_speed)
+        * scene.factors.velocity;
     let beta = vmax / SPEED_OF_LIGHT_M_PER_S;
     let tmax = scene.blackbody.as_ref().map_or(0.0, |(_, t)| {
         t.finite_range()
@@ -585,6 +585,7 @@ pub(crate) fn render_cube_with(
             row
         })
         .collect();
+    scene.check_io()?;
     let mut data = vec![0.0f32; cells];
     for (y, row) in rows.into_iter().enumerate() {
         let fy = h - 1 - y;

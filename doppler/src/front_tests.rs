@@ -41,7 +41,7 @@ fn scene(dims: [usize; 3], sps: &[Sp], t_bb: Option<f32>, v: f32) -> DopplerScen
         .unwrap();
         s.add_species(Species {
             name: format!("s{i}"),
-            density: AnyGrid::F32(rho),
+            density: (AnyGrid::F32(rho)).into(),
             emission_lines: lines(&sp.emit),
             absorption_lines: lines(&sp.abs),
         })
@@ -286,7 +286,7 @@ fn emitter_and_absorber_species_follow_the_discrete_beer_lambert_sum() {
         for (i, (em, ab)) in config.iter().enumerate() {
             s.add_species(Species {
                 name: format!("s{i}"),
-                density: one(),
+                density: (one()).into(),
                 emission_lines: lines(em),
                 absorption_lines: lines(ab),
             })
@@ -441,7 +441,7 @@ fn missed_rays_and_a_one_voxel_thick_volume() {
     let mut s = DopplerScene::new(geom).unwrap();
     s.add_species(Species {
         name: "slab".into(),
-        density: one,
+        density: (one).into(),
         emission_lines: lines(&[(500.0, e)]),
         absorption_lines: lines(&[(500.0, k)]),
     })
@@ -743,7 +743,7 @@ fn one_absorption_line_on_a_black_body_grid_node() {
         let mut s = DopplerScene::new(geom).unwrap();
         s.add_species(Species {
             name: "absorber".into(),
-            density: one(),
+            density: (one()).into(),
             emission_lines: vec![],
             absorption_lines: lines(&[(centre, 20.0)]),
         })
@@ -798,7 +798,7 @@ fn holes_and_lines_swept_across_the_table_ends_match_the_kept_spectrum() {
     for name in ["a", "b"] {
         s.add_species(Species {
             name: name.into(),
-            density: AnyGrid::F32(rho.clone()),
+            density: (AnyGrid::F32(rho.clone())).into(),
             emission_lines: twin.clone(),
             absorption_lines: twin.clone(),
         })
@@ -806,7 +806,7 @@ fn holes_and_lines_swept_across_the_table_ends_match_the_kept_spectrum() {
     }
     s.add_species(Species {
         name: "absorber".into(),
-        density: AnyGrid::F32(rho.clone()),
+        density: (AnyGrid::F32(rho.clone())).into(),
         emission_lines: vec![],
         absorption_lines: lines(&[(365.0, 2.0), (825.0, 2.0)]),
     })
@@ -901,7 +901,7 @@ fn vanishing_broadening_keeps_the_line_area() {
     let one = || AnyGrid::F32(Grid::from_fn(geom, |_, _, _| 1.0f32).unwrap());
     let mut sc = scene([2, 2, 3], &sps, None, 0.0);
     for sp in &mut sc.species {
-        sp.density = one();
+        sp.density = one().into();
     }
     // Density 1 over a path of 2: area 2 x 2 = 4.
     let area = 4.0;
@@ -998,7 +998,7 @@ fn random_case(
         let (em, ab) = (ls(r, ne), ls(r, na));
         s.add_species(Species {
             name: format!("s{i}"),
-            density: grid(d),
+            density: (grid(d)).into(),
             emission_lines: lines(&em),
             absorption_lines: lines(&ab),
         })

@@ -1,30 +1,23 @@
 //! Figure keys computed by the renderer itself: the Doppler colour key, the observed colour
 //! of the scene's gas at each line-of-sight velocity.
 
-use blueshift_volume::{AnyGrid, Geometry, Grid};
+use blueshift_volume::{AnyGrid, Field, Geometry, Grid};
 use glam::Vec3;
 
 use crate::{DopplerScene, DopplerSettings, Error, Result, Species, render_doppler};
 
 /// Mean of a scalar grid (f64 sum).
-fn mean(g: &AnyGrid) -> f64 {
-    let v = g.to_f32_vec();
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len() as f64
+fn mean(g: &Field) -> Result<f64> {
+    Ok(g.mean()?)
 }
 
 /// Density-weighted mean of `value` (weights `density`); the plain mean when the densities
 /// are all zero.
-fn weighted_mean(value: &AnyGrid, density: &AnyGrid) -> f64 {
-    let (v, d) = (value.to_f32_vec(), density.to_f32_vec());
-    let (mut s, mut w) = (0.0f64, 0.0f64);
-    for (&a, &b) in v.iter().zip(&d) {
-        s += f64::from(a) * f64::from(b);
-        w += f64::from(b);
+fn weighted_mean(value: &Field, density: &Field) -> Result<f64> {
+    match value.weighted_mean(density)? {
+        Some(m) => Ok(m),
+        None => mean(value),
     }
-    if w > 0.0 { s / w } else { mean(value) }
 }
 
 /// The Doppler colour key: the XYZ that `settings` render for a unit slab of the scene's mean
@@ -55,13 +48,13 @@ pub fn doppler_colour_key(
     for s in scene.species() {
         base.add_species(Species {
             name: s.name.clone(),
-            density: constant(mean(&s.density))?,
+            density: constant(mean(&s.density)?)?.into(),
             emission_lines: s.emission_lines.clone(),
             absorption_lines: s.absorption_lines.clone(),
         })?;
     }
     if let Some((d, t)) = scene.blackbody() {
-        base.set_blackbody(constant(mean(d))?, constant(weighted_mean(t, d))?)?;
+        base.set_blackbody(constant(mean(d)?)?, constant(weighted_mean(t, d)?)?)?;
     }
     let mut st = DopplerSettings::default_for(&base, 1, 1);
     st.model = settings.model;

@@ -1,7 +1,7 @@
 //! The emission-absorption model of Eq. 8: species, black body, velocity and factors.
 
 use blueshift_spectrum::{Catalogue, EmissionLine};
-use blueshift_volume::{AnyGrid, Geometry, Grid, Volume};
+use blueshift_volume::{AnyGrid, Field, Geometry, Grid, VectorField, Volume};
 use glam::Vec3;
 
 use crate::{Error, Result};
@@ -70,8 +70,8 @@ pub fn brightness_temperature(factor: f64) -> f64 {
 pub struct Species {
     /// Name (for messages).
     pub name: String,
-    /// Number density, on the scene's geometry.
-    pub density: AnyGrid,
+    /// Number density, on the scene's geometry (dense, or a level of a bricked file).
+    pub density: Field,
     /// Emission lines (strength = line area per unit density and length).
     pub emission_lines: Vec<EmissionLine>,
     /// Absorption lines (strength = optical-depth area per unit density and length).
@@ -84,11 +84,11 @@ pub struct Species {
 pub struct DopplerScene {
     pub(crate) geometry: Geometry,
     pub(crate) species: Vec<Species>,
-    pub(crate) blackbody: Option<(AnyGrid, AnyGrid)>,
+    pub(crate) blackbody: Option<(Field, Field)>,
     /// Black-body density times the Planck factor `1 / (exp(c2 / (lambda_ref T)) - 1)` per
     /// voxel (see [`DopplerScene::set_blackbody`]).
-    pub(crate) rho_t: Option<Grid<f32>>,
-    pub(crate) velocity: Option<Grid<Vec3>>,
+    pub(crate) rho_t: Option<Field>,
+    pub(crate) velocity: Option<VectorField>,
     /// User factors.
     pub factors: Factors,
 }
@@ -103,7 +103,7 @@ fn check_geometry(what: &str, g: &Geometry, want: &Geometry) -> Result<()> {
     Ok(())
 }
 
-fn scalar(what: &str, g: &AnyGrid) -> Result<()> {
+fn scalar(what: &str, g: &Field) -> Result<()> {
     if g.is_vector() {
         return Err(Error::scene(format!("{what} must be a scalar channel")));
     }
@@ -151,13 +151,13 @@ impl DopplerScene {
     /// The black body's `(density, temperature_k)` channels, if set (read-only; for backends
     /// such as blueshift-gpu that mirror the renderer).
     #[must_use]
-    pub fn blackbody(&self) -> Option<(&AnyGrid, &AnyGrid)> {
+    pub fn blackbody(&self) -> Option<(&Field, &Field)> {
         self.blackbody.as_ref().map(|(d, t)| (d, t))
     }
 
     /// The velocity field (m/s), if set (read-only).
     #[must_use]
-    pub fn velocity(&self) -> Option<&Grid<Vec3>> {
+    pub fn velocity(&self) -> Option<&VectorField> {
         self.velocity.as_ref()
     }
 
@@ -179,16 +179,41 @@ impl DopplerScene {
     /// shells, the artefact on the Enzo snapshot). Gas colder than about 300 K glows at 0 K
     /// (nothing in any visible band either way). Thermal line broadening keeps the
     /// trilinearly interpolated temperature.
-    pub fn set_blackbody(&mut self, density: AnyGrid, temperature_k: AnyGrid) -> Result<()> {
+    ///
+    /// Bricked density and temperature (same layout) get bricked emission, computed brick by
+    /// brick through their cache with the same per-voxel arithmetic.
+    pub fn set_blackbody(
+        &mut self,
+        density: impl Into<Field>,
+        temperature_k: impl Into<Field>,
+    ) -> Result<()> {
+        let (density, temperature_k) = (density.into(), temperature_k.into());
         scalar("black-body density", &density)?;
         scalar("temperature", &temperature_k)?;
         check_geometry("black-body density", density.geometry(), &self.geometry)?;
         check_geometry("temperature", temperature_k.geometry(), &self.geometry)?;
-        let (d, t) = (density.to_f32_vec(), temperature_k.to_f32_vec());
-        self.rho_t = Some(Grid::from_fn(self.geometry, |x, y, z| {
-            let i = self.geometry.index(x, y, z);
-            (f64::from(d[i].max(0.0)) * planck_factor(f64::from(t[i]))) as f32
-        })?);
+        let emission =
+            |d: f32, t: f32| (f64::from(d.max(0.0)) * planck_factor(f64::from(t))) as f32;
+        self.rho_t = Some(match (&density, &temperature_k) {
+            (Field::Dense(dg), Field::Dense(tg)) => {
+                let (d, t) = (dg.to_f32_vec(), tg.to_f32_vec());
+                Field::from(Grid::from_fn(self.geometry, |x, y, z| {
+                    let i = self.geometry.index(x, y, z);
+                    emission(d[i], t[i])
+                })?)
+            }
+            (Field::Bricked(d), Field::Bricked(t)) => {
+                blueshift_volume::field::CombinedSource::new(d, t, emission)?
+                    .field()?
+                    .into()
+            }
+            _ => {
+                return Err(Error::scene(
+                    "black body: the density and the temperature must both be in memory or both \
+                     bricked (.bsv)",
+                ));
+            }
+        });
         self.blackbody = Some((density, temperature_k));
         Ok(())
     }
@@ -196,23 +221,119 @@ impl DopplerScene {
     /// Black-body density times [`planck_factor`] per voxel: what the renderers interpolate
     /// for the temperature between voxels (see [`DopplerScene::set_blackbody`]).
     #[must_use]
-    pub fn blackbody_rho_t(&self) -> Option<&Grid<f32>> {
+    pub fn blackbody_rho_t(&self) -> Option<&Field> {
         self.rho_t.as_ref()
     }
 
     /// The velocity field, m/s.
-    pub fn set_velocity(&mut self, velocity_m_per_s: Grid<Vec3>) -> Result<()> {
+    pub fn set_velocity(&mut self, velocity_m_per_s: impl Into<VectorField>) -> Result<()> {
+        let velocity_m_per_s = velocity_m_per_s.into();
         check_geometry("velocity", velocity_m_per_s.geometry(), &self.geometry)?;
-        if velocity_m_per_s.data().iter().any(|v| !v.is_finite()) {
+        let finite = match &velocity_m_per_s {
+            VectorField::Dense(g) => g.data().iter().all(|v| v.is_finite()),
+            VectorField::Components(c) => c.iter().all(|f| f.reject_non_finite().is_ok()),
+        };
+        if !finite {
             return Err(Error::scene("velocity has non-finite values"));
         }
         self.velocity = Some(velocity_m_per_s);
         Ok(())
     }
 
+    /// Every field of the scene, scalar ones first, then the velocity's components.
+    fn fields(&self) -> Vec<&Field> {
+        let mut v: Vec<&Field> = self.species.iter().map(|s| &s.density).collect();
+        if let Some((d, t)) = &self.blackbody {
+            v.extend([d, t]);
+        }
+        v.extend(self.rho_t.iter());
+        if let Some(VectorField::Components(c)) = &self.velocity {
+            v.extend(c.iter());
+        }
+        v
+    }
+
+    /// Geometries of the levels of detail, finest first, when every field is bricked
+    /// alike (`None` for a scene with a field in memory: it has one level).
+    #[must_use]
+    pub fn levels(&self) -> Option<Vec<Geometry>> {
+        let fields = self.fields();
+        if matches!(self.velocity, Some(VectorField::Dense(_))) {
+            return None;
+        }
+        let first = fields.first()?.as_bricked()?;
+        let geoms = first.source().geometries().to_vec();
+        fields
+            .iter()
+            .all(|f| {
+                f.as_bricked()
+                    .is_some_and(|b| b.source().geometries() == geoms)
+            })
+            .then_some(geoms)
+    }
+
+    /// The same scene sampled at level of detail `level` of its bricked fields (see
+    /// [`DopplerScene::levels`]; level 0 is this scene).
+    pub fn at_level(&self, level: usize) -> Result<DopplerScene> {
+        if level == 0 {
+            return Ok(self.clone());
+        }
+        let geoms = self.levels().ok_or_else(|| {
+            Error::parameter("levels of detail need every field bricked (.bsv) alike")
+        })?;
+        let g = *geoms
+            .get(level)
+            .ok_or_else(|| Error::parameter(format!("level {level} of {} levels", geoms.len())))?;
+        let at = |f: &Field| -> Result<Field> {
+            Ok(f.as_bricked()
+                .expect("levels() checked")
+                .at_level(level)?
+                .into())
+        };
+        let mut out = self.clone();
+        out.geometry = g;
+        for s in &mut out.species {
+            s.density = at(&s.density)?;
+        }
+        if let Some((d, t)) = &mut out.blackbody {
+            *d = at(d)?;
+            *t = at(t)?;
+        }
+        if let Some(r) = &mut out.rho_t {
+            *r = at(r)?;
+        }
+        if let Some(VectorField::Components(c)) = &mut out.velocity {
+            for f in c.iter_mut() {
+                *f = at(f)?;
+            }
+        }
+        Ok(out)
+    }
+
+    /// The first brick read that failed while rendering (bricked fields), as an error.
+    pub fn check_io(&self) -> Result<()> {
+        for s in &self.species {
+            s.density.check_io()?;
+        }
+        if let Some((d, t)) = &self.blackbody {
+            d.check_io()?;
+            t.check_io()?;
+        }
+        if let Some(r) = &self.rho_t {
+            r.check_io()?;
+        }
+        if let Some(v) = &self.velocity {
+            v.check_io()?;
+        }
+        Ok(())
+    }
+
     /// Subtracts the mean velocity (the bulk motion) from the velocity field.
+    ///
+    /// Only for an in-memory field; a bricked velocity is left as it is (subtract the bulk
+    /// motion before converting it).
     pub fn subtract_mean_velocity(&mut self) {
-        if let Some(v) = &mut self.velocity {
+        if let Some(VectorField::Dense(v)) = &mut self.velocity {
             let n = v.data().len().max(1) as f64;
             let mut sum = [0.0f64; 3];
             for x in v.data() {
@@ -240,10 +361,10 @@ impl DopplerScene {
         if tokens.is_empty() {
             return Err(Error::parameter("no species given"));
         }
-        let need = |name: &str| -> Result<AnyGrid> {
+        let need = |name: &str| -> Result<Field> {
             volume
                 .channel(name)
-                .map(|c| c.grid.clone())
+                .map(|c| Field::from(c.grid.clone()))
                 .ok_or_else(|| Error::scene(format!("the volume has no channel '{name}'")))
         };
         for t in tokens {

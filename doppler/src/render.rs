@@ -380,7 +380,7 @@ impl<'a> Context<'a> {
                 out.bb.push(rho);
                 out.temp
                     .push(f64::from(temp.sample_scalar_index(p)).max(0.0));
-                let g = f64::from(rho_t.sample_trilinear_index(p)).max(0.0);
+                let g = f64::from(rho_t.sample_scalar_index(p)).max(0.0);
                 out.bb_temp.push(if rho > 0.0 {
                     super::model::brightness_temperature(g / rho)
                 } else {
@@ -388,7 +388,7 @@ impl<'a> Context<'a> {
                 });
             }
             if let Some(vg) = &self.scene.velocity {
-                out.vel.push(vg.sample_trilinear_index(p));
+                out.vel.push(vg.sample_index(p));
             }
         }
         out
@@ -620,6 +620,8 @@ pub(crate) fn render_rows_cached(
             Ok((outs, raws))
         })
         .collect();
+    // A brick that failed to read mid-render voids the image.
+    ctx.scene.check_io()?;
     let mut kept = keep.then(|| Vec::with_capacity(w as usize * h as usize));
     let mut xyz = Vec::with_capacity(w as usize * h as usize);
     let (mut sum, mut max, mut fb) = (0.0f64, 0usize, 0usize);

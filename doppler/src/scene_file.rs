@@ -55,9 +55,11 @@
 use std::path::{Path, PathBuf};
 
 use blueshift_spectrum::{Catalogue, EmissionLine};
-use blueshift_volume::{AnyGrid, Geometry, Grid, Volume};
-use glam::Vec3;
+use blueshift_volume::field::CombinedSource;
+use blueshift_volume::ooc::BrickedFile;
+use blueshift_volume::{AnyGrid, BrickCache, Field, Geometry, Grid, VectorField, Volume};
 use serde::Deserialize;
+use std::sync::{Arc, OnceLock};
 
 use super::{DopplerScene, Factors, Species};
 use crate::{Error, Result};
@@ -98,6 +100,9 @@ pub struct VelocitySpec {
     /// The field (3-vector channel).
     #[serde(flatten)]
     pub field: FieldSpec,
+    /// Three scalar files, the x, y and z components, instead of one 3-vector file (how
+    /// bricked `.bsv` velocities are given: bricked files hold scalars).
+    pub files: Option<[PathBuf; 3]>,
     /// Subtract the mean velocity over all voxels.
     #[serde(default)]
     pub subtract_mean: bool,
@@ -266,6 +271,17 @@ impl SceneFile {
         select: Option<&[&str]>,
         memory: &MemoryVolumes,
     ) -> Result<DopplerScene> {
+        self.load_out_of_core(select, memory, None)
+    }
+
+    /// [`SceneFile::load_with`] with `.bsv` fields read through `cache` (default: a cache of
+    /// [`blueshift_volume::cache::default_budget`] bytes shared by the scene's fields).
+    pub fn load_out_of_core(
+        &self,
+        select: Option<&[&str]>,
+        memory: &MemoryVolumes,
+        cache: Option<Arc<BrickCache>>,
+    ) -> Result<DopplerScene> {
         let wanted = |name: &str| {
             select.is_none_or(|s| s.iter().any(|t| t.trim().eq_ignore_ascii_case(name)))
         };
@@ -294,13 +310,27 @@ impl SceneFile {
             base: &self.base,
             geometry: None,
             memory,
+            cache: OnceLock::new(),
         };
+        if let Some(c) = cache {
+            let _ = loader.cache.set(c);
+        }
         let mut files: Vec<&FieldSpec> = Vec::new();
         if let Some(t) = &self.temperature {
             files.push(t);
         }
+        let first_component;
         if let Some(v) = &self.velocity {
-            files.push(&v.field);
+            match &v.files {
+                Some([x, _, _]) => {
+                    first_component = FieldSpec {
+                        file: Some(x.clone()),
+                        ..FieldSpec::default()
+                    };
+                    files.push(&first_component);
+                }
+                None => files.push(&v.field),
+            }
         }
         if let Some(b) = &self.blackbody {
             files.push(&b.density);
@@ -369,7 +399,7 @@ impl SceneFile {
             })?;
         }
         if let Some(v) = &self.velocity {
-            let grid = loader.velocity(&v.field)?;
+            let grid = loader.velocity(&v.field, v.files.as_ref())?;
             scene.set_velocity(grid)?;
             if v.subtract_mean {
                 scene.subtract_mean_velocity();
@@ -420,12 +450,34 @@ struct Loader<'a> {
     base: &'a Path,
     geometry: Option<Geometry>,
     memory: &'a MemoryVolumes,
+    cache: OnceLock<Arc<BrickCache>>,
 }
 
 impl Loader<'_> {
-    /// Reads a field's file and picks its channel.
-    fn volume(&self, f: &FieldSpec) -> Result<(AnyGrid, PathBuf)> {
+    /// Reads a field's file and picks its channel; a `.bsv` file is opened for out-of-core
+    /// sampling through the scene's shared brick cache.
+    fn volume(&self, f: &FieldSpec) -> Result<(Field, PathBuf)> {
         let rel = f.file.as_ref().expect("caller checks file");
+        let bricked_path = self.base.join(rel);
+        if bricked_path.extension().is_some_and(|e| e == "bsv")
+            && rel.to_str().and_then(|k| self.memory.get(k)).is_none()
+        {
+            let path = bricked_path;
+            let cache = self
+                .cache
+                .get_or_init(|| BrickCache::new(blueshift_volume::cache::default_budget()))
+                .clone();
+            let file = BrickedFile::open_with_cache(&path, cache)
+                .map_err(|e| file_err(&path, e.to_string()))?;
+            if let Some(name) = &f.channel
+                && name != file.channel_name()
+            {
+                return Err(file_err(&path, format!("no channel '{name}'")));
+            }
+            let g = file.geometries()[0];
+            self.check_dims(&g, &path)?;
+            return Ok((file.field(0)?.into(), path));
+        }
         let read;
         let (vol, path): (&Volume, PathBuf) = match rel.to_str().and_then(|k| self.memory.get(k)) {
             Some(v) => (v, rel.clone()),
@@ -446,19 +498,57 @@ impl Loader<'_> {
                 .map(|c| c.grid.clone())
                 .ok_or_else(|| file_err(&path, "the file has no channel"))?,
         };
+        self.check_dims(grid.geometry(), &path)?;
+        Ok((grid.into(), path))
+    }
+
+    fn check_dims(&self, have: &Geometry, path: &Path) -> Result<()> {
         if let Some(g) = &self.geometry
-            && grid.geometry().dims != g.dims
+            && have.dims != g.dims
         {
             return Err(file_err(
-                &path,
+                path,
                 format!(
                     "dims {:?} differ from the scene's {:?} (all fields share one grid)",
-                    grid.geometry().dims,
-                    g.dims
+                    have.dims, g.dims
                 ),
             ));
         }
-        Ok((grid, path))
+        Ok(())
+    }
+
+    /// A bricked scalar converted voxel by voxel (the same arithmetic as in core); the
+    /// file's stored range stands in for the per-voxel checks.
+    fn bricked_scalar(
+        what: &str,
+        b: &blueshift_volume::BrickedField,
+        path: &Path,
+        convert: impl Fn(f64) -> f64 + Send + Sync + 'static,
+    ) -> Result<Field> {
+        let n = b.source().non_finite();
+        if n > 0 {
+            return Err(file_err(path, format!("{what}: {n} voxels are not finite")));
+        }
+        if let Some((lo, hi)) = b.source().finite_range() {
+            let (clo, chi) = (convert(f64::from(lo)), convert(f64::from(hi)));
+            if !(clo.is_finite() && chi.is_finite()) {
+                return Err(file_err(
+                    path,
+                    format!("{what}: values are not finite after unit conversion"),
+                ));
+            }
+            if clo < 0.0 {
+                return Err(file_err(
+                    path,
+                    format!("{what}: has negative values (the smallest is {clo})"),
+                ));
+            }
+        }
+        Ok(
+            CombinedSource::monotone(b, move |v| convert(f64::from(v)) as f32)
+                .field()?
+                .into(),
+        )
     }
 
     /// A scalar field converted by `convert` (value -> model value), checked finite.
@@ -466,12 +556,16 @@ impl Loader<'_> {
         &self,
         what: &str,
         f: &FieldSpec,
-        convert: impl Fn(f64) -> f64 + Sync,
-    ) -> Result<AnyGrid> {
+        convert: impl Fn(f64) -> f64 + Send + Sync + 'static,
+    ) -> Result<Field> {
         let geometry = self.geometry.expect("set before fields are loaded");
         let data: Vec<f32> = match (&f.file, f.value) {
             (Some(_), None) => {
                 let (grid, path) = self.volume(f)?;
+                let grid = match grid {
+                    Field::Bricked(b) => return Self::bricked_scalar(what, &b, &path, convert),
+                    Field::Dense(g) => g,
+                };
                 if grid.is_vector() {
                     return Err(file_err(&path, format!("{what} must be a scalar channel")));
                 }
@@ -509,10 +603,10 @@ impl Loader<'_> {
                 )));
             }
         };
-        Ok(AnyGrid::F32(Grid::from_vec(geometry, data)?))
+        Ok(AnyGrid::F32(Grid::from_vec(geometry, data)?).into())
     }
 
-    fn density(&self, what: &str, f: &FieldSpec, default_mass_amu: f64) -> Result<AnyGrid> {
+    fn density(&self, what: &str, f: &FieldSpec, default_mass_amu: f64) -> Result<Field> {
         let scale = positive_or(what, "scale", f.scale, 1.0)?;
         let unit = f.unit.as_deref().unwrap_or("1");
         let factor = match unit.replace(' ', "").as_str() {
@@ -547,10 +641,10 @@ impl Loader<'_> {
             )));
         }
         let k = factor * scale;
-        self.scalar(what, f, |v| v * k)
+        self.scalar(what, f, move |v| v * k)
     }
 
-    fn temperature(&self, f: &FieldSpec) -> Result<AnyGrid> {
+    fn temperature(&self, f: &FieldSpec) -> Result<Field> {
         let scale = positive_or("temperature", "scale", f.scale, 1.0)?;
         let k = match f.unit.as_deref().unwrap_or("K") {
             "K" | "k" | "kelvin" => 1.0,
@@ -562,10 +656,10 @@ impl Loader<'_> {
             }
         } * scale;
         no_mass_keys("temperature", f)?;
-        self.scalar("temperature", f, |v| v * k)
+        self.scalar("temperature", f, move |v| v * k)
     }
 
-    fn velocity(&self, f: &FieldSpec) -> Result<Grid<Vec3>> {
+    fn velocity(&self, f: &FieldSpec, files: Option<&[PathBuf; 3]>) -> Result<VectorField> {
         let scale = positive_or("velocity", "scale", f.scale, 1.0)?;
         let k = match f.unit.as_deref().unwrap_or("m/s") {
             "m/s" => 1.0,
@@ -579,13 +673,82 @@ impl Loader<'_> {
             }
         } * scale;
         no_mass_keys("velocity", f)?;
+        if let Some(files) = files {
+            if f.file.is_some() || f.value.is_some() || f.channel.is_some() {
+                return Err(Error::scene(
+                    "velocity: give either \"file\" (a 3-vector) or \"files\" (x, y, z), not both",
+                ));
+            }
+            let mut comps = Vec::with_capacity(3);
+            for p in files {
+                let spec = FieldSpec {
+                    file: Some(p.clone()),
+                    ..FieldSpec::default()
+                };
+                let (g, path) = self.volume(&spec)?;
+                comps.push((g, path));
+            }
+            if comps.iter().all(|(g, _)| g.as_bricked().is_some()) {
+                let mut out = Vec::with_capacity(3);
+                for (g, path) in &comps {
+                    let b = g.as_bricked().expect("checked");
+                    let n = b.source().non_finite();
+                    if n > 0 {
+                        return Err(file_err(
+                            path,
+                            format!("velocity: {n} voxels are not finite"),
+                        ));
+                    }
+                    // A linear map with k > 0 is non-decreasing.
+                    out.push(Field::from(
+                        CombinedSource::monotone(b, move |v| (f64::from(v) * k) as f32).field()?,
+                    ));
+                }
+                let v =
+                    VectorField::Components(Box::new(out.try_into().expect("three components")));
+                if !(v.max_speed() < C_M_PER_S) {
+                    return Err(Error::scene(
+                        "velocity: the components' ranges allow speeds at or above c",
+                    ));
+                }
+                return Ok(v);
+            }
+            let geometry = self.geometry.expect("set before fields are loaded");
+            let mut dense = Vec::with_capacity(3);
+            for (g, path) in comps {
+                match g {
+                    Field::Dense(g) if !g.is_vector() => dense.push(g),
+                    _ => {
+                        return Err(file_err(
+                            &path,
+                            "velocity components must be scalar files, all in memory or all .bsv",
+                        ));
+                    }
+                }
+            }
+            let mut out = Vec::with_capacity(geometry.voxel_count());
+            for i in 0..geometry.voxel_count() {
+                let w = glam::DVec3::new(
+                    f64::from(dense[0].scalar_at(i)),
+                    f64::from(dense[1].scalar_at(i)),
+                    f64::from(dense[2].scalar_at(i)),
+                ) * k;
+                if !w.is_finite() || w.length() >= C_M_PER_S {
+                    return Err(Error::scene(format!(
+                        "velocity voxel {i} is not finite or not below c after conversion"
+                    )));
+                }
+                out.push(w.as_vec3());
+            }
+            return Ok(Grid::from_vec(geometry, out)?.into());
+        }
         if f.value.is_some() || f.file.is_none() {
             return Err(Error::scene(
                 "velocity: give a \"file\" with a 3-vector channel",
             ));
         }
         let (grid, path) = self.volume(f)?;
-        let AnyGrid::Vec3(g) = grid else {
+        let Field::Dense(AnyGrid::Vec3(g)) = grid else {
             return Err(file_err(&path, "velocity must be a 3-vector channel"));
         };
         let mut out = Vec::with_capacity(g.data().len());
@@ -599,10 +762,7 @@ impl Loader<'_> {
             }
             out.push(w.as_vec3());
         }
-        Ok(Grid::from_vec(
-            self.geometry.expect("set before fields are loaded"),
-            out,
-        )?)
+        Ok(Grid::from_vec(self.geometry.expect("set before fields are loaded"), out)?.into())
     }
 }
 
@@ -628,6 +788,7 @@ fn no_mass_keys(what: &str, f: &FieldSpec) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::Vec3;
 
     /// Writes a single-file NRRD (attached header) of f32 values; `comps` = 1 or 3.
     fn nrrd(dir: &Path, name: &str, n: usize, comps: usize, f: impl Fn(usize) -> [f32; 3]) {
@@ -720,7 +881,7 @@ mod tests {
         let (bb, t) = scene.blackbody.as_ref().unwrap();
         assert_eq!(bb.scalar_at(7), 2.0);
         assert!((f64::from(t.scalar_at(5)) - 0.5 * 11_604.518).abs() < 1e-2);
-        let v = scene.velocity.as_ref().unwrap().data()[2];
+        let v = scene.velocity.as_ref().unwrap().as_dense().unwrap().data()[2];
         assert_eq!(v, Vec3::new(102_000.0, -20_000.0, 3_000.0));
         assert_eq!(scene.factors.velocity, 2.5);
         assert_eq!(scene.factors.absorption, 0.25);
@@ -739,7 +900,7 @@ mod tests {
         assert!(scene.blackbody.is_none());
         assert_eq!(scene.species().len(), 1);
         let v = scene.velocity.as_ref().unwrap();
-        let mean = mean_velocity(v);
+        let mean = mean_velocity(v.as_dense().unwrap());
         assert!(mean.length() < 1e-2, "{mean}");
         let scene = file.load_selected(Some(&["BB", "h i"])).unwrap();
         assert!(scene.blackbody.is_some());
@@ -845,7 +1006,7 @@ mod tests {
         raw.velocity.as_mut().unwrap().subtract_mean = false;
         let scene = raw.load().unwrap();
         let v = scene.velocity.as_ref().unwrap();
-        let mean = mean_velocity(v);
+        let mean = mean_velocity(v.as_dense().unwrap());
         let km = mean / 1e3;
         for (got, want) in [(km.x, 246.6), (km.y, 241.2), (km.z, 241.2)] {
             // SOURCE.md's figures come from yt over the AMR hierarchy; the uniform level-2
@@ -854,7 +1015,7 @@ mod tests {
         }
         let scene = file.load().unwrap();
         let v = scene.velocity.as_ref().unwrap();
-        let mean = mean_velocity(v);
+        let mean = mean_velocity(v.as_dense().unwrap());
         assert!(mean.length() < 1.0, "{mean} m/s after subtracting the mean");
         // Gas density 2.75e-24 g/cm^3 at most: x 0.76 / m_H = 1.25 H atoms per cm^3.
         let h = scene.species().iter().find(|s| s.name == "H I").unwrap();

@@ -176,6 +176,7 @@ impl DopplerSession {
     pub fn pixel_spectrum(&self, x: u32, y: u32) -> Result<PiecewiseLinear> {
         let ctx = self.context();
         let out = integrate(&ctx, &pixel_ray(&self.settings, x, y)?, Want::Spectrum)?;
+        self.scene.check_io()?;
         Ok(out.spectrum.unwrap_or_default())
     }
 
@@ -186,7 +187,9 @@ impl DopplerSession {
     /// A pixel outside the image.
     pub fn trace(&self, x: u32, y: u32) -> Result<Vec<TraceStep>> {
         let ctx = self.context();
-        Ok(integrate(&ctx, &pixel_ray(&self.settings, x, y)?, Want::Trace)?.trace)
+        let out = integrate(&ctx, &pixel_ray(&self.settings, x, y)?, Want::Trace)?;
+        self.scene.check_io()?;
+        Ok(out.trace)
     }
 
     /// A spectral cube of this session's view (see [`crate::render_cube`]).

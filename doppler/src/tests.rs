@@ -18,7 +18,7 @@ fn ramp_scene(line_nm: f64) -> DopplerScene {
     let mut s = DopplerScene::new(geom).unwrap();
     s.add_species(Species {
         name: "x".into(),
-        density: AnyGrid::F32(rho),
+        density: (AnyGrid::F32(rho)).into(),
         emission_lines: vec![EmissionLine::new(line_nm, 1.0).unwrap()],
         absorption_lines: vec![],
     })
@@ -238,7 +238,7 @@ fn slab(e: f64, k: f64) -> DopplerScene {
     let one = Grid::from_fn(geom, |_, _, _| 1.0f32).unwrap();
     s.add_species(Species {
         name: "slab".into(),
-        density: AnyGrid::F32(one),
+        density: (AnyGrid::F32(one)).into(),
         emission_lines: vec![EmissionLine::new(500.0, e).unwrap()],
         absorption_lines: vec![EmissionLine::new(500.0, k).unwrap()],
     })

@@ -176,7 +176,7 @@ fn the_colour_key_is_the_shifted_line_colour() {
     scene
         .add_species(Species {
             name: "H-alpha".into(),
-            density: AnyGrid::F32(Grid::from_fn(geom, |x, _, _| 0.5 + x as f32).unwrap()),
+            density: (AnyGrid::F32(Grid::from_fn(geom, |x, _, _| 0.5 + x as f32).unwrap())).into(),
             emission_lines: vec![line],
             absorption_lines: vec![],
         })

@@ -49,7 +49,7 @@ fn enzo_scene() -> DopplerScene {
     scene
         .add_species(Species {
             name: "H".into(),
-            density: rho.clone(),
+            density: (rho.clone()).into(),
             emission_lines: vec![EmissionLine::new(HALPHA, 1.0).unwrap()],
             absorption_lines: vec![],
         })
@@ -193,7 +193,7 @@ fn enzo_cube_matches_yt_ppvcube() {
 fn halpha_species(density: AnyGrid) -> Species {
     Species {
         name: "H".into(),
-        density,
+        density: density.into(),
         emission_lines: vec![EmissionLine::new(HALPHA, 1.0).unwrap()],
         absorption_lines: vec![],
     }

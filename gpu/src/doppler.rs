@@ -565,6 +565,13 @@ pub fn supports(
     scene: &DopplerScene,
     _settings: &DopplerSettings,
 ) -> std::result::Result<(), Unsupported> {
+    crate::out_of_core_fits(
+        scene
+            .species()
+            .iter()
+            .map(|s| &s.density)
+            .chain(scene.blackbody().into_iter().flat_map(|(d, t)| [d, t])),
+    )?;
     if scene.species().len() > MAX_SPECIES {
         return Err(Unsupported(format!(
             "{} species (at most {MAX_SPECIES} on the GPU)",
@@ -671,20 +678,20 @@ fn render_prepared(
     )?;
     let mut channels: Vec<f32> = Vec::with_capacity(n_channels.max(1) * nvox);
     for sp in scene.species() {
-        channels.extend(sp.density.to_f32_vec());
+        channels.extend(sp.density.dense_f32()?);
     }
     if let (Some((d, t)), Some(rho_t)) = (bb, scene.blackbody_rho_t()) {
         // Density, temperature (thermal broadening) and density x Planck factor (the black
         // body's temperature, as the CPU's).
-        channels.extend(d.to_f32_vec());
-        channels.extend(t.to_f32_vec());
-        channels.extend_from_slice(rho_t.data());
+        channels.extend(d.dense_f32()?);
+        channels.extend(t.dense_f32()?);
+        channels.extend(rho_t.dense_f32()?);
     }
     if channels.is_empty() {
         channels.push(0.0);
     }
     let velocity: Vec<f32> = match scene.velocity() {
-        Some(v) => v.data().iter().flat_map(|p| p.to_array()).collect(),
+        Some(v) => v.dense_xyz()?,
         None => vec![0.0; 3],
     };
     let (a, b) = settings.range_nm;

@@ -57,6 +57,17 @@ pub enum Error {
     Relativity(#[from] blueshift_relativity::Error),
 }
 
+impl From<blueshift_volume::Error> for Error {
+    /// A bricked (`.bsv`) level the GPU backends could not load whole: they upload dense
+    /// grids, so an out-of-core level that does not fit is rendered on the CPU instead.
+    fn from(e: blueshift_volume::Error) -> Self {
+        Error::Unsupported(format!(
+            "loading an out-of-core level for the GPU: {e} (the CPU renders bricked volumes \
+             through its cache)"
+        ))
+    }
+}
+
 impl Error {
     /// Converts a wgpu error (from an error scope or the uncaptured-error handler).
     pub fn from_wgpu(err: &wgpu::Error) -> Self {

@@ -575,6 +575,7 @@ impl<'c> GpuTracker<'c> {
 /// `Ok` when the GPU tracker covers `scene` + `settings`, else why not: gradient shading,
 /// heat maps and the timing protocol are CPU-only.
 pub fn supports(scene: &Scene, settings: &RenderSettings) -> std::result::Result<(), Unsupported> {
+    crate::out_of_core_fits(scene.channels().iter().map(|c| c.grid()))?;
     if scene.shading.is_some() {
         return Err(Unsupported(
             "gradient shading (scene.shading) is CPU-only; render it with --device cpu".into(),
@@ -702,7 +703,7 @@ impl<'c> GpuScene<'c> {
         checked_bytes(ctx, "lookup tables", n as u64 * lut_len, 16)?;
         let mut data: Vec<f32> = Vec::with_capacity(n * voxels as usize);
         for ch in scene.channels() {
-            data.extend(ch.grid().to_f32_vec());
+            data.extend(ch.grid().dense_f32()?);
         }
         let volume = ctx.storage_buffer("tracking volume", &data)?;
         drop(data);

@@ -36,6 +36,7 @@ pub(crate) fn scene_file(
             .map(|(k, v)| (k, v.inner.clone()))
             .collect(),
         tfs: tfs.into_iter().map(|(k, v)| (k, v.inner.clone())).collect(),
+        cache: None,
     };
     Ok((file, memory))
 }

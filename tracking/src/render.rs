@@ -330,6 +330,8 @@ impl Progressive {
                     }
                 }
             });
+        // A brick that failed to read mid-pass voids the pass.
+        scene.check_io()?;
         self.samples += 1;
         if counting {
             self.heat_samples += 1;

@@ -2,7 +2,7 @@
 //! majorant grid, a background colour, a density scale and an optional directional light.
 
 use blueshift_tfedit::TransferFunction;
-use blueshift_volume::{AnyGrid, Geometry, Macrocells, Volume};
+use blueshift_volume::{Field, Geometry, Macrocells, Volume};
 use glam::Vec3;
 
 use crate::dda::CellLayout;
@@ -10,12 +10,12 @@ use crate::majorant::MajorantGrid;
 use crate::shading::Shading;
 use crate::{Error, Result};
 
-/// One channel of a [`Scene`]: a scalar grid, its transfer function, its macrocells and
-/// the majorant grid derived from both.
+/// One channel of a [`Scene`]: a scalar field (dense or bricked), its transfer function,
+/// its macrocells and the majorant grid derived from both.
 #[derive(Clone, Debug)]
 pub struct SceneChannel {
     name: String,
-    grid: AnyGrid,
+    grid: Field,
     tf: TransferFunction,
     macrocells: Macrocells,
     majorant: MajorantGrid,
@@ -27,9 +27,9 @@ impl SceneChannel {
     pub fn name(&self) -> &str {
         &self.name
     }
-    /// The scalar grid.
+    /// The scalar field (a dense grid or a level of a bricked file).
     #[must_use]
-    pub fn grid(&self) -> &AnyGrid {
+    pub fn grid(&self) -> &Field {
         &self.grid
     }
     /// The transfer function.
@@ -72,6 +72,8 @@ pub struct DirectionalLight {
 #[derive(Clone, Debug)]
 pub struct Scene {
     channels: Vec<SceneChannel>,
+    /// World bounds of the finest level (what cameras frame).
+    frame: (Vec3, Vec3),
     layout: CellLayout,
     total_majorant: MajorantGrid,
     density_scale: f32,
@@ -84,11 +86,12 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Builds a scene from `(name, grid, transfer function)` triples with macrocells of `k`
-    /// voxels per edge. Refuses an empty list, vector grids, channels whose geometry differs
-    /// from the first, and a negative or non-finite density scale.
-    pub fn new(
-        channels: Vec<(String, AnyGrid, TransferFunction)>,
+    /// Builds a scene from `(name, field, transfer function)` triples (dense grids or levels
+    /// of bricked files, see [`Field`]) with macrocells of `k` voxels per edge. Refuses an
+    /// empty list, vector grids, channels whose geometry differs from the first, and a
+    /// negative or non-finite density scale.
+    pub fn new<F: Into<Field>>(
+        channels: Vec<(String, F, TransferFunction)>,
         density_scale: f32,
         k: usize,
     ) -> Result<Self> {
@@ -96,7 +99,12 @@ impl Scene {
             return Err(Error::scene("channels: at least one channel is needed"));
         }
         check_density_scale(density_scale)?;
+        let channels: Vec<(String, Field, TransferFunction)> = channels
+            .into_iter()
+            .map(|(n, g, t)| (n, g.into(), t))
+            .collect();
         let geometry = *channels[0].1.geometry();
+        let frame = channels[0].1.finest_geometry().world_bounds();
         geometry.validate()?;
         let mut out = Vec::with_capacity(channels.len());
         for (i, (name, grid, tf)) in channels.into_iter().enumerate() {
@@ -112,7 +120,7 @@ impl Scene {
                     geometry
                 )));
             }
-            let macrocells = Macrocells::build_any(&grid, k)?;
+            let macrocells = grid.macrocells(k)?;
             let majorant = MajorantGrid::build(&macrocells, &tf, density_scale);
             out.push(SceneChannel {
                 name,
@@ -127,6 +135,7 @@ impl Scene {
         check_optical_depth(&total_majorant, &geometry)?;
         Ok(Scene {
             channels: out,
+            frame,
             layout,
             total_majorant,
             density_scale,
@@ -205,6 +214,22 @@ impl Scene {
     #[must_use]
     pub fn layout(&self) -> &CellLayout {
         &self.layout
+    }
+
+    /// World bounds of the finest level's voxel centres: what cameras frame, so every
+    /// level of detail is seen through the same view (equal to [`Scene::bounds`] in core).
+    #[must_use]
+    pub fn frame_bounds(&self) -> (Vec3, Vec3) {
+        self.frame
+    }
+
+    /// The first brick read that failed while rendering (out-of-core channels), as an
+    /// error; renders call this after every pass.
+    pub fn check_io(&self) -> Result<()> {
+        for c in &self.channels {
+            c.grid.check_io()?;
+        }
+        Ok(())
     }
 
     /// World bounds `(min, max)` of the voxel centres.

@@ -43,9 +43,10 @@
 use std::path::{Path, PathBuf};
 
 use blueshift_tfedit::{ColorKnot, DataAxis, OpacityKnot, TransferFunction};
-use blueshift_volume::{AnyGrid, synth};
+use blueshift_volume::{BrickCache, Field, Lod, ooc::BrickedFile, synth};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 use blueshift_camera::{DEFAULT_FOV_Y_DEG, View, up_for};
 
@@ -194,23 +195,15 @@ impl std::fmt::Display for TfRange {
 
 blueshift_camera::serde_via_str!(TfRange);
 
-/// The smallest and largest positive finite value of a grid (`None` if there is none).
-fn positive_range(grid: &AnyGrid) -> Option<(f64, f64)> {
-    let g = *grid.geometry();
-    let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
-    for k in 0..g.voxel_count() {
-        let v = grid.scalar_at(k);
-        if v.is_finite() && v > 0.0 {
-            lo = lo.min(v);
-            hi = hi.max(v);
-        }
-    }
-    (hi > 0.0).then(|| (f64::from(lo), f64::from(hi.max(lo * 1.0001))))
+/// The smallest and largest positive finite value of a field (`None` if there is none).
+fn positive_range(grid: &Field) -> Option<(f64, f64)> {
+    let (lo, hi) = grid.positive_range()?;
+    Some((f64::from(lo), f64::from(hi.max(lo * 1.0001))))
 }
 
 /// The value range a transfer function on `axis` is stretched over for `grid` (a constant
 /// grid gets a unit-wide domain).
-pub fn data_domain(grid: &AnyGrid, axis: DataAxis) -> Option<[f64; 2]> {
+pub fn data_domain(grid: &Field, axis: DataAxis) -> Option<[f64; 2]> {
     match axis {
         DataAxis::Log => positive_range(grid).map(|(lo, hi)| [lo, hi]),
         _ => grid.finite_range().map(|(lo, hi)| {
@@ -228,6 +221,9 @@ pub struct Preloaded {
     pub volumes: std::collections::BTreeMap<String, blueshift_volume::Volume>,
     /// Transfer functions by name.
     pub tfs: std::collections::BTreeMap<String, TransferFunction>,
+    /// How `.bsv` channels are read: the shared brick cache (default: one of
+    /// [`blueshift_volume::cache::default_budget`] bytes for the scene).
+    pub cache: Option<Arc<BrickCache>>,
 }
 
 /// A render scene file (see the module docs for the format and the defaults).
@@ -295,6 +291,11 @@ pub struct RenderSceneFile {
     pub frames: Option<u32>,
     /// Stretch every transfer function over each channel's data range or an interval.
     pub tf_range: Option<TfRange>,
+    /// Level of detail of bricked (`.bsv`) channels: `exact` (default: the finest level,
+    /// the same image as in core), `auto` (the level whose voxels match the pixel footprint
+    /// where the volume is nearest to the camera, `blueshift_volume::lod_level`) or a level
+    /// number.
+    pub lod: Option<String>,
     /// Folder the relative paths start from (the scene file's; set by
     /// [`RenderSceneFile::from_json`] and [`RenderSceneFile::read`]; `None`: the working
     /// directory).
@@ -337,7 +338,7 @@ impl ChannelSpec {
     /// # Errors
     /// [`Error::Field`] naming `channels[i]`: an unreadable file, an unknown dataset or
     /// channel, both or neither of `volume` and `synth`, no scalar channel.
-    pub fn load(&self, i: usize, base: Option<&Path>) -> Result<(String, AnyGrid)> {
+    pub fn load(&self, i: usize, base: Option<&Path>) -> Result<(String, Field)> {
         self.load_with(i, base, &Preloaded::default())
     }
 
@@ -351,7 +352,38 @@ impl ChannelSpec {
         i: usize,
         base: Option<&Path>,
         memory: &Preloaded,
-    ) -> Result<(String, AnyGrid)> {
+    ) -> Result<(String, Field)> {
+        if let (Some(p), None) = (&self.volume, &self.synth) {
+            let p = resolve(base, p);
+            let bricked = p.extension().is_some_and(|e| e == "bsv")
+                && !memory.volumes.contains_key(p.to_str().unwrap_or_default());
+            if bricked {
+                let cache = memory
+                    .cache
+                    .clone()
+                    .unwrap_or_else(|| BrickCache::new(blueshift_volume::cache::default_budget()));
+                let err = |e| {
+                    Error::field_from(
+                        format!("channels[{i}].volume"),
+                        Some(format!("cannot read {}", p.display())),
+                        e,
+                    )
+                };
+                let f = BrickedFile::open_with_cache(&p, cache).map_err(err)?;
+                if let Some(name) = &self.channel
+                    && name != f.channel_name()
+                {
+                    return Err(Error::field(
+                        format!("channels[{i}].channel"),
+                        format!(
+                            "no channel named '{name}' (the file holds '{}')",
+                            f.channel_name()
+                        ),
+                    ));
+                }
+                return Ok((f.channel_name().to_owned(), f.field(0).map_err(err)?.into()));
+            }
+        }
         let in_memory = self
             .volume
             .as_deref()
@@ -398,7 +430,7 @@ impl ChannelSpec {
                     Error::field(format!("channels[{i}].volume"), "no scalar channel")
                 })?,
         };
-        Ok((ch.name.clone(), ch.grid.clone()))
+        Ok((ch.name.clone(), ch.grid.clone().into()))
     }
 
     /// Builds the channel's transfer function for its grid (`i` is its index, for
@@ -410,7 +442,7 @@ impl ChannelSpec {
     pub fn transfer_function(
         &self,
         i: usize,
-        grid: &AnyGrid,
+        grid: &Field,
         base: Option<&Path>,
     ) -> Result<TransferFunction> {
         self.transfer_function_with(i, grid, base, &Preloaded::default())
@@ -424,7 +456,7 @@ impl ChannelSpec {
     pub fn transfer_function_with(
         &self,
         i: usize,
-        grid: &AnyGrid,
+        grid: &Field,
         base: Option<&Path>,
         memory: &Preloaded,
     ) -> Result<TransferFunction> {
@@ -529,6 +561,7 @@ impl RenderSceneFile {
             warmup,
             frames,
             tf_range,
+            lod,
             base,
         } = flags;
         if !channels.is_empty() {
@@ -570,7 +603,8 @@ impl RenderSceneFile {
             heatmaps,
             warmup,
             frames,
-            tf_range
+            tf_range,
+            lod
         );
     }
 
@@ -578,7 +612,18 @@ impl RenderSceneFile {
     /// then `eye`, `target` and `up` where given (an `eye` without `up` whose view is
     /// parallel to the preset's up takes yt's up for its own direction), then `zoom`.
     fn camera_for(&self, scene: &Scene, width: u32, height: u32, ortho: bool) -> Result<Camera> {
-        let (lo, hi) = scene.bounds();
+        let (lo, hi) = scene.frame_bounds();
+        self.camera_for_box(lo, hi, width, height, ortho)
+    }
+
+    fn camera_for_box(
+        &self,
+        lo: Vec3,
+        hi: Vec3,
+        width: u32,
+        height: u32,
+        ortho: bool,
+    ) -> Result<Camera> {
         let view = match &self.view {
             Some(v) => v
                 .parse::<View>()
@@ -722,6 +767,45 @@ impl RenderSceneFile {
         Ok(settings)
     }
 
+    /// The level of detail `lod` asks for, for these channels seen through this file's camera.
+    ///
+    /// # Errors
+    /// An unknown `lod` spelling.
+    pub fn lod(&self) -> Result<Lod> {
+        self.lod
+            .as_deref()
+            .map_or(Ok(Lod::Exact), str::parse)
+            .map_err(|e: blueshift_volume::Error| Error::field_from("lod", None, e))
+    }
+
+    /// Moves every bricked channel to the level `lod` picks (all channels must be bricked
+    /// with the same levels for a coarser one; mixed with dense channels they stay exact).
+    fn choose_level(&self, loaded: &mut [(String, Field)]) -> Result<()> {
+        let lod = self.lod()?;
+        if lod == Lod::Exact || loaded.iter().any(|(_, f)| f.as_bricked().is_none()) {
+            return Ok(());
+        }
+        let Some(first) = loaded.first().and_then(|(_, f)| f.as_bricked()) else {
+            return Ok(());
+        };
+        let geoms = first.source().geometries().to_vec();
+        let (lo, hi) = geoms[0].world_bounds();
+        let width = self.width.unwrap_or(512);
+        let height = self.height.unwrap_or(512);
+        let ortho = self.camera.unwrap_or_default() == CameraKind::Ortho;
+        let cam = self.camera_for_box(lo, hi, width, height, ortho)?;
+        let level = lod.pick(&geoms, cam.pixel_footprint(lo, hi, height));
+        for (i, (_, f)) in loaded.iter_mut().enumerate() {
+            if let Some(b) = f.as_bricked() {
+                *f = b
+                    .at_level(level.min(b.levels() - 1))
+                    .map_err(|e| Error::field_from(format!("channels[{i}].volume"), None, e))?
+                    .into();
+            }
+        }
+        Ok(())
+    }
+
     /// Loads the channels and transfer functions and builds the scene, the integrator and
     /// the settings, validated ([`RenderSettings::validate`], the integrator against the
     /// scene).
@@ -743,9 +827,13 @@ impl RenderSceneFile {
     /// As [`RenderSceneFile::build`].
     pub fn build_with(&self, memory: &Preloaded) -> Result<(Scene, Integrator, RenderSettings)> {
         let base = self.base.as_deref();
-        let mut triples = Vec::with_capacity(self.channels.len());
+        let mut loaded = Vec::with_capacity(self.channels.len());
         for (i, c) in self.channels.iter().enumerate() {
-            let (name, grid) = c.load_with(i, base, memory)?;
+            loaded.push(c.load_with(i, base, memory)?);
+        }
+        self.choose_level(&mut loaded)?;
+        let mut triples = Vec::with_capacity(self.channels.len());
+        for ((i, c), (name, grid)) in self.channels.iter().enumerate().zip(loaded) {
             let mut tf = c.transfer_function_with(i, &grid, base, memory)?;
             if let Some(range) = self.tf_range {
                 let domain = match range {

@@ -322,7 +322,7 @@ fn bad_input_gets_typed_errors() {
         matches!(e, Error::Scene(_)) && e.to_string().contains("channels[1]"),
         "{e}"
     );
-    assert!(Scene::new(vec![], 1.0, 4).is_err());
+    assert!(Scene::new::<blueshift_volume::AnyGrid>(vec![], 1.0, 4).is_err());
     assert!(Scene::new(vec![("a".into(), a.clone(), t.clone())], f32::NAN, 4).is_err());
     assert!(matches!(
         Scene::new(vec![("a".into(), a.clone(), t.clone())], 1.0, 0),

@@ -10,6 +10,9 @@
 //!   trilinear and nearest sampling in index and world space; [`AnyGrid`] holds any of them.
 //! - [`Macrocells::build`] gives the conservative per-cell min/max that majorant grids are
 //!   built from; [`Macrocells::intervals`] walks a ray through them.
+//! - [`Field`] is what every integrator samples: a dense grid or one level of detail of a
+//!   bricked `.bsv` file read through a shared, bounded [`BrickCache`] (bit-identical values);
+//!   [`VectorField`] is its velocity counterpart and [`lod_level`] the level-of-detail rule.
 //! - [`synth`] makes the test datasets of the papers; [`ooc`] converts a volume into a
 //!   bricked file with all levels of detail and samples it through a bounded cache.
 //!
@@ -46,7 +49,9 @@
 //! positive radial velocity receding (DESIGN.md). Readers check sizes against [`Limits`]
 //! before allocating and return [`Error`], never panic.
 
+pub mod cache;
 mod error;
+pub mod field;
 mod grid;
 pub mod io;
 pub mod lod;
@@ -55,7 +60,9 @@ pub mod ooc;
 pub mod synth;
 mod volume;
 
+pub use cache::{BrickCache, BrickSource, CacheStats};
 pub use error::{Error, Limits, Result};
+pub use field::{BrickedField, Field, Lod, VectorField, lod_level};
 pub use grid::{AnyGrid, Geometry, Grid, Interpolant, ScalarType, Voxel};
 pub use io::{DiskType, RawSpec, ReadOptions, read, read_with};
 pub use macrocell::{DEFAULT_K, Macrocells, ValueInterval, ValueIntervals};

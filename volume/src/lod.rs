@@ -41,18 +41,29 @@ pub(crate) fn downsample_slice(
     slice: &mut [f32],
     c: [usize; 2],
 ) {
+    for (y, row) in slice[..c[0] * c[1]].chunks_exact_mut(c[0]).enumerate() {
+        downsample_row(&fine, n, z, y, row);
+    }
+}
+
+/// Fills row `y` of coarse slice `z` (`row.len()` coarse voxels) from a fine-voxel accessor.
+pub(crate) fn downsample_row(
+    fine: impl Fn(usize, usize, usize) -> f32,
+    n: [usize; 3],
+    z: usize,
+    y: usize,
+    row: &mut [f32],
+) {
     let z0 = 2 * z;
     let z1 = (2 * z + 1).min(n[2] - 1);
-    for y in 0..c[1] {
-        let y0 = 2 * y;
-        let y1 = (2 * y + 1).min(n[1] - 1);
-        for x in 0..c[0] {
-            let x0 = 2 * x;
-            let x1 = (2 * x + 1).min(n[0] - 1);
-            let s = ((fine(x0, y0, z0) + fine(x1, y0, z0)) + (fine(x0, y1, z0) + fine(x1, y1, z0)))
-                + ((fine(x0, y0, z1) + fine(x1, y0, z1)) + (fine(x0, y1, z1) + fine(x1, y1, z1)));
-            slice[x + c[0] * y] = s * 0.125;
-        }
+    let y0 = 2 * y;
+    let y1 = (2 * y + 1).min(n[1] - 1);
+    for (x, out) in row.iter_mut().enumerate() {
+        let x0 = 2 * x;
+        let x1 = (2 * x + 1).min(n[0] - 1);
+        let s = ((fine(x0, y0, z0) + fine(x1, y0, z0)) + (fine(x0, y1, z0) + fine(x1, y1, z0)))
+            + ((fine(x0, y0, z1) + fine(x1, y0, z1)) + (fine(x0, y1, z1) + fine(x1, y1, z1)));
+        *out = s * 0.125;
     }
 }
 

@@ -98,6 +98,32 @@ impl Macrocells {
         })
     }
 
+    /// Macrocells from stored min/max tables (cells x fastest, as [`Macrocells::mins`] gives
+    /// them) over `geometry` with edge `k`; refuses tables of the wrong length.
+    pub fn from_parts(geometry: Geometry, k: usize, min: Vec<f32>, max: Vec<f32>) -> Result<Self> {
+        if k == 0 {
+            return Err(Error::parameter("macrocell size k must be at least 1"));
+        }
+        let dims = geometry
+            .dims
+            .map(|d| d.saturating_sub(1).div_ceil(k).max(1));
+        let n = dims[0] * dims[1] * dims[2];
+        if min.len() != n || max.len() != n {
+            return Err(Error::invalid(format!(
+                "macrocell tables hold {} and {} cells, {n} expected",
+                min.len(),
+                max.len()
+            )));
+        }
+        Ok(Macrocells {
+            k,
+            dims,
+            geometry,
+            min,
+            max,
+        })
+    }
+
     /// [`Macrocells::build`] for any scalar grid; vector grids are refused.
     pub fn build_any(grid: &AnyGrid, k: usize) -> Result<Self> {
         match grid {

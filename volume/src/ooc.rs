@@ -1,13 +1,14 @@
 //! Bricks and out-of-core access (HDR VolVis section 6.3): a bricked file with all levels of
-//! detail, written in one streaming pass, read through a memory map with a bounded brick
-//! cache, and sampled through the same [`Sampler`] interface as an in-core [`Grid`].
+//! detail, written in one streaming pass, read with positioned reads (an I/O failure is an
+//! error, never a crash) through the shared bounded [`BrickCache`], and sampled through the
+//! same [`Sampler`] interface as an in-core [`Grid`] (or as a [`crate::Field`]).
 //!
-//! # File layout (`.bsv`, little-endian)
+//! # File layout (`.bsv`, little-endian, version 3)
 //!
 //! | bytes | content |
 //! |---|---|
 //! | 0..8 | magic `BSBRICK1` |
-//! | 8..12 | u32 version (1) |
+//! | 8..12 | u32 version (3) |
 //! | 12..16 | u32 brick edge `B` (even, default 64) |
 //! | 16..20 | u32 apron `A` (default 1) |
 //! | 20..24 | u32 number of levels |
@@ -15,34 +16,51 @@
 //! | 48..60 | f32 x 3 level-0 origin |
 //! | 60..72 | f32 x 3 level-0 spacing |
 //! | 72..76 | u32 level-0 voxel type: 0 = u8, 1 = u16, 2 = f16, 3 = f32 |
-//! | 76..80 | u32 channel-name length (at most 255), then the UTF-8 name |
-//! | 4096.. | level 0 bricks, then level 1, ... |
+//! | 76..80 | u32 channel-name length (at most 255), then the UTF-8 name (80..335) |
+//! | 336..340 | u32 macrocell edge `k` of the stored macrocells (0: none) |
+//! | 340..348 | u64 offset of the macrocell section |
+//! | 348..356 | u64 offset of the brick checksum table |
+//! | 356..364 | u64 number of NaN or infinite level-0 voxels |
+//! | 364..372 | f32 x 2 range of the finite level-0 values (NaN, NaN if none) |
+//! | 372..380 | u64 file length |
+//! | 380..384 | f32 smallest positive finite level-0 value (NaN if none) |
+//! | 4096.. | level 0 bricks, then level 1, ...; then the macrocells; then the checksums |
 //!
 //! Level `l` has the geometry of [`crate::Geometry::downsampled`] applied `l` times and
-//! `ceil(dims / B)` bricks per axis, stored x fastest. A brick holds `(B + 2A)^3` f32 voxels:
+//! `ceil(dims / B)` bricks per axis, stored x fastest. A brick holds `(B + 2A)^3` voxels:
 //! its `B^3` own voxels plus an apron of `A` voxels on each side (clamped to the volume's
 //! edge), so trilinear sampling never needs a second brick. Levels are added until every
 //! dimension fits in one brick. Level 0 keeps the source's in-memory type (u8, u16, f16 or
 //! f32; other on-disk types are f32 as in [`crate::io`]), so a u8 CT scan stays one byte per
 //! voxel; the down-sampled levels hold means and are f32. Decoded bricks are f32.
+//!
+//! The macrocell section holds, per level, the min then the max of every macrocell of edge
+//! `k` (f32, cells x fastest), exactly what [`Macrocells::build`] computes on that level, so
+//! a renderer's majorants cost nothing on re-open. The checksum table holds one u64 per brick
+//! (all levels, in file order); a brick that fails it is refused when read.
 
+use std::collections::VecDeque;
 use std::fs::File;
-use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::io::Read;
+use std::os::unix::fs::FileExt;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::cache::{BrickCache, BrickSource, next_uid};
+use crate::field::BrickedField;
 use crate::grid::{Geometry, Grid, ScalarType, Voxel};
 use crate::io::{DiskType, Endian};
-use crate::lod::{downsample_slice, level_geometries};
-use crate::{Error, Limits, Result};
+use crate::lod::{downsample_row, level_geometries};
+use crate::macrocell::{DEFAULT_K, Macrocells};
+use crate::{AnyGrid, Error, Limits, Result};
 
 /// First bytes of a bricked file.
 pub const MAGIC: &[u8] = b"BSBRICK1";
 const HEADER_BYTES: u64 = 4096;
-const VERSION: u32 = 2;
+const VERSION: u32 = 3;
 
 /// Something that can be sampled like a scalar grid: in-core [`Grid`]s and levels of a
 /// [`BrickedFile`].
@@ -245,147 +263,191 @@ impl SlabSource for RawFileSource {
         let [nx, ny, _] = self.geometry.dims;
         let size = self.disk.size_bytes();
         let bytes = nx * ny * size;
-        self.buf.resize(bytes, 0);
-        self.file
-            .seek(SeekFrom::Start(self.offset + (z * bytes) as u64))?;
-        self.file.read_exact(&mut self.buf)?;
+        let at = self.offset + (z * bytes) as u64;
         let big = self.endian == Endian::Big;
-        for (o, c) in out.iter_mut().zip(self.buf.chunks_exact(size)) {
-            *o = crate::io::component(c, self.disk, big);
+        if self.disk == DiskType::F32 && big == cfg!(target_endian = "big") {
+            // Native f32: read straight into the slice.
+            self.file
+                .read_exact_at(bytemuck::cast_slice_mut(&mut out[..nx * ny]), at)?;
+            return Ok(());
+        }
+        self.buf.resize(bytes, 0);
+        self.file.read_exact_at(&mut self.buf, at)?;
+        match self.disk {
+            DiskType::U8 => {
+                for (o, &b) in out.iter_mut().zip(&self.buf) {
+                    *o = f32::from(b);
+                }
+            }
+            disk => {
+                for (o, c) in out.iter_mut().zip(self.buf.chunks_exact(size)) {
+                    *o = crate::io::component(c, disk, big);
+                }
+            }
         }
         Ok(())
     }
 }
 
-fn level_offsets(
-    geoms: &[Geometry],
-    layout: &BrickLayout,
-    types: &[ScalarType],
-) -> Result<(Vec<u64>, u64)> {
-    let mut off = HEADER_BYTES;
-    let mut v = Vec::with_capacity(geoms.len());
-    for (g, t) in geoms.iter().zip(types) {
-        let brick_bytes = (layout.stored_edge() as u64).pow(3) * t.size_bytes() as u64;
-        v.push(off);
-        let b = layout.bricks(g.dims);
-        let n = (b[0] as u64)
-            .checked_mul(b[1] as u64)
-            .and_then(|n| n.checked_mul(b[2] as u64))
-            .and_then(|n| n.checked_mul(brick_bytes))
-            .ok_or_else(|| Error::Limits("bricked file size overflows".into()))?;
-        off = off
-            .checked_add(n)
-            .ok_or_else(|| Error::Limits("bricked file size overflows".into()))?;
-    }
-    Ok((v, off))
+/// Where everything of a bricked file lives.
+#[derive(Clone, Debug)]
+struct Plan {
+    geoms: Vec<Geometry>,
+    types: Vec<ScalarType>,
+    /// Byte offset of each level's first brick.
+    offsets: Vec<u64>,
+    /// Index of each level's first brick in the checksum table.
+    first_brick: Vec<usize>,
+    /// Macrocell edge (0: none stored).
+    k: usize,
+    /// Byte offset of each level's macrocell mins (the maxs follow).
+    macro_offsets: Vec<u64>,
+    checksum_offset: u64,
+    total: u64,
 }
 
-/// Converts a volume into a bricked file at `out` in one streaming pass per level: level 0
-/// reads `B + 2A` slices of the source at a time; each coarser level is down-sampled on the
-/// way into a temporary file next to `out`, and bricked from there. `progress(done, total)`
-/// reports level-0 slices. Memory stays at `O(dims.x * dims.y * (B + 2A))`.
-pub fn convert(
-    source: &mut dyn SlabSource,
-    out: &Path,
-    channel_name: &str,
-    layout: BrickLayout,
-    progress: &mut dyn FnMut(u64, u64),
-) -> Result<()> {
-    layout.validate()?;
-    let g0 = source.geometry();
-    g0.validate()?;
-    let geoms = level_geometries(g0, layout.brick);
-    let t0 = match source.scalar_type() {
-        t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
-        _ => ScalarType::F32,
-    };
-    let types = level_types(geoms.len(), t0);
-    let (offsets, total) = level_offsets(&geoms, &layout, &types)?;
-    let name = channel_name.as_bytes();
-    if name.len() > 255 {
-        return Err(Error::parameter("channel name longer than 255 bytes"));
-    }
-    let file = std::fs::OpenOptions::new()
-        .create(true)
-        .write(true)
-        .truncate(true)
-        .read(true)
-        .open(out)?;
-    file.set_len(total)?;
-    let mut w = BufWriter::new(file);
-    let mut h = Vec::with_capacity(HEADER_BYTES as usize);
-    h.extend_from_slice(MAGIC);
-    h.extend_from_slice(&VERSION.to_le_bytes());
-    h.extend_from_slice(&(layout.brick as u32).to_le_bytes());
-    h.extend_from_slice(&(layout.apron as u32).to_le_bytes());
-    h.extend_from_slice(&(geoms.len() as u32).to_le_bytes());
-    for d in g0.dims {
-        h.extend_from_slice(&(d as u64).to_le_bytes());
-    }
-    for v in g0
-        .origin
-        .to_array()
-        .into_iter()
-        .chain(g0.spacing.to_array())
-    {
-        h.extend_from_slice(&v.to_le_bytes());
-    }
-    h.extend_from_slice(&type_code(t0).to_le_bytes());
-    h.extend_from_slice(&(name.len() as u32).to_le_bytes());
-    h.extend_from_slice(name);
-    w.write_all(&h)?;
+fn overflow() -> Error {
+    Error::Limits("bricked file size overflows".into())
+}
 
-    let dir = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let mut current: Box<dyn SlabSource> = Box::new(BorrowedSource(source));
-    let mut _keep: Option<tempfile::NamedTempFile>;
-    for (l, g) in geoms.iter().enumerate() {
-        let next = geoms.get(l + 1).copied();
-        let mut tmp = match next {
-            Some(_) => Some(tempfile::NamedTempFile::new_in(dir)?),
-            None => None,
-        };
-        {
-            let mut tmp_w = tmp.as_mut().map(|t| BufWriter::new(t.as_file_mut()));
-            let report: &mut dyn FnMut(u64, u64) = if l == 0 { progress } else { &mut |_, _| {} };
-            brick_level(
-                current.as_mut(),
-                *g,
-                next,
-                &layout,
-                types[l],
-                offsets[l],
-                &mut w,
-                tmp_w.as_mut().map(|b| b as &mut dyn Write),
-                report,
-            )?;
-            if let Some(t) = tmp_w.as_mut() {
-                t.flush()?;
+fn macro_dims(g: &Geometry, k: usize) -> [usize; 3] {
+    g.dims.map(|d| d.saturating_sub(1).div_ceil(k).max(1))
+}
+
+impl Plan {
+    fn new(g0: Geometry, layout: &BrickLayout, t0: ScalarType, k: usize) -> Result<Plan> {
+        let geoms = level_geometries(g0, layout.brick);
+        if geoms.len() > crate::cache::MAX_LEVELS {
+            return Err(overflow());
+        }
+        let types = level_types(geoms.len(), t0);
+        let mut off = HEADER_BYTES;
+        let mut offsets = Vec::with_capacity(geoms.len());
+        let mut first_brick = Vec::with_capacity(geoms.len());
+        let mut bricks = 0usize;
+        for (g, t) in geoms.iter().zip(&types) {
+            let brick_bytes = (layout.stored_edge() as u64).pow(3) * t.size_bytes() as u64;
+            offsets.push(off);
+            first_brick.push(bricks);
+            let b = layout.bricks(g.dims);
+            let n = b[0]
+                .checked_mul(b[1])
+                .and_then(|n| n.checked_mul(b[2]))
+                .ok_or_else(overflow)?;
+            bricks = bricks.checked_add(n).ok_or_else(overflow)?;
+            off = (n as u64)
+                .checked_mul(brick_bytes)
+                .and_then(|n| off.checked_add(n))
+                .ok_or_else(overflow)?;
+        }
+        let mut macro_offsets = Vec::with_capacity(geoms.len());
+        if k > 0 {
+            for g in &geoms {
+                macro_offsets.push(off);
+                let c = macro_dims(g, k);
+                let cells = (c[0] as u64) * (c[1] as u64) * (c[2] as u64);
+                off = cells
+                    .checked_mul(8)
+                    .and_then(|n| off.checked_add(n))
+                    .ok_or_else(overflow)?;
             }
         }
-        if let (Some(t), Some(ng)) = (tmp, next) {
-            let src = RawFileSource::new(t.path(), 0, DiskType::F32, Endian::Little, ng)?;
-            current = Box::new(src);
-            _keep = Some(t);
-        }
+        let checksum_offset = off;
+        let total = (bricks as u64)
+            .checked_mul(8)
+            .and_then(|n| off.checked_add(n))
+            .ok_or_else(overflow)?;
+        Ok(Plan {
+            geoms,
+            types,
+            offsets,
+            first_brick,
+            k,
+            macro_offsets,
+            checksum_offset,
+            total,
+        })
     }
-    w.flush()?;
-    w.get_ref().sync_all()?;
-    Ok(())
 }
 
-struct BorrowedSource<'a>(&'a mut dyn SlabSource);
-impl SlabSource for BorrowedSource<'_> {
-    fn geometry(&self) -> Geometry {
-        self.0.geometry()
+/// The macrocell edge a layout stores: [`DEFAULT_K`] when it divides the brick edge (each
+/// macrocell then lies in one brick's stored voxels), else none.
+fn stored_k(layout: &BrickLayout) -> usize {
+    if layout.brick.is_multiple_of(DEFAULT_K) {
+        DEFAULT_K
+    } else {
+        0
     }
-    fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
-        self.0.read_slice(z, out)
+}
+
+/// A 64-bit checksum of a brick's bytes (four multiply-rotate lanes over u64 words).
+fn checksum(bytes: &[u8]) -> u64 {
+    const M: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut h = [1u64, 2, 3, 4];
+    let mut chunks = bytes.chunks_exact(32);
+    for c in &mut chunks {
+        for (i, lane) in h.iter_mut().enumerate() {
+            let w = u64::from_le_bytes(c[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+            *lane = (*lane ^ w).wrapping_mul(M).rotate_left(29);
+        }
     }
-    fn scalar_type(&self) -> ScalarType {
-        self.0.scalar_type()
+    let mut tail = 0u64;
+    for (i, &b) in chunks.remainder().iter().enumerate() {
+        tail ^= u64::from(b) << ((i % 8) * 8);
+        if i % 8 == 7 {
+            h[0] = (h[0] ^ tail).wrapping_mul(M).rotate_left(29);
+            tail = 0;
+        }
+    }
+    h[1] = (h[1] ^ tail ^ bytes.len() as u64).wrapping_mul(M);
+    h.iter()
+        .fold(0u64, |a, &x| (a ^ x).wrapping_mul(M).rotate_left(23))
+}
+
+fn encode(vals: &[f32], t: ScalarType, out: &mut [u8]) {
+    match t {
+        ScalarType::U8 => {
+            for (o, &v) in out.iter_mut().zip(vals) {
+                *o = v as u8;
+            }
+        }
+        ScalarType::U16 => {
+            for (o, &v) in out.chunks_exact_mut(2).zip(vals) {
+                o.copy_from_slice(&(v as u16).to_le_bytes());
+            }
+        }
+        ScalarType::F16 => {
+            for (o, &v) in out.chunks_exact_mut(2).zip(vals) {
+                o.copy_from_slice(&half::f16::from_f32(v).to_le_bytes());
+            }
+        }
+        _ => {
+            if cfg!(target_endian = "little") {
+                out.copy_from_slice(bytemuck::cast_slice(vals));
+            } else {
+                for (o, &v) in out.chunks_exact_mut(4).zip(vals) {
+                    o.copy_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
+    }
+}
+
+fn decode(bytes: &[u8], t: ScalarType) -> Vec<f32> {
+    match t {
+        ScalarType::U8 => bytes.iter().map(|&b| f32::from(b)).collect(),
+        ScalarType::U16 => bytes
+            .chunks_exact(2)
+            .map(|b| f32::from(u16::from_le_bytes([b[0], b[1]])))
+            .collect(),
+        ScalarType::F16 => bytes
+            .chunks_exact(2)
+            .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
+            .collect(),
+        _ => bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
     }
 }
 
@@ -415,143 +477,486 @@ fn level_types(levels: usize, t0: ScalarType) -> Vec<ScalarType> {
         .collect()
 }
 
-fn put_value(out: &mut Vec<u8>, t: ScalarType, v: f32) {
-    match t {
-        ScalarType::U8 => out.push(v as u8),
-        ScalarType::U16 => out.extend_from_slice(&(v as u16).to_le_bytes()),
-        ScalarType::F16 => out.extend_from_slice(&half::f16::from_f32(v).to_le_bytes()),
-        _ => out.extend_from_slice(&v.to_le_bytes()),
-    }
-}
-
-fn decode_values(bytes: &[u8], t: ScalarType) -> Vec<f32> {
-    match t {
-        ScalarType::U8 => bytes.iter().map(|&b| f32::from(b)).collect(),
-        ScalarType::U16 => bytes
-            .chunks_exact(2)
-            .map(|b| f32::from(u16::from_le_bytes([b[0], b[1]])))
-            .collect(),
-        ScalarType::F16 => bytes
-            .chunks_exact(2)
-            .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
-            .collect(),
-        _ => bytes
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect(),
-    }
-}
-
-#[allow(clippy::too_many_arguments)]
-fn brick_level(
-    src: &mut dyn SlabSource,
+/// One level being written: a window of the z-slices its next brick slab needs.
+struct LevelWriter {
     g: Geometry,
-    next: Option<Geometry>,
-    layout: &BrickLayout,
     ty: ScalarType,
-    level_offset: u64,
-    w: &mut BufWriter<File>,
-    mut coarse_out: Option<&mut dyn Write>,
-    progress: &mut dyn FnMut(u64, u64),
-) -> Result<()> {
-    let [nx, ny, nz] = g.dims;
-    let (b, a, s) = (layout.brick, layout.apron, layout.stored_edge());
-    let nb = layout.bricks(g.dims);
-    let slice = nx * ny;
-    let mut slab = vec![0f32; slice * s];
-    let brick_bytes = (s * s * s * ty.size_bytes()) as u64;
-    let mut coarse = next.map(|c| vec![0f32; c.dims[0] * c.dims[1]]);
-    for bz in 0..nb[2] {
-        // Slab: slices bz*B - A .. bz*B + B + A, clamped to the volume.
-        for (i, chunk) in slab.chunks_exact_mut(slice).enumerate() {
-            let z = (bz * b + i) as i64 - a as i64;
-            src.read_slice(z.clamp(0, nz as i64 - 1) as usize, chunk)?;
-        }
-        progress(((bz + 1) * b).min(nz) as u64, nz as u64);
-        for by in 0..nb[1] {
-            // The bricks of one row along x are independent: fill them in parallel (each
-            // brick's bytes depend only on the slab), then write them in order.
-            let slab_ref = &slab;
-            let row: Vec<Vec<u8>> = (0..nb[0])
-                .into_par_iter()
-                .map(|bx| {
-                    let mut brick = Vec::with_capacity(s * s * s * ty.size_bytes());
-                    for lz in 0..s {
-                        for ly in 0..s {
-                            let y =
-                                ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
-                            let base = lz * slice + y * nx;
-                            for lx in 0..s {
-                                let x = ((bx * b + lx) as i64 - a as i64).clamp(0, nx as i64 - 1)
-                                    as usize;
-                                put_value(&mut brick, ty, slab_ref[base + x]);
-                            }
+    offset: u64,
+    nb: [usize; 3],
+    first_brick: usize,
+    macro_off: Option<u64>,
+    /// `(z, slice)`, consecutive z.
+    window: VecDeque<(usize, Vec<f32>)>,
+    next_slab: usize,
+    free: Vec<Vec<f32>>,
+}
+
+impl LevelWriter {
+    /// Slice `z` clamped to the level (it must be in the window).
+    fn slice(&self, z: i64) -> &[f32] {
+        let zc = z.clamp(0, self.g.dims[2] as i64 - 1) as usize;
+        let base = self.window.front().map_or(0, |w| w.0);
+        &self.window[zc - base].1
+    }
+
+    /// The last slice slab `bz` needs.
+    fn slab_top(&self, layout: &BrickLayout, bz: usize) -> usize {
+        ((bz + 1) * layout.brick + layout.apron - 1).min(self.g.dims[2] - 1)
+    }
+
+    fn take_buffer(&mut self) -> Vec<f32> {
+        let n = self.g.dims[0] * self.g.dims[1];
+        let mut v = self.free.pop().unwrap_or_default();
+        v.resize(n, 0.0);
+        v
+    }
+}
+
+struct Writer<'a> {
+    file: &'a File,
+    layout: BrickLayout,
+    plan: &'a Plan,
+    levels: Vec<LevelWriter>,
+    checksums: Vec<u64>,
+}
+
+impl Writer<'_> {
+    /// Adds slice `z` of level `l`, writes every slab it completes and passes the down-sampled
+    /// slices on to the coarser levels. Returns spent buffers of level `l`.
+    fn push(&mut self, l: usize, z: usize, slice: Vec<f32>) -> Result<Vec<Vec<f32>>> {
+        self.levels[l].window.push_back((z, slice));
+        let nz = self.levels[l].g.dims[2];
+        if l + 1 < self.levels.len() && (z % 2 == 1 || z == nz - 1) {
+            let j = z / 2;
+            let mut coarse = self.levels[l + 1].take_buffer();
+            let lw = &self.levels[l];
+            let [nx, ny, _] = lw.g.dims;
+            let c = self.levels[l + 1].g.dims;
+            let (s0, s1) = (lw.slice(2 * j as i64), lw.slice((2 * j + 1) as i64));
+            coarse
+                .par_chunks_mut(c[0])
+                .enumerate()
+                .for_each(|(y, row)| {
+                    let fine = |x: usize, yy: usize, zz: usize| {
+                        if zz == 2 * j {
+                            s0[x + nx * yy]
+                        } else {
+                            s1[x + nx * yy]
                         }
-                    }
-                    brick
-                })
-                .collect();
-            let idx = (nb[0] * (by + nb[1] * bz)) as u64;
-            w.seek(SeekFrom::Start(level_offset + idx * brick_bytes))?;
-            for brick in &row {
-                w.write_all(brick)?;
-            }
+                    };
+                    downsample_row(fine, [nx, ny, nz], j, y, row);
+                });
+            let spent = self.push(l + 1, j, coarse)?;
+            self.levels[l + 1].free.extend(spent);
         }
-        if let (Some(c), Some(cg), Some(out)) = (coarse.as_mut(), next, coarse_out.as_mut()) {
-            // Coarse slices j with 2j in this brick row's own slices.
-            let j0 = bz * b / 2;
-            let j1 = (((bz + 1) * b) / 2).min(cg.dims[2]);
-            for j in j0..j1 {
-                let fine =
-                    |x: usize, y: usize, z: usize| slab[(z + a - bz * b) * slice + y * nx + x];
-                downsample_slice(fine, g.dims, j, c, [cg.dims[0], cg.dims[1]]);
-                for v in c.iter() {
-                    out.write_all(&v.to_le_bytes())?;
+        let mut spent = Vec::new();
+        while self.levels[l].next_slab < self.levels[l].nb[2]
+            && z >= self.levels[l].slab_top(&self.layout, self.levels[l].next_slab)
+        {
+            let bz = self.levels[l].next_slab;
+            self.write_slab(l, bz)?;
+            self.levels[l].next_slab += 1;
+            // Keep what the next slab needs: slices from (bz + 1) B - A on.
+            let keep = ((bz + 1) * self.layout.brick).saturating_sub(self.layout.apron);
+            while self.levels[l].window.front().is_some_and(|w| w.0 < keep) {
+                if let Some((_, v)) = self.levels[l].window.pop_front() {
+                    spent.push(v);
                 }
             }
         }
+        Ok(spent)
     }
+
+    fn write_slab(&mut self, l: usize, bz: usize) -> Result<()> {
+        let lw = &self.levels[l];
+        let layout = self.layout;
+        let (b, a, s) = (layout.brick, layout.apron, layout.stored_edge());
+        let [nx, ny, _] = lw.g.dims;
+        let nb = lw.nb;
+        let ts = lw.ty.size_bytes();
+        let brick_bytes = s * s * s * ts;
+        let file = self.file;
+        let sums: Vec<Result<Vec<u64>>> = (0..nb[1])
+            .into_par_iter()
+            .map(|by| {
+                let mut buf = vec![0u8; nb[0] * brick_bytes];
+                let mut run = vec![0f32; s];
+                let mut sums = Vec::with_capacity(nb[0]);
+                for (bx, out) in buf.chunks_exact_mut(brick_bytes).enumerate() {
+                    let x0 = (bx * b) as i64 - a as i64;
+                    for lz in 0..s {
+                        let sl = lw.slice((bz * b + lz) as i64 - a as i64);
+                        for ly in 0..s {
+                            let y =
+                                ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
+                            let row = &sl[y * nx..(y + 1) * nx];
+                            let vals: &[f32] = if x0 >= 0 && x0 as usize + s <= nx {
+                                &row[x0 as usize..x0 as usize + s]
+                            } else {
+                                for (lx, r) in run.iter_mut().enumerate() {
+                                    *r = row[(x0 + lx as i64).clamp(0, nx as i64 - 1) as usize];
+                                }
+                                &run
+                            };
+                            let at = (lz * s + ly) * s * ts;
+                            encode(vals, lw.ty, &mut out[at..at + s * ts]);
+                        }
+                    }
+                    sums.push(checksum(out));
+                }
+                let first = ((by + nb[1] * bz) * nb[0]) as u64;
+                file.write_all_at(&buf, lw.offset + first * brick_bytes as u64)?;
+                Ok(sums)
+            })
+            .collect();
+        for (by, r) in sums.into_iter().enumerate() {
+            let base = lw.first_brick + (by + nb[1] * bz) * nb[0];
+            self.checksums[base..base + nb[0]].copy_from_slice(&r?);
+        }
+        if let Some(off) = lw.macro_off {
+            self.write_macrocells(l, bz, off)?;
+        }
+        Ok(())
+    }
+
+    /// Min/max of the macrocells whose z lies in slab `bz` (each lies in the window).
+    fn write_macrocells(&self, l: usize, bz: usize, off: u64) -> Result<()> {
+        let lw = &self.levels[l];
+        let k = self.plan.k;
+        let n = lw.g.dims;
+        let c = macro_dims(&lw.g, k);
+        let layer = c[0] * c[1];
+        let cells = layer * c[2];
+        let cz0 = bz * self.layout.brick / k;
+        let cz1 = ((bz + 1) * self.layout.brick / k).min(c[2]);
+        if cz0 >= cz1 {
+            return Ok(());
+        }
+        let layers: Vec<(Vec<f32>, Vec<f32>)> = (cz0..cz1)
+            .into_par_iter()
+            .map(|cz| {
+                let mut mn = vec![f32::INFINITY; layer];
+                let mut mx = vec![f32::NEG_INFINITY; layer];
+                for z in cz * k..=((cz + 1) * k).min(n[2] - 1) {
+                    let sl = lw.slice(z as i64);
+                    for cy in 0..c[1] {
+                        for y in cy * k..=((cy + 1) * k).min(n[1] - 1) {
+                            let row = &sl[y * n[0]..(y + 1) * n[0]];
+                            for cx in 0..c[0] {
+                                let (lo, hi) = (&mut mn[cx + c[0] * cy], &mut mx[cx + c[0] * cy]);
+                                for &v in &row[cx * k..=((cx + 1) * k).min(n[0] - 1)] {
+                                    *lo = lo.min(v);
+                                    *hi = hi.max(v);
+                                }
+                            }
+                        }
+                    }
+                }
+                (mn, mx)
+            })
+            .collect();
+        let mut mins = Vec::with_capacity(layers.len() * layer);
+        let mut maxs = Vec::with_capacity(layers.len() * layer);
+        for (a, b) in layers {
+            mins.extend(a);
+            maxs.extend(b);
+        }
+        let at = (cz0 * layer * 4) as u64;
+        self.file.write_all_at(&f32_bytes(&mins), off + at)?;
+        self.file
+            .write_all_at(&f32_bytes(&maxs), off + (cells * 4) as u64 + at)?;
+        Ok(())
+    }
+}
+
+fn f32_bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Statistics of the level-0 values, gathered while reading.
+#[derive(Clone, Copy, Debug)]
+struct ValueStats {
+    non_finite: u64,
+    lo: f32,
+    hi: f32,
+    pos_lo: f32,
+}
+
+/// Converts a volume into a bricked file at `out` in one streaming pass: the source's
+/// z-slices are read on a second thread, and every level (each the 2x down-sampling of the
+/// one before) is bricked, checksummed and written as soon as its brick slab is complete,
+/// with the macrocells of every level. Memory stays at about
+/// `dims.x * dims.y * (B + 2A) * 4 / 3` f32 values (the slab windows of all levels) plus one
+/// row of bricks per thread. The file is written under a temporary name beside `out` and
+/// renamed over it only when complete, so an interrupted conversion leaves no half file.
+/// `progress(done, total)` reports level-0 slices.
+pub fn convert(
+    source: &mut (dyn SlabSource + Send),
+    out: &Path,
+    channel_name: &str,
+    layout: BrickLayout,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<()> {
+    layout.validate()?;
+    let g0 = source.geometry();
+    g0.validate()?;
+    let t0 = match source.scalar_type() {
+        t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
+        _ => ScalarType::F32,
+    };
+    let plan = Plan::new(g0, &layout, t0, stored_k(&layout))?;
+    let name = channel_name.as_bytes();
+    if name.len() > 255 {
+        return Err(Error::parameter("channel name longer than 255 bytes"));
+    }
+    let dir = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let tmp = tempfile::Builder::new()
+        .prefix(".blueshift-")
+        .suffix(".bsv.partial")
+        .tempfile_in(dir)?;
+    let file = tmp.as_file();
+    file.set_len(plan.total)?;
+    let levels = plan
+        .geoms
+        .iter()
+        .enumerate()
+        .map(|(l, g)| LevelWriter {
+            g: *g,
+            ty: plan.types[l],
+            offset: plan.offsets[l],
+            nb: layout.bricks(g.dims),
+            first_brick: plan.first_brick[l],
+            macro_off: plan.macro_offsets.get(l).copied(),
+            window: VecDeque::new(),
+            next_slab: 0,
+            free: Vec::new(),
+        })
+        .collect();
+    let total_bricks = {
+        let last = plan.geoms.len() - 1;
+        let b = layout.bricks(plan.geoms[last].dims);
+        plan.first_brick[last] + b[0] * b[1] * b[2]
+    };
+    let mut w = Writer {
+        file,
+        layout,
+        plan: &plan,
+        levels,
+        checksums: vec![0; total_bricks],
+    };
+    let nz = g0.dims[2];
+    let slice_len = g0.dims[0] * g0.dims[1];
+    let stats = std::thread::scope(|scope| -> Result<ValueStats> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(usize, Vec<f32>)>>(2);
+        let (back_tx, back_rx) = std::sync::mpsc::channel::<Vec<f32>>();
+        let reader = scope.spawn(move || {
+            let mut st = ValueStats {
+                non_finite: 0,
+                lo: f32::INFINITY,
+                hi: f32::NEG_INFINITY,
+                pos_lo: f32::INFINITY,
+            };
+            for z in 0..nz {
+                let mut buf = back_rx.try_recv().unwrap_or_default();
+                buf.resize(slice_len, 0.0);
+                let r = source.read_slice(z, &mut buf).map(|()| {
+                    for &v in &buf {
+                        if v.is_finite() {
+                            st.lo = st.lo.min(v);
+                            st.hi = st.hi.max(v);
+                            if v > 0.0 {
+                                st.pos_lo = st.pos_lo.min(v);
+                            }
+                        } else {
+                            st.non_finite += 1;
+                        }
+                    }
+                    (z, buf)
+                });
+                let failed = r.is_err();
+                if tx.send(r).is_err() || failed {
+                    break;
+                }
+            }
+            st
+        });
+        for r in &rx {
+            let (z, slice) = r?;
+            progress(z as u64 + 1, nz as u64);
+            for b in w.push(0, z, slice)? {
+                let _ = back_tx.send(b);
+            }
+        }
+        drop(rx);
+        reader
+            .join()
+            .map_err(|_| Error::invalid("the volume reader thread panicked"))
+    })?;
+    if w.levels.iter().any(|l| l.next_slab != l.nb[2]) {
+        return Err(Error::invalid(
+            "the source ended before every slice was read",
+        ));
+    }
+    file.write_all_at(&u64_bytes(&w.checksums), plan.checksum_offset)?;
+    let header = header(&plan, &layout, g0, name, &stats);
+    file.write_all_at(&header, 0)?;
+    tmp.persist(out).map_err(|e| Error::Io(e.error))?;
     Ok(())
 }
 
-type BrickKey = (u32, u64);
-/// A decoded brick and the tick of its last use.
-type Slot = Option<(Arc<[f32]>, u64)>;
-
-/// Decoded bricks: one slot per brick of every level (indexing instead of hashing keeps warm
-/// lookups cheap), plus the list of occupied slots for least-recently-used eviction.
-#[derive(Debug, Default)]
-struct Cache {
-    slots: Vec<Vec<Slot>>,
-    resident: Vec<BrickKey>,
-    tick: u64,
+fn u64_bytes(v: &[u64]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
-/// A bricked file opened through a memory map, with a bounded cache of decoded bricks.
-///
-/// Sampling is `&self` and thread-safe (the cache sits behind a mutex).
+fn header(
+    plan: &Plan,
+    layout: &BrickLayout,
+    g0: Geometry,
+    name: &[u8],
+    stats: &ValueStats,
+) -> Vec<u8> {
+    let mut h = vec![0u8; HEADER_BYTES as usize];
+    let mut put = |at: usize, b: &[u8]| h[at..at + b.len()].copy_from_slice(b);
+    put(0, MAGIC);
+    put(8, &VERSION.to_le_bytes());
+    put(12, &(layout.brick as u32).to_le_bytes());
+    put(16, &(layout.apron as u32).to_le_bytes());
+    put(20, &(plan.geoms.len() as u32).to_le_bytes());
+    for (a, d) in g0.dims.iter().enumerate() {
+        put(24 + 8 * a, &(*d as u64).to_le_bytes());
+    }
+    for a in 0..3 {
+        put(48 + 4 * a, &g0.origin[a].to_le_bytes());
+        put(60 + 4 * a, &g0.spacing[a].to_le_bytes());
+    }
+    put(72, &type_code(plan.types[0]).to_le_bytes());
+    put(76, &(name.len() as u32).to_le_bytes());
+    put(80, name);
+    put(336, &(plan.k as u32).to_le_bytes());
+    put(
+        340,
+        &plan
+            .macro_offsets
+            .first()
+            .copied()
+            .unwrap_or(0)
+            .to_le_bytes(),
+    );
+    put(348, &plan.checksum_offset.to_le_bytes());
+    put(356, &stats.non_finite.to_le_bytes());
+    let finite = stats.lo <= stats.hi;
+    let or_nan = |v: f32, ok: bool| if ok { v } else { f32::NAN };
+    put(364, &or_nan(stats.lo, finite).to_le_bytes());
+    put(368, &or_nan(stats.hi, finite).to_le_bytes());
+    put(372, &plan.total.to_le_bytes());
+    put(
+        380,
+        &or_nan(stats.pos_lo, stats.pos_lo.is_finite()).to_le_bytes(),
+    );
+    h
+}
+
+/// The bricks of an opened `.bsv` file: what [`BrickCache`]s read.
 #[derive(Debug)]
-pub struct BrickedFile {
-    map: memmap2::Mmap,
+pub struct FileBricks {
+    uid: u64,
+    file: File,
     layout: BrickLayout,
-    geoms: Vec<Geometry>,
-    types: Vec<ScalarType>,
-    offsets: Vec<u64>,
+    plan: Plan,
     name: String,
-    capacity: usize,
-    cache: Mutex<Cache>,
+    checksums: Vec<u64>,
+    non_finite: u64,
+    range: Option<(f32, f32)>,
+    positive_min: Option<f32>,
 }
 
-impl BrickedFile {
-    /// Opens a bricked file; at most `cache_bricks` (at least 1) decoded bricks are kept.
-    pub fn open(path: &Path, cache_bricks: usize) -> Result<Self> {
-        let file = File::open(path)?;
-        // SAFETY: the map is read-only and this crate never writes to the file while it is
-        // mapped; as with any memory map, another process truncating the file underneath
-        // is outside what safe code can guard against.
-        #[allow(unsafe_code)]
-        let map = unsafe { memmap2::Mmap::map(&file)? };
-        let h = &map[..];
+impl BrickSource for FileBricks {
+    fn uid(&self) -> u64 {
+        self.uid
+    }
+    fn layout(&self) -> BrickLayout {
+        self.layout
+    }
+    fn geometries(&self) -> &[Geometry] {
+        &self.plan.geoms
+    }
+    fn read_brick(&self, level: usize, idx: u64) -> Result<Vec<f32>> {
+        let s = self.layout.stored_edge();
+        let t = self.plan.types[level];
+        let bytes_per = s * s * s * t.size_bytes();
+        let at = self.plan.offsets[level] + idx * bytes_per as u64;
+        let want = self.checksums[self.plan.first_brick[level] + idx as usize];
+        let bad = || {
+            Error::invalid(format!(
+                "bricked file '{}': brick {idx} of level {level} is corrupt (checksum mismatch)",
+                self.name
+            ))
+        };
+        if t == ScalarType::F32 && cfg!(target_endian = "little") {
+            let mut v = vec![0f32; s * s * s];
+            self.file
+                .read_exact_at(bytemuck::cast_slice_mut(&mut v), at)?;
+            if checksum(bytemuck::cast_slice(&v)) != want {
+                return Err(bad());
+            }
+            return Ok(v);
+        }
+        let mut buf = vec![0u8; bytes_per];
+        self.file.read_exact_at(&mut buf, at)?;
+        if checksum(&buf) != want {
+            return Err(bad());
+        }
+        Ok(decode(&buf, t))
+    }
+    fn stored_macrocells(&self, level: usize, k: usize) -> Result<Option<Macrocells>> {
+        if k != self.plan.k || k == 0 || level >= self.plan.geoms.len() {
+            return Ok(None);
+        }
+        let g = self.plan.geoms[level];
+        let c = macro_dims(&g, k);
+        let cells = c[0] * c[1] * c[2];
+        let mut buf = vec![0f32; 2 * cells];
+        self.file.read_exact_at(
+            bytemuck::cast_slice_mut(&mut buf),
+            self.plan.macro_offsets[level],
+        )?;
+        if cfg!(target_endian = "big") {
+            for v in &mut buf {
+                *v = f32::from_le_bytes(v.to_ne_bytes());
+            }
+        }
+        let max = buf.split_off(cells);
+        Macrocells::from_parts(g, k, buf, max)
+            .map(Some)
+            .map_err(|e| Error::invalid(format!("bricked file '{}': {e}", self.name)))
+    }
+    fn finite_range(&self) -> Option<(f32, f32)> {
+        self.range
+    }
+    fn non_finite(&self) -> u64 {
+        self.non_finite
+    }
+    fn positive_min(&self) -> Option<f32> {
+        self.positive_min
+    }
+}
+
+impl FileBricks {
+    fn open(path: &Path) -> Result<Self> {
+        let mut file = File::open(path)?;
+        if !file.metadata()?.is_file() {
+            return Err(Error::invalid(format!(
+                "not a regular file: {}",
+                path.display()
+            )));
+        }
+        let len = file.metadata()?.len();
+        let mut h = vec![0u8; HEADER_BYTES as usize];
+        let n = file.read(&mut h)?;
+        h.truncate(n);
         if h.len() < 80 || !h.starts_with(MAGIC) {
             return Err(Error::invalid(format!(
                 "not a bricked volume file: {}",
@@ -559,14 +964,22 @@ impl BrickedFile {
             )));
         }
         let u32_at = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]);
-        let u64_at = |o: usize| u64::from_le_bytes(h[o..o + 8].try_into().expect("8 bytes"));
-        let f32_at = |o: usize| f32::from_le_bytes(h[o..o + 4].try_into().expect("4 bytes"));
         if u32_at(8) != VERSION {
             return Err(Error::unsupported(format!(
-                "bricked file version {}",
-                u32_at(8)
+                "bricked file version {} (this build reads version {VERSION}; convert the \
+                 source again): {}",
+                u32_at(8),
+                path.display()
             )));
         }
+        if h.len() < HEADER_BYTES as usize {
+            return Err(Error::invalid(format!(
+                "truncated bricked file header: {}",
+                path.display()
+            )));
+        }
+        let u64_at = |o: usize| u64::from_le_bytes(h[o..o + 8].try_into().expect("8 bytes"));
+        let f32_at = |o: usize| f32::from_le_bytes(h[o..o + 4].try_into().expect("4 bytes"));
         let layout = BrickLayout {
             brick: u32_at(12) as usize,
             apron: u32_at(16) as usize,
@@ -579,12 +992,10 @@ impl BrickedFile {
             *d = usize::try_from(u64_at(24 + 8 * a))
                 .map_err(|_| Error::invalid("bricked file: dims overflow"))?;
         }
-        let origin = Vec3::new(f32_at(48), f32_at(52), f32_at(56));
-        let spacing = Vec3::new(f32_at(60), f32_at(64), f32_at(68));
         let g0 = Geometry {
             dims,
-            origin,
-            spacing,
+            origin: Vec3::new(f32_at(48), f32_at(52), f32_at(56)),
+            spacing: Vec3::new(f32_at(60), f32_at(64), f32_at(68)),
         };
         g0.validate()
             .map_err(|e| Error::invalid(format!("bricked file: {e}")))?;
@@ -595,48 +1006,81 @@ impl BrickedFile {
         if name_len > 255 {
             return Err(Error::invalid("bricked file: channel name too long"));
         }
-        let name = String::from_utf8(
-            h.get(80..80 + name_len)
-                .ok_or_else(|| Error::invalid("truncated bricked file header"))?
-                .to_vec(),
-        )
-        .map_err(|_| Error::invalid("bricked file: name is not UTF-8"))?;
-        let geoms = level_geometries(g0, layout.brick);
-        if geoms.len() != u32_at(20) as usize {
+        let name = String::from_utf8(h[80..80 + name_len].to_vec())
+            .map_err(|_| Error::invalid("bricked file: name is not UTF-8"))?;
+        let k = u32_at(336) as usize;
+        if k != 0 && k != stored_k(&layout) {
+            return Err(Error::invalid("bricked file: bad macrocell edge"));
+        }
+        let plan = Plan::new(g0, &layout, t0, k)?;
+        if plan.geoms.len() != u32_at(20) as usize {
             return Err(Error::invalid(
                 "bricked file: level count does not match the dimensions",
             ));
         }
-        let types = level_types(geoms.len(), t0);
-        let (offsets, total) = level_offsets(&geoms, &layout, &types)?;
-        if (h.len() as u64) < total {
+        if u64_at(340) != plan.macro_offsets.first().copied().unwrap_or(0)
+            || u64_at(348) != plan.checksum_offset
+            || u64_at(372) != plan.total
+        {
+            return Err(Error::invalid(
+                "bricked file: section offsets do not match the dimensions",
+            ));
+        }
+        if len < plan.total {
             return Err(Error::invalid(format!(
-                "truncated bricked file: {} bytes, {total} expected: {}",
-                h.len(),
+                "truncated bricked file: {len} bytes, {} expected: {}",
+                plan.total,
                 path.display()
             )));
         }
-        // The file holds every brick (checked above), so these slots are bounded by its size.
-        let slots = geoms
-            .iter()
-            .map(|g| {
-                let b = layout.bricks(g.dims);
-                vec![None; b[0] * b[1] * b[2]]
-            })
+        let n_bricks =
+            usize::try_from((plan.total - plan.checksum_offset) / 8).map_err(|_| overflow())?;
+        let mut sums = vec![0u8; n_bricks * 8];
+        file.read_exact_at(&mut sums, plan.checksum_offset)?;
+        let checksums = sums
+            .chunks_exact(8)
+            .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
             .collect();
-        let cache = Mutex::new(Cache {
-            slots,
-            resident: Vec::new(),
-            tick: 0,
-        });
-        Ok(BrickedFile {
-            map,
+        let (lo, hi) = (f32_at(364), f32_at(368));
+        Ok(FileBricks {
+            uid: next_uid(),
+            file,
             layout,
-            geoms,
-            types,
-            offsets,
+            plan,
             name,
-            capacity: cache_bricks.max(1),
+            checksums,
+            non_finite: u64_at(356),
+            range: (lo <= hi).then_some((lo, hi)),
+            positive_min: Some(f32_at(380)).filter(|v| *v > 0.0 && v.is_finite()),
+        })
+    }
+}
+
+/// A bricked file opened for sampling through a [`BrickCache`].
+#[derive(Clone, Debug)]
+pub struct BrickedFile {
+    bricks: Arc<FileBricks>,
+    cache: Arc<BrickCache>,
+}
+
+impl BrickedFile {
+    /// Opens a bricked file with a cache of its own holding at most `cache_bricks` (at least
+    /// 1) decoded bricks.
+    pub fn open(path: &Path, cache_bricks: usize) -> Result<Self> {
+        let bricks = FileBricks::open(path)?;
+        let s = bricks.layout.stored_edge();
+        let cache = BrickCache::new(cache_bricks.max(1).saturating_mul(s * s * s * 4));
+        Ok(BrickedFile {
+            bricks: Arc::new(bricks),
+            cache,
+        })
+    }
+
+    /// Opens a bricked file that samples through `cache` (shared with other channels).
+    /// Opening reads the header and the checksum table only.
+    pub fn open_with_cache(path: &Path, cache: Arc<BrickCache>) -> Result<Self> {
+        Ok(BrickedFile {
+            bricks: Arc::new(FileBricks::open(path)?),
             cache,
         })
     }
@@ -644,151 +1088,101 @@ impl BrickedFile {
     /// Name of the stored channel.
     #[must_use]
     pub fn channel_name(&self) -> &str {
-        &self.name
+        &self.bricks.name
     }
 
     /// Storage type of level 0 (coarser levels are f32).
     #[must_use]
     pub fn level0_type(&self) -> ScalarType {
-        self.types[0]
+        self.bricks.plan.types[0]
     }
 
     /// Brick edge and apron.
     #[must_use]
     pub fn layout(&self) -> BrickLayout {
-        self.layout
+        self.bricks.layout
     }
 
     /// Number of levels of detail (level 0 is the finest).
     #[must_use]
     pub fn levels(&self) -> usize {
-        self.geoms.len()
+        self.bricks.plan.geoms.len()
     }
 
     /// Geometry of `level`.
     #[must_use]
     pub fn level_geometry(&self, level: usize) -> Option<Geometry> {
-        self.geoms.get(level).copied()
+        self.bricks.plan.geoms.get(level).copied()
     }
 
-    /// A [`Sampler`] over one level.
-    pub fn level(&self, level: usize) -> Result<LevelSampler<'_>> {
-        if level >= self.geoms.len() {
-            return Err(Error::parameter(format!(
-                "level {level} of {}",
-                self.geoms.len()
-            )));
-        }
+    /// Geometries of every level, finest first.
+    #[must_use]
+    pub fn geometries(&self) -> &[Geometry] {
+        &self.bricks.plan.geoms
+    }
+
+    /// The cache this file samples through.
+    #[must_use]
+    pub fn cache(&self) -> &Arc<BrickCache> {
+        &self.cache
+    }
+
+    /// The brick source (for [`crate::field::CombinedSource`] and custom caches).
+    #[must_use]
+    pub fn source(&self) -> Arc<dyn BrickSource> {
+        self.bricks.clone()
+    }
+
+    /// Level `level` as a [`crate::Field`]-ready sampler through this file's cache.
+    pub fn field(&self, level: usize) -> Result<BrickedField> {
+        BrickedField::new(self.source(), self.cache.clone(), level)
+    }
+
+    /// A [`Sampler`] over one level (errors are returned per sample).
+    pub fn level(&self, level: usize) -> Result<LevelSampler> {
         Ok(LevelSampler {
-            file: self,
-            level,
-            last: std::cell::RefCell::new(None),
+            field: self.field(level)?,
         })
     }
 
-    /// Number of decoded bricks held now.
+    /// Number of decoded bricks held now by the cache.
     #[must_use]
     pub fn resident_bricks(&self) -> usize {
-        self.cache.lock().map(|c| c.resident.len()).unwrap_or(0)
+        self.cache.stats().resident_bricks
     }
 
     /// Drops every cached brick (a cold cache).
     pub fn clear_cache(&self) {
-        if let Ok(mut c) = self.cache.lock() {
-            let c = &mut *c;
-            for (l, i) in c.resident.drain(..) {
-                c.slots[l as usize][i as usize] = None;
-            }
-        }
-    }
-
-    fn brick_of(&self, level: usize, v: [usize; 3]) -> u64 {
-        let nb = self.layout.bricks(self.geoms[level].dims);
-        let b = v.map(|c| c / self.layout.brick);
-        (b[0] + nb[0] * (b[1] + nb[1] * b[2])) as u64
+        self.cache.clear();
     }
 
     /// The finest level whose brick around world position `p` is already in the cache, for
     /// progressive refinement; `None` if no level is resident there.
     #[must_use]
     pub fn finest_resident_level(&self, p: Vec3) -> Option<usize> {
-        let cache = self.cache.lock().ok()?;
-        (0..self.geoms.len()).find(|&l| {
-            let g = self.geoms[l];
+        let layout = self.bricks.layout;
+        (0..self.levels()).find(|&l| {
+            let g = self.bricks.plan.geoms[l];
             let q = g.world_to_index(p);
             let v = [0, 1, 2].map(|a| {
                 if q[a].is_nan() {
                     0
                 } else {
-                    (q[a].max(0.0) as usize).min(g.dims[a] - 1)
+                    (q[a].max(0.0) as usize).min(g.dims[a] - 1) / layout.brick
                 }
             });
-            cache.slots[l][self.brick_of(l, v) as usize].is_some()
+            let nb = layout.bricks(g.dims);
+            let idx = (v[0] + nb[0] * (v[1] + nb[1] * v[2])) as u64;
+            self.cache.contains(self.bricks.as_ref(), l, idx)
         })
     }
 
-    fn brick(&self, level: usize, idx: u64) -> Result<Arc<[f32]>> {
-        let mut guard = self
-            .cache
-            .lock()
-            .map_err(|_| Error::invalid("brick cache poisoned"))?;
-        let c = &mut *guard;
-        c.tick += 1;
-        let tick = c.tick;
-        if let Some(e) = &mut c.slots[level][idx as usize] {
-            e.1 = tick;
-            return Ok(e.0.clone());
-        }
-        let data: Arc<[f32]> = self.read_brick_uncached(level, idx)?.into();
-        if c.resident.len() >= self.capacity {
-            // Evict the least recently used brick.
-            let slots = &c.slots;
-            if let Some(pos) = (0..c.resident.len()).min_by_key(|&i| {
-                let (l, b) = c.resident[i];
-                slots[l as usize][b as usize].as_ref().map_or(0, |e| e.1)
-            }) {
-                let (l, b) = c.resident.swap_remove(pos);
-                c.slots[l as usize][b as usize] = None;
-            }
-        }
-        c.slots[level][idx as usize] = Some((data.clone(), tick));
-        c.resident.push((level as u32, idx));
-        Ok(data)
-    }
-
     /// Loads a whole level into memory (checked against `limits`), in its storage type.
-    pub fn load_level(&self, level: usize, limits: &Limits) -> Result<crate::AnyGrid> {
-        let g = self
-            .level_geometry(level)
-            .ok_or_else(|| Error::parameter(format!("level {level}")))?;
-        let mut out = Grid::<f32>::zeros(g, limits)?;
-        let [nx, ny, nz] = g.dims;
-        let (b, a, s) = (
-            self.layout.brick,
-            self.layout.apron,
-            self.layout.stored_edge(),
-        );
-        let nb = self.layout.bricks(g.dims);
-        let data = out.data_mut();
-        for bz in 0..nb[2] {
-            for by in 0..nb[1] {
-                for bx in 0..nb[0] {
-                    let brick =
-                        self.read_brick_uncached(level, (bx + nb[0] * (by + nb[1] * bz)) as u64)?;
-                    for z in bz * b..((bz + 1) * b).min(nz) {
-                        for y in by * b..((by + 1) * b).min(ny) {
-                            for x in bx * b..((bx + 1) * b).min(nx) {
-                                let l = (x - bx * b + a)
-                                    + s * ((y - by * b + a) + s * (z - bz * b + a));
-                                data[x + nx * (y + ny * z)] = brick[l];
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        let f = out.into_vec();
-        Ok(match self.types[level] {
+    pub fn load_level(&self, level: usize, limits: &Limits) -> Result<AnyGrid> {
+        let f = self.field(level)?.load(limits)?;
+        let g = *f.geometry();
+        let f = f.into_vec();
+        Ok(match self.bricks.plan.types[level] {
             ScalarType::U8 => Grid::from_vec(g, f.into_iter().map(|v| v as u8).collect())?.into(),
             ScalarType::U16 => Grid::from_vec(g, f.into_iter().map(|v| v as u16).collect())?.into(),
             ScalarType::F16 => {
@@ -797,79 +1191,21 @@ impl BrickedFile {
             _ => Grid::from_vec(g, f)?.into(),
         })
     }
-
-    fn read_brick_uncached(&self, level: usize, idx: u64) -> Result<Vec<f32>> {
-        let s = self.layout.stored_edge();
-        let t = self.types[level];
-        let bytes_per = (s * s * s * t.size_bytes()) as u64;
-        let start = usize::try_from(self.offsets[level] + idx * bytes_per)
-            .map_err(|_| Error::invalid("bricked file: brick offset overflows"))?;
-        let bytes = self
-            .map
-            .get(start..start + bytes_per as usize)
-            .ok_or_else(|| Error::invalid("bricked file: brick outside the file"))?;
-        Ok(decode_values(bytes, t))
-    }
 }
 
 /// One level of a [`BrickedFile`] as a [`Sampler`]; gives the same values as trilinear
-/// sampling of the in-core grid, voxel for voxel.
-///
-/// It remembers the last brick it used, so coherent samples (along a ray) skip the shared
-/// cache; make one sampler per thread (it is `Send`, not `Sync`). The remembered brick may
-/// outlive its eviction from the cache by one brick per sampler.
-#[derive(Debug)]
-pub struct LevelSampler<'a> {
-    file: &'a BrickedFile,
-    level: usize,
-    last: std::cell::RefCell<Option<(u64, Arc<[f32]>)>>,
+/// sampling of the in-core grid, voxel for voxel, and returns read failures per sample.
+#[derive(Clone, Debug)]
+pub struct LevelSampler {
+    field: BrickedField,
 }
 
-impl Sampler for LevelSampler<'_> {
+impl Sampler for LevelSampler {
     fn geometry(&self) -> Geometry {
-        self.file.geoms[self.level]
+        *self.field.geometry()
     }
 
     fn sample_index(&self, p: Vec3) -> Result<f32> {
-        let g = self.file.geoms[self.level];
-        let [nx, ny, nz] = g.dims;
-        let max = Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32);
-        let p = p.max(Vec3::ZERO).min(max);
-        let p = Vec3::new(
-            if p.x.is_nan() { 0.0 } else { p.x },
-            if p.y.is_nan() { 0.0 } else { p.y },
-            if p.z.is_nan() { 0.0 } else { p.z },
-        );
-        let f = p.floor();
-        let t = p - f;
-        let v0 = [f.x as usize, f.y as usize, f.z as usize];
-        let idx = self.file.brick_of(self.level, v0);
-        let mut last = self.last.borrow_mut();
-        let brick = match &*last {
-            Some((i, b)) if *i == idx => b.clone(),
-            _ => {
-                let b = self.file.brick(self.level, idx)?;
-                *last = Some((idx, b.clone()));
-                b
-            }
-        };
-        drop(last);
-        let (b, a, s) = (
-            self.file.layout.brick,
-            self.file.layout.apron,
-            self.file.layout.stored_edge(),
-        );
-        // Local coordinates of v0; v0 + 1 lies in the apron, which repeats the edge voxel
-        // exactly where the in-core sampler clamps.
-        let l = v0.map(|c| c % b + a);
-        let v = |dx: usize, dy: usize, dz: usize| {
-            brick[(l[0] + dx) + s * ((l[1] + dy) + s * (l[2] + dz))]
-        };
-        let lerp = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
-        let c00 = lerp(v(0, 0, 0), v(1, 0, 0), t.x);
-        let c10 = lerp(v(0, 1, 0), v(1, 1, 0), t.x);
-        let c01 = lerp(v(0, 0, 1), v(1, 0, 1), t.x);
-        let c11 = lerp(v(0, 1, 1), v(1, 1, 1), t.x);
-        Ok(lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z))
+        self.field.try_sample_index(p)
     }
 }

@@ -158,7 +158,12 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-fn brick(src: &mut dyn SlabSource, args: &Args, name: &str, layout: BrickLayout) -> Result<()> {
+fn brick(
+    src: &mut (dyn SlabSource + Send),
+    args: &Args,
+    name: &str,
+    layout: BrickLayout,
+) -> Result<()> {
     let pb = progress_bar(src.geometry().dims[2] as u64);
     output::write_via_temp_path(&args.output, |tmp| {
         ooc::convert(src, tmp, name, layout, &mut |done, total| {

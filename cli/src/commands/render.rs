@@ -158,6 +158,15 @@ pub struct Args {
     /// Print a JSON summary on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Out-of-core (.bsv) channels: budget of the brick cache they share, MiB [default: a
+    /// quarter of physical memory]. The image does not depend on it.
+    #[arg(long, value_name = "MIB")]
+    pub cache_mb: Option<u64>,
+    /// Level of detail of .bsv channels: exact (the finest level: the in-core image, the
+    /// default), auto (the coarsest level whose voxels are no larger than a pixel where the
+    /// volume is nearest to the camera), or a level number (0 = finest).
+    #[arg(long)]
+    pub lod: Option<String>,
     /// Where to render: cpu (default, bit-reproducible), gpu (a wgpu adapter or an error)
     /// or auto (a hardware GPU when present, or the adapter $BLUESHIFT_GPU forces, else the
     /// CPU). The GPU supports every method, blend and light; shading, heat maps and
@@ -296,6 +305,7 @@ pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
                 blueshift_tracking::Error::Parameter(m) => anyhow!("--{m}"),
                 other => other.into(),
             })?,
+        lod: args.lod.clone(),
         base: None,
     });
     if f.channels.is_empty() {
@@ -342,9 +352,60 @@ pub fn run(args: Args) -> Result<()> {
     }
 }
 
+/// The brick cache of out-of-core channels for `--cache-mb` (checked: at least 1 MiB).
+pub(crate) fn brick_cache(
+    cache_mb: Option<u64>,
+) -> Result<std::sync::Arc<blueshift_volume::BrickCache>> {
+    let bytes = match cache_mb {
+        None => blueshift_volume::cache::default_budget(),
+        Some(0) => bail!("--cache-mb: must be at least 1"),
+        Some(mb) => usize::try_from(mb.saturating_mul(1 << 20)).unwrap_or(usize::MAX),
+    };
+    Ok(blueshift_volume::BrickCache::new(bytes))
+}
+
+/// One line on stderr about the out-of-core reads of a render (nothing for in-core scenes).
+pub(crate) fn report_cache(cache: &blueshift_volume::BrickCache, level: Option<usize>) {
+    let s = cache.stats();
+    if s.total_reads() == 0 && s.hits == 0 {
+        return;
+    }
+    let reads: Vec<String> = s
+        .reads
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| **n > 0)
+        .map(|(l, n)| format!("{n} at level {l}"))
+        .collect();
+    eprintln!(
+        "out-of-core: level {} sampled; bricks read: {} ({} prefetched); cache peak {:.1} MiB of {:.1} MiB",
+        level.map_or_else(|| "-".to_owned(), |l| l.to_string()),
+        if reads.is_empty() {
+            "none".to_owned()
+        } else {
+            reads.join(", ")
+        },
+        s.prefetched,
+        s.peak_bytes as f64 / f64::from(1u32 << 20),
+        cache.budget() as f64 / f64::from(1u32 << 20),
+    );
+}
+
 fn run_inner(args: &Args) -> Result<()> {
     let f = merge(args)?;
-    let (scene, integrator, settings) = f.build()?;
+    let cache = brick_cache(args.cache_mb)?;
+    let memory = blueshift_tracking::scene_file::Preloaded {
+        cache: Some(cache.clone()),
+        ..Default::default()
+    };
+    let (scene, integrator, settings) = f.build_with(&memory)?;
+    let level = scene
+        .channels()
+        .iter()
+        .find_map(|c| c.grid().as_bricked().map(|b| b.level()));
+    if level.is_some() {
+        prefetch_view(&scene, &settings);
+    }
     let settings_camera = settings.camera;
     if f.tf_range.is_none() {
         warn_tf_domains(&scene);
@@ -405,6 +466,7 @@ fn run_inner(args: &Args) -> Result<()> {
         eprintln!("--device auto: {why}; rendering on the CPU");
     }
     let seconds = start.elapsed().as_secs_f64();
+    report_cache(&cache, level);
     let on_gpu = ran.device == blueshift_camera::DeviceKind::Gpu;
     let TrackingOutput {
         image: acc,
@@ -575,4 +637,31 @@ fn write_png_preview(
     };
     blueshift_tonemap::io::write_png(png, &display, blueshift_tonemap::io::PngDepth::Eight)
         .with_context(|| format!("cannot write {}", png.display()))
+}
+
+/// Queues the bricks of every out-of-core channel along a sparse grid of the view's rays
+/// (every 16th pixel, rows in render order) on the cache's I/O thread, so the first pass
+/// finds most bricks loaded.
+pub(crate) fn prefetch_view(
+    scene: &blueshift_tracking::Scene,
+    settings: &blueshift_tracking::RenderSettings,
+) {
+    let (w, h) = (settings.width, settings.height);
+    for c in scene.channels() {
+        let Some(b) = c.grid().as_bricked() else {
+            continue;
+        };
+        let mut order = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        let mut along = Vec::new();
+        for y in (0..h).step_by(16) {
+            for x in (0..w).step_by(16) {
+                let ray = settings.camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
+                along.clear();
+                b.bricks_along(ray.origin, ray.dir, &mut along);
+                order.extend(along.iter().filter(|i| seen.insert(**i)));
+            }
+        }
+        b.cache().prefetch(b.source().clone(), b.level(), order);
+    }
 }

@@ -16,6 +16,7 @@ use blueshift_tracking::{
     BlendKind, LightSpec, Method, Precision, Progressive, RenderSceneFile, RenderSettings, Scene,
     TrackingSession,
 };
+use blueshift_volume::Field;
 use image::Rgb32FImage;
 use serde_json::{Value, json};
 
@@ -81,11 +82,22 @@ impl TrackingMode {
             .channels()
             .iter()
             .map(|c| {
-                let g = c.grid();
-                let n = g.geometry().voxel_count();
-                histogram((0..n).map(|i| g.scalar_at(i)), 256)
+                // Out-of-core channels: the histogram of the coarsest level (the means of
+                // the finest voxels), so opening the viewer reads a few bricks only.
+                let coarse;
+                let g = match c.grid().as_bricked() {
+                    Some(b) => {
+                        coarse = Field::from(b.at_level(b.levels() - 1)?);
+                        &coarse
+                    }
+                    None => c.grid(),
+                };
+                let mut values = Vec::new();
+                g.for_each_block(|v| values.extend_from_slice(v))?;
+                Ok(histogram(values.into_iter(), 256))
             })
-            .collect();
+            .collect::<std::result::Result<_, blueshift_volume::Error>>()
+            .map_err(|e| Error::invalid(e.to_string()))?;
         display::operator(&src.tonemap, src.exposure)?;
         let mut mode = Self {
             session: TrackingSession::new(scene, integrator, settings)?,

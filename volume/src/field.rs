@@ -1,0 +1,901 @@
+//! The one field-source abstraction every integrator samples through: a dense in-memory
+//! grid, or one level of detail of bricked data (a `.bsv` file, or bricks derived from
+//! others) read through a bounded [`BrickCache`].
+//!
+//! Sampling a bricked level gives the same `f32`, bit for bit, as trilinear sampling of the
+//! dense grid of that level: the same clamping, the same interpolation in the same order,
+//! and the apron of each brick repeats exactly the voxels the dense sampler would read.
+//!
+//! # Levels of detail (HDR VolVis section 6.3)
+//!
+//! [`lod_level`] states the rule: the coarsest level whose voxel spacing is at most the
+//! footprint of one pixel where the volume is nearest to the camera, so no sample of the
+//! view is under-resolved and a zoomed-out view reads coarse bricks only.
+
+use std::cell::RefCell;
+use std::sync::Arc;
+
+use glam::Vec3;
+
+use crate::cache::{BrickCache, BrickSource, next_uid};
+use crate::grid::{AnyGrid, Geometry, Grid};
+use crate::macrocell::Macrocells;
+use crate::ooc::BrickLayout;
+use crate::{Error, Limits, Result};
+
+/// A scalar field: dense, or one level of bricked data.
+#[derive(Clone, Debug)]
+pub enum Field {
+    /// An in-memory grid.
+    Dense(AnyGrid),
+    /// One level of detail of bricked data behind a shared cache.
+    Bricked(BrickedField),
+}
+
+impl From<AnyGrid> for Field {
+    fn from(g: AnyGrid) -> Self {
+        Field::Dense(g)
+    }
+}
+
+impl<T: crate::Voxel> From<Grid<T>> for Field
+where
+    AnyGrid: From<Grid<T>>,
+{
+    fn from(g: Grid<T>) -> Self {
+        Field::Dense(g.into())
+    }
+}
+
+impl From<BrickedField> for Field {
+    fn from(b: BrickedField) -> Self {
+        Field::Bricked(b)
+    }
+}
+
+impl Field {
+    /// Geometry of the sampled grid (of the chosen level for bricked data).
+    #[must_use]
+    pub fn geometry(&self) -> &Geometry {
+        match self {
+            Field::Dense(g) => g.geometry(),
+            Field::Bricked(b) => &b.geometry,
+        }
+    }
+
+    /// True for a dense vector grid (bricked data is always scalar).
+    #[must_use]
+    pub fn is_vector(&self) -> bool {
+        matches!(self, Field::Dense(g) if g.is_vector())
+    }
+
+    /// The dense grid, if this field is one.
+    #[must_use]
+    pub fn as_dense(&self) -> Option<&AnyGrid> {
+        match self {
+            Field::Dense(g) => Some(g),
+            Field::Bricked(_) => None,
+        }
+    }
+
+    /// The bricked level, if this field is one.
+    #[must_use]
+    pub fn as_bricked(&self) -> Option<&BrickedField> {
+        match self {
+            Field::Dense(_) => None,
+            Field::Bricked(b) => Some(b),
+        }
+    }
+
+    /// Trilinear sample at continuous index coordinates, clamped to the grid (vector grids:
+    /// the length of the interpolated vector). A brick that cannot be read gives 0 and is
+    /// reported by [`Field::check_io`].
+    #[inline]
+    #[must_use]
+    pub fn sample_scalar_index(&self, p: Vec3) -> f32 {
+        match self {
+            Field::Dense(g) => g.sample_scalar_index(p),
+            Field::Bricked(b) => b.sample_index(p),
+        }
+    }
+
+    /// Voxel at linear index `i` (x fastest) as a scalar (vector grids: the length); a
+    /// bricked voxel is read through the cache (0 if its brick cannot be read, kept for
+    /// [`Field::check_io`]).
+    #[must_use]
+    pub fn scalar_at(&self, i: usize) -> f32 {
+        match self {
+            Field::Dense(g) => g.scalar_at(i),
+            Field::Bricked(b) => {
+                let [nx, ny, _] = b.geometry.dims;
+                b.voxel([i % nx, (i / nx) % ny, i / (nx * ny)])
+                    .unwrap_or_else(|e| {
+                        b.cache.record_error(&e);
+                        0.0
+                    })
+            }
+        }
+    }
+
+    /// Macrocells of edge `k` (stored in the `.bsv` file when it has them for `k`; otherwise
+    /// built brick by brick through the cache, never holding the whole level).
+    pub fn macrocells(&self, k: usize) -> Result<Macrocells> {
+        match self {
+            Field::Dense(g) => Macrocells::build_any(g, k),
+            Field::Bricked(b) => b.macrocells(k),
+        }
+    }
+
+    /// Range of the finite values.
+    #[must_use]
+    pub fn finite_range(&self) -> Option<(f32, f32)> {
+        match self {
+            Field::Dense(g) => g.finite_range(),
+            Field::Bricked(b) => b.source.finite_range(),
+        }
+    }
+
+    /// Smallest positive and largest finite value, where some value is positive (for
+    /// logarithmic axes).
+    #[must_use]
+    pub fn positive_range(&self) -> Option<(f32, f32)> {
+        match self {
+            Field::Dense(g) => {
+                let (mut lo, mut hi) = (f32::INFINITY, 0.0f32);
+                for k in 0..g.geometry().voxel_count() {
+                    let v = g.scalar_at(k);
+                    if v.is_finite() && v > 0.0 {
+                        lo = lo.min(v);
+                        hi = hi.max(v);
+                    }
+                }
+                (hi > 0.0).then_some((lo, hi))
+            }
+            Field::Bricked(b) => {
+                let lo = b.source.positive_min()?;
+                let (_, hi) = b.source.finite_range()?;
+                Some((lo, hi))
+            }
+        }
+    }
+
+    /// Geometry of the finest level (the field's own for dense grids): cameras frame this,
+    /// so every level of detail is seen through the same view.
+    #[must_use]
+    pub fn finest_geometry(&self) -> &Geometry {
+        match self {
+            Field::Dense(g) => g.geometry(),
+            Field::Bricked(b) => &b.source.geometries()[0],
+        }
+    }
+
+    /// The type voxels are held in (bricked data: decoded f32).
+    #[must_use]
+    pub fn scalar_type(&self) -> crate::ScalarType {
+        match self {
+            Field::Dense(g) => g.scalar_type(),
+            Field::Bricked(_) => crate::ScalarType::F32,
+        }
+    }
+
+    /// Calls `f` on the field's voxels block by block: the whole grid at once for a dense
+    /// field (x fastest), each brick's own voxels for a bricked one (read past the cache, so
+    /// a pass over the volume does not evict what the renderer holds).
+    pub fn for_each_block(&self, mut f: impl FnMut(&[f32])) -> Result<()> {
+        match self {
+            Field::Dense(g) => {
+                f(&g.to_f32_vec());
+                Ok(())
+            }
+            Field::Bricked(b) => {
+                let nb = b.bricks;
+                let mut own = Vec::new();
+                for idx in 0..(nb[0] * nb[1] * nb[2]) as u64 {
+                    b.own_voxels(idx, &mut own)?;
+                    f(&own);
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Mean of the voxels (0 for none).
+    pub fn mean(&self) -> Result<f64> {
+        let (mut s, mut n) = (0.0f64, 0usize);
+        self.for_each_block(|v| {
+            s += v.iter().map(|&x| f64::from(x)).sum::<f64>();
+            n += v.len();
+        })?;
+        Ok(if n == 0 { 0.0 } else { s / n as f64 })
+    }
+
+    /// Mean weighted by `weights` voxel by voxel (same geometry; bricked fields: same
+    /// layout); `None` when the weights sum to 0.
+    pub fn weighted_mean(&self, weights: &Field) -> Result<Option<f64>> {
+        let (mut s, mut w) = (0.0f64, 0.0f64);
+        let mut acc = |v: &[f32], d: &[f32]| {
+            for (&a, &b) in v.iter().zip(d) {
+                s += f64::from(a) * f64::from(b);
+                w += f64::from(b);
+            }
+        };
+        match (self, weights) {
+            (Field::Bricked(a), Field::Bricked(b))
+                if a.bricks == b.bricks && a.layout == b.layout =>
+            {
+                let nb = a.bricks;
+                let (mut x, mut y) = (Vec::new(), Vec::new());
+                for idx in 0..(nb[0] * nb[1] * nb[2]) as u64 {
+                    a.own_voxels(idx, &mut x)?;
+                    b.own_voxels(idx, &mut y)?;
+                    acc(&x, &y);
+                }
+            }
+            (Field::Dense(_), Field::Dense(_)) => {
+                let (v, d) = (
+                    self.to_dense(&Limits::no_limits())?,
+                    weights.to_dense(&Limits::no_limits())?,
+                );
+                acc(&v.to_f32_vec(), &d.to_f32_vec());
+            }
+            _ => {
+                return Err(Error::parameter(
+                    "a weighted mean needs both fields in memory or both bricked alike",
+                ));
+            }
+        }
+        Ok((w > 0.0).then(|| s / w))
+    }
+
+    /// Refuses NaN or infinite values (bricked files count them when written).
+    pub fn reject_non_finite(&self) -> Result<()> {
+        match self {
+            Field::Dense(g) => g.reject_non_finite(),
+            Field::Bricked(b) => match b.source.non_finite() {
+                0 => Ok(()),
+                n => Err(Error::invalid(format!(
+                    "{n} voxels are NaN or infinite in the bricked data"
+                ))),
+            },
+        }
+    }
+
+    /// The first brick read that failed while sampling, as an error (dense fields: `Ok`).
+    pub fn check_io(&self) -> Result<()> {
+        match self {
+            Field::Dense(_) => Ok(()),
+            Field::Bricked(b) => b.cache.take_error(),
+        }
+    }
+
+    /// The values as f32, x fastest (vector grids: lengths); a bricked level is loaded whole
+    /// (what the GPU backends upload; checked against the default [`Limits`]).
+    pub fn dense_f32(&self) -> Result<Vec<f32>> {
+        match self {
+            Field::Dense(g) => Ok(g.to_f32_vec()),
+            Field::Bricked(b) => Ok(b.load(&Limits::default())?.into_vec()),
+        }
+    }
+
+    /// The field as a dense grid: the grid itself, or its level loaded whole (checked
+    /// against `limits` before allocating).
+    pub fn to_dense(&self, limits: &Limits) -> Result<AnyGrid> {
+        match self {
+            Field::Dense(g) => Ok(g.clone()),
+            Field::Bricked(b) => b.load(limits).map(AnyGrid::from),
+        }
+    }
+}
+
+/// A vector field (velocity): a dense `Vec3` grid, or three scalar fields (bricked files hold
+/// scalars). Both sample bit-identically for the same voxels.
+#[derive(Clone, Debug)]
+pub enum VectorField {
+    /// An in-memory vector grid.
+    Dense(Grid<Vec3>),
+    /// x, y and z components.
+    Components(Box<[Field; 3]>),
+}
+
+impl From<Grid<Vec3>> for VectorField {
+    fn from(g: Grid<Vec3>) -> Self {
+        VectorField::Dense(g)
+    }
+}
+
+impl VectorField {
+    /// Geometry of the field.
+    #[must_use]
+    pub fn geometry(&self) -> &Geometry {
+        match self {
+            VectorField::Dense(g) => g.geometry(),
+            VectorField::Components(c) => c[0].geometry(),
+        }
+    }
+
+    /// Trilinear sample at continuous index coordinates.
+    #[inline]
+    #[must_use]
+    pub fn sample_index(&self, p: Vec3) -> Vec3 {
+        match self {
+            VectorField::Dense(g) => g.sample_trilinear_index(p),
+            VectorField::Components(c) => Vec3::new(
+                c[0].sample_scalar_index(p),
+                c[1].sample_scalar_index(p),
+                c[2].sample_scalar_index(p),
+            ),
+        }
+    }
+
+    /// The largest speed (dense: over the voxels; components: a bound from each component's
+    /// range), m/s in the field's units.
+    #[must_use]
+    pub fn max_speed(&self) -> f64 {
+        match self {
+            VectorField::Dense(g) => g
+                .data()
+                .iter()
+                .fold(0.0f64, |m, x| m.max(f64::from(x.length()))),
+            VectorField::Components(c) => c
+                .iter()
+                .map(|f| {
+                    f.finite_range()
+                        .map_or(0.0, |(lo, hi)| f64::from(lo.abs().max(hi.abs())))
+                })
+                .map(|m| m * m)
+                .sum::<f64>()
+                .sqrt(),
+        }
+    }
+
+    /// The dense grid, if this field is one.
+    #[must_use]
+    pub fn as_dense(&self) -> Option<&Grid<Vec3>> {
+        match self {
+            VectorField::Dense(g) => Some(g),
+            VectorField::Components(_) => None,
+        }
+    }
+
+    /// The field as a dense vector grid (components loaded whole, checked against `limits`).
+    pub fn to_dense(&self, limits: &Limits) -> Result<Grid<Vec3>> {
+        match self {
+            VectorField::Dense(g) => Ok(g.clone()),
+            VectorField::Components(c) => {
+                let g = *c[0].geometry();
+                limits.check(g.dims, 12)?;
+                let parts = [
+                    c[0].to_dense(limits)?,
+                    c[1].to_dense(limits)?,
+                    c[2].to_dense(limits)?,
+                ];
+                let n = g.voxel_count();
+                let data = (0..n)
+                    .map(|i| {
+                        Vec3::new(
+                            parts[0].scalar_at(i),
+                            parts[1].scalar_at(i),
+                            parts[2].scalar_at(i),
+                        )
+                    })
+                    .collect();
+                Grid::from_vec(g, data)
+            }
+        }
+    }
+
+    /// The vectors as x, y, z f32 triples, x fastest (components are loaded whole).
+    pub fn dense_xyz(&self) -> Result<Vec<f32>> {
+        match self {
+            VectorField::Dense(g) => Ok(g.data().iter().flat_map(|p| p.to_array()).collect()),
+            VectorField::Components(_) => Ok(self
+                .to_dense(&Limits::default())?
+                .data()
+                .iter()
+                .flat_map(|p| p.to_array())
+                .collect()),
+        }
+    }
+
+    /// The first failed brick read of any component.
+    pub fn check_io(&self) -> Result<()> {
+        match self {
+            VectorField::Dense(_) => Ok(()),
+            VectorField::Components(c) => c.iter().try_for_each(Field::check_io),
+        }
+    }
+}
+
+/// Slots of recently used bricks per thread (direct-mapped by source identity).
+const RECENT: usize = 16;
+
+type Recent = [Option<(u64, u32, u64, Arc<[f32]>)>; RECENT];
+
+thread_local! {
+    static RECENT_BRICKS: RefCell<Recent> = const { RefCell::new([const { None }; RECENT]) };
+}
+
+/// One level of detail of a [`BrickSource`], sampled through a shared [`BrickCache`].
+///
+/// Each sampling thread keeps the brick it used last for this source, so coherent samples
+/// along a ray touch neither the cache's lock nor a reference count.
+#[derive(Clone, Debug)]
+pub struct BrickedField {
+    source: Arc<dyn BrickSource>,
+    cache: Arc<BrickCache>,
+    level: usize,
+    geometry: Geometry,
+    layout: BrickLayout,
+    bricks: [usize; 3],
+}
+
+impl BrickedField {
+    /// Level `level` of `source`, read through `cache`.
+    pub fn new(source: Arc<dyn BrickSource>, cache: Arc<BrickCache>, level: usize) -> Result<Self> {
+        let geometry = *source.geometries().get(level).ok_or_else(|| {
+            Error::parameter(format!(
+                "level {level} of a bricked volume with {} levels",
+                source.geometries().len()
+            ))
+        })?;
+        let layout = source.layout();
+        Ok(BrickedField {
+            bricks: layout.bricks(geometry.dims),
+            source,
+            cache,
+            level,
+            geometry,
+            layout,
+        })
+    }
+
+    /// The same source at another level.
+    pub fn at_level(&self, level: usize) -> Result<Self> {
+        Self::new(self.source.clone(), self.cache.clone(), level)
+    }
+
+    /// The level sampled.
+    #[must_use]
+    pub fn level(&self) -> usize {
+        self.level
+    }
+
+    /// Number of levels the source has.
+    #[must_use]
+    pub fn levels(&self) -> usize {
+        self.source.geometries().len()
+    }
+
+    /// The brick source.
+    #[must_use]
+    pub fn source(&self) -> &Arc<dyn BrickSource> {
+        &self.source
+    }
+
+    /// The cache sampled through.
+    #[must_use]
+    pub fn cache(&self) -> &Arc<BrickCache> {
+        &self.cache
+    }
+
+    /// Linear index of the brick holding voxel `v` of this level.
+    #[inline]
+    fn brick_index(&self, v: [usize; 3]) -> u64 {
+        let b = self.layout.brick;
+        let nb = self.bricks;
+        ((v[0] / b) + nb[0] * ((v[1] / b) + nb[1] * (v[2] / b))) as u64
+    }
+
+    /// Geometry of the sampled level.
+    #[must_use]
+    pub fn geometry(&self) -> &Geometry {
+        &self.geometry
+    }
+
+    /// Runs `f` on brick `idx`, from this thread's recent slot or the cache.
+    #[inline]
+    fn with_brick<R>(&self, idx: u64, f: impl FnOnce(&[f32]) -> R) -> Result<R> {
+        let uid = self.source.uid();
+        let lvl = self.level as u32;
+        let slot = (uid as usize) % RECENT;
+        RECENT_BRICKS.with(|r| {
+            let mut r = r.borrow_mut();
+            if let Some((u, l, i, b)) = &r[slot]
+                && *u == uid
+                && *l == lvl
+                && *i == idx
+            {
+                return Ok(f(b));
+            }
+            let b = self.cache.get(self.source.as_ref(), self.level, idx)?;
+            let out = f(&b);
+            r[slot] = Some((uid, lvl, idx, b));
+            Ok(out)
+        })
+    }
+
+    /// Trilinear sample at continuous index coordinates of this level (clamped), exactly as
+    /// [`Grid::sample_trilinear_index`] computes it. A brick that cannot be read gives 0 and
+    /// its failure is kept for [`Field::check_io`].
+    #[inline]
+    #[must_use]
+    pub fn sample_index(&self, p: Vec3) -> f32 {
+        self.try_sample_index(p).unwrap_or_else(|e| {
+            self.cache.record_error(&e);
+            0.0
+        })
+    }
+
+    /// [`BrickedField::sample_index`], returning a read failure.
+    #[inline]
+    pub fn try_sample_index(&self, p: Vec3) -> Result<f32> {
+        let [nx, ny, nz] = self.geometry.dims;
+        let max = Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32);
+        let p = p.max(Vec3::ZERO).min(max);
+        let p = Vec3::new(
+            if p.x.is_nan() { 0.0 } else { p.x },
+            if p.y.is_nan() { 0.0 } else { p.y },
+            if p.z.is_nan() { 0.0 } else { p.z },
+        );
+        let f = p.floor();
+        let t = p - f;
+        let v0 = [f.x as usize, f.y as usize, f.z as usize];
+        let (b, a, s) = (
+            self.layout.brick,
+            self.layout.apron,
+            self.layout.stored_edge(),
+        );
+        // v0 + 1 lies in the apron, which repeats the edge voxel exactly where the dense
+        // sampler clamps.
+        let l = v0.map(|c| c % b + a);
+        self.with_brick(self.brick_index(v0), |brick| {
+            let v = |dx: usize, dy: usize, dz: usize| {
+                brick[(l[0] + dx) + s * ((l[1] + dy) + s * (l[2] + dz))]
+            };
+            let lerp = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
+            let c00 = lerp(v(0, 0, 0), v(1, 0, 0), t.x);
+            let c10 = lerp(v(0, 1, 0), v(1, 1, 0), t.x);
+            let c01 = lerp(v(0, 0, 1), v(1, 0, 1), t.x);
+            let c11 = lerp(v(0, 1, 1), v(1, 1, 1), t.x);
+            lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z)
+        })
+    }
+
+    /// Voxel `v` of this level (in bounds), through the cache.
+    fn voxel(&self, v: [usize; 3]) -> Result<f32> {
+        let (b, a, s) = (
+            self.layout.brick,
+            self.layout.apron,
+            self.layout.stored_edge(),
+        );
+        let l = v.map(|c| c % b + a);
+        let brick = self
+            .cache
+            .get(self.source.as_ref(), self.level, self.brick_index(v))?;
+        Ok(brick[l[0] + s * (l[1] + s * l[2])])
+    }
+
+    /// The own voxels (no apron) of brick `idx`, x fastest, into `out` (read past the cache).
+    fn own_voxels(&self, idx: u64, out: &mut Vec<f32>) -> Result<()> {
+        let (b, a, s) = (
+            self.layout.brick,
+            self.layout.apron,
+            self.layout.stored_edge(),
+        );
+        let nb = self.bricks;
+        let i = idx as usize;
+        let (bx, by, bz) = (i % nb[0], (i / nb[0]) % nb[1], i / (nb[0] * nb[1]));
+        let n = self.geometry.dims;
+        let brick = self.source.read_brick(self.level, idx)?;
+        out.clear();
+        let w = ((bx + 1) * b).min(n[0]) - bx * b;
+        for z in 0..((bz + 1) * b).min(n[2]) - bz * b {
+            for y in 0..((by + 1) * b).min(n[1]) - by * b {
+                let from = a + s * ((y + a) + s * (z + a));
+                out.extend_from_slice(&brick[from..from + w]);
+            }
+        }
+        Ok(())
+    }
+
+    /// Macrocells of edge `k`: stored ones if the source has them, else built brick by brick.
+    pub fn macrocells(&self, k: usize) -> Result<Macrocells> {
+        if let Some(m) = self.source.stored_macrocells(self.level, k)? {
+            return Ok(m);
+        }
+        if k == 0 {
+            return Err(Error::parameter("macrocell size k must be at least 1"));
+        }
+        let g = self.geometry;
+        let n = g.dims;
+        let dims = n.map(|d| d.saturating_sub(1).div_ceil(k).max(1));
+        let cells = dims[0] * dims[1] * dims[2];
+        let mut min = Vec::new();
+        let mut max = Vec::new();
+        min.try_reserve_exact(cells)
+            .and_then(|()| max.try_reserve_exact(cells))
+            .map_err(|_| Error::Limits(format!("{cells} macrocells do not fit in memory")))?;
+        // Cells z-layer by layer, voxels in order: coherent, so each brick is fetched once
+        // per layer of cells it holds.
+        for cz in 0..dims[2] {
+            for cy in 0..dims[1] {
+                for cx in 0..dims[0] {
+                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for z in cz * k..=((cz + 1) * k).min(n[2] - 1) {
+                        for y in cy * k..=((cy + 1) * k).min(n[1] - 1) {
+                            for x in cx * k..=((cx + 1) * k).min(n[0] - 1) {
+                                let v = self.voxel([x, y, z])?;
+                                lo = lo.min(v);
+                                hi = hi.max(v);
+                            }
+                        }
+                    }
+                    min.push(lo);
+                    max.push(hi);
+                }
+            }
+        }
+        Macrocells::from_parts(g, k, min, max)
+    }
+
+    /// The whole level as a dense f32 grid (checked against `limits`).
+    pub fn load(&self, limits: &Limits) -> Result<Grid<f32>> {
+        let g = self.geometry;
+        let mut out = Grid::<f32>::zeros(g, limits)?;
+        let [nx, ny, nz] = g.dims;
+        let (b, a, s) = (
+            self.layout.brick,
+            self.layout.apron,
+            self.layout.stored_edge(),
+        );
+        let nb = self.bricks;
+        let data = out.data_mut();
+        for bz in 0..nb[2] {
+            for by in 0..nb[1] {
+                for bx in 0..nb[0] {
+                    let idx = (bx + nb[0] * (by + nb[1] * bz)) as u64;
+                    let brick = self.source.read_brick(self.level, idx)?;
+                    for z in bz * b..((bz + 1) * b).min(nz) {
+                        for y in by * b..((by + 1) * b).min(ny) {
+                            let from = a + s * ((y - by * b + a) + s * (z - bz * b + a));
+                            let w = ((bx + 1) * b).min(nx) - bx * b;
+                            let dst = bx * b + nx * (y + ny * z);
+                            data[dst..dst + w].copy_from_slice(&brick[from..from + w]);
+                        }
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// The bricks a ray crosses at this level, in the order it meets them (a 3D DDA over the
+    /// brick grid, front to back), for [`BrickCache::prefetch`]. `origin` and `dir` are in
+    /// world space.
+    pub fn bricks_along(&self, origin: Vec3, dir: Vec3, out: &mut Vec<u64>) {
+        let g = self.geometry;
+        let (lo, hi) = g.world_bounds();
+        let (lo, hi) = (lo.min(hi), lo.max(hi));
+        let inv = dir.recip();
+        let t0 = (lo - origin) * inv;
+        let t1 = (hi - origin) * inv;
+        let tmin = t0.min(t1).max_element().max(0.0);
+        let tmax = t0.max(t1).min_element();
+        if !(tmin <= tmax) {
+            return;
+        }
+        let b = self.layout.brick as f32;
+        let nb = self.bricks;
+        let to_brick = |w: Vec3| g.world_to_index(w) / b;
+        let start = to_brick(origin + dir * tmin);
+        let end = to_brick(origin + dir * tmax);
+        let mut cell = [0, 1, 2].map(|a| (start[a].max(0.0) as usize).min(nb[a] - 1) as i64);
+        let d = end - start;
+        let len = d.length();
+        let step = [0, 1, 2].map(|a| if d[a] > 0.0 { 1i64 } else { -1 });
+        let mut t_next = [0f32; 3];
+        let mut t_delta = [0f32; 3];
+        for a in 0..3 {
+            if d[a].abs() < 1e-12 {
+                t_next[a] = f32::INFINITY;
+                t_delta[a] = f32::INFINITY;
+            } else {
+                let boundary = if step[a] > 0 {
+                    cell[a] as f32 + 1.0
+                } else {
+                    cell[a] as f32
+                };
+                t_delta[a] = 1.0 / d[a].abs();
+                t_next[a] = (boundary - start[a]) / d[a];
+            }
+        }
+        let max_steps = nb[0] + nb[1] + nb[2] + 3;
+        for _ in 0..max_steps {
+            out.push(
+                (cell[0] as usize + nb[0] * (cell[1] as usize + nb[1] * cell[2] as usize)) as u64,
+            );
+            let a = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
+                0
+            } else if t_next[1] <= t_next[2] {
+                1
+            } else {
+                2
+            };
+            if t_next[a] > 1.0 || len == 0.0 {
+                break;
+            }
+            cell[a] += step[a];
+            if cell[a] < 0 || cell[a] >= nb[a] as i64 {
+                break;
+            }
+            t_next[a] += t_delta[a];
+        }
+    }
+}
+
+/// The level of detail for a view (HDR VolVis section 6.3): the coarsest level whose voxel
+/// spacing (the smallest axis) is at most `footprint`, the world size of one pixel where the
+/// volume is nearest to the camera. `levels` geometries, finest first; 0 when `footprint` is
+/// not positive and finite.
+#[must_use]
+pub fn lod_level(levels: &[Geometry], footprint: f32) -> usize {
+    if !(footprint.is_finite() && footprint > 0.0) {
+        return 0;
+    }
+    levels
+        .iter()
+        .rposition(|g| g.spacing.abs().min_element() <= footprint)
+        .unwrap_or(0)
+}
+
+/// Which level of detail a renderer samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Lod {
+    /// The finest level (the same image as in core).
+    #[default]
+    Exact,
+    /// The level [`lod_level`] picks for the view.
+    Auto,
+    /// This level (clamped to the coarsest).
+    Level(usize),
+}
+
+impl Lod {
+    /// The level for a source of `levels` (finest first) seen with pixel `footprint`.
+    #[must_use]
+    pub fn pick(self, levels: &[Geometry], footprint: f32) -> usize {
+        let last = levels.len().saturating_sub(1);
+        match self {
+            Lod::Exact => 0,
+            Lod::Auto => lod_level(levels, footprint),
+            Lod::Level(l) => l.min(last),
+        }
+    }
+}
+
+impl std::str::FromStr for Lod {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "exact" | "finest" => Ok(Lod::Exact),
+            "auto" => Ok(Lod::Auto),
+            n => n.parse().map(Lod::Level).map_err(|_| {
+                Error::parameter(format!(
+                    "level of detail '{s}': use exact, auto or a level number (0 = finest)"
+                ))
+            }),
+        }
+    }
+}
+
+impl std::fmt::Display for Lod {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Lod::Exact => f.write_str("exact"),
+            Lod::Auto => f.write_str("auto"),
+            Lod::Level(l) => write!(f, "{l}"),
+        }
+    }
+}
+
+/// Bricks computed voxel by voxel from one or two sources of the same layout and geometry
+/// (a unit conversion `f(a)`, or a black body's emission `f(density, temperature)`), cached
+/// like file bricks.
+pub struct CombinedSource {
+    uid: u64,
+    a: BrickedField,
+    b: Option<BrickedField>,
+    f: Box<dyn Fn(f32, f32) -> f32 + Send + Sync>,
+    range: Option<(f32, f32)>,
+    positive_min: Option<f32>,
+    non_finite: u64,
+}
+
+impl std::fmt::Debug for CombinedSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CombinedSource")
+            .field("uid", &self.uid)
+            .finish_non_exhaustive()
+    }
+}
+
+impl CombinedSource {
+    /// `f(a, b)` voxel by voxel; `a` and `b` must share layout and geometry. The result's
+    /// value range is unknown.
+    pub fn new(
+        a: &BrickedField,
+        b: &BrickedField,
+        f: impl Fn(f32, f32) -> f32 + Send + Sync + 'static,
+    ) -> Result<Arc<Self>> {
+        if a.layout != b.layout || a.source.geometries() != b.source.geometries() {
+            return Err(Error::parameter(
+                "combined bricked fields must share their brick layout and geometry",
+            ));
+        }
+        Ok(Arc::new(CombinedSource {
+            uid: next_uid(),
+            a: a.clone(),
+            b: Some(b.clone()),
+            f: Box::new(f),
+            range: None,
+            positive_min: None,
+            non_finite: a.source.non_finite() + b.source.non_finite(),
+        }))
+    }
+
+    /// `f(a)` voxel by voxel for a non-decreasing `f` (a unit conversion), so the value
+    /// range is `f` of `a`'s.
+    pub fn monotone(a: &BrickedField, f: impl Fn(f32) -> f32 + Send + Sync + 'static) -> Arc<Self> {
+        let range = a.source.finite_range().map(|(lo, hi)| (f(lo), f(hi)));
+        let positive_min = a.source.positive_min().map(&f).filter(|v| *v > 0.0);
+        Arc::new(CombinedSource {
+            uid: next_uid(),
+            a: a.clone(),
+            b: None,
+            f: Box::new(move |x, _| f(x)),
+            range,
+            positive_min,
+            non_finite: a.source.non_finite(),
+        })
+    }
+
+    /// This source at `a`'s level, through `a`'s cache.
+    pub fn field(self: Arc<Self>) -> Result<BrickedField> {
+        let (cache, level) = (self.a.cache.clone(), self.a.level);
+        BrickedField::new(self, cache, level)
+    }
+}
+
+impl BrickSource for CombinedSource {
+    fn uid(&self) -> u64 {
+        self.uid
+    }
+    fn layout(&self) -> BrickLayout {
+        self.a.layout
+    }
+    fn geometries(&self) -> &[Geometry] {
+        self.a.source.geometries()
+    }
+    fn read_brick(&self, level: usize, idx: u64) -> Result<Vec<f32>> {
+        let x = self.a.cache.get(self.a.source.as_ref(), level, idx)?;
+        match &self.b {
+            Some(b) => {
+                let y = b.cache.get(b.source.as_ref(), level, idx)?;
+                Ok(x.iter()
+                    .zip(y.iter())
+                    .map(|(&p, &q)| (self.f)(p, q))
+                    .collect())
+            }
+            None => Ok(x.iter().map(|&p| (self.f)(p, p)).collect()),
+        }
+    }
+    fn finite_range(&self) -> Option<(f32, f32)> {
+        self.range
+    }
+    fn non_finite(&self) -> u64 {
+        self.non_finite
+    }
+    fn positive_min(&self) -> Option<f32> {
+        self.positive_min
+    }
+}
