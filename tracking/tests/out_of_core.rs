@@ -1,0 +1,208 @@
+//! Out-of-core channels (`.bsv` through a bounded brick cache) against the same channels in
+//! memory: the finest level renders the same bytes for every method, memory stays under the
+//! cache budget, a zoomed-out view reads coarse bricks only, and a corrupt brick is an error
+//! at render time.
+
+mod common;
+
+use blueshift_tracking::scene_file::{ChannelSpec, Preloaded, RenderSceneFile};
+use blueshift_tracking::{Blend, DdaMode, Integrator, RayMarcher, RenderSettings, Scene, render};
+use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource};
+use blueshift_volume::{AnyGrid, BrickCache, Field, Grid, synth};
+use common::tf;
+
+/// Two channels of the turbulence and three-cubes datasets at 40^3 as grids and as `.bsv`
+/// files (bricks of 8, so a ray crosses many bricks), read through one cache of `budget`.
+fn channels(
+    dir: &std::path::Path,
+    budget: usize,
+) -> (Vec<AnyGrid>, Vec<Field>, std::sync::Arc<BrickCache>) {
+    let a = synth::turbulence(40, 3)
+        .unwrap()
+        .into_channels()
+        .remove(0)
+        .grid;
+    let b = synth::three_cubes(40)
+        .unwrap()
+        .into_channels()
+        .remove(0)
+        .grid;
+    let cache = BrickCache::new(budget);
+    let mut fields = Vec::new();
+    for (i, g) in [&a, &b].into_iter().enumerate() {
+        let AnyGrid::F32(g) = g else {
+            panic!("f32 synth")
+        };
+        let p = dir.join(format!("c{i}.bsv"));
+        ooc::convert(
+            &mut GridSource(g),
+            &p,
+            "c",
+            BrickLayout { brick: 8, apron: 1 },
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let f = BrickedFile::open_with_cache(&p, cache.clone()).unwrap();
+        fields.push(Field::from(f.field(0).unwrap()));
+    }
+    (vec![a, b], fields, cache)
+}
+
+fn scene<F: Into<Field>>(chs: Vec<F>) -> Scene {
+    let t = [
+        tf([1.0, 0.5, 0.2], &[(0.0, 0.0), (1.0, 1.0)]),
+        tf([0.2, 0.6, 1.0], &[(0.0, 0.0), (1.0, 1.0)]),
+    ];
+    let triples = chs
+        .into_iter()
+        .zip(t)
+        .enumerate()
+        .map(|(i, (g, t))| (format!("c{i}"), g, t))
+        .collect();
+    Scene::new(triples, 30.0, 4).unwrap()
+}
+
+#[test]
+fn the_finest_level_renders_the_in_core_bytes_for_every_method_within_the_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    // 6 bricks of 10^3 f32 (24 KB): far fewer than the 2 x 125 bricks of level 0.
+    let budget = 6 * 10 * 10 * 10 * 4;
+    let (dense, bricked, cache) = channels(dir.path(), budget);
+    let (a, b) = (scene(dense), scene(bricked));
+    for (x, y) in a.channels().iter().zip(b.channels()) {
+        assert_eq!(
+            x.macrocells(),
+            y.macrocells(),
+            "stored macrocells equal built ones"
+        );
+    }
+    let methods = [
+        Integrator::Woodcock { channel: 0 },
+        Integrator::Mdwt {
+            dda: DdaMode::NDda,
+            blend: Blend::Density,
+        },
+        Integrator::Mdwt {
+            dda: DdaMode::OneDda,
+            blend: Blend::Max,
+        },
+        Integrator::Mdwt {
+            dda: DdaMode::Summed,
+            blend: Blend::Density,
+        },
+        Integrator::Marcher(RayMarcher::default()),
+    ];
+    for m in methods {
+        let mut s = RenderSettings::default_for(&a, 20, 14, false);
+        s.spp = 2;
+        s.seed = 7;
+        let x = render(&a, &m, &s).unwrap();
+        let y = render(&b, &m, &s).unwrap();
+        assert_eq!(x.as_raw(), y.as_raw(), "{m:?}");
+    }
+    let st = cache.stats();
+    assert!(st.total_reads() > 6, "the budget forced re-reads: {st:?}");
+    assert!(
+        st.peak_bytes <= budget,
+        "peak {} over the budget {budget}",
+        st.peak_bytes
+    );
+}
+
+#[test]
+fn a_zoomed_out_view_reads_coarse_bricks_only_and_converges_as_the_level_refines() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = Grid::from_fn(blueshift_volume::Geometry::unit([64, 64, 64]), |x, y, z| {
+        let d = ((x as f32 - 32.0).powi(2) + (y as f32 - 32.0).powi(2) + (z as f32 - 32.0).powi(2))
+            .sqrt();
+        (1.0 - d / 30.0).max(0.0)
+    })
+    .unwrap();
+    let p = dir.path().join("ball.bsv");
+    ooc::convert(
+        &mut GridSource(&g),
+        &p,
+        "ball",
+        BrickLayout { brick: 8, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let file = |lod: &str, zoom: f32| RenderSceneFile {
+        channels: vec![ChannelSpec {
+            volume: Some(p.clone()),
+            tf: "builtin:viridis".into(),
+            ..ChannelSpec::default()
+        }],
+        method: Some("marcher".parse().unwrap()),
+        width: Some(16),
+        height: Some(16),
+        zoom: Some(zoom),
+        density_scale: Some(0.05),
+        lod: Some(lod.into()),
+        ..RenderSceneFile::default()
+    };
+    let run = |lod: &str, zoom: f32| {
+        let cache = BrickCache::new(64 << 20);
+        let memory = Preloaded {
+            cache: Some(cache.clone()),
+            ..Preloaded::default()
+        };
+        let (scene, m, s) = file(lod, zoom).build_with(&memory).unwrap();
+        let level = scene.channels()[0].grid().as_bricked().unwrap().level();
+        (render(&scene, &m, &s).unwrap(), level, cache.stats())
+    };
+    // 16 pixels over a view ten times wider than the ball: a pixel is ~40 voxels.
+    let (_, level, st) = run("auto", 0.1);
+    assert!(level >= 3, "auto picked level {level}");
+    assert_eq!(
+        st.reads[..level].iter().sum::<u64>(),
+        0,
+        "finer bricks read: {st:?}"
+    );
+    assert!(st.total_reads() > 0);
+    // Close up, auto is exact.
+    assert_eq!(
+        run("auto", 8.0).1,
+        0,
+        "zoomed in, a pixel is under a voxel: the finest level"
+    );
+    // Levels 3, 2, 1, 0 of the same view get closer and closer to the exact image.
+    let exact = run("exact", 1.0).0;
+    let err = |l: usize| {
+        let img = run(&l.to_string(), 1.0).0;
+        img.as_raw()
+            .iter()
+            .zip(exact.as_raw())
+            .map(|(a, b)| f64::from((a - b).abs()))
+            .sum::<f64>()
+    };
+    let e: Vec<f64> = (0..4).map(err).collect();
+    assert_eq!(e[0], 0.0);
+    assert!(e[1] < e[2] && e[2] < e[3], "{e:?}");
+}
+
+#[test]
+fn a_corrupt_brick_is_an_error_at_render_time_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, bricked, _) = channels(dir.path(), 1 << 20);
+    let sc = scene(bricked);
+    // Corrupt every brick of channel 0's level 0 after the scene is built.
+    let p = dir.path().join("c0.bsv");
+    let mut bytes = std::fs::read(&p).unwrap();
+    for b in &mut bytes[4096..4096 + 125 * 4000] {
+        *b ^= 0x5a;
+    }
+    std::fs::write(&p, &bytes).unwrap();
+    let mut s = RenderSettings::default_for(&sc, 8, 8, false);
+    s.spp = 1;
+    let m = Integrator::Mdwt {
+        dda: DdaMode::OneDda,
+        blend: Blend::Density,
+    };
+    let e = render(&sc, &m, &s).unwrap_err().to_string();
+    assert!(e.contains("corrupt") || e.contains("brick"), "{e}");
+    // A file truncated under the open scene: a read error, again no panic.
+    std::fs::write(&p, &bytes[..5000]).unwrap();
+    let e = render(&sc, &m, &s).unwrap_err().to_string();
+    assert!(e.contains("brick"), "{e}");
+}
