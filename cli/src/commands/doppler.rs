@@ -147,6 +147,15 @@ pub struct Args {
     /// picked spectra and traces.
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
+    /// Out-of-core (.bsv) fields of --scene: budget of the brick cache they share, MiB
+    /// [default: a quarter of physical memory]. The image does not depend on it.
+    #[arg(long, value_name = "MIB")]
+    pub cache_mb: Option<u64>,
+    /// Level of detail of .bsv fields: exact (the finest: the in-core image, the default),
+    /// auto (the coarsest level whose voxels are no larger than a pixel of the default view
+    /// where the volume is nearest) or a level number (0 = finest).
+    #[arg(long)]
+    pub lod: Option<String>,
     /// Working precision of the GPU kernels: auto (f64 where the adapter has SHADER_F64, as
     /// the CPU; else f32), f64 (agrees with the CPU to rounding; an error without SHADER_F64)
     /// or f32 (faster on GPUs with slow f64; within 2e-3 of the CPU per pixel, see
@@ -170,7 +179,29 @@ pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
             .species
             .as_deref()
             .map(|sp| sp.split(',').filter(|t| !t.trim().is_empty()).collect());
-        file.load_selected(tokens.as_deref())?
+        let cache = super::render::brick_cache(args.cache_mb)?;
+        let scene = file.load_out_of_core(
+            tokens.as_deref(),
+            &blueshift_doppler::MemoryVolumes::new(),
+            Some(cache),
+        )?;
+        let lod: blueshift_volume::Lod = args.lod.as_deref().unwrap_or("exact").parse()?;
+        match scene.levels() {
+            Some(levels) if lod != blueshift_volume::Lod::Exact => {
+                let st = DopplerSettings::default_for(&scene, args.width, args.height);
+                let (lo, hi) = scene.geometry().world_bounds();
+                let level = lod.pick(&levels, st.camera.pixel_footprint(lo, hi, args.height));
+                scene.at_level(level)?
+            }
+            None if !matches!(
+                lod,
+                blueshift_volume::Lod::Exact | blueshift_volume::Lod::Level(0)
+            ) =>
+            {
+                bail!("--lod {lod}: levels of detail need every field of the scene in .bsv files")
+            }
+            _ => scene,
+        }
     } else {
         if !(2..=512).contains(&args.res) {
             bail!("--res {} must be 2..=512", args.res);
