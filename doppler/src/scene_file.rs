@@ -706,7 +706,7 @@ impl Loader<'_> {
                 }
                 let v =
                     VectorField::Components(Box::new(out.try_into().expect("three components")));
-                if !(v.max_speed() < C_M_PER_S) {
+                if v.max_speed().is_nan() || v.max_speed() >= C_M_PER_S {
                     return Err(Error::scene(
                         "velocity: the components' ranges allow speeds at or above c",
                     ));
