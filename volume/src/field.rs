@@ -681,7 +681,10 @@ impl BrickedField {
         let t1 = (hi - origin) * inv;
         let tmin = t0.min(t1).max_element().max(0.0);
         let tmax = t0.max(t1).min_element();
-        if tmin.partial_cmp(&tmax).is_none_or(std::cmp::Ordering::is_gt) {
+        if tmin
+            .partial_cmp(&tmax)
+            .is_none_or(std::cmp::Ordering::is_gt)
+        {
             return;
         }
         let b = self.layout.brick as f32;
