@@ -427,6 +427,8 @@ pub struct BrickedField {
     geometry: Geometry,
     layout: BrickLayout,
     bricks: [usize; 3],
+    /// `source.uid()`, kept so the per-sample slot lookup makes no virtual call.
+    uid: u64,
 }
 
 impl BrickedField {
@@ -441,6 +443,7 @@ impl BrickedField {
         let layout = source.layout();
         Ok(BrickedField {
             bricks: layout.bricks(geometry.dims),
+            uid: source.uid(),
             source,
             cache,
             level,
@@ -495,7 +498,7 @@ impl BrickedField {
     /// Runs `f` on brick `idx`, from this thread's recent slot or the cache.
     #[inline]
     fn with_brick<R>(&self, idx: u64, f: impl FnOnce(&[f32]) -> R) -> Result<R> {
-        let uid = self.source.uid();
+        let uid = self.uid;
         let lvl = self.level as u32;
         let slot = (uid as usize) % RECENT;
         RECENT_BRICKS.with(|r| {
