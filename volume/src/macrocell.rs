@@ -47,6 +47,53 @@ pub struct ValueInterval {
     pub cell: [usize; 3],
 }
 
+/// Min and max of the macrocells of layer `cz` (edge `k`, each covering its `k + 1` voxels
+/// per axis) of a volume of `n` voxels; `row(y, z)` gives row `y` of slice `z`. NaN is
+/// ignored (a cell of NaN only keeps +inf / -inf). Rows are reduced element-wise first, so
+/// the loops vectorise.
+pub(crate) fn layer_min_max<'a, V: Copy + 'a>(
+    n: [usize; 3],
+    k: usize,
+    cz: usize,
+    row: impl Fn(usize, usize) -> &'a [V],
+    value: impl Fn(V) -> f32,
+    mn: &mut [f32],
+    mx: &mut [f32],
+) {
+    let cells_x = n[0].saturating_sub(1).div_ceil(k).max(1);
+    let cells_y = n[1].saturating_sub(1).div_ceil(k).max(1);
+    let z0 = cz * k;
+    let z1 = ((cz + 1) * k).min(n[2] - 1);
+    let mut lo = vec![f32::INFINITY; n[0]];
+    let mut hi = vec![f32::NEG_INFINITY; n[0]];
+    for cy in 0..cells_y {
+        lo.fill(f32::INFINITY);
+        hi.fill(f32::NEG_INFINITY);
+        let y0 = cy * k;
+        let y1 = ((cy + 1) * k).min(n[1] - 1);
+        for z in z0..=z1 {
+            for y in y0..=y1 {
+                for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(row(y, z)) {
+                    let v = value(v);
+                    *l = if v < *l { v } else { *l };
+                    *h = if v > *h { v } else { *h };
+                }
+            }
+        }
+        for cx in 0..cells_x {
+            let x0 = cx * k;
+            let x1 = ((cx + 1) * k).min(n[0] - 1);
+            let (mut a, mut b) = (f32::INFINITY, f32::NEG_INFINITY);
+            for x in x0..=x1 {
+                a = if lo[x] < a { lo[x] } else { a };
+                b = if hi[x] > b { hi[x] } else { b };
+            }
+            mn[cx + cells_x * cy] = a;
+            mx[cx + cells_x * cy] = b;
+        }
+    }
+}
+
 impl Macrocells {
     /// Builds macrocells of edge `k` voxels over a scalar grid, in parallel over z-slabs of
     /// cells. The result does not depend on the thread count (min/max are exact).
@@ -65,29 +112,11 @@ impl Macrocells {
             .zip(max.par_chunks_mut(layer))
             .enumerate()
             .for_each(|(cz, (mn, mx))| {
-                let z0 = cz * k;
-                let z1 = ((cz + 1) * k).min(n[2] - 1);
-                for cy in 0..dims[1] {
-                    let y0 = cy * k;
-                    let y1 = ((cy + 1) * k).min(n[1] - 1);
-                    for cx in 0..dims[0] {
-                        let x0 = cx * k;
-                        let x1 = ((cx + 1) * k).min(n[0] - 1);
-                        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-                        for z in z0..=z1 {
-                            for y in y0..=y1 {
-                                let row = geometry.index(0, y, z);
-                                for v in &data[row + x0..=row + x1] {
-                                    let v = v.value();
-                                    lo = lo.min(v);
-                                    hi = hi.max(v);
-                                }
-                            }
-                        }
-                        mn[cx + dims[0] * cy] = lo;
-                        mx[cx + dims[0] * cy] = hi;
-                    }
-                }
+                let row = |y: usize, z: usize| {
+                    let at = geometry.index(0, y, z);
+                    &data[at..at + n[0]]
+                };
+                layer_min_max(n, k, cz, row, |v: T| v.value(), mn, mx);
             });
         Ok(Macrocells {
             k,

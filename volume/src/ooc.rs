@@ -44,7 +44,8 @@ use std::fs::File;
 use std::io::Read;
 use std::os::unix::fs::FileExt;
 use std::path::Path;
-use std::sync::Arc;
+use std::sync::mpsc::SyncSender;
+use std::sync::{Arc, Mutex};
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -54,7 +55,7 @@ use crate::field::BrickedField;
 use crate::grid::{Geometry, Grid, ScalarType, Voxel};
 use crate::io::{DiskType, Endian};
 use crate::lod::{downsample_row, level_geometries};
-use crate::macrocell::{DEFAULT_K, Macrocells};
+use crate::macrocell::{DEFAULT_K, Macrocells, layer_min_max};
 use crate::{AnyGrid, Error, Limits, Result};
 
 /// First bytes of a bricked file.
@@ -518,6 +519,10 @@ struct Writer<'a> {
     plan: &'a Plan,
     levels: Vec<LevelWriter>,
     checksums: Vec<u64>,
+    /// Brick rows on their way to the writer thread: `(file offset, bytes)`.
+    sink: Option<SyncSender<(u64, Vec<u8>)>>,
+    /// Buffers the writer thread is done with.
+    pool: &'a Mutex<Vec<Vec<u8>>>,
 }
 
 impl Writer<'_> {
@@ -575,11 +580,12 @@ impl Writer<'_> {
         let nb = lw.nb;
         let ts = lw.ty.size_bytes();
         let brick_bytes = s * s * s * ts;
-        let file = self.file;
+        let (pool, sink) = (self.pool, self.sink.as_ref());
         let sums: Vec<Result<Vec<u64>>> = (0..nb[1])
             .into_par_iter()
             .map(|by| {
-                let mut buf = vec![0u8; nb[0] * brick_bytes];
+                let mut buf = lock(pool).pop().unwrap_or_default();
+                buf.resize(nb[0] * brick_bytes, 0);
                 let mut run = vec![0f32; s];
                 let mut sums = Vec::with_capacity(nb[0]);
                 for (bx, out) in buf.chunks_exact_mut(brick_bytes).enumerate() {
@@ -605,7 +611,9 @@ impl Writer<'_> {
                     sums.push(checksum(out));
                 }
                 let first = ((by + nb[1] * bz) * nb[0]) as u64;
-                file.write_all_at(&buf, lw.offset + first * brick_bytes as u64)?;
+                sink.ok_or_else(writer_gone)?
+                    .send((lw.offset + first * brick_bytes as u64, buf))
+                    .map_err(|_| writer_gone())?;
                 Ok(sums)
             })
             .collect();
@@ -637,21 +645,8 @@ impl Writer<'_> {
             .map(|cz| {
                 let mut mn = vec![f32::INFINITY; layer];
                 let mut mx = vec![f32::NEG_INFINITY; layer];
-                for z in cz * k..=((cz + 1) * k).min(n[2] - 1) {
-                    let sl = lw.slice(z as i64);
-                    for cy in 0..c[1] {
-                        for y in cy * k..=((cy + 1) * k).min(n[1] - 1) {
-                            let row = &sl[y * n[0]..(y + 1) * n[0]];
-                            for cx in 0..c[0] {
-                                let (lo, hi) = (&mut mn[cx + c[0] * cy], &mut mx[cx + c[0] * cy]);
-                                for &v in &row[cx * k..=((cx + 1) * k).min(n[0] - 1)] {
-                                    *lo = lo.min(v);
-                                    *hi = hi.max(v);
-                                }
-                            }
-                        }
-                    }
-                }
+                let row = |y: usize, z: usize| &lw.slice(z as i64)[y * n[0]..(y + 1) * n[0]];
+                layer_min_max(n, k, cz, row, |v: f32| v, &mut mn, &mut mx);
                 (mn, mx)
             })
             .collect();
@@ -669,6 +664,14 @@ impl Writer<'_> {
     }
 }
 
+fn writer_gone() -> Error {
+    Error::invalid("the bricked-file writer thread stopped")
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
@@ -680,6 +683,61 @@ struct ValueStats {
     lo: f32,
     hi: f32,
     pos_lo: f32,
+}
+
+impl ValueStats {
+    fn new() -> Self {
+        ValueStats {
+            non_finite: 0,
+            lo: f32::INFINITY,
+            hi: f32::NEG_INFINITY,
+            pos_lo: f32::INFINITY,
+        }
+    }
+
+    /// Adds `vals`, eight lanes at a time so the loop vectorises.
+    fn add(&mut self, vals: &[f32]) {
+        const L: usize = 8;
+        let mut lo = [f32::INFINITY; L];
+        let mut hi = [f32::NEG_INFINITY; L];
+        let mut pos = [f32::INFINITY; L];
+        let mut bad = [0u32; L];
+        let (chunks, rest) = vals.as_chunks::<L>();
+        // Lane counters are u32: flush them before they could wrap.
+        for block in chunks.chunks(1 << 20) {
+            for c in block {
+                for i in 0..L {
+                    let v = c[i];
+                    let fin = v.abs() < f32::INFINITY;
+                    let a = if fin { v } else { f32::INFINITY };
+                    let b = if fin { v } else { f32::NEG_INFINITY };
+                    let p = if fin && v > 0.0 { v } else { f32::INFINITY };
+                    lo[i] = if a < lo[i] { a } else { lo[i] };
+                    hi[i] = if b > hi[i] { b } else { hi[i] };
+                    pos[i] = if p < pos[i] { p } else { pos[i] };
+                    bad[i] += u32::from(!fin);
+                }
+            }
+            self.non_finite += bad.iter().map(|&b| u64::from(b)).sum::<u64>();
+            bad = [0; L];
+        }
+        for &v in rest {
+            if v.is_finite() {
+                lo[0] = lo[0].min(v);
+                hi[0] = hi[0].max(v);
+                if v > 0.0 {
+                    pos[0] = pos[0].min(v);
+                }
+            } else {
+                self.non_finite += 1;
+            }
+        }
+        for i in 0..L {
+            self.lo = self.lo.min(lo[i]);
+            self.hi = self.hi.max(hi[i]);
+            self.pos_lo = self.pos_lo.min(pos[i]);
+        }
+    }
 }
 
 /// Converts a volume into a bricked file at `out` in one streaming pass: the source's
@@ -740,12 +798,15 @@ pub fn convert(
         let b = layout.bricks(plan.geoms[last].dims);
         plan.first_brick[last] + b[0] * b[1] * b[2]
     };
+    let pool = Mutex::new(Vec::new());
     let mut w = Writer {
         file,
         layout,
         plan: &plan,
         levels,
         checksums: vec![0; total_bricks],
+        sink: None,
+        pool: &pool,
     };
     let nz = g0.dims[2];
     let slice_len = g0.dims[0] * g0.dims[1];
@@ -753,27 +814,12 @@ pub fn convert(
         let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(usize, Vec<f32>)>>(2);
         let (back_tx, back_rx) = std::sync::mpsc::channel::<Vec<f32>>();
         let reader = scope.spawn(move || {
-            let mut st = ValueStats {
-                non_finite: 0,
-                lo: f32::INFINITY,
-                hi: f32::NEG_INFINITY,
-                pos_lo: f32::INFINITY,
-            };
+            let mut st = ValueStats::new();
             for z in 0..nz {
                 let mut buf = back_rx.try_recv().unwrap_or_default();
                 buf.resize(slice_len, 0.0);
                 let r = source.read_slice(z, &mut buf).map(|()| {
-                    for &v in &buf {
-                        if v.is_finite() {
-                            st.lo = st.lo.min(v);
-                            st.hi = st.hi.max(v);
-                            if v > 0.0 {
-                                st.pos_lo = st.pos_lo.min(v);
-                            }
-                        } else {
-                            st.non_finite += 1;
-                        }
-                    }
+                    st.add(&buf);
                     (z, buf)
                 });
                 let failed = r.is_err();
@@ -783,14 +829,36 @@ pub fn convert(
             }
             st
         });
-        for r in &rx {
-            let (z, slice) = r?;
-            progress(z as u64 + 1, nz as u64);
-            for b in w.push(0, z, slice)? {
-                let _ = back_tx.send(b);
+        // One thread writes, in slab order: buffered writes to one file serialise on its
+        // inode lock anyway, and the bricks are computed meanwhile.
+        let (sink, rows) = std::sync::mpsc::sync_channel::<(u64, Vec<u8>)>(4);
+        w.sink = Some(sink);
+        let pool = &pool;
+        let writer = scope.spawn(move || -> Result<()> {
+            for (at, buf) in rows {
+                file.write_all_at(&buf, at)?;
+                lock(pool).push(buf);
             }
-        }
+            Ok(())
+        });
+        let mut run = || -> Result<()> {
+            for r in &rx {
+                let (z, slice) = r?;
+                progress(z as u64 + 1, nz as u64);
+                for b in w.push(0, z, slice)? {
+                    let _ = back_tx.send(b);
+                }
+            }
+            Ok(())
+        };
+        let done = run();
         drop(rx);
+        w.sink = None;
+        let written = writer
+            .join()
+            .map_err(|_| Error::invalid("the bricked-file writer thread panicked"))?;
+        written?;
+        done?;
         reader
             .join()
             .map_err(|_| Error::invalid("the volume reader thread panicked"))

@@ -514,3 +514,72 @@ fn a_bricked_header_cut_inside_the_channel_name_is_refused() {
         assert!(BrickedFile::open(&path, 1).is_err(), "cut at {cut}");
     }
 }
+
+#[test]
+fn stored_macrocells_and_value_statistics_match_a_direct_pass() {
+    // Odd dims (no level is a whole number of bricks or macrocells), negative values and a
+    // scatter of NaN and infinities, which the statistics count and the ranges skip.
+    let dims = [45, 23, 31];
+    let mut g = noisy_grid(dims, 29);
+    let mut rng = Lcg(5);
+    for v in g.data_mut().iter_mut() {
+        *v -= 0.4;
+        let r = rng.next_f32();
+        if r < 0.01 {
+            *v = f32::NAN;
+        } else if r < 0.015 {
+            *v = f32::INFINITY;
+        } else if r < 0.02 {
+            *v = f32::NEG_INFINITY;
+        }
+    }
+    let finite: Vec<f32> = g.data().iter().copied().filter(|v| v.is_finite()).collect();
+    let lo = finite.iter().copied().fold(f32::INFINITY, f32::min);
+    let hi = finite.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let pos = finite
+        .iter()
+        .copied()
+        .filter(|&v| v > 0.0)
+        .fold(f32::INFINITY, f32::min);
+    let bad = g.data().len() - finite.len();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v.bsv");
+    let layout = BrickLayout { brick: 8, apron: 1 };
+    ooc::convert(&mut GridSource(&g), &path, "d", layout, &mut |_, _| {}).unwrap();
+    let f = BrickedFile::open(&path, 4).unwrap();
+    let src = f.source();
+    assert_eq!(src.finite_range(), Some((lo, hi)));
+    assert_eq!(src.positive_min(), Some(pos));
+    assert_eq!(src.non_finite(), bad as u64);
+    let pyr = lod::Pyramid::build(&AnyGrid::F32(g.clone()), 8).unwrap();
+    for (l, lv) in pyr.levels().iter().enumerate() {
+        let stored = src
+            .stored_macrocells(l, 4)
+            .unwrap()
+            .expect("k = 4 is stored");
+        // The direct pass: min and max over each cell's k + 1 voxels per axis, NaN skipped.
+        let n = lv.dims();
+        let c = stored.dims();
+        for cz in 0..c[2] {
+            for cy in 0..c[1] {
+                for cx in 0..c[0] {
+                    let (mut a, mut b) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for z in 4 * cz..=(4 * cz + 4).min(n[2] - 1) {
+                        for y in 4 * cy..=(4 * cy + 4).min(n[1] - 1) {
+                            for x in 4 * cx..=(4 * cx + 4).min(n[0] - 1) {
+                                let v = lv.data()[x + n[0] * (y + n[1] * z)];
+                                if !v.is_nan() {
+                                    a = a.min(v);
+                                    b = b.max(v);
+                                }
+                            }
+                        }
+                    }
+                    let r = stored.range([cx, cy, cz]);
+                    assert_eq!((r.start, r.end), (a, b), "level {l} cell {cx},{cy},{cz}");
+                }
+            }
+        }
+        assert_eq!(stored, Macrocells::build(lv, 4).unwrap(), "level {l}");
+    }
+}
