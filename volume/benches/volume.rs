@@ -130,43 +130,50 @@ fn macrocells(c: &mut Criterion) {
     group.finish();
 }
 
+/// Conversion to `.bsv` against `cp` of the same file (`std::fs::copy`, a read plus a write:
+/// the floor of any conversion; issue 22's goal is a throughput ratio of 0.7 or more).
 fn conversion(c: &mut Criterion) {
-    let n = 128;
-    let g = grid(n);
-    let dir = tempfile::tempdir().expect("tempdir");
-    let raw = dir.path().join(format!("v_{n}x{n}x{n}_float32.raw"));
-    let mut f = std::io::BufWriter::new(std::fs::File::create(&raw).expect("create"));
-    for v in g.data() {
-        f.write_all(&v.to_le_bytes()).expect("write");
+    for n in [128usize, 256] {
+        let g = grid(n);
+        let dir = tempfile::tempdir().expect("tempdir");
+        let raw = dir.path().join(format!("v_{n}x{n}x{n}_float32.raw"));
+        let mut f = std::io::BufWriter::new(std::fs::File::create(&raw).expect("create"));
+        for v in g.data() {
+            f.write_all(&v.to_le_bytes()).expect("write");
+        }
+        f.flush().expect("flush");
+        drop(f);
+        let bytes = (n * n * n * 4) as u64;
+        let out = dir.path().join("o.bsv");
+        let copy = dir.path().join("copy.raw");
+        let mut group = c.benchmark_group(format!("conversion_{n}cubed_f32"));
+        group.sample_size(10);
+        group.throughput(Throughput::Bytes(bytes));
+        group.bench_function("cp", |b| {
+            b.iter(|| std::fs::copy(&raw, &copy).expect("copy"))
+        });
+        group.bench_function("plain_read", |b| {
+            b.iter(|| std::fs::read(&raw).expect("read").len())
+        });
+        group.bench_function("read_to_grid", |b| {
+            b.iter(|| blueshift_volume::read(&raw).expect("read"))
+        });
+        group.bench_function("convert_to_bricked", |b| {
+            b.iter(|| {
+                let mut src = RawFileSource::new(
+                    &raw,
+                    0,
+                    DiskType::F32,
+                    Endian::Little,
+                    Geometry::unit([n; 3]),
+                )
+                .expect("src");
+                ooc::convert(&mut src, &out, "d", BrickLayout::default(), &mut |_, _| {})
+                    .expect("convert");
+            })
+        });
+        group.finish();
     }
-    f.flush().expect("flush");
-    drop(f);
-    let bytes = (n * n * n * 4) as u64;
-    let out = dir.path().join("o.bsv");
-    let mut group = c.benchmark_group("conversion_128cubed_f32");
-    group.sample_size(10);
-    group.throughput(Throughput::Bytes(bytes));
-    group.bench_function("plain_read", |b| {
-        b.iter(|| std::fs::read(&raw).expect("read").len())
-    });
-    group.bench_function("read_to_grid", |b| {
-        b.iter(|| blueshift_volume::read(&raw).expect("read"))
-    });
-    group.bench_function("convert_to_bricked", |b| {
-        b.iter(|| {
-            let mut src = RawFileSource::new(
-                &raw,
-                0,
-                DiskType::F32,
-                Endian::Little,
-                Geometry::unit([n; 3]),
-            )
-            .expect("src");
-            ooc::convert(&mut src, &out, "d", BrickLayout::default(), &mut |_, _| {})
-                .expect("convert");
-        })
-    });
-    group.finish();
 }
 
 criterion_group!(benches, trilinear, macrocells, conversion);
