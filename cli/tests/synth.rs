@@ -80,3 +80,82 @@ fn unknown_dataset_and_bad_resolution_are_refused() {
     assert_eq!(o.status.code(), Some(1));
     assert!(!dir.path().join("x.nrrd").exists());
 }
+
+#[test]
+fn bricked_output_streams_every_component_and_matches_the_nrrd_voxels() {
+    use blueshift_volume::ooc::BrickedFile;
+    let dir = tempfile::tempdir().unwrap();
+    let ok = |out: std::process::Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    };
+    ok(synth(&["galaxy", "g.nrrd", "--res", "24"], dir.path()));
+    ok(synth(
+        &["galaxy", "g.bsv", "--res", "24", "--brick", "8"],
+        dir.path(),
+    ));
+    let nrrd = |name: &str| {
+        read(dir.path().join(name)).unwrap().channels()[0]
+            .grid
+            .clone()
+    };
+    let bricked = |name: &str| {
+        let f = BrickedFile::open(&dir.path().join(name), 8).unwrap();
+        let AnyGrid::F32(g) = f.load_level(0, &Default::default()).unwrap() else {
+            panic!("level 0 of {name} is f32")
+        };
+        (f.channel_name().to_string(), g)
+    };
+    for (n, b, channel) in [
+        ("g.nrrd", "g.bsv", "hi_density"),
+        ("g_he_density.nrrd", "g_he_density.bsv", "he_density"),
+        (
+            "g_temperature_k.nrrd",
+            "g_temperature_k.bsv",
+            "temperature_k",
+        ),
+    ] {
+        let AnyGrid::F32(want) = nrrd(n) else {
+            panic!("{n} is f32")
+        };
+        let (name, got) = bricked(b);
+        assert_eq!(name, channel);
+        assert_eq!(got, want, "{b}");
+    }
+    let AnyGrid::Vec3(v) = nrrd("g_velocity_m_per_s.nrrd") else {
+        panic!("velocity is a vector")
+    };
+    for (a, axis) in ["x", "y", "z"].into_iter().enumerate() {
+        let (name, got) = bricked(&format!("g_velocity_m_per_s_{axis}.bsv"));
+        assert_eq!(name, format!("velocity_m_per_s_{axis}"));
+        let want: Vec<f32> = v.data().iter().map(|p| p[a]).collect();
+        assert_eq!(got.data(), &want[..], "component {axis}");
+    }
+    // One channel only, and the analytic Marschner-Lobb centre value in a bricked file.
+    ok(synth(
+        &[
+            "galaxy",
+            "only.bsv",
+            "--res",
+            "16",
+            "--channel",
+            "dust_density",
+        ],
+        dir.path(),
+    ));
+    assert_eq!(bricked("only.bsv").0, "dust_density");
+    assert!(!dir.path().join("only_he_density.bsv").exists());
+    ok(synth(
+        &["marschner-lobb", "ml.bsv", "--res", "33"],
+        dir.path(),
+    ));
+    let (_, ml) = bricked("ml.bsv");
+    let centre = ml.data()[16 + 33 * (16 + 33 * 16)];
+    let want = blueshift_volume::synth::marschner_lobb_at(Vec3::ZERO);
+    assert!((centre - want).abs() < 1e-6, "{centre} vs {want}");
+    let bad = synth(&["galaxy", "z.bsv", "--gzip"], dir.path());
+    assert!(!bad.status.success());
+}

@@ -519,13 +519,53 @@ struct Writer<'a> {
     plan: &'a Plan,
     levels: Vec<LevelWriter>,
     checksums: Vec<u64>,
-    /// Brick rows on their way to the writer thread: `(file offset, bytes)`.
-    sink: Option<SyncSender<(u64, Vec<u8>)>>,
+    /// Which output this is.
+    id: usize,
+    /// Brick rows on their way to the writer thread: `(output, file offset, bytes)`.
+    sink: Option<SyncSender<(usize, u64, Vec<u8>)>>,
     /// Buffers the writer thread is done with.
     pool: &'a Mutex<Vec<Vec<u8>>>,
 }
 
-impl Writer<'_> {
+impl<'a> Writer<'a> {
+    fn new(
+        id: usize,
+        file: &'a File,
+        layout: BrickLayout,
+        plan: &'a Plan,
+        pool: &'a Mutex<Vec<Vec<u8>>>,
+    ) -> Self {
+        let levels = plan
+            .geoms
+            .iter()
+            .enumerate()
+            .map(|(l, g)| LevelWriter {
+                g: *g,
+                ty: plan.types[l],
+                offset: plan.offsets[l],
+                nb: layout.bricks(g.dims),
+                first_brick: plan.first_brick[l],
+                macro_off: plan.macro_offsets.get(l).copied(),
+                window: VecDeque::new(),
+                next_slab: 0,
+                free: Vec::new(),
+            })
+            .collect();
+        let last = plan.geoms.len() - 1;
+        let b = layout.bricks(plan.geoms[last].dims);
+        let total_bricks = plan.first_brick[last] + b[0] * b[1] * b[2];
+        Writer {
+            file,
+            layout,
+            plan,
+            levels,
+            checksums: vec![0; total_bricks],
+            id,
+            sink: None,
+            pool,
+        }
+    }
+
     /// Adds slice `z` of level `l`, writes every slab it completes and passes the down-sampled
     /// slices on to the coarser levels. Returns spent buffers of level `l`.
     fn push(&mut self, l: usize, z: usize, slice: Vec<f32>) -> Result<Vec<Vec<f32>>> {
@@ -580,7 +620,7 @@ impl Writer<'_> {
         let nb = lw.nb;
         let ts = lw.ty.size_bytes();
         let brick_bytes = s * s * s * ts;
-        let (pool, sink) = (self.pool, self.sink.as_ref());
+        let (pool, sink, id) = (self.pool, self.sink.as_ref(), self.id);
         let sums: Vec<Result<Vec<u64>>> = (0..nb[1])
             .into_par_iter()
             .map(|by| {
@@ -612,7 +652,7 @@ impl Writer<'_> {
                 }
                 let first = ((by + nb[1] * bz) * nb[0]) as u64;
                 sink.ok_or_else(writer_gone)?
-                    .send((lw.offset + first * brick_bytes as u64, buf))
+                    .send((id, lw.offset + first * brick_bytes as u64, buf))
                     .map_err(|_| writer_gone())?;
                 Ok(sums)
             })
@@ -742,11 +782,11 @@ impl ValueStats {
 
 /// Converts a volume into a bricked file at `out` in one streaming pass: the source's
 /// z-slices are read on a second thread, and every level (each the 2x down-sampling of the
-/// one before) is bricked, checksummed and written as soon as its brick slab is complete,
-/// with the macrocells of every level. Memory stays at about
-/// `dims.x * dims.y * (B + 2A) * 4 / 3` f32 values (the slab windows of all levels) plus one
-/// row of bricks per thread. The file is written under a temporary name beside `out` and
-/// renamed over it only when complete, so an interrupted conversion leaves no half file.
+/// one before) is bricked, checksummed and handed to a writer thread as soon as its brick
+/// slab is complete, with the macrocells of every level. Memory stays at about
+/// `dims.x * dims.y * (B + 2A) * 4 / 3` f32 values (the slab windows of all levels) plus
+/// a few rows of bricks in flight. The file is written under a temporary name beside `out`
+/// and renamed over it only when complete, so an interrupted conversion leaves no half file.
 /// `progress(done, total)` reports level-0 slices.
 pub fn convert(
     source: &mut (dyn SlabSource + Send),
@@ -755,72 +795,112 @@ pub fn convert(
     layout: BrickLayout,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<()> {
+    convert_many(
+        &mut OneChannel(source),
+        &[(out, channel_name)],
+        layout,
+        progress,
+    )
+}
+
+/// A source of z-slices of several scalar channels at once, such as a synthetic dataset
+/// computed slice by slice ([`crate::synth::Stream`]).
+pub trait MultiSlabSource {
+    /// Geometry of every channel.
+    fn geometry(&self) -> Geometry;
+    /// Number of channels.
+    fn channels(&self) -> usize;
+    /// The type channel `c`'s level 0 is stored in (default f32).
+    fn scalar_type(&self, _c: usize) -> ScalarType {
+        ScalarType::F32
+    }
+    /// Fills `out[c]` (resized to `dims.x * dims.y`, x fastest) with slice `z` of channel `c`.
+    fn read_slices(&mut self, z: usize, out: &mut [Vec<f32>]) -> Result<()>;
+}
+
+struct OneChannel<'a>(&'a mut (dyn SlabSource + Send));
+
+impl MultiSlabSource for OneChannel<'_> {
+    fn geometry(&self) -> Geometry {
+        self.0.geometry()
+    }
+    fn channels(&self) -> usize {
+        1
+    }
+    fn scalar_type(&self, _c: usize) -> ScalarType {
+        self.0.scalar_type()
+    }
+    fn read_slices(&mut self, z: usize, out: &mut [Vec<f32>]) -> Result<()> {
+        let n = self.0.geometry().dims[0] * self.0.geometry().dims[1];
+        out[0].resize(n, 0.0);
+        self.0.read_slice(z, &mut out[0])
+    }
+}
+
+/// [`convert`] for several channels read together: channel `c` goes to `outs[c]` (a path
+/// and the channel name stored in it), all in the one pass over the source. Every file is
+/// written under a temporary name and renamed only when all are complete.
+pub fn convert_many(
+    source: &mut (dyn MultiSlabSource + Send),
+    outs: &[(&Path, &str)],
+    layout: BrickLayout,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<()> {
     layout.validate()?;
     let g0 = source.geometry();
     g0.validate()?;
-    let t0 = match source.scalar_type() {
-        t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
-        _ => ScalarType::F32,
-    };
-    let plan = Plan::new(g0, &layout, t0, stored_k(&layout))?;
-    let name = channel_name.as_bytes();
-    if name.len() > 255 {
-        return Err(Error::parameter("channel name longer than 255 bytes"));
+    if outs.len() != source.channels() || outs.is_empty() {
+        return Err(Error::parameter(format!(
+            "{} outputs for {} channels",
+            outs.len(),
+            source.channels()
+        )));
     }
-    let dir = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let tmp = tempfile::Builder::new()
-        .prefix(".blueshift-")
-        .suffix(".bsv.partial")
-        .tempfile_in(dir)?;
-    let file = tmp.as_file();
-    file.set_len(plan.total)?;
-    let levels = plan
-        .geoms
-        .iter()
-        .enumerate()
-        .map(|(l, g)| LevelWriter {
-            g: *g,
-            ty: plan.types[l],
-            offset: plan.offsets[l],
-            nb: layout.bricks(g.dims),
-            first_brick: plan.first_brick[l],
-            macro_off: plan.macro_offsets.get(l).copied(),
-            window: VecDeque::new(),
-            next_slab: 0,
-            free: Vec::new(),
-        })
-        .collect();
-    let total_bricks = {
-        let last = plan.geoms.len() - 1;
-        let b = layout.bricks(plan.geoms[last].dims);
-        plan.first_brick[last] + b[0] * b[1] * b[2]
-    };
+    let mut plans = Vec::with_capacity(outs.len());
+    let mut tmps = Vec::with_capacity(outs.len());
+    for (c, (out, name)) in outs.iter().enumerate() {
+        let t0 = match source.scalar_type(c) {
+            t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
+            _ => ScalarType::F32,
+        };
+        plans.push(Plan::new(g0, &layout, t0, stored_k(&layout))?);
+        if name.len() > 255 {
+            return Err(Error::parameter("channel name longer than 255 bytes"));
+        }
+        let dir = out
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let tmp = tempfile::Builder::new()
+            .prefix(".blueshift-")
+            .suffix(".bsv.partial")
+            .tempfile_in(dir)?;
+        tmp.as_file().set_len(plans[c].total)?;
+        tmps.push(tmp);
+    }
     let pool = Mutex::new(Vec::new());
-    let mut w = Writer {
-        file,
-        layout,
-        plan: &plan,
-        levels,
-        checksums: vec![0; total_bricks],
-        sink: None,
-        pool: &pool,
-    };
+    let mut writers: Vec<Writer> = plans
+        .iter()
+        .zip(&tmps)
+        .enumerate()
+        .map(|(id, (plan, tmp))| Writer::new(id, tmp.as_file(), layout, plan, &pool))
+        .collect();
     let nz = g0.dims[2];
-    let slice_len = g0.dims[0] * g0.dims[1];
-    let stats = std::thread::scope(|scope| -> Result<ValueStats> {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(usize, Vec<f32>)>>(2);
+    let nc = outs.len();
+    let stats = std::thread::scope(|scope| -> Result<Vec<ValueStats>> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(usize, Vec<Vec<f32>>)>>(2);
         let (back_tx, back_rx) = std::sync::mpsc::channel::<Vec<f32>>();
         let reader = scope.spawn(move || {
-            let mut st = ValueStats::new();
+            let mut st = vec![ValueStats::new(); nc];
             for z in 0..nz {
-                let mut buf = back_rx.try_recv().unwrap_or_default();
-                buf.resize(slice_len, 0.0);
-                let r = source.read_slice(z, &mut buf).map(|()| {
-                    st.add(&buf);
-                    (z, buf)
+                let mut bufs: Vec<Vec<f32>> = (0..nc)
+                    .map(|_| back_rx.try_recv().unwrap_or_default())
+                    .collect();
+                let r = source.read_slices(z, &mut bufs).map(|()| {
+                    for (s, b) in st.iter_mut().zip(&bufs) {
+                        s.add(b);
+                    }
+                    (z, bufs)
                 });
                 let failed = r.is_err();
                 if tx.send(r).is_err() || failed {
@@ -831,29 +911,37 @@ pub fn convert(
         });
         // One thread writes, in slab order: buffered writes to one file serialise on its
         // inode lock anyway, and the bricks are computed meanwhile.
-        let (sink, rows) = std::sync::mpsc::sync_channel::<(u64, Vec<u8>)>(4);
-        w.sink = Some(sink);
+        let (sink, rows) = std::sync::mpsc::sync_channel::<(usize, u64, Vec<u8>)>(4);
+        for w in &mut writers {
+            w.sink = Some(sink.clone());
+        }
+        drop(sink);
         let pool = &pool;
+        let files: Vec<&File> = tmps.iter().map(tempfile::NamedTempFile::as_file).collect();
         let writer = scope.spawn(move || -> Result<()> {
-            for (at, buf) in rows {
-                file.write_all_at(&buf, at)?;
+            for (id, at, buf) in rows {
+                files[id].write_all_at(&buf, at)?;
                 lock(pool).push(buf);
             }
             Ok(())
         });
         let mut run = || -> Result<()> {
             for r in &rx {
-                let (z, slice) = r?;
+                let (z, slices) = r?;
                 progress(z as u64 + 1, nz as u64);
-                for b in w.push(0, z, slice)? {
-                    let _ = back_tx.send(b);
+                for (w, slice) in writers.iter_mut().zip(slices) {
+                    for b in w.push(0, z, slice)? {
+                        let _ = back_tx.send(b);
+                    }
                 }
             }
             Ok(())
         };
         let done = run();
         drop(rx);
-        w.sink = None;
+        for w in &mut writers {
+            w.sink = None;
+        }
         let written = writer
             .join()
             .map_err(|_| Error::invalid("the bricked-file writer thread panicked"))?;
@@ -863,15 +951,21 @@ pub fn convert(
             .join()
             .map_err(|_| Error::invalid("the volume reader thread panicked"))
     })?;
-    if w.levels.iter().any(|l| l.next_slab != l.nb[2]) {
-        return Err(Error::invalid(
-            "the source ended before every slice was read",
-        ));
+    for (((w, plan), (_, name)), st) in writers.iter().zip(&plans).zip(outs).zip(&stats) {
+        if w.levels.iter().any(|l| l.next_slab != l.nb[2]) {
+            return Err(Error::invalid(
+                "the source ended before every slice was read",
+            ));
+        }
+        w.file
+            .write_all_at(&u64_bytes(&w.checksums), plan.checksum_offset)?;
+        w.file
+            .write_all_at(&header(plan, &layout, g0, name.as_bytes(), st), 0)?;
     }
-    file.write_all_at(&u64_bytes(&w.checksums), plan.checksum_offset)?;
-    let header = header(&plan, &layout, g0, name, &stats);
-    file.write_all_at(&header, 0)?;
-    tmp.persist(out).map_err(|e| Error::Io(e.error))?;
+    drop(writers);
+    for (tmp, (out, _)) in tmps.into_iter().zip(outs) {
+        tmp.persist(out).map_err(|e| Error::Io(e.error))?;
+    }
     Ok(())
 }
 

@@ -14,8 +14,195 @@
 use glam::Vec3;
 
 use crate::grid::{Geometry, Grid};
+use crate::ooc::MultiSlabSource;
 use crate::volume::Volume;
 use crate::{Error, Result};
+
+type VoxelFn = dyn Fn([usize; 3], &mut [f32]) + Send + Sync;
+
+/// A dataset as one pure function of the voxel index that gives every channel's values (a
+/// vector channel as three consecutive components), so it can be computed slice by slice
+/// straight into bricked files of any size ([`crate::ooc::convert_many`], through
+/// [`MultiSlabSource`]) or into memory ([`Stream::to_volume`]), with the same voxels.
+pub struct Stream {
+    geometry: Geometry,
+    channels: Vec<(String, usize)>,
+    voxel: Box<VoxelFn>,
+    /// Which components [`MultiSlabSource`] gives (all by default).
+    selected: Vec<usize>,
+}
+
+impl std::fmt::Debug for Stream {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Stream")
+            .field("geometry", &self.geometry)
+            .field("channels", &self.channels)
+            .field("selected", &self.selected)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Stream {
+    fn new(
+        geometry: Geometry,
+        channels: &[(&str, usize)],
+        voxel: impl Fn([usize; 3], &mut [f32]) + Send + Sync + 'static,
+    ) -> Result<Self> {
+        geometry.validate()?;
+        let channels: Vec<(String, usize)> =
+            channels.iter().map(|&(n, c)| (n.to_string(), c)).collect();
+        let n: usize = channels.iter().map(|c| c.1).sum();
+        Ok(Stream {
+            geometry,
+            channels,
+            voxel: Box::new(voxel),
+            selected: (0..n).collect(),
+        })
+    }
+
+    /// The grid geometry.
+    #[must_use]
+    pub fn geometry(&self) -> Geometry {
+        self.geometry
+    }
+
+    /// Channel names with their component counts (1: scalar, 3: vector).
+    #[must_use]
+    pub fn channels(&self) -> &[(String, usize)] {
+        &self.channels
+    }
+
+    /// Every scalar component's name: a scalar channel's own, a vector's as `name_x`,
+    /// `name_y`, `name_z`.
+    #[must_use]
+    pub fn component_names(&self) -> Vec<String> {
+        self.channels
+            .iter()
+            .flat_map(|(n, c)| {
+                if *c == 1 {
+                    vec![n.clone()]
+                } else {
+                    ["x", "y", "z"].iter().map(|a| format!("{n}_{a}")).collect()
+                }
+            })
+            .collect()
+    }
+
+    /// Gives only channel `name` (all its components) through [`MultiSlabSource`].
+    ///
+    /// # Errors
+    /// No channel of that name.
+    pub fn select(&mut self, name: &str) -> Result<()> {
+        let mut first = 0;
+        for (n, c) in &self.channels {
+            if n == name {
+                self.selected = (first..first + c).collect();
+                return Ok(());
+            }
+            first += c;
+        }
+        let names: Vec<&str> = self.channels.iter().map(|c| c.0.as_str()).collect();
+        Err(Error::parameter(format!(
+            "no channel '{name}' (channels: {})",
+            names.join(", ")
+        )))
+    }
+
+    /// Names of the components [`MultiSlabSource`] gives.
+    #[must_use]
+    pub fn selected_names(&self) -> Vec<String> {
+        let all = self.component_names();
+        self.selected.iter().map(|&i| all[i].clone()).collect()
+    }
+
+    /// Fills `out[c]` (`dims.x * dims.y` values each, one per component) with slice `z`,
+    /// rows in parallel.
+    fn fill_slice(&self, z: usize, selected: &[usize], out: &mut [Vec<f32>]) {
+        use rayon::prelude::*;
+        let [nx, ny, _] = self.geometry.dims;
+        let nc: usize = self.channels.iter().map(|c| c.1).sum();
+        let rows: Vec<Vec<f32>> = (0..ny)
+            .into_par_iter()
+            .map(|y| {
+                let mut r = vec![0f32; nx * nc];
+                for (x, v) in r.chunks_exact_mut(nc).enumerate() {
+                    (self.voxel)([x, y, z], v);
+                }
+                r
+            })
+            .collect();
+        for (o, &c) in out.iter_mut().zip(selected) {
+            o.resize(nx * ny, 0.0);
+            for (y, r) in rows.iter().enumerate() {
+                for (x, d) in o[y * nx..(y + 1) * nx].iter_mut().enumerate() {
+                    *d = r[x * nc + c];
+                }
+            }
+        }
+    }
+
+    /// Computes every channel in memory.
+    ///
+    /// # Errors
+    /// A grid too large to allocate.
+    pub fn to_volume(&self) -> Result<Volume> {
+        let g = self.geometry;
+        let [nx, ny, nz] = g.dims;
+        let nc: usize = self.channels.iter().map(|c| c.1).sum();
+        let all: Vec<usize> = (0..nc).collect();
+        let mut data: Vec<Vec<f32>> = Vec::with_capacity(nc);
+        for _ in 0..nc {
+            let mut v = Vec::new();
+            v.try_reserve_exact(g.voxel_count())
+                .map_err(|_| Error::Limits(format!("cannot allocate a {nx}x{ny}x{nz} grid")))?;
+            data.push(v);
+        }
+        let mut slice = vec![Vec::new(); nc];
+        for z in 0..nz {
+            self.fill_slice(z, &all, &mut slice);
+            for (d, s) in data.iter_mut().zip(&slice) {
+                d.extend_from_slice(s);
+            }
+        }
+        let mut vol = Volume::new(g)?;
+        let mut comps = data.into_iter();
+        for (name, c) in &self.channels {
+            if *c == 1 {
+                vol.push(
+                    name.clone(),
+                    Grid::from_vec(g, comps.next().expect("component"))?,
+                )?;
+            } else {
+                let (x, y, z) = (
+                    comps.next().expect("x"),
+                    comps.next().expect("y"),
+                    comps.next().expect("z"),
+                );
+                let v: Vec<Vec3> = x
+                    .iter()
+                    .zip(&y)
+                    .zip(&z)
+                    .map(|((&a, &b), &c)| Vec3::new(a, b, c))
+                    .collect();
+                vol.push(name.clone(), Grid::from_vec(g, v)?)?;
+            }
+        }
+        Ok(vol)
+    }
+}
+
+impl MultiSlabSource for Stream {
+    fn geometry(&self) -> Geometry {
+        self.geometry
+    }
+    fn channels(&self) -> usize {
+        self.selected.len()
+    }
+    fn read_slices(&mut self, z: usize, out: &mut [Vec<f32>]) -> Result<()> {
+        self.fill_slice(z, &self.selected, out);
+        Ok(())
+    }
+}
 
 /// Names accepted by [`by_name`].
 pub const NAMES: &[&str] = &[
@@ -29,13 +216,18 @@ pub const NAMES: &[&str] = &[
 
 /// Builds the dataset called `name` (see [`NAMES`]) at `res` voxels per edge.
 pub fn by_name(name: &str, res: usize, seed: u64) -> Result<Volume> {
+    stream_by_name(name, res, seed)?.to_volume()
+}
+
+/// The dataset called `name` as a [`Stream`], computed slice by slice when read.
+pub fn stream_by_name(name: &str, res: usize, seed: u64) -> Result<Stream> {
     match name {
-        "galaxy" => galaxy(res, seed),
-        "hydrogen-shell" => hydrogen_shell(res, seed),
-        "three-cubes" => three_cubes(res),
-        "turbulence" => turbulence(res, seed),
-        "marschner-lobb" => marschner_lobb(res),
-        "channels12" => channels12(res, seed),
+        "galaxy" => galaxy_stream(res, seed),
+        "hydrogen-shell" => hydrogen_shell_stream(res, seed),
+        "three-cubes" => three_cubes_stream(res),
+        "turbulence" => turbulence_stream(res, seed),
+        "marschner-lobb" => marschner_lobb_stream(res),
+        "channels12" => channels12_stream(res, seed),
         other => Err(Error::parameter(format!(
             "unknown dataset '{other}' (known: {})",
             NAMES.join(", ")
@@ -121,6 +313,11 @@ fn fbm(p: Vec3, octaves: u32, seed: u64) -> f32 {
 /// - `velocity_m_per_s`: a flat rotation curve of 220 km/s (rising inside 1 kpc) plus bar
 ///   streaming of up to 60 km/s and 10 km/s seeded turbulence.
 pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
+    galaxy_stream(res, seed)?.to_volume()
+}
+
+/// [`galaxy`] as a [`Stream`].
+pub fn galaxy_stream(res: usize, seed: u64) -> Result<Stream> {
     check_res(res)?;
     let dims = [res, res, (res / 2).max(2)];
     let geom = box_geometry(
@@ -130,8 +327,6 @@ pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
     );
     let bar_angle = 25f32.to_radians();
     let (rd, hz) = (4.0f32, 0.4f32);
-    let pos =
-        |x: usize, y: usize, z: usize| geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
     // Shared structure factors.
     let structure = move |p: Vec3| -> (f32, f32, f32) {
         let r = p.x.hypot(p.y);
@@ -157,34 +352,18 @@ pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
         };
         s(p.x, 15.0) * s(p.y, 15.0) * s(p.z, 7.5)
     };
-    let hi = Grid::from_fn(geom, |x, y, z| {
-        let p = pos(x, y, z);
+    let voxel = move |[x, y, z]: [usize; 3], out: &mut [f32]| {
+        let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
         let (r, s, clump) = structure(p);
         let vertical = 1.0 / (p.z / hz).cosh().powi(2);
-        1.0 * (-r / rd).exp() * vertical * s * clump * window(p)
-    })?;
-    let he = Grid::from_fn(geom, |x, y, z| {
-        let p = pos(x, y, z);
+        let hi = 1.0 * (-r / rd).exp() * vertical * s * clump * window(p);
         let halo = 0.002 * (-(p.length() / 10.0)).exp() * window(p);
-        0.08 * hi.data()[geom.index(x, y, z)] + halo
-    })?;
-    let c = Grid::from_fn(geom, |x, y, z| {
-        let p = pos(x, y, z);
-        let (_, s, _) = structure(p);
-        3e-4 * hi.data()[geom.index(x, y, z)] * (s - 1.0).max(0.0)
-    })?;
-    let dust = Grid::from_fn(geom, |x, y, z| {
-        0.3 * c.data()[geom.index(x, y, z)] + 1e-3 * hi.data()[geom.index(x, y, z)]
-    })?;
-    let temp = Grid::from_fn(geom, |x, y, z| {
-        let p = pos(x, y, z);
-        let n = hi.data()[geom.index(x, y, z)];
-        let disk = 8000.0 / (1.0 + 20.0 * n) + 100.0;
+        let he = 0.08 * hi + halo;
+        let c = 3e-4 * hi * (s - 1.0).max(0.0);
+        let dust = 0.3 * c + 1e-3 * hi;
+        let disk = 8000.0 / (1.0 + 20.0 * hi) + 100.0;
         let halo_w = 1.0 - (-(p.z / 1.5).powi(2)).exp();
-        disk * (1.0 - halo_w) + 1.0e6 * halo_w
-    })?;
-    let vel = Grid::from_fn(geom, |x, y, z| {
-        let p = pos(x, y, z);
+        let temp = disk * (1.0 - halo_w) + 1.0e6 * halo_w;
         let r = p.x.hypot(p.y).max(1e-3);
         let vc = 220e3 * (1.0 - (-r / 1.0).exp());
         let tangential = Vec3::new(-p.y / r, p.x / r, 0.0);
@@ -200,16 +379,21 @@ pub fn galaxy(res: usize, seed: u64) -> Result<Volume> {
             fbm(p * 0.5, 3, seed ^ 2),
             fbm(p * 0.5, 3, seed ^ 3),
         ) * 10e3;
-        tangential * vc + radial * v_bar + turb
-    })?;
-    let mut v = Volume::new(geom)?;
-    v.push("hi_density", hi)?;
-    v.push("he_density", he)?;
-    v.push("c_density", c)?;
-    v.push("dust_density", dust)?;
-    v.push("temperature_k", temp)?;
-    v.push("velocity_m_per_s", vel)?;
-    Ok(v)
+        let v = tangential * vc + radial * v_bar + turb;
+        out.copy_from_slice(&[hi, he, c, dust, temp, v.x, v.y, v.z]);
+    };
+    Stream::new(
+        geom,
+        &[
+            ("hi_density", 1),
+            ("he_density", 1),
+            ("c_density", 1),
+            ("dust_density", 1),
+            ("temperature_k", 1),
+            ("velocity_m_per_s", 3),
+        ],
+        voxel,
+    )
 }
 
 /// Shell radius of [`hydrogen_shell`] in world units (the cube spans [-1, 1]).
@@ -228,28 +412,25 @@ pub const SHELL_SPEED_M_PER_S: f32 = 300e3;
 /// (blue-shifted). `hi_density` is 1 cm^-3 in the shell with smooth edges and ±10 % seeded
 /// clumpiness. Geometry in arbitrary world units.
 pub fn hydrogen_shell(res: usize, seed: u64) -> Result<Volume> {
+    hydrogen_shell_stream(res, seed)?.to_volume()
+}
+
+/// [`hydrogen_shell`] as a [`Stream`].
+pub fn hydrogen_shell_stream(res: usize, seed: u64) -> Result<Stream> {
     check_res(res)?;
     let geom = box_geometry([res; 3], Vec3::splat(-1.0), Vec3::splat(1.0));
-    let pos =
-        |x: usize, y: usize, z: usize| geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
     let half = SHELL_THICKNESS / 2.0;
-    let hi = Grid::from_fn(geom, |x, y, z| {
-        let p = pos(x, y, z);
+    let omega = SHELL_SPEED_M_PER_S / SHELL_RADIUS;
+    let voxel = move |[x, y, z]: [usize; 3], out: &mut [f32]| {
+        let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
         let d = (p.length() - SHELL_RADIUS).abs();
         // Flat inside, smooth fall-off over the outer 30 % of the half-thickness.
         let edge = ((half - d) / (0.3 * half)).clamp(0.0, 1.0);
         let w = edge * edge * (3.0 - 2.0 * edge);
-        w * (1.0 + 0.1 * fbm(p * 6.0, 3, seed))
-    })?;
-    let omega = SHELL_SPEED_M_PER_S / SHELL_RADIUS;
-    let vel = Grid::from_fn(geom, |x, y, z| {
-        let p = pos(x, y, z);
-        Vec3::new(omega * p.z, 0.0, -omega * p.x)
-    })?;
-    let mut v = Volume::new(geom)?;
-    v.push("hi_density", hi)?;
-    v.push("velocity_m_per_s", vel)?;
-    Ok(v)
+        let hi = w * (1.0 + 0.1 * fbm(p * 6.0, 3, seed));
+        out.copy_from_slice(&[hi, omega * p.z, 0.0, -omega * p.x]);
+    };
+    Stream::new(geom, &[("hi_density", 1), ("velocity_m_per_s", 3)], voxel)
 }
 
 /// The boxes of [`three_cubes`] in the unit cube: `(min, max)` corners for red, green, blue.
@@ -263,26 +444,30 @@ pub const CUBES: [(Vec3, Vec3); 3] = [
 /// `green`, `blue`, each zero outside its box ([`CUBES`]) and, inside, a linear ramp from
 /// 1 to 0 decreasing along +X (red), -X (green) and -Y (blue).
 pub fn three_cubes(res: usize) -> Result<Volume> {
+    three_cubes_stream(res)?.to_volume()
+}
+
+/// [`three_cubes`] as a [`Stream`].
+pub fn three_cubes_stream(res: usize) -> Result<Stream> {
     check_res(res)?;
     let geom = box_geometry([res; 3], Vec3::ZERO, Vec3::ONE);
-    let mut v = Volume::new(geom)?;
-    for (i, name) in ["red", "green", "blue"].into_iter().enumerate() {
-        let (lo, hi) = CUBES[i];
-        let g = Grid::from_fn(geom, |x, y, z| {
-            let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
-            if p.cmplt(lo).any() || p.cmpgt(hi).any() {
-                return 0.0;
-            }
-            let u = (p - lo) / (hi - lo);
-            match i {
-                0 => 1.0 - u.x,
-                1 => u.x,
-                _ => u.y,
-            }
-        })?;
-        v.push(name, g)?;
-    }
-    Ok(v)
+    let voxel = move |[x, y, z]: [usize; 3], out: &mut [f32]| {
+        let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
+        for (i, o) in out.iter_mut().enumerate() {
+            let (lo, hi) = CUBES[i];
+            *o = if p.cmplt(lo).any() || p.cmpgt(hi).any() {
+                0.0
+            } else {
+                let u = (p - lo) / (hi - lo);
+                match i {
+                    0 => 1.0 - u.x,
+                    1 => u.x,
+                    _ => u.y,
+                }
+            };
+        }
+    };
+    Stream::new(geom, &[("red", 1), ("green", 1), ("blue", 1)], voxel)
 }
 
 /// Decades spanned by [`turbulence`]: its values run from 10^-6.5 to 10^0.5.
@@ -292,40 +477,61 @@ pub const TURBULENCE_DECADES: f32 = 7.0;
 /// six-octave fractal noise rescaled to [0, 1] over the grid, so values span exactly seven
 /// decades, log-normally distributed with a long bright tail. Unit cube geometry.
 pub fn turbulence(res: usize, seed: u64) -> Result<Volume> {
+    turbulence_stream(res, seed)?.to_volume()
+}
+
+/// [`turbulence`] as a [`Stream`]. The rescaling needs the noise's range over the grid: a
+/// first pass computes it without storing anything.
+pub fn turbulence_stream(res: usize, seed: u64) -> Result<Stream> {
+    use rayon::prelude::*;
     check_res(res)?;
     let geom = box_geometry([res; 3], Vec3::ZERO, Vec3::ONE);
     let freq = 4.0;
-    let raw = Grid::from_fn(geom, |x, y, z| {
+    let raw = move |x: usize, y: usize, z: usize| {
         let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
         // Squaring sharpens the filaments: most of the volume is thin, a little is dense.
         let g = fbm(p * freq, 6, seed);
         g + 0.5 * g * g * g.signum()
-    })?;
-    let (lo, hi) = raw
-        .data()
-        .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
+    };
+    let (lo, hi) = (0..res)
+        .into_par_iter()
+        .map(|z| {
+            let mut r = (f32::INFINITY, f32::NEG_INFINITY);
+            for y in 0..res {
+                for x in 0..res {
+                    let v = raw(x, y, z);
+                    r = (r.0.min(v), r.1.max(v));
+                }
+            }
+            r
+        })
+        .reduce(
+            || (f32::INFINITY, f32::NEG_INFINITY),
+            |a, b| (a.0.min(b.0), a.1.max(b.1)),
+        );
     let span = (hi - lo).max(f32::MIN_POSITIVE);
-    let g = Grid::from_fn(geom, |x, y, z| {
-        let u = (raw.data()[geom.index(x, y, z)] - lo) / span;
-        10f32.powf(TURBULENCE_DECADES * u - 6.5)
-    })?;
-    Volume::single("density", g)
+    let voxel = move |[x, y, z]: [usize; 3], out: &mut [f32]| {
+        let u = (raw(x, y, z) - lo) / span;
+        out[0] = 10f32.powf(TURBULENCE_DECADES * u - 6.5);
+    };
+    Stream::new(geom, &[("density", 1)], voxel)
 }
 
 /// The Marschner-Lobb test signal (Marschner & Lobb 1994) on `[-1, 1]^3` with the usual
 /// `f_M = 6`, `α = 0.25`:
 /// `ρ = (1 - sin(π z / 2) + α (1 + cos(2π f_M cos(π r / 2)))) / (2 (1 + α))`, `r = sqrt(x² + y²)`.
 pub fn marschner_lobb(res: usize) -> Result<Volume> {
+    marschner_lobb_stream(res)?.to_volume()
+}
+
+/// [`marschner_lobb`] as a [`Stream`].
+pub fn marschner_lobb_stream(res: usize) -> Result<Stream> {
     check_res(res)?;
     let geom = box_geometry([res; 3], Vec3::splat(-1.0), Vec3::splat(1.0));
-    let g = Grid::from_fn(geom, |x, y, z| {
-        let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
-        marschner_lobb_at(p)
-    })?;
-    Volume::single("density", g)
+    let voxel = move |[x, y, z]: [usize; 3], out: &mut [f32]| {
+        out[0] = marschner_lobb_at(geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32)));
+    };
+    Stream::new(geom, &[("density", 1)], voxel)
 }
 
 /// The Marschner-Lobb function at a point (see [`marschner_lobb`]).
@@ -341,19 +547,29 @@ pub fn marschner_lobb_at(p: Vec3) -> f32 {
 /// Twelve channels `c00` ... `c11` for channel-count sweeps: channel `i` is a Gaussian blob
 /// (σ = 0.12) at a seeded position in the unit cube, times `1 + 0.3 fbm`, peak about 1.
 pub fn channels12(res: usize, seed: u64) -> Result<Volume> {
+    channels12_stream(res, seed)?.to_volume()
+}
+
+/// [`channels12`] as a [`Stream`].
+pub fn channels12_stream(res: usize, seed: u64) -> Result<Stream> {
     check_res(res)?;
     let geom = box_geometry([res; 3], Vec3::ZERO, Vec3::ONE);
-    let mut v = Volume::new(geom)?;
-    for i in 0..12u64 {
-        let s = seed.wrapping_mul(1000).wrapping_add(i);
-        let c = Vec3::new(hash(s, 1, 0, 0), hash(s, 2, 0, 0), hash(s, 3, 0, 0)) * 0.6
-            + Vec3::splat(0.2);
-        let g = Grid::from_fn(geom, |x, y, z| {
-            let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
+    let blobs: Vec<(u64, Vec3)> = (0..12u64)
+        .map(|i| {
+            let s = seed.wrapping_mul(1000).wrapping_add(i);
+            let c = Vec3::new(hash(s, 1, 0, 0), hash(s, 2, 0, 0), hash(s, 3, 0, 0)) * 0.6
+                + Vec3::splat(0.2);
+            (s, c)
+        })
+        .collect();
+    let names: Vec<String> = (0..12).map(|i| format!("c{i:02}")).collect();
+    let channels: Vec<(&str, usize)> = names.iter().map(|n| (n.as_str(), 1)).collect();
+    let voxel = move |[x, y, z]: [usize; 3], out: &mut [f32]| {
+        let p = geom.index_to_world(Vec3::new(x as f32, y as f32, z as f32));
+        for (o, &(s, c)) in out.iter_mut().zip(&blobs) {
             let d2 = (p - c).length_squared();
-            (-d2 / (2.0 * 0.12 * 0.12)).exp() * (1.0 + 0.3 * fbm(p * 5.0, 3, s))
-        })?;
-        v.push(format!("c{i:02}"), g)?;
-    }
-    Ok(v)
+            *o = (-d2 / (2.0 * 0.12 * 0.12)).exp() * (1.0 + 0.3 * fbm(p * 5.0, 3, s));
+        }
+    };
+    Stream::new(geom, &channels, voxel)
 }

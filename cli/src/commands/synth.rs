@@ -4,14 +4,20 @@
 //! to `OUT-stem_<channel>.nrrd` beside it (e.g. `galaxy.nrrd`, `galaxy_he_density.nrrd`, ...,
 //! `galaxy_velocity_m_per_s.nrrd`); `--channel` writes only the named one to OUT. The channel
 //! name is in each file's `content:` field. The files written are listed on stderr.
+//!
+//! A `.bsv` OUT writes bricked out-of-core files instead, computed slice by slice and
+//! bricked in the same pass, so the dataset never exists whole in memory (a 1536^3 galaxy
+//! is 58 GB): one file per scalar, a vector channel as three files `..._x.bsv`, `_y`, `_z`
+//! (how Doppler scene files name bricked velocities).
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use blueshift_volume::io::nrrd;
+use blueshift_volume::ooc::{self, BrickLayout};
 use blueshift_volume::synth;
 
-use super::volume_common::write_volume;
+use super::volume_common::{sibling, write_volume};
 
 /// Arguments of `blueshift synth`.
 #[derive(Debug, clap::Args)]
@@ -19,7 +25,8 @@ pub struct Args {
     /// Dataset: galaxy, hydrogen-shell, three-cubes, turbulence, marschner-lobb, channels12.
     #[arg(value_parser = clap::builder::PossibleValuesParser::new(synth::NAMES))]
     pub name: String,
-    /// Output file (.nrrd, .nhdr or .raw); extra channels go beside it.
+    /// Output file (.nrrd, .nhdr, .raw, or .bsv: streamed into bricked files without
+    /// holding the grid in memory); extra channels go beside it.
     pub output: PathBuf,
     /// Voxels per edge (2..=2048; galaxy has half as many along z).
     #[arg(long, default_value_t = 64)]
@@ -33,10 +40,20 @@ pub struct Args {
     /// gzip the NRRD data.
     #[arg(long)]
     pub gzip: bool,
+    /// Brick edge for .bsv output (even, 2..=1024).
+    #[arg(long, default_value_t = 64)]
+    pub brick: usize,
 }
 
 /// Runs `blueshift synth`.
 pub fn run(args: Args) -> Result<()> {
+    if args
+        .output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("bsv"))
+    {
+        return run_bricked(&args);
+    }
     crate::output::check_output(&args.output)?;
     let vol = synth::by_name(&args.name, args.res, args.seed)
         .with_context(|| format!("cannot make '{}'", args.name))?;
@@ -46,6 +63,57 @@ pub fn run(args: Args) -> Result<()> {
     };
     for p in write_volume(&args.output, &vol, args.channel.as_deref(), &opts)? {
         crate::output::wrote(&p);
+    }
+    Ok(())
+}
+
+/// `synth NAME OUT.bsv`: every component streamed into its own bricked file in one pass.
+fn run_bricked(args: &Args) -> Result<()> {
+    if args.gzip {
+        anyhow::bail!("--gzip applies to NRRD output; .bsv bricks are stored uncompressed");
+    }
+    let cannot = || format!("cannot make '{}'", args.name);
+    let mut stream = synth::stream_by_name(&args.name, args.res, args.seed).with_context(cannot)?;
+    if let Some(c) = &args.channel {
+        stream.select(c).with_context(cannot)?;
+    }
+    let names = stream.selected_names();
+    let paths: Vec<PathBuf> = names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| {
+            if i == 0 {
+                args.output.clone()
+            } else {
+                sibling(&args.output, n)
+            }
+        })
+        .collect();
+    let refs: Vec<&std::path::Path> = paths.iter().map(PathBuf::as_path).collect();
+    crate::output::check_outputs(&refs, &[])?;
+    let layout = BrickLayout {
+        brick: args.brick,
+        ..BrickLayout::default()
+    };
+    let outs: Vec<(&std::path::Path, &str)> = refs
+        .iter()
+        .zip(&names)
+        .map(|(p, n)| (*p, n.as_str()))
+        .collect();
+    let pb = crate::progress::Progress::new(
+        stream.geometry().dims[2] as u64,
+        "synth [{bar:40}] {pos}/{len} slices ({eta})",
+        "synth",
+        "slices",
+    );
+    ooc::convert_many(&mut stream, &outs, layout, &mut |done, total| {
+        pb.set_length(total);
+        pb.set_position(done);
+    })
+    .with_context(cannot)?;
+    pb.finish();
+    for p in &paths {
+        crate::output::wrote(p);
     }
     Ok(())
 }
