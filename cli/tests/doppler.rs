@@ -436,3 +436,81 @@ fn scene_file_renders_with_units_and_flag_overrides() {
         assert!(!out.exists());
     }
 }
+
+#[test]
+fn progressive_bricked_scene_reports_each_level_and_ends_on_the_exact_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let synth = blueshift(&[
+        "synth",
+        "hydrogen-shell",
+        d.join("s.bsv").to_str().unwrap(),
+        "--res",
+        "32",
+        "--brick",
+        "8",
+    ]);
+    assert!(
+        synth.status.success(),
+        "{}",
+        String::from_utf8_lossy(&synth.stderr)
+    );
+    let scene = r#"{"velocity": {"files": ["s_velocity_m_per_s_x.bsv",
+            "s_velocity_m_per_s_y.bsv", "s_velocity_m_per_s_z.bsv"]},
+        "species": [{"name": "hydrogen", "lines": "H", "density": {"file": "s.bsv"}}]}"#;
+    std::fs::write(d.join("scene.json"), scene).unwrap();
+    let s = d.join("scene.json");
+    let run = |out: &str, extra: &[&str]| {
+        let out = d.join(out);
+        let mut args = vec![
+            "doppler",
+            "--scene",
+            s.to_str().unwrap(),
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = blueshift(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (
+            std::fs::read(out).unwrap(),
+            String::from_utf8_lossy(&o.stderr).to_string(),
+        )
+    };
+    let (exact, _) = run("exact.exr", &[]);
+    let (prog, log) = run("prog.exr", &["--progressive"]);
+    // 32^3 in bricks of 8: levels 32, 16, 8 per edge; coarsest first.
+    let levels: Vec<&str> = log
+        .lines()
+        .filter(|l| l.starts_with("progressive:"))
+        .collect();
+    assert_eq!(levels.len(), 3, "{log}");
+    assert!(levels[0].contains("pass 1, level 2 (8x8x8)"), "{log}");
+    assert!(levels[2].contains("pass 3, level 0 (32x32x32)"), "{log}");
+    assert_eq!(prog, exact, "the last pass is the exact image");
+    let (one, log1) = run("one.exr", &["--progressive", "--lod", "1"]);
+    assert_eq!(
+        log1.lines()
+            .filter(|l| l.starts_with("progressive:"))
+            .count(),
+        2
+    );
+    let (lod1, _) = run("lod1.exr", &["--lod", "1"]);
+    assert_eq!(one, lod1);
+    // A scene in memory has no levels.
+    let o = blueshift(&[
+        "doppler",
+        "--synth",
+        "shell",
+        "--res",
+        "8",
+        "--progressive",
+        "--out",
+        d.join("x.exr").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+}

@@ -241,7 +241,7 @@ impl DopplerScene {
     }
 
     /// Every field of the scene, scalar ones first, then the velocity's components.
-    fn fields(&self) -> Vec<&Field> {
+    pub(crate) fn fields(&self) -> Vec<&Field> {
         let mut v: Vec<&Field> = self.species.iter().map(|s| &s.density).collect();
         if let Some((d, t)) = &self.blackbody {
             v.extend([d, t]);

@@ -561,6 +561,81 @@ pub fn render_doppler(
     render_rows(&ctx, &RowCallback(progress))
 }
 
+/// Progressive levels of detail (HDR VolVis section 6.3) for a scene whose fields are all
+/// bricked alike ([`DopplerScene::levels`]), given at level 0: pass 1 renders the coarsest
+/// level, each further pass the next finer one, down to `target` (0: the exact image).
+/// While a level renders, the bricks of the next finer one along every 16th pixel's ray are
+/// prefetched on the cache's I/O thread, so each refinement finds most of its data loaded.
+/// `observer` hears [`Observer::level`] before and [`Observer::pass`] after every pass,
+/// and row progress within it; the last pass's image is returned, the same bytes as
+/// [`render_doppler`] on `scene.at_level(target)`.
+///
+/// # Errors
+/// A scene without levels, a target past the coarsest level, a brick that fails to read,
+/// or [`Error::Cancelled`].
+pub fn render_doppler_lod(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    target: usize,
+    observer: &dyn Observer<DopplerImage>,
+) -> Result<DopplerImage> {
+    let levels = scene.levels().ok_or_else(|| {
+        Error::parameter("progressive levels of detail need every field bricked (.bsv) alike")
+    })?;
+    let coarsest = levels.len() - 1;
+    if target > coarsest {
+        return Err(Error::parameter(format!(
+            "level {target} of {} levels",
+            levels.len()
+        )));
+    }
+    let (w, h) = (settings.width, settings.height);
+    let mut rays = Vec::new();
+    for y in (0..h).step_by(16) {
+        for x in (0..w).step_by(16) {
+            let r = settings.camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
+            rays.push((r.origin, r.dir));
+        }
+    }
+    let prefetch = |s: &DopplerScene| {
+        let fields: Vec<_> = s
+            .fields()
+            .into_iter()
+            .filter_map(|f| f.as_bricked())
+            .collect();
+        blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+    };
+    prefetch(&scene.at_level(coarsest)?);
+    let mut last = None;
+    for (i, level) in (target..=coarsest).rev().enumerate() {
+        let pass = i as u32 + 1;
+        observer.level(pass, level);
+        let s = scene.at_level(level)?;
+        if level > target {
+            prefetch(&scene.at_level(level - 1)?);
+        }
+        let ctx = Context::new(&s, settings)?;
+        let img = render_rows(&ctx, &RowsOnly(observer))?;
+        s.check_io()?;
+        observer.pass(pass, &img, None);
+        last = Some(img);
+    }
+    last.ok_or_else(|| Error::parameter("no level rendered"))
+}
+
+/// Forwards row progress and cancellation, not the single pass's end (the caller numbers
+/// passes itself).
+struct RowsOnly<'a>(&'a dyn Observer<DopplerImage>);
+
+impl Observer<DopplerImage> for RowsOnly<'_> {
+    fn progress(&self, p: Progress) {
+        self.0.progress(p);
+    }
+    fn cancelled(&self) -> bool {
+        self.0.cancelled()
+    }
+}
+
 /// Calls a plain closure once per finished row.
 struct RowCallback<'a>(&'a (dyn Fn() + Sync));
 

@@ -4,8 +4,8 @@
 //! its spectral cube is the same too.
 
 use blueshift_doppler::{
-    CubeSpec, DopplerScene, DopplerSettings, Species, SpectralAxis, SpectralIntegrator,
-    render_cube, render_doppler,
+    CubeSpec, DopplerImage, DopplerScene, DopplerSettings, Species, SpectralAxis,
+    SpectralIntegrator, render_cube, render_doppler, render_doppler_lod,
 };
 use blueshift_spectrum::Catalogue;
 use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource};
@@ -80,7 +80,8 @@ fn bricked_fields_render_the_in_core_bytes() {
         let (mut a, mut b) = (dense.clone(), bricked.clone());
         a.factors.absorption = absorption;
         b.factors.absorption = absorption;
-        let st = DopplerSettings::default_for(&a, 12, 10);
+        let mut st = DopplerSettings::default_for(&a, 12, 10);
+        st.integrator = integrator.clone();
         let x = render_doppler(&a, &st, &|| {}).unwrap();
         let y = render_doppler(&b, &st, &|| {}).unwrap();
         assert_eq!(x.xyz, y.xyz, "{integrator:?} absorption {absorption}");
@@ -102,4 +103,72 @@ fn bricked_fields_render_the_in_core_bytes() {
     );
     assert_eq!(x.data, y.data);
     assert!(cache.stats().peak_bytes <= cache.budget());
+}
+
+#[test]
+fn progressive_levels_run_coarse_to_fine_and_end_on_the_exact_image() {
+    use std::sync::Mutex;
+    let vol = synth::galaxy(48, 3).unwrap();
+    let hi = scalar(&vol, "hi_density");
+    let g = *hi.geometry();
+    let dir = tempfile::tempdir().unwrap();
+    let cache = BrickCache::new(64 << 20);
+    let p = dir.path().join("hi.bsv");
+    ooc::convert(
+        &mut GridSource(&hi),
+        &p,
+        "hi",
+        BrickLayout { brick: 8, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let f = BrickedFile::open_with_cache(&p, cache.clone()).unwrap();
+    let levels = f.levels();
+    assert!(levels >= 3, "{levels} levels");
+    let density: Field = f.field(0).unwrap().into();
+    let mut scene = DopplerScene::new(g).unwrap();
+    scene
+        .add_species(Species {
+            name: "H".into(),
+            density,
+            emission_lines: Catalogue::HydrogenBalmer.lines(),
+            absorption_lines: Catalogue::HydrogenBalmer.lines(),
+        })
+        .unwrap();
+    let st = DopplerSettings::default_for(&scene, 16, 12);
+    #[derive(Default)]
+    struct Log {
+        events: Mutex<Vec<(char, u32, usize)>>,
+        images: Mutex<Vec<Vec<[f64; 3]>>>,
+    }
+    impl blueshift_camera::Observer<DopplerImage> for Log {
+        fn level(&self, pass: u32, level: usize) {
+            self.events.lock().unwrap().push(('l', pass, level));
+        }
+        fn pass(&self, pass: u32, image: &DopplerImage, _: Option<f64>) {
+            self.events.lock().unwrap().push(('p', pass, 0));
+            self.images.lock().unwrap().push(image.xyz.clone());
+        }
+    }
+    for target in [0, 1] {
+        let log = Log::default();
+        let img = render_doppler_lod(&scene, &st, target, &log).unwrap();
+        // Every level from the coarsest down to the target, each announced then delivered.
+        let ev = log.events.into_inner().unwrap();
+        let want: Vec<(char, u32, usize)> = (target..levels)
+            .rev()
+            .enumerate()
+            .flat_map(|(i, l)| [('l', i as u32 + 1, l), ('p', i as u32 + 1, 0)])
+            .collect();
+        assert_eq!(ev, want, "target {target}");
+        // Each pass is the plain render of its level, the last one the target's.
+        let images = log.images.into_inner().unwrap();
+        for (i, l) in (target..levels).rev().enumerate() {
+            let plain = render_doppler(&scene.at_level(l).unwrap(), &st, &|| {}).unwrap();
+            assert_eq!(images[i], plain.xyz, "pass {} level {l}", i + 1);
+        }
+        let exact = render_doppler(&scene.at_level(target).unwrap(), &st, &|| {}).unwrap();
+        assert_eq!(img.xyz, exact.xyz);
+    }
+    assert!(render_doppler_lod(&scene, &st, levels, &blueshift_camera::Silent).is_err());
 }

@@ -125,9 +125,8 @@ impl CacheStats {
 }
 
 struct Job {
-    source: Arc<dyn BrickSource>,
-    level: usize,
-    bricks: Vec<u64>,
+    /// `(source, level, brick)` in load order.
+    bricks: Vec<(Arc<dyn BrickSource>, usize, u64)>,
     generation: u64,
 }
 
@@ -291,13 +290,18 @@ impl BrickCache {
         level: usize,
         bricks: Vec<u64>,
     ) {
+        let items = bricks
+            .into_iter()
+            .map(|b| (source.clone(), level, b))
+            .collect();
+        self.prefetch_items(items);
+    }
+
+    /// [`BrickCache::prefetch`] of bricks of several sources and levels, `(source, level,
+    /// brick)` in load order (one job: it replaces the work still queued as a whole).
+    pub fn prefetch_items(self: &Arc<Self>, bricks: Vec<(Arc<dyn BrickSource>, usize, u64)>) {
         let generation = self.generation.fetch_add(1, Ordering::Relaxed) + 1;
-        let job = Job {
-            source,
-            level,
-            bricks,
-            generation,
-        };
+        let job = Job { bricks, generation };
         let mut io = self
             .io
             .lock()
@@ -322,25 +326,26 @@ impl BrickCache {
 
 fn io_thread(cache: &Weak<BrickCache>, rx: &mpsc::Receiver<Job>) {
     while let Ok(job) = rx.recv() {
-        for &idx in &job.bricks {
+        for (source, level, idx) in &job.bricks {
+            let (level, idx) = (*level, *idx);
             let Some(c) = cache.upgrade() else { return };
             if c.generation.load(Ordering::Relaxed) != job.generation {
                 break;
             }
-            let key = (job.source.uid(), job.level as u32, idx);
+            let key = (source.uid(), level as u32, idx);
             {
                 let inner = c.lock();
                 if inner.map.contains_key(&key) {
                     continue;
                 }
-                let s = job.source.layout().stored_edge();
+                let s = source.layout().stored_edge();
                 if inner.used + s * s * s * 4 > c.budget {
                     break;
                 }
             }
-            match job.source.read_brick(job.level, idx) {
+            match source.read_brick(level, idx) {
                 Ok(data) => {
-                    c.reads[job.level.min(MAX_LEVELS - 1)].fetch_add(1, Ordering::Relaxed);
+                    c.reads[level.min(MAX_LEVELS - 1)].fetch_add(1, Ordering::Relaxed);
                     c.prefetched.fetch_add(1, Ordering::Relaxed);
                     let mut inner = c.lock();
                     if !inner.map.contains_key(&key) {

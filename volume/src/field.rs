@@ -672,6 +672,38 @@ impl BrickedField {
         Ok(out)
     }
 
+    /// Queues on the I/O thread of each field's cache the bricks of `fields` along `rays`
+    /// (world-space origin and direction), ray by ray and, per ray, field by field, each brick
+    /// once: the order a render meets them, so it finds them loaded. Fields sharing a cache
+    /// are one prefetch job (a later prefetch on that cache replaces it).
+    pub fn prefetch_along(fields: &[&BrickedField], rays: &[(Vec3, Vec3)]) {
+        let mut groups: Vec<(Arc<BrickCache>, Vec<(Arc<dyn BrickSource>, usize, u64)>)> =
+            Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        let mut along = Vec::new();
+        for &(o, d) in rays {
+            for f in fields {
+                along.clear();
+                f.bricks_along(o, d, &mut along);
+                let at = match groups.iter().position(|(c, _)| Arc::ptr_eq(c, &f.cache)) {
+                    Some(i) => i,
+                    None => {
+                        groups.push((f.cache.clone(), Vec::new()));
+                        groups.len() - 1
+                    }
+                };
+                for &b in &along {
+                    if seen.insert((f.source.uid(), f.level, b)) {
+                        groups[at].1.push((f.source.clone(), f.level, b));
+                    }
+                }
+            }
+        }
+        for (cache, items) in groups {
+            cache.prefetch_items(items);
+        }
+    }
+
     /// The bricks a ray crosses at this level, in the order it meets them (a 3D DDA over the
     /// brick grid, front to back), for [`BrickCache::prefetch`]. `origin` and `dir` are in
     /// world space.

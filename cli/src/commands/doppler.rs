@@ -156,6 +156,12 @@ pub struct Args {
     /// where the volume is nearest) or a level number (0 = finest).
     #[arg(long)]
     pub lod: Option<String>,
+    /// Progressive levels of detail (scenes whose fields are all .bsv files; CPU): render
+    /// the coarsest level first, then each finer one down to the --lod level (exact by
+    /// default) while its bricks load ahead; each pass's level and time go to stderr and the
+    /// last image is written.
+    #[arg(long)]
+    pub progressive: bool,
     /// Working precision of the GPU kernels: auto (f64 where the adapter has SHADER_F64, as
     /// the CPU; else f32), f64 (agrees with the CPU to rounding; an error without SHADER_F64)
     /// or f32 (faster on GPUs with slow f64; within 2e-3 of the CPU per pixel, see
@@ -173,6 +179,16 @@ fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
 }
 
 pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
+    let (scene, st, _) = build_levels(args)?;
+    Ok((scene, st))
+}
+
+/// [`build`], also giving the level-0 scene and the level the scene was moved to when its
+/// fields are bricked and a level was picked (or `--progressive` asked).
+fn build_levels(
+    args: &Args,
+) -> Result<(DopplerScene, DopplerSettings, Option<(DopplerScene, usize)>)> {
+    let mut level0 = None;
     let mut scene = if let Some(path) = &args.scene {
         let file = SceneFile::read(path)?;
         let tokens: Option<Vec<&str>> = args
@@ -187,11 +203,13 @@ pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
         )?;
         let lod: blueshift_volume::Lod = args.lod.as_deref().unwrap_or("exact").parse()?;
         match scene.levels() {
-            Some(levels) if lod != blueshift_volume::Lod::Exact => {
+            Some(levels) if lod != blueshift_volume::Lod::Exact || args.progressive => {
                 let st = DopplerSettings::default_for(&scene, args.width, args.height);
                 let (lo, hi) = scene.geometry().world_bounds();
                 let level = lod.pick(&levels, st.camera.pixel_footprint(lo, hi, args.height));
-                scene.at_level(level)?
+                let at = scene.at_level(level)?;
+                level0 = Some((scene, level));
+                at
             }
             None if !matches!(
                 lod,
@@ -257,6 +275,9 @@ pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
     if args.subtract_mean_velocity {
         scene.subtract_mean_velocity();
     }
+    if let Some((s0, _)) = &mut level0 {
+        s0.factors = scene.factors;
+    }
     let mut st = DopplerSettings::default_for(&scene, args.width, args.height);
     st.integrator = args.integrator.parse::<SpectralIntegrator>()?;
     st.model = args.doppler.parse::<DopplerModel>().map_err(|_| {
@@ -275,7 +296,7 @@ pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
     st.piece_budget = args.piece_budget;
     st.step = args.step;
     st.line_width_nm = args.line_width;
-    Ok((scene, st))
+    Ok((scene, st, level0))
 }
 
 /// `--view`, `--fov`, `--eye`, `--target`, `--up` and `--zoom` over the view `build` and the
@@ -405,6 +426,56 @@ fn render(session: &DopplerSession) -> Result<DopplerImage> {
     Ok(img)
 }
 
+/// `--progressive`: every level from the coarsest to `target`, one stderr line per pass.
+fn render_progressive(
+    scene0: &DopplerScene,
+    st: &DopplerSettings,
+    target: usize,
+) -> Result<DopplerImage> {
+    struct Passes {
+        start: Instant,
+        level: std::sync::Mutex<(usize, Instant)>,
+        dims: Vec<[usize; 3]>,
+    }
+    impl blueshift_camera::Observer<DopplerImage> for Passes {
+        fn level(&self, _pass: u32, level: usize) {
+            *self
+                .level
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = (level, Instant::now());
+        }
+        fn pass(&self, pass: u32, _image: &DopplerImage, _noise: Option<f64>) {
+            let (level, began) = *self
+                .level
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let d = self.dims.get(level).copied().unwrap_or_default();
+            eprintln!(
+                "progressive: pass {pass}, level {level} ({}x{}x{}): {:.2} s ({:.2} s since the start)",
+                d[0],
+                d[1],
+                d[2],
+                began.elapsed().as_secs_f64(),
+                self.start.elapsed().as_secs_f64()
+            );
+        }
+    }
+    let dims = scene0
+        .levels()
+        .unwrap_or_default()
+        .iter()
+        .map(|g| g.dims)
+        .collect();
+    let obs = Passes {
+        start: Instant::now(),
+        level: std::sync::Mutex::new((0, Instant::now())),
+        dims,
+    };
+    Ok(blueshift_doppler::render_doppler_lod(
+        scene0, st, target, &obs,
+    )?)
+}
+
 /// The one wording of a device failure: `--device gpu: <why>; use --device cpu or auto` for
 /// what the GPU does not support, the error with its context otherwise.
 pub(crate) fn device_error(e: anyhow::Error) -> anyhow::Error {
@@ -511,7 +582,15 @@ pub fn run(args: Args) -> Result<()> {
             crate::output::check_outputs(&outs, &inputs)?;
         }
     }
-    let (scene, mut st) = build(&args)?;
+    let (scene, mut st, level0) = build_levels(&args)?;
+    if args.progressive {
+        if level0.is_none() {
+            bail!("--progressive: levels of detail need every field of the scene in .bsv files");
+        }
+        if args.cube.cube.is_some() || args.device == blueshift_gpu::DeviceChoice::Gpu {
+            bail!("--progressive renders images on the CPU (not cubes, not --device gpu)");
+        }
+    }
     super::doppler_cube::apply_view(&args.cube, &scene, &mut st)?;
     apply_camera(&args, &scene, &mut st)?;
     st.broadening = super::doppler_cube::broadening(&args.cube)?;
@@ -562,7 +641,10 @@ pub fn run(args: Args) -> Result<()> {
             on = if double { "gpu (f64)" } else { "gpu (f32)" };
             blueshift_gpu::doppler::render_doppler_gpu_with(ctx, scene, st, args.gpu_precision)
         },
-        || render(&session),
+        || match &level0 {
+            Some((s0, target)) if args.progressive => render_progressive(s0, st, *target),
+            _ => render(&session),
+        },
     )
     .map_err(device_error)?;
     if let Some(why) = &ran.fallback {

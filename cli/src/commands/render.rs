@@ -646,22 +646,27 @@ pub(crate) fn prefetch_view(
     scene: &blueshift_tracking::Scene,
     settings: &blueshift_tracking::RenderSettings,
 ) {
-    let (w, h) = (settings.width, settings.height);
-    for c in scene.channels() {
-        let Some(b) = c.grid().as_bricked() else {
-            continue;
-        };
-        let mut order = Vec::new();
-        let mut seen = std::collections::HashSet::new();
-        let mut along = Vec::new();
-        for y in (0..h).step_by(16) {
-            for x in (0..w).step_by(16) {
-                let ray = settings.camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
-                along.clear();
-                b.bricks_along(ray.origin, ray.dir, &mut along);
-                order.extend(along.iter().filter(|i| seen.insert(**i)));
-            }
+    let fields: Vec<&blueshift_volume::BrickedField> = scene
+        .channels()
+        .iter()
+        .filter_map(|c| c.grid().as_bricked())
+        .collect();
+    let rays = sparse_rays(&settings.camera, settings.width, settings.height);
+    blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+}
+
+/// Every 16th pixel's ray (rows in render order), world-space origin and direction.
+pub(crate) fn sparse_rays(
+    camera: &blueshift_camera::Camera,
+    w: u32,
+    h: u32,
+) -> Vec<(glam::Vec3, glam::Vec3)> {
+    let mut rays = Vec::new();
+    for y in (0..h).step_by(16) {
+        for x in (0..w).step_by(16) {
+            let ray = camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
+            rays.push((ray.origin, ray.dir));
         }
-        b.cache().prefetch(b.source().clone(), b.level(), order);
     }
+    rays
 }
