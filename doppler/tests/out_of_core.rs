@@ -81,7 +81,7 @@ fn bricked_fields_render_the_in_core_bytes() {
         a.factors.absorption = absorption;
         b.factors.absorption = absorption;
         let mut st = DopplerSettings::default_for(&a, 12, 10);
-        st.integrator = integrator.clone();
+        st.integrator = integrator;
         let x = render_doppler(&a, &st, &|| {}).unwrap();
         let y = render_doppler(&b, &st, &|| {}).unwrap();
         assert_eq!(x.xyz, y.xyz, "{integrator:?} absorption {absorption}");

@@ -155,10 +155,28 @@ class Scene:
     # -- reading and writing -----------------------------------------------------------
 
     @classmethod
-    def read(cls, path: Union[str, "os.PathLike[str]"], species: Optional[Sequence[str]] = None) -> "Scene":
+    def read(
+        cls,
+        path: Union[str, "os.PathLike[str]"],
+        species: Optional[Sequence[str]] = None,
+        cache_mb: Optional[int] = None,
+    ) -> "Scene":
         """Reads a scene file (``blueshift doppler --scene``'s format); ``species`` selects
-        parts by name (``bb`` for the black body)."""
-        return cls(_native_scene=_native.DopplerScene.read(os.fspath(path), cv.names(species)))
+        parts by name (``bb`` for the black body). Fields in ``.bsv`` files stay on disk and
+        are read brick by brick through one cache of ``cache_mb`` MiB (default: a quarter of
+        physical memory), so a scene larger than memory renders."""
+        return cls(_native_scene=_native.DopplerScene.read(os.fspath(path), cv.names(species), cache_mb))
+
+    @property
+    def levels(self) -> Optional[List[Tuple[int, int, int]]]:
+        """Voxels per axis of each level of detail, finest first, when every field is a
+        ``.bsv`` file; ``None`` for a scene in memory."""
+        return self._native.levels
+
+    def at_level(self, level: int) -> "Scene":
+        """The same scene sampled at level of detail ``level`` (0: the finest), e.g. a fast
+        preview of a large out-of-core scene."""
+        return type(self)(_native_scene=self._native.at_level(int(level)))
 
     def save(self, folder: Union[str, "os.PathLike[str]"], name: str = "scene.json") -> str:
         """Writes the scene as NRRD files and a scene file in ``folder`` (created; files

@@ -268,17 +268,53 @@ impl PyDopplerScene {
         Ok(Self { scene })
     }
 
-    /// Reads a scene file.
+    /// Reads a scene file; its `.bsv` fields are read out of core through one brick cache
+    /// of `cache_mb` MiB (default: a quarter of physical memory).
     #[staticmethod]
-    #[pyo3(signature = (path, select=None))]
-    fn read(py: Python<'_>, path: PathBuf, select: Option<Vec<String>>) -> PyResult<Self> {
+    #[pyo3(signature = (path, select=None, cache_mb=None))]
+    fn read(
+        py: Python<'_>,
+        path: PathBuf,
+        select: Option<Vec<String>>,
+        cache_mb: Option<u64>,
+    ) -> PyResult<Self> {
+        let cache = match cache_mb {
+            Some(0) => return Err(BlueshiftError::new_err("cache_mb must be at least 1")),
+            Some(mb) => usize::try_from(mb.saturating_mul(1 << 20)).unwrap_or(usize::MAX),
+            None => blueshift_volume::cache::default_budget(),
+        };
         let scene = run_cancellable(py, |_| {
             let file = SceneFile::read(&path).map_err(Fail::err)?;
             let sel: Option<Vec<&str>> = select
                 .as_ref()
                 .map(|v| v.iter().map(String::as_str).collect());
-            file.load_selected(sel.as_deref()).map_err(Fail::err)
+            file.load_out_of_core(
+                sel.as_deref(),
+                &MemoryVolumes::new(),
+                Some(blueshift_volume::BrickCache::new(cache)),
+            )
+            .map_err(Fail::err)
         })?;
+        Ok(Self { scene })
+    }
+
+    /// Voxels per axis of every level of detail, finest first, when every field is a `.bsv`
+    /// file (bricked alike); `None` for a scene in memory.
+    #[getter]
+    fn levels(&self) -> Option<Vec<(usize, usize, usize)>> {
+        self.scene.levels().map(|g| {
+            g.iter()
+                .map(|g| (g.dims[0], g.dims[1], g.dims[2]))
+                .collect()
+        })
+    }
+
+    /// The same scene sampled at level of detail `level` (0: this, the finest).
+    fn at_level(&self, level: usize) -> PyResult<Self> {
+        let scene = self
+            .scene
+            .at_level(level)
+            .map_err(|e| BlueshiftError::new_err(crate::chain(&e)))?;
         Ok(Self { scene })
     }
 

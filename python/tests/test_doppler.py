@@ -432,3 +432,26 @@ def test_gpu_doppler_render_equals_the_clis(cli, tmp_path):
     c = scene.render(width=24, height=24)
     assert c.backend == "cpu"
     np.testing.assert_allclose(g.xyz, c.xyz, rtol=2e-3, atol=1e-4 * c.xyz.max())
+
+
+def test_bricked_scene_reads_out_of_core_with_levels_equal_to_the_cli(cli, tmp_path):
+    cli("synth", "hydrogen-shell", tmp_path / "s.bsv", "--res", 32, "--brick", 8)
+    scene = {
+        "velocity": {"files": [f"s_velocity_m_per_s_{a}.bsv" for a in "xyz"]},
+        "species": [{"name": "hydrogen", "lines": "H", "density": {"file": "s.bsv"}}],
+    }
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(scene))
+    s = doppler.Scene.read(path, cache_mb=1)
+    assert s.levels == [(32, 32, 32), (16, 16, 16), (8, 8, 8)]
+    r = s.render(width=24, height=24)
+    cli("doppler", "--scene", path, "--width", 24, "--height", 24, "--cache-mb", 1, "--out", tmp_path / "b.exr")
+    np.testing.assert_array_equal(r.xyz.astype(np.float32), blueshift.read_hdr(tmp_path / "b.exr"))
+    coarse = s.at_level(2).render(width=24, height=24)
+    cli("doppler", "--scene", path, "--width", 24, "--height", 24, "--lod", 2, "--out", tmp_path / "c.exr")
+    np.testing.assert_array_equal(coarse.xyz.astype(np.float32), blueshift.read_hdr(tmp_path / "c.exr"))
+    assert not np.array_equal(coarse.xyz, r.xyz)
+    with pytest.raises(blueshift.BlueshiftError):
+        s.at_level(3)
+    with pytest.raises(blueshift.BlueshiftError):
+        doppler.Scene.read(path, cache_mb=0)

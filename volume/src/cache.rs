@@ -124,9 +124,11 @@ impl CacheStats {
     }
 }
 
+/// Bricks to load, `(source, level, brick)` in load order.
+pub type PrefetchList = Vec<(Arc<dyn BrickSource>, usize, u64)>;
+
 struct Job {
-    /// `(source, level, brick)` in load order.
-    bricks: Vec<(Arc<dyn BrickSource>, usize, u64)>,
+    bricks: PrefetchList,
     generation: u64,
 }
 
@@ -299,7 +301,7 @@ impl BrickCache {
 
     /// [`BrickCache::prefetch`] of bricks of several sources and levels, `(source, level,
     /// brick)` in load order (one job: it replaces the work still queued as a whole).
-    pub fn prefetch_items(self: &Arc<Self>, bricks: Vec<(Arc<dyn BrickSource>, usize, u64)>) {
+    pub fn prefetch_items(self: &Arc<Self>, bricks: PrefetchList) {
         let generation = self.generation.fetch_add(1, Ordering::Relaxed) + 1;
         let job = Job { bricks, generation };
         let mut io = self

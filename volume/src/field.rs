@@ -677,8 +677,7 @@ impl BrickedField {
     /// once: the order a render meets them, so it finds them loaded. Fields sharing a cache
     /// are one prefetch job (a later prefetch on that cache replaces it).
     pub fn prefetch_along(fields: &[&BrickedField], rays: &[(Vec3, Vec3)]) {
-        let mut groups: Vec<(Arc<BrickCache>, Vec<(Arc<dyn BrickSource>, usize, u64)>)> =
-            Vec::new();
+        let mut groups: Vec<(Arc<BrickCache>, crate::cache::PrefetchList)> = Vec::new();
         let mut seen = std::collections::HashSet::new();
         let mut along = Vec::new();
         for &(o, d) in rays {

@@ -183,11 +183,12 @@ pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
     Ok((scene, st))
 }
 
+/// The level-0 scene of a bricked scene and the level it was moved to.
+type Level0 = (DopplerScene, usize);
+
 /// [`build`], also giving the level-0 scene and the level the scene was moved to when its
 /// fields are bricked and a level was picked (or `--progressive` asked).
-fn build_levels(
-    args: &Args,
-) -> Result<(DopplerScene, DopplerSettings, Option<(DopplerScene, usize)>)> {
+fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Level0>)> {
     let mut level0 = None;
     let mut scene = if let Some(path) = &args.scene {
         let file = SceneFile::read(path)?;
