@@ -31,9 +31,9 @@ pub trait Observer<I: ?Sized>: Sync {
     /// pass number (1-based) and, where the engine estimates it, the relative noise.
     fn pass(&self, _pass: u32, _image: &I, _noise: Option<f64>) {}
     /// A progressive level-of-detail run (HDR VolVis section 6.3: a first image from a coarse
-    /// level, refined level by level) is about to render pass `pass` (1-based) from level
+    /// level, refined level by level) is about to render step `step` (1-based) from level
     /// `level` of the data (0: the finest, exact level).
-    fn level(&self, _pass: u32, _level: usize) {}
+    fn level(&self, _step: u32, _level: usize) {}
     /// Polled between work items; `true` stops the run, which returns the engine's
     /// `Cancelled` error.
     fn cancelled(&self) -> bool {

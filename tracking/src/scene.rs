@@ -223,6 +223,52 @@ impl Scene {
         self.frame
     }
 
+    /// The level every channel samples and the number of levels, when all channels are
+    /// levels of bricked sources with the same level geometries (`None` in core).
+    #[must_use]
+    pub fn lod(&self) -> Option<(usize, usize)> {
+        let first = self.channels.first()?.grid.as_bricked()?;
+        let geoms = first.source().geometries();
+        self.channels
+            .iter()
+            .all(|c| {
+                c.grid
+                    .as_bricked()
+                    .is_some_and(|b| b.level() == first.level() && b.source().geometries() == geoms)
+            })
+            .then_some((first.level(), geoms.len()))
+    }
+
+    /// The same scene (transfer functions, density scale, light, shading, background, the
+    /// macrocell edge) with every channel at level `level` of its bricked source (0: the
+    /// finest); see [`Scene::lod`].
+    ///
+    /// # Errors
+    /// A channel in memory, or a level past the coarsest.
+    pub fn at_level(&self, level: usize) -> Result<Scene> {
+        let k = self.channels[0].macrocells.k();
+        let mut chans = Vec::with_capacity(self.channels.len());
+        for (i, c) in self.channels.iter().enumerate() {
+            let b = c.grid.as_bricked().ok_or_else(|| {
+                Error::scene(format!(
+                    "channels[{i}] ('{}'): levels of detail need every channel bricked (.bsv)",
+                    c.name
+                ))
+            })?;
+            chans.push((
+                c.name.clone(),
+                Field::from(b.at_level(level)?),
+                c.tf.clone(),
+            ));
+        }
+        let mut s = Scene::new(chans, self.density_scale, k)?;
+        s.frame = self.frame;
+        s.background = self.background;
+        s.light = self.light;
+        s.shading = self.shading.clone();
+        Ok(s)
+    }
+
     /// The first brick read that failed while rendering (out-of-core channels), as an
     /// error; renders call this after every pass.
     pub fn check_io(&self) -> Result<()> {

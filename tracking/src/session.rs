@@ -132,6 +132,85 @@ impl TrackingSession {
     }
 }
 
+impl TrackingSession {
+    /// Progressive levels of detail (HDR VolVis section 6.3) for a scene of bricked channels
+    /// ([`Scene::lod`]): one quick pass (one sample per pixel) at every level from the
+    /// coarsest down to the one above the scene's own, then the full render at the scene's
+    /// level, the same output as [`TrackingSession::render`]. While a level renders, the next
+    /// finer level's bricks along every 16th pixel's ray load on the cache's I/O thread.
+    /// `observer` hears [`Observer::level`] before each step (steps numbered from 1) and
+    /// [`Observer::pass`] after each preview step; the final render's passes are its own,
+    /// numbered from 1. A scene in memory is just rendered.
+    ///
+    /// # Errors
+    /// As [`TrackingSession::render`].
+    pub fn render_lod(&self, observer: &dyn Observer<Progressive>) -> Result<TrackingOutput> {
+        let Some((level, count)) = self.scene.lod() else {
+            return self.render(observer);
+        };
+        let st = &self.settings;
+        let mut rays = Vec::new();
+        for y in (0..st.height).step_by(16) {
+            for x in (0..st.width).step_by(16) {
+                let r = st
+                    .camera
+                    .ray(x as f32 + 0.5, y as f32 + 0.5, st.width, st.height);
+                rays.push((r.origin, r.dir));
+            }
+        }
+        let prefetch = |s: &Scene| {
+            let fields: Vec<_> = s
+                .channels()
+                .iter()
+                .filter_map(|c| c.grid().as_bricked())
+                .collect();
+            blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+        };
+        let preview = RenderSettings {
+            spp: 1,
+            noise_target: None,
+            heatmaps: false,
+            timed_frames: None,
+            warmup: 0,
+            ..st.clone()
+        };
+        let mut step = 0;
+        for l in (level + 1..count).rev() {
+            step += 1;
+            observer.level(step, l);
+            let s = self.scene.at_level(l)?;
+            prefetch(&if l - 1 == level {
+                self.scene.clone()
+            } else {
+                self.scene.at_level(l - 1)?
+            });
+            let prepared = self.integrator.prepared(&s)?;
+            let out = run_loop(
+                &s,
+                &prepared,
+                &preview,
+                &ProgressOnly(observer),
+                &mut |_| {},
+            )?;
+            observer.pass(step, &out.image, None);
+        }
+        observer.level(step + 1, level);
+        self.render(observer)
+    }
+}
+
+/// Forwards progress and cancellation only (preview steps report their pass themselves).
+struct ProgressOnly<'a>(&'a dyn Observer<Progressive>);
+
+impl Observer<Progressive> for ProgressOnly<'_> {
+    fn progress(&self, p: blueshift_camera::Progress) {
+        self.0.progress(p);
+    }
+    fn cancelled(&self) -> bool {
+        self.0.cancelled()
+    }
+}
+
 impl Session for TrackingSession {
     type Image = Progressive;
     type Output = TrackingOutput;

@@ -206,3 +206,49 @@ fn a_corrupt_brick_is_an_error_at_render_time_not_a_panic() {
     let e = render(&sc, &m, &s).unwrap_err().to_string();
     assert!(e.contains("brick"), "{e}");
 }
+
+#[test]
+fn progressive_lod_previews_coarse_levels_then_gives_the_plain_render() {
+    use blueshift_tracking::{Progressive, TrackingSession};
+    use std::sync::Mutex;
+    let dir = tempfile::tempdir().unwrap();
+    let (_, bricked, _) = channels(dir.path(), 64 << 20);
+    let s = scene(bricked);
+    let (level, count) = s.lod().expect("bricked alike");
+    assert_eq!((level, count), (0, 4), "40^3 in bricks of 8: 40, 20, 10, 5");
+    let mut st = RenderSettings::default_for(&s, 16, 12, false);
+    st.spp = 3;
+    #[derive(Default)]
+    struct Log(Mutex<Vec<(char, u32, usize)>>);
+    impl blueshift_camera::Observer<Progressive> for Log {
+        fn level(&self, step: u32, level: usize) {
+            self.0.lock().unwrap().push(('l', step, level));
+        }
+        fn pass(&self, pass: u32, _: &Progressive, _: Option<f64>) {
+            self.0.lock().unwrap().push(('p', pass, 0));
+        }
+    }
+    for from in [0, 2] {
+        let s = s.at_level(from).unwrap();
+        let session =
+            TrackingSession::new(s.clone(), Integrator::Woodcock { channel: 0 }, st.clone())
+                .unwrap();
+        let log = Log::default();
+        let out = session.render_lod(&log).unwrap();
+        let plain = session.render(&blueshift_camera::Silent).unwrap();
+        assert_eq!(
+            out.image.mean_image().as_raw(),
+            plain.image.mean_image().as_raw(),
+            "from level {from}"
+        );
+        // One preview pass per coarser level, coarsest first, then the render's own passes.
+        let mut want = Vec::new();
+        for (i, l) in (from + 1..count).rev().enumerate() {
+            want.extend([('l', i as u32 + 1, l), ('p', i as u32 + 1, 0)]);
+        }
+        want.push(('l', (count - from) as u32, from));
+        want.extend((1..=3).map(|p| ('p', p, 0)));
+        assert_eq!(log.0.into_inner().unwrap(), want, "from level {from}");
+    }
+    assert!(s.at_level(count).is_err());
+}

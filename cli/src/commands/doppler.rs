@@ -634,8 +634,13 @@ pub fn run(args: Args) -> Result<()> {
     }
     let start = Instant::now();
     let mut on = "cpu";
+    let device = if args.progressive {
+        blueshift_gpu::DeviceChoice::Cpu
+    } else {
+        args.device
+    };
     let ran = blueshift_gpu::run_with_fallback(
-        args.device,
+        device,
         || blueshift_gpu::doppler::supports(scene, st),
         |ctx| {
             let double = args.gpu_precision.is_double_on(ctx)?;

@@ -167,6 +167,11 @@ pub struct Args {
     /// volume is nearest to the camera), or a level number (0 = finest).
     #[arg(long)]
     pub lod: Option<String>,
+    /// Progressive levels of detail (every channel a .bsv file; CPU): one quick pass (1 spp)
+    /// at each level from the coarsest down to the one above the --lod level, then the full
+    /// render at the --lod level (exact by default); each step's level and time go to stderr.
+    #[arg(long)]
+    pub progressive: bool,
     /// Where to render: cpu (default, bit-reproducible), gpu (a wgpu adapter or an error)
     /// or auto (a hardware GPU when present, or the adapter $BLUESHIFT_GPU forces, else the
     /// CPU). The GPU supports every method, blend and light; shading, heat maps and
@@ -377,8 +382,14 @@ pub(crate) fn report_cache(cache: &blueshift_volume::BrickCache, level: Option<u
         .filter(|(_, n)| **n > 0)
         .map(|(l, n)| format!("{n} at level {l}"))
         .collect();
+    let rss = peak_rss_bytes().map_or_else(String::new, |b| {
+        format!(
+            "; process peak resident {:.1} MiB",
+            b as f64 / f64::from(1u32 << 20)
+        )
+    });
     eprintln!(
-        "out-of-core: level {} sampled; bricks read: {} ({} prefetched); cache peak {:.1} MiB of {:.1} MiB",
+        "out-of-core: level {} sampled; bricks read: {} ({} prefetched); cache peak {:.1} MiB of {:.1} MiB{rss}",
         level.map_or_else(|| "-".to_owned(), |l| l.to_string()),
         if reads.is_empty() {
             "none".to_owned()
@@ -389,6 +400,14 @@ pub(crate) fn report_cache(cache: &blueshift_volume::BrickCache, level: Option<u
         s.peak_bytes as f64 / f64::from(1u32 << 20),
         cache.budget() as f64 / f64::from(1u32 << 20),
     );
+}
+
+/// The process's peak resident memory (`VmHWM` of `/proc/self/status`; `None` off Linux).
+pub(crate) fn peak_rss_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }
 
 fn run_inner(args: &Args) -> Result<()> {
@@ -403,6 +422,14 @@ fn run_inner(args: &Args) -> Result<()> {
         .channels()
         .iter()
         .find_map(|c| c.grid().as_bricked().map(|b| b.level()));
+    if args.progressive {
+        if scene.lod().is_none() {
+            bail!("--progressive: levels of detail need every channel in a .bsv file");
+        }
+        if args.device == blueshift_gpu::DeviceChoice::Gpu {
+            bail!("--progressive renders on the CPU (not --device gpu)");
+        }
+    }
     if level.is_some() {
         prefetch_view(&scene, &settings);
     }
@@ -414,7 +441,11 @@ fn run_inner(args: &Args) -> Result<()> {
     let method = integrator.method().name();
     let n = scene.channels().len();
     let (width, height) = (settings.width, settings.height);
-    let device = args.device;
+    let device = if args.progressive {
+        blueshift_gpu::DeviceChoice::Cpu
+    } else {
+        args.device
+    };
     let supported = blueshift_gpu::tracking::supports(&scene, &settings);
     // gpu hands the scene to the device; auto keeps it for the CPU in case the adapter
     // cannot run this render.
@@ -456,6 +487,10 @@ fn run_inner(args: &Args) -> Result<()> {
         },
         || -> Result<TrackingOutput> {
             let session = TrackingSession::new(take()?, integrator.clone(), settings.clone())?;
+            if args.progressive {
+                let observer = Steps::new(&show, session.scene());
+                return Ok(session.render_lod(&observer)?);
+            }
             let observer = OnPass(&show);
             Ok(session.render(&observer)?)
         },
@@ -581,6 +616,78 @@ struct OnPass<'a, F>(&'a F);
 impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for OnPass<'_, F> {
     fn pass(&self, pass: u32, acc: &Progressive, _noise: Option<f64>) {
         (self.0)(pass, acc.noise());
+    }
+}
+
+/// `--progressive`: one stderr line per preview step, the final level's passes to the bar.
+struct Steps<'a, F> {
+    show: &'a F,
+    start: Instant,
+    /// `(step, level, started)` of the step running.
+    current: std::sync::Mutex<(u32, usize, Instant)>,
+    final_level: usize,
+    dims: Vec<[usize; 3]>,
+}
+
+impl<'a, F> Steps<'a, F> {
+    fn new(show: &'a F, scene: &blueshift_tracking::Scene) -> Self {
+        let dims = scene
+            .channels()
+            .first()
+            .and_then(|c| c.grid().as_bricked())
+            .map(|b| b.source().geometries().iter().map(|g| g.dims).collect())
+            .unwrap_or_default();
+        Steps {
+            show,
+            start: Instant::now(),
+            current: std::sync::Mutex::new((0, 0, Instant::now())),
+            final_level: scene.lod().map_or(0, |l| l.0),
+            dims,
+        }
+    }
+
+    fn line(&self, step: u32, level: usize, began: Instant, what: &str) {
+        let d = self.dims.get(level).copied().unwrap_or_default();
+        eprintln!(
+            "progressive: pass {step}, level {level} ({}x{}x{}){what}: {:.2} s ({:.2} s since the start)",
+            d[0],
+            d[1],
+            d[2],
+            began.elapsed().as_secs_f64(),
+            self.start.elapsed().as_secs_f64()
+        );
+    }
+}
+
+impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for Steps<'_, F> {
+    fn level(&self, step: u32, level: usize) {
+        *self
+            .current
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = (step, level, Instant::now());
+    }
+    fn pass(&self, pass: u32, acc: &Progressive, _noise: Option<f64>) {
+        let (step, level, began) = *self
+            .current
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if level == self.final_level {
+            (self.show)(pass, acc.noise());
+        } else {
+            self.line(step, level, began, ", 1 spp");
+        }
+    }
+}
+
+impl<F> Drop for Steps<'_, F> {
+    fn drop(&mut self) {
+        let (step, level, began) = *self
+            .current
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if step > 0 && level == self.final_level {
+            self.line(step, level, began, "");
+        }
     }
 }
 
