@@ -322,6 +322,22 @@ impl Camera {
         }
     }
 
+    /// The rays through the centres of every `every`-th pixel of every `every`-th row, in
+    /// render order, as world-space `(origin, direction)`: the sparse sample of a view that
+    /// out-of-core renders prefetch bricks along.
+    #[must_use]
+    pub fn sparse_rays(&self, width: u32, height: u32, every: u32) -> Vec<(Vec3, Vec3)> {
+        let every = every.max(1) as usize;
+        let mut rays = Vec::new();
+        for y in (0..height).step_by(every) {
+            for x in (0..width).step_by(every) {
+                let r = self.ray(x as f32 + 0.5, y as f32 + 0.5, width, height);
+                rays.push((r.origin, r.dir));
+            }
+        }
+        rays
+    }
+
     /// The ray through continuous pixel position `(px, py)` of a `width x height` image
     /// (pixel `(i, j)` covers `[i, i+1) x [j, j+1)`; row 0 is the top). Call
     /// [`Camera::validate`] first; a degenerate camera gives a ray along +z.

@@ -589,14 +589,9 @@ pub fn render_doppler_lod(
             levels.len()
         )));
     }
-    let (w, h) = (settings.width, settings.height);
-    let mut rays = Vec::new();
-    for y in (0..h).step_by(16) {
-        for x in (0..w).step_by(16) {
-            let r = settings.camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
-            rays.push((r.origin, r.dir));
-        }
-    }
+    let rays = settings
+        .camera
+        .sparse_rays(settings.width, settings.height, 16);
     let prefetch = |s: &DopplerScene| {
         let fields: Vec<_> = s
             .fields()

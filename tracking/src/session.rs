@@ -149,15 +149,7 @@ impl TrackingSession {
             return self.render(observer);
         };
         let st = &self.settings;
-        let mut rays = Vec::new();
-        for y in (0..st.height).step_by(16) {
-            for x in (0..st.width).step_by(16) {
-                let r = st
-                    .camera
-                    .ray(x as f32 + 0.5, y as f32 + 0.5, st.width, st.height);
-                rays.push((r.origin, r.dir));
-            }
-        }
+        let rays = st.camera.sparse_rays(st.width, st.height, 16);
         let prefetch = |s: &Scene| {
             let fields: Vec<_> = s
                 .channels()

@@ -43,6 +43,20 @@ pub trait BrickSource: Send + Sync + fmt::Debug {
     fn geometries(&self) -> &[Geometry];
     /// The `(B + 2A)^3` decoded voxels of brick `idx` (x fastest over bricks) of `level`.
     fn read_brick(&self, level: usize, idx: u64) -> Result<Vec<f32>>;
+    /// [`BrickSource::read_brick`] into `out` (`(B + 2A)^3` values); sources override it to
+    /// read without allocating (the cache reuses evicted bricks' memory through it).
+    fn read_brick_into(&self, level: usize, idx: u64, out: &mut [f32]) -> Result<()> {
+        let v = self.read_brick(level, idx)?;
+        if v.len() != out.len() {
+            return Err(Error::invalid(format!(
+                "brick {idx} of level {level}: {} voxels, {} expected",
+                v.len(),
+                out.len()
+            )));
+        }
+        out.copy_from_slice(&v);
+        Ok(())
+    }
     /// Stored macrocells of `level` for edge `k`, when the source has them.
     fn stored_macrocells(&self, _level: usize, _k: usize) -> Result<Option<Macrocells>> {
         Ok(None)
@@ -59,10 +73,17 @@ pub trait BrickSource: Send + Sync + fmt::Debug {
 
 type Key = (u64, u32, u64);
 
+/// Evicted bricks a cache keeps for reuse, at most a quarter of its budget (memory beyond
+/// the budget; see `Inner::spare`).
+pub const SPARE_BRICKS: usize = 8;
+
 #[derive(Debug, Default)]
 struct Inner {
     map: HashMap<Key, (Arc<[f32]>, u64)>,
     lru: BTreeMap<u64, Key>,
+    /// Evicted bricks no one else holds, kept for the next read (at most [`SPARE_BRICKS`]):
+    /// reusing them keeps the allocator from fragmenting under constant eviction.
+    spare: Vec<Arc<[f32]>>,
     used: usize,
     peak: usize,
     tick: u64,
@@ -87,8 +108,12 @@ impl Inner {
             let Some((_, old)) = self.lru.pop_first() else {
                 break;
             };
-            if let Some((d, _)) = self.map.remove(&old) {
+            if let Some((mut d, _)) = self.map.remove(&old) {
                 self.used -= d.len() * 4;
+                let room = (self.spare.len() + 1) * d.len() * 4 <= budget / 4;
+                if self.spare.len() < SPARE_BRICKS && room && Arc::get_mut(&mut d).is_some() {
+                    self.spare.push(d);
+                }
             }
         }
         self.tick += 1;
@@ -205,13 +230,28 @@ impl BrickCache {
             return Ok(b);
         }
         // Read outside the lock: other threads keep sampling (and reading) meanwhile.
-        let data: Arc<[f32]> = source.read_brick(level, idx)?.into();
+        let data = self.read_new(source, level, idx)?;
         self.reads[level.min(MAX_LEVELS - 1)].fetch_add(1, Ordering::Relaxed);
         let mut inner = self.lock();
         if let Some(b) = inner.touch(key) {
             return Ok(b); // another thread read it meanwhile
         }
         inner.insert(key, data.clone(), self.budget);
+        Ok(data)
+    }
+
+    /// Reads a brick into a spare evicted brick's memory, or a new allocation.
+    fn read_new(&self, source: &dyn BrickSource, level: usize, idx: u64) -> Result<Arc<[f32]>> {
+        let s = source.layout().stored_edge();
+        let n = s * s * s;
+        let spare = {
+            let mut inner = self.lock();
+            let at = inner.spare.iter().position(|b| b.len() == n);
+            at.map(|i| inner.spare.swap_remove(i))
+        };
+        let mut data: Arc<[f32]> = spare.unwrap_or_else(|| std::iter::repeat_n(0.0, n).collect());
+        let out = Arc::get_mut(&mut data).ok_or_else(|| Error::invalid("shared spare brick"))?;
+        source.read_brick_into(level, idx, out)?;
         Ok(data)
     }
 
@@ -345,13 +385,13 @@ fn io_thread(cache: &Weak<BrickCache>, rx: &mpsc::Receiver<Job>) {
                     break;
                 }
             }
-            match source.read_brick(level, idx) {
+            match c.read_new(source.as_ref(), level, idx) {
                 Ok(data) => {
                     c.reads[level.min(MAX_LEVELS - 1)].fetch_add(1, Ordering::Relaxed);
                     c.prefetched.fetch_add(1, Ordering::Relaxed);
                     let mut inner = c.lock();
                     if !inner.map.contains_key(&key) {
-                        inner.insert(key, data.into(), c.budget);
+                        inner.insert(key, data, c.budget);
                     }
                 }
                 // The renderer meets the same brick and reports the failure itself.

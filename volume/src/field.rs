@@ -914,17 +914,30 @@ impl BrickSource for CombinedSource {
         self.a.source.geometries()
     }
     fn read_brick(&self, level: usize, idx: u64) -> Result<Vec<f32>> {
+        let s = self.a.layout.stored_edge();
+        let mut v = vec![0f32; s * s * s];
+        self.read_brick_into(level, idx, &mut v)?;
+        Ok(v)
+    }
+    fn read_brick_into(&self, level: usize, idx: u64, out: &mut [f32]) -> Result<()> {
         let x = self.a.cache.get(self.a.source.as_ref(), level, idx)?;
+        if x.len() != out.len() {
+            return Err(Error::invalid("brick buffer of the wrong size"));
+        }
         match &self.b {
             Some(b) => {
                 let y = b.cache.get(b.source.as_ref(), level, idx)?;
-                Ok(x.iter()
-                    .zip(y.iter())
-                    .map(|(&p, &q)| (self.f)(p, q))
-                    .collect())
+                for ((o, &p), &q) in out.iter_mut().zip(x.iter()).zip(y.iter()) {
+                    *o = (self.f)(p, q);
+                }
             }
-            None => Ok(x.iter().map(|&p| (self.f)(p, p)).collect()),
+            None => {
+                for (o, &p) in out.iter_mut().zip(x.iter()) {
+                    *o = (self.f)(p, p);
+                }
+            }
         }
+        Ok(())
     }
     fn finite_range(&self) -> Option<(f32, f32)> {
         self.range

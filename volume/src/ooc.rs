@@ -871,10 +871,11 @@ pub fn convert_many(
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
-        let tmp = tempfile::Builder::new()
-            .prefix(".blueshift-")
-            .suffix(".bsv.partial")
-            .tempfile_in(dir)?;
+        let mut b = tempfile::Builder::new();
+        b.prefix(".blueshift-").suffix(".bsv.partial");
+        // Mode 0666 less the umask, as `File::create` gives (tempfile's default is 0600).
+        b.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+        let tmp = b.tempfile_in(dir)?;
         tmp.as_file().set_len(plans[c].total)?;
         tmps.push(tmp);
     }
@@ -1047,8 +1048,17 @@ impl BrickSource for FileBricks {
     }
     fn read_brick(&self, level: usize, idx: u64) -> Result<Vec<f32>> {
         let s = self.layout.stored_edge();
+        let mut v = vec![0f32; s * s * s];
+        self.read_brick_into(level, idx, &mut v)?;
+        Ok(v)
+    }
+    fn read_brick_into(&self, level: usize, idx: u64, out: &mut [f32]) -> Result<()> {
+        let s = self.layout.stored_edge();
         let t = self.plan.types[level];
         let bytes_per = s * s * s * t.size_bytes();
+        if out.len() != s * s * s {
+            return Err(Error::invalid("brick buffer of the wrong size"));
+        }
         let at = self.plan.offsets[level] + idx * bytes_per as u64;
         let want = self.checksums[self.plan.first_brick[level] + idx as usize];
         let bad = || {
@@ -1058,20 +1068,21 @@ impl BrickSource for FileBricks {
             ))
         };
         if t == ScalarType::F32 && cfg!(target_endian = "little") {
-            let mut v = vec![0f32; s * s * s];
-            self.file
-                .read_exact_at(bytemuck::cast_slice_mut(&mut v), at)?;
-            if checksum(bytemuck::cast_slice(&v)) != want {
+            self.file.read_exact_at(bytemuck::cast_slice_mut(out), at)?;
+            if checksum(bytemuck::cast_slice(out)) != want {
                 return Err(bad());
             }
-            return Ok(v);
+            return Ok(());
         }
         let mut buf = vec![0u8; bytes_per];
         self.file.read_exact_at(&mut buf, at)?;
         if checksum(&buf) != want {
             return Err(bad());
         }
-        Ok(decode(&buf, t))
+        for (o, v) in out.iter_mut().zip(decode(&buf, t)) {
+            *o = v;
+        }
+        Ok(())
     }
     fn stored_macrocells(&self, level: usize, k: usize) -> Result<Option<Macrocells>> {
         if k != self.plan.k || k == 0 || level >= self.plan.geoms.len() {

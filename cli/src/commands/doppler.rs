@@ -450,15 +450,7 @@ fn render_progressive(
                 .level
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner);
-            let d = self.dims.get(level).copied().unwrap_or_default();
-            eprintln!(
-                "progressive: pass {pass}, level {level} ({}x{}x{}): {:.2} s ({:.2} s since the start)",
-                d[0],
-                d[1],
-                d[2],
-                began.elapsed().as_secs_f64(),
-                self.start.elapsed().as_secs_f64()
-            );
+            super::render::progressive_line(pass, level, &self.dims, "", began, self.start);
         }
     }
     let dims = scene0

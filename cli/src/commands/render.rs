@@ -619,6 +619,27 @@ impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for OnPass<
     }
 }
 
+/// The one stderr line of a `--progressive` pass: its level, the level's dims, its time and
+/// the time since the run began.
+pub(crate) fn progressive_line(
+    pass: u32,
+    level: usize,
+    dims: &[[usize; 3]],
+    what: &str,
+    began: Instant,
+    start: Instant,
+) {
+    let d = dims.get(level).copied().unwrap_or_default();
+    eprintln!(
+        "progressive: pass {pass}, level {level} ({}x{}x{}){what}: {:.2} s ({:.2} s since the start)",
+        d[0],
+        d[1],
+        d[2],
+        began.elapsed().as_secs_f64(),
+        start.elapsed().as_secs_f64()
+    );
+}
+
 /// `--progressive`: one stderr line per preview step, the final level's passes to the bar.
 struct Steps<'a, F> {
     show: &'a F,
@@ -647,15 +668,7 @@ impl<'a, F> Steps<'a, F> {
     }
 
     fn line(&self, step: u32, level: usize, began: Instant, what: &str) {
-        let d = self.dims.get(level).copied().unwrap_or_default();
-        eprintln!(
-            "progressive: pass {step}, level {level} ({}x{}x{}){what}: {:.2} s ({:.2} s since the start)",
-            d[0],
-            d[1],
-            d[2],
-            began.elapsed().as_secs_f64(),
-            self.start.elapsed().as_secs_f64()
-        );
+        progressive_line(step, level, &self.dims, what, began, self.start);
     }
 }
 
@@ -758,22 +771,8 @@ pub(crate) fn prefetch_view(
         .iter()
         .filter_map(|c| c.grid().as_bricked())
         .collect();
-    let rays = sparse_rays(&settings.camera, settings.width, settings.height);
+    let rays = settings
+        .camera
+        .sparse_rays(settings.width, settings.height, 16);
     blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
-}
-
-/// Every 16th pixel's ray (rows in render order), world-space origin and direction.
-pub(crate) fn sparse_rays(
-    camera: &blueshift_camera::Camera,
-    w: u32,
-    h: u32,
-) -> Vec<(glam::Vec3, glam::Vec3)> {
-    let mut rays = Vec::new();
-    for y in (0..h).step_by(16) {
-        for x in (0..w).step_by(16) {
-            let ray = camera.ray(x as f32 + 0.5, y as f32 + 0.5, w, h);
-            rays.push((ray.origin, ray.dir));
-        }
-    }
-    rays
 }
