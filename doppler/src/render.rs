@@ -592,22 +592,26 @@ pub fn render_doppler_lod(
     let rays = settings
         .camera
         .sparse_rays(settings.width, settings.height, 16);
-    let prefetch = |s: &DopplerScene| {
-        let fields: Vec<_> = s
+    // The bricks of `level` along the rays (the fields alone: no scene to build).
+    let prefetch = |level: usize| -> Result<()> {
+        let fields = scene
             .fields()
             .into_iter()
-            .filter_map(|f| f.as_bricked())
-            .collect();
-        blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+            .filter_map(blueshift_volume::Field::as_bricked)
+            .map(|b| b.at_level(level))
+            .collect::<blueshift_volume::Result<Vec<_>>>()?;
+        let refs: Vec<_> = fields.iter().collect();
+        blueshift_volume::BrickedField::prefetch_along(&refs, &rays);
+        Ok(())
     };
-    prefetch(&scene.at_level(coarsest)?);
+    prefetch(coarsest)?;
     let mut last = None;
     for (i, level) in (target..=coarsest).rev().enumerate() {
         let pass = i as u32 + 1;
         observer.level(pass, level);
         let s = scene.at_level(level)?;
         if level > target {
-            prefetch(&scene.at_level(level - 1)?);
+            prefetch(level - 1)?;
         }
         let ctx = Context::new(&s, settings)?;
         let img = render_rows(&ctx, &RowsOnly(observer))?;

@@ -150,13 +150,18 @@ impl TrackingSession {
         };
         let st = &self.settings;
         let rays = st.camera.sparse_rays(st.width, st.height, 16);
-        let prefetch = |s: &Scene| {
-            let fields: Vec<_> = s
+        // The bricks of `level` along the rays (the fields alone: no scene to build).
+        let prefetch = |level: usize| -> Result<()> {
+            let fields = self
+                .scene
                 .channels()
                 .iter()
                 .filter_map(|c| c.grid().as_bricked())
-                .collect();
-            blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+                .map(|b| b.at_level(level))
+                .collect::<blueshift_volume::Result<Vec<_>>>()?;
+            let refs: Vec<_> = fields.iter().collect();
+            blueshift_volume::BrickedField::prefetch_along(&refs, &rays);
+            Ok(())
         };
         let preview = RenderSettings {
             spp: 1,
@@ -171,11 +176,7 @@ impl TrackingSession {
             step += 1;
             observer.level(step, l);
             let s = self.scene.at_level(l)?;
-            prefetch(&if l - 1 == level {
-                self.scene.clone()
-            } else {
-                self.scene.at_level(l - 1)?
-            });
+            prefetch(l - 1)?;
             let prepared = self.integrator.prepared(&s)?;
             let out = run_loop(
                 &s,
