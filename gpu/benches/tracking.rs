@@ -5,6 +5,12 @@
 //! N-DDA max, and the f32 marcher; each as `cpu/...` (blueshift-tracking, rayon) and
 //! `gpu/...` (upload excluded, readback included). The ratio gpu / cpu is the figure.
 //!
+//! `pool` (any adapter): the device brick pool. `upload/dense` and `upload/bsv` fill the
+//! pool of a 96^3 2-channel scene from memory and from `.bsv` files through a warm brick
+//! cache (the cost of out-of-core data on the GPU); `render/full` and `render/sparse` are
+//! the 1-DDA render of a volume whose bricks are all resident and of one that is zero but
+//! for one brick (the page table's constant bricks cost no memory reads).
+//!
 //! `tracking_paper` only runs on a hardware adapter: the MDWT paper's setting, 2560x1440
 //! at 1 spp on a 512^3 4-channel volume, 1-DDA, density blending, with and without shadows
 //! (paper, RTX 4090: 291 and 178 FPS on NYX), and frames against channel count 1..12 on
@@ -176,5 +182,92 @@ fn paper(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, small, paper);
+fn pool(c: &mut Criterion) {
+    use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource};
+    use blueshift_volume::{BrickCache, Field};
+    let ctx = match GpuContext::shared() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("SKIP: no wgpu adapter: {e}");
+            return;
+        }
+    };
+    let tracker = GpuTracker::new(ctx).unwrap();
+    let n = 96;
+    let full = scene(n, 2, 4.0 / n as f32);
+    let dir = tempfile::tempdir().unwrap();
+    let cache = BrickCache::new(1 << 28);
+    let mut triples = Vec::new();
+    for (i, ch) in full.channels().iter().enumerate() {
+        let Some(AnyGrid::F32(g)) = ch.grid().as_dense() else {
+            unreachable!("f32 channels")
+        };
+        let p = dir.path().join(format!("c{i}.bsv"));
+        ooc::convert(
+            &mut GridSource(g),
+            &p,
+            "c",
+            BrickLayout::default(),
+            &mut |_, _| {},
+        )
+        .unwrap();
+        let f = BrickedFile::open_with_cache(&p, cache.clone()).unwrap();
+        triples.push((
+            format!("c{i}"),
+            Field::from(f.field(0).unwrap()),
+            ch.transfer_function().clone(),
+        ));
+    }
+    let bsv = Scene::new(triples, 4.0 / n as f32, 4).unwrap();
+    // Zero but for a blob inside one pool brick.
+    let sparse_grid = Grid::from_fn(Geometry::unit([n, n, n]), |x, y, z| {
+        let d = Vec3::new(x as f32 - 48.0, y as f32 - 48.0, z as f32 - 48.0).length();
+        if d < 12.0 { 1.0 - d / 12.0 } else { 0.0 }
+    })
+    .unwrap();
+    let sparse = Scene::new(
+        vec![(
+            "blob".to_owned(),
+            AnyGrid::F32(sparse_grid),
+            tf([1.0, 0.5, 0.2], &[(0.0, 0.0), (1.0, 0.8)]),
+        )],
+        4.0 / n as f32,
+        4,
+    )
+    .unwrap();
+    let one = Scene::new(
+        vec![(
+            "c0".to_owned(),
+            full.channels()[0].grid().clone(),
+            full.channels()[0].transfer_function().clone(),
+        )],
+        4.0 / n as f32,
+        4,
+    )
+    .unwrap();
+    let mut g = c.benchmark_group("pool");
+    g.sample_size(10);
+    tracker.upload(bsv.clone()).unwrap(); // warms the brick cache
+    g.bench_function("upload/dense", |b| {
+        b.iter(|| tracker.upload(full.clone()).unwrap());
+    });
+    g.bench_function("upload/bsv", |b| {
+        b.iter(|| tracker.upload(bsv.clone()).unwrap());
+    });
+    let integ = Integrator::Mdwt {
+        dda: DdaMode::OneDda,
+        blend: Blend::Density,
+    };
+    for (name, s) in [("full", one), ("sparse", sparse)] {
+        let mut set = RenderSettings::default_for(&s, 64, 64, false);
+        set.spp = 4;
+        let gs = tracker.upload(s).unwrap();
+        g.bench_function(format!("render/{name}"), |b| {
+            b.iter(|| tracker.render(&gs, &integ, &set).unwrap());
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, small, pool, paper);
 criterion_main!(benches);

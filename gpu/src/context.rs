@@ -252,6 +252,8 @@ pub struct GpuContext {
     /// Compiled pipelines by (entry point, WGSL source): a pipeline is compiled once per
     /// context (the Doppler kernels take seconds on a software adapter).
     pipelines: Mutex<PipelineCache>,
+    /// Largest brick pool, bytes, set by [`GpuContext::set_pool_limit`] (0: the device's).
+    pool_limit: std::sync::atomic::AtomicU64,
 }
 
 type PipelineCache = std::collections::HashMap<(String, String), wgpu::ComputePipeline>;
@@ -332,6 +334,7 @@ impl GpuContext {
             info,
             sink,
             pipelines: Mutex::new(PipelineCache::new()),
+            pool_limit: std::sync::atomic::AtomicU64::new(0),
         })
     }
 
@@ -565,6 +568,25 @@ impl GpuContext {
         })
     }
 
+    /// Caps the device brick pool ([`crate::pool`]) at `bytes` (`None`: the device's own
+    /// limits). Scenes uploaded afterwards use it; a pool never exceeds the device's limits.
+    pub fn set_pool_limit(&self, bytes: Option<u64>) {
+        self.pool_limit
+            .store(bytes.unwrap_or(0), std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Bytes a brick pool may take: the least of `max_buffer_size`,
+    /// `max_storage_buffer_binding_size` and the [`GpuContext::set_pool_limit`] cap.
+    #[must_use]
+    pub fn pool_capacity_bytes(&self) -> u64 {
+        let l = self.device.limits();
+        let device = l.max_buffer_size.min(l.max_storage_buffer_binding_size);
+        match self.pool_limit.load(std::sync::atomic::Ordering::Relaxed) {
+            0 => device,
+            cap => cap.min(device),
+        }
+    }
+
     /// Checks a storage buffer of `bytes` bytes against `max_buffer_size` and
     /// `max_storage_buffer_binding_size`.
     pub fn check_storage_size(&self, what: &str, bytes: u64) -> Result<()> {
@@ -760,6 +782,26 @@ impl GpuContext {
             )));
         }
         self.scoped(|| self.queue.write_buffer(buffer, 0, bytes))
+    }
+
+    /// Copies the first `bytes` bytes (a multiple of 4) of `from` into `to` on the device and
+    /// waits for it.
+    pub fn copy_buffer(&self, from: &wgpu::Buffer, to: &wgpu::Buffer, bytes: u64) -> Result<()> {
+        if !bytes.is_multiple_of(4) || bytes > from.size() || bytes > to.size() {
+            return Err(Error::InvalidInput(format!(
+                "copying {bytes} bytes between buffers of {} and {}",
+                from.size(),
+                to.size()
+            )));
+        }
+        self.scoped(|| {
+            let mut enc = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            enc.copy_buffer_to_buffer(from, 0, to, 0, bytes);
+            self.queue.submit([enc.finish()]);
+        })?;
+        self.wait()
     }
 
     /// Copies the first `count` elements of `buffer` back to the host.

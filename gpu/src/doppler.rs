@@ -155,9 +155,13 @@ use bytemuck::{Pod, Zeroable};
 use crate::context::{GpuContext, WORKGROUP_2D};
 use crate::device::Unsupported;
 use crate::error::{Error, Result};
+use crate::pool::{DevicePool, PoolChannel};
 
 /// WGSL of the Doppler pipeline.
-pub const DOPPLER_WGSL: &str = include_str!("shaders/doppler.wgsl");
+pub const DOPPLER_WGSL: &str = concat!(
+    include_str!("shaders/doppler.wgsl"),
+    include_str!("shaders/pool.wgsl")
+);
 
 /// Prelude of the f32 kernels: the working float `fw` is f32.
 const PRELUDE_F32: &str = "\
@@ -565,13 +569,6 @@ pub fn supports(
     scene: &DopplerScene,
     _settings: &DopplerSettings,
 ) -> std::result::Result<(), Unsupported> {
-    crate::out_of_core_fits(
-        scene
-            .species()
-            .iter()
-            .map(|s| &s.density)
-            .chain(scene.blackbody().into_iter().flat_map(|(d, t)| [d, t])),
-    )?;
     if scene.species().len() > MAX_SPECIES {
         return Err(Unsupported(format!(
             "{} species (at most {MAX_SPECIES} on the GPU)",
@@ -639,6 +636,19 @@ pub fn render_doppler_gpu_with(
     settings: &DopplerSettings,
     precision: DopplerPrecision,
 ) -> Result<DopplerImage> {
+    render_doppler_gpu_pooled(ctx, scene, settings, precision).map(|(img, _)| img)
+}
+
+/// [`render_doppler_gpu_with`], also saying what the device brick pool held
+/// ([`crate::pool`]). A scene whose non-constant bricks exceed the pool fails with the
+/// pool's [`Error::LimitExceeded`] ([`crate::pool::is_pool_full`]): a coarser level of
+/// detail (`DopplerScene::at_level`) may fit.
+pub fn render_doppler_gpu_pooled(
+    ctx: &GpuContext,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    precision: DopplerPrecision,
+) -> Result<(DopplerImage, crate::pool::PoolStats)> {
     let prep = Prepared::new(scene, settings).map_err(doppler_err)?;
     render_prepared(ctx, scene, settings, &prep, precision)
 }
@@ -650,7 +660,7 @@ fn render_prepared(
     settings: &DopplerSettings,
     prep: &Prepared,
     precision: DopplerPrecision,
-) -> Result<DopplerImage> {
+) -> Result<(DopplerImage, crate::pool::PoolStats)> {
     supports(scene, settings)?;
     let entry = match (settings.integrator, prep.absorbing()) {
         (SpectralIntegrator::Banded { .. }, _) => "main_banded",
@@ -666,34 +676,26 @@ fn render_prepared(
     let nsp = scene.species().len();
     let bb = scene.blackbody();
     let n_channels = nsp + if bb.is_some() { 3 } else { 0 };
-    // Check the largest buffer before building it.
-    ctx.check_storage_size(
-        "doppler channels",
-        (n_channels.max(1) as u64) * (nvox as u64) * 4,
-    )?;
-    ctx.check_storage_size("doppler velocity", (nvox as u64) * 12)?;
     ctx.check_storage_size(
         "doppler rays",
         u64::from(settings.width) * u64::from(settings.height) * 48,
     )?;
-    let mut channels: Vec<f32> = Vec::with_capacity(n_channels.max(1) * nvox);
+    // The device brick pool: the velocity's three components, then the scalar channels
+    // (species densities; the black body's density, temperature (thermal broadening) and
+    // density x Planck factor, as the CPU's).
+    let mut channels: Vec<PoolChannel<'_>> = match scene.velocity() {
+        Some(v) => (0..3).map(|a| PoolChannel::Component(v, a)).collect(),
+        None => vec![PoolChannel::Zero; 3],
+    };
     for sp in scene.species() {
-        channels.extend(sp.density.dense_f32()?);
+        channels.push(PoolChannel::Scalar(&sp.density));
     }
     if let (Some((d, t)), Some(rho_t)) = (bb, scene.blackbody_rho_t()) {
-        // Density, temperature (thermal broadening) and density x Planck factor (the black
-        // body's temperature, as the CPU's).
-        channels.extend(d.dense_f32()?);
-        channels.extend(t.dense_f32()?);
-        channels.extend(rho_t.dense_f32()?);
+        channels.extend([d, t, rho_t].map(PoolChannel::Scalar));
     }
-    if channels.is_empty() {
-        channels.push(0.0);
-    }
-    let velocity: Vec<f32> = match scene.velocity() {
-        Some(v) => v.dense_xyz()?,
-        None => vec![0.0; 3],
-    };
+    debug_assert_eq!(channels.len(), 3 + n_channels);
+    let pool = crate::pool::upload(ctx, "doppler volume", &channels)?;
+    drop(channels);
     let (a, b) = settings.range_nm;
     let n_bands = match settings.integrator {
         SpectralIntegrator::PiecewiseLinear => 0,
@@ -806,7 +808,8 @@ fn render_prepared(
         nx: to_u32("dims", nx)?,
         ny: to_u32("dims", ny)?,
         nz: to_u32("dims", nz)?,
-        nvox: to_u32("voxels", nvox)?,
+        // Unused by the kernels since the brick pool (kept for the struct's layout).
+        nvox: u32::try_from(nvox).unwrap_or(u32::MAX),
         nsp: to_u32("species", nsp)?,
         n_lines: to_u32("lines", n_lines)?,
         has_bb: u32::from(bb.is_some()),
@@ -857,18 +860,16 @@ fn render_prepared(
     if pwl_absorbs {
         let bufs = Bufs {
             rays: &rays,
-            channels: &channels,
-            velocity: &velocity,
+            pool: &pool,
             tables: &tables,
             lines: &lines_fw,
             double,
         };
-        return render_absorbing(ctx, settings, params, &bufs, n_abs);
+        return render_absorbing(ctx, settings, params, &bufs, n_abs).map(|img| (img, pool.stats));
     }
     let pipeline = ctx.compute_pipeline("doppler", &shader_source(double), entry)?;
     let rb = ctx.storage_buffer("doppler rays", &rays)?;
-    let cb = ctx.storage_buffer("doppler channels", &channels)?;
-    let vb = ctx.storage_buffer("doppler velocity", &velocity)?;
+    let (cb, vb) = (&pool.pool, &pool.pages);
     let tb = tables.upload(ctx, "doppler tables")?;
     let lb = lines_fw.upload(ctx, "doppler lines")?;
     let n_pix = rays.len();
@@ -885,7 +886,7 @@ fn render_prepared(
         };
         ctx.check_storage_size("doppler band values (pixels x bands)", bytes)?;
         let sb = ctx.storage_buffer_zeroed("doppler band values", bytes)?;
-        let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
+        let bg = ctx.bind_group(&pipeline, 0, &[&rb, cb, vb, &tb, &lb, &ob, &pb, &sb])?;
         let mut params = params;
         (_, params.iter_limit) = iteration_limits(ctx);
         ctx.write_buffer(&pb, std::slice::from_ref(&params))?;
@@ -896,7 +897,7 @@ fn render_prepared(
         let bytes = n_pix as u64 * 20 * fw_bytes(double);
         ctx.check_storage_size("doppler ray state (pixels x 20 floats)", bytes)?;
         let sb = ctx.storage_buffer_zeroed("doppler ray state", bytes)?;
-        let bg = ctx.bind_group(&pipeline, 0, &[&rb, &cb, &vb, &tb, &lb, &ob, &pb, &sb])?;
+        let bg = ctx.bind_group(&pipeline, 0, &[&rb, cb, vb, &tb, &lb, &ob, &pb, &sb])?;
         let mut params = params;
         (_, params.iter_limit) = iteration_limits(ctx);
         let max_seg = rays.iter().map(|r| r.n_seg).max().unwrap_or(0) as usize;
@@ -930,19 +931,20 @@ fn render_prepared(
             i as u32 / settings.width
         )));
     }
-    Ok(DopplerImage {
+    let img = DopplerImage {
         width: settings.width,
         height: settings.height,
         xyz: out.iter().map(|p| [p[0], p[1], p[2]]).collect(),
         pieces: PieceStats::default(),
-    })
+    };
+    Ok((img, pool.stats))
 }
 
 /// Host data of the Doppler pipeline.
 struct Bufs<'a> {
     rays: &'a [PixelRay],
-    channels: &'a [f32],
-    velocity: &'a [f32],
+    /// The device brick pool of the velocity and scalar channels.
+    pool: &'a DevicePool,
     tables: &'a FwData,
     lines: &'a FwData,
     /// Whether the kernels run in f64.
@@ -1053,8 +1055,8 @@ fn render_absorbing(
             &shader_source(b.double),
             "main_absorb",
         )?,
-        channels: ctx.storage_buffer("doppler channels", b.channels)?,
-        velocity: ctx.storage_buffer("doppler velocity", b.velocity)?,
+        pool: b.pool.pool.clone(),
+        pages: b.pool.pages.clone(),
         tables: b.tables.upload(ctx, "doppler tables")?,
         lines: b.lines.upload(ctx, "doppler lines")?,
     };
@@ -1132,8 +1134,8 @@ fn render_absorbing(
 /// Device buffers shared by the passes of [`render_absorbing`].
 struct DeviceData {
     pipeline: wgpu::ComputePipeline,
-    channels: wgpu::Buffer,
-    velocity: wgpu::Buffer,
+    pool: wgpu::Buffer,
+    pages: wgpu::Buffer,
     tables: wgpu::Buffer,
     lines: wgpu::Buffer,
 }
@@ -1169,8 +1171,8 @@ fn absorb_rays(
         0,
         &[
             &rb,
-            &dev.channels,
-            &dev.velocity,
+            &dev.pool,
+            &dev.pages,
             &dev.tables,
             &dev.lines,
             &ob,
@@ -1266,7 +1268,8 @@ impl<'c> GpuDopplerSession<'c> {
             self.cpu.settings(),
             self.cpu.prepared(),
             self.precision,
-        )?;
+        )?
+        .0;
         single_pass_done(observer, u64::from(img.height), &img);
         Ok(img)
     }

@@ -67,6 +67,7 @@ pub mod doppler;
 pub mod error;
 #[doc(hidden)]
 pub mod layout;
+pub mod pool;
 pub mod relativity;
 pub mod tonemap;
 pub mod tracking;
@@ -118,28 +119,4 @@ fn scale_pod_layouts() -> Vec<layout::PodLayout> {
             a, b, n, pad as "_pad",
         }),
     ]
-}
-
-/// Largest total size, bytes, of out-of-core (bricked) levels the GPU backends load whole.
-pub const MAX_BRICKED_UPLOAD_BYTES: u64 = 1 << 30;
-
-/// Out-of-core channels run on the GPU only when their level is small enough to upload whole
-/// (a zoomed-out level of detail); the device-side brick pool is not built yet, so larger
-/// ones are the CPU's, which samples them through its bounded cache.
-pub(crate) fn out_of_core_fits<'a>(
-    fields: impl Iterator<Item = &'a blueshift_volume::Field>,
-) -> std::result::Result<(), Unsupported> {
-    let mut bytes = 0u64;
-    let mut bricked = false;
-    for f in fields {
-        bytes += f.geometry().voxel_count() as u64 * 4;
-        bricked |= f.as_bricked().is_some();
-    }
-    if bricked && bytes > MAX_BRICKED_UPLOAD_BYTES {
-        return Err(Unsupported(format!(
-            "out-of-core channels of {bytes} bytes at this level of detail (the GPU loads at most \
-             {MAX_BRICKED_UPLOAD_BYTES} bytes of bricked data whole; no device brick pool yet)"
-        )));
-    }
-    Ok(())
 }

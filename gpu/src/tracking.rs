@@ -56,11 +56,13 @@ use image::Rgba32FImage;
 use crate::context::{GpuContext, WORKGROUP_1D, WORKGROUP_2D};
 use crate::device::Unsupported;
 use crate::error::{Error, Result};
+use crate::pool::{DevicePool, PoolChannel};
 
 /// WGSL of the tracking pipelines (render pass, majorant build, probes).
 pub const TRACKING_WGSL: &str = concat!(
     include_str!("shaders/limiter.wgsl"),
-    include_str!("shaders/tracking.wgsl")
+    include_str!("shaders/tracking.wgsl"),
+    include_str!("shaders/pool.wgsl")
 );
 
 /// Entries of each transfer function's lookup table unless told otherwise.
@@ -282,10 +284,12 @@ fn checked_bytes(ctx: &GpuContext, what: &str, count: u64, elem: u64) -> Result<
     Ok(bytes)
 }
 
-/// Checks that a scene of `n_channels` channels of `dims` voxels with macrocells of `k`
-/// voxels fits the device: the volume (f32 per voxel), the macrocell ranges and the
-/// majorant grids against `max_buffer_size` and `max_storage_buffer_binding_size`, and the
-/// shaders' 32-bit indices. The error names the limit; nothing is allocated.
+/// Checks what a scene of `n_channels` channels of `dims` voxels with macrocells of `k`
+/// voxels needs on the device besides its voxels: the brick pool's page table, the
+/// macrocell ranges and the majorant grids against `max_buffer_size` and
+/// `max_storage_buffer_binding_size`, and the shaders' 32-bit indices. The voxels go to the
+/// device brick pool ([`crate::pool`]), which holds only non-constant bricks and is checked
+/// as it fills. The error names the limit; nothing is allocated.
 pub fn check_volume_fits(
     ctx: &GpuContext,
     n_channels: usize,
@@ -303,12 +307,14 @@ pub fn check_volume_fits(
         }
     }
     let n = n_channels as u64;
-    let voxels = dims.iter().fold(1u64, |a, &d| a.saturating_mul(d as u64));
+    let bricks = crate::pool::pool_bricks(dims)
+        .iter()
+        .fold(1u64, |a, &d| a.saturating_mul(d as u64));
     let what = format!(
-        "volume ({n} channels of {}x{}x{} f32 voxels)",
+        "brick pool page table ({n} channels of {}x{}x{} voxels)",
         dims[0], dims[1], dims[2]
     );
-    checked_bytes(ctx, &what, n.saturating_mul(voxels), 4)?;
+    checked_bytes(ctx, &what, n.saturating_mul(bricks), 8)?;
     let k = k.max(1) as u64;
     let cells = dims.iter().fold(1u64, |a, &d| {
         a.saturating_mul((d as u64).div_ceil(k).max(1))
@@ -388,11 +394,53 @@ impl<'c> GpuTracker<'c> {
         self.lut_entries
     }
 
-    /// Uploads `scene` (volume, lookup tables, macrocell ranges) and builds its majorant
-    /// grids on the device. A volume over the device's limits is refused with
-    /// [`Error::LimitExceeded`] naming the limit, before anything is allocated.
+    /// Uploads `scene` (its channels into the device brick pool, lookup tables, macrocell
+    /// ranges) and builds its majorant grids on the device. Page tables, macrocells and
+    /// majorants over the device's limits are refused with [`Error::LimitExceeded`] naming
+    /// the limit before anything is allocated; non-constant bricks beyond the pool's
+    /// capacity with the pool's [`crate::pool::POOL_LIMIT`].
     pub fn upload(&self, scene: Scene) -> Result<GpuScene<'c>> {
         GpuScene::new(self.clone(), scene)
+    }
+
+    /// [`GpuTracker::upload`] at the scene's level of detail when its brick pool fits the
+    /// device, else at the finest coarser level that fits (every channel bricked alike,
+    /// [`Scene::lod`]; levels known to overflow from stored macrocells are skipped without
+    /// reading a brick). Returns the uploaded scene and the level it holds (`None` in core).
+    pub fn upload_fitting(&self, scene: Scene) -> Result<(GpuScene<'c>, Option<usize>)> {
+        let Some((first, levels)) = scene.lod() else {
+            return Ok((self.upload(scene)?, None));
+        };
+        let mut last = None;
+        for level in first..levels {
+            let s = if level == first {
+                scene.clone()
+            } else {
+                scene
+                    .at_level(level)
+                    .map_err(|e| Error::InvalidInput(e.to_string()))?
+            };
+            let channels: Vec<PoolChannel<'_>> = s
+                .channels()
+                .iter()
+                .map(|c| PoolChannel::Scalar(c.grid()))
+                .collect();
+            let est = crate::pool::estimate(self.ctx, &channels)?;
+            drop(channels);
+            if est.surely_full() {
+                continue;
+            }
+            match self.upload(s) {
+                Ok(gs) => return Ok((gs, Some(level))),
+                Err(e) if crate::pool::is_pool_full(&e) => last = Some(e),
+                Err(e) => return Err(e),
+            }
+        }
+        // Even the coarsest level overflows: the finest level's error says by how much.
+        match last {
+            Some(e) => Err(e),
+            None => self.upload(scene).map(|gs| (gs, Some(first))),
+        }
     }
 
     /// Renders `settings.spp` passes (or fewer once `settings.noise_target` is met),
@@ -475,7 +523,8 @@ impl<'c> GpuTracker<'c> {
             &self.render,
             &[
                 (0, &pbuf),
-                (1, &scene.volume),
+                (1, &scene.pool.pool),
+                (8, &scene.pool.pages),
                 (2, &scene.luts),
                 (3, &scene.majorants),
                 (4, &mean),
@@ -575,7 +624,6 @@ impl<'c> GpuTracker<'c> {
 /// `Ok` when the GPU tracker covers `scene` + `settings`, else why not: gradient shading,
 /// heat maps and the timing protocol are CPU-only.
 pub fn supports(scene: &Scene, settings: &RenderSettings) -> std::result::Result<(), Unsupported> {
-    crate::out_of_core_fits(scene.channels().iter().map(|c| c.grid()))?;
     if scene.shading.is_some() {
         return Err(Unsupported(
             "gradient shading (scene.shading) is CPU-only; render it with --device cpu".into(),
@@ -680,7 +728,7 @@ fn fill_integrator(p: &mut Params, integ: &Integrator, scene: &Scene) -> Vec<f32
 pub struct GpuScene<'c> {
     tracker: GpuTracker<'c>,
     scene: Scene,
-    volume: wgpu::Buffer,
+    pool: DevicePool,
     luts: wgpu::Buffer,
     cell_ranges: wgpu::Buffer,
     majorants: wgpu::Buffer,
@@ -695,18 +743,18 @@ impl<'c> GpuScene<'c> {
         let n = scene.channel_count();
         let g = *scene.geometry();
         let layout = *scene.layout();
-        let voxels = g.voxel_count() as u64;
         let n_cells = layout.len() as u64;
         let lut_len = tracker.lut_entries as u64;
         // Every size is checked against the device before anything is allocated.
         check_volume_fits(ctx, n, g.dims, layout.k)?;
         checked_bytes(ctx, "lookup tables", n as u64 * lut_len, 16)?;
-        let mut data: Vec<f32> = Vec::with_capacity(n * voxels as usize);
-        for ch in scene.channels() {
-            data.extend(ch.grid().dense_f32()?);
-        }
-        let volume = ctx.storage_buffer("tracking volume", &data)?;
-        drop(data);
+        let channels: Vec<PoolChannel<'_>> = scene
+            .channels()
+            .iter()
+            .map(|c| PoolChannel::Scalar(c.grid()))
+            .collect();
+        let pool = crate::pool::upload(ctx, "tracking volume", &channels)?;
+        drop(channels);
         let mut lut_data: Vec<[f32; 4]> = Vec::with_capacity(n * tracker.lut_entries);
         let mut chan = Vec::with_capacity(2 * n);
         let mut ranges: Vec<f32> = Vec::with_capacity(2 * n * n_cells as usize);
@@ -725,7 +773,7 @@ impl<'c> GpuScene<'c> {
         let gs = GpuScene {
             tracker,
             scene,
-            volume,
+            pool,
             luts,
             cell_ranges,
             majorants,
@@ -735,6 +783,12 @@ impl<'c> GpuScene<'c> {
         };
         gs.build_majorants(None)?;
         Ok(gs)
+    }
+
+    /// What the device brick pool holds.
+    #[must_use]
+    pub fn pool_stats(&self) -> crate::pool::PoolStats {
+        self.pool.stats
     }
 
     /// The CPU scene this was uploaded from (kept in step with every edit).
@@ -990,6 +1044,45 @@ pub fn quantise_probe(tracker: &GpuTracker<'_>, values: &[f32]) -> Result<Vec<(f
     ctx.dispatch(&pipeline, &bg, [g, 1, 1])?;
     let out: Vec<[f32; 2]> = ctx.read_buffer(&ob, values.len())?;
     Ok(out.into_iter().map(|[a, b]| (a, b)).collect())
+}
+
+/// The device's trilinear samples of `scene` through its brick pool at each `(channel,
+/// index coordinates)`, for comparison with the CPU's `Field::sample_scalar_index`.
+pub fn sample_probe(scene: &GpuScene<'_>, points: &[(usize, Vec3)]) -> Result<Vec<f32>> {
+    let ctx = scene.tracker.ctx;
+    if points.is_empty() {
+        return Ok(Vec::new());
+    }
+    let n = u32::try_from(points.len())
+        .map_err(|_| Error::InvalidInput("too many probe points".into()))?;
+    let channels = scene.scene.channel_count();
+    let mut p = Vec::with_capacity(points.len());
+    for &(c, q) in points {
+        if c >= channels {
+            return Err(Error::InvalidInput(format!(
+                "channel {c} of a scene of {channels}"
+            )));
+        }
+        p.push([q.x, q.y, q.z, f32::from_bits(c as u32)]);
+    }
+    let pipeline = probe_pipeline(&scene.tracker, "sample_probe")?;
+    let pb = ctx.uniform_buffer("sample probe params", &scene.base_params())?;
+    let ib = ctx.storage_buffer("sample probe points", &p)?;
+    let ob = ctx.storage_buffer_zeroed("sample probe out", u64::from(n) * 4)?;
+    let bg = bind(
+        ctx,
+        &pipeline,
+        &[
+            (0, &pb),
+            (1, &scene.pool.pool),
+            (8, &scene.pool.pages),
+            (24, &ib),
+            (25, &ob),
+        ],
+    )?;
+    let g = ctx.groups("sample probe", n, WORKGROUP_1D)?;
+    ctx.dispatch(&pipeline, &bg, [g, 1, 1])?;
+    ctx.read_buffer(&ob, points.len())
 }
 
 fn probe_pipeline(tracker: &GpuTracker<'_>, entry: &str) -> Result<wgpu::ComputePipeline> {

@@ -1,13 +1,25 @@
 //! Every WGSL file in `gpu/src/shaders/` parses and validates with naga (the same naga
 //! wgpu uses), so a shader error fails the tests and not a user's run. Files that call the
-//! loop-limiter probe are validated with `limiter.wgsl` prepended, and `doppler.wgsl` with
+//! loop-limiter probe are validated with `limiter.wgsl` prepended, those that sample the
+//! brick pool with `pool.wgsl` appended, and `doppler.wgsl` with
 //! each of its precision preludes, as the crate compiles them. Every `Pod` struct the crate
 //! uploads into a WGSL struct has the size and member offsets naga lays that struct out with.
 
 use std::path::Path;
 
 fn validate(path: &Path) -> Result<(), String> {
-    let src = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+    let mut src = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+    // Shaders that sample the brick pool get its lookup appended, as the crate compiles
+    // them; the lookup alone gets the bindings its includers declare.
+    if src.contains("pool_fetch(") && !src.contains("fn pool_fetch") {
+        src.push_str(blueshift_gpu::pool::POOL_WGSL);
+    }
+    if path.ends_with("pool.wgsl") {
+        src = format!(
+            "@group(0) @binding(0) var<storage, read> pool: array<f32>;\n\
+             @group(0) @binding(1) var<storage, read> pages: array<vec2<u32>>;\n{src}"
+        );
+    }
     // Shaders that call the loop-limiter probe get it prepended, as the crate compiles them.
     if src.contains("limiter_exhausted(") && !src.contains("fn limiter_exhausted") {
         return validate_source(&format!("{}{src}", blueshift_gpu::LIMITER_WGSL));

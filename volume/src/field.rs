@@ -268,6 +268,27 @@ impl Field {
         }
     }
 
+    /// The `edge^3` voxels from `lo` (x fastest) into `out`, each index clamped to the grid
+    /// (`out[l]` is voxel `min(lo + l, dims - 1)` per axis): the block a device brick pool
+    /// holds, with the clamped neighbours trilinear sampling reads. Vector grids give
+    /// lengths; a bricked level is read through the cache, each source brick looked up once.
+    pub fn read_block(&self, lo: [usize; 3], edge: usize, out: &mut [f32]) -> Result<()> {
+        check_block(self.geometry(), lo, edge, out)?;
+        match self {
+            Field::Dense(g) => {
+                let n = g.geometry().dims;
+                fill_block(n, lo, edge, out, |x0, x1, y, z, row| {
+                    let at = x0 + n[0] * (y + n[1] * z);
+                    for (i, o) in row.iter_mut().enumerate().take(x1 - x0) {
+                        *o = g.scalar_at(at + i);
+                    }
+                    Ok(())
+                })
+            }
+            Field::Bricked(b) => b.read_block(lo, edge, out),
+        }
+    }
+
     /// The values as f32, x fastest (vector grids: lengths); a bricked level is loaded whole
     /// (what the GPU backends upload; checked against the default [`Limits`]).
     pub fn dense_f32(&self) -> Result<Vec<f32>> {
@@ -397,6 +418,35 @@ impl VectorField {
         }
     }
 
+    /// Component `axis` (0 x, 1 y, 2 z) of the `edge^3` voxels from `lo`, clamped as
+    /// [`Field::read_block`] clamps.
+    pub fn read_block(
+        &self,
+        axis: usize,
+        lo: [usize; 3],
+        edge: usize,
+        out: &mut [f32],
+    ) -> Result<()> {
+        if axis > 2 {
+            return Err(Error::parameter(format!("vector component {axis}")));
+        }
+        match self {
+            VectorField::Dense(g) => {
+                check_block(g.geometry(), lo, edge, out)?;
+                let n = g.geometry().dims;
+                let data = g.data();
+                fill_block(n, lo, edge, out, |x0, x1, y, z, row| {
+                    let at = x0 + n[0] * (y + n[1] * z);
+                    for (o, v) in row.iter_mut().zip(&data[at..at + (x1 - x0)]) {
+                        *o = v[axis];
+                    }
+                    Ok(())
+                })
+            }
+            VectorField::Components(c) => c[axis].read_block(lo, edge, out),
+        }
+    }
+
     /// The first failed brick read of any component.
     pub fn check_io(&self) -> Result<()> {
         match self {
@@ -404,6 +454,45 @@ impl VectorField {
             VectorField::Components(c) => c.iter().try_for_each(Field::check_io),
         }
     }
+}
+
+/// Checks a block request of [`Field::read_block`]: `lo` inside the grid, `out` of `edge^3`.
+fn check_block(g: &Geometry, lo: [usize; 3], edge: usize, out: &[f32]) -> Result<()> {
+    if edge == 0 || lo.iter().zip(g.dims).any(|(&l, n)| l >= n) {
+        return Err(Error::parameter(format!(
+            "block of edge {edge} at {lo:?} outside a {:?} grid",
+            g.dims
+        )));
+    }
+    if edge.checked_pow(3) != Some(out.len()) {
+        return Err(Error::parameter(format!(
+            "block of edge {edge} into {} values",
+            out.len()
+        )));
+    }
+    Ok(())
+}
+
+/// Fills the clamped block: `row(x0, x1, y, z, out)` writes voxels `x0..x1` of row `(y, z)`
+/// (in bounds) to the start of `out`; the clamped tail of each row repeats its last voxel.
+fn fill_block(
+    n: [usize; 3],
+    lo: [usize; 3],
+    edge: usize,
+    out: &mut [f32],
+    mut row: impl FnMut(usize, usize, usize, usize, &mut [f32]) -> Result<()>,
+) -> Result<()> {
+    let x1 = (lo[0] + edge).min(n[0]);
+    let w = x1 - lo[0];
+    for (j, dst) in out.chunks_exact_mut(edge).enumerate() {
+        let (ly, lz) = (j % edge, j / edge);
+        let y = (lo[1] + ly).min(n[1] - 1);
+        let z = (lo[2] + lz).min(n[2] - 1);
+        row(lo[0], x1, y, z, &mut dst[..w])?;
+        let last = dst[w - 1];
+        dst[w..].fill(last);
+    }
+    Ok(())
 }
 
 /// Slots of recently used bricks per thread (direct-mapped by source identity).
@@ -561,6 +650,35 @@ impl BrickedField {
             let c01 = lerp(v(0, 0, 1), v(1, 0, 1), t.x);
             let c11 = lerp(v(0, 1, 1), v(1, 1, 1), t.x);
             lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z)
+        })
+    }
+
+    /// [`Field::read_block`] of this level: each source brick the block meets is looked up
+    /// in the cache once per row run and copied row by row.
+    pub fn read_block(&self, lo: [usize; 3], edge: usize, out: &mut [f32]) -> Result<()> {
+        check_block(&self.geometry, lo, edge, out)?;
+        let (b, a, s) = (
+            self.layout.brick,
+            self.layout.apron,
+            self.layout.stored_edge(),
+        );
+        let mut held: Option<(u64, Arc<[f32]>)> = None;
+        fill_block(self.geometry.dims, lo, edge, out, |x0, x1, y, z, row| {
+            let mut x = x0;
+            while x < x1 {
+                let idx = self.brick_index([x, y, z]);
+                let end = ((x / b + 1) * b).min(x1);
+                if held.as_ref().is_none_or(|(i, _)| *i != idx) {
+                    let brick = self.cache.get(self.source.as_ref(), self.level, idx)?;
+                    held = Some((idx, brick));
+                }
+                if let Some((_, brick)) = &held {
+                    let from = (x % b + a) + s * ((y % b + a) + s * (z % b + a));
+                    row[x - x0..end - x0].copy_from_slice(&brick[from..from + (end - x)]);
+                }
+                x = end;
+            }
+            Ok(())
         })
     }
 

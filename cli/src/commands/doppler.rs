@@ -168,6 +168,12 @@ pub struct Args {
     /// blueshift-gpu's doppler module). The CPU ignores it.
     #[arg(long, default_value = "auto")]
     pub gpu_precision: blueshift_gpu::doppler::DopplerPrecision,
+    /// GPU: cap of the device brick pool, MiB [default: the adapter's largest storage
+    /// buffer]. The pool holds only bricks that are not constant; when a level's do not fit,
+    /// --lod auto renders the finest coarser level that does, other levels fail on gpu (auto
+    /// renders them on the CPU).
+    #[arg(long, value_name = "MIB")]
+    pub gpu_pool_mb: Option<u64>,
 }
 
 fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
@@ -298,6 +304,19 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
     st.step = args.step;
     st.line_width_nm = args.line_width;
     Ok((scene, st, level0))
+}
+
+/// `st` with the camera the flags give for `scene` (another level of detail: the default
+/// views frame each level's own bounds), as `--lod` of that level would render it.
+fn reframe(args: &Args, scene: &DopplerScene, st: &DopplerSettings) -> Result<DopplerSettings> {
+    let mut t = st.clone();
+    t.camera = DopplerSettings::default_for(scene, st.width, st.height).camera;
+    if args.inclination != 0.0 {
+        t.incline(scene, args.inclination)
+            .map_err(|e| anyhow::anyhow!("--inclination: {e}"))?;
+    }
+    apply_camera(args, scene, &mut t)?;
+    Ok(t)
 }
 
 /// `--view`, `--fov`, `--eye`, `--target`, `--up` and `--zoom` over the view `build` and the
@@ -637,7 +656,46 @@ pub fn run(args: Args) -> Result<()> {
         |ctx| {
             let double = args.gpu_precision.is_double_on(ctx)?;
             on = if double { "gpu (f64)" } else { "gpu (f32)" };
-            blueshift_gpu::doppler::render_doppler_gpu_with(ctx, scene, st, args.gpu_precision)
+            super::render::set_gpu_pool(ctx, args.gpu_pool_mb)?;
+            let asked = level0.as_ref().map(|(_, l)| *l);
+            let bricked = scene.levels().is_some()
+                || scene
+                    .species()
+                    .iter()
+                    .any(|s| s.density.as_bricked().is_some());
+            let auto = args.lod.as_deref().map(str::trim) == Some("auto");
+            let mut level = asked;
+            let mut coarser: Option<(DopplerScene, DopplerSettings)> = None;
+            loop {
+                let (s, t) = coarser.as_ref().map_or((scene, st), |(s, t)| (s, t));
+                match blueshift_gpu::doppler::render_doppler_gpu_pooled(
+                    ctx,
+                    s,
+                    t,
+                    args.gpu_precision,
+                ) {
+                    Ok((img, stats)) => {
+                        super::render::report_pool(&stats, bricked, asked, level);
+                        return Ok(img);
+                    }
+                    // --lod auto: the finest coarser level whose bricks fit the pool.
+                    Err(e) if auto && blueshift_gpu::pool::is_pool_full(&e) => {
+                        let (Some((s0, _)), Some(l)) = (&level0, level) else {
+                            return Err(e);
+                        };
+                        if l + 1 >= s0.levels().map_or(1, |g| g.len()) {
+                            return Err(e);
+                        }
+                        // As `--lod` of that level would render it (its own framing).
+                        let bad = |e: String| blueshift_gpu::Error::InvalidInput(e);
+                        let s = s0.at_level(l + 1).map_err(|e| bad(e.to_string()))?;
+                        let t = reframe(&args, &s, st).map_err(|e| bad(format!("{e:#}")))?;
+                        coarser = Some((s, t));
+                        level = Some(l + 1);
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
         },
         || match &level0 {
             Some((s0, target)) if args.progressive => render_progressive(s0, st, *target),

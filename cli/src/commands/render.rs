@@ -179,6 +179,48 @@ pub struct Args {
     /// lavapipe's loop limit) fails on gpu; auto renders those on the CPU.
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
+    /// GPU: cap of the device brick pool, MiB [default: the adapter's largest storage
+    /// buffer]. The pool holds only bricks that are not constant; when a level's do not fit,
+    /// --lod auto renders the finest coarser level that does, other levels fail on gpu (auto
+    /// renders them on the CPU).
+    #[arg(long, value_name = "MIB")]
+    pub gpu_pool_mb: Option<u64>,
+}
+
+/// Applies `--gpu-pool-mb` to `ctx` (checked: at least 1 MiB).
+pub(crate) fn set_gpu_pool(
+    ctx: &blueshift_gpu::GpuContext,
+    mb: Option<u64>,
+) -> blueshift_gpu::Result<()> {
+    match mb {
+        Some(0) => Err(blueshift_gpu::Error::InvalidInput(
+            "--gpu-pool-mb: must be at least 1".into(),
+        )),
+        mb => {
+            ctx.set_pool_limit(mb.map(|m| m.saturating_mul(1 << 20)));
+            Ok(())
+        }
+    }
+}
+
+/// One stderr line on the device brick pool when it is worth saying: an out-of-core scene
+/// (`bricked`), a level of detail (`got`), or a pool smaller than the dense volume.
+pub(crate) fn report_pool(
+    stats: &blueshift_gpu::pool::PoolStats,
+    bricked: bool,
+    asked: Option<usize>,
+    got: Option<usize>,
+) {
+    if bricked || got.is_some() || stats.pool_bytes < stats.dense_bytes {
+        let level = match (asked, got) {
+            (Some(a), Some(g)) if a != g => {
+                format!(" at level {g} (level {a} does not fit the pool)")
+            }
+            (_, Some(g)) => format!(" at level {g}"),
+            _ => String::new(),
+        };
+        eprintln!("{stats}{level}");
+    }
 }
 
 use super::view_args::triple;
@@ -418,6 +460,7 @@ fn run_inner(args: &Args) -> Result<()> {
         ..Default::default()
     };
     let (scene, integrator, settings) = f.build_with(&memory)?;
+    let lod = f.lod()?;
     let level = scene
         .channels()
         .iter()
@@ -477,8 +520,14 @@ fn run_inner(args: &Args) -> Result<()> {
                 _ => slot.borrow_mut().take(),
             }
             .ok_or_else(|| blueshift_gpu::Error::InvalidInput("no scene".into()))?;
+            set_gpu_pool(ctx, args.gpu_pool_mb)?;
             let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx)?;
-            let gs = tracker.upload(scene)?;
+            let (gs, got) = if lod == blueshift_volume::Lod::Auto {
+                tracker.upload_fitting(scene)?
+            } else {
+                (tracker.upload(scene)?, level)
+            };
+            report_pool(&gs.pool_stats(), level.is_some(), level, got);
             let image = tracker.render_progressive(&gs, &integrator, &settings, show)?;
             Ok(TrackingOutput {
                 image,

@@ -105,10 +105,11 @@ struct PixelRay {
 }
 
 @group(0) @binding(0) var<storage, read> rays: array<PixelRay>;
-// Scalar channels, nvox each: species densities 0..nsp, then black-body density,
+// The device brick pool and its page table (pool.wgsl, gpu/src/pool.rs). Channels: the
+// velocity's x, y, z, then the scalars: species densities 0..nsp, then black-body density,
 // temperature, density x Planck factor (gas_temperature).
-@group(0) @binding(1) var<storage, read> channels: array<f32>;
-@group(0) @binding(2) var<storage, read> velocity: array<f32>;
+@group(0) @binding(1) var<storage, read> pool: array<f32>;
+@group(0) @binding(2) var<storage, read> pages: array<vec2<u32>>;
 // CMF samples (3 per wavelength, cmf_n of them), then the black-body grid and its hat XYZs,
 // ..., and the working-float parameters.
 @group(0) @binding(3) var<storage, read> tables: array<fw>;
@@ -130,13 +131,10 @@ const MAX_SPECIES: u32 = 8u;
 
 const C_M_PER_S = 299792458.0;
 
-fn vidx(x: u32, y: u32, z: u32) -> u32 {
-    return x + P.nx * (y + P.ny * z);
-}
+alias Corner = PoolCorner;
 
-struct Corner {
-    i: array<u32, 8>,  // x0y0z0, x1y0z0, x0y1z0, x1y1z0, x0y0z1, x1y0z1, x0y1z1, x1y1z1
-    t: vec3<f32>,      // fractions along x, y, z
+fn grid_dims() -> vec3<u32> {
+    return vec3<u32>(P.nx, P.ny, P.nz);
 }
 
 // The index-space position of path position t, as the CPU's `world_to_index(ray.at(t0 + t))`
@@ -149,20 +147,7 @@ fn sample_pos(r: PixelRay, t: f32) -> vec3<f32> {
 
 // The corners of blueshift-volume's `sample_trilinear_index` (clamped to the centres).
 fn corners(p_in: vec3<f32>) -> Corner {
-    let mx = vec3<f32>(f32(P.nx - 1u), f32(P.ny - 1u), f32(P.nz - 1u));
-    let p = min(max(p_in, vec3<f32>(0.0)), mx);
-    let f = floor(p);
-    let x0 = u32(f.x);
-    let y0 = u32(f.y);
-    let z0 = u32(f.z);
-    let x1 = min(x0 + 1u, P.nx - 1u);
-    let y1 = min(y0 + 1u, P.ny - 1u);
-    let z1 = min(z0 + 1u, P.nz - 1u);
-    var c: Corner;
-    c.i = array<u32, 8>(vidx(x0, y0, z0), vidx(x1, y0, z0), vidx(x0, y1, z0), vidx(x1, y1, z0),
-                        vidx(x0, y0, z1), vidx(x1, y0, z1), vidx(x0, y1, z1), vidx(x1, y1, z1));
-    c.t = p - f;
-    return c;
+    return pool_corner(p_in, grid_dims());
 }
 
 fn lerp1(a: f32, b: f32, t: f32) -> f32 { return a * (1.0 - t) + b * t; }
@@ -172,26 +157,25 @@ fn lerp3(a: vec3<f32>, b: vec3<f32>, t: f32) -> vec3<f32> { return a * (1.0 - t)
 // then z) in f32, as it samples.
 fn sample_channel(c: Corner, ch: u32) -> fw {
     iters += 1u;
-    let base = ch * P.nvox;
-    let c00 = lerp1(channels[base + c.i[0]], channels[base + c.i[1]], c.t.x);
-    let c10 = lerp1(channels[base + c.i[2]], channels[base + c.i[3]], c.t.x);
-    let c01 = lerp1(channels[base + c.i[4]], channels[base + c.i[5]], c.t.x);
-    let c11 = lerp1(channels[base + c.i[6]], channels[base + c.i[7]], c.t.x);
+    let v = pool_fetch(ch + 3u, grid_dims(), c);
+    let c00 = lerp1(v[0], v[1], c.t.x);
+    let c10 = lerp1(v[2], v[3], c.t.x);
+    let c01 = lerp1(v[4], v[5], c.t.x);
+    let c11 = lerp1(v[6], v[7], c.t.x);
     return fw(lerp1(lerp1(c00, c10, c.t.y), lerp1(c01, c11, c.t.y), c.t.z));
-}
-
-fn vel_at(i: u32) -> vec3<f32> {
-    let j = 3u * i;
-    return vec3<f32>(velocity[j], velocity[j + 1u], velocity[j + 2u]);
 }
 
 // The velocity at the corners times the velocity factor (f32, as the CPU samples it).
 fn sample_velocity(c: Corner) -> vec3<fw> {
     iters += 1u;
-    let c00 = lerp3(vel_at(c.i[0]), vel_at(c.i[1]), c.t.x);
-    let c10 = lerp3(vel_at(c.i[2]), vel_at(c.i[3]), c.t.x);
-    let c01 = lerp3(vel_at(c.i[4]), vel_at(c.i[5]), c.t.x);
-    let c11 = lerp3(vel_at(c.i[6]), vel_at(c.i[7]), c.t.x);
+    let d = grid_dims();
+    let x = pool_fetch(0u, d, c);
+    let y = pool_fetch(1u, d, c);
+    let z = pool_fetch(2u, d, c);
+    let c00 = lerp3(vec3<f32>(x[0], y[0], z[0]), vec3<f32>(x[1], y[1], z[1]), c.t.x);
+    let c10 = lerp3(vec3<f32>(x[2], y[2], z[2]), vec3<f32>(x[3], y[3], z[3]), c.t.x);
+    let c01 = lerp3(vec3<f32>(x[4], y[4], z[4]), vec3<f32>(x[5], y[5], z[5]), c.t.x);
+    let c11 = lerp3(vec3<f32>(x[6], y[6], z[6]), vec3<f32>(x[7], y[7], z[7]), c.t.x);
     let v = lerp3(lerp3(c00, c10, c.t.y), lerp3(c01, c11, c.t.y), c.t.z);
     return vec3<fw>(v * P.vel_factor);
 }

@@ -49,8 +49,9 @@ struct Params {
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
-// Channels' voxels as f32, channel after channel, x fastest.
-@group(0) @binding(1) var<storage, read> volume: array<f32>;
+// The channels' device brick pool and page table (pool.wgsl, gpu/src/pool.rs).
+@group(0) @binding(1) var<storage, read> pool: array<f32>;
+@group(0) @binding(8) var<storage, read> pages: array<vec2<u32>>;
 // Channels' lookup tables, lut_len RGBA entries each.
 @group(0) @binding(2) var<storage, read> luts: array<vec4<f32>>;
 // Majorants, n_cells per channel, then the cell-wise total.
@@ -204,28 +205,20 @@ fn is_nan(v: f32) -> bool {
     return v != v;
 }
 
-// Trilinear sample of channel n at continuous index coordinates (clamped; NaN -> 0).
+// Trilinear sample of channel n at continuous index coordinates (clamped; NaN -> 0), read
+// from the brick pool.
 fn sample_index(n: u32, q: vec3<f32>) -> f32 {
-    let mx = vec3<f32>(P.dims - vec3<u32>(1u));
-    var p = min(max(q, vec3<f32>(0.0)), mx);
-    if is_nan(q.x) { p.x = 0.0; }
-    if is_nan(q.y) { p.y = 0.0; }
-    if is_nan(q.z) { p.z = 0.0; }
-    let f = floor(p);
-    let t = p - f;
-    let c0 = vec3<u32>(f);
-    let c1 = min(c0 + vec3<u32>(1u), P.dims - vec3<u32>(1u));
-    let base = n * P.dims.x * P.dims.y * P.dims.z;
-    let sx = P.dims.x;
-    let sxy = P.dims.x * P.dims.y;
-    let v000 = volume[base + c0.x + sx * c0.y + sxy * c0.z];
-    let v100 = volume[base + c1.x + sx * c0.y + sxy * c0.z];
-    let v010 = volume[base + c0.x + sx * c1.y + sxy * c0.z];
-    let v110 = volume[base + c1.x + sx * c1.y + sxy * c0.z];
-    let v001 = volume[base + c0.x + sx * c0.y + sxy * c1.z];
-    let v101 = volume[base + c1.x + sx * c0.y + sxy * c1.z];
-    let v011 = volume[base + c0.x + sx * c1.y + sxy * c1.z];
-    let v111 = volume[base + c1.x + sx * c1.y + sxy * c1.z];
+    let c = pool_corner(q, P.dims);
+    let v = pool_fetch(n, P.dims, c);
+    let t = c.t;
+    let v000 = v[0];
+    let v100 = v[1];
+    let v010 = v[2];
+    let v110 = v[3];
+    let v001 = v[4];
+    let v101 = v[5];
+    let v011 = v[6];
+    let v111 = v[7];
     let c00 = v000 * (1.0 - t.x) + v100 * t.x;
     let c10 = v010 * (1.0 - t.x) + v110 * t.x;
     let c01 = v001 * (1.0 - t.x) + v101 * t.x;
@@ -946,4 +939,19 @@ fn quantise_probe(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     probe_out[i] = vec2<f32>(to_f16(probe_in[i]), to_u8(probe_in[i]));
+}
+
+// Sample points: index coordinates and the channel (as bits); output: the trilinear sample
+// through the brick pool.
+@group(0) @binding(24) var<storage, read> probe_points: array<vec4<f32>>;
+@group(0) @binding(25) var<storage, read_write> probe_samples: array<f32>;
+
+@compute @workgroup_size(64, 1, 1)
+fn sample_probe(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= arrayLength(&probe_points) {
+        return;
+    }
+    let q = probe_points[i];
+    probe_samples[i] = sample_index(bitcast<u32>(q.w), q.xyz);
 }

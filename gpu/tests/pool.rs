@@ -1,0 +1,304 @@
+//! The device brick pool ([`blueshift_gpu::pool`]) against independent truths: its samples
+//! against the CPU's dense trilinear sampler at random points and at every brick seam, its
+//! constant bricks against a brute-force pass over the voxels, a `.bsv` level against the
+//! same data in memory (the same bytes rendered), a volume larger than the pool's cap
+//! rendered when its non-constant bricks fit and refused (falling back under `auto`) when
+//! they do not, and `--lod auto`'s choice of the finest level that fits.
+//!
+//! Every test prints `SKIP: no wgpu adapter: ...` and returns when there is no adapter,
+//! unless `BLUESHIFT_REQUIRE_GPU_TESTS=1`.
+
+use blueshift_gpu::context::test_context;
+use blueshift_gpu::pool::{POOL_BRICK, is_pool_full};
+use blueshift_gpu::tracking::{GpuTracker, sample_probe};
+use blueshift_gpu::{DeviceChoice, GpuContext, GpuOptions};
+use blueshift_tfedit::{ColorKnot, OpacityKnot, TransferFunction};
+use blueshift_tracking::{Integrator, RayMarcher, RenderSettings, Scene, render};
+use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource};
+use blueshift_volume::{AnyGrid, BrickCache, Field, Geometry, Grid};
+use glam::Vec3;
+
+/// A context of this test's own: the pool cap is per context, and tests run in parallel.
+fn own_context() -> Option<GpuContext> {
+    test_context()?;
+    Some(GpuContext::new(GpuOptions::default()).expect("a second context"))
+}
+
+/// Fixed-seed PCG32 for the probe points.
+struct Pcg(u64);
+impl Pcg {
+    fn f(&mut self) -> f32 {
+        let old = self.0;
+        self.0 = old
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        let x = (((old >> 18) ^ old) >> 27) as u32;
+        (x.rotate_right((old >> 59) as u32) >> 8) as f32 / (1u32 << 24) as f32
+    }
+}
+
+fn tf() -> TransferFunction {
+    TransferFunction::new(
+        [0.0, 1.0],
+        vec![
+            ColorKnot {
+                x: 0.0,
+                rgb: [1.0, 0.4, 0.1],
+            },
+            ColorKnot {
+                x: 1.0,
+                rgb: [0.2, 0.6, 1.0],
+            },
+        ],
+        vec![OpacityKnot::new(0.0, 0.0), OpacityKnot::new(1.0, 0.8)],
+    )
+    .unwrap()
+}
+
+/// A smooth field, non-constant everywhere.
+fn smooth(dims: [usize; 3]) -> Grid<f32> {
+    Grid::from_fn(Geometry::unit(dims), |x, y, z| {
+        0.5 + 0.4 * (0.21 * x as f32 + 0.13 * y as f32).sin() * (0.17 * z as f32).cos()
+    })
+    .unwrap()
+}
+
+/// Zero except a box of varying values over voxels `lo..hi` (exclusive).
+fn boxed(dims: [usize; 3], lo: [usize; 3], hi: [usize; 3]) -> Grid<f32> {
+    Grid::from_fn(Geometry::unit(dims), |x, y, z| {
+        let inside = (lo[0]..hi[0]).contains(&x)
+            && (lo[1]..hi[1]).contains(&y)
+            && (lo[2]..hi[2]).contains(&z);
+        if inside {
+            0.2 + 0.01 * ((x * 7 + y * 3 + z) % 50) as f32
+        } else {
+            0.0
+        }
+    })
+    .unwrap()
+}
+
+/// Pool bricks of `g` that are not constant, by brute force: brick `b` holds voxels
+/// `32 b ..= 32 b + 32` per axis, clamped to the grid.
+fn non_constant_bricks(g: &Grid<f32>) -> usize {
+    let n = g.dims();
+    let nb = n.map(|d| d.div_ceil(POOL_BRICK));
+    let mut count = 0;
+    for bz in 0..nb[2] {
+        for by in 0..nb[1] {
+            for bx in 0..nb[0] {
+                let b = [bx, by, bz];
+                let r = |a: usize| (b[a] * POOL_BRICK)..=((b[a] + 1) * POOL_BRICK).min(n[a] - 1);
+                let first = g.get(*r(0).start(), *r(1).start(), *r(2).start());
+                let mut constant = true;
+                for z in r(2) {
+                    for y in r(1) {
+                        for x in r(0) {
+                            constant &= g.get(x, y, z).map(f32::to_bits) == first.map(f32::to_bits);
+                        }
+                    }
+                }
+                count += usize::from(!constant);
+            }
+        }
+    }
+    count
+}
+
+fn scene_of(chs: Vec<Field>) -> Scene {
+    let triples = chs
+        .into_iter()
+        .enumerate()
+        .map(|(i, f)| (format!("c{i}"), f, tf()))
+        .collect();
+    Scene::new(triples, 8.0, 4).unwrap()
+}
+
+fn dense(g: &Grid<f32>) -> Field {
+    Field::from(AnyGrid::F32(g.clone()))
+}
+
+/// `g` as a `.bsv` file (bricks of 16, so pool bricks span several file bricks) opened
+/// through a cache of `budget` bytes.
+fn bricked(dir: &std::path::Path, name: &str, g: &Grid<f32>, budget: usize) -> BrickedFile {
+    let p = dir.join(format!("{name}.bsv"));
+    ooc::convert(
+        &mut GridSource(g),
+        &p,
+        name,
+        BrickLayout {
+            brick: 16,
+            apron: 1,
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    BrickedFile::open_with_cache(&p, BrickCache::new(budget)).unwrap()
+}
+
+#[test]
+fn pooled_samples_equal_the_cpu_sampler_at_random_points_and_every_seam() {
+    let Some(ctx) = test_context() else { return };
+    let dims = [70, 45, 33];
+    let a = smooth(dims);
+    let b = boxed(dims, [40, 5, 3], [52, 20, 30]);
+    let s = scene_of(vec![dense(&a), dense(&b)]);
+    let t = GpuTracker::new(ctx).unwrap();
+    let gs = t.upload(s).unwrap();
+    let st = gs.pool_stats();
+    // Every brick of the smooth channel, and the box's by brute force.
+    let want = non_constant_bricks(&a) + non_constant_bricks(&b);
+    assert_eq!(non_constant_bricks(&a), 3 * 2 * 2);
+    assert_eq!(st.resident, want, "{st}");
+    assert_eq!(st.resident + st.constant, 2 * 12, "{st}");
+    assert!(st.constant > 0, "the zero bricks take no slot: {st}");
+
+    let mut pts = Vec::new();
+    let mut rng = Pcg(0x5eed);
+    for _ in 0..4000 {
+        let p = Vec3::new(
+            rng.f() * 76.0 - 3.0,
+            rng.f() * 51.0 - 3.0,
+            rng.f() * 39.0 - 3.0,
+        );
+        pts.push(p);
+    }
+    // Seams, brick corners and the clamped last voxels, with fractions either side.
+    for &x in &[0.0, 31.0, 31.5, 31.999, 32.0, 32.25, 63.5, 64.0, 68.9, 69.0] {
+        for &y in &[0.0, 31.75, 32.0, 43.5, 44.0] {
+            for &z in &[0.5, 31.5, 32.0] {
+                pts.push(Vec3::new(x, y, z));
+            }
+        }
+    }
+    pts.push(Vec3::new(f32::NAN, 10.0, 10.0));
+    pts.push(Vec3::new(45.0, f32::NAN, f32::NAN));
+    let probes: Vec<(usize, Vec3)> = pts.iter().flat_map(|&p| [(0usize, p), (1, p)]).collect();
+    let got = sample_probe(&gs, &probes).unwrap();
+    let mut worst = 0.0f32;
+    for (&(c, p), g) in probes.iter().zip(&got) {
+        let want = [&a, &b][c].sample_trilinear_index(p);
+        let d = (g - want).abs();
+        worst = worst.max(d);
+        // f32 lerps; the device may contract them into fused multiply-adds.
+        assert!(d <= 1e-6, "channel {c} at {p}: gpu {g} cpu {want}");
+    }
+    eprintln!("pool samples: max |gpu - cpu| = {worst:e}");
+}
+
+#[test]
+fn a_bsv_level_renders_the_bytes_of_the_same_data_in_memory() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [72, 40, 36];
+    let a = smooth(dims);
+    let b = boxed(dims, [10, 30, 2], [30, 39, 20]);
+    // A cache of 4 file bricks: the pool is filled through it brick by brick.
+    let budget = 4 * 18 * 18 * 18 * 4;
+    let fa = bricked(dir.path(), "a", &a, budget);
+    let fb = bricked(dir.path(), "b", &b, budget);
+    let t = GpuTracker::new(ctx).unwrap();
+    let sd = scene_of(vec![dense(&a), dense(&b)]);
+    let sb = scene_of(vec![
+        Field::from(fa.field(0).unwrap()),
+        Field::from(fb.field(0).unwrap()),
+    ]);
+    let gd = t.upload(sd.clone()).unwrap();
+    let gb = t.upload(sb.clone()).unwrap();
+    let (pd, pb) = (gd.pool_stats(), gb.pool_stats());
+    assert_eq!(
+        (pd.resident, pd.constant),
+        (pb.resident, pb.constant),
+        "{pd} / {pb}"
+    );
+    assert!(
+        pb.skipped_reads > 0,
+        "the stored macrocells spare reading constant bricks: {pb}"
+    );
+    let mut set = RenderSettings::default_for(&sd, 40, 40, false);
+    set.spp = 1;
+    let integ = Integrator::Marcher(RayMarcher::default());
+    let id = t.render(&gd, &integ, &set).unwrap();
+    let ib = t.render(&gb, &integ, &set).unwrap();
+    assert_eq!(id.as_raw(), ib.as_raw(), "bricked and dense pools differ");
+    // And the CPU's image within the marcher's f32 tolerance, grown over about 150 steps
+    // per ray (tests/tracking.rs states 2e-5 at 16^3 and 3e-4 over thousands of steps;
+    // measured here 3.4e-5 on lavapipe).
+    let cpu = render(&sd, &integ, &set).unwrap();
+    let d = cpu
+        .as_raw()
+        .iter()
+        .zip(ib.as_raw())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max);
+    assert!(d <= 1e-4, "max |gpu - cpu| = {d}");
+    assert!(
+        cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
+        "a trivial image"
+    );
+}
+
+#[test]
+fn a_volume_over_the_pool_cap_renders_when_its_bricks_fit_and_is_refused_when_not() {
+    let Some(ctx) = own_context() else { return };
+    // 96^3 f32 is 3.4 MiB; the cap is 1 MiB (7 slots of 33^3 f32).
+    ctx.set_pool_limit(Some(1 << 20));
+    assert_eq!(ctx.pool_capacity_bytes(), 1 << 20);
+    let dims = [96, 96, 96];
+    // One non-constant brick: the box lies inside brick (1, 1, 1) with its apron.
+    let sparse = boxed(dims, [36, 40, 38], [60, 62, 58]);
+    assert_eq!(non_constant_bricks(&sparse), 1);
+    let s = scene_of(vec![dense(&sparse)]);
+    let t = GpuTracker::new(&ctx).unwrap();
+    let gs = t.upload(s.clone()).unwrap();
+    let st = gs.pool_stats();
+    assert_eq!(st.resident, 1, "{st}");
+    assert!(st.dense_bytes > st.capacity_bytes, "{st}");
+    let mut set = RenderSettings::default_for(&s, 32, 32, false);
+    set.spp = 1;
+    let integ = Integrator::Marcher(RayMarcher::default());
+    let gpu = t.render(&gs, &integ, &set).unwrap();
+    let cpu = render(&s, &integ, &set).unwrap();
+    let d = cpu
+        .as_raw()
+        .iter()
+        .zip(gpu.as_raw())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max);
+    assert!(d <= 2e-5, "max |gpu - cpu| = {d}");
+    assert!(
+        cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
+        "a trivial image"
+    );
+
+    // 27 non-constant bricks do not fit 7 slots: the pool's limit, which auto falls back on.
+    let full = scene_of(vec![dense(&smooth(dims))]);
+    let err = t.upload(full).unwrap_err();
+    assert!(is_pool_full(&err), "{err}");
+    assert!(DeviceChoice::Auto.falls_back_on(&err));
+    assert!(!DeviceChoice::Gpu.falls_back_on(&err));
+    assert!(err.to_string().contains("--gpu-pool-mb"), "{err}");
+}
+
+#[test]
+fn lod_auto_uploads_the_finest_level_whose_bricks_fit() {
+    let Some(ctx) = own_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [96, 96, 96];
+    let f = bricked(dir.path(), "s", &smooth(dims), 1 << 22);
+    let s = scene_of(vec![Field::from(f.field(0).unwrap())]);
+    let t = GpuTracker::new(&ctx).unwrap();
+    // Level 0 (96^3) has 27 pool bricks, level 1 (48^3) 8, level 2 (24^3) 1 (all
+    // non-constant): with 7 slots level 2 is the finest that fits; with 8, level 1.
+    for (slots, want) in [(7u64, 2usize), (8, 1), (27, 0)] {
+        ctx.set_pool_limit(Some(slots * blueshift_gpu::pool::SLOT_BYTES));
+        let (gs, level) = t.upload_fitting(s.clone()).unwrap();
+        assert_eq!(level, Some(want), "{slots} slots");
+        assert_eq!(gs.scene().geometry().dims, [96 >> want; 3]);
+        assert_eq!(gs.pool_stats().resident, [27, 8, 1][want]);
+    }
+    // A cap below one slot: no level fits, and the error is the pool's.
+    ctx.set_pool_limit(Some(1024));
+    let err = t.upload_fitting(s).map(|_| ()).unwrap_err();
+    assert!(is_pool_full(&err), "{err}");
+}
