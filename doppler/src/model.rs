@@ -328,28 +328,51 @@ impl DopplerScene {
         Ok(())
     }
 
-    /// Subtracts the mean velocity (the bulk motion) from the velocity field.
+    /// Subtracts the mean velocity (the bulk motion), so the Doppler shifts show motion
+    /// relative to the gas as a whole. Components given as separate fields (`.bsv` files)
+    /// are averaged in one streaming pass each and shifted brick by brick as they are read
+    /// (derived bricks: nothing is loaded whole), with the same f32 subtraction as a dense
+    /// field.
     ///
-    /// Only for an in-memory field; a bricked velocity is left as it is (subtract the bulk
-    /// motion before converting it).
-    pub fn subtract_mean_velocity(&mut self) {
-        if let Some(VectorField::Dense(v)) = &mut self.velocity {
-            let n = v.data().len().max(1) as f64;
-            let mut sum = [0.0f64; 3];
-            for x in v.data() {
-                sum[0] += f64::from(x.x);
-                sum[1] += f64::from(x.y);
-                sum[2] += f64::from(x.z);
+    /// # Errors
+    /// A brick that cannot be read while averaging.
+    pub fn subtract_mean_velocity(&mut self) -> Result<()> {
+        match &mut self.velocity {
+            Some(VectorField::Dense(v)) => {
+                let n = v.data().len().max(1) as f64;
+                let mut sum = [0.0f64; 3];
+                for x in v.data() {
+                    sum[0] += f64::from(x.x);
+                    sum[1] += f64::from(x.y);
+                    sum[2] += f64::from(x.z);
+                }
+                let mean = Vec3::new(
+                    (sum[0] / n) as f32,
+                    (sum[1] / n) as f32,
+                    (sum[2] / n) as f32,
+                );
+                for x in v.data_mut() {
+                    *x -= mean;
+                }
             }
-            let mean = Vec3::new(
-                (sum[0] / n) as f32,
-                (sum[1] / n) as f32,
-                (sum[2] / n) as f32,
-            );
-            for x in v.data_mut() {
-                *x -= mean;
+            Some(VectorField::Components(c)) => {
+                for f in c.iter_mut() {
+                    let m = f.mean()? as f32;
+                    *f = match &*f {
+                        Field::Bricked(b) => Field::from(
+                            blueshift_volume::field::CombinedSource::monotone(b, move |v| v - m)
+                                .field()?,
+                        ),
+                        Field::Dense(g) => {
+                            let data = g.to_f32_vec().into_iter().map(|v| v - m).collect();
+                            Field::from(AnyGrid::F32(Grid::from_vec(*g.geometry(), data)?))
+                        }
+                    };
+                }
             }
+            None => {}
         }
+        Ok(())
     }
 
     /// A scene from a volume with the synthetic datasets' channel names: species tokens `bb`

@@ -402,7 +402,7 @@ impl SceneFile {
             let grid = loader.velocity(&v.field, v.files.as_ref())?;
             scene.set_velocity(grid)?;
             if v.subtract_mean {
-                scene.subtract_mean_velocity();
+                scene.subtract_mean_velocity()?;
             }
         }
         scene.factors = self.factors(Factors::default())?;

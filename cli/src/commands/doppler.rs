@@ -279,11 +279,19 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
             *slot = v;
         }
     }
-    if args.subtract_mean_velocity {
-        scene.subtract_mean_velocity();
-    }
     if let Some((s0, _)) = &mut level0 {
         s0.factors = scene.factors;
+    }
+    if args.subtract_mean_velocity {
+        // Levels of detail share the finest level's mean (as a scene file's
+        // "subtract_mean" gives them).
+        match &mut level0 {
+            Some((s0, level)) => {
+                s0.subtract_mean_velocity()?;
+                scene = s0.at_level(*level)?;
+            }
+            None => scene.subtract_mean_velocity()?,
+        }
     }
     let mut st = DopplerSettings::default_for(&scene, args.width, args.height);
     st.integrator = args.integrator.parse::<SpectralIntegrator>()?;
