@@ -434,6 +434,31 @@ fn encode(vals: &[f32], t: ScalarType, out: &mut [u8]) {
     }
 }
 
+/// Encodes the stored voxels `x0..x0 + out.len() / size` of `row` into `out`, clamping x to
+/// the row (the apron beyond the volume's edge repeats the edge voxel): the part inside the
+/// row in one [`encode`], then the clamped voxels one at a time.
+fn encode_run(row: &[f32], x0: i64, t: ScalarType, out: &mut [u8]) {
+    let ts = t.size_bytes();
+    let n = out.len() / ts;
+    let nx = row.len() as i64;
+    // Any stored run overlaps the row: x0 < nx (a brick starts inside the volume) and
+    // x0 + n > 0 (the apron is at most one brick edge).
+    let lo = x0.clamp(0, nx) as usize;
+    let hi = (x0 + n as i64).clamp(0, nx) as usize;
+    let left = (lo as i64 - x0) as usize;
+    let inside = hi.saturating_sub(lo);
+    debug_assert!(inside > 0, "stored run {x0}+{n} outside a row of {nx}");
+    let (head, tail) = out.split_at_mut(left * ts);
+    let (mid, tail) = tail.split_at_mut(inside * ts);
+    encode(&row[lo..lo + inside], t, mid);
+    for o in head.chunks_exact_mut(ts) {
+        encode(&row[..1], t, o);
+    }
+    for o in tail.chunks_exact_mut(ts) {
+        encode(&row[row.len() - 1..], t, o);
+    }
+}
+
 fn decode(bytes: &[u8], t: ScalarType) -> Vec<f32> {
     match t {
         ScalarType::U8 => bytes.iter().map(|&b| f32::from(b)).collect(),
@@ -626,7 +651,6 @@ impl<'a> Writer<'a> {
             .map(|by| {
                 let mut buf = lock(pool).pop().unwrap_or_default();
                 buf.resize(nb[0] * brick_bytes, 0);
-                let mut run = vec![0f32; s];
                 let mut sums = Vec::with_capacity(nb[0]);
                 for (bx, out) in buf.chunks_exact_mut(brick_bytes).enumerate() {
                     let x0 = (bx * b) as i64 - a as i64;
@@ -636,16 +660,8 @@ impl<'a> Writer<'a> {
                             let y =
                                 ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
                             let row = &sl[y * nx..(y + 1) * nx];
-                            let vals: &[f32] = if x0 >= 0 && x0 as usize + s <= nx {
-                                &row[x0 as usize..x0 as usize + s]
-                            } else {
-                                for (lx, r) in run.iter_mut().enumerate() {
-                                    *r = row[(x0 + lx as i64).clamp(0, nx as i64 - 1) as usize];
-                                }
-                                &run
-                            };
                             let at = (lz * s + ly) * s * ts;
-                            encode(vals, lw.ty, &mut out[at..at + s * ts]);
+                            encode_run(row, x0, lw.ty, &mut out[at..at + s * ts]);
                         }
                     }
                     sums.push(checksum(out));
@@ -735,32 +751,30 @@ impl ValueStats {
         }
     }
 
-    /// Adds `vals`, eight lanes at a time so the loop vectorises.
+    /// Adds `vals`, eight lanes at a time: value `8 i + j` goes to lane `j`, where it moves
+    /// the lane's minimum only if strictly smaller (the maximum if strictly larger), so the
+    /// result is exact and the same on every platform; the lanes are combined at the end.
     fn add(&mut self, vals: &[f32]) {
         const L: usize = 8;
-        let mut lo = [f32::INFINITY; L];
-        let mut hi = [f32::NEG_INFINITY; L];
-        let mut pos = [f32::INFINITY; L];
-        let mut bad = [0u32; L];
+        let mut lanes = Lanes {
+            lo: [f32::INFINITY; L],
+            hi: [f32::NEG_INFINITY; L],
+            pos: [f32::INFINITY; L],
+            bad: [0; L],
+        };
         let (chunks, rest) = vals.as_chunks::<L>();
         // Lane counters are u32: flush them before they could wrap.
         for block in chunks.chunks(1 << 20) {
-            for c in block {
-                for i in 0..L {
-                    let v = c[i];
-                    let fin = v.abs() < f32::INFINITY;
-                    let a = if fin { v } else { f32::INFINITY };
-                    let b = if fin { v } else { f32::NEG_INFINITY };
-                    let p = if fin && v > 0.0 { v } else { f32::INFINITY };
-                    lo[i] = if a < lo[i] { a } else { lo[i] };
-                    hi[i] = if b > hi[i] { b } else { hi[i] };
-                    pos[i] = if p < pos[i] { p } else { pos[i] };
-                    bad[i] += u32::from(!fin);
-                }
-            }
-            self.non_finite += bad.iter().map(|&b| u64::from(b)).sum::<u64>();
-            bad = [0; L];
+            lanes.add(block);
+            self.non_finite += lanes.bad.iter().map(|&b| u64::from(b)).sum::<u64>();
+            lanes.bad = [0; L];
         }
+        let Lanes {
+            mut lo,
+            mut hi,
+            mut pos,
+            ..
+        } = lanes;
         for &v in rest {
             if v.is_finite() {
                 lo[0] = lo[0].min(v);
@@ -776,6 +790,92 @@ impl ValueStats {
             self.lo = self.lo.min(lo[i]);
             self.hi = self.hi.max(hi[i]);
             self.pos_lo = self.pos_lo.min(pos[i]);
+        }
+    }
+}
+
+/// Per-lane minimum, maximum, smallest positive value (all of finite values) and count of
+/// non-finite values, for [`ValueStats::add`].
+struct Lanes {
+    lo: [f32; 8],
+    hi: [f32; 8],
+    pos: [f32; 8],
+    bad: [u32; 8],
+}
+
+impl Lanes {
+    /// Adds `block` lane by lane (at most 2^32 - 1 blocks, so the counts cannot wrap).
+    #[cfg(target_arch = "x86_64")]
+    fn add(&mut self, block: &[[f32; 8]]) {
+        // SAFETY: SSE2 is part of the x86_64 baseline, so every x86_64 CPU runs `add_sse2`.
+        #[allow(unsafe_code)]
+        unsafe {
+            self.add_sse2(block);
+        }
+    }
+
+    /// SSE2 version of [`Lanes::add_scalar`], with the same result in every lane: written
+    /// portably, LLVM keeps the selects scalar and the statistics cost as much as the
+    /// kernel's read of the file. A non-finite value is turned into a NaN (all bits set),
+    /// which `minps` and `maxps` pass over (they return their second operand, the lane's
+    /// value so far, when either is NaN, and also when both are equal, as the scalar
+    /// version keeps the first of equal values).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "sse2")]
+    fn add_sse2(&mut self, block: &[[f32; 8]]) {
+        use std::arch::x86_64::{
+            __m128, __m128i, _mm_and_ps, _mm_castps_si128, _mm_castsi128_ps, _mm_cmple_ps,
+            _mm_cmpnlt_ps, _mm_max_ps, _mm_min_ps, _mm_or_ps, _mm_set1_epi32, _mm_set1_ps,
+            _mm_setzero_ps, _mm_sub_epi32,
+        };
+        let inf = _mm_set1_ps(f32::INFINITY);
+        let abs = _mm_castsi128_ps(_mm_set1_epi32(0x7fff_ffff));
+        let zero = _mm_setzero_ps();
+        let mut lo: [__m128; 2] = bytemuck::cast(self.lo);
+        let mut hi: [__m128; 2] = bytemuck::cast(self.hi);
+        let mut pos: [__m128; 2] = bytemuck::cast(self.pos);
+        let mut bad: [__m128i; 2] = bytemuck::cast(self.bad);
+        for c in block {
+            let v: [__m128; 2] = bytemuck::cast(*c);
+            for h in 0..2 {
+                // All ones where |v| is not below infinity: infinite or NaN.
+                let nf = _mm_cmpnlt_ps(_mm_and_ps(v[h], abs), inf);
+                let x = _mm_or_ps(v[h], nf);
+                lo[h] = _mm_min_ps(x, lo[h]);
+                hi[h] = _mm_max_ps(x, hi[h]);
+                // NaN unless positive.
+                let p = _mm_or_ps(x, _mm_cmple_ps(x, zero));
+                pos[h] = _mm_min_ps(p, pos[h]);
+                // nf is -1 where not finite.
+                bad[h] = _mm_sub_epi32(bad[h], _mm_castps_si128(nf));
+            }
+        }
+        self.lo = bytemuck::cast(lo);
+        self.hi = bytemuck::cast(hi);
+        self.pos = bytemuck::cast(pos);
+        self.bad = bytemuck::cast(bad);
+    }
+
+    #[cfg(not(target_arch = "x86_64"))]
+    fn add(&mut self, block: &[[f32; 8]]) {
+        self.add_scalar(block);
+    }
+
+    /// The portable version: what [`Lanes::add`] computes on every platform.
+    #[cfg(any(test, not(target_arch = "x86_64")))]
+    fn add_scalar(&mut self, block: &[[f32; 8]]) {
+        for c in block {
+            for i in 0..8 {
+                let v = c[i];
+                let fin = v.abs() < f32::INFINITY;
+                let a = if fin { v } else { f32::INFINITY };
+                let b = if fin { v } else { f32::NEG_INFINITY };
+                let p = if fin && v > 0.0 { v } else { f32::INFINITY };
+                self.lo[i] = if a < self.lo[i] { a } else { self.lo[i] };
+                self.hi[i] = if b > self.hi[i] { b } else { self.hi[i] };
+                self.pos[i] = if p < self.pos[i] { p } else { self.pos[i] };
+                self.bad[i] += u32::from(!fin);
+            }
         }
     }
 }
@@ -1380,5 +1480,66 @@ impl Sampler for LevelSampler {
 
     fn sample_index(&self, p: Vec3) -> Result<f32> {
         self.field.try_sample_index(p)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The SSE2 lane statistics give the portable version's bits (NaNs of either sign,
+    /// infinities, signed zeros, subnormals and ordinary values mixed).
+    #[test]
+    fn lane_statistics_match_the_portable_version() {
+        let mut state = 0x853c_49e6_748f_ea9bu64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 32) as u32
+        };
+        let special = [
+            f32::NAN,
+            -f32::NAN,
+            f32::from_bits(0xffff_ffff),
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            f32::from_bits(1),
+            f32::from_bits(0x8000_0001),
+            f32::MAX,
+            f32::MIN,
+        ];
+        for round in 0..50 {
+            let block: Vec<[f32; 8]> = (0..64)
+                .map(|_| {
+                    std::array::from_fn(|_| {
+                        let u = next();
+                        match u % 8 {
+                            0 => special[(u >> 8) as usize % special.len()],
+                            1 => f32::from_bits(next()),
+                            // Only zeros in some rounds, to test ties of +0 and -0.
+                            _ if round % 5 == 0 => special[5 + (u >> 8) as usize % 2],
+                            _ => (u >> 8) as f32 * 1e-3 - 8000.0,
+                        }
+                    })
+                })
+                .collect();
+            let fresh = || Lanes {
+                lo: [f32::INFINITY; 8],
+                hi: [f32::NEG_INFINITY; 8],
+                pos: [f32::INFINITY; 8],
+                bad: [0; 8],
+            };
+            let (mut fast, mut slow) = (fresh(), fresh());
+            fast.add(&block);
+            slow.add_scalar(&block);
+            let bits = |v: [f32; 8]| v.map(f32::to_bits);
+            assert_eq!(bits(fast.lo), bits(slow.lo), "round {round}");
+            assert_eq!(bits(fast.hi), bits(slow.hi), "round {round}");
+            assert_eq!(bits(fast.pos), bits(slow.pos), "round {round}");
+            assert_eq!(fast.bad, slow.bad, "round {round}");
+        }
     }
 }
