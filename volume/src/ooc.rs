@@ -142,6 +142,12 @@ pub trait SlabSource {
     fn scalar_type(&self) -> ScalarType {
         ScalarType::F32
     }
+    /// The whole volume (`dims.x * dims.y * dims.z` values, x fastest), if the source holds
+    /// it in memory as f32: an in-core f32 grid, a mapped file of native f32 voxels. The
+    /// converter then reads it in place instead of calling `read_slice`. Default: none.
+    fn in_place(&self) -> Option<&[f32]> {
+        None
+    }
 }
 
 /// Slices of an in-core scalar grid.
@@ -155,6 +161,10 @@ impl<T: Voxel<Value = f32>> SlabSource for GridSource<'_, T> {
     fn scalar_type(&self) -> ScalarType {
         T::TYPE
     }
+    fn in_place(&self) -> Option<&[f32]> {
+        let grid: &dyn std::any::Any = self.0;
+        grid.downcast_ref::<Grid<f32>>().map(Grid::data)
+    }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.0.dims();
         let s = &self.0.data()[z * nx * ny..(z + 1) * nx * ny];
@@ -166,7 +176,9 @@ impl<T: Voxel<Value = f32>> SlabSource for GridSource<'_, T> {
 }
 
 /// Slices read straight from uncompressed voxels in a file (raw, raw-encoded NRRD), one
-/// slice at a time, so memory stays at one slice whatever the volume's size.
+/// slice at a time, so memory stays at one slice whatever the volume's size. Native f32
+/// voxels at an offset that keeps them aligned are mapped into memory instead, and the
+/// converter reads them in place ([`SlabSource::in_place`]).
 #[derive(Debug)]
 pub struct RawFileSource {
     file: File,
@@ -175,6 +187,29 @@ pub struct RawFileSource {
     endian: Endian,
     geometry: Geometry,
     buf: Vec<u8>,
+    map: Option<memmap2::Mmap>,
+}
+
+/// Maps the `len` bytes of voxels at `offset` of `file` if they can be read in place as f32
+/// (the offset keeps them 4-byte aligned); `None` if not, or if mapping fails.
+///
+/// Mapping saves the conversion a copy of every voxel (into the slices, then into bricks):
+/// the bricks of level 0 go from the page cache of the input to that of the output in one
+/// copy, the kernel's, as `cp` does. The price is the usual one of a mapping: if another
+/// program truncates the file while we read it, the access faults (SIGBUS) instead of
+/// returning an error. We accept that here only: this is a conversion's input, opened
+/// read-only, whose length was checked just before; cutting a file while a program
+/// converts it is not an I/O error this code could recover from anyway. Bricked files read
+/// for rendering keep positioned reads ([`FileBricks`]), where a failure is an error.
+#[allow(unsafe_code)]
+fn map_voxels(file: &File, offset: u64, len: u64) -> Option<memmap2::Mmap> {
+    let len = usize::try_from(len).ok().filter(|&l| l > 0)?;
+    // SAFETY: the mapping is read-only and private to this source; memmap2 requires that the
+    // file is not modified or truncated while mapped, the risk accepted above.
+    let map = unsafe { memmap2::MmapOptions::new().offset(offset).len(len).map(file) }.ok()?;
+    // The converter reads the slices in order (a window of a brick's depth at a time).
+    let _ = map.advise(memmap2::Advice::Sequential);
+    bytemuck::try_cast_slice::<u8, f32>(&map).is_ok().then_some(map)
 }
 
 impl RawFileSource {
@@ -197,6 +232,12 @@ impl RawFileSource {
                 path.display()
             )));
         }
+        let native = (endian == Endian::Big) == cfg!(target_endian = "big");
+        let map = if disk == DiskType::F32 && native {
+            map_voxels(&file, offset, need)
+        } else {
+            None
+        };
         Ok(RawFileSource {
             file,
             offset,
@@ -204,6 +245,7 @@ impl RawFileSource {
             endian,
             geometry,
             buf: Vec::new(),
+            map,
         })
     }
 
@@ -260,8 +302,17 @@ impl SlabSource for RawFileSource {
             _ => ScalarType::F32,
         }
     }
+    fn in_place(&self) -> Option<&[f32]> {
+        self.map
+            .as_deref()
+            .and_then(|m| bytemuck::try_cast_slice(m).ok())
+    }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.geometry.dims;
+        if let Some(v) = self.in_place() {
+            out[..nx * ny].copy_from_slice(&v[z * nx * ny..(z + 1) * nx * ny]);
+            return Ok(());
+        }
         let size = self.disk.size_bytes();
         let bytes = nx * ny * size;
         let at = self.offset + (z * bytes) as u64;
@@ -381,26 +432,43 @@ fn stored_k(layout: &BrickLayout) -> usize {
     }
 }
 
+const CHECKSUM_M: u64 = 0x9E37_79B9_7F4A_7C15;
+const CHECKSUM_START: [u64; 4] = [1, 2, 3, 4];
+
 /// A 64-bit checksum of a brick's bytes (four multiply-rotate lanes over u64 words).
 fn checksum(bytes: &[u8]) -> u64 {
-    const M: u64 = 0x9E37_79B9_7F4A_7C15;
-    let mut h = [1u64, 2, 3, 4];
-    let mut chunks = bytes.chunks_exact(32);
-    for c in &mut chunks {
+    let mut h = CHECKSUM_START;
+    let whole = bytes.len() / 32 * 32;
+    checksum_chunks(&mut h, &bytes[..whole]);
+    checksum_finish(h, &bytes[whole..], bytes.len())
+}
+
+/// Adds whole 32-byte chunks to a [`checksum`]'s lanes (a brick is summed as it is filled,
+/// while its bytes are in the cache).
+fn checksum_chunks(h: &mut [u64; 4], bytes: &[u8]) {
+    const M: u64 = CHECKSUM_M;
+    debug_assert!(bytes.len().is_multiple_of(32));
+    for c in bytes.as_chunks::<32>().0 {
         for (i, lane) in h.iter_mut().enumerate() {
             let w = u64::from_le_bytes(c[8 * i..8 * i + 8].try_into().expect("8 bytes"));
             *lane = (*lane ^ w).wrapping_mul(M).rotate_left(29);
         }
     }
+}
+
+/// A [`checksum`] from its lanes after the whole chunks, the last `tail` bytes (fewer than
+/// 32) and the length summed.
+fn checksum_finish(mut h: [u64; 4], tail_bytes: &[u8], len: usize) -> u64 {
+    const M: u64 = CHECKSUM_M;
     let mut tail = 0u64;
-    for (i, &b) in chunks.remainder().iter().enumerate() {
+    for (i, &b) in tail_bytes.iter().enumerate() {
         tail ^= u64::from(b) << ((i % 8) * 8);
         if i % 8 == 7 {
             h[0] = (h[0] ^ tail).wrapping_mul(M).rotate_left(29);
             tail = 0;
         }
     }
-    h[1] = (h[1] ^ tail ^ bytes.len() as u64).wrapping_mul(M);
+    h[1] = (h[1] ^ tail ^ len as u64).wrapping_mul(M);
     h.iter()
         .fold(0u64, |a, &x| (a ^ x).wrapping_mul(M).rotate_left(23))
 }
@@ -459,6 +527,25 @@ fn encode_run(row: &[f32], x0: i64, t: ScalarType, out: &mut [u8]) {
     }
 }
 
+/// [`downsample_row`] for a row whose fine rows are given, `[(y0, z0), (y1, z0), (y0, z1),
+/// (y1, z1)]`: the same sums in the same order, written over pairs so that they vectorise
+/// (the same bits, up to which NaN a sum of NaNs gives).
+fn downsample_rows(rows: [&[f32]; 4], out: &mut [f32]) {
+    let nx = rows[0].len();
+    let pairs = (nx / 2).min(out.len());
+    let p = rows.map(|r| &r.as_chunks::<2>().0[..pairs]);
+    for (x, o) in out[..pairs].iter_mut().enumerate() {
+        let s = ((p[0][x][0] + p[0][x][1]) + (p[1][x][0] + p[1][x][1]))
+            + ((p[2][x][0] + p[2][x][1]) + (p[3][x][0] + p[3][x][1]));
+        *o = s * 0.125;
+    }
+    // An odd row's last coarse voxel has one fine voxel per row, counted twice.
+    for (x, o) in out.iter_mut().enumerate().skip(pairs) {
+        let f = |r: &[f32]| r[(2 * x).min(nx - 1)] + r[(2 * x + 1).min(nx - 1)];
+        *o = ((f(rows[0]) + f(rows[1])) + (f(rows[2]) + f(rows[3]))) * 0.125;
+    }
+}
+
 fn decode(bytes: &[u8], t: ScalarType) -> Vec<f32> {
     match t {
         ScalarType::U8 => bytes.iter().map(|&b| f32::from(b)).collect(),
@@ -503,8 +590,34 @@ fn level_types(levels: usize, t0: ScalarType) -> Vec<ScalarType> {
         .collect()
 }
 
+/// A z-slice in a level's window: computed or copied (owned, recycled once spent), or read in
+/// place from the source's memory (a mapped input file), which outlives the conversion.
+enum Slice<'a> {
+    Owned(Vec<f32>),
+    InPlace(&'a [f32]),
+}
+
+impl std::ops::Deref for Slice<'_> {
+    type Target = [f32];
+    fn deref(&self) -> &[f32] {
+        match self {
+            Slice::Owned(v) => v,
+            Slice::InPlace(s) => s,
+        }
+    }
+}
+
+impl Slice<'_> {
+    fn into_owned(self) -> Option<Vec<f32>> {
+        match self {
+            Slice::Owned(v) => Some(v),
+            Slice::InPlace(_) => None,
+        }
+    }
+}
+
 /// One level being written: a window of the z-slices its next brick slab needs.
-struct LevelWriter {
+struct LevelWriter<'a> {
     g: Geometry,
     ty: ScalarType,
     offset: u64,
@@ -512,12 +625,12 @@ struct LevelWriter {
     first_brick: usize,
     macro_off: Option<u64>,
     /// `(z, slice)`, consecutive z.
-    window: VecDeque<(usize, Vec<f32>)>,
+    window: VecDeque<(usize, Slice<'a>)>,
     next_slab: usize,
     free: Vec<Vec<f32>>,
 }
 
-impl LevelWriter {
+impl<'a> LevelWriter<'a> {
     /// Slice `z` clamped to the level (it must be in the window).
     fn slice(&self, z: i64) -> &[f32] {
         let zc = z.clamp(0, self.g.dims[2] as i64 - 1) as usize;
@@ -542,7 +655,7 @@ struct Writer<'a> {
     file: &'a File,
     layout: BrickLayout,
     plan: &'a Plan,
-    levels: Vec<LevelWriter>,
+    levels: Vec<LevelWriter<'a>>,
     checksums: Vec<u64>,
     /// Which output this is.
     id: usize,
@@ -593,7 +706,7 @@ impl<'a> Writer<'a> {
 
     /// Adds slice `z` of level `l`, writes every slab it completes and passes the down-sampled
     /// slices on to the coarser levels. Returns spent buffers of level `l`.
-    fn push(&mut self, l: usize, z: usize, slice: Vec<f32>) -> Result<Vec<Vec<f32>>> {
+    fn push(&mut self, l: usize, z: usize, slice: Slice<'a>) -> Result<Vec<Slice<'a>>> {
         self.levels[l].window.push_back((z, slice));
         let nz = self.levels[l].g.dims[2];
         if l + 1 < self.levels.len() && (z % 2 == 1 || z == nz - 1) {
@@ -607,17 +720,28 @@ impl<'a> Writer<'a> {
                 .par_chunks_mut(c[0])
                 .enumerate()
                 .for_each(|(y, row)| {
-                    let fine = |x: usize, yy: usize, zz: usize| {
-                        if zz == 2 * j {
-                            s0[x + nx * yy]
-                        } else {
-                            s1[x + nx * yy]
-                        }
-                    };
-                    downsample_row(fine, [nx, ny, nz], j, y, row);
+                    let (y0, y1) = (2 * y, (2 * y + 1).min(ny - 1));
+                    let r = |y: usize| y * nx..(y + 1) * nx;
+                    let rows = [&s0[r(y0)], &s0[r(y1)], &s1[r(y0)], &s1[r(y1)]];
+                    downsample_rows(rows, row);
+                    // Which NaN a sum of NaNs (or of opposite infinities) gives depends on
+                    // the order of the additions, which vectorising changed: rows with a NaN
+                    // are summed again by the scalar code, so files keep the same bytes.
+                    if row.iter().fold(false, |n, v| n | v.is_nan()) {
+                        let fine = |x: usize, yy: usize, zz: usize| {
+                            if zz == 2 * j {
+                                s0[x + nx * yy]
+                            } else {
+                                s1[x + nx * yy]
+                            }
+                        };
+                        downsample_row(fine, [nx, ny, nz], j, y, row);
+                    }
                 });
-            let spent = self.push(l + 1, j, coarse)?;
-            self.levels[l + 1].free.extend(spent);
+            let spent = self.push(l + 1, j, Slice::Owned(coarse))?;
+            self.levels[l + 1]
+                .free
+                .extend(spent.into_iter().filter_map(Slice::into_owned));
         }
         let mut spent = Vec::new();
         while self.levels[l].next_slab < self.levels[l].nb[2]
@@ -649,11 +773,17 @@ impl<'a> Writer<'a> {
         let sums: Vec<Result<Vec<u64>>> = (0..nb[1])
             .into_par_iter()
             .map(|by| {
+                let first = ((by + nb[1] * bz) * nb[0]) as u64;
+                let at = lw.offset + first * brick_bytes as u64;
+                let sink = sink.ok_or_else(writer_gone)?;
                 let mut buf = lock(pool).pop().unwrap_or_default();
                 buf.resize(nb[0] * brick_bytes, 0);
                 let mut sums = Vec::with_capacity(nb[0]);
+                let plane = s * s * ts;
                 for (bx, out) in buf.chunks_exact_mut(brick_bytes).enumerate() {
                     let x0 = (bx * b) as i64 - a as i64;
+                    let mut sum = CHECKSUM_START;
+                    let mut summed = 0;
                     for lz in 0..s {
                         let sl = lw.slice((bz * b + lz) as i64 - a as i64);
                         for ly in 0..s {
@@ -663,12 +793,13 @@ impl<'a> Writer<'a> {
                             let at = (lz * s + ly) * s * ts;
                             encode_run(row, x0, lw.ty, &mut out[at..at + s * ts]);
                         }
+                        let upto = (lz + 1) * plane / 32 * 32;
+                        checksum_chunks(&mut sum, &out[summed..upto]);
+                        summed = upto;
                     }
-                    sums.push(checksum(out));
+                    sums.push(checksum_finish(sum, &out[summed..], out.len()));
                 }
-                let first = ((by + nb[1] * bz) * nb[0]) as u64;
-                sink.ok_or_else(writer_gone)?
-                    .send((id, lw.offset + first * brick_bytes as u64, buf))
+                sink.send((id, at, buf))
                     .map_err(|_| writer_gone())?;
                 Ok(sums)
             })
@@ -916,9 +1047,21 @@ pub trait MultiSlabSource {
     }
     /// Fills `out[c]` (resized to `dims.x * dims.y`, x fastest) with slice `z` of channel `c`.
     fn read_slices(&mut self, z: usize, out: &mut [Vec<f32>]) -> Result<()>;
+    /// Every channel's whole volume (as [`SlabSource::in_place`]), if the source holds them
+    /// in memory as f32; then [`MultiSlabSource::read_slices`] is not called. Default: none.
+    fn in_place(&self) -> Option<Vec<&[f32]>> {
+        None
+    }
 }
 
 struct OneChannel<'a>(&'a mut (dyn SlabSource + Send));
+
+/// Where the converter's slices come from.
+enum Input<'a> {
+    /// Every channel's whole volume, in memory.
+    InPlace(Vec<&'a [f32]>),
+    Read(&'a mut (dyn MultiSlabSource + Send)),
+}
 
 impl MultiSlabSource for OneChannel<'_> {
     fn geometry(&self) -> Geometry {
@@ -929,6 +1072,9 @@ impl MultiSlabSource for OneChannel<'_> {
     }
     fn scalar_type(&self, _c: usize) -> ScalarType {
         self.0.scalar_type()
+    }
+    fn in_place(&self) -> Option<Vec<&[f32]>> {
+        self.0.in_place().map(|v| vec![v])
     }
     fn read_slices(&mut self, z: usize, out: &mut [Vec<f32>]) -> Result<()> {
         let n = self.0.geometry().dims[0] * self.0.geometry().dims[1];
@@ -988,20 +1134,45 @@ pub fn convert_many(
         .collect();
     let nz = g0.dims[2];
     let nc = outs.len();
+    let slice_len = g0.dims[0] * g0.dims[1];
+    // Volumes held in memory are read in place: no slice is copied, and the bricks of f32
+    // go from there to the file in one copy, the kernel's.
+    let input = match source.in_place() {
+        Some(v) if v.len() == nc && v.iter().all(|c| c.len() == slice_len * nz) => {
+            let source: &(dyn MultiSlabSource + Send) = source;
+            Input::InPlace(source.in_place().unwrap_or_default())
+        }
+        _ => Input::Read(source),
+    };
     let stats = std::thread::scope(|scope| -> Result<Vec<ValueStats>> {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(usize, Vec<Vec<f32>>)>>(2);
+        // Slices read in place cost no memory: let the reader (which then only gathers the
+        // statistics, touching the pages first) run further ahead.
+        let depth = if matches!(input, Input::InPlace(_)) { 8 } else { 2 };
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(usize, Vec<Slice>)>>(depth);
         let (back_tx, back_rx) = std::sync::mpsc::channel::<Vec<f32>>();
         let reader = scope.spawn(move || {
+            let mut input = input;
             let mut st = vec![ValueStats::new(); nc];
             for z in 0..nz {
-                let mut bufs: Vec<Vec<f32>> = (0..nc)
-                    .map(|_| back_rx.try_recv().unwrap_or_default())
-                    .collect();
-                let r = source.read_slices(z, &mut bufs).map(|()| {
-                    for (s, b) in st.iter_mut().zip(&bufs) {
+                let r = match &mut input {
+                    Input::InPlace(volumes) => Ok(volumes
+                        .iter()
+                        .map(|v| Slice::InPlace(&v[z * slice_len..(z + 1) * slice_len]))
+                        .collect::<Vec<_>>()),
+                    Input::Read(source) => {
+                        let mut bufs: Vec<Vec<f32>> = (0..nc)
+                            .map(|_| back_rx.try_recv().unwrap_or_default())
+                            .collect();
+                        source
+                            .read_slices(z, &mut bufs)
+                            .map(|()| bufs.into_iter().map(Slice::Owned).collect())
+                    }
+                };
+                let r = r.map(|slices| {
+                    for (s, b) in st.iter_mut().zip(&slices) {
                         s.add(b);
                     }
-                    (z, bufs)
+                    (z, slices)
                 });
                 let failed = r.is_err();
                 if tx.send(r).is_err() || failed {
@@ -1032,7 +1203,9 @@ pub fn convert_many(
                 progress(z as u64 + 1, nz as u64);
                 for (w, slice) in writers.iter_mut().zip(slices) {
                     for b in w.push(0, z, slice)? {
-                        let _ = back_tx.send(b);
+                        if let Some(b) = b.into_owned() {
+                            let _ = back_tx.send(b);
+                        }
                     }
                 }
             }
