@@ -778,27 +778,34 @@ impl<'a> Writer<'a> {
                 let sink = sink.ok_or_else(writer_gone)?;
                 let mut buf = lock(pool).pop().unwrap_or_default();
                 buf.resize(nb[0] * brick_bytes, 0);
-                let mut sums = Vec::with_capacity(nb[0]);
+                // Plane by plane, row by row, every brick of the row in turn: the source is
+                // read in order (a brick at a time, its short runs missed the cache), and
+                // each plane is checksummed while it is in the cache.
                 let plane = s * s * ts;
-                for (bx, out) in buf.chunks_exact_mut(brick_bytes).enumerate() {
-                    let x0 = (bx * b) as i64 - a as i64;
-                    let mut sum = CHECKSUM_START;
-                    let mut summed = 0;
-                    for lz in 0..s {
-                        let sl = lw.slice((bz * b + lz) as i64 - a as i64);
-                        for ly in 0..s {
-                            let y =
-                                ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
-                            let row = &sl[y * nx..(y + 1) * nx];
-                            let at = (lz * s + ly) * s * ts;
+                let mut sums = vec![CHECKSUM_START; nb[0]];
+                let mut summed = 0;
+                for lz in 0..s {
+                    let sl = lw.slice((bz * b + lz) as i64 - a as i64);
+                    for ly in 0..s {
+                        let y = ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
+                        let row = &sl[y * nx..(y + 1) * nx];
+                        let at = (lz * s + ly) * s * ts;
+                        for (bx, out) in buf.chunks_exact_mut(brick_bytes).enumerate() {
+                            let x0 = (bx * b) as i64 - a as i64;
                             encode_run(row, x0, lw.ty, &mut out[at..at + s * ts]);
                         }
-                        let upto = (lz + 1) * plane / 32 * 32;
-                        checksum_chunks(&mut sum, &out[summed..upto]);
-                        summed = upto;
                     }
-                    sums.push(checksum_finish(sum, &out[summed..], out.len()));
+                    let upto = (lz + 1) * plane / 32 * 32;
+                    for (sum, out) in sums.iter_mut().zip(buf.chunks_exact(brick_bytes)) {
+                        checksum_chunks(sum, &out[summed..upto]);
+                    }
+                    summed = upto;
                 }
+                let sums: Vec<u64> = sums
+                    .into_iter()
+                    .zip(buf.chunks_exact(brick_bytes))
+                    .map(|(sum, out)| checksum_finish(sum, &out[summed..], out.len()))
+                    .collect();
                 sink.send((id, at, buf))
                     .map_err(|_| writer_gone())?;
                 Ok(sums)
