@@ -206,10 +206,18 @@ fn map_voxels(file: &File, offset: u64, len: u64) -> Option<memmap2::Mmap> {
     let len = usize::try_from(len).ok().filter(|&l| l > 0)?;
     // SAFETY: the mapping is read-only and private to this source; memmap2 requires that the
     // file is not modified or truncated while mapped, the risk accepted above.
-    let map = unsafe { memmap2::MmapOptions::new().offset(offset).len(len).map(file) }.ok()?;
+    let map = unsafe {
+        memmap2::MmapOptions::new()
+            .offset(offset)
+            .len(len)
+            .map(file)
+    }
+    .ok()?;
     // The converter reads the slices in order (a window of a brick's depth at a time).
     let _ = map.advise(memmap2::Advice::Sequential);
-    bytemuck::try_cast_slice::<u8, f32>(&map).is_ok().then_some(map)
+    bytemuck::try_cast_slice::<u8, f32>(&map)
+        .is_ok()
+        .then_some(map)
 }
 
 impl RawFileSource {
@@ -628,6 +636,10 @@ struct LevelWriter<'a> {
     window: VecDeque<(usize, Slice<'a>)>,
     next_slab: usize,
     free: Vec<Vec<f32>>,
+    /// Macrocell layers computed (as soon as their last slice came, while their slices are
+    /// in the cache) and not yet written: `(cz, mins, maxs)`, consecutive cz.
+    layers: VecDeque<(usize, Vec<f32>, Vec<f32>)>,
+    next_layer: usize,
 }
 
 impl<'a> LevelWriter<'a> {
@@ -636,6 +648,32 @@ impl<'a> LevelWriter<'a> {
         let zc = z.clamp(0, self.g.dims[2] as i64 - 1) as usize;
         let base = self.window.front().map_or(0, |w| w.0);
         &self.window[zc - base].1
+    }
+
+    /// Min and max of the macrocells of edge `k` in layer `cz` (its slices in the window).
+    fn layer(&self, k: usize, cz: usize) -> (usize, Vec<f32>, Vec<f32>) {
+        let n = self.g.dims;
+        let c = macro_dims(&self.g, k);
+        let mut mn = vec![f32::INFINITY; c[0] * c[1]];
+        let mut mx = vec![f32::NEG_INFINITY; c[0] * c[1]];
+        let row = |y: usize, z: usize| &self.slice(z as i64)[y * n[0]..(y + 1) * n[0]];
+        layer_min_max(n, k, cz, row, |v: f32| v, &mut mn, &mut mx);
+        (cz, mn, mx)
+    }
+
+    /// The macrocell layers of edge `k` whose slices are all in once slice `z` is: from
+    /// `next_layer` on.
+    fn layers_due(&self, k: usize, z: usize) -> std::ops::Range<usize> {
+        if k == 0 || self.macro_off.is_none() {
+            return 0..0;
+        }
+        let cz = macro_dims(&self.g, k)[2];
+        let last = self.g.dims[2] - 1;
+        let mut end = self.next_layer;
+        while end < cz && ((end + 1) * k).min(last) <= z {
+            end += 1;
+        }
+        self.next_layer..end
     }
 
     /// The last slice slab `bz` needs.
@@ -687,6 +725,8 @@ impl<'a> Writer<'a> {
                 window: VecDeque::new(),
                 next_slab: 0,
                 free: Vec::new(),
+                layers: VecDeque::new(),
+                next_layer: 0,
             })
             .collect();
         let last = plan.geoms.len() - 1;
@@ -709,35 +749,50 @@ impl<'a> Writer<'a> {
     fn push(&mut self, l: usize, z: usize, slice: Slice<'a>) -> Result<Vec<Slice<'a>>> {
         self.levels[l].window.push_back((z, slice));
         let nz = self.levels[l].g.dims[2];
-        if l + 1 < self.levels.len() && (z % 2 == 1 || z == nz - 1) {
-            let j = z / 2;
-            let mut coarse = self.levels[l + 1].take_buffer();
-            let lw = &self.levels[l];
-            let [nx, ny, _] = lw.g.dims;
-            let c = self.levels[l + 1].g.dims;
-            let (s0, s1) = (lw.slice(2 * j as i64), lw.slice((2 * j + 1) as i64));
-            coarse
-                .par_chunks_mut(c[0])
-                .enumerate()
-                .for_each(|(y, row)| {
-                    let (y0, y1) = (2 * y, (2 * y + 1).min(ny - 1));
-                    let r = |y: usize| y * nx..(y + 1) * nx;
-                    let rows = [&s0[r(y0)], &s0[r(y1)], &s1[r(y0)], &s1[r(y1)]];
-                    downsample_rows(rows, row);
-                    // Which NaN a sum of NaNs (or of opposite infinities) gives depends on
-                    // the order of the additions, which vectorising changed: rows with a NaN
-                    // are summed again by the scalar code, so files keep the same bytes.
-                    if row.iter().fold(false, |n, v| n | v.is_nan()) {
-                        let fine = |x: usize, yy: usize, zz: usize| {
-                            if zz == 2 * j {
-                                s0[x + nx * yy]
-                            } else {
-                                s1[x + nx * yy]
-                            }
-                        };
-                        downsample_row(fine, [nx, ny, nz], j, y, row);
-                    }
-                });
+        let k = self.plan.k;
+        let due = self.levels[l].layers_due(k, z);
+        let j = z / 2;
+        let mut coarse = (l + 1 < self.levels.len() && (z % 2 == 1 || z == nz - 1))
+            .then(|| self.levels[l + 1].take_buffer());
+        let c = self.levels.get(l + 1).map_or([0; 3], |lw| lw.g.dims);
+        let lw = &self.levels[l];
+        let [nx, ny, _] = lw.g.dims;
+        // The macrocell layers this slice completes, beside the down-sampling.
+        let ((), layers) = rayon::join(
+            || {
+                let Some(coarse) = coarse.as_mut() else {
+                    return;
+                };
+                let (s0, s1) = (lw.slice(2 * j as i64), lw.slice((2 * j + 1) as i64));
+                coarse
+                    .par_chunks_mut(c[0])
+                    .enumerate()
+                    .for_each(|(y, row)| {
+                        let (y0, y1) = (2 * y, (2 * y + 1).min(ny - 1));
+                        let r = |y: usize| y * nx..(y + 1) * nx;
+                        let rows = [&s0[r(y0)], &s0[r(y1)], &s1[r(y0)], &s1[r(y1)]];
+                        downsample_rows(rows, row);
+                        // Which NaN a sum of NaNs (or of opposite infinities) gives depends
+                        // on the order of the additions, which vectorising changed: rows
+                        // with a NaN are summed again by the scalar code, so files keep the
+                        // same bytes.
+                        if row.iter().fold(false, |n, v| n | v.is_nan()) {
+                            let fine = |x: usize, yy: usize, zz: usize| {
+                                if zz == 2 * j {
+                                    s0[x + nx * yy]
+                                } else {
+                                    s1[x + nx * yy]
+                                }
+                            };
+                            downsample_row(fine, [nx, ny, nz], j, y, row);
+                        }
+                    });
+            },
+            || due.clone().map(|cz| lw.layer(k, cz)).collect::<Vec<_>>(),
+        );
+        self.levels[l].layers.extend(layers);
+        self.levels[l].next_layer = due.end;
+        if let Some(coarse) = coarse {
             let spent = self.push(l + 1, j, Slice::Owned(coarse))?;
             self.levels[l + 1]
                 .free
@@ -806,8 +861,7 @@ impl<'a> Writer<'a> {
                     .zip(buf.chunks_exact(brick_bytes))
                     .map(|(sum, out)| checksum_finish(sum, &out[summed..], out.len()))
                     .collect();
-                sink.send((id, at, buf))
-                    .map_err(|_| writer_gone())?;
+                sink.send((id, at, buf)).map_err(|_| writer_gone())?;
                 Ok(sums)
             })
             .collect();
@@ -815,17 +869,16 @@ impl<'a> Writer<'a> {
             let base = lw.first_brick + (by + nb[1] * bz) * nb[0];
             self.checksums[base..base + nb[0]].copy_from_slice(&r?);
         }
-        if let Some(off) = lw.macro_off {
+        if let Some(off) = self.levels[l].macro_off {
             self.write_macrocells(l, bz, off)?;
         }
         Ok(())
     }
 
     /// Min/max of the macrocells whose z lies in slab `bz` (each lies in the window).
-    fn write_macrocells(&self, l: usize, bz: usize, off: u64) -> Result<()> {
-        let lw = &self.levels[l];
+    fn write_macrocells(&mut self, l: usize, bz: usize, off: u64) -> Result<()> {
         let k = self.plan.k;
-        let n = lw.g.dims;
+        let lw = &mut self.levels[l];
         let c = macro_dims(&lw.g, k);
         let layer = c[0] * c[1];
         let cells = layer * c[2];
@@ -834,19 +887,17 @@ impl<'a> Writer<'a> {
         if cz0 >= cz1 {
             return Ok(());
         }
-        let layers: Vec<(Vec<f32>, Vec<f32>)> = (cz0..cz1)
-            .into_par_iter()
-            .map(|cz| {
-                let mut mn = vec![f32::INFINITY; layer];
-                let mut mx = vec![f32::NEG_INFINITY; layer];
-                let row = |y: usize, z: usize| &lw.slice(z as i64)[y * n[0]..(y + 1) * n[0]];
-                layer_min_max(n, k, cz, row, |v: f32| v, &mut mn, &mut mx);
-                (mn, mx)
-            })
-            .collect();
-        let mut mins = Vec::with_capacity(layers.len() * layer);
-        let mut maxs = Vec::with_capacity(layers.len() * layer);
-        for (a, b) in layers {
+        let mut mins = Vec::with_capacity((cz1 - cz0) * layer);
+        let mut maxs = Vec::with_capacity((cz1 - cz0) * layer);
+        for cz in cz0..cz1 {
+            // Computed in `push` (any layer still missing is computed here).
+            while lw.layers.front().is_some_and(|f| f.0 < cz) {
+                lw.layers.pop_front();
+            }
+            let (_, a, b) = match lw.layers.front() {
+                Some(f) if f.0 == cz => lw.layers.pop_front().unwrap_or_else(|| lw.layer(k, cz)),
+                _ => lw.layer(k, cz),
+            };
             mins.extend(a);
             maxs.extend(b);
         }
@@ -1154,7 +1205,11 @@ pub fn convert_many(
     let stats = std::thread::scope(|scope| -> Result<Vec<ValueStats>> {
         // Slices read in place cost no memory: let the reader (which then only gathers the
         // statistics, touching the pages first) run further ahead.
-        let depth = if matches!(input, Input::InPlace(_)) { 8 } else { 2 };
+        let depth = if matches!(input, Input::InPlace(_)) {
+            8
+        } else {
+            2
+        };
         let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(usize, Vec<Slice>)>>(depth);
         let (back_tx, back_rx) = std::sync::mpsc::channel::<Vec<f32>>();
         let reader = scope.spawn(move || {
