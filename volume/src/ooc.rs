@@ -1074,8 +1074,8 @@ impl Lanes {
 /// every level (each the 2x down-sampling of the one before) is bricked, checksummed and
 /// handed to a writer thread as soon as its brick slab is complete, with the macrocells of
 /// every level. Memory stays at about `dims.x * dims.y * (B + 2A) * 4 / 3` f32 values (the
-/// slab windows of all levels; a third of that when the source is read in place,
-/// [`SlabSource::in_place`]) plus a few rows of bricks in flight. The file is written under a temporary name beside `out`
+/// slab windows of all levels; `dims.x * dims.y * (B + 2A) / 3` when the source is read
+/// in place, [`SlabSource::in_place`]) plus a few rows of bricks in flight. The file is written under a temporary name beside `out`
 /// and renamed over it only when complete, so an interrupted conversion leaves no half file.
 /// `progress(done, total)` reports level-0 slices.
 pub fn convert(
