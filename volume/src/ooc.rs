@@ -624,6 +624,9 @@ impl Slice<'_> {
     }
 }
 
+/// Coarse slices with at least this many values are down-sampled in parallel.
+const PARALLEL_VALUES: usize = 1 << 18;
+
 /// One level being written: a window of the z-slices its next brick slab needs.
 struct LevelWriter<'a> {
     g: Geometry,
@@ -757,39 +760,49 @@ impl<'a> Writer<'a> {
         let c = self.levels.get(l + 1).map_or([0; 3], |lw| lw.g.dims);
         let lw = &self.levels[l];
         let [nx, ny, _] = lw.g.dims;
-        // The macrocell layers this slice completes, beside the down-sampling.
-        let ((), layers) = rayon::join(
-            || {
-                let Some(coarse) = coarse.as_mut() else {
-                    return;
+        // The fine slices (when down-sampling is due, else any slice in the window).
+        let (s0, s1) = if coarse.is_some() {
+            (lw.slice(2 * j as i64), lw.slice((2 * j + 1) as i64))
+        } else {
+            (lw.slice(z as i64), lw.slice(z as i64))
+        };
+        let down_row = |(y, row): (usize, &mut [f32])| {
+            let (y0, y1) = (2 * y, (2 * y + 1).min(ny - 1));
+            let r = |y: usize| y * nx..(y + 1) * nx;
+            let rows = [&s0[r(y0)], &s0[r(y1)], &s1[r(y0)], &s1[r(y1)]];
+            downsample_rows(rows, row);
+            // Which NaN a sum of NaNs (or of opposite infinities) gives depends on the order
+            // of the additions, which vectorising changed: rows with a NaN are summed again
+            // by the scalar code, so files keep the same bytes.
+            if row.iter().fold(false, |n, v| n | v.is_nan()) {
+                let fine = |x: usize, yy: usize, zz: usize| {
+                    if zz == 2 * j {
+                        s0[x + nx * yy]
+                    } else {
+                        s1[x + nx * yy]
+                    }
                 };
-                let (s0, s1) = (lw.slice(2 * j as i64), lw.slice((2 * j + 1) as i64));
-                coarse
-                    .par_chunks_mut(c[0])
-                    .enumerate()
-                    .for_each(|(y, row)| {
-                        let (y0, y1) = (2 * y, (2 * y + 1).min(ny - 1));
-                        let r = |y: usize| y * nx..(y + 1) * nx;
-                        let rows = [&s0[r(y0)], &s0[r(y1)], &s1[r(y0)], &s1[r(y1)]];
-                        downsample_rows(rows, row);
-                        // Which NaN a sum of NaNs (or of opposite infinities) gives depends
-                        // on the order of the additions, which vectorising changed: rows
-                        // with a NaN are summed again by the scalar code, so files keep the
-                        // same bytes.
-                        if row.iter().fold(false, |n, v| n | v.is_nan()) {
-                            let fine = |x: usize, yy: usize, zz: usize| {
-                                if zz == 2 * j {
-                                    s0[x + nx * yy]
-                                } else {
-                                    s1[x + nx * yy]
-                                }
-                            };
-                            downsample_row(fine, [nx, ny, nz], j, y, row);
-                        }
-                    });
-            },
-            || due.clone().map(|cz| lw.layer(k, cz)).collect::<Vec<_>>(),
-        );
+                downsample_row(fine, [nx, ny, nz], j, y, row);
+            }
+        };
+        let layers = |()| due.clone().map(|cz| lw.layer(k, cz)).collect::<Vec<_>>();
+        // A slice's down-sampling and macrocell layers take tens of microseconds for a
+        // 256^2 slice, about what handing them to the thread pool and waiting costs: only
+        // large slices are split.
+        let layers = match coarse.as_mut() {
+            Some(coarse) if coarse.len() >= PARALLEL_VALUES => {
+                rayon::join(
+                    || coarse.par_chunks_mut(c[0]).enumerate().for_each(down_row),
+                    || layers(()),
+                )
+                .1
+            }
+            Some(coarse) => {
+                coarse.chunks_mut(c[0]).enumerate().for_each(down_row);
+                layers(())
+            }
+            None => layers(()),
+        };
         self.levels[l].layers.extend(layers);
         self.levels[l].next_layer = due.end;
         if let Some(coarse) = coarse {
