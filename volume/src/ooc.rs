@@ -785,7 +785,7 @@ impl<'a> Writer<'a> {
                 downsample_row(fine, [nx, ny, nz], j, y, row);
             }
         };
-        let layers = |()| due.clone().map(|cz| lw.layer(k, cz)).collect::<Vec<_>>();
+        let compute_layers = || due.clone().map(|cz| lw.layer(k, cz)).collect::<Vec<_>>();
         // A slice's down-sampling and macrocell layers take tens of microseconds for a
         // 256^2 slice, about what handing them to the thread pool and waiting costs: only
         // large slices are split.
@@ -793,15 +793,15 @@ impl<'a> Writer<'a> {
             Some(coarse) if coarse.len() >= PARALLEL_VALUES => {
                 rayon::join(
                     || coarse.par_chunks_mut(c[0]).enumerate().for_each(down_row),
-                    || layers(()),
+                    compute_layers,
                 )
                 .1
             }
             Some(coarse) => {
                 coarse.chunks_mut(c[0]).enumerate().for_each(down_row);
-                layers(())
+                compute_layers()
             }
-            None => layers(()),
+            None => compute_layers(),
         };
         self.levels[l].layers.extend(layers);
         self.levels[l].next_layer = due.end;
