@@ -583,3 +583,128 @@ fn stored_macrocells_and_value_statistics_match_a_direct_pass() {
         assert_eq!(stored, Macrocells::build(lv, 4).unwrap(), "level {l}");
     }
 }
+
+/// Slices copied out of a grid one at a time: the converter's path for sources that do not
+/// hold the volume in memory.
+struct Copied<'a>(GridSource<'a, f32>);
+
+impl ooc::SlabSource for Copied<'_> {
+    fn geometry(&self) -> Geometry {
+        self.0.geometry()
+    }
+    fn read_slice(&mut self, z: usize, out: &mut [f32]) -> blueshift_volume::Result<()> {
+        self.0.read_slice(z, out)
+    }
+}
+
+/// Volumes read in place (an in-core f32 grid, a mapped raw file, a mapped NRRD) and slices
+/// copied one by one (a source without `in_place`, a NRRD whose voxels are not 4-byte
+/// aligned in the file) give the same bytes, NaNs, infinities and signed zeros included.
+#[test]
+fn in_place_and_copied_sources_give_the_same_bricked_file() {
+    use ooc::SlabSource;
+    let dims = [37, 29, 23];
+    let mut g = noisy_grid(dims, 21);
+    let special = [
+        f32::NAN,
+        -f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        -0.0,
+        0.0,
+    ];
+    for (i, v) in g.data_mut().iter_mut().enumerate() {
+        if i % 37 == 5 {
+            *v = special[(i / 37) % special.len()];
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("v_37x29x23_float32.raw");
+    let bytes: Vec<u8> = g.data().iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(&raw, &bytes).unwrap();
+    // Header lengths 4-byte aligned and not.
+    let nrrd = |pad: usize| {
+        let p = dir.path().join(format!("v{pad}.nrrd"));
+        let mut f = format!(
+            "NRRD0004\ntype: float\ndimension: 3\nsizes: 37 29 23\nspacings: 0.5 1 2\n\
+             encoding: raw\nendian: little\n# {}\n\n",
+            "x".repeat(pad)
+        )
+        .into_bytes();
+        f.extend(&bytes);
+        std::fs::write(&p, f).unwrap();
+        p
+    };
+    let nrrds = [nrrd(0), nrrd(1), nrrd(2), nrrd(3)];
+    for layout in [
+        BrickLayout { brick: 8, apron: 1 },
+        BrickLayout {
+            brick: 16,
+            apron: 3,
+        },
+    ] {
+        let convert = |src: &mut (dyn SlabSource + Send), name: &str| {
+            let out = dir.path().join(format!("{name}.bsv"));
+            ooc::convert(src, &out, "d", layout, &mut |_, _| {}).unwrap();
+            std::fs::read(out).unwrap()
+        };
+        let want = convert(&mut Copied(GridSource(&g)), "copied");
+        assert!(GridSource(&g).in_place().is_some());
+        // The first differing byte, if any.
+        let first_difference = |got: Vec<u8>| {
+            (got.len() != want.len())
+                .then_some(got.len().min(want.len()))
+                .or_else(|| want.iter().zip(&got).position(|(a, b)| a != b))
+        };
+        let grid = convert(&mut GridSource(&g), "grid");
+        assert_eq!(first_difference(grid), None, "{layout:?}");
+        let mut mapped = RawFileSource::probe(&raw).unwrap().unwrap();
+        mapped.set_geometry(*g.geometry()).unwrap();
+        assert!(mapped.in_place().is_some());
+        let mapped = convert(&mut mapped, "raw");
+        assert_eq!(first_difference(mapped), None, "{layout:?}");
+        let mut aligned = 0;
+        for p in &nrrds {
+            let mut src = RawFileSource::probe(p).unwrap().unwrap();
+            src.set_geometry(*g.geometry()).unwrap();
+            aligned += usize::from(src.in_place().is_some());
+            let nrrd = convert(&mut src, "nrrd");
+            assert_eq!(first_difference(nrrd), None, "{layout:?} {}", p.display());
+        }
+        assert_eq!(
+            aligned, 1,
+            "one NRRD header of four keeps the voxels aligned"
+        );
+    }
+}
+
+/// A source that fails part way: the conversion is an error and leaves no file behind.
+#[test]
+fn a_failed_conversion_leaves_no_file() {
+    struct Failing(Geometry);
+    impl ooc::SlabSource for Failing {
+        fn geometry(&self) -> Geometry {
+            self.0
+        }
+        fn read_slice(&mut self, z: usize, out: &mut [f32]) -> blueshift_volume::Result<()> {
+            if z == 20 {
+                return Err(blueshift_volume::Error::Invalid("disk on fire".into()));
+            }
+            out.fill(z as f32);
+            Ok(())
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("v.bsv");
+    let layout = BrickLayout { brick: 8, apron: 1 };
+    let r = ooc::convert(
+        &mut Failing(Geometry::unit([9, 10, 40])),
+        &out,
+        "d",
+        layout,
+        &mut |_, _| {},
+    );
+    assert!(r.is_err());
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+}
