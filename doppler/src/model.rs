@@ -272,6 +272,38 @@ impl DopplerScene {
             .then_some(geoms)
     }
 
+    /// The same scene with a level of detail per brick of every bricked field
+    /// ([`blueshift_volume::BrickedField::per_region`]): `pick(lo, hi)` is the level for a
+    /// brick's world box. Every field must be bricked alike ([`DopplerScene::levels`]).
+    pub fn per_brick(&self, pick: impl Fn(Vec3, Vec3) -> usize) -> Result<DopplerScene> {
+        self.levels().ok_or_else(|| {
+            Error::parameter("levels of detail need every field bricked (.bsv) alike")
+        })?;
+        let map = |f: &Field| -> Result<Field> {
+            Ok(f.as_bricked()
+                .expect("levels() checked")
+                .per_region(&pick)?
+                .into())
+        };
+        let mut out = self.clone();
+        for s in &mut out.species {
+            s.density = map(&s.density)?;
+        }
+        if let Some((d, t)) = &mut out.blackbody {
+            *d = map(d)?;
+            *t = map(t)?;
+        }
+        if let Some(r) = &mut out.rho_t {
+            *r = map(r)?;
+        }
+        if let Some(VectorField::Components(c)) = &mut out.velocity {
+            for f in c.iter_mut() {
+                *f = map(f)?;
+            }
+        }
+        Ok(out)
+    }
+
     /// The same scene sampled at level of detail `level` of its bricked fields (see
     /// [`DopplerScene::levels`]; level 0 is this scene).
     pub fn at_level(&self, level: usize) -> Result<DopplerScene> {

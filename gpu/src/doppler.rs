@@ -569,6 +569,13 @@ pub fn supports(
     scene: &DopplerScene,
     _settings: &DopplerSettings,
 ) -> std::result::Result<(), Unsupported> {
+    crate::pool::per_brick_unsupported(
+        scene
+            .species()
+            .iter()
+            .map(|s| &s.density)
+            .chain(scene.blackbody().into_iter().flat_map(|(d, t)| [d, t])),
+    )?;
     if scene.species().len() > MAX_SPECIES {
         return Err(Unsupported(format!(
             "{} species (at most {MAX_SPECIES} on the GPU)",

@@ -120,6 +120,21 @@ impl PoolChannel<'_> {
     }
 }
 
+/// Fields with a level of detail per brick (`BrickedField::per_region`) are the CPU's: the
+/// pool holds one level per channel.
+pub(crate) fn per_brick_unsupported<'a>(
+    fields: impl Iterator<Item = &'a Field>,
+) -> std::result::Result<(), crate::Unsupported> {
+    for f in fields {
+        if f.as_bricked().and_then(|b| b.level_map()).is_some() {
+            return Err(crate::Unsupported(
+                "per-brick levels of detail (--lod brick) are CPU-only".into(),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Pool bricks per axis for a grid of `dims` voxels.
 #[must_use]
 pub fn pool_bricks(dims: [usize; 3]) -> [usize; 3] {

@@ -624,6 +624,7 @@ impl<'c> GpuTracker<'c> {
 /// `Ok` when the GPU tracker covers `scene` + `settings`, else why not: gradient shading,
 /// heat maps and the timing protocol are CPU-only.
 pub fn supports(scene: &Scene, settings: &RenderSettings) -> std::result::Result<(), Unsupported> {
+    crate::pool::per_brick_unsupported(scene.channels().iter().map(|c| c.grid()))?;
     if scene.shading.is_some() {
         return Err(Unsupported(
             "gradient shading (scene.shading) is CPU-only; render it with --device cpu".into(),

@@ -797,8 +797,16 @@ impl RenderSceneFile {
         let level = lod.pick(&geoms, cam.pixel_footprint(lo, hi, height));
         for (i, (_, f)) in loaded.iter_mut().enumerate() {
             if let Some(b) = f.as_bricked() {
-                *f = b
-                    .at_level(level.min(b.levels() - 1))
+                let moved = if lod == Lod::Brick {
+                    // Each brick its own level: the footprint where the brick is nearest.
+                    let g = b.source().geometries().to_vec();
+                    b.per_region(|blo, bhi| {
+                        blueshift_volume::lod_level(&g, cam.pixel_footprint(blo, bhi, height))
+                    })
+                } else {
+                    b.at_level(level.min(b.levels() - 1))
+                };
+                *f = moved
                     .map_err(|e| Error::field_from(format!("channels[{i}].volume"), None, e))?
                     .into();
             }

@@ -456,6 +456,42 @@ impl VectorField {
     }
 }
 
+/// `m` widened so each cell bounds the samples of levels up to `top` levels coarser taken
+/// inside it. A coarse voxel is the mean of the fine voxels it covers (`lod::downsample_row`),
+/// and a sample of level `L` at fine index `p` blends coarse voxels covering fine voxels
+/// within `1.5 * 2^L` of `p`: so each cell takes the min and max of the cells within
+/// `ceil(1.5 * 2^top / k)` of it per axis (separable), widened by a relative 1e-6 for the
+/// means' f32 rounding.
+fn widen_for_levels(m: &Macrocells, top: usize) -> Result<Macrocells> {
+    let k = m.k();
+    let reach = (3usize << top).div_ceil(2).div_ceil(k);
+    let d = m.dims();
+    let (mut lo, mut hi) = (m.mins().to_vec(), m.maxs().to_vec());
+    let stride = [1, d[0], d[0] * d[1]];
+    for a in 0..3 {
+        let (src_lo, src_hi) = (lo.clone(), hi.clone());
+        for i in 0..lo.len() {
+            let c = (i / stride[a]) % d[a];
+            let (from, to) = (c.saturating_sub(reach), (c + reach).min(d[a] - 1));
+            let base = i - c * stride[a];
+            let (mut a_lo, mut a_hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for j in from..=to {
+                a_lo = a_lo.min(src_lo[base + j * stride[a]]);
+                a_hi = a_hi.max(src_hi[base + j * stride[a]]);
+            }
+            lo[i] = a_lo;
+            hi[i] = a_hi;
+        }
+    }
+    for v in lo.iter_mut().filter(|v| v.is_finite()) {
+        *v -= v.abs() * 1e-6;
+    }
+    for v in hi.iter_mut().filter(|v| v.is_finite()) {
+        *v += v.abs() * 1e-6;
+    }
+    Macrocells::from_parts(*m.geometry(), k, lo, hi)
+}
+
 /// Checks a block request of [`Field::read_block`]: `lo` inside the grid, `out` of `edge^3`.
 fn check_block(g: &Geometry, lo: [usize; 3], edge: usize, out: &[f32]) -> Result<()> {
     if edge == 0 || lo.iter().zip(g.dims).any(|(&l, n)| l >= n) {
@@ -518,6 +554,47 @@ pub struct BrickedField {
     bricks: [usize; 3],
     /// `source.uid()`, kept so the per-sample slot lookup makes no virtual call.
     uid: u64,
+    /// Levels of detail per region of this level ([`BrickedField::per_region`]).
+    regions: Option<Arc<LevelMap>>,
+}
+
+/// A level of detail per region of a field's finest sampled level (HDR VolVis section 6.3
+/// chooses a level per brick): each region is one brick of that level, and a sample takes
+/// the level of the region its position falls in.
+#[derive(Debug)]
+pub struct LevelMap {
+    /// Regions per axis.
+    dims: [usize; 3],
+    /// Edge of a region in voxels of the base level (the source's brick).
+    edge: usize,
+    /// The level of each region (x fastest).
+    levels: Vec<u8>,
+    /// The source at every level from the base to the coarsest used.
+    fields: Vec<BrickedField>,
+}
+
+impl LevelMap {
+    /// The level of each region, x fastest.
+    #[must_use]
+    pub fn levels(&self) -> &[u8] {
+        &self.levels
+    }
+
+    /// Regions per axis.
+    #[must_use]
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// Regions sampled at each level (index = level offset from the base).
+    #[must_use]
+    pub fn histogram(&self) -> Vec<usize> {
+        let mut h = vec![0; self.fields.len()];
+        for &l in &self.levels {
+            h[usize::from(l)] += 1;
+        }
+        h
+    }
 }
 
 impl BrickedField {
@@ -538,7 +615,59 @@ impl BrickedField {
             level,
             geometry,
             layout,
+            regions: None,
         })
+    }
+
+    /// This field with a level of detail per region (one brick of this level each):
+    /// `pick(lo, hi)` gives the level, counted from the finest, for the region's world box
+    /// (clamped to this level and the coarsest). A sample in a region of level `L` is the
+    /// trilinear sample of level `L` at the same world point; geometry, macrocells and the
+    /// index space stay this level's, and the macrocells are widened to bound every
+    /// region's coarser samples (see [`BrickedField::macrocells`]).
+    ///
+    /// # Errors
+    /// A level the source does not have.
+    pub fn per_region(&self, mut pick: impl FnMut(Vec3, Vec3) -> usize) -> Result<Self> {
+        let base = self.level;
+        let last = self.levels() - 1;
+        let edge = self.layout.brick;
+        let dims = self.bricks;
+        let n = self.geometry.dims;
+        let mut levels = Vec::with_capacity(dims[0] * dims[1] * dims[2]);
+        let mut top = 0usize;
+        for rz in 0..dims[2] {
+            for ry in 0..dims[1] {
+                for rx in 0..dims[0] {
+                    let r = [rx, ry, rz];
+                    let lo = r.map(|c| (c * edge) as f32);
+                    let hi = [0, 1, 2].map(|a| (((r[a] + 1) * edge).min(n[a]) - 1) as f32);
+                    let w0 = self.geometry.index_to_world(Vec3::from(lo));
+                    let w1 = self.geometry.index_to_world(Vec3::from(hi));
+                    let l = pick(w0.min(w1), w0.max(w1)).clamp(base, last) - base;
+                    let l = u8::try_from(l).unwrap_or(u8::MAX);
+                    top = top.max(usize::from(l));
+                    levels.push(l);
+                }
+            }
+        }
+        let fields = (0..=top)
+            .map(|l| self.at_level(base + l))
+            .collect::<Result<Vec<_>>>()?;
+        let mut out = self.clone();
+        out.regions = Some(Arc::new(LevelMap {
+            dims,
+            edge,
+            levels,
+            fields,
+        }));
+        Ok(out)
+    }
+
+    /// The per-region levels of detail, when [`BrickedField::per_region`] made this field.
+    #[must_use]
+    pub fn level_map(&self) -> Option<&LevelMap> {
+        self.regions.as_deref()
     }
 
     /// The same source at another level.
@@ -621,6 +750,23 @@ impl BrickedField {
     /// [`BrickedField::sample_index`], returning a read failure.
     #[inline]
     pub fn try_sample_index(&self, p: Vec3) -> Result<f32> {
+        if let Some(m) = &self.regions {
+            let [nx, ny, nz] = self.geometry.dims;
+            let c = |v: f32, n: usize| {
+                if v.is_nan() {
+                    0
+                } else {
+                    (v.max(0.0) as usize).min(n - 1)
+                }
+            };
+            let r = [c(p.x, nx), c(p.y, ny), c(p.z, nz)].map(|v| v / m.edge);
+            let l = m.levels[r[0] + m.dims[0] * (r[1] + m.dims[1] * r[2])];
+            if l != 0 {
+                let f = &m.fields[usize::from(l)];
+                let w = self.geometry.index_to_world(p);
+                return f.try_sample_index(f.geometry.world_to_index(w));
+            }
+        }
         let [nx, ny, nz] = self.geometry.dims;
         let max = Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32);
         let p = p.max(Vec3::ZERO).min(max);
@@ -721,6 +867,15 @@ impl BrickedField {
 
     /// Macrocells of edge `k`: stored ones if the source has them, else built brick by brick.
     pub fn macrocells(&self, k: usize) -> Result<Macrocells> {
+        let m = self.level_macrocells(k)?;
+        match &self.regions {
+            Some(map) if map.fields.len() > 1 => widen_for_levels(&m, map.fields.len() - 1),
+            _ => Ok(m),
+        }
+    }
+
+    /// Macrocells of this level's own voxels.
+    fn level_macrocells(&self, k: usize) -> Result<Macrocells> {
         if let Some(m) = self.source.stored_macrocells(self.level, k)? {
             return Ok(m);
         }
@@ -913,6 +1068,10 @@ pub enum Lod {
     Auto,
     /// This level (clamped to the coarsest).
     Level(usize),
+    /// A level per brick ([`BrickedField::per_region`]): each brick of the finest level takes
+    /// the level [`lod_level`] picks for the pixel footprint where that brick is nearest to
+    /// the eye (HDR VolVis section 6.3), so far bricks are read coarse and near ones fine.
+    Brick,
 }
 
 impl Lod {
@@ -924,6 +1083,8 @@ impl Lod {
             Lod::Exact => 0,
             Lod::Auto => lod_level(levels, footprint),
             Lod::Level(l) => l.min(last),
+            // The base level; the bricks choose theirs (`BrickedField::per_region`).
+            Lod::Brick => 0,
         }
     }
 }
@@ -934,9 +1095,10 @@ impl std::str::FromStr for Lod {
         match s {
             "exact" | "finest" => Ok(Lod::Exact),
             "auto" => Ok(Lod::Auto),
+            "brick" | "per-brick" => Ok(Lod::Brick),
             n => n.parse().map(Lod::Level).map_err(|_| {
                 Error::parameter(format!(
-                    "level of detail '{s}': use exact, auto or a level number (0 = finest)"
+                    "level of detail '{s}': use exact, auto, brick or a level number (0 = finest)"
                 ))
             }),
         }
@@ -949,6 +1111,7 @@ impl std::fmt::Display for Lod {
             Lod::Exact => f.write_str("exact"),
             Lod::Auto => f.write_str("auto"),
             Lod::Level(l) => write!(f, "{l}"),
+            Lod::Brick => f.write_str("brick"),
         }
     }
 }

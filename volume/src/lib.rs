@@ -62,7 +62,7 @@ mod volume;
 
 pub use cache::{BrickCache, BrickSource, CacheStats};
 pub use error::{Error, Limits, Result};
-pub use field::{BrickedField, Field, Lod, VectorField, lod_level};
+pub use field::{BrickedField, Field, LevelMap, Lod, VectorField, lod_level};
 pub use grid::{AnyGrid, Geometry, Grid, Interpolant, ScalarType, Voxel};
 pub use io::{DiskType, RawSpec, ReadOptions, read, read_with};
 pub use macrocell::{DEFAULT_K, Macrocells, ValueInterval, ValueIntervals};

@@ -176,9 +176,10 @@ impl<T: Voxel<Value = f32>> SlabSource for GridSource<'_, T> {
 }
 
 /// Slices read straight from uncompressed voxels in a file (raw, raw-encoded NRRD), one
-/// slice at a time, so memory stays at one slice whatever the volume's size. Native f32
-/// voxels at an offset that keeps them aligned are mapped into memory instead, and the
-/// converter reads them in place ([`SlabSource::in_place`]).
+/// slice at a time, so memory stays at one slice whatever the volume's size. The file is
+/// read with positioned reads, not mapped: a mapped input truncated by another program
+/// during a conversion would kill the process with SIGBUS instead of giving an error (a
+/// mapping saved about 6% of the conversion's CPU; in-core grids are still read in place).
 #[derive(Debug)]
 pub struct RawFileSource {
     file: File,
@@ -187,37 +188,6 @@ pub struct RawFileSource {
     endian: Endian,
     geometry: Geometry,
     buf: Vec<u8>,
-    map: Option<memmap2::Mmap>,
-}
-
-/// Maps the `len` bytes of voxels at `offset` of `file` if they can be read in place as f32
-/// (the offset keeps them 4-byte aligned); `None` if not, or if mapping fails.
-///
-/// Mapping saves the conversion a copy of every voxel (into the slices, then into bricks):
-/// the bricks of level 0 go from the page cache of the input to that of the output in one
-/// copy, the kernel's, as `cp` does. The price is the usual one of a mapping: if another
-/// program truncates the file while we read it, the access faults (SIGBUS) instead of
-/// returning an error. We accept that here only: this is a conversion's input, opened
-/// read-only, whose length was checked just before; cutting a file while a program
-/// converts it is not an I/O error this code could recover from anyway. Bricked files read
-/// for rendering keep positioned reads ([`FileBricks`]), where a failure is an error.
-#[allow(unsafe_code)]
-fn map_voxels(file: &File, offset: u64, len: u64) -> Option<memmap2::Mmap> {
-    let len = usize::try_from(len).ok().filter(|&l| l > 0)?;
-    // SAFETY: the mapping is read-only and private to this source; memmap2 requires that the
-    // file is not modified or truncated while mapped, the risk accepted above.
-    let map = unsafe {
-        memmap2::MmapOptions::new()
-            .offset(offset)
-            .len(len)
-            .map(file)
-    }
-    .ok()?;
-    // The converter reads the slices in order (a window of a brick's depth at a time).
-    let _ = map.advise(memmap2::Advice::Sequential);
-    bytemuck::try_cast_slice::<u8, f32>(&map)
-        .is_ok()
-        .then_some(map)
 }
 
 impl RawFileSource {
@@ -240,12 +210,6 @@ impl RawFileSource {
                 path.display()
             )));
         }
-        let native = (endian == Endian::Big) == cfg!(target_endian = "big");
-        let map = if disk == DiskType::F32 && native {
-            map_voxels(&file, offset, need)
-        } else {
-            None
-        };
         Ok(RawFileSource {
             file,
             offset,
@@ -253,7 +217,6 @@ impl RawFileSource {
             endian,
             geometry,
             buf: Vec::new(),
-            map,
         })
     }
 
@@ -310,17 +273,8 @@ impl SlabSource for RawFileSource {
             _ => ScalarType::F32,
         }
     }
-    fn in_place(&self) -> Option<&[f32]> {
-        self.map
-            .as_deref()
-            .and_then(|m| bytemuck::try_cast_slice(m).ok())
-    }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.geometry.dims;
-        if let Some(v) = self.in_place() {
-            out[..nx * ny].copy_from_slice(&v[z * nx * ny..(z + 1) * nx * ny]);
-            return Ok(());
-        }
         let size = self.disk.size_bytes();
         let bytes = nx * ny * size;
         let at = self.offset + (z * bytes) as u64;

@@ -153,7 +153,9 @@ pub struct Args {
     pub cache_mb: Option<u64>,
     /// Level of detail of .bsv fields: exact (the finest: the in-core image, the default),
     /// auto (the coarsest level whose voxels are no larger than a pixel of the default view
-    /// where the volume is nearest) or a level number (0 = finest).
+    /// where the volume is nearest), brick (that rule per brick of the finest level, where
+    /// the brick is nearest: far bricks are read coarse; CPU) or a level number (0 =
+    /// finest).
     #[arg(long)]
     pub lod: Option<String>,
     /// Progressive levels of detail (scenes whose fields are all .bsv files; CPU): render
@@ -210,6 +212,20 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
         )?;
         let lod: blueshift_volume::Lod = args.lod.as_deref().unwrap_or("exact").parse()?;
         match scene.levels() {
+            Some(levels) if lod == blueshift_volume::Lod::Brick => {
+                if args.progressive {
+                    bail!("--lod brick: --progressive renders whole levels");
+                }
+                // Each brick its own level: the footprint of the default view where the
+                // brick is nearest to the eye.
+                let st = DopplerSettings::default_for(&scene, args.width, args.height);
+                scene.per_brick(|lo, hi| {
+                    blueshift_volume::lod_level(
+                        &levels,
+                        st.camera.pixel_footprint(lo, hi, args.height),
+                    )
+                })?
+            }
             Some(levels) if lod != blueshift_volume::Lod::Exact || args.progressive => {
                 let st = DopplerSettings::default_for(&scene, args.width, args.height);
                 let (lo, hi) = scene.geometry().world_bounds();

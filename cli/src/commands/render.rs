@@ -164,7 +164,9 @@ pub struct Args {
     pub cache_mb: Option<u64>,
     /// Level of detail of .bsv channels: exact (the finest level: the in-core image, the
     /// default), auto (the coarsest level whose voxels are no larger than a pixel where the
-    /// volume is nearest to the camera), or a level number (0 = finest).
+    /// volume is nearest to the camera), brick (that rule per brick of the finest level,
+    /// where the brick is nearest: far bricks are read coarse; CPU), or a level number (0 =
+    /// finest).
     #[arg(long)]
     pub lod: Option<String>,
     /// Progressive levels of detail (every channel a .bsv file; CPU): one quick pass (1 spp)
