@@ -125,6 +125,9 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
         std::fs::read(d.join("auto1.exr")).unwrap() == std::fs::read(d.join("one.exr")).unwrap(),
         "the coarser level's image"
     );
+    // Per-brick levels render on the CPU (and the scene's fields are all bricked).
+    let b = doppler(d, "brick.exr", &["--lod", "brick"]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
     // A zero cap is the user's error.
     let z = doppler(d, "z.exr", &["--device", "gpu", "--gpu-pool-mb", "0"]);
     assert!(!z.status.success());
@@ -204,6 +207,12 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
         log.contains("at level 1 (level 0 does not fit the pool)"),
         "{log}"
     );
+    // Per-brick levels are the CPU's: refused on gpu, rendered on the CPU.
+    let b = render("brick.exr", &["--device", "gpu", "--lod", "brick"]);
+    assert!(!b.status.success());
+    assert!(String::from_utf8_lossy(&b.stderr).contains("CPU-only"));
+    let b = render("brick.exr", &["--lod", "brick"]);
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
     let one = render("one.exr", &["--device", "gpu", "--lod", "1"]);
     assert!(
         one.status.success(),
