@@ -276,14 +276,19 @@ impl DopplerScene {
     /// ([`blueshift_volume::BrickedField::per_region`]): `pick(lo, hi)` is the level for a
     /// brick's world box. Every field must be bricked alike ([`DopplerScene::levels`]).
     pub fn per_brick(&self, pick: impl Fn(Vec3, Vec3) -> usize) -> Result<DopplerScene> {
+        self.map_bricked(|b| Ok(b.per_region(&pick)?))
+    }
+
+    /// This scene with every bricked field replaced by `f` of it (every field bricked alike).
+    fn map_bricked(
+        &self,
+        f: impl Fn(&blueshift_volume::BrickedField) -> Result<blueshift_volume::BrickedField>,
+    ) -> Result<DopplerScene> {
         self.levels().ok_or_else(|| {
             Error::parameter("levels of detail need every field bricked (.bsv) alike")
         })?;
-        let map = |f: &Field| -> Result<Field> {
-            Ok(f.as_bricked()
-                .expect("levels() checked")
-                .per_region(&pick)?
-                .into())
+        let map = |x: &Field| -> Result<Field> {
+            Ok(f(x.as_bricked().expect("levels() checked"))?.into())
         };
         let mut out = self.clone();
         for s in &mut out.species {
@@ -297,8 +302,8 @@ impl DopplerScene {
             *r = map(r)?;
         }
         if let Some(VectorField::Components(c)) = &mut out.velocity {
-            for f in c.iter_mut() {
-                *f = map(f)?;
+            for x in c.iter_mut() {
+                *x = map(x)?;
             }
         }
         Ok(out)
@@ -316,29 +321,8 @@ impl DopplerScene {
         let g = *geoms
             .get(level)
             .ok_or_else(|| Error::parameter(format!("level {level} of {} levels", geoms.len())))?;
-        let at = |f: &Field| -> Result<Field> {
-            Ok(f.as_bricked()
-                .expect("levels() checked")
-                .at_level(level)?
-                .into())
-        };
-        let mut out = self.clone();
+        let mut out = self.map_bricked(|b| Ok(b.at_level(level)?))?;
         out.geometry = g;
-        for s in &mut out.species {
-            s.density = at(&s.density)?;
-        }
-        if let Some((d, t)) = &mut out.blackbody {
-            *d = at(d)?;
-            *t = at(t)?;
-        }
-        if let Some(r) = &mut out.rho_t {
-            *r = at(r)?;
-        }
-        if let Some(VectorField::Components(c)) = &mut out.velocity {
-            for f in c.iter_mut() {
-                *f = at(f)?;
-            }
-        }
         Ok(out)
     }
 

@@ -105,6 +105,14 @@ fn non_constant_bricks(g: &Grid<f32>) -> usize {
     count
 }
 
+fn max_diff(a: &image::Rgba32FImage, b: &image::Rgba32FImage) -> f32 {
+    a.as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
 fn scene_of(chs: Vec<Field>) -> Scene {
     let triples = chs
         .into_iter()
@@ -225,12 +233,7 @@ fn a_bsv_level_renders_the_bytes_of_the_same_data_in_memory() {
     // per ray (tests/tracking.rs states 2e-5 at 16^3 and 3e-4 over thousands of steps;
     // measured here 3.4e-5 on lavapipe).
     let cpu = render(&sd, &integ, &set).unwrap();
-    let d = cpu
-        .as_raw()
-        .iter()
-        .zip(ib.as_raw())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max);
+    let d = max_diff(&cpu, &ib);
     assert!(d <= 1e-4, "max |gpu - cpu| = {d}");
     assert!(
         cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
@@ -259,12 +262,7 @@ fn a_volume_over_the_pool_cap_renders_when_its_bricks_fit_and_is_refused_when_no
     let integ = Integrator::Marcher(RayMarcher::default());
     let gpu = t.render(&gs, &integ, &set).unwrap();
     let cpu = render(&s, &integ, &set).unwrap();
-    let d = cpu
-        .as_raw()
-        .iter()
-        .zip(gpu.as_raw())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max);
+    let d = max_diff(&cpu, &gpu);
     assert!(d <= 2e-5, "max |gpu - cpu| = {d}");
     assert!(
         cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
