@@ -126,14 +126,10 @@ cmd_stage() {
     # What travels: tracked and untracked-not-ignored files, plus the carried .device.
     local tree staged total
     tree=$(cd "$ROOT" && git ls-files -z -co --exclude-standard | du -cb --files0-from=- 2>/dev/null | tail -1 | cut -f1)
-    staged=$(bytes "$STAGE/bin" "$STAGE/gl" "$STAGE/manifest.txt")
+    staged=$(bytes "$STAGE")
     total=$((tree + staged))
-    {
-        echo "travel: working tree $(mib "$tree") + .device $(mib "$staged") = $(mib "$total") (limit 64 MiB)"
-    } | tee -a "$STAGE/manifest.txt" >&2
-    if [ -d "$STAGE/results" ] || [ -d "$STAGE/work" ]; then
-        note "warning: $STAGE holds more than bin/, gl/ and manifest.txt; it all travels when carried"
-    fi
+    echo "travel: working tree $(mib "$tree") + .device $(mib "$staged") = $(mib "$total") (limit 64 MiB)" \
+        | tee -a "$STAGE/manifest.txt" >&2
     [ "$total" -lt "$MAX_TRAVEL" ] || die "stage: $(mib "$total") would travel, over the 64 MiB limit"
     note "staged in $STAGE; on the device: benches/scripts/gpu_bench.sh run (carry .device)"
 }
@@ -169,14 +165,21 @@ SMALL_RUNS=(
     "gpu_vs_cpu;^(tonemap_small|relativity_small)/;quick;30;tonemap_small relativity_small"
 )
 
-# Sets up Vulkan on a bare device machine: unpacks .device/gl/*.deb into / when no libvulkan
-# is installed (as root only), and points the loader at NVIDIA's ICD where that file exists.
+# Sets up Vulkan on a bare device machine: unpacks .device/gl/*.deb (else .gl/*.deb, where the
+# device tool's notes put them) into / when no libvulkan is installed (as root only), and
+# points the loader at NVIDIA's ICD where that file exists.
 device_loaders() {
     if ! ldconfig -p 2>/dev/null | grep -q libvulkan; then
-        if compgen -G "$STAGE/gl/*.deb" >/dev/null && [ "$(id -u)" -eq 0 ]; then
-            note "no libvulkan: unpacking $STAGE/gl/*.deb into /"
-            local f
-            for f in "$STAGE"/gl/*.deb; do dpkg -x "$f" /; done
+        local debs="" d f
+        for d in "$STAGE/gl" "$ROOT/.gl"; do
+            if compgen -G "$d/*.deb" >/dev/null; then
+                debs="$d"
+                break
+            fi
+        done
+        if [ -n "$debs" ] && [ "$(id -u)" -eq 0 ]; then
+            note "no libvulkan: unpacking $debs/*.deb into /"
+            for f in "$debs"/*.deb; do dpkg -x "$f" /; done
             ldconfig
         else
             note "warning: no libvulkan here (stage --loaders and carry .device to bring it)"
@@ -252,9 +255,13 @@ cmd_run() {
     for r in "${runs[@]}"; do
         weight_left=$((weight_left + $(echo "$r" | cut -d';' -f4)))
     done
-    local exe filter sampling weight groups left cap args rc t0
+    local exe filter sampling weight groups left cap args rc t0 stopped=0
     for r in "${runs[@]}"; do
         IFS=';' read -r exe filter sampling weight groups <<<"$r"
+        if [ "$stopped" -eq 1 ]; then
+            printf '%s\t%s\t%s\t%s\n' "$groups" "not run" 0 "$sampling" >>"$status"
+            continue
+        fi
         left=$((budget - (SECONDS - start)))
         cap=$((left * weight / weight_left))
         weight_left=$((weight_left - weight))
@@ -276,11 +283,11 @@ cmd_run() {
         # Without the adapter the groups need, the rest would only skip too: stop here.
         if grep -q '^SKIP: no wgpu adapter' "$log"; then
             note "no wgpu adapter$([ "$small" -eq 0 ] && echo " of BLUESHIFT_GPU=$BLUESHIFT_GPU"): stopping (see $log)"
-            break
+            stopped=1
         fi
         if [ "$small" -eq 0 ] && grep -q '^adapter: .*, Cpu)$' "$log"; then
             note "a software adapter was picked: the hardware groups skip themselves; stopping"
-            break
+            stopped=1
         fi
     done
     echo "== total $((SECONDS - start)) s" >>"$log"
@@ -375,8 +382,10 @@ report() {
         find "$crit" -path '*/new/benchmark.json' -exec awk "$AWK_ROWS" {} + >>"$rows"
     fi
     adapter=""
+    local skipped=""
     if [ -n "$log" ] && [ -f "$log" ]; then
         adapter="$(sed -n 's/^adapter: //p' "$log" | head -1)"
+        skipped="$(grep -m1 '^SKIP' "$log" || true)"
     fi
     # Group order (the run's, else alphabetical) and each group's sampling, from the status.
     local order="" sampling_of="" g line s
@@ -390,7 +399,7 @@ report() {
     fi
     awk -F'\t' -v order="$order" -v sampling_of="$sampling_of" -v adapter="$adapter" \
         -v csv="$out/gpu_bench.csv" -v md="$out/gpu_bench.md" -v status_file="$status" \
-        -v secs="$secs" "$AWK_TABLE" "$rows"
+        -v secs="$secs" -v skipped="$skipped" "$AWK_TABLE" "$rows"
 }
 
 AWK_TABLE=$(
@@ -479,9 +488,13 @@ END {
             }
             e = f[2]
             if (e == "124" || e == "137") e = e " (cut at its budget)"
-            else if (e != "0" && e != "skipped") crashed = crashed " " f[1]
+            else if (e != "0" && e != "skipped" && e != "not run") crashed = crashed " " f[1]
             printf "| %s | %s | %s | %s | %s |\n", f[1], e, f[3], f[4], res > md
         }
+    }
+    if (missing != "" && skipped != "") {
+        print "" > md
+        print "no results for" missing "; the log's first skip: " skipped > md
     }
     print "" > md
     print "sampling: full = criterion's warm-up, then 10 samples; quick = criterion's --quick " \
