@@ -169,7 +169,8 @@ SMALL_RUNS=(
 # device tool's notes put them) into / when no libvulkan is installed (as root only), and
 # points the loader at NVIDIA's ICD where that file exists.
 device_loaders() {
-    if ! ldconfig -p 2>/dev/null | grep -q libvulkan; then
+    # (grep -q would close the pipe early: ldconfig dies of SIGPIPE and pipefail fails it.)
+    if ! ldconfig -p 2>/dev/null | grep libvulkan >/dev/null; then
         local debs="" d f
         for d in "$STAGE/gl" "$ROOT/.gl"; do
             if compgen -G "$d/*.deb" >/dev/null; then
