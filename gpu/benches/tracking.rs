@@ -84,6 +84,9 @@ fn small(c: &mut Criterion) {
             return;
         }
     };
+    // Read by benches/scripts/gpu_bench.sh (the adapter column of its CSV).
+    let r = ctx.report();
+    eprintln!("adapter: {} ({}, {})", r.name, r.backend, r.device_type);
     let tracker = GpuTracker::new(ctx).unwrap();
     let base = scene(24, 2, 4.0 / 24.0);
     let mut lit = base.clone();
