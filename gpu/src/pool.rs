@@ -53,7 +53,7 @@ pub const POOL_WGSL: &str = include_str!("shaders/pool.wgsl");
 pub enum PoolChannel<'a> {
     /// A scalar field (vector grids give lengths, as on the CPU).
     Scalar(&'a Field),
-    /// Component `1` (0 x, 1 y, 2 z) of a vector field.
+    /// Component `.1` (0 x, 1 y, 2 z) of a vector field.
     Component(&'a VectorField, usize),
     /// A channel that is 0 everywhere (no data: one constant page per brick).
     Zero,
