@@ -381,6 +381,14 @@ fn reachable_lines(ctx: &Context<'_>, edges: &[f64]) -> Vec<Vec<blueshift_spectr
         .map_or(0.0, blueshift_volume::VectorField::max_speed)
         * scene.factors.velocity;
     let beta = vmax / SPEED_OF_LIGHT_M_PER_S;
+    // A moving observer's velocity composes with the gas's: the largest speed of the two
+    // composed bounds every shift.
+    let b_obs = ctx.settings.observer.map_or(0.0, |o| o.velocity.speed());
+    let beta = if beta < 1.0 {
+        (beta + b_obs) / (1.0 + beta * b_obs)
+    } else {
+        beta
+    };
     let tmax = scene.blackbody.as_ref().map_or(0.0, |(_, t)| {
         t.finite_range()
             .map_or(0.0, |(_, hi)| f64::from(hi).max(0.0))
@@ -566,12 +574,7 @@ pub(crate) fn render_cube_with(
             }
             let row = (0..w)
                 .map(|x| {
-                    let ray = settings.camera.ray(
-                        x as f32 + 0.5,
-                        y as f32 + 0.5,
-                        settings.width,
-                        settings.height,
-                    );
+                    let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
                     let mut acc = vec![0.0; spec.channels];
                     ray_channels(&ctx, &lines, &ray, &edges, &mut acc)?;
                     Ok(acc)

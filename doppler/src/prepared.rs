@@ -184,12 +184,7 @@ impl Prepared {
         x: u32,
         y: u32,
     ) -> (Ray, Option<RaySpan>) {
-        let ray = settings.camera.ray(
-            x as f32 + 0.5,
-            y as f32 + 0.5,
-            settings.width,
-            settings.height,
-        );
+        let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
         let span = RaySpan::clip(scene, settings, self.step, &ray);
         (ray, span)
     }

@@ -11,6 +11,7 @@ use super::prepared::{Prepared, RaySpan};
 use super::{banded, pwl};
 use crate::{Camera, Error, Ray, Result};
 use blueshift_camera::named_enum;
+use blueshift_relativity::MovingObserver;
 
 /// How the banded integrator moves band values under a Doppler shift; spelt as the banded
 /// integrators' prefix: `banded` (nearest) or `banded-ec` (energy-conserving).
@@ -127,6 +128,11 @@ pub struct DopplerSettings {
     /// spacing on every side (values clamped at the edges), as cell-centred simulation
     /// codes (Enzo, yt) see their domain. Default false: the box of the voxel centres.
     pub cell_domain: bool,
+    /// A moving observer (`None`: at rest in the volume's frame). Each pixel's ray is
+    /// aberrated into the volume's frame and every sample's wavelength shift is composed with
+    /// the observer's Doppler factor along the ray ([`MovingObserver`]); with
+    /// [`DopplerSettings::invariant`] the brightness follows the searchlight effect.
+    pub observer: Option<MovingObserver>,
 }
 
 impl DopplerSettings {
@@ -154,7 +160,28 @@ impl DopplerSettings {
             max_depth_step: 0.1,
             broadening: super::profile::Broadening::default(),
             cell_domain: false,
+            observer: None,
         }
+    }
+
+    /// The ray through continuous pixel position `(px, py)`: the camera's ray, aberrated
+    /// into the volume's frame for a moving observer.
+    #[must_use]
+    pub fn ray(&self, px: f32, py: f32) -> Ray {
+        let mut ray = self.camera.ray(px, py, self.width, self.height);
+        if let Some(o) = &self.observer {
+            ray.dir = o.scene_direction(ray.dir);
+        }
+        ray
+    }
+
+    /// The observer's factor on every wavelength shift along a ray of scene-frame direction
+    /// `dir` (`1 / D`; exactly 1 without a moving observer).
+    #[must_use]
+    pub fn observer_shift(&self, dir: Vec3) -> f64 {
+        self.observer
+            .filter(|o| !o.is_at_rest())
+            .map_or(1.0, |o| o.wavelength_shift(dir.normalize()))
     }
 
     /// Views the scene as an astronomer inclines a disc: orthographic, the observer on the
@@ -404,6 +431,9 @@ impl<'a> Context<'a> {
         let f = self.scene.factors;
         let n = t.len();
         let los = raw.los;
+        let observer_shift =
+            self.settings
+                .observer_shift(Vec3::new(los[0] as f32, los[1] as f32, los[2] as f32));
         let mut out = RaySamples {
             t,
             rho,
@@ -430,7 +460,9 @@ impl<'a> Context<'a> {
             let v = [f64::from(v.x), f64::from(v.y), f64::from(v.z)];
             let s = WavelengthShift::from_velocity(self.settings.model, v, los)
                 .map_err(|e| Error::parameter(format!("Doppler shift: {e}")))?;
-            out.shift.push(s.value());
+            // The gas's shift composed with the observer's (relativistic composition of
+            // the two velocities; a factor of exactly 1 at rest).
+            out.shift.push(s.value() * observer_shift);
             out.v_r.push(v[0] * los[0] + v[1] * los[1] + v[2] * los[2]);
         }
         Ok(out)
@@ -541,12 +573,7 @@ pub(crate) fn pixel_ray(settings: &DopplerSettings, x: u32, y: u32) -> Result<Ra
             settings.width, settings.height
         )));
     }
-    Ok(settings.camera.ray(
-        x as f32 + 0.5,
-        y as f32 + 0.5,
-        settings.width,
-        settings.height,
-    ))
+    Ok(settings.ray(x as f32 + 0.5, y as f32 + 0.5))
 }
 
 /// Renders the XYZ image; rows in parallel, each pixel independent (deterministic on any

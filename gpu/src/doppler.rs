@@ -567,8 +567,13 @@ fn doppler_err(e: blueshift_doppler::Error) -> Error {
 /// [`Prepared::new`] refuses them, with the CPU's messages, on both devices.
 pub fn supports(
     scene: &DopplerScene,
-    _settings: &DopplerSettings,
+    settings: &DopplerSettings,
 ) -> std::result::Result<(), Unsupported> {
+    if settings.observer.is_some_and(|o| !o.is_at_rest()) {
+        return Err(Unsupported(
+            "a moving observer (aberration and its Doppler factor are CPU-only)".into(),
+        ));
+    }
     crate::pool::per_brick_unsupported(
         scene
             .species()

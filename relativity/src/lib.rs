@@ -50,6 +50,7 @@ mod colour;
 mod envmap;
 mod error;
 mod lorentz;
+mod observer;
 mod render;
 mod session;
 
@@ -63,6 +64,7 @@ pub use lorentz::{
     Event, LorentzMatrix, Velocity, searchlight_integrated, searchlight_per_frequency,
     searchlight_per_wavelength, unit,
 };
+pub use observer::MovingObserver;
 pub use render::{
     Camera, CameraFrame, Effects, out_of_map_fraction, parse_ramp, ramp, render, scene_direction,
     to_srgb8,

@@ -6,6 +6,7 @@ use image::Rgba32FImage;
 use rayon::prelude::*;
 
 use crate::Camera;
+use blueshift_relativity::MovingObserver;
 use std::time::Instant;
 
 use crate::integrator::{Integrator, RayStats};
@@ -44,6 +45,11 @@ pub struct RenderSettings {
     pub timed_frames: Option<u32>,
     /// Warm-up frames of the timing protocol (with [`RenderSettings::timed_frames`]).
     pub warmup: u32,
+    /// A moving observer (`None`: at rest in the volume's frame): each pixel's ray is
+    /// aberrated into the volume's frame and the colour it brings is shifted by the
+    /// observer's Doppler factor along it (`K(D)`, times `D^4` with the searchlight;
+    /// [`MovingObserver`]).
+    pub observer: Option<MovingObserver>,
 }
 
 impl RenderSettings {
@@ -63,6 +69,7 @@ impl RenderSettings {
             heatmaps: false,
             timed_frames: None,
             warmup: 0,
+            observer: None,
         }
     }
 
@@ -287,6 +294,8 @@ impl Progressive {
         let sample = self.samples;
         let count = f64::from(sample + 1);
         let (width, height) = (self.width, self.height);
+        // At rest the observer changes nothing: skip it, so images keep their bytes.
+        let observer = settings.observer.filter(|o| !o.is_at_rest());
         let mut no_heat = Vec::new();
         let counting = self.heat.is_some();
         let heat = self.heat.as_mut().unwrap_or(&mut no_heat);
@@ -310,11 +319,18 @@ impl Progressive {
                     } else {
                         (0.5, 0.5)
                     };
-                    let ray = settings
+                    let mut ray = settings
                         .camera
                         .ray(x as f32 + jx, y as f32 + jy, width, height);
+                    if let Some(o) = &observer {
+                        ray.dir = o.scene_direction(ray.dir);
+                    }
                     let mut stats = RayStats::default();
-                    let v = integrator.li_with_stats(scene, &ray, &mut rng, &mut stats);
+                    let mut v = integrator.li_with_stats(scene, &ray, &mut rng, &mut stats);
+                    if let Some(o) = &observer {
+                        let rgb = o.shift_rgb(ray.dir.normalize(), [v[0], v[1], v[2]]);
+                        v[..3].copy_from_slice(&rgb);
+                    }
                     if let Some(start) = start {
                         let h = &mut heat_row[x];
                         h[0] += f64::from(stats.cells);

@@ -11,7 +11,7 @@
 //!   "precision": "f32", "step": null, "alpha_g": null, "noise_target": null,
 //!   "light": { "direction": [1, 1, -1], "radiance": [1, 1, 1], "ambient": 0.2 },
 //!   "shading": false, "heatmaps": ["steps"], "warmup": null, "frames": null,
-//!   "tf_range": null }
+//!   "tf_range": null, "observer_velocity": null, "searchlight": null }
 //! ```
 //! Unknown keys are refused; paths are relative to the file. A channel is
 //! `{ "volume": FILE, "channel": NAME?, "tf": SPEC, "material": M? }` or
@@ -296,6 +296,12 @@ pub struct RenderSceneFile {
     /// where the volume is nearest to the camera, `blueshift_volume::lod_level`) or a level
     /// number.
     pub lod: Option<String>,
+    /// A moving observer's velocity `[beta_x, beta_y, beta_z]` relative to the volume
+    /// (units of c, `|beta| < 1`): aberrated rays and the colour shift of its Doppler factor
+    /// ([`blueshift_relativity::MovingObserver`]).
+    pub observer_velocity: Option<[f64; 3]>,
+    /// With `observer_velocity`: scale brightness by the searchlight effect (`D^4`).
+    pub searchlight: Option<bool>,
     /// Folder the relative paths start from (the scene file's; set by
     /// [`RenderSceneFile::from_json`] and [`RenderSceneFile::read`]; `None`: the working
     /// directory).
@@ -562,6 +568,8 @@ impl RenderSceneFile {
             frames,
             tf_range,
             lod,
+            observer_velocity,
+            searchlight,
             base,
         } = flags;
         if !channels.is_empty() {
@@ -604,7 +612,9 @@ impl RenderSceneFile {
             warmup,
             frames,
             tf_range,
-            lod
+            lod,
+            observer_velocity,
+            searchlight
         );
     }
 
@@ -763,6 +773,17 @@ impl RenderSceneFile {
         settings.heatmaps = self.heatmaps.as_ref().is_some_and(|h| !h.is_empty());
         settings.timed_frames = self.frames;
         settings.warmup = self.warmup.unwrap_or(0);
+        settings.observer = match self.observer_velocity {
+            Some(b) => Some(blueshift_relativity::MovingObserver {
+                velocity: blueshift_relativity::Velocity::new(glam::DVec3::from_array(b))
+                    .map_err(|e| Error::parameter(format!("observer_velocity: {e}")))?,
+                searchlight: self.searchlight.unwrap_or(false),
+            }),
+            None if self.searchlight.is_some() => {
+                return Err(Error::parameter("searchlight: needs observer_velocity"));
+            }
+            None => None,
+        };
         settings.validate()?;
         Ok(settings)
     }

@@ -20,7 +20,7 @@ use crate::output::{write_bytes_atomic, write_via_temp_path};
 use crate::plot::{FONT, Series, line_plot, register_font};
 
 /// Arguments of `blueshift doppler`.
-#[derive(Debug, Parser)]
+#[derive(Clone, Debug, Parser)]
 pub struct Args {
     /// Scene JSON mapping volume files to species, temperature and velocity with units
     /// (format: blueshift_doppler::scene_file; example: scenes/enzo-moving7.json).
@@ -40,8 +40,9 @@ pub struct Args {
     /// Doppler model: classical (Eq. 6/7) or relativistic (Eq. 4/5).
     #[arg(long, default_value = "classical")]
     pub doppler: String,
-    /// Relativistic radiance transform (I_nu / nu^3 invariant).
-    #[arg(long)]
+    /// Relativistic radiance transform (I_nu / nu^3 invariant): with a moving observer
+    /// (--observer-velocity, --beta, --ramp) the searchlight effect.
+    #[arg(long, visible_alias = "searchlight")]
     pub invariant: bool,
     /// Species, comma-separated: bb, H, He, C (default: bb,H for galaxy, H for shell).
     #[arg(long)]
@@ -97,6 +98,10 @@ pub struct Args {
     /// View preset, eye, target, up and zoom.
     #[command(flatten)]
     pub view: super::view_args::ViewArgs,
+    /// A moving observer: relativistic aberration and Doppler shift (with --searchlight,
+    /// brightness too) of an observer flying through the volume.
+    #[command(flatten)]
+    pub observer: super::observer_args::ObserverArgs,
     /// Image width.
     #[arg(long, default_value_t = 256)]
     pub width: u32,
@@ -605,8 +610,36 @@ fn sibling(out: &Path, suffix: &str) -> PathBuf {
     out.with_file_name(format!("{stem}{suffix}"))
 }
 
-/// Runs `blueshift doppler`.
+/// Runs `blueshift doppler`: one frame, or with `--ramp` one frame per speed (each output
+/// `STEM_kkkk.EXT`).
 pub fn run(args: Args) -> Result<()> {
+    let Some(speeds) = args.observer.ramp_speeds()? else {
+        return run_frame(args);
+    };
+    let frame_path = super::observer_args::frame_path;
+    for (k, &b) in speeds.iter().enumerate() {
+        let mut a = args.clone();
+        a.out = frame_path(&args.out, k);
+        a.figure = args.figure.as_deref().map(|p| frame_path(p, k));
+        a.cube.cube = args.cube.cube.as_deref().map(|p| frame_path(p, k));
+        a.observer.ramp = None;
+        a.observer.beta = Some(b);
+        eprintln!("frame {k}: beta {b:.4}");
+        run_frame(a)?;
+    }
+    Ok(())
+}
+
+/// The observer of `args` for the view of `st` (the default direction of `--beta`).
+fn observer_for(
+    args: &Args,
+    st: &DopplerSettings,
+) -> Result<Option<blueshift_relativity::MovingObserver>> {
+    let view = (st.camera.target - st.camera.eye).normalize_or_zero();
+    args.observer.observer(view, None, args.invariant)
+}
+
+fn run_frame(args: Args) -> Result<()> {
     // Refuse an output that cannot be written before loading or rendering anything.
     let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
     match &args.cube.cube {
@@ -629,6 +662,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     super::doppler_cube::apply_view(&args.cube, &scene, &mut st)?;
     apply_camera(&args, &scene, &mut st)?;
+    st.observer = observer_for(&args, &st)?;
     st.broadening = super::doppler_cube::broadening(&args.cube)?;
     if args.cube.cube.is_some() {
         if args.device == blueshift_gpu::DeviceChoice::Gpu {

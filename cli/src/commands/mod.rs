@@ -5,6 +5,7 @@ pub mod doppler;
 pub mod doppler_cube;
 pub mod gpu_info;
 pub mod info;
+pub mod observer_args;
 pub mod relativity;
 pub mod render;
 pub mod render_heat;

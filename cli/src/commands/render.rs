@@ -20,7 +20,7 @@ use blueshift_tracking::{
 };
 
 /// Arguments of `blueshift render`.
-#[derive(Debug, clap::Args)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct Args {
     /// Scene file (JSON); flags below override its fields.
     pub scene: Option<PathBuf>,
@@ -144,6 +144,13 @@ pub struct Args {
     /// Also write a PNG preview (exposure, clamp, sRGB; or a tone-mapping operator).
     #[arg(long)]
     pub png: Option<PathBuf>,
+    /// A moving observer: relativistic aberration and colour shift of an observer flying
+    /// through the volume (CPU).
+    #[command(flatten)]
+    pub observer: super::observer_args::ObserverArgs,
+    /// With a moving observer: brightness scaled by the searchlight effect (D^4).
+    #[arg(long)]
+    pub searchlight: bool,
     /// Tone mapping of the PNG preview: `exposure` (exposure, clamp, sRGB) or an operator of
     /// blueshift-tonemap with its paper's default parameters: linear, drago, reinhard,
     /// reinhard-local, durand, fattal.
@@ -355,6 +362,8 @@ pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
                 other => other.into(),
             })?,
         lod: args.lod.clone(),
+        observer_velocity: None,
+        searchlight: None,
         base: None,
     });
     if f.channels.is_empty() {
@@ -370,6 +379,23 @@ pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
 
 /// Runs `blueshift render`.
 pub fn run(args: Args) -> Result<()> {
+    let Some(speeds) = args.observer.ramp_speeds()? else {
+        return run_frame(args);
+    };
+    let frame_path = super::observer_args::frame_path;
+    for (k, &b) in speeds.iter().enumerate() {
+        let mut a = args.clone();
+        a.out = frame_path(&args.out, k);
+        a.png = args.png.as_deref().map(|p| frame_path(p, k));
+        a.observer.ramp = None;
+        a.observer.beta = Some(b);
+        eprintln!("frame {k}: beta {b:.4}");
+        run_frame(a)?;
+    }
+    Ok(())
+}
+
+fn run_frame(args: Args) -> Result<()> {
     if !args.exposure.is_finite() {
         bail!(
             "--exposure {}: must be a finite number of stops",
@@ -461,7 +487,14 @@ fn run_inner(args: &Args) -> Result<()> {
         cache: Some(cache.clone()),
         ..Default::default()
     };
-    let (scene, integrator, settings) = f.build_with(&memory)?;
+    let (scene, integrator, mut settings) = f.build_with(&memory)?;
+    let view = (settings.camera.target - settings.camera.eye).normalize_or_zero();
+    let searchlight = args.searchlight || f.searchlight.unwrap_or(false);
+    if let Some(o) = args.observer.observer(view, None, searchlight)? {
+        settings.observer = Some(o);
+    } else if args.searchlight && settings.observer.is_none() {
+        bail!("--searchlight needs a moving observer (--observer-velocity, --beta or --ramp)");
+    }
     let lod = f.lod()?;
     let level = scene
         .channels()
