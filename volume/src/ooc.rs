@@ -201,6 +201,7 @@ impl RawFileSource {
         geometry: Geometry,
     ) -> Result<Self> {
         geometry.validate()?;
+        crate::io::check_regular_file(path)?;
         let file = File::open(path)?;
         let need = (geometry.voxel_count() as u64).saturating_mul(disk.size_bytes() as u64);
         let have = file.metadata()?.len().saturating_sub(offset);
@@ -1422,6 +1423,7 @@ impl BrickSource for FileBricks {
 
 impl FileBricks {
     fn open(path: &Path) -> Result<Self> {
+        crate::io::check_regular_file(path)?;
         let mut file = File::open(path)?;
         if !file.metadata()?.is_file() {
             return Err(Error::invalid(format!(
