@@ -62,9 +62,7 @@ pub fn check_threads(t: usize) -> Result<()> {
         bail!("--threads: must be at least 1");
     }
     if t > max {
-        bail!(
-            "--threads {t}: at most {max} ({MAX_THREADS_PER_CORE} per core, {cores} cores)"
-        );
+        bail!("--threads {t}: at most {max} ({MAX_THREADS_PER_CORE} per core, {cores} cores)");
     }
     Ok(())
 }

@@ -451,9 +451,8 @@ impl ChannelSpec {
                 let (res, seed) = (self.res.unwrap_or(64), self.seed.unwrap_or(1));
                 let key = format!("synth:{name}:{res}:{seed}");
                 if !loaded.contains_key(&key) {
-                    let v = synth::by_name_within(name, res, seed, &budget).map_err(|e| {
-                        Error::field_from(format!("channels[{i}].synth"), None, e)
-                    })?;
+                    let v = synth::by_name_within(name, res, seed, &budget)
+                        .map_err(|e| Error::field_from(format!("channels[{i}].synth"), None, e))?;
                     loaded.insert(key.clone(), v);
                 }
                 &loaded[&key]
@@ -570,6 +569,10 @@ impl RenderSceneFile {
     /// [`Error::SceneFile`]: an unreadable file, or as [`RenderSceneFile::from_json`].
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
+        blueshift_volume::io::check_regular_file(path).map_err(|e| Error::SceneFile {
+            path: path.display().to_string(),
+            message: format!("cannot read: {e}"),
+        })?;
         let text = std::fs::read_to_string(path).map_err(|e| Error::SceneFile {
             path: path.display().to_string(),
             message: format!("cannot read: {e}"),

@@ -218,7 +218,10 @@ mod tests {
     fn check_names_the_setting() {
         let b = MemoryBudget::new(18_000_000_000, "--max-memory");
         let e = b
-            .check("this render (volume 2048^3 f32)", grid_bytes([2048; 3], 4, 1))
+            .check(
+                "this render (volume 2048^3 f32)",
+                grid_bytes([2048; 3], 4, 1),
+            )
             .unwrap_err();
         assert_eq!(
             e.to_string(),

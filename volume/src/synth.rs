@@ -254,7 +254,38 @@ pub fn by_name_within(
     seed: u64,
     budget: &crate::MemoryBudget,
 ) -> Result<Volume> {
-    stream_by_name(name, res, seed)?.to_volume_within(budget)
+    check_res(res)?;
+    let dims = dims_of(name, res);
+    let needed = memory_bytes(name, res)?;
+    budget.check(
+        format_args!(
+            "this dataset ({name}, {}x{}x{} voxels, f32)",
+            dims[0], dims[1], dims[2]
+        ),
+        needed,
+    )?;
+    stream_by_name(name, res, seed)?.to_volume()
+}
+
+/// The voxel counts of dataset `name` at resolution `res`.
+fn dims_of(name: &str, res: usize) -> [usize; 3] {
+    if name == "galaxy" {
+        [res, res, (res / 2).max(2)]
+    } else {
+        [res; 3]
+    }
+}
+
+/// The bytes [`by_name`] holds at its peak for `name` at `res` ([`Stream::memory_bytes`]),
+/// computed without building the dataset (some streams scan the grid when they are made).
+///
+/// # Errors
+/// An unknown dataset or a bad resolution.
+pub fn memory_bytes(name: &str, res: usize) -> Result<u64> {
+    check_res(res)?;
+    let tiny = stream_by_name(name, 2, 1)?;
+    let per_voxel = tiny.memory_bytes() / tiny.geometry().voxel_count() as u64;
+    Ok(crate::budget::grid_bytes(dims_of(name, res), 1, 1).saturating_mul(per_voxel))
 }
 
 /// The dataset called `name` as a [`Stream`], computed slice by slice when read.

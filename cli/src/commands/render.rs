@@ -239,6 +239,8 @@ where
 pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
     let mut f = match &args.scene {
         Some(path) => {
+            blueshift_volume::io::check_regular_file(path)
+                .with_context(|| format!("cannot read scene file {}", path.display()))?;
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read scene file {}", path.display()))?;
             RenderSceneFile::from_json(&text, path)?
