@@ -38,7 +38,7 @@ fn refused(out: &Output, needles: &[&str]) {
 #[test]
 fn synth_over_the_budget_is_refused_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
-    // 256^3 f32 = 67 MB > 64 MiB.
+    // 256^3 f32 = 67.1 MB > 32 MiB.
     let out = blueshift(
         dir.path(),
         &[
@@ -48,12 +48,12 @@ fn synth_over_the_budget_is_refused_and_writes_nothing() {
             "--res",
             "256",
             "--max-memory",
-            "64M",
+            "32M",
         ],
     );
     refused(
         &out,
-        &["needs 67.1 MB", "memory budget is 67.1 MB", "--max-memory"],
+        &["needs 67.1 MB", "memory budget is 33.6 MB", "--max-memory"],
     );
     assert!(!dir.path().join("t.nrrd").exists());
     // The same through the environment variable.
@@ -124,16 +124,16 @@ fn sizes_the_help_allows_are_refused_before_allocating() {
             "--synth",
             "checker",
             "--width",
-            "32768",
+            "16384",
             "--height",
-            "32768",
+            "16384",
             "--out",
             "e.exr",
             "--max-memory",
-            "8G",
+            "1G",
         ],
     );
-    refused(&out, &["32768x32768", "--max-memory"]);
+    refused(&out, &["16384x16384", "--max-memory"]);
     assert!(!d.join("e.exr").exists());
     // An 8192 x 8192 render is checked against the budget before rendering.
     let out = blueshift(

@@ -12,7 +12,10 @@ fn synth_checks_its_estimate_against_the_budget() {
     let err = synth::by_name_within("turbulence", 2048, 1, &budget).unwrap_err();
     assert!(matches!(err, Error::Budget(ref e) if e.needed == grid_bytes([2048; 3], 4, 1)));
     let msg = err.to_string();
-    assert!(msg.contains("needs 34.4 GB") && msg.contains("(--max-memory)"), "{msg}");
+    assert!(
+        msg.contains("needs 34.4 GB") && msg.contains("(--max-memory)"),
+        "{msg}"
+    );
     let v = synth::by_name_within("turbulence", 8, 1, &budget).unwrap();
     assert_eq!(v.geometry().dims, [8, 8, 8]);
 }
@@ -37,12 +40,18 @@ fn a_fifo_data_file_is_refused_promptly() {
     let p = d.join("v.nhdr");
     let fifo = d.join("data.raw");
     std::thread::spawn(move || {
-        let a = blueshift_volume::read(&p).map(|_| ()).map_err(|e| e.to_string());
-        let b = blueshift_volume::read(&fifo).map(|_| ()).map_err(|e| e.to_string());
+        let a = blueshift_volume::read(&p)
+            .map(|_| ())
+            .map_err(|e| e.to_string());
+        let b = blueshift_volume::read(&fifo)
+            .map(|_| ())
+            .map_err(|e| e.to_string());
         let _ = tx.send((a, b));
     });
     // A blocked open would never answer; the guard is generous.
-    let (a, b) = rx.recv_timeout(Duration::from_secs(30)).expect("the read blocked");
+    let (a, b) = rx
+        .recv_timeout(Duration::from_secs(30))
+        .expect("the read blocked");
     for r in [a, b] {
         let msg = r.unwrap_err();
         assert!(msg.contains("not a regular file (a FIFO)"), "{msg}");
