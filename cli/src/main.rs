@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 
 mod commands;
 mod figure;
+mod limits;
 mod output;
 mod plot;
 mod progress;
@@ -18,6 +19,11 @@ mod progress;
 #[derive(Debug, Parser)]
 #[command(name = "blueshift", version, about, long_about = None)]
 struct Cli {
+    /// Memory budget every large allocation is checked against before it is made: bytes
+    /// or a size such as 8G, 512M [env: BLUESHIFT_MAX_MEMORY; default: 3/4 of physical
+    /// memory].
+    #[arg(long, global = true, value_name = "SIZE")]
+    max_memory: Option<String>,
     #[command(subcommand)]
     command: Command,
 }
@@ -79,7 +85,7 @@ fn main() -> ExitCode {
             return ExitCode::from(code);
         }
     };
-    let result = match cli.command {
+    let result = crate::limits::init(cli.max_memory.as_deref()).and_then(|()| match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
         Command::Tonemap(args) => commands::tonemap::run(*args),
         Command::Tf(args) => commands::tf::run(args),
@@ -92,7 +98,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => commands::doppler::run_demo(args),
         Command::GpuInfo(args) => commands::gpu_info::run(args),
         Command::View(args) => commands::view::run(*args),
-    };
+    });
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {

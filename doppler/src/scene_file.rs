@@ -73,6 +73,10 @@ const C_M_PER_S: f64 = 299_792_458.0;
 /// Largest scene file read, bytes (a scene file is a few hundred bytes of JSON).
 const MAX_SCENE_BYTES: u64 = 1 << 20;
 
+/// The most species a scene may have (the papers' galaxy has four); more is refused before
+/// any field is loaded. Each species holds its own density grid.
+pub const MAX_SPECIES: usize = 64;
+
 /// A field: a file (with an optional channel) or a constant, with a unit and a scale.
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -232,6 +236,8 @@ impl SceneFile {
                 format!("{} bytes is too large for a scene file", meta.len()),
             ));
         }
+        blueshift_volume::io::check_regular_file(path)
+            .map_err(|e| file_err(path, e.to_string()))?;
         let text = std::fs::read_to_string(path).map_err(|e| file_err(path, e.to_string()))?;
         let base = path.parent().unwrap_or(Path::new("."));
         Self::parse(&text, base).map_err(|e| match e {
@@ -299,6 +305,12 @@ impl SceneFile {
                 }
             }
         }
+        if self.species.len() > MAX_SPECIES {
+            return Err(Error::scene(format!(
+                "{} species, at most {MAX_SPECIES} (MAX_SPECIES)",
+                self.species.len()
+            )));
+        }
         let use_bb = self.blackbody.is_some() && (wanted("bb") || wanted("blackbody"));
         let species: Vec<&SpeciesSpec> = self.species.iter().filter(|s| wanted(&s.name)).collect();
         if !use_bb && species.is_empty() {
@@ -311,6 +323,7 @@ impl SceneFile {
             geometry: None,
             memory,
             cache: OnceLock::new(),
+            read: std::sync::Mutex::default(),
         };
         if let Some(c) = cache {
             let _ = loader.cache.set(c);
@@ -451,6 +464,8 @@ struct Loader<'a> {
     geometry: Option<Geometry>,
     memory: &'a MemoryVolumes,
     cache: OnceLock<Arc<BrickCache>>,
+    /// Volumes read from files, by canonical path: a file named by many fields is read once.
+    read: std::sync::Mutex<std::collections::HashMap<PathBuf, Arc<Volume>>>,
 }
 
 impl Loader<'_> {
@@ -483,8 +498,28 @@ impl Loader<'_> {
             Some(v) => (v, rel.clone()),
             None => {
                 let path = self.base.join(rel);
-                read = blueshift_volume::read(&path).map_err(|e| file_err(&path, e.to_string()))?;
-                (&read, path)
+                let key = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
+                let cached = self
+                    .read
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .get(&key)
+                    .cloned();
+                read = match cached {
+                    Some(v) => v,
+                    None => {
+                        let v = Arc::new(
+                            blueshift_volume::read(&path)
+                                .map_err(|e| file_err(&path, e.to_string()))?,
+                        );
+                        self.read
+                            .lock()
+                            .unwrap_or_else(std::sync::PoisonError::into_inner)
+                            .insert(key, v.clone());
+                        v
+                    }
+                };
+                (&*read, path)
             }
         };
         let grid = match &f.channel {

@@ -37,6 +37,7 @@ pub(crate) fn scene_file(
             .collect(),
         tfs: tfs.into_iter().map(|(k, v)| (k, v.inner.clone())).collect(),
         cache: None,
+        budget: None,
     };
     Ok((file, memory))
 }

@@ -7,6 +7,9 @@
 //! - `xyz/*`: inner product with the CIE functions (exact piecewise-linear convolution).
 //! - `banded/*`: add, nearest and energy-conserving shifts, XYZ at N = 40, 400, 4,000.
 //! - `shift/*`: Doppler-scaling a piecewise-linear spectrum.
+//! - `line_list/{one_by_one,sweep}/N`: N 1 nm box lines spread over 300 nm (N = 1,000,
+//!   10,000, 100,000; one-by-one up to 10,000): `EmissionLine::add_to` in a loop costs the
+//!   pieces each line overlaps (quadratic), `add_lines` one sorted sweep (n log n).
 
 use std::hint::black_box;
 
@@ -148,5 +151,34 @@ fn shift(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, insertion, xyz, banded, shift);
+fn line_list(c: &mut Criterion) {
+    let mut g = c.benchmark_group("line_list");
+    let profile = LineProfile::Box { width_nm: 1.0 };
+    for n in [1_000usize, 10_000, 100_000] {
+        let lines: Vec<EmissionLine> = (0..n)
+            .map(|i| EmissionLine::new(400.0 + 300.0 * i as f64 / n as f64, 1.0).unwrap())
+            .collect();
+        if n <= 10_000 {
+            g.bench_with_input(BenchmarkId::new("one_by_one", n), &lines, |b, lines| {
+                b.iter(|| {
+                    let mut s = PiecewiseLinear::new();
+                    for l in lines {
+                        l.add_to(&mut s, profile, 1.0).unwrap();
+                    }
+                    black_box(s)
+                });
+            });
+        }
+        g.bench_with_input(BenchmarkId::new("sweep", n), &lines, |b, lines| {
+            b.iter(|| {
+                let mut s = PiecewiseLinear::new();
+                add_lines(&mut s, lines, profile, 1.0).unwrap();
+                black_box(s)
+            });
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, insertion, xyz, banded, shift, line_list);
 criterion_main!(benches);

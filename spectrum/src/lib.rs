@@ -79,8 +79,11 @@ pub use doppler::{
     DopplerFactor, DopplerModel, RadiometricTransform, SPEED_OF_LIGHT_M_PER_S, WavelengthShift,
 };
 pub use error::{Error, Result};
-pub use lines::{Catalogue, EmissionLine, LineProfile, parse_line_list, read_line_list};
-pub use piecewise::{Piece, PiecewiseLinear, merge_pieces};
+pub use lines::{
+    Catalogue, EmissionLine, LINE_LIST_COLUMNS, LineProfile, add_lines, parse_line_list,
+    read_line_list,
+};
+pub use piecewise::{MAX_PIECES, Piece, PiecewiseLinear, merge_pieces};
 pub use profiles::{
     ATOMIC_MASS_UNIT_KG, NamedLine, PwlGaussian, named_line, thermal_sigma_m_per_s,
     velocity_sigma_to_nm,

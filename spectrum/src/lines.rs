@@ -160,32 +160,126 @@ impl Catalogue {
     }
 }
 
-/// Parses a user line list: CSV with a header row, columns `wavelength_nm` and
-/// `relative_intensity` (further columns are ignored; lines starting with `#` are comments).
-/// Refuses a malformed row, naming `source_name` and the line number.
+/// The header names a line list must have (in any order; further columns are ignored).
+pub const LINE_LIST_COLUMNS: [&str; 2] = ["wavelength_nm", "relative_intensity"];
+
+/// Parses a user line list: CSV whose first row (after `#` comments and blank lines) is a
+/// header naming the columns [`LINE_LIST_COLUMNS`] `wavelength_nm` and `relative_intensity`
+/// (in any order; further columns are ignored). A missing header, or one without both
+/// names, is refused (a table of other columns would otherwise be read as garbage), as is a
+/// malformed row, naming `source_name` and the line number.
 pub fn parse_line_list(text: &str, source_name: &str) -> Result<Vec<EmissionLine>> {
-    let rows = crate::cie::parse_csv_rows(text, source_name, 2)?;
-    let mut lines = Vec::with_capacity(rows.len());
-    for (line_no, r) in &rows {
-        let line = EmissionLine::new(r[0], r[1]).map_err(|e| Error::Parse {
-            source_name: source_name.to_owned(),
-            line: *line_no,
-            message: e.to_string(),
-        })?;
+    let parse_err = |line: usize, message: String| Error::Parse {
+        source_name: source_name.to_owned(),
+        line,
+        message,
+    };
+    let mut rows = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+    let Some((header_no, header)) = rows.next() else {
+        return Err(parse_err(0, "no lines".to_owned()));
+    };
+    let names: Vec<&str> = header.split(',').map(str::trim).collect();
+    let column = |want: &str| names.iter().position(|n| n.eq_ignore_ascii_case(want));
+    let (Some(wl), Some(st)) = (column(LINE_LIST_COLUMNS[0]), column(LINE_LIST_COLUMNS[1])) else {
+        return Err(parse_err(
+            header_no,
+            format!(
+                "the header must name the columns {} and {} (found {header:?})",
+                LINE_LIST_COLUMNS[0], LINE_LIST_COLUMNS[1]
+            ),
+        ));
+    };
+    let mut lines = Vec::new();
+    for (line_no, row) in rows {
+        let fields: Vec<&str> = row.split(',').map(str::trim).collect();
+        let value = |i: usize| -> Result<f64> {
+            let f = fields.get(i).ok_or_else(|| {
+                parse_err(
+                    line_no,
+                    format!("expected {} columns, found {}", names.len(), fields.len()),
+                )
+            })?;
+            let v: f64 = f
+                .parse()
+                .map_err(|_| parse_err(line_no, format!("{f:?} is not a number")))?;
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(parse_err(line_no, format!("{f:?} is not finite")))
+            }
+        };
+        let line = EmissionLine::new(value(wl)?, value(st)?)
+            .map_err(|e| parse_err(line_no, e.to_string()))?;
         lines.push(line);
     }
     if lines.is_empty() {
-        return Err(Error::Parse {
-            source_name: source_name.to_owned(),
-            line: 0,
-            message: "no lines".to_owned(),
-        });
+        return Err(parse_err(0, "no lines".to_owned()));
     }
     Ok(lines)
 }
 
+/// Adds `lines`, each with `profile` and scaled by `weight`, to `spectrum` in one sweep:
+/// O(n log n) in the number of lines however much they overlap (adding them one by one with
+/// [`EmissionLine::add_to`] costs the number of pieces each one overlaps). Gaussian profiles
+/// are added one by one.
+///
+/// # Errors
+/// As [`EmissionLine::add_to`]; a result of more than [`crate::MAX_PIECES`] pieces.
+pub fn add_lines(
+    spectrum: &mut PiecewiseLinear,
+    lines: &[EmissionLine],
+    profile: LineProfile,
+    weight: f64,
+) -> Result<()> {
+    non_negative("line weight", weight)?;
+    let mut traps = Vec::with_capacity(lines.len() * 2);
+    for l in lines {
+        let area = l.strength * weight;
+        let c = l.centre_nm;
+        match profile {
+            LineProfile::Box { width_nm } => {
+                positive("line width (nm)", width_nm)?;
+                let h = width_nm / 2.0;
+                let v = area / width_nm;
+                non_negative("trapezoid start value", v)?;
+                crate::error::range("trapezoid", c - h, c + h)?;
+                traps.push((c - h, c + h, v, v));
+            }
+            LineProfile::Triangle { fwhm_nm } => {
+                positive("line FWHM (nm)", fwhm_nm)?;
+                let peak = area / fwhm_nm;
+                non_negative("trapezoid end value", peak)?;
+                crate::error::range("trapezoid", c - fwhm_nm, c)?;
+                crate::error::range("trapezoid", c, c + fwhm_nm)?;
+                traps.push((c - fwhm_nm, c, 0.0, peak));
+                traps.push((c, c + fwhm_nm, peak, 0.0));
+            }
+            LineProfile::Gaussian { .. } => l.add_to(spectrum, profile, weight)?,
+        }
+    }
+    spectrum.add_trapezoids(&traps)
+}
+
 /// Reads a user line list from a file (see [`parse_line_list`]).
+/// Refuses a path that is not a regular file (a FIFO would block the read forever).
 pub fn read_line_list(path: &std::path::Path) -> Result<Vec<EmissionLine>> {
+    let meta = std::fs::metadata(path).map_err(|source| Error::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    if !meta.is_file() {
+        return Err(Error::Io {
+            path: path.display().to_string(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "not a regular file (a FIFO, device, socket or folder)",
+            ),
+        });
+    }
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
         path: path.display().to_string(),
         source,

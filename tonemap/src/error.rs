@@ -36,6 +36,21 @@ pub enum Error {
         /// The limit in pixels.
         max_pixels: u64,
     },
+    /// Decoding the image would allocate more than [`crate::io::Limits::max_bytes`]
+    /// (checked from the header, before decoding).
+    #[error(
+        "decoding {width} x {height} pixels needs {needed} bytes, more than the limit of {max_bytes} bytes"
+    )]
+    Memory {
+        /// Width in pixels.
+        width: u64,
+        /// Height in pixels.
+        height: u64,
+        /// The estimated bytes.
+        needed: u64,
+        /// The limit in bytes.
+        max_bytes: u64,
+    },
     /// A parameter is out of its valid range (the caller must change it).
     #[error("invalid parameter: {0}")]
     Parameter(String),

@@ -18,26 +18,55 @@ use crate::error::{Error, Result};
 pub struct Limits {
     /// Largest accepted width x height (default 2^27 = 134 M pixels, 1.6 GB as RGB f32).
     pub max_pixels: u64,
+    /// Largest number of bytes a reader may allocate while decoding (default: no cap beyond
+    /// `max_pixels`; the CLI sets its memory budget here). A reader estimates its peak
+    /// (the decoded samples, [`DECODE_BYTES_PER_PIXEL`] for the RGB f32 result and its
+    /// copy) from the header, before decoding.
+    pub max_bytes: u64,
 }
+
+/// Bytes per pixel every reader holds at its peak besides the file's own samples: the
+/// RGB f32 image and one RGB f32 copy while it is assembled.
+pub const DECODE_BYTES_PER_PIXEL: u64 = 24;
 
 impl Default for Limits {
     fn default() -> Self {
         Self {
             max_pixels: 1 << 27,
+            max_bytes: u64::MAX,
         }
     }
 }
 
 impl Limits {
     fn check(&self, width: u64, height: u64) -> Result<()> {
-        match width.checked_mul(height) {
-            Some(n) if n <= self.max_pixels => Ok(()),
-            _ => Err(Error::Limits {
+        self.check_decode(width, height, 0)
+    }
+
+    /// Checks the pixel count, then the bytes of decoding `width` x `height` pixels with
+    /// `sample_bytes` per pixel of decoded file samples on top of
+    /// [`DECODE_BYTES_PER_PIXEL`].
+    fn check_decode(&self, width: u64, height: u64, sample_bytes: u64) -> Result<()> {
+        let pixels = match width.checked_mul(height) {
+            Some(n) if n <= self.max_pixels => n,
+            _ => {
+                return Err(Error::Limits {
+                    width,
+                    height,
+                    max_pixels: self.max_pixels,
+                });
+            }
+        };
+        let needed = pixels.saturating_mul(DECODE_BYTES_PER_PIXEL.saturating_add(sample_bytes));
+        if needed > self.max_bytes {
+            return Err(Error::Memory {
                 width,
                 height,
-                max_pixels: self.max_pixels,
-            }),
+                needed,
+                max_bytes: self.max_bytes,
+            });
         }
+        Ok(())
     }
 }
 
@@ -57,6 +86,15 @@ pub enum HdrFormat {
 /// # Errors
 /// [`Error::Io`] if the file cannot be read, [`Error::Unsupported`] for an unknown format.
 pub fn detect_format(path: &Path) -> Result<HdrFormat> {
+    // A FIFO or device would block or never end: only regular files are read.
+    let meta = std::fs::metadata(path).map_err(|e| Error::io("cannot read", path, e))?;
+    if !meta.is_file() {
+        return Err(Error::invalid(
+            "HDR image",
+            "not a regular file (a FIFO, device, socket or folder)",
+            path,
+        ));
+    }
     let mut head = Vec::with_capacity(2048);
     File::open(path)
         .and_then(|f| f.take(2048).read_to_end(&mut head))
@@ -135,7 +173,9 @@ pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(e, path))?;
     for header in meta.headers.iter() {
         let size = header.layer_size;
-        limits.check(size.width() as u64, size.height() as u64)?;
+        // Every channel is decoded as f32 (at most) before R, G, B are picked.
+        let samples = 4 * header.channels.list.len() as u64;
+        limits.check_decode(size.width() as u64, size.height() as u64, samples)?;
     }
     let image = read()
         .no_deep_data()

@@ -224,7 +224,26 @@ pub struct Preloaded {
     /// How `.bsv` channels are read: the shared brick cache (default: one of
     /// [`blueshift_volume::cache::default_budget`] bytes for the scene).
     pub cache: Option<Arc<BrickCache>>,
+    /// The memory budget the scene's grids are checked against before they are made
+    /// (default: [`blueshift_volume::MemoryBudget::machine_default`]).
+    pub budget: Option<blueshift_volume::MemoryBudget>,
 }
+
+/// The most channels a render scene may have (the papers' scenes have up to 12); more is
+/// refused before anything is loaded.
+pub const MAX_CHANNELS: usize = 256;
+
+impl Preloaded {
+    fn budget(&self) -> blueshift_volume::MemoryBudget {
+        self.budget
+            .clone()
+            .unwrap_or_else(blueshift_volume::MemoryBudget::machine_default)
+    }
+}
+
+/// Volumes read while a scene is built, by canonical path (files) or `synth:NAME:RES:SEED`,
+/// so channels naming the same file or dataset read it once.
+type Loaded = std::collections::HashMap<String, blueshift_volume::Volume>;
 
 /// A render scene file (see the module docs for the format and the defaults).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -324,15 +343,16 @@ impl ChannelSpec {
     /// # Errors
     /// An unknown dataset or a bad resolution.
     pub fn synth_channels(name: &str, res: usize) -> Result<Vec<ChannelSpec>> {
-        let vol = synth::by_name(name, res, 1)?;
-        Ok(vol
+        // The channel names only: nothing is computed.
+        let stream = synth::stream_by_name(name, res, 1)?;
+        Ok(stream
             .channels()
             .iter()
-            .filter(|c| !c.grid.is_vector())
-            .map(|c| ChannelSpec {
+            .filter(|(_, components)| *components == 1)
+            .map(|(channel, _)| ChannelSpec {
                 synth: Some(name.to_owned()),
                 res: Some(res),
-                channel: Some(c.name.clone()),
+                channel: Some(channel.clone()),
                 ..ChannelSpec::default()
             })
             .collect())
@@ -358,6 +378,16 @@ impl ChannelSpec {
         i: usize,
         base: Option<&Path>,
         memory: &Preloaded,
+    ) -> Result<(String, Field)> {
+        self.load_cached(i, base, memory, &mut Loaded::new())
+    }
+
+    fn load_cached(
+        &self,
+        i: usize,
+        base: Option<&Path>,
+        memory: &Preloaded,
+        loaded: &mut Loaded,
     ) -> Result<(String, Field)> {
         if let (Some(p), None) = (&self.volume, &self.synth) {
             let p = resolve(base, p);
@@ -395,24 +425,43 @@ impl ChannelSpec {
             .as_deref()
             .and_then(Path::to_str)
             .and_then(|k| memory.volumes.get(k));
-        let read;
+        let budget = memory.budget();
         let vol = match (&self.volume, &self.synth) {
             (Some(_), None) if let Some(v) = in_memory => v,
             (Some(p), None) => {
                 let p = resolve(base, p);
-                read = blueshift_volume::read(&p).map_err(|e| {
-                    Error::field_from(
-                        format!("channels[{i}].volume"),
-                        Some(format!("cannot read {}", p.display())),
-                        e,
-                    )
-                })?;
-                &read
+                let key = std::fs::canonicalize(&p)
+                    .unwrap_or_else(|_| p.clone())
+                    .to_string_lossy()
+                    .into_owned();
+                if !loaded.contains_key(&key) {
+                    let opts = blueshift_volume::ReadOptions {
+                        limits: blueshift_volume::Limits {
+                            max_alloc_bytes: budget.bytes(),
+                            ..blueshift_volume::Limits::default()
+                        },
+                        ..blueshift_volume::ReadOptions::default()
+                    };
+                    let v = blueshift_volume::read_with(&p, &opts).map_err(|e| {
+                        Error::field_from(
+                            format!("channels[{i}].volume"),
+                            Some(format!("cannot read {}", p.display())),
+                            e,
+                        )
+                    })?;
+                    loaded.insert(key.clone(), v);
+                }
+                &loaded[&key]
             }
             (None, Some(name)) => {
-                read = synth::by_name(name, self.res.unwrap_or(64), self.seed.unwrap_or(1))
-                    .map_err(|e| Error::field_from(format!("channels[{i}].synth"), None, e))?;
-                &read
+                let (res, seed) = (self.res.unwrap_or(64), self.seed.unwrap_or(1));
+                let key = format!("synth:{name}:{res}:{seed}");
+                if !loaded.contains_key(&key) {
+                    let v = synth::by_name_within(name, res, seed, &budget)
+                        .map_err(|e| Error::field_from(format!("channels[{i}].synth"), None, e))?;
+                    loaded.insert(key.clone(), v);
+                }
+                &loaded[&key]
             }
             _ => {
                 return Err(Error::field(
@@ -526,6 +575,10 @@ impl RenderSceneFile {
     /// [`Error::SceneFile`]: an unreadable file, or as [`RenderSceneFile::from_json`].
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
+        blueshift_volume::io::check_regular_file(path).map_err(|e| Error::SceneFile {
+            path: path.display().to_string(),
+            message: format!("cannot read: {e}"),
+        })?;
         let text = std::fs::read_to_string(path).map_err(|e| Error::SceneFile {
             path: path.display().to_string(),
             message: format!("cannot read: {e}"),
@@ -856,10 +909,35 @@ impl RenderSceneFile {
     /// As [`RenderSceneFile::build`].
     pub fn build_with(&self, memory: &Preloaded) -> Result<(Scene, Integrator, RenderSettings)> {
         let base = self.base.as_deref();
-        let mut loaded = Vec::with_capacity(self.channels.len());
-        for (i, c) in self.channels.iter().enumerate() {
-            loaded.push(c.load_with(i, base, memory)?);
+        if self.channels.len() > MAX_CHANNELS {
+            return Err(Error::field(
+                "channels",
+                format!(
+                    "{} channels, at most {MAX_CHANNELS} (MAX_CHANNELS)",
+                    self.channels.len()
+                ),
+            ));
         }
+        let budget = memory.budget();
+        let mut volumes = Loaded::new();
+        let mut loaded = Vec::with_capacity(self.channels.len());
+        // Every channel holds its own copy of its grid: their sum must fit the budget.
+        let mut bytes = 0u64;
+        for (i, c) in self.channels.iter().enumerate() {
+            let (name, field) = c.load_cached(i, base, memory, &mut volumes)?;
+            if let Some(g) = field.as_dense() {
+                bytes = bytes.saturating_add(blueshift_volume::budget::grid_bytes(
+                    g.geometry().dims,
+                    g.scalar_type().size_bytes(),
+                    1,
+                ));
+                budget
+                    .check(format_args!("this scene's {} channels", i + 1), bytes)
+                    .map_err(|e| Error::field_from("channels", None, e))?;
+            }
+            loaded.push((name, field));
+        }
+        drop(volumes);
         self.choose_level(&mut loaded)?;
         let mut triples = Vec::with_capacity(self.channels.len());
         for ((i, c), (name, grid)) in self.channels.iter().enumerate().zip(loaded) {

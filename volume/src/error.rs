@@ -33,6 +33,10 @@ pub enum Error {
     /// An operating-system I/O error (file not found, permission denied, disk full).
     #[error(transparent)]
     Io(std::io::Error),
+    /// The operation's memory estimate exceeds the [`crate::budget::MemoryBudget`]. Nothing
+    /// was allocated.
+    #[error(transparent)]
+    Budget(#[from] crate::budget::BudgetError),
 }
 
 impl Error {

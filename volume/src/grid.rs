@@ -244,7 +244,11 @@ impl<T: Voxel> Grid<T> {
         let n = limits.check(geometry.dims, std::mem::size_of::<T>())?;
         Ok(Grid {
             geometry,
-            data: vec![T::default(); n as usize],
+            data: crate::budget::try_filled_vec(
+                usize::try_from(n).map_err(|_| Error::Limits(format!("{n} voxels overflow")))?,
+                T::default(),
+                "a grid",
+            )?,
         })
     }
 

@@ -49,6 +49,7 @@
 //! positive radial velocity receding (DESIGN.md). Readers check sizes against [`Limits`]
 //! before allocating and return [`Error`], never panic.
 
+pub mod budget;
 pub mod cache;
 mod error;
 pub mod field;
@@ -60,6 +61,7 @@ pub mod ooc;
 pub mod synth;
 mod volume;
 
+pub use budget::{BudgetError, MemoryBudget};
 pub use cache::{BrickCache, BrickSource, CacheStats};
 pub use error::{Error, Limits, Result};
 pub use field::{BrickedField, Field, LevelMap, Lod, VectorField, lod_level};

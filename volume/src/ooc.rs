@@ -104,6 +104,22 @@ impl Default for BrickLayout {
 }
 
 impl BrickLayout {
+    /// The layout with its brick edge capped at the smallest even edge that covers `dims`'
+    /// longest axis (at least 2 and the apron): a larger brick only adds padding (a
+    /// `--brick 1024` on a 16^3 volume would write 4 GB of it). [`convert`] and
+    /// [`convert_many`] apply it.
+    #[must_use]
+    pub fn fitted(self, dims: [usize; 3]) -> Self {
+        let longest = dims.iter().copied().max().unwrap_or(2);
+        let cover = (longest + longest % 2)
+            .max(2)
+            .max(self.apron + self.apron % 2);
+        BrickLayout {
+            brick: self.brick.min(cover),
+            ..self
+        }
+    }
+
     fn validate(&self) -> Result<()> {
         if self.brick < 2 || !self.brick.is_multiple_of(2) || self.brick > 1024 {
             return Err(Error::parameter(format!(
@@ -201,6 +217,7 @@ impl RawFileSource {
         geometry: Geometry,
     ) -> Result<Self> {
         geometry.validate()?;
+        crate::io::check_regular_file(path)?;
         let file = File::open(path)?;
         let need = (geometry.voxel_count() as u64).saturating_mul(disk.size_bytes() as u64);
         let have = file.metadata()?.len().saturating_sub(offset);
@@ -1121,6 +1138,7 @@ pub fn convert_many(
     layout.validate()?;
     let g0 = source.geometry();
     g0.validate()?;
+    let layout = layout.fitted(g0.dims);
     if outs.len() != source.channels() || outs.is_empty() {
         return Err(Error::parameter(format!(
             "{} outputs for {} channels",
@@ -1422,6 +1440,7 @@ impl BrickSource for FileBricks {
 
 impl FileBricks {
     fn open(path: &Path) -> Result<Self> {
+        crate::io::check_regular_file(path)?;
         let mut file = File::open(path)?;
         if !file.metadata()?.is_file() {
             return Err(Error::invalid(format!(

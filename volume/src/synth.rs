@@ -141,6 +141,31 @@ impl Stream {
         }
     }
 
+    /// Bytes [`Stream::to_volume`] holds at its peak: every component as `f32`, plus a
+    /// vector channel's `Vec3` grid while it is assembled (saturating).
+    #[must_use]
+    pub fn memory_bytes(&self) -> u64 {
+        let dims = self.geometry.dims;
+        self.channels.iter().fold(0u64, |acc, (_, c)| {
+            let per = if *c == 1 { 4 } else { 4 * c + 12 };
+            acc.saturating_add(crate::budget::grid_bytes(dims, per, 1))
+        })
+    }
+
+    /// [`Stream::to_volume`] after checking [`Stream::memory_bytes`] against `budget`.
+    ///
+    /// # Errors
+    /// [`Error::Budget`] before anything is allocated; as [`Stream::to_volume`].
+    pub fn to_volume_within(&self, budget: &crate::MemoryBudget) -> Result<Volume> {
+        let [nx, ny, nz] = self.geometry.dims;
+        let comps: usize = self.channels.iter().map(|c| c.1).sum();
+        budget.check(
+            format_args!("this dataset ({nx}x{ny}x{nz} voxels, {comps} f32 components)"),
+            self.memory_bytes(),
+        )?;
+        self.to_volume()
+    }
+
     /// Computes every channel in memory.
     ///
     /// # Errors
@@ -217,6 +242,50 @@ pub const NAMES: &[&str] = &[
 /// Builds the dataset called `name` (see [`NAMES`]) at `res` voxels per edge.
 pub fn by_name(name: &str, res: usize, seed: u64) -> Result<Volume> {
     stream_by_name(name, res, seed)?.to_volume()
+}
+
+/// [`by_name`], its memory estimate checked against `budget` before anything is allocated.
+///
+/// # Errors
+/// [`Error::Budget`]; as [`by_name`].
+pub fn by_name_within(
+    name: &str,
+    res: usize,
+    seed: u64,
+    budget: &crate::MemoryBudget,
+) -> Result<Volume> {
+    check_res(res)?;
+    let dims = dims_of(name, res);
+    let needed = memory_bytes(name, res)?;
+    budget.check(
+        format_args!(
+            "this dataset ({name}, {}x{}x{} voxels, f32)",
+            dims[0], dims[1], dims[2]
+        ),
+        needed,
+    )?;
+    stream_by_name(name, res, seed)?.to_volume()
+}
+
+/// The voxel counts of dataset `name` at resolution `res`.
+fn dims_of(name: &str, res: usize) -> [usize; 3] {
+    if name == "galaxy" {
+        [res, res, (res / 2).max(2)]
+    } else {
+        [res; 3]
+    }
+}
+
+/// The bytes [`by_name`] holds at its peak for `name` at `res` ([`Stream::memory_bytes`]),
+/// computed without building the dataset (some streams scan the grid when they are made).
+///
+/// # Errors
+/// An unknown dataset or a bad resolution.
+pub fn memory_bytes(name: &str, res: usize) -> Result<u64> {
+    check_res(res)?;
+    let tiny = stream_by_name(name, 2, 1)?;
+    let per_voxel = tiny.memory_bytes() / tiny.geometry().voxel_count() as u64;
+    Ok(crate::budget::grid_bytes(dims_of(name, res), 1, 1).saturating_mul(per_voxel))
 }
 
 /// The dataset called `name` as a [`Stream`], computed slice by slice when read.

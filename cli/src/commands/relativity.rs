@@ -190,6 +190,10 @@ fn check_ext(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Bytes per pixel of a relativity render: the RGB f32 image, a copy while it is encoded
+/// and an sRGB8 preview.
+const RELATIVITY_BYTES_PER_PIXEL: u64 = 12 + 12 + 3;
+
 /// Runs `blueshift relativity`.
 pub fn run(args: Args) -> Result<()> {
     check_ext(&args.out)?;
@@ -220,6 +224,18 @@ pub fn run(args: Args) -> Result<()> {
         height: args.height,
     };
     blueshift_relativity::CameraFrame::new(&cam)?;
+    // The image (RGB f32), its copy while encoding and an 8-bit preview.
+    crate::limits::check(
+        format_args!(
+            "this image ({}x{}, {RELATIVITY_BYTES_PER_PIXEL} bytes per pixel)",
+            args.width, args.height
+        ),
+        blueshift_volume::budget::image_bytes(
+            args.width.into(),
+            args.height.into(),
+            RELATIVITY_BYTES_PER_PIXEL,
+        ),
+    )?;
     let speeds = match &args.ramp {
         Some(spec) => Some(parse_ramp(spec)?),
         None => {

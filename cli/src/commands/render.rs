@@ -246,6 +246,8 @@ where
 pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
     let mut f = match &args.scene {
         Some(path) => {
+            blueshift_volume::io::check_regular_file(path)
+                .with_context(|| format!("cannot read scene file {}", path.display()))?;
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read scene file {}", path.display()))?;
             RenderSceneFile::from_json(&text, path)?
@@ -416,15 +418,25 @@ fn run_frame(args: Args) -> Result<()> {
     let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
     inputs.extend(args.scene.as_deref());
     crate::output::check_outputs(&outputs, &inputs)?;
-    match args.threads {
-        Some(0) => bail!("--threads: must be at least 1"),
-        Some(t) => rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build()
-            .context("cannot start worker threads")?
-            .install(|| run_inner(&args)),
+    match crate::limits::thread_pool(args.threads)? {
+        Some(pool) => pool.install(|| run_inner(&args)),
         None => run_inner(&args),
     }
+}
+
+/// Bytes per pixel a render holds: the accumulation's mean and variance (RGBA f64), one
+/// pass (RGBA f32), the mean image written as EXR (RGBA f32) and the PNG preview (RGBA8).
+const RENDER_BYTES_PER_PIXEL: u64 = 64 + 16 + 16 + 4;
+/// More bytes per pixel with heat maps (their RGBA f64 accumulation).
+const HEAT_BYTES_PER_PIXEL: u64 = 32;
+
+/// Checks a `width` x `height` render's image memory against the budget.
+fn check_image_memory(width: u32, height: u32, heat: bool) -> Result<()> {
+    let per = RENDER_BYTES_PER_PIXEL + if heat { HEAT_BYTES_PER_PIXEL } else { 0 };
+    crate::limits::check(
+        format_args!("this render ({width}x{height} image, {per} bytes per pixel)"),
+        blueshift_volume::budget::image_bytes(width.into(), height.into(), per),
+    )
 }
 
 /// The brick cache of out-of-core channels for `--cache-mb` (checked: at least 1 MiB).
@@ -485,6 +497,7 @@ fn run_inner(args: &Args) -> Result<()> {
     let cache = brick_cache(args.cache_mb)?;
     let memory = blueshift_tracking::scene_file::Preloaded {
         cache: Some(cache.clone()),
+        budget: Some(crate::limits::budget().clone()),
         ..Default::default()
     };
     let (scene, integrator, mut settings) = f.build_with(&memory)?;
@@ -516,6 +529,7 @@ fn run_inner(args: &Args) -> Result<()> {
         warn_tf_domains(&scene);
     }
     let heatmaps = f.heatmaps();
+    check_image_memory(settings.width, settings.height, !heatmaps.is_empty())?;
     let method = integrator.method().name();
     let n = scene.channels().len();
     let (width, height) = (settings.width, settings.height);

@@ -194,11 +194,10 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     for path in &args.line_list {
-        for line in read_line_list(path)? {
-            line.add_to(&mut rest, profile, args.line_strength)
-                .context("--line-strength/--line-width")?;
-            line_count += 1;
-        }
+        let lines = read_line_list(path)?;
+        blueshift_spectrum::add_lines(&mut rest, &lines, profile, args.line_strength)
+            .context("--line-strength/--line-width")?;
+        line_count += lines.len();
     }
     let observed = rest.shifted(shift, transform);
 

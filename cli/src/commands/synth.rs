@@ -55,7 +55,7 @@ pub fn run(args: Args) -> Result<()> {
         return run_bricked(&args);
     }
     crate::output::check_output(&args.output)?;
-    let vol = synth::by_name(&args.name, args.res, args.seed)
+    let vol = synth::by_name_within(&args.name, args.res, args.seed, crate::limits::budget())
         .with_context(|| format!("cannot make '{}'", args.name))?;
     let opts = nrrd::WriteOptions {
         gzip: args.gzip,

@@ -235,7 +235,22 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     let t0 = Instant::now();
-    let hdr = io::read_hdr_image(&args.input)
+    let limits = io::Limits {
+        max_bytes: crate::limits::budget().bytes(),
+        ..io::Limits::default()
+    };
+    let hdr = io::read_hdr_image_with(&args.input, &limits)
+        .map_err(|e| match e {
+            blueshift_tonemap::Error::Memory {
+                width,
+                height,
+                needed,
+                ..
+            } => crate::limits::check(format_args!("decoding this {width}x{height} image"), needed)
+                .err()
+                .unwrap_or_else(|| anyhow::anyhow!("{e}")),
+            e => anyhow::Error::new(e),
+        })
         .with_context(|| "cannot read the input image".to_string())?;
     let read_ms = t0.elapsed().as_secs_f64() * 1e3;
     // One cleaning pass (dirty-input rule + luminance + range) shared by the dynamic-range

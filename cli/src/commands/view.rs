@@ -273,10 +273,8 @@ pub fn run(args: Args) -> Result<()> {
             "give one of SCENE.json / --volume / --synth (tracking), --doppler-scene or --synth NAME --doppler, --env, --hdr"
         );
     }
-    if let Some(0) = args.threads {
-        bail!("--threads: must be at least 1");
-    }
     if let Some(t) = args.threads {
+        crate::limits::check_threads(t)?;
         rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build_global()

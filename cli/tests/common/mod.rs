@@ -25,3 +25,27 @@ pub fn gpu_ok(verb: &str, out: &Output) -> bool {
 pub fn read_exr(p: &Path) -> image::Rgba32FImage {
     image::open(p).unwrap().to_rgba32f()
 }
+
+/// Runs `cmd` (stdin closed), killing it after `limit_s` seconds so a test never hangs:
+/// the output, and whether it finished in time.
+#[allow(dead_code)]
+pub fn output_within(cmd: &mut std::process::Command, limit_s: u64) -> (Output, bool) {
+    use std::process::Stdio;
+    let mut child = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    let start = std::time::Instant::now();
+    let mut in_time = true;
+    while child.try_wait().expect("wait").is_none() {
+        if start.elapsed().as_secs() >= limit_s {
+            let _ = child.kill();
+            in_time = false;
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    (child.wait_with_output().expect("output"), in_time)
+}

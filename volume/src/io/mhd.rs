@@ -222,6 +222,7 @@ pub(crate) fn raw_payload(
             0,
         )
     };
+    super::check_regular_file(&p)?;
     let file_len = std::fs::metadata(&p)?.len();
     let off = if h.header_size == -1 {
         file_len.saturating_sub(len)

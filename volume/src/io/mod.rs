@@ -220,8 +220,54 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
     Ok(out)
 }
 
+/// Refuses an input that is not a regular file (a FIFO, device, socket or folder) before it
+/// is opened, so reading never blocks on a pipe or reads a device forever. Every reader of
+/// this crate opens its inputs through this check; symbolic links are followed.
+///
+/// # Errors
+/// [`Error::Invalid`] naming the kind of file and the path; [`Error::Io`] when the path
+/// cannot be inspected (missing, permissions).
+pub fn check_regular_file(path: &Path) -> Result<()> {
+    let meta = std::fs::metadata(path).map_err(|e| {
+        Error::Io(std::io::Error::new(
+            e.kind(),
+            format!("{e}: {}", path.display()),
+        ))
+    })?;
+    if meta.is_file() {
+        return Ok(());
+    }
+    Err(Error::invalid(format!(
+        "not a regular file ({}): {}",
+        file_kind(&meta.file_type()),
+        path.display()
+    )))
+}
+
+/// A word for a file type: `FIFO`, `character device`, `socket`, ...
+#[must_use]
+pub fn file_kind(t: &std::fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    if t.is_dir() {
+        "a folder"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_file() {
+        "a regular file"
+    } else {
+        "not a regular file"
+    }
+}
+
 /// Opens a file and returns it with its length.
 pub(crate) fn open(path: &Path) -> Result<(std::fs::File, u64)> {
+    check_regular_file(path)?;
     let f = std::fs::File::open(path).map_err(|e| {
         Error::Io(std::io::Error::new(
             e.kind(),
