@@ -306,8 +306,21 @@ pub fn render_scene(data: &[u8]) -> bool {
     let path = fixture().join("scene.json");
     text(data)
         .and_then(|t| blueshift_tracking::scene_file::RenderSceneFile::from_json(t, &path).ok())
-        .is_some_and(|s| std::hint::black_box(s.build()).is_ok())
+        .is_some_and(|s| {
+            let memory = blueshift_tracking::scene_file::Preloaded {
+                budget: Some(blueshift_volume::MemoryBudget::new(
+                    FUZZ_BUDGET,
+                    "fuzz budget",
+                )),
+                ..Default::default()
+            };
+            std::hint::black_box(s.build_with(&memory)).is_ok()
+        })
 }
+
+/// The memory budget the targets give the readers that take one (what `--max-memory`
+/// sets in the CLI): a scene asking for more must be refused before it allocates.
+pub const FUZZ_BUDGET: u64 = 128 << 20;
 
 /// An emission-line list (CSV).
 pub fn line_list(data: &[u8]) -> bool {

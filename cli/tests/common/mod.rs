@@ -1,4 +1,5 @@
 //! Helpers shared by the CLI's `--device` tests.
+#![allow(dead_code)] // each test binary uses some of the helpers
 
 use std::path::Path;
 use std::process::Output;
