@@ -4,7 +4,8 @@
 //! - a memory ceiling per input: a counting allocator records the peak of live heap bytes
 //!   while the input runs, which must stay under [`CEILING`] (the smoke-test form of
 //!   libFuzzer's `-malloc_limit_mb`); a single request above [`REFUSE`] is refused, which
-//!   aborts the process, after the input was saved to `target/fuzz-failures/last-input`;
+//!   aborts the process after a line naming the target and the input (the mutations are
+//!   deterministic: `BLUESHIFT_FUZZ_TARGET` and the input's number reproduce it);
 //! - a time guard per input ([`TIME_GUARD`], far above what any input needs).
 //!
 //! `BLUESHIFT_FUZZ_ITERS` sets the mutations per target (default [`DEFAULT_ITERS`]);
@@ -18,7 +19,7 @@ use std::time::{Duration, Instant};
 use blueshift_fuzz::{TARGETS, Target, workspace_root};
 
 /// Mutations per target.
-const DEFAULT_ITERS: usize = 1500;
+const DEFAULT_ITERS: usize = 4000;
 /// Live heap bytes an input may add at its peak. The seeds are at most a few hundred
 /// kilobytes; the largest legitimate use is a gzip NRRD or a scene's spectra.
 const CEILING: usize = 256 << 20;
@@ -31,12 +32,41 @@ struct Counting;
 
 static LIVE: AtomicUsize = AtomicUsize::new(0);
 static PEAK: AtomicUsize = AtomicUsize::new(0);
+/// The target (index in `TARGETS`) and input (seeds first, then mutations) running now.
+static CURRENT_TARGET: AtomicUsize = AtomicUsize::new(usize::MAX);
+static CURRENT_INPUT: AtomicUsize = AtomicUsize::new(0);
+
+/// Says which input asked for `size` bytes, without allocating (the allocator calls it).
+fn refused(size: usize) {
+    use std::fmt::Write as _;
+    use std::io::Write as _;
+    struct Buf([u8; 160], usize);
+    impl std::fmt::Write for Buf {
+        fn write_str(&mut self, s: &str) -> std::fmt::Result {
+            let n = s.len().min(self.0.len() - self.1);
+            self.0[self.1..self.1 + n].copy_from_slice(&s.as_bytes()[..n]);
+            self.1 += n;
+            Ok(())
+        }
+    }
+    let mut b = Buf([0; 160], 0);
+    let name = TARGETS
+        .get(CURRENT_TARGET.load(Ordering::Relaxed))
+        .map_or("?", |t| t.name);
+    let _ = writeln!(
+        b,
+        "fuzz smoke: {name} input {} asked for {size} bytes (over the refusal limit)",
+        CURRENT_INPUT.load(Ordering::Relaxed)
+    );
+    let _ = std::io::stderr().write_all(&b.0[..b.1]);
+}
 
 // SAFETY: forwards to the system allocator unchanged; only counts bytes.
 #[allow(unsafe_code)]
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         if layout.size() > REFUSE {
+            refused(layout.size());
             return std::ptr::null_mut();
         }
         // SAFETY: the caller's contract for `alloc` is passed on.
@@ -49,6 +79,7 @@ unsafe impl GlobalAlloc for Counting {
     }
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
         if layout.size() > REFUSE {
+            refused(layout.size());
             return std::ptr::null_mut();
         }
         // SAFETY: as `alloc`.
@@ -66,6 +97,7 @@ unsafe impl GlobalAlloc for Counting {
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         if new_size > REFUSE {
+            refused(new_size);
             return std::ptr::null_mut();
         }
         // SAFETY: as `alloc`.
@@ -244,7 +276,6 @@ fn failures_dir() -> PathBuf {
 
 /// Runs `t` on `input`; a description of what went wrong, if anything did.
 fn run_one(t: &Target, input: &[u8]) -> (bool, Option<String>) {
-    let _ = std::fs::write(failures_dir().join("last-input"), input);
     let base = LIVE.load(Ordering::Relaxed);
     PEAK.store(base, Ordering::Relaxed);
     let start = Instant::now();
@@ -287,7 +318,15 @@ fn fuzz(t: &Target, iters: usize) -> (Vec<String>, usize, usize) {
     assert!(!corpus.is_empty(), "{}: no seeds", t.name);
     let mut bad = Vec::new();
     let (mut good_seeds, mut good_mutants) = (0, 0);
+    CURRENT_TARGET.store(
+        TARGETS
+            .iter()
+            .position(|x| x.name == t.name)
+            .unwrap_or(usize::MAX),
+        Ordering::Relaxed,
+    );
     for (i, (path, bytes)) in corpus.iter().enumerate() {
+        CURRENT_INPUT.store(i, Ordering::Relaxed);
         let (ok, why) = run_one(t, bytes);
         good_seeds += usize::from(ok);
         if let Some(why) = why {
@@ -303,6 +342,7 @@ fn fuzz(t: &Target, iters: usize) -> (Vec<String>, usize, usize) {
     for i in 0..iters {
         let (_, seed) = &corpus[rng.below(corpus.len())];
         let input = mutate(&mut rng, seed);
+        CURRENT_INPUT.store(corpus.len() + i, Ordering::Relaxed);
         let (ok, why) = run_one(t, &input);
         good_mutants += usize::from(ok);
         if let Some(why) = why {
