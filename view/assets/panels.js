@@ -224,12 +224,22 @@ export class DopplerPanel {
     const panelsBtn = el('button', { textContent: 'velocity panel' });
     panelsBtn.addEventListener('click', onPanels);
     this.lines = el('div', { className: 'note' });
+    // The observer flying into the picture (relativistic Doppler shift; `doppler --beta`).
+    this.beta = el('input', { type: 'range', min: 0, max: 0.95, step: 0.01, value: 0, id: 'observer-beta' });
+    this.betaVal = el('span', { className: 'val', textContent: '0.00' });
+    const sendBeta = (final) => {
+      this.betaVal.textContent = Number(this.beta.value).toFixed(2);
+      set({ beta: Number(this.beta.value) }, final);
+    };
+    this.beta.addEventListener('input', () => sendBeta(false));
+    this.beta.addEventListener('change', () => sendBeta(true));
     this.exposure = exposureSlider((e, final) => set({ exposure: e }, final));
     root.replaceChildren(
       el('h3', { textContent: 'Doppler (Table 1 factors)' }),
       row('', enabled.label),
       ...rows,
       row('integrator', this.integrator, el('label', { textContent: 'merge tol.' }), this.tol),
+      row('observer \u03b2', this.beta, this.betaVal),
       ...(state && 'exposure' in state ? [row('exposure', ...this.exposure.nodes)] : []),
       el('div', { className: 'note', textContent: 'click the image to plot a pixel\u2019s spectrum' }),
       row('', this.traceBtn, panelsBtn),
@@ -248,6 +258,10 @@ export class DopplerPanel {
     if (d.integrator !== undefined) put(this.integrator, d.integrator);
     if (d.exposure !== undefined) this.exposure.set(d.exposure);
     if (d.merge_tolerance !== undefined) put(this.tol, d.merge_tolerance);
+    if (d.beta !== undefined) {
+      put(this.beta, d.beta);
+      this.betaVal.textContent = Number(d.beta).toFixed(2);
+    }
     if (d.lines)
       this.lines.textContent = `lines: ${d.lines.map((l) => `${l.name} ${l.rest_nm} nm`).join(', ')}`;
   }

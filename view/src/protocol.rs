@@ -79,6 +79,8 @@ pub(crate) struct DopplerMsg {
     pub integrator: Option<String>,
     pub merge_tolerance: Option<f64>,
     pub exposure: Option<f64>,
+    /// The observer's speed (units of c) flying into the picture, along the view direction.
+    pub beta: Option<f64>,
 }
 
 /// The relativistic observer.

@@ -13,6 +13,7 @@ use blueshift_doppler::{
     DisplayOptions, DopplerImage, DopplerScene, DopplerSession, DopplerSettings, Factors,
     SpectralIntegrator,
 };
+use blueshift_relativity::{MovingObserver, Velocity};
 use glam::Vec3;
 use image::RgbImage;
 use serde_json::{Value, json};
@@ -79,6 +80,8 @@ pub(crate) struct DopplerMode<'a> {
     enabled: bool,
     factors: Factors,
     exposure: f64,
+    /// The observer's speed along the view direction (0: at rest; `doppler --beta`).
+    beta: f64,
     last: Option<DopplerImage>,
     /// Whether the last full render's samples are the current view's (a factor edit then
     /// re-renders without sampling the volume again, and needs no preview).
@@ -97,6 +100,7 @@ impl<'a> DopplerMode<'a> {
             enabled: true,
             factors,
             exposure: src.exposure,
+            beta: 0.0,
             last: None,
             view_current: false,
         })
@@ -125,6 +129,25 @@ impl<'a> DopplerMode<'a> {
         Ok(cam)
     }
 
+    /// The moving observer of speed `beta` flying into the picture of camera `cam` (none at
+    /// rest), with the searchlight when the scene's settings use the invariant transform.
+    fn observer(&self, cam: &Camera, beta: f64) -> Result<Option<MovingObserver>> {
+        if !(beta.is_finite() && (0.0..1.0).contains(&beta)) {
+            return Err(Error::invalid(format!(
+                "doppler: beta {beta} must be in [0, 1)"
+            )));
+        }
+        if beta == 0.0 {
+            return Ok(None);
+        }
+        let v = Velocity::along((cam.target - cam.eye).as_dvec3(), beta)
+            .map_err(|e| Error::invalid(format!("doppler: beta {beta}: {e}")))?;
+        Ok(Some(MovingObserver {
+            velocity: v,
+            searchlight: self.session.settings().invariant,
+        }))
+    }
+
     fn set_camera_state(&mut self, cam: CameraState) -> Result<()> {
         let old = self.cam;
         self.cam = cam;
@@ -132,6 +155,12 @@ impl<'a> DopplerMode<'a> {
         match self.camera(&st) {
             Ok(c) => {
                 self.session.set_camera(c)?;
+                // The observer keeps flying into the picture.
+                if self.beta > 0.0 {
+                    let mut st = self.session.settings().clone();
+                    st.observer = self.observer(&c, self.beta)?;
+                    self.session.set_settings(st)?;
+                }
                 self.view_current = false;
                 Ok(())
             }
@@ -193,6 +222,7 @@ impl<'a> DopplerMode<'a> {
             "integrator": st.integrator.to_string(),
             "merge_tolerance": st.merge_tolerance,
             "exposure": self.exposure,
+            "beta": self.beta,
             "lines": self.lines().iter().map(|(n, l)| json!({"name": n, "rest_nm": l})).collect::<Vec<_>>(),
         })
     }
@@ -295,6 +325,7 @@ impl<'a> DopplerMode<'a> {
     fn apply_doppler(&mut self, m: DopplerMsg) -> Result<Stage> {
         let mut stage = Stage::Full;
         let (old_enabled, old_factors, old_exposure) = (self.enabled, self.factors, self.exposure);
+        let old_beta = self.beta;
         let old_settings = self.session.settings().clone();
         let result = (|| -> Result<()> {
             if let Some(e) = m.enabled {
@@ -331,6 +362,11 @@ impl<'a> DopplerMode<'a> {
                 st.merge_tolerance = t;
                 changed = true;
             }
+            if let Some(b) = m.beta {
+                st.observer = self.observer(&st.camera, b)?;
+                self.beta = b;
+                changed = true;
+            }
             if changed {
                 self.session.set_settings(st)?;
                 self.view_current = false;
@@ -341,6 +377,7 @@ impl<'a> DopplerMode<'a> {
         })();
         if let Err(e) = result {
             (self.enabled, self.factors, self.exposure) = (old_enabled, old_factors, old_exposure);
+            self.beta = old_beta;
             let _ = self.session.set_settings(old_settings);
             let _ = self.session.set_factors(self.effective_factors());
             return Err(e);
@@ -349,6 +386,7 @@ impl<'a> DopplerMode<'a> {
             && m.enabled.is_none()
             && m.integrator.is_none()
             && m.merge_tolerance.is_none()
+            && m.beta.is_none()
         {
             stage = Stage::Display;
         }
@@ -410,6 +448,9 @@ impl<'a> DopplerMode<'a> {
         flag("--emission-factor", f.emission.to_string());
         flag("--absorption-factor", f.absorption.to_string());
         flag("--blackbody-factor", f.blackbody.to_string());
+        if self.beta > 0.0 {
+            flag("--beta", self.beta.to_string());
+        }
         flag("--out", exr.display().to_string());
         Ok(saved_reply(&files, &command_line(&args), None))
     }

@@ -669,6 +669,30 @@ async function dopplerScenario() {
     console.log(`  velocity panel ${r.w}x${r.h}, ${r.lit} lit pixels`);
   });
 
+  await check('doppler: the observer beta slider re-renders, and its save command writes the same EXR', async () => {
+    const before = await settled(page);
+    await page.evaluate(() => {
+      const s = document.getElementById('observer-beta');
+      s.value = '0.4';
+      s.dispatchEvent(new Event('input'));
+      s.dispatchEvent(new Event('change'));
+    });
+    await settled(page, before.seq, 30000);
+    await page.evaluate(() => (window.blueshift.lastSaved = null));
+    await page.click('#save');
+    const saved = await until(() => page.evaluate(() => window.blueshift.lastSaved), 'a saved reply', 20000);
+    assert(/ --beta 0\.4( |$)/.test(saved.command), `no --beta 0.4 in ${saved.command}`);
+    const exr = saved.files.find((f) => f.endsWith('.exr'));
+    assert(exr && fs.existsSync(exr), `no EXR among ${saved.files}`);
+    const aside = exr.replace(/\.exr$/, '.viewer.exr');
+    fs.renameSync(exr, aside);
+    runCommand(saved.command, [], v.dir);
+    assert(
+      fs.readFileSync(aside).equals(fs.readFileSync(exr)),
+      `${saved.command}: its EXR differs from the viewer's`,
+    );
+  });
+
   await check('doppler: no page errors', async () => {
     assert(page.errors.length === 0, page.errors.slice(0, 3).join(' | '));
   });
