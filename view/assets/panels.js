@@ -128,6 +128,15 @@ export class RenderPanel {
       className: 'note',
       textContent: `cpu: ${info.devices?.cpu ?? '?'} · gpu: ${gpu ?? 'none'}`,
     });
+    // The observer flying into the picture (aberration and colour shift; scene `observer_velocity`).
+    w.beta = el('input', { type: 'range', min: 0, max: 0.95, step: 0.01, value: 0, id: 'render-beta' });
+    w.betaVal = el('span', { className: 'val', textContent: '0.00' });
+    const sendBeta = (final) => {
+      w.betaVal.textContent = Number(w.beta.value).toFixed(2);
+      set({ beta: Number(w.beta.value) }, final);
+    };
+    w.beta.addEventListener('input', () => sendBeta(false));
+    w.beta.addEventListener('change', () => sendBeta(true));
     w.exposure = exposureSlider((e, final) => set({ exposure: e }, final));
     w.tonemap = select(DISPLAY_OPS, s.tonemap);
     w.tonemap.addEventListener('change', () => set({ tonemap: w.tonemap.value }, true));
@@ -142,6 +151,7 @@ export class RenderPanel {
       [has('density_scale'), row('density scale', w.density)],
       [has('light_dir'), row('', light.label, w.lx, w.ly, w.lz, shading.label)],
       [has('precision'), row('precision', w.precision, el('span', { className: 'note', textContent: '(marcher)' }))],
+      [has('beta'), row('observer \u03b2', w.beta, w.betaVal)],
       [has('device'), row('device', w.device)],
       [has('device'), devText],
       [has('exposure') || has('tonemap'), el('h3', { textContent: 'Display' })],
@@ -173,6 +183,10 @@ export class RenderPanel {
     if (s.device !== undefined) put(w.device, s.device);
     if (s.exposure !== undefined) w.exposure.set(s.exposure);
     if (s.tonemap !== undefined) put(w.tonemap, s.tonemap);
+    if (s.beta !== undefined) {
+      put(w.beta, s.beta);
+      w.betaVal.textContent = Number(s.beta).toFixed(2);
+    }
   }
 
   /** Shows a `status` message's progress. */

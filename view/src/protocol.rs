@@ -45,6 +45,8 @@ pub(crate) struct SettingsMsg {
     pub seed: Option<u64>,
     pub exposure: Option<f32>,
     pub tonemap: Option<String>,
+    /// The observer's speed (units of c) flying into the picture along the view direction.
+    pub beta: Option<f64>,
 }
 
 impl SettingsMsg {

@@ -55,6 +55,9 @@ pub(crate) struct TrackingMode {
     histograms: Vec<Value>,
     /// The last full-resolution accumulation and whether it reached its target.
     last: Option<Progressive>,
+    /// The observer's speed set by the page (flying into the picture; `None`: the scene
+    /// file's `observer_velocity`, if any, untouched).
+    beta: Option<f64>,
 }
 
 impl std::fmt::Debug for TrackingMode {
@@ -107,6 +110,7 @@ impl TrackingMode {
             inputs: src.inputs.clone(),
             tonemap: src.tonemap.clone(),
             exposure: src.exposure,
+            beta: None,
             histograms,
             last: None,
         };
@@ -144,6 +148,7 @@ impl TrackingMode {
             "device": self.device.to_string(),
             "width": st.width, "height": st.height, "seed": st.seed,
             "exposure": self.exposure, "tonemap": self.tonemap,
+            "beta": st.observer.map_or(0.0, |o| o.velocity.speed()),
         })
     }
 
@@ -181,10 +186,21 @@ impl TrackingMode {
     fn sync(&mut self) -> Result<()> {
         let scene = self.session.scene();
         let integrator = self.file.integrator(scene)?;
+        if let Some(b) = self.beta {
+            // The observer flies into the picture: along the current view direction.
+            self.file.observer_velocity = None;
+            let cam = self.file.settings(scene)?.camera;
+            let d = (cam.target - cam.eye).normalize_or_zero().as_dvec3();
+            self.file.observer_velocity = (b > 0.0).then(|| (d * b).to_array());
+        }
         let settings = self.file.settings(scene)?;
+        // The GPU twin has no moving observer: rebuilt (auto falls back to the CPU).
+        let moving = settings.observer.is_some();
         self.session.set_integrator(integrator.clone())?;
         self.session.set_settings(settings.clone())?;
-        if let Some(g) = &mut self.gpu {
+        if moving && self.gpu.is_some() {
+            self.set_device(self.device)?;
+        } else if let Some(g) = &mut self.gpu {
             g.set_integrator(integrator)?;
             g.set_settings(settings)?;
         }
@@ -238,6 +254,7 @@ impl TrackingMode {
             Stage::Full
         };
         let old = (self.file.clone(), self.exposure, self.tonemap.clone());
+        let old_beta = self.beta;
         let old_density = self.session.scene().density_scale();
         let old_device = self.device;
         let result = (|| -> Result<Stage> {
@@ -261,6 +278,15 @@ impl TrackingMode {
             }
             if let Some(seed) = s.seed {
                 self.file.seed = Some(seed);
+            }
+            if let Some(b) = s.beta {
+                if !(b.is_finite() && (0.0..1.0).contains(&b)) {
+                    return Err(Error::invalid(format!(
+                        "settings: beta {b} must be in [0, 1)"
+                    )));
+                }
+                self.beta = Some(b);
+                stage = Stage::Preview;
             }
             if s.width.is_some() || s.height.is_some() {
                 let w = s.width.or(self.file.width).unwrap_or(512);
@@ -321,6 +347,7 @@ impl TrackingMode {
             // Keep the old state whole: the file, the display, and the session and its GPU
             // twin rebuilt from them (density scale, light and shading, device).
             (self.file, self.exposure, self.tonemap) = old;
+            self.beta = old_beta;
             if self.session.scene().density_scale() != old_density {
                 let _ = self.session.set_density_scale(old_density);
             }
