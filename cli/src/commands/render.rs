@@ -389,6 +389,8 @@ pub fn run(args: Args) -> Result<()> {
     outputs.extend(args.png.as_deref());
     let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
     inputs.extend(args.scene.as_deref());
+    // Transfer function files (not `builtin:` / `log:` names, which name no file).
+    inputs.extend(args.tfs.iter().map(Path::new).filter(|p| p.is_file()));
     crate::output::check_outputs(&outputs, &inputs)?;
     match args.threads {
         Some(0) => bail!("--threads: must be at least 1"),
@@ -560,7 +562,35 @@ fn run_inner(args: &Args) -> Result<()> {
     } = ran.value;
     let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
-    crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
+    // The EXR and its --png preview are one set: both staged, then renamed (the PNG first).
+    let mut set = crate::output::OutputSet::new();
+    if let Some(png) = &args.png {
+        let triad = if args.triad {
+            Some(crate::figure::triad_overlay(
+                img.width(),
+                img.height(),
+                &settings_camera,
+            )?)
+        } else {
+            None
+        };
+        write_png_preview(
+            &mut set,
+            &img,
+            png,
+            &args.tonemap,
+            args.exposure,
+            triad.as_deref(),
+        )?;
+    }
+    crate::output::stage_exr_f32(
+        &mut set,
+        &args.out,
+        (img.width(), img.height()),
+        4,
+        img.as_raw(),
+    )?;
+    set.commit()?;
     let noise = acc.noise();
     let adapter = on_gpu
         .then(|| {
@@ -609,16 +639,6 @@ fn run_inner(args: &Args) -> Result<()> {
         &format!("{} spp{noise}, {seconds:.2} s{on}", acc.samples()),
     );
     if let Some(png) = &args.png {
-        let triad = if args.triad {
-            Some(crate::figure::triad_overlay(
-                img.width(),
-                img.height(),
-                &settings_camera,
-            )?)
-        } else {
-            None
-        };
-        write_png_preview(&img, png, &args.tonemap, args.exposure, triad.as_deref())?;
         crate::output::wrote(png);
     }
     Ok(())
@@ -761,6 +781,7 @@ use blueshift_view::display::TONEMAPS;
 /// Writes the PNG preview of an HDR render: plain exposure + clamp + sRGB, or a tone-mapping
 /// operator of blueshift-tonemap (the alpha channel is dropped; the background shows).
 fn write_png_preview(
+    set: &mut crate::output::OutputSet,
     img: &image::Rgba32FImage,
     png: &Path,
     tonemap: &str,
@@ -806,8 +827,10 @@ fn write_png_preview(
             d
         }
     };
-    blueshift_tonemap::io::write_png(png, &display, blueshift_tonemap::io::PngDepth::Eight)
-        .with_context(|| format!("cannot write {}", png.display()))
+    set.via_path(png, |p| {
+        blueshift_tonemap::io::write_png(p, &display, blueshift_tonemap::io::PngDepth::Eight)
+            .with_context(|| format!("cannot write {}", png.display()))
+    })
 }
 
 /// Queues the bricks of every out-of-core channel along a sparse grid of the view's rays
