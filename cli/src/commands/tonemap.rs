@@ -204,7 +204,7 @@ fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
     let via = |write: &dyn Fn(&Path) -> blueshift_tonemap::Result<()>| {
         crate::output::write_via_temp_path(path, |p| Ok(write(p)?))
     };
-    let r = match extension(path).as_str() {
+    match extension(path).as_str() {
         "png" => via(&|p| {
             io::write_png(
                 p,
@@ -217,17 +217,14 @@ fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
             )
         }),
         // Not io::write_exr: its blocks are written in the order threads finish them.
-        "exr" => {
-            return crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw());
-        }
+        "exr" => crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw()),
         "hdr" => via(&|p| io::write_radiance_hdr(p, img)),
         "pfm" => via(&|p| io::write_pfm(p, img)),
         other => bail!(
             "unknown output extension {other:?} (use .png, .exr, .hdr or .pfm): {}",
             path.display()
         ),
-    };
-    Ok(r?)
+    }
 }
 
 /// Runs `blueshift tonemap`.
