@@ -24,7 +24,7 @@
 //!   character device such as `/dev/null`, a FIFO, a socket, a block device), and any path
 //!   under `/dev/` or `/proc/` (`/dev/stdout`), is never renamed over, removed or created:
 //!   the output is staged in the system's temporary folder and then copied into it, as a
-//!   shell redirection would (`--out /dev/stdout` writes to standard output).
+//!   shell redirection would. `-` is standard output (`--csv -`, `--png -`, `--out -`).
 //! - **Inputs.** An output that is an input (the same canonical path, or the same device
 //!   and inode: a hard link or a symlink) is refused, including every file a scene JSON or a
 //!   detached header names ([`input_closure`]).
@@ -78,12 +78,16 @@ pub fn temp_name_pid(name: &str) -> Option<u32> {
     pid.parse().ok()
 }
 
-/// What kind of non-regular file `path` is, when writing to it must not replace it: an
-/// existing character device, block device, FIFO or socket (symlinks followed), or any path
-/// under `/dev/` or `/proc/` (`/dev/stdout`). `None` for regular files and new paths.
+/// What kind of non-regular file `path` is, when writing to it must not replace it: `-`
+/// (standard output), an existing character device, block device, FIFO or socket (symlinks
+/// followed), or any path under `/dev/` or `/proc/` (`/dev/stdout`). `None` for regular
+/// files and new paths.
 pub fn direct_target(path: &Path) -> Option<&'static str> {
     #[cfg(unix)]
     use std::os::unix::fs::FileTypeExt;
+    if path == Path::new("-") {
+        return Some("standard output");
+    }
     let kind = match std::fs::metadata(path) {
         Ok(m) if m.is_file() || m.is_dir() => None,
         #[cfg(unix)]
@@ -415,7 +419,14 @@ impl OutputSet {
         let _gate = crate::signals::gate();
         let n = self.staged.len();
         for (i, s) in self.staged.into_iter().enumerate() {
-            if s.direct {
+            if s.direct && s.dest == Path::new("-") {
+                let mut src =
+                    std::fs::File::open(&s.tmp).context("cannot write to standard output")?;
+                let mut out = std::io::stdout().lock();
+                std::io::copy(&mut src, &mut out)
+                    .and_then(|_| out.flush())
+                    .context("cannot write to standard output")?;
+            } else if s.direct {
                 let mut src = std::fs::File::open(&s.tmp)
                     .with_context(|| format!("cannot write {}", s.dest.display()))?;
                 let mut dst = std::fs::OpenOptions::new()

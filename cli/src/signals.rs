@@ -48,8 +48,7 @@ pub fn remove_on_signal(dir: &Path) {
     lock(&OWN_DIRS).push(dir.to_path_buf());
 }
 
-/// Whether SIGINT or SIGTERM has been received.
-#[allow(dead_code)]
+/// Whether SIGINT or SIGTERM has been received (progress stops drawing).
 pub fn cancelled() -> bool {
     SIGNAL.load(Ordering::SeqCst) != 0
 }

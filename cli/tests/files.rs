@@ -114,7 +114,16 @@ fn non_regular_output_is_written_into_never_replaced() {
         d,
         &fifo,
     );
-    assert!(String::from_utf8_lossy(&csv).contains("5800") || csv.len() > 100);
+    assert!(
+        String::from_utf8_lossy(&csv).starts_with("wavelength_nm,value\n"),
+        "{}",
+        String::from_utf8_lossy(&csv)
+    );
+    // `-` is standard output: no file named `-`.
+    let o = blueshift(&["spectrum", "--blackbody", "5800", "--csv", "-"], d);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("wavelength_nm,value\n"));
+    assert!(!d.join("-").exists());
     // A path-based writer (EXR) too: the bytes reach the reader, the FIFO stays.
     let exr = through_fifo(
         &[

@@ -560,10 +560,12 @@ fn run_inner(args: &Args) -> Result<()> {
         image: acc,
         frame_times: times,
     } = ran.value;
-    let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
-    // The EXR and its --png preview are one set: both staged, then renamed (the PNG first).
+    // The heat maps, the EXR and its --png preview are one set: all staged, then renamed
+    // (the EXR last).
     let mut set = crate::output::OutputSet::new();
+    let (heat_files, heat_paths) =
+        crate::commands::render_heat::write_heatmaps(&mut set, &args.out, &acc, &heatmaps)?;
     if let Some(png) = &args.png {
         let triad = if args.triad {
             Some(crate::figure::triad_overlay(
@@ -591,6 +593,9 @@ fn run_inner(args: &Args) -> Result<()> {
         img.as_raw(),
     )?;
     set.commit()?;
+    for p in &heat_paths {
+        crate::output::wrote(p);
+    }
     let noise = acc.noise();
     let adapter = on_gpu
         .then(|| {
