@@ -638,9 +638,21 @@ pub fn run(args: Args) -> Result<()> {
             crate::output::check_outputs(&refs, &inputs)?;
         }
         None => {
-            let png = args.out.with_extension("png");
-            let mut outs = vec![args.out.as_path(), png.as_path()];
-            outs.extend(args.figure.as_deref());
+            // The image, its PNG, the figure and every pick and trace file.
+            let mut all = vec![args.out.clone(), args.out.with_extension("png")];
+            all.extend(args.figure.clone());
+            for &(x, y) in &args.pick {
+                all.push(sibling(&args.out, &format!("_pick_{x}_{y}.csv")));
+            }
+            if !args.pick.is_empty() {
+                all.push(sibling(&args.out, "_picks.png"));
+            }
+            if let Some((x, y)) = args.trace {
+                for ext in ["csv", "png", "gif"] {
+                    all.push(sibling(&args.out, &format!("_trace_{x}_{y}.{ext}")));
+                }
+            }
+            let outs: Vec<&Path> = all.iter().map(PathBuf::as_path).collect();
             crate::output::check_outputs(&outs, &inputs)?;
         }
     }

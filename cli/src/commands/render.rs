@@ -385,8 +385,10 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     // Refuse an output that cannot be written before loading or rendering anything.
+    let heat = crate::commands::render_heat::heat_outputs(&args.out, &args.heatmaps);
     let mut outputs = vec![args.out.as_path()];
     outputs.extend(args.png.as_deref());
+    outputs.extend(heat.iter().map(PathBuf::as_path));
     let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
     inputs.extend(args.scene.as_deref());
     // Transfer function files (not `builtin:` / `log:` names, which name no file).

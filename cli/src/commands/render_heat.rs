@@ -20,6 +20,21 @@ fn beside(out: &Path, suffix: &str) -> PathBuf {
     out.with_file_name(format!("{stem}.{suffix}"))
 }
 
+/// Every file `--heatmap NAME...` writes beside `out` (unknown names are left to the
+/// parser's error).
+pub fn heat_outputs(out: &Path, names: &[String]) -> Vec<PathBuf> {
+    if names.is_empty() {
+        return Vec::new();
+    }
+    let mut v = vec![beside(out, "heat.exr")];
+    for n in names {
+        if let Ok(m) = n.parse::<HeatMap>() {
+            v.push(beside(out, &format!("heat-{}.png", m.name())));
+        }
+    }
+    v
+}
+
 /// Stages the requested heat maps (none: nothing) in `set` and returns a JSON summary of
 /// the files, means and maxima, and the files in the order to report them.
 pub fn write_heatmaps(
