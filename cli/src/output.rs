@@ -412,43 +412,58 @@ impl OutputSet {
         Ok(())
     }
 
-    /// Renames every staged file over its destination in the order staged (a non-regular
-    /// destination gets the bytes copied into it), with SIGINT/SIGTERM held off until the
-    /// last rename is done.
+    /// Renames every staged file over its destination in the order staged, with
+    /// SIGINT/SIGTERM held off until the last rename is done; then copies the files for
+    /// non-regular destinations into them (outside the hold: opening a FIFO waits for its
+    /// reader, and Ctrl-C must still work meanwhile).
     pub fn commit(self) -> Result<()> {
-        let _gate = crate::signals::gate();
-        let n = self.staged.len();
-        for (i, s) in self.staged.into_iter().enumerate() {
-            if s.direct && s.dest == Path::new("-") {
-                let mut src =
-                    std::fs::File::open(&s.tmp).context("cannot write to standard output")?;
-                let mut out = std::io::stdout().lock();
-                std::io::copy(&mut src, &mut out)
-                    .and_then(|_| out.flush())
-                    .context("cannot write to standard output")?;
-            } else if s.direct {
-                let mut src = std::fs::File::open(&s.tmp)
-                    .with_context(|| format!("cannot write {}", s.dest.display()))?;
-                let mut dst = std::fs::OpenOptions::new()
-                    .write(true)
-                    .truncate(true)
-                    .open(&s.dest)
-                    .with_context(|| format!("cannot write {}", s.dest.display()))?;
-                std::io::copy(&mut src, &mut dst)
-                    .and_then(|_| dst.flush())
-                    .with_context(|| format!("cannot write {}", s.dest.display()))?;
-            } else {
+        let (direct, renamed): (Vec<Staged>, Vec<Staged>) =
+            self.staged.into_iter().partition(|s| s.direct);
+        {
+            let _gate = crate::signals::gate();
+            let n = renamed.len();
+            for (i, s) in renamed.into_iter().enumerate() {
                 s.tmp
                     .persist(&s.dest)
                     .map_err(|e| e.error)
                     .with_context(|| format!("cannot write {}", s.dest.display()))?;
+                if i + 1 < n {
+                    rename_delay_for_tests();
+                }
             }
-            if i + 1 < n {
-                rename_delay_for_tests();
-            }
+        }
+        for s in direct {
+            copy_into(&s.tmp, &s.dest)?;
         }
         Ok(())
     }
+}
+
+/// Copies the staged file `tmp` into the non-regular `dest` (`-`: standard output), as a
+/// shell redirection would: opened for writing, never created, renamed or removed.
+fn copy_into(tmp: &Path, dest: &Path) -> Result<()> {
+    let what = || {
+        if dest == Path::new("-") {
+            "cannot write to standard output".to_owned()
+        } else {
+            format!("cannot write {}", dest.display())
+        }
+    };
+    let mut src = std::fs::File::open(tmp).with_context(what)?;
+    if dest == Path::new("-") {
+        let mut out = std::io::stdout().lock();
+        return std::io::copy(&mut src, &mut out)
+            .and_then(|_| out.flush())
+            .with_context(what);
+    }
+    let mut dst = std::fs::OpenOptions::new()
+        .write(true)
+        .truncate(true)
+        .open(dest)
+        .with_context(what)?;
+    std::io::copy(&mut src, &mut dst)
+        .and_then(|_| dst.flush())
+        .with_context(what)
 }
 
 /// In debug builds, `BLUESHIFT_TEST_RENAME_DELAY_MS=N` sleeps N ms between the renames of

@@ -145,6 +145,17 @@ fn non_regular_output_is_written_into_never_replaced() {
         &fifo,
     );
     assert_eq!(&exr[..4], &[0x76, 0x2f, 0x31, 0x01], "not an EXR");
+    // A FIFO nobody reads: the writer waits, as a shell redirection would, and Ctrl-C still
+    // stops it.
+    let start = Instant::now();
+    let o = interrupt(
+        &["spectrum", "--blackbody", "5800", "--csv", "pipe"],
+        d,
+        "-INT",
+        &|| start.elapsed() > Duration::from_millis(800),
+    );
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
     assert!(temps(d).is_empty(), "{:?}", temps(d));
 }
 
