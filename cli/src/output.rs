@@ -587,3 +587,49 @@ pub fn stage_exr_f32(
         .with_context(|| format!("cannot write {}", path.display()))
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temp_names_are_recognised_and_nothing_else() {
+        let me = std::process::id();
+        let made = temp_builder().tempfile_in(std::env::temp_dir()).unwrap();
+        let name = made
+            .path()
+            .file_name()
+            .unwrap()
+            .to_str()
+            .unwrap()
+            .to_owned();
+        assert_eq!(temp_name_pid(&name), Some(me), "{name}");
+        for (name, pid) in [
+            (".blueshift-12-aZ09.partial", Some(12)),
+            (".blueshift-12-aZ09.partial.exr", Some(12)),
+            (".blueshift-12-aZ09.bsv.partial", Some(12)),
+            (".blueshift-12-aZ09.exr", None),
+            (".blueshift-check-aZ09.partial", None),
+            (".blueshift-12-.partial", None),
+            (".blueshift-12-a/b.partial", None),
+            (".blueshift-12-ab.partial..x", None),
+            ("blueshift-12-ab.partial", None),
+            ("out.partial", None),
+        ] {
+            assert_eq!(temp_name_pid(name), pid, "{name}");
+        }
+    }
+
+    #[test]
+    fn same_file_sees_links_and_spellings() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("a"), b"x").unwrap();
+        std::fs::hard_link(d.join("a"), d.join("b")).unwrap();
+        std::os::unix::fs::symlink(d.join("a"), d.join("c")).unwrap();
+        assert!(same_file(&d.join("a"), &d.join("b")));
+        assert!(same_file(&d.join("a"), &d.join("c")));
+        assert!(same_file(&d.join("new"), &d.join(".").join("new")));
+        assert!(!same_file(&d.join("a"), &d.join("new")));
+    }
+}
