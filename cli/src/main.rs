@@ -141,6 +141,8 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // A loop stopped on SIGINT/SIGTERM: the watcher is cleaning up and sets the exit code.
+        Err(_) if signals::cancelled() => signals::wait_for_exit(),
         Err(err) => {
             // One line: the chain of contexts joined by ": ".
             eprintln!("blueshift: {err:#}");

@@ -193,9 +193,14 @@ fn named_files(path: &Path) -> Vec<PathBuf> {
             strings.iter().flat_map(|s| existing(s)).collect()
         }
         "nrrd" | "nhdr" | "mhd" => {
-            let Ok(bytes) = std::fs::read(path) else {
+            // Headers are small: the first 64 KiB hold the data file line.
+            let mut bytes = Vec::new();
+            let read = std::fs::File::open(path).and_then(|f| {
+                std::io::Read::read_to_end(&mut std::io::Read::take(f, 1 << 16), &mut bytes)
+            });
+            if read.is_err() {
                 return Vec::new();
-            };
+            }
             // The header only: up to the first blank line (attached NRRD data follows it).
             let end = bytes
                 .windows(2)

@@ -53,6 +53,14 @@ pub fn cancelled() -> bool {
     SIGNAL.load(Ordering::SeqCst) != 0
 }
 
+/// Waits for the watcher to end the process: for the main thread once a render loop has
+/// stopped on [`cancelled`], so its "cancelled" error does not race the watcher's exit code.
+pub fn wait_for_exit() -> ! {
+    loop {
+        std::thread::sleep(Duration::from_secs(1));
+    }
+}
+
 /// Installs the handlers for SIGINT and SIGTERM and starts the watcher thread.
 #[allow(unsafe_code)]
 pub fn install() {

@@ -505,7 +505,9 @@ fn run_inner(args: &Args) -> Result<()> {
             .ok_or_else(|| anyhow!("scene already used"))
     };
     let bar = crate::progress::Progress::new(
-        u64::from(settings.timed_frames.unwrap_or(settings.spp)),
+        settings.timed_frames.map_or(u64::from(settings.spp), |f| {
+            u64::from(f) + u64::from(settings.warmup)
+        }),
         "{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]",
         "render",
         "passes",
@@ -546,8 +548,7 @@ fn run_inner(args: &Args) -> Result<()> {
                 let observer = Steps::new(&show, session.scene());
                 return Ok(session.render_lod(&observer)?);
             }
-            let observer = OnPass(&show);
-            Ok(session.render(&observer)?)
+            Ok(session.render(&OnPass(&bar))?)
         },
     )
     .map_err(crate::commands::doppler::device_error)?;
@@ -689,11 +690,27 @@ fn warn_tf_domains(scene: &Scene) {
 }
 
 /// Forwards each finished pass (samples, noise) to the progress bar.
-struct OnPass<'a, F>(&'a F);
+/// The CPU render's observer: the bar counts every pass (warm-up frames included), shows the
+/// noise, and the render loop stops once SIGINT/SIGTERM is in.
+struct OnPass<'a>(&'a crate::progress::Progress);
 
-impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for OnPass<'_, F> {
-    fn pass(&self, pass: u32, acc: &Progressive, _noise: Option<f64>) {
-        (self.0)(pass, acc.noise());
+impl blueshift_camera::Observer<Progressive> for OnPass<'_> {
+    fn progress(&self, p: blueshift_camera::Progress) {
+        if p.total > 0 {
+            self.0.set_length(p.total);
+        }
+        self.0.set_position(p.done);
+    }
+
+    fn pass(&self, _pass: u32, acc: &Progressive, _noise: Option<f64>) {
+        let noise = acc.noise();
+        if noise.is_finite() {
+            self.0.set_message(format!("noise {noise:.4}"));
+        }
+    }
+
+    fn cancelled(&self) -> bool {
+        crate::signals::cancelled()
     }
 }
 
