@@ -14,6 +14,7 @@ mod limits;
 mod output;
 mod plot;
 mod progress;
+mod signals;
 
 /// blueshift: physically based scientific volume rendering.
 #[derive(Debug, Parser)]
@@ -52,6 +53,8 @@ enum Command {
     Demo(commands::doppler::DemoArgs),
     /// Print the wgpu adapter blueshift would use: backend, features, limits (--json).
     GpuInfo(commands::gpu_info::Args),
+    /// Remove the temporary files (.blueshift-PID-*.partial) that killed runs left in DIR.
+    Clean(commands::clean::Args),
     /// Explore a scene in the browser: a local server streams progressive renders to a page
     /// with the transfer-function editor, camera, Doppler picks and saving (prints the URL).
     View(Box<commands::view::Args>),
@@ -68,10 +71,45 @@ fn private_runtime_dir() -> Option<tempfile::TempDir> {
         .prefix("blueshift-runtime-")
         .tempdir()
         .ok()?;
+    signals::remove_on_signal(dir.path());
     // SAFETY: called first in `main`, before any other thread exists, so nothing reads or
     // writes the environment at the same time.
     unsafe { std::env::set_var("XDG_RUNTIME_DIR", dir.path()) };
     Some(dir)
+}
+
+/// A clap usage error as one line, as every other error: the message, any list under it
+/// (missing arguments, possible values) joined with commas, and clap's "tip:" suggestion;
+/// the usage and "For more information" lines are dropped (`--help` shows them).
+fn usage_error_line(rendered: &str) -> String {
+    let mut head = String::new();
+    let mut list: Vec<&str> = Vec::new();
+    let mut tips: Vec<&str> = Vec::new();
+    for line in rendered.lines() {
+        let t = line.trim();
+        if t.starts_with("Usage:") || t.starts_with("For more information") {
+            break;
+        }
+        if t.is_empty() {
+            continue;
+        }
+        if let Some(msg) = t.strip_prefix("error:") {
+            head = msg.trim().to_owned();
+        } else if t.starts_with("tip:") {
+            tips.push(t);
+        } else {
+            list.push(t);
+        }
+    }
+    let mut out = head;
+    if !list.is_empty() {
+        let sep = if out.ends_with(':') { " " } else { ": " };
+        out = format!("{out}{sep}{}", list.join(", "));
+    }
+    for tip in tips {
+        out = format!("{out} ({tip})");
+    }
+    out
 }
 
 fn main() -> ExitCode {
@@ -80,11 +118,18 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(err) => {
             // Help and version go to stdout with success; usage errors are user errors (1).
-            let code = if err.use_stderr() { 1 } else { 0 };
-            let _ = err.print();
-            return ExitCode::from(code);
+            if !err.use_stderr() {
+                let _ = err.print();
+                return ExitCode::SUCCESS;
+            }
+            eprintln!("blueshift: {}", usage_error_line(&err.render().to_string()));
+            return ExitCode::from(1);
         }
     };
+    // The viewer keeps its own Ctrl-C handling (it shuts its server down).
+    if !matches!(cli.command, Command::View(_)) {
+        signals::install();
+    }
     let result = crate::limits::init(cli.max_memory.as_deref()).and_then(|()| match cli.command {
         Command::Spectrum(args) => commands::spectrum::run(args),
         Command::Tonemap(args) => commands::tonemap::run(*args),
@@ -98,9 +143,12 @@ fn main() -> ExitCode {
         Command::Demo(args) => commands::doppler::run_demo(args),
         Command::GpuInfo(args) => commands::gpu_info::run(args),
         Command::View(args) => commands::view::run(*args),
+        Command::Clean(args) => commands::clean::run(args),
     });
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // A loop stopped on SIGINT/SIGTERM: the watcher is cleaning up and sets the exit code.
+        Err(_) if signals::cancelled() => signals::wait_for_exit(),
         Err(err) => {
             // One line: the chain of contexts joined by ": ".
             eprintln!("blueshift: {err:#}");

@@ -72,6 +72,11 @@ impl Progress {
 
     /// Sets the steps done.
     pub fn set_position(&self, pos: u64) {
+        // Once SIGINT/SIGTERM is in, the bar stays still so nothing is drawn over the
+        // "interrupted" line while the signal watcher cleans up.
+        if crate::signals::cancelled() {
+            return;
+        }
         self.bar.set_position(pos);
         if let Some(p) = &self.plain {
             p.pos.store(pos, Ordering::Relaxed);
@@ -81,6 +86,9 @@ impl Progress {
 
     /// Adds `n` steps done.
     pub fn inc(&self, n: u64) {
+        if crate::signals::cancelled() {
+            return;
+        }
         self.bar.inc(n);
         if let Some(p) = &self.plain {
             p.pos.fetch_add(n, Ordering::Relaxed);

@@ -188,6 +188,10 @@ fn views_and_camera_flags_move_the_probe_as_they_say() {
         (x1 - 0.5) > 1.5 * (x0 - 0.5) && (0.5 - y1) > 1.5 * (0.5 - y0),
         "zoom: ({x0:.2},{y0:.2}) -> ({x1:.2},{y1:.2})"
     );
+    // With --out, so the error is the view's (not clap's missing --out, whose usage line
+    // happened to mention --view when usage errors were several lines).
+    let tmp = tempfile::tempdir().unwrap();
+    let bad_out = tmp.path().join("bad.exr");
     let bad = blueshift(&[
         "render",
         "--synth",
@@ -196,6 +200,8 @@ fn views_and_camera_flags_move_the_probe_as_they_say() {
         "builtin:grey",
         "--view",
         "w",
+        "--out",
+        bad_out.to_str().unwrap(),
     ]);
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("view"));

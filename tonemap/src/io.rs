@@ -369,7 +369,9 @@ pub fn write_atomic(
         _ => Path::new("."),
     };
     let mut builder = tempfile::Builder::new();
-    builder.prefix(".blueshift-");
+    // `.blueshift-<pid>-<random>.partial`, the name `blueshift clean` recognises.
+    let prefix = format!(".blueshift-{}-", std::process::id());
+    builder.prefix(&prefix).suffix(".partial");
     // 0666 less the umask, as `File::create` would give (tempfile's default is 0600).
     #[cfg(unix)]
     {

@@ -1162,7 +1162,10 @@ pub fn convert_many(
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
         let mut b = tempfile::Builder::new();
-        b.prefix(".blueshift-").suffix(".bsv.partial");
+        // `.blueshift-<pid>-<random>.bsv.partial`, as the CLI names its temporaries, so
+        // `blueshift clean` can tell a killed run's file from a running one's.
+        let prefix = format!(".blueshift-{}-", std::process::id());
+        b.prefix(&prefix).suffix(".bsv.partial");
         // Mode 0666 less the umask, as `File::create` gives (tempfile's default is 0600).
         b.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
         let tmp = b.tempfile_in(dir)?;

@@ -496,3 +496,41 @@ fn staged_reader_selects_channels_in_order() {
         "{err}"
     );
 }
+
+/// A detached header records its data file's size and checksum (`blueshift data:=`), so a
+/// header beside another write's data file of the same size (a writer killed between its
+/// two renames) is refused; a header without the line (any other writer's) reads as before.
+#[test]
+fn detached_header_refuses_a_data_file_it_was_not_written_with() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |seed: u64, stem: &str| {
+        let v = blueshift_volume::synth::by_name("turbulence", 8, seed).unwrap();
+        let (mut h, mut d) = (Vec::new(), Vec::new());
+        let data_name = format!("{stem}.raw");
+        nrrd::write_detached(
+            &mut h,
+            &mut d,
+            &data_name,
+            &v.channels()[0],
+            &Default::default(),
+        )
+        .unwrap();
+        std::fs::write(dir.path().join(format!("{stem}.nhdr")), &h).unwrap();
+        std::fs::write(dir.path().join(&data_name), &d).unwrap();
+        String::from_utf8(h).unwrap()
+    };
+    let a = write(1, "a");
+    write(2, "b");
+    let path = dir.path().join("a.nhdr");
+    assert!(read(&path).is_ok());
+    std::fs::copy(dir.path().join("b.raw"), dir.path().join("a.raw")).unwrap();
+    let err = read(&path).unwrap_err().to_string();
+    assert!(err.contains("does not match its header"), "{err}");
+    let plain: String = a
+        .lines()
+        .filter(|l| !l.starts_with("blueshift data:="))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&path, plain).unwrap();
+    assert!(read(&path).is_ok());
+}

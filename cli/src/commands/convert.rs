@@ -16,7 +16,7 @@ use blueshift_volume::ooc::{self, BrickLayout, GridSource, RawFileSource, SlabSo
 use blueshift_volume::{AnyGrid, Geometry};
 use glam::Vec3;
 
-use super::volume_common::{OutFormat, out_format, parse_disk_type, write_volume};
+use super::volume_common::{OutFormat, out_format, parse_disk_type, volume_outputs, write_volume};
 use crate::output;
 
 /// Arguments of `blueshift convert`.
@@ -151,6 +151,11 @@ pub fn run(args: Args) -> Result<()> {
         gzip: args.gzip,
         disk: args.disk_type,
     };
+    // Every file written (further channels, a detached data file) against the input and
+    // the files it names.
+    let all = volume_outputs(&args.output, &vol, args.channel.as_deref(), &opts)?;
+    let refs: Vec<&std::path::Path> = all.iter().map(PathBuf::as_path).collect();
+    output::check_outputs(&refs, &[args.input.as_path()])?;
     let written = write_volume(&args.output, &vol, args.channel.as_deref(), &opts)?;
     for p in written {
         output::wrote(&p);

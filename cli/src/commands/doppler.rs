@@ -16,7 +16,7 @@ use blueshift_spectrum::{DopplerModel, PiecewiseLinear};
 use clap::Parser;
 use plotters::prelude::*;
 
-use crate::output::{write_bytes_atomic, write_via_temp_path};
+use crate::output::{OutputSet, write_bytes_atomic, write_via_temp_path};
 use crate::plot::{FONT, Series, line_plot, register_font};
 
 /// Arguments of `blueshift doppler`.
@@ -533,6 +533,18 @@ pub(crate) fn device_error(e: anyhow::Error) -> anyhow::Error {
 }
 
 fn write_exr(path: &Path, img: &DopplerImage, space: crate::output::ExrSpace) -> Result<()> {
+    let mut set = OutputSet::new();
+    stage_exr(&mut set, path, img, space)?;
+    set.commit()
+}
+
+/// Stages the Doppler image's EXR in `set`.
+fn stage_exr(
+    set: &mut OutputSet,
+    path: &Path,
+    img: &DopplerImage,
+    space: crate::output::ExrSpace,
+) -> Result<()> {
     // Block after block (the same bytes every run), via a temporary file.
     let m = blueshift_spectrum::xyz_to_linear_srgb_matrix();
     let data: Vec<f32> = img
@@ -548,12 +560,22 @@ fn write_exr(path: &Path, img: &DopplerImage, space: crate::output::ExrSpace) ->
             [c[0] as f32, c[1] as f32, c[2] as f32, 1.0]
         })
         .collect();
-    crate::output::write_exr_f32_in(path, img.width, img.height, 4, &data, space)
+    set.via_path(path, |p| {
+        crate::output::exr_file(p, (img.width, img.height), 4, &data, space)
+            .with_context(|| format!("cannot write {}", path.display()))
+    })
 }
 
 fn write_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
+    let mut set = OutputSet::new();
+    stage_png(&mut set, path, w, h, rgb)?;
+    set.commit()
+}
+
+/// Stages an 8-bit RGB PNG in `set`.
+fn stage_png(set: &mut OutputSet, path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
     let img = image::RgbImage::from_raw(w, h, rgb).ok_or_else(|| anyhow!("image size"))?;
-    write_via_temp_path(path, |p| {
+    set.via_path(path, |p| {
         img.save_with_format(p, image::ImageFormat::Png)
             .with_context(|| format!("cannot write {}", path.display()))
     })
@@ -643,11 +665,27 @@ fn run_frame(args: Args) -> Result<()> {
     // Refuse an output that cannot be written before loading or rendering anything.
     let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
     match &args.cube.cube {
-        Some(cube) => crate::output::check_outputs(&[cube.as_path()], &inputs)?,
+        Some(cube) => {
+            let outs = super::doppler_cube::cube_outputs(&args.cube, cube);
+            let refs: Vec<&Path> = outs.iter().map(PathBuf::as_path).collect();
+            crate::output::check_outputs(&refs, &inputs)?;
+        }
         None => {
-            let png = args.out.with_extension("png");
-            let mut outs = vec![args.out.as_path(), png.as_path()];
-            outs.extend(args.figure.as_deref());
+            // The image, its PNG, the figure and every pick and trace file.
+            let mut all = vec![args.out.clone(), args.out.with_extension("png")];
+            all.extend(args.figure.clone());
+            for &(x, y) in &args.pick {
+                all.push(sibling(&args.out, &format!("_pick_{x}_{y}.csv")));
+            }
+            if !args.pick.is_empty() {
+                all.push(sibling(&args.out, "_picks.png"));
+            }
+            if let Some((x, y)) = args.trace {
+                for ext in ["csv", "png", "gif"] {
+                    all.push(sibling(&args.out, &format!("_trace_{x}_{y}.{ext}")));
+                }
+            }
+            let outs: Vec<&Path> = all.iter().map(PathBuf::as_path).collect();
             crate::output::check_outputs(&outs, &inputs)?;
         }
     }
@@ -769,7 +807,18 @@ fn run_frame(args: Args) -> Result<()> {
     }
     let img = ran.value;
     let secs = start.elapsed().as_secs_f64();
-    write_exr(&args.out, &img, args.exr_space)?;
+    // The EXR and its PNG are one set: both staged, then renamed (the PNG first).
+    let png = args.out.with_extension("png");
+    let disp = disp.with_stops(stops, &img);
+    let mut shown = display_rgb8(&disp, op.as_ref(), &img)?;
+    if args.triad {
+        let o = crate::figure::triad_overlay(img.width, img.height, &st.camera)?;
+        crate::figure::apply_overlay(&mut shown, &o);
+    }
+    let mut set = OutputSet::new();
+    stage_png(&mut set, &png, img.width, img.height, shown)?;
+    stage_exr(&mut set, &args.out, &img, args.exr_space)?;
+    set.commit()?;
     crate::output::wrote_with(
         &args.out,
         &format!(
@@ -787,14 +836,6 @@ fn run_frame(args: Args) -> Result<()> {
             }
         ),
     );
-    let png = args.out.with_extension("png");
-    let disp = disp.with_stops(stops, &img);
-    let mut shown = display_rgb8(&disp, op.as_ref(), &img)?;
-    if args.triad {
-        let o = crate::figure::triad_overlay(img.width, img.height, &st.camera)?;
-        crate::figure::apply_overlay(&mut shown, &o);
-    }
-    write_png(&png, img.width, img.height, shown)?;
     crate::output::wrote(&png);
     let mut series = Vec::new();
     for (i, &(x, y)) in args.pick.iter().enumerate() {

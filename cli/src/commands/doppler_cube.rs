@@ -14,7 +14,7 @@ use blueshift_spectrum::named_line;
 use clap::Args as ClapArgs;
 use plotters::prelude::*;
 
-use crate::output::{write_bytes_atomic, write_via_temp_path};
+use crate::output::OutputSet;
 use crate::plot::{FONT, blue_red, inferno, register_font, tick_formatter};
 
 /// Cube, broadening and view flags of `blueshift doppler`.
@@ -208,6 +208,19 @@ pub fn cube_spec(args: &CubeArgs) -> Result<CubeSpec> {
     }
 }
 
+/// Every file `--cube OUT` writes: the FITS, the NRRD and (with `--moments`) the moment
+/// maps' EXRs and PNGs.
+pub fn cube_outputs(args: &CubeArgs, out: &Path) -> Vec<PathBuf> {
+    let mut v = vec![out.to_path_buf(), out.with_extension("nrrd")];
+    if args.moments {
+        for m in ["mom0", "mom1", "mom2"] {
+            v.push(sibling(out, &format!("_{m}.exr")));
+            v.push(sibling(out, &format!("_{m}.png")));
+        }
+    }
+    v
+}
+
 fn sibling(out: &Path, suffix: &str) -> PathBuf {
     let stem = out.file_stem().and_then(|s| s.to_str()).unwrap_or("cube");
     out.with_file_name(format!("{stem}{suffix}"))
@@ -288,9 +301,17 @@ pub fn run_cube(
     let secs = start.elapsed().as_secs_f64();
     let fits = fits_bytes(&cube, &meta)?;
     let nrrd = nrrd_bytes(&cube)?;
-    write_bytes_atomic(out, &fits)?;
+    // One set: the moment maps, the NRRD, then the FITS, renamed only once all are staged.
+    let mut set = OutputSet::new();
+    let moment_files = if args.moments {
+        write_moments(&mut set, out, &cube, args.mask.as_deref(), &meta)?
+    } else {
+        Vec::new()
+    };
     let nrrd_path = out.with_extension("nrrd");
-    write_bytes_atomic(&nrrd_path, &nrrd)?;
+    set.put(&nrrd_path, &nrrd)?;
+    set.put(out, &fits)?;
+    set.commit()?;
     crate::output::wrote_with(
         out,
         &format!(
@@ -305,18 +326,21 @@ pub fn run_cube(
         ),
     );
     crate::output::wrote(&nrrd_path);
-    if args.moments {
-        write_moments(out, &cube, args.mask.as_deref(), &meta)?;
+    for p in moment_files {
+        crate::output::wrote(&p);
     }
     Ok(())
 }
 
+/// Stages the moment maps (EXR and PNG each) in `set`; returns their paths.
 fn write_moments(
+    set: &mut OutputSet,
     out: &Path,
     cube: &SpectralCube,
     mask: Option<&str>,
     meta: &CubeMeta,
-) -> Result<()> {
+) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
     let mut m: Moments = cube.moments();
     if let Some(text) = mask {
         let peak =
@@ -380,14 +404,14 @@ fn write_moments(
         let rgba: Vec<f32> = img.iter().flat_map(|&p| [p, p, p, 1.0]).collect();
         let path = sibling(out, &format!("_{name}.exr"));
         // Block after block (the same bytes every run), via a temporary file.
-        crate::output::write_exr_f32(&path, w as u32, h as u32, 4, &rgba)?;
-        crate::output::wrote(&path);
+        crate::output::stage_exr_f32(set, &path, (w as u32, h as u32), 4, &rgba)?;
+        files.push(path);
         let diverging = name == "mom1" && velocity;
         let png = sibling(out, &format!("_{name}.png"));
-        colour_png(&png, &img, (w, h), &title, &bar_unit, &sky, diverging)?;
-        crate::output::wrote(&png);
+        colour_png(set, &png, &img, (w, h), &title, &bar_unit, &sky, diverging)?;
+        files.push(png);
     }
-    Ok(())
+    Ok(files)
 }
 
 /// The sky extent of a moment map: half widths from the view centre, in `unit`.
@@ -400,7 +424,9 @@ struct Sky {
 /// A colour-mapped picture (NaN grey) at least 256 pixels across, with sky axes (offsets
 /// from the view centre) and a colour bar labelled with `bar_unit`: inferno from the
 /// minimum to the maximum, or blue-white-red symmetric about 0.
+#[allow(clippy::too_many_arguments)]
 fn colour_png(
+    set: &mut OutputSet,
     path: &Path,
     v: &[f32],
     (w, h): (usize, usize),
@@ -506,7 +532,7 @@ fn colour_png(
         root.present().map_err(err)?;
     }
     let img = image::RgbImage::from_raw(iw, ih, buf).ok_or_else(|| anyhow!("plot buffer"))?;
-    write_via_temp_path(path, |p| {
+    set.via_path(path, |p| {
         img.save_with_format(p, image::ImageFormat::Png)
             .with_context(|| format!("cannot write {}", path.display()))
     })

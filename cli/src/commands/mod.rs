@@ -1,5 +1,6 @@
 //! One module per `blueshift` verb.
 
+pub mod clean;
 pub mod convert;
 pub mod doppler;
 pub mod doppler_cube;

@@ -413,10 +413,14 @@ fn run_frame(args: Args) -> Result<()> {
         );
     }
     // Refuse an output that cannot be written before loading or rendering anything.
+    let heat = crate::commands::render_heat::heat_outputs(&args.out, &args.heatmaps);
     let mut outputs = vec![args.out.as_path()];
     outputs.extend(args.png.as_deref());
+    outputs.extend(heat.iter().map(PathBuf::as_path));
     let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
     inputs.extend(args.scene.as_deref());
+    // Transfer function files (not `builtin:` / `log:` names, which name no file).
+    inputs.extend(args.tfs.iter().map(Path::new).filter(|p| p.is_file()));
     crate::output::check_outputs(&outputs, &inputs)?;
     match crate::limits::thread_pool(args.threads)? {
         Some(pool) => pool.install(|| run_inner(&args)),
@@ -548,7 +552,9 @@ fn run_inner(args: &Args) -> Result<()> {
             .ok_or_else(|| anyhow!("scene already used"))
     };
     let bar = crate::progress::Progress::new(
-        u64::from(settings.timed_frames.unwrap_or(settings.spp)),
+        settings.timed_frames.map_or(u64::from(settings.spp), |f| {
+            u64::from(f) + u64::from(settings.warmup)
+        }),
         "{bar:30} {pos}/{len} passes  {msg}  [{elapsed}]",
         "render",
         "passes",
@@ -589,8 +595,7 @@ fn run_inner(args: &Args) -> Result<()> {
                 let observer = Steps::new(&show, session.scene());
                 return Ok(session.render_lod(&observer)?);
             }
-            let observer = OnPass(&show);
-            Ok(session.render(&observer)?)
+            Ok(session.render(&OnPass(&bar))?)
         },
     )
     .map_err(crate::commands::doppler::device_error)?;
@@ -605,9 +610,42 @@ fn run_inner(args: &Args) -> Result<()> {
         image: acc,
         frame_times: times,
     } = ran.value;
-    let heat_files = crate::commands::render_heat::write_heatmaps(&args.out, &acc, &heatmaps)?;
     let img = acc.mean_image();
-    crate::output::write_exr_f32(&args.out, img.width(), img.height(), 4, img.as_raw())?;
+    // The heat maps, the EXR and its --png preview are one set: all staged, then renamed
+    // (the EXR last).
+    let mut set = crate::output::OutputSet::new();
+    let (heat_files, heat_paths) =
+        crate::commands::render_heat::write_heatmaps(&mut set, &args.out, &acc, &heatmaps)?;
+    if let Some(png) = &args.png {
+        let triad = if args.triad {
+            Some(crate::figure::triad_overlay(
+                img.width(),
+                img.height(),
+                &settings_camera,
+            )?)
+        } else {
+            None
+        };
+        write_png_preview(
+            &mut set,
+            &img,
+            png,
+            &args.tonemap,
+            args.exposure,
+            triad.as_deref(),
+        )?;
+    }
+    crate::output::stage_exr_f32(
+        &mut set,
+        &args.out,
+        (img.width(), img.height()),
+        4,
+        img.as_raw(),
+    )?;
+    set.commit()?;
+    for p in &heat_paths {
+        crate::output::wrote(p);
+    }
     let noise = acc.noise();
     let adapter = on_gpu
         .then(|| {
@@ -656,16 +694,6 @@ fn run_inner(args: &Args) -> Result<()> {
         &format!("{} spp{noise}, {seconds:.2} s{on}", acc.samples()),
     );
     if let Some(png) = &args.png {
-        let triad = if args.triad {
-            Some(crate::figure::triad_overlay(
-                img.width(),
-                img.height(),
-                &settings_camera,
-            )?)
-        } else {
-            None
-        };
-        write_png_preview(&img, png, &args.tonemap, args.exposure, triad.as_deref())?;
         crate::output::wrote(png);
     }
     Ok(())
@@ -709,11 +737,27 @@ fn warn_tf_domains(scene: &Scene) {
 }
 
 /// Forwards each finished pass (samples, noise) to the progress bar.
-struct OnPass<'a, F>(&'a F);
+/// The CPU render's observer: the bar counts every pass (warm-up frames included), shows the
+/// noise, and the render loop stops once SIGINT/SIGTERM is in.
+struct OnPass<'a>(&'a crate::progress::Progress);
 
-impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for OnPass<'_, F> {
-    fn pass(&self, pass: u32, acc: &Progressive, _noise: Option<f64>) {
-        (self.0)(pass, acc.noise());
+impl blueshift_camera::Observer<Progressive> for OnPass<'_> {
+    fn progress(&self, p: blueshift_camera::Progress) {
+        if p.total > 0 {
+            self.0.set_length(p.total);
+        }
+        self.0.set_position(p.done);
+    }
+
+    fn pass(&self, _pass: u32, acc: &Progressive, _noise: Option<f64>) {
+        let noise = acc.noise();
+        if noise.is_finite() {
+            self.0.set_message(format!("noise {noise:.4}"));
+        }
+    }
+
+    fn cancelled(&self) -> bool {
+        crate::signals::cancelled()
     }
 }
 
@@ -808,6 +852,7 @@ use blueshift_view::display::TONEMAPS;
 /// Writes the PNG preview of an HDR render: plain exposure + clamp + sRGB, or a tone-mapping
 /// operator of blueshift-tonemap (the alpha channel is dropped; the background shows).
 fn write_png_preview(
+    set: &mut crate::output::OutputSet,
     img: &image::Rgba32FImage,
     png: &Path,
     tonemap: &str,
@@ -853,8 +898,10 @@ fn write_png_preview(
             d
         }
     };
-    blueshift_tonemap::io::write_png(png, &display, blueshift_tonemap::io::PngDepth::Eight)
-        .with_context(|| format!("cannot write {}", png.display()))
+    set.via_path(png, |p| {
+        blueshift_tonemap::io::write_png(p, &display, blueshift_tonemap::io::PngDepth::Eight)
+            .with_context(|| format!("cannot write {}", png.display()))
+    })
 }
 
 /// Queues the bricks of every out-of-core channel along a sparse grid of the view's rays

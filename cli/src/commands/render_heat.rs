@@ -9,7 +9,7 @@ use anyhow::{Context, Result, anyhow};
 use blueshift_tracking::{HeatMap, Progressive};
 use plotters::prelude::*;
 
-use crate::output::write_via_temp_path;
+use crate::output::OutputSet;
 use crate::plot::{FONT, inferno, register_font};
 
 /// `OUT` with its extension replaced by `suffix` (`img.exr` -> `img.heat.exr`).
@@ -20,15 +20,31 @@ fn beside(out: &Path, suffix: &str) -> PathBuf {
     out.with_file_name(format!("{stem}.{suffix}"))
 }
 
-/// Writes the requested heat maps (none: nothing) and returns a JSON summary of the files,
-/// means and maxima.
+/// Every file `--heatmap NAME...` writes beside `out` (unknown names are left to the
+/// parser's error).
+pub fn heat_outputs(out: &Path, names: &[String]) -> Vec<PathBuf> {
+    if names.is_empty() {
+        return Vec::new();
+    }
+    let mut v = vec![beside(out, "heat.exr")];
+    for n in names {
+        if let Ok(m) = n.parse::<HeatMap>() {
+            v.push(beside(out, &format!("heat-{}.png", m.name())));
+        }
+    }
+    v
+}
+
+/// Stages the requested heat maps (none: nothing) in `set` and returns a JSON summary of
+/// the files, means and maxima, and the files in the order to report them.
 pub fn write_heatmaps(
+    set: &mut OutputSet,
     out: &Path,
     acc: &Progressive,
     maps: &[HeatMap],
-) -> Result<serde_json::Value> {
+) -> Result<(serde_json::Value, Vec<PathBuf>)> {
     if maps.is_empty() {
-        return Ok(serde_json::Value::Null);
+        return Ok((serde_json::Value::Null, Vec::new()));
     }
     let mut maps: Vec<HeatMap> = maps.to_vec();
     maps.dedup();
@@ -44,7 +60,7 @@ pub fn write_heatmaps(
         layers.push((m, v));
     }
     let exr_path = beside(out, "heat.exr");
-    write_via_temp_path(&exr_path, |p| {
+    set.via_path(&exr_path, |p| {
         use exr::prelude::*;
         let channels: SmallVec<[AnyChannel<FlatSamples>; 4]> = layers
             .iter()
@@ -63,25 +79,26 @@ pub fn write_heatmaps(
             .to_file(p)
             .with_context(|| format!("cannot write {}", exr_path.display()))
     })?;
-    crate::output::wrote(&exr_path);
+    let mut files = vec![exr_path.clone()];
     let mut summary = serde_json::Map::new();
     summary.insert("exr".into(), serde_json::json!(exr_path));
     for (m, v) in &layers {
         let png = beside(out, &format!("heat-{}.png", m.name()));
         let max = v.iter().copied().fold(0.0f32, f32::max);
         let mean = v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len().max(1) as f64;
-        colour_mapped_png(&png, v, w, h, max, *m)?;
-        crate::output::wrote(&png);
+        colour_mapped_png(set, &png, v, w, h, max, *m)?;
+        files.push(png.clone());
         summary.insert(
             m.name().into(),
             serde_json::json!({ "png": png, "mean": mean, "max": max }),
         );
     }
-    Ok(serde_json::Value::Object(summary))
+    Ok((serde_json::Value::Object(summary), files))
 }
 
 /// The heat map scaled 0..`max`, with a colour bar on the right labelled in data units.
 fn colour_mapped_png(
+    set: &mut OutputSet,
     path: &Path,
     v: &[f32],
     w: usize,
@@ -135,7 +152,7 @@ fn colour_mapped_png(
         root.present().map_err(err)?;
     }
     let img = image::RgbImage::from_raw(iw, ih, buf).ok_or_else(|| anyhow!("heat map buffer"))?;
-    write_via_temp_path(path, |p| {
+    set.via_path(path, |p| {
         img.save_with_format(p, image::ImageFormat::Png)
             .with_context(|| format!("cannot write {}", path.display()))
     })

@@ -200,28 +200,31 @@ fn extension(path: &Path) -> String {
 }
 
 fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
-    let r = match extension(path).as_str() {
-        "png" => io::write_png(
-            path,
-            img,
-            if depth == 16 {
-                PngDepth::Sixteen
-            } else {
-                PngDepth::Eight
-            },
-        ),
+    // The library writers go through the CLI's temporary naming and non-regular handling.
+    let via = |write: &dyn Fn(&Path) -> blueshift_tonemap::Result<()>| {
+        crate::output::write_via_temp_path(path, |p| Ok(write(p)?))
+    };
+    match extension(path).as_str() {
+        "png" => via(&|p| {
+            io::write_png(
+                p,
+                img,
+                if depth == 16 {
+                    PngDepth::Sixteen
+                } else {
+                    PngDepth::Eight
+                },
+            )
+        }),
         // Not io::write_exr: its blocks are written in the order threads finish them.
-        "exr" => {
-            return crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw());
-        }
-        "hdr" => io::write_radiance_hdr(path, img),
-        "pfm" => io::write_pfm(path, img),
+        "exr" => crate::output::write_exr_f32(path, img.width(), img.height(), 3, img.as_raw()),
+        "hdr" => via(&|p| io::write_radiance_hdr(p, img)),
+        "pfm" => via(&|p| io::write_pfm(p, img)),
         other => bail!(
             "unknown output extension {other:?} (use .png, .exr, .hdr or .pfm): {}",
             path.display()
         ),
-    };
-    Ok(r?)
+    }
 }
 
 /// Runs `blueshift tonemap`.
@@ -274,7 +277,7 @@ pub fn run(args: Args) -> Result<()> {
             bail!("--pseudocolor writes a PNG: {}", args.out.display());
         }
         let pic = blueshift_tonemap::pseudocolour(hdr, &PseudocolourParams::default())?;
-        io::write_rgb8_png(&args.out, &pic)?;
+        crate::output::write_via_temp_path(&args.out, |p| Ok(io::write_rgb8_png(p, &pic)?))?;
         outputs.push(args.out.clone());
     } else if let Some(n) = args.exposure_series {
         kind = "exposure-series";

@@ -71,26 +71,71 @@ pub fn sibling(path: &Path, suffix: &str) -> PathBuf {
     path.with_file_name(format!("{stem}_{safe}{ext}"))
 }
 
-/// Writes one channel in an in-core format (NRRD, detached NRRD, raw), atomically.
-pub fn write_channel(
+/// Refuses to write `channel` as `disk` into a raw file whose Open SciVis name
+/// (`name_XxYxZ_dtype.raw`) says another type, size or component count: a reader would take
+/// the name at its word and read garbage.
+fn check_scivis_name(path: &Path, channel: &Channel, disk: DiskType) -> Result<()> {
+    let Some(n) = raw::parse_scivis_name(path) else {
+        return Ok(());
+    };
+    let dims = channel.grid.geometry().dims;
+    let components = if channel.grid.is_vector() { 3 } else { 1 };
+    if n.disk != disk || n.dims != dims || n.components != components {
+        let shape = |d: [usize; 3], c: usize, t: DiskType| {
+            let extra = if c == 3 { "x3" } else { "" };
+            format!("{}x{}x{}{extra} {}", d[0], d[1], d[2], t.scivis_name())
+        };
+        anyhow::bail!(
+            "cannot write {}: its Open SciVis name says {} but the data is {} (rename it{})",
+            path.display(),
+            shape(n.dims, n.components, n.disk),
+            shape(dims, components, disk),
+            if n.disk == disk {
+                String::new()
+            } else {
+                format!(" or pass --type {}", n.disk.scivis_name())
+            }
+        );
+    }
+    Ok(())
+}
+
+/// The detached data file beside a `.nhdr` header.
+pub fn nhdr_data_path(path: &Path, gzip: bool) -> PathBuf {
+    path.with_extension(if gzip { "raw.gz" } else { "raw" })
+}
+
+/// Stages one channel in an in-core format (NRRD, detached NRRD, raw) in `set`; a detached
+/// header is staged after its data file, so it is renamed after it.
+pub fn stage_channel(
+    set: &mut output::OutputSet,
     path: &Path,
     channel: &Channel,
     fmt: OutFormat,
     opts: &nrrd::WriteOptions,
 ) -> Result<()> {
+    let disk = opts
+        .disk
+        .unwrap_or_else(|| blueshift_volume::io::output_type(channel));
     match fmt {
-        OutFormat::Nrrd => output::write_atomic(path, |w| {
+        OutFormat::Nrrd => set.bytes(path, |w| {
             nrrd::write(w, channel, opts)
                 .with_context(|| format!("cannot write {}", path.display()))?;
             Ok(())
         }),
-        OutFormat::Raw => output::write_atomic(path, |w| {
-            raw::write_raw_as(w, channel, opts.disk)
-                .with_context(|| format!("cannot write {}", path.display()))?;
-            Ok(())
-        }),
+        OutFormat::Raw => {
+            check_scivis_name(path, channel, disk)?;
+            set.bytes(path, |w| {
+                raw::write_raw_as(w, channel, opts.disk)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+                Ok(())
+            })
+        }
         OutFormat::Nhdr => {
-            let data_path = path.with_extension(if opts.gzip { "raw.gz" } else { "raw" });
+            let data_path = nhdr_data_path(path, opts.gzip);
+            if !opts.gzip {
+                check_scivis_name(&data_path, channel, disk)?;
+            }
             let data_name = data_path
                 .file_name()
                 .map(|s| s.to_string_lossy().to_string())
@@ -99,16 +144,51 @@ pub fn write_channel(
             let mut data = Vec::new();
             nrrd::write_detached(&mut header, &mut data, &data_name, channel, opts)
                 .with_context(|| format!("cannot write {}", path.display()))?;
-            output::write_bytes_atomic(&data_path, &data)?;
-            output::write_bytes_atomic(path, &header)
+            set.put(&data_path, &data)?;
+            set.put(path, &header)
         }
         OutFormat::Bricked => anyhow::bail!("internal: bricked output goes through convert"),
     }
 }
 
+/// The channels of `vol` that [`write_volume`] writes (all, or only `only`).
+pub fn channels_to_write<'v>(vol: &'v Volume, only: Option<&str>) -> Result<Vec<&'v Channel>> {
+    Ok(match only {
+        Some(name) => vec![vol.channel(name).ok_or_else(|| {
+            let names: Vec<&str> = vol.channels().iter().map(|c| c.name.as_str()).collect();
+            anyhow::anyhow!("no channel '{name}' (channels: {})", names.join(", "))
+        })?],
+        None => vol.channels().iter().collect(),
+    })
+}
+
+/// Every file [`write_volume`] writes for `vol` at `path`, data files before their headers.
+pub fn volume_outputs(
+    path: &Path,
+    vol: &Volume,
+    only: Option<&str>,
+    opts: &nrrd::WriteOptions,
+) -> Result<Vec<PathBuf>> {
+    let fmt = out_format(path)?;
+    let mut files = Vec::new();
+    for (i, c) in channels_to_write(vol, only)?.iter().enumerate() {
+        let p = if i == 0 {
+            path.to_path_buf()
+        } else {
+            sibling(path, &c.name)
+        };
+        if fmt == OutFormat::Nhdr {
+            // The detached data file beside the header is an output too.
+            files.push(nhdr_data_path(&p, opts.gzip));
+        }
+        files.push(p);
+    }
+    Ok(files)
+}
+
 /// Writes the channels of `vol` (or only `only`): the first to `path`, each further one to
-/// `stem_<channel>.ext` beside it. Returns the paths written (a detached header after its
-/// data file).
+/// `stem_<channel>.ext` beside it, all as one [`output::OutputSet`] (every file staged, then
+/// renamed; a detached header after its data file). Returns the paths written.
 pub fn write_volume(
     path: &Path,
     vol: &Volume,
@@ -116,28 +196,18 @@ pub fn write_volume(
     opts: &nrrd::WriteOptions,
 ) -> Result<Vec<PathBuf>> {
     let fmt = out_format(path)?;
-    let chans: Vec<&Channel> = match only {
-        Some(name) => vec![vol.channel(name).ok_or_else(|| {
-            let names: Vec<&str> = vol.channels().iter().map(|c| c.name.as_str()).collect();
-            anyhow::anyhow!("no channel '{name}' (channels: {})", names.join(", "))
-        })?],
-        None => vol.channels().iter().collect(),
-    };
-    let mut written = Vec::new();
+    let chans = channels_to_write(vol, only)?;
+    let mut set = output::OutputSet::new();
     for (i, c) in chans.iter().enumerate() {
         let p = if i == 0 {
             path.to_path_buf()
         } else {
             sibling(path, &c.name)
         };
-        write_channel(&p, c, fmt, opts)?;
-        if fmt == OutFormat::Nhdr {
-            // The detached data file beside the header is an output too.
-            written.push(p.with_extension(if opts.gzip { "raw.gz" } else { "raw" }));
-        }
-        written.push(p);
+        stage_channel(&mut set, &p, c, fmt, opts)?;
     }
-    Ok(written)
+    set.commit()?;
+    volume_outputs(path, vol, only, opts)
 }
 
 /// Flags describing a headerless raw input whose name does not follow the Open SciVis

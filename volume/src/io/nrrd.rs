@@ -134,6 +134,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
     let mut endian = None;
     let mut encoding = None;
     let mut data_file: Option<String> = None;
+    let mut data_check = None;
     let mut byte_skip: i64 = 0;
     let mut line_skip: usize = 0;
     let mut ended_by_blank = false;
@@ -144,6 +145,10 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
         if line.is_empty() {
             ended_by_blank = true;
             break;
+        }
+        if let Some(v) = line.strip_prefix(DATA_CHECK_KEY) {
+            data_check = parse_data_check(v);
+            continue;
         }
         if line.starts_with('#') || line.contains(":=") {
             continue;
@@ -337,6 +342,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
         geometry,
         encoding,
         data_file,
+        data_check,
         byte_skip,
         line_skip,
         header_end: pos,
@@ -365,6 +371,8 @@ struct Header {
     geometry: Geometry,
     encoding: Encoding,
     data_file: Option<PathBuf>,
+    /// The data file's size and FNV-1a 64 checksum, from a `blueshift data:=` line.
+    data_check: Option<(u64, u64)>,
     byte_skip: i64,
     line_skip: usize,
     header_end: u64,
@@ -379,7 +387,10 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     let len = layout.byte_len(&opts.limits)?;
     let (mut src, src_len, start): (Box<dyn Read>, u64, u64) = match &h.data_file {
         Some(dpath) => {
-            let (df, dlen) = open(dpath)?;
+            let (mut df, dlen) = open(dpath)?;
+            if let Some(check) = h.data_check {
+                verify_data_file(&mut df, dlen, check, dpath)?;
+            }
             (Box::new(BufReader::new(df)), dlen, 0)
         }
         None => {
@@ -452,6 +463,60 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
         "scalars"
     };
     finish(name, grid, disk, opts)
+}
+
+/// The key of the header line recording a detached data file's size and checksum,
+/// `blueshift data:=BYTES FNV1A64HEX`: a header and data file written together match, so a
+/// header left beside another run's data file (a writer killed between its renames) is
+/// refused instead of read as the wrong voxels.
+const DATA_CHECK_KEY: &str = "blueshift data:=";
+
+fn parse_data_check(v: &str) -> Option<(u64, u64)> {
+    let (len, sum) = v.trim().split_once(' ')?;
+    Some((len.parse().ok()?, u64::from_str_radix(sum.trim(), 16).ok()?))
+}
+
+/// FNV-1a, 64 bits, continued from `h` (start with [`FNV_OFFSET`]).
+fn fnv1a64(mut h: u64, bytes: &[u8]) -> u64 {
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+
+/// Checks a detached data file against its header's `blueshift data:=` line, then rewinds.
+fn verify_data_file(
+    f: &mut std::fs::File,
+    len: u64,
+    (want_len, want): (u64, u64),
+    path: &Path,
+) -> Result<()> {
+    let mismatch = || {
+        Error::invalid(format!(
+            "NRRD: the data file does not match its header (written by another run; rewrite both): {}",
+            path.display()
+        ))
+    };
+    if len != want_len {
+        return Err(mismatch());
+    }
+    let mut h = FNV_OFFSET;
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        h = fnv1a64(h, &buf[..n]);
+    }
+    if h != want {
+        return Err(mismatch());
+    }
+    f.seek(SeekFrom::Start(0))?;
+    Ok(())
 }
 
 fn truncated(len: usize, avail: u64, path: &Path) -> Error {
@@ -541,8 +606,15 @@ pub fn write_detached(
     opts: &WriteOptions,
 ) -> Result<DiskType> {
     let disk = opts.disk.unwrap_or_else(|| super::output_type(channel));
-    header_out.write_all(header(channel, disk, opts.gzip, Some(data_file_name)).as_bytes())?;
-    data_out.write_all(&payload(channel, disk, opts.gzip)?)?;
+    let data = payload(channel, disk, opts.gzip)?;
+    let mut h = header(channel, disk, opts.gzip, Some(data_file_name));
+    h += &format!(
+        "{DATA_CHECK_KEY}{} {:016x}\n",
+        data.len(),
+        fnv1a64(FNV_OFFSET, &data)
+    );
+    header_out.write_all(h.as_bytes())?;
+    data_out.write_all(&data)?;
     Ok(disk)
 }
 
