@@ -281,12 +281,33 @@ impl SceneFile {
     }
 
     /// [`SceneFile::load_with`] with `.bsv` fields read through `cache` (default: a cache of
-    /// [`blueshift_volume::cache::default_budget`] bytes shared by the scene's fields).
+    /// [`blueshift_volume::cache::default_budget`] bytes shared by the scene's fields),
+    /// within the machine's default memory budget ([`SceneFile::load_within`]).
     pub fn load_out_of_core(
         &self,
         select: Option<&[&str]>,
         memory: &MemoryVolumes,
         cache: Option<Arc<BrickCache>>,
+    ) -> Result<DopplerScene> {
+        let budget = blueshift_volume::MemoryBudget::machine_default();
+        self.load_within(select, memory, cache, &budget)
+    }
+
+    /// [`SceneFile::load_out_of_core`] checked against `budget` before any grid is made:
+    /// every field held in memory (each species' density, the black body's density,
+    /// temperature and their product, the three velocity components) is an f32 grid of its
+    /// own after unit conversion, so a scene naming one large file for many species needs
+    /// that many grids; `.bsv` fields stay out of core and count nothing.
+    ///
+    /// # Errors
+    /// As [`SceneFile::load_out_of_core`], and [`blueshift_volume::Error::Budget`] naming the
+    /// grids and bytes the scene needs.
+    pub fn load_within(
+        &self,
+        select: Option<&[&str]>,
+        memory: &MemoryVolumes,
+        cache: Option<Arc<BrickCache>>,
+        budget: &blueshift_volume::MemoryBudget,
     ) -> Result<DopplerScene> {
         let wanted = |name: &str| {
             select.is_none_or(|s| s.iter().any(|t| t.trim().eq_ignore_ascii_case(name)))
@@ -355,6 +376,36 @@ impl SceneFile {
         let geometry = loader.geometry.ok_or_else(|| {
             Error::scene("the scene names no file, so it has no grid (give at least one \"file\")")
         })?;
+        // Every field not read out of core becomes a grid of f32 of its own.
+        let in_memory = |f: &FieldSpec| {
+            f.file
+                .as_ref()
+                .is_none_or(|p| Path::new(p).extension().is_none_or(|e| e != "bsv"))
+        };
+        let mut grids = species.iter().filter(|s| in_memory(&s.density)).count();
+        if use_bb {
+            let bb = self.blackbody.as_ref().expect("checked above");
+            grids += usize::from(in_memory(&bb.density)) * 3;
+        }
+        if let Some(v) = &self.velocity {
+            let dense = match &v.files {
+                Some(files) => files
+                    .iter()
+                    .any(|f| Path::new(f).extension().is_none_or(|e| e != "bsv")),
+                None => in_memory(&v.field),
+            };
+            grids += 3 * usize::from(dense);
+        }
+        let d = geometry.dims;
+        budget
+            .check(
+                format_args!(
+                    "this scene ({grids} grids of {}x{}x{} voxels, f32)",
+                    d[0], d[1], d[2]
+                ),
+                blueshift_volume::budget::grid_bytes(d, 4, grids),
+            )
+            .map_err(blueshift_volume::Error::from)?;
         let mut scene = DopplerScene::new(geometry)?;
 
         if use_bb {

@@ -205,3 +205,33 @@ fn at_rest_renders_are_unchanged_bit_for_bit() {
     let c = render_doppler(&s, &st, &|| {}).unwrap();
     assert_ne!(a.xyz, c.xyz);
 }
+
+/// Spectral cubes see the observer too: a still, uniform medium seen head-on at beta has
+/// moment 1 (optical velocity) `c (1 / D - 1)` in every pixel, `D = sqrt((1 + b) / (1 - b))`.
+#[test]
+fn a_cube_of_a_still_medium_has_the_observer_velocity() {
+    use blueshift_doppler::{CubeLineWidth, CubeSpec, SpectralAxis, render_cube};
+    let s = scene(9, Vec3::ZERO, |_, _, _| 1.0);
+    let mut st = settings(&s, 5);
+    let b: f64 = 5e-4;
+    st.observer = observer(DVec3::new(0.0, 0.0, -b));
+    let spec = CubeSpec {
+        rest_nm: HALPHA,
+        axis: SpectralAxis::OpticalVelocity,
+        min: -300e3,
+        max: 300e3,
+        channels: 60,
+        line_width: CubeLineWidth::OneChannel,
+    };
+    let cube = render_cube(&s, &st, &spec, &|| {}).unwrap();
+    let m = cube.moments();
+    let d = ((1.0 + b) / (1.0 - b)).sqrt();
+    let expected = SPEED_OF_LIGHT_M_PER_S * (1.0 / d - 1.0);
+    assert!(expected < -140e3, "{expected}");
+    for (p, &m1) in m.m1.iter().enumerate() {
+        assert!(
+            (f64::from(m1) - expected).abs() < 0.1 * spec.width(),
+            "pixel {p}: moment 1 {m1} m/s, expected {expected}"
+        );
+    }
+}

@@ -210,10 +210,11 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
             .as_deref()
             .map(|sp| sp.split(',').filter(|t| !t.trim().is_empty()).collect());
         let cache = super::render::brick_cache(args.cache_mb)?;
-        let scene = file.load_out_of_core(
+        let scene = file.load_within(
             tokens.as_deref(),
             &blueshift_doppler::MemoryVolumes::new(),
             Some(cache),
+            crate::limits::budget(),
         )?;
         let lod: blueshift_volume::Lod = args.lod.as_deref().unwrap_or("exact").parse()?;
         match scene.levels() {
@@ -638,18 +639,18 @@ pub fn run(args: Args) -> Result<()> {
     let Some(speeds) = args.observer.ramp_speeds()? else {
         return run_frame(args);
     };
-    let frame_path = super::observer_args::frame_path;
-    for (k, &b) in speeds.iter().enumerate() {
-        let mut a = args.clone();
-        a.out = frame_path(&args.out, k);
-        a.figure = args.figure.as_deref().map(|p| frame_path(p, k));
-        a.cube.cube = args.cube.cube.as_deref().map(|p| frame_path(p, k));
-        a.observer.ramp = None;
-        a.observer.beta = Some(b);
-        eprintln!("frame {k}: beta {b:.4}");
-        run_frame(a)?;
-    }
-    Ok(())
+    use super::observer_args::{frame_path, run_ramp};
+    run_ramp(
+        &args,
+        &speeds,
+        |a| &mut a.observer,
+        |a, k| {
+            a.out = frame_path(&a.out, k);
+            a.figure = a.figure.as_deref().map(|p| frame_path(p, k));
+            a.cube.cube = a.cube.cube.as_deref().map(|p| frame_path(p, k));
+        },
+        run_frame,
+    )
 }
 
 /// The observer of `args` for the view of `st` (the default direction of `--beta`).

@@ -92,6 +92,27 @@ impl ObserverArgs {
     }
 }
 
+/// Runs `--ramp`: `frame` once per speed `b` of `speeds`, on a copy of `args` whose outputs
+/// `outputs` renames for frame `k` ([`frame_path`]) and whose observer flies at `b`.
+pub fn run_ramp<A: Clone>(
+    args: &A,
+    speeds: &[f64],
+    observer: impl Fn(&mut A) -> &mut ObserverArgs,
+    outputs: impl Fn(&mut A, usize),
+    mut frame: impl FnMut(A) -> Result<()>,
+) -> Result<()> {
+    for (k, &b) in speeds.iter().enumerate() {
+        let mut a = args.clone();
+        outputs(&mut a, k);
+        let o = observer(&mut a);
+        o.ramp = None;
+        o.beta = Some(b);
+        eprintln!("frame {k}: beta {b:.4}");
+        frame(a)?;
+    }
+    Ok(())
+}
+
 /// Frame `k`'s path for `path`: `STEM_kkkk.EXT` beside it.
 #[must_use]
 pub fn frame_path(path: &Path, k: usize) -> PathBuf {

@@ -384,17 +384,17 @@ pub fn run(args: Args) -> Result<()> {
     let Some(speeds) = args.observer.ramp_speeds()? else {
         return run_frame(args);
     };
-    let frame_path = super::observer_args::frame_path;
-    for (k, &b) in speeds.iter().enumerate() {
-        let mut a = args.clone();
-        a.out = frame_path(&args.out, k);
-        a.png = args.png.as_deref().map(|p| frame_path(p, k));
-        a.observer.ramp = None;
-        a.observer.beta = Some(b);
-        eprintln!("frame {k}: beta {b:.4}");
-        run_frame(a)?;
-    }
-    Ok(())
+    use super::observer_args::{frame_path, run_ramp};
+    run_ramp(
+        &args,
+        &speeds,
+        |a| &mut a.observer,
+        |a, k| {
+            a.out = frame_path(&a.out, k);
+            a.png = a.png.as_deref().map(|p| frame_path(p, k));
+        },
+        run_frame,
+    )
 }
 
 fn run_frame(args: Args) -> Result<()> {
