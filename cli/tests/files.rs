@@ -4,7 +4,6 @@
 //! set; SIGINT/SIGTERM stop cleanly and remove temporary files; `blueshift clean` removes
 //! only stale temporaries; outputs are 0644 under a 022 umask; usage errors are one line.
 
-#[allow(dead_code)] // the GPU helpers are not used here
 mod common;
 
 use std::os::unix::fs::{FileTypeExt, MetadataExt};
