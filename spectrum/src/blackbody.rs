@@ -213,6 +213,16 @@ impl Blackbody {
                 reason: "wavelengths must be > 0",
             });
         }
+        // A temperature whose radiance overflows f64 somewhere in the range cannot be
+        // approximated at any error: say so up front, naming the temperature.
+        let mid = 0.5 * (lo + hi);
+        if ![lo, mid, hi].iter().all(|&x| self.eval(x).is_finite()) {
+            return Err(Error::param(
+                "temperature (K)",
+                self.temperature_k,
+                "its radiance overflows f64 over the range",
+            ));
+        }
         let target = 0.5 * max_relative_error;
         let mut pieces = Vec::new();
         let mut stack = vec![(lo, hi, 0u32)];

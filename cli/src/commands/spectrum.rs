@@ -178,7 +178,18 @@ pub fn run(args: Args) -> Result<()> {
             let bb = Blackbody::new(t).context("--blackbody")?;
             let approx = bb
                 .to_piecewise(lo / s, hi / s, args.max_error)
-                .context("--max-error")?;
+                .map_err(|e| {
+                    // Name the flag the error is about.
+                    let flag = match &e {
+                        blueshift_spectrum::Error::Parameter { name, .. }
+                            if name.starts_with("temperature") =>
+                        {
+                            "--blackbody"
+                        }
+                        _ => "--max-error",
+                    };
+                    anyhow::Error::new(e).context(flag)
+                })?;
             rest.add(&approx);
             Some(bb)
         }
