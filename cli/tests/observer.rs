@@ -98,3 +98,44 @@ fn impossible_speeds_are_one_line_errors_that_write_nothing() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--searchlight needs"));
 }
+
+/// A Doppler scene file's `observer_velocity` is the same observer as the flags: the scene
+/// with `[0, 0, -0.2]` renders the bytes `--beta 0.2` (along the default view, -z) does.
+#[test]
+fn a_scene_file_observer_equals_the_flags() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = blueshift()
+        .args(["synth", "hydrogen-shell", "--res", "16"])
+        .arg(d.join("shell.nrrd"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let scene = |observer: &str| {
+        format!(
+            r#"{{ "velocity": {{ "file": "shell.nrrd", "channel": "velocity_m_per_s" }},
+                 "species": [{{ "name": "H", "lines": "H",
+                               "density": {{ "file": "shell.nrrd", "channel": "hi_density" }} }}]
+                 {observer} }}"#
+        )
+    };
+    std::fs::write(d.join("moving.json"), scene(r#", "observer_velocity": [0, 0, -0.2]"#)).unwrap();
+    std::fs::write(d.join("still.json"), scene("")).unwrap();
+    let run = |scene: &str, extra: &[&str], out: &str| {
+        let o = blueshift()
+            .args(["doppler", "--width", "16", "--height", "16", "--scene"])
+            .arg(d.join(scene))
+            .args(extra)
+            .arg("--out")
+            .arg(d.join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(d.join(out)).unwrap()
+    };
+    let from_file = run("moving.json", &[], "a.exr");
+    let from_flag = run("still.json", &["--beta", "0.2"], "b.exr");
+    let at_rest = run("still.json", &[], "c.exr");
+    assert_eq!(from_file, from_flag);
+    assert_ne!(from_file, at_rest);
+}

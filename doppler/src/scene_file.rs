@@ -49,6 +49,10 @@
 //!   with densities in cm^-3, strength-1 lines and world lengths in cm that is `cm-2`);
 //!   `world_unit` is `UNIT:SCALE`, one world length = SCALE UNIT (FITS `CUNIT1/2` and the
 //!   `CDELT` scale). The CLI's `--bunit` and `--world-unit` override them.
+//! - `observer_velocity` (optional): `[beta_x, beta_y, beta_z]`, a moving observer's velocity
+//!   relative to the scene in units of c (`|beta| < 1`; see
+//!   [`blueshift_relativity::MovingObserver`]); the CLI's `--observer-velocity`, `--beta` and
+//!   `--ramp` override it.
 //!
 //! Unknown keys are refused, so a misspelt unit or key is an error, not a silent default.
 
@@ -200,6 +204,9 @@ pub struct SceneFile {
     /// Units of the spectral cubes rendered from the scene.
     #[serde(default)]
     pub cube: Option<CubeUnitsSpec>,
+    /// A moving observer's velocity relative to the scene, units of c (`|beta| < 1`).
+    #[serde(default)]
+    pub observer_velocity: Option<[f64; 3]>,
     /// Folder the relative paths start from (set by [`SceneFile::read`]).
     #[serde(skip)]
     pub base: PathBuf,
@@ -244,6 +251,24 @@ impl SceneFile {
             Error::SceneFile { message, .. } => file_err(path, message),
             other => other,
         })
+    }
+
+    /// The scene's moving observer ([`SceneFile::observer_velocity`]), with the searchlight
+    /// as given; `None` without one.
+    ///
+    /// # Errors
+    /// A velocity of `|beta| >= 1` or with NaN components.
+    pub fn observer(&self, searchlight: bool) -> Result<Option<blueshift_relativity::MovingObserver>> {
+        self.observer_velocity
+            .map(|b| {
+                let v = blueshift_relativity::Velocity::new(glam::DVec3::from_array(b))
+                    .map_err(|e| Error::scene(format!("observer_velocity: {e}")))?;
+                Ok(blueshift_relativity::MovingObserver {
+                    velocity: v,
+                    searchlight,
+                })
+            })
+            .transpose()
     }
 
     /// Names of the parts a `--species` selection may name: `bb` (if there is a black body)

@@ -235,3 +235,26 @@ fn a_cube_of_a_still_medium_has_the_observer_velocity() {
         );
     }
 }
+
+/// The rotating hydrogen shell (`v = (omega z, 0, -omega x)`) seen along -z by an observer
+/// moving with the shell's gas at one point `(x0, 0, z0)` of the pixel's line of sight: that
+/// gas, and every parcel on the line of sight (the same `v_z`, the same speed up to the
+/// shell's thickness), is seen at its rest wavelength, where at rest the line is shifted by
+/// `omega x0 / c` (about 0.5 nm).
+#[test]
+fn an_observer_moving_with_the_shell_at_one_point_sees_its_line_unshifted() {
+    let vol = synth::hydrogen_shell(40, 1).unwrap();
+    let s = DopplerScene::from_volume(&vol, &["H"]).unwrap();
+    let mut st = DopplerSettings::default_for(&s, 20, 20);
+    st.model = DopplerModel::Relativistic;
+    st.line_width_nm = 0.05;
+    // Pixel (12, 10): x = 0.25, y = -0.05 on the [-1, 1] square.
+    let (x0, z0) = (0.25f64, (0.6f64 * 0.6 - 0.25 * 0.25).sqrt());
+    let omega = f64::from(synth::SHELL_SPEED_M_PER_S) / f64::from(synth::SHELL_RADIUS);
+    let rest = line_at(&s, &st, 12, 10);
+    assert!(rest - HALPHA > 0.3, "at rest the receding side is red-shifted: {rest}");
+    let beta = DVec3::new(omega * z0, 0.0, -omega * x0) / SPEED_OF_LIGHT_M_PER_S;
+    st.observer = observer(beta);
+    let seen = line_at(&s, &st, 12, 10);
+    assert!((seen - HALPHA).abs() < 1e-5 * HALPHA, "{seen}");
+}

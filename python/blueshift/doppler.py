@@ -277,6 +277,8 @@ class Scene:
         number, ``pNN``, ``per-pixel``), ``exposure`` (stops); ``device`` (``cpu``, the
         reference; ``gpu``; ``auto``: a hardware GPU when it supports the scene) and
         ``gpu_precision`` (``auto``, ``f32``, ``f64``). ``Render.backend`` says where it ran.
+        A moving observer: ``observer_velocity=(bx, by, bz)`` (units of c) or ``beta`` along
+        ``direction`` (default: the view direction); with ``invariant`` the searchlight.
         """
         out = self._native.render(self._opts(width, height, opts))
         rgb = Image(out["rgb8"], "srgb8")

@@ -57,6 +57,12 @@ pub(crate) struct Opts {
     device: Option<String>,
     /// `auto`, `f32` or `f64` on the GPU.
     gpu_precision: Option<String>,
+    /// A moving observer (`doppler --observer-velocity`): beta_x, beta_y, beta_z.
+    observer_velocity: Option<[f64; 3]>,
+    /// The observer's speed along `direction` (`--beta`).
+    beta: Option<f64>,
+    /// The direction of `beta` (`--direction`; default: the view direction).
+    direction: Option<[f64; 3]>,
     // Display.
     matrix: Option<String>,
     exposure_scale: Option<String>,
@@ -139,7 +145,39 @@ impl Opts {
             .map_err(|e| Fail::msg(format!("eye/target/up: {e}")))?;
         st.camera = cam;
         st.broadening = self.broadening()?;
+        st.observer = self.observer(&st)?;
         Ok(st)
+    }
+
+    /// The moving observer of `observer_velocity`, or `beta` along `direction` (default the
+    /// view direction), as `blueshift doppler` makes it; the searchlight follows `invariant`.
+    fn observer(
+        &self,
+        st: &DopplerSettings,
+    ) -> Result<Option<blueshift_relativity::MovingObserver>, Fail> {
+        use blueshift_relativity::{MovingObserver, Velocity};
+        let velocity = match (self.observer_velocity, self.beta) {
+            (Some(_), Some(_)) => {
+                return Err(Fail::msg("give observer_velocity or beta, not both"));
+            }
+            (Some(b), None) => Velocity::new(glam::DVec3::from_array(b))
+                .map_err(|e| Fail::msg(format!("observer_velocity: {e}")))?,
+            (None, Some(b)) => {
+                let d = match self.direction {
+                    Some(d) => glam::DVec3::from_array(d),
+                    None => (st.camera.target - st.camera.eye).as_dvec3(),
+                };
+                Velocity::along(d, b).map_err(|e| Fail::msg(format!("beta {b}: {e}")))?
+            }
+            (None, None) if self.direction.is_some() => {
+                return Err(Fail::msg("direction needs beta"));
+            }
+            (None, None) => return Ok(None),
+        };
+        Ok(Some(MovingObserver {
+            velocity,
+            searchlight: st.invariant,
+        }))
     }
 
     fn broadening(&self) -> Result<Broadening, Fail> {

@@ -244,7 +244,7 @@ def test_images_show_in_jupyter():
 def test_absurd_requests_are_refused_before_any_work():
     with pytest.raises(blueshift.BlueshiftError, match="pieces"):
         spectrum.blackbody(5000.0, max_error=1e-300)
-    with pytest.raises(blueshift.BlueshiftError, match="pieces"):
+    with pytest.raises(blueshift.BlueshiftError, match="temperature"):
         spectrum.blackbody(1e300)
     with pytest.raises(blueshift.BlueshiftError, match="4 GiB"):
         blueshift.relativity.render("checker", beta=0.5, width=32768, height=32768)

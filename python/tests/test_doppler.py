@@ -455,3 +455,22 @@ def test_bricked_scene_reads_out_of_core_with_levels_equal_to_the_cli(cli, tmp_p
         s.at_level(3)
     with pytest.raises(blueshift.BlueshiftError):
         doppler.Scene.read(path, cache_mb=0)
+
+
+def test_a_moving_observer_sees_the_doppler_factor_of_its_direction():
+    # A still medium (no velocity): the observer flying head-on into the view at beta sees
+    # H-alpha at lambda0 / sqrt((1 + b) / (1 - b)); beta 0 changes no byte of the image.
+    dens, vel, temp = _shell(omega=0.0)
+    scene = doppler.Scene(velocity=vel, temperature=temp, species={"H": dens})
+    lam0 = [w for w, _ in blueshift.spectrum.catalogue("H") if 650 < w < 660][0]
+    b = 0.2
+    w, v = scene.spectrum(12, 12, width=24, height=24, doppler="relativistic", line_width=0.05, beta=b)
+    d = math.sqrt((1 + b) / (1 - b))
+    win = (w > lam0 / d - 3) & (w < lam0 / d + 3)
+    cen = np.trapezoid(w[win] * v[win], w[win]) / np.trapezoid(v[win], w[win])
+    assert abs(cen - lam0 / d) < 1e-3
+    a = scene.render(width=16, height=16)
+    z = scene.render(width=16, height=16, beta=0.0)
+    np.testing.assert_array_equal(a.xyz, z.xyz)
+    with pytest.raises(Exception, match="beta"):
+        scene.render(width=16, height=16, beta=1.0)

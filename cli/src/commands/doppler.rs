@@ -653,13 +653,20 @@ pub fn run(args: Args) -> Result<()> {
     )
 }
 
-/// The observer of `args` for the view of `st` (the default direction of `--beta`).
+/// The observer of `args` for the view of `st` (the default direction of `--beta`), else the
+/// scene file's `observer_velocity`.
 fn observer_for(
     args: &Args,
     st: &DopplerSettings,
 ) -> Result<Option<blueshift_relativity::MovingObserver>> {
     let view = (st.camera.target - st.camera.eye).normalize_or_zero();
-    args.observer.observer(view, None, args.invariant)
+    if let Some(o) = args.observer.observer(view, None, args.invariant)? {
+        return Ok(Some(o));
+    }
+    match &args.scene {
+        Some(p) => Ok(SceneFile::read(p)?.observer(args.invariant)?),
+        None => Ok(None),
+    }
 }
 
 fn run_frame(args: Args) -> Result<()> {
