@@ -110,16 +110,24 @@ fn a_scene_file_observer_equals_the_flags() {
         .arg(d.join("shell.nrrd"))
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let scene = |observer: &str| {
         format!(
-            r#"{{ "velocity": {{ "file": "shell.nrrd", "channel": "velocity_m_per_s" }},
+            r#"{{ "velocity": {{ "file": "shell_velocity_m_per_s.nrrd" }},
                  "species": [{{ "name": "H", "lines": "H",
-                               "density": {{ "file": "shell.nrrd", "channel": "hi_density" }} }}]
+                               "density": {{ "file": "shell.nrrd" }} }}]
                  {observer} }}"#
         )
     };
-    std::fs::write(d.join("moving.json"), scene(r#", "observer_velocity": [0, 0, -0.2]"#)).unwrap();
+    std::fs::write(
+        d.join("moving.json"),
+        scene(r#", "observer_velocity": [0, 0, -0.2]"#),
+    )
+    .unwrap();
     std::fs::write(d.join("still.json"), scene("")).unwrap();
     let run = |scene: &str, extra: &[&str], out: &str| {
         let o = blueshift()

@@ -258,7 +258,10 @@ impl SceneFile {
     ///
     /// # Errors
     /// A velocity of `|beta| >= 1` or with NaN components.
-    pub fn observer(&self, searchlight: bool) -> Result<Option<blueshift_relativity::MovingObserver>> {
+    pub fn observer(
+        &self,
+        searchlight: bool,
+    ) -> Result<Option<blueshift_relativity::MovingObserver>> {
         self.observer_velocity
             .map(|b| {
                 let v = blueshift_relativity::Velocity::new(glam::DVec3::from_array(b))

@@ -252,7 +252,10 @@ fn an_observer_moving_with_the_shell_at_one_point_sees_its_line_unshifted() {
     let (x0, z0) = (0.25f64, (0.6f64 * 0.6 - 0.25 * 0.25).sqrt());
     let omega = f64::from(synth::SHELL_SPEED_M_PER_S) / f64::from(synth::SHELL_RADIUS);
     let rest = line_at(&s, &st, 12, 10);
-    assert!(rest - HALPHA > 0.3, "at rest the receding side is red-shifted: {rest}");
+    assert!(
+        rest - HALPHA > 0.3,
+        "at rest the receding side is red-shifted: {rest}"
+    );
     let beta = DVec3::new(omega * z0, 0.0, -omega * x0) / SPEED_OF_LIGHT_M_PER_S;
     st.observer = observer(beta);
     let seen = line_at(&s, &st, 12, 10);
