@@ -426,15 +426,43 @@ fn every_target_has_seeds() {
     }
 }
 
-/// Writes the binary seeds under `fuzz/corpus/` (committed; run with `--ignored` to make
-/// them again): two small `.bsv` files (f32 and u8, 4-voxel bricks so that several bricks
-/// and levels fit in a few kilobytes), a PFM and a FITS cube header with its data.
+/// The committed binary seeds under `fuzz/corpus/` are what [`write_binary_seeds`] makes
+/// (so a change of the `.bsv` writer cannot leave the fuzzers on stale files); with
+/// `BLUESHIFT_FUZZ_REGENERATE=1` it writes them there instead.
 #[test]
-#[ignore = "writes the committed seed corpus"]
-fn regenerate_binary_seeds() {
+fn the_binary_seeds_are_what_their_generator_writes() {
+    const FILES: [&str; 4] = [
+        "bsv/ramp_f32.bsv",
+        "bsv/ramp_u8.bsv",
+        "pfm/small.pfm",
+        "fits/cube.fits",
+    ];
+    let committed = workspace_root().join("fuzz/corpus");
+    if std::env::var("BLUESHIFT_FUZZ_REGENERATE").is_ok_and(|v| v == "1") {
+        write_binary_seeds(&committed);
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    for sub in ["bsv", "pfm", "fits"] {
+        std::fs::create_dir_all(dir.path().join(sub)).expect("mkdir");
+    }
+    write_binary_seeds(dir.path());
+    for f in FILES {
+        let made = std::fs::read(dir.path().join(f)).expect("made");
+        let kept = std::fs::read(committed.join(f)).expect("committed seed");
+        assert!(
+            made == kept,
+            "{f} differs from its generator's output (regenerate it)"
+        );
+    }
+}
+
+/// Writes the binary seeds into `corpus`: two small `.bsv` files (f32 and u8, 4-voxel
+/// bricks so that several bricks and levels fit in a few kilobytes), a PFM and a FITS cube
+/// header with its data.
+fn write_binary_seeds(corpus: &Path) {
     use blueshift_volume::ooc::{self, BrickLayout, GridSource};
     use blueshift_volume::{Geometry, Grid};
-    let corpus = workspace_root().join("fuzz/corpus");
     let g = Geometry::unit([9, 6, 5]);
     let f = Grid::<f32>::from_vec(
         g,
