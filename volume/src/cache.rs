@@ -69,6 +69,18 @@ pub trait BrickSource: Send + Sync + fmt::Debug {
     fn positive_min(&self) -> Option<f32> {
         None
     }
+    /// For each brick of `level` (x fastest), the coarsest level that holds all of the
+    /// source's detail there, when the source knows it (adaptive data: an AMR hierarchy's
+    /// region of root cells needs no finer level). [`crate::BrickedField::new`] samples each
+    /// region at that level, and [`crate::BrickedField::per_region`] never goes finer.
+    fn region_levels(&self, _level: usize) -> Option<Vec<u8>> {
+        None
+    }
+    /// True when [`BrickSource::stored_macrocells`] of a level already bound the samples of
+    /// every coarser level a region may take, so they need no widening.
+    fn macrocells_bound_all_levels(&self) -> bool {
+        false
+    }
 }
 
 type Key = (u64, u32, u64);

@@ -607,7 +607,7 @@ impl BrickedField {
             ))
         })?;
         let layout = source.layout();
-        Ok(BrickedField {
+        let field = BrickedField {
             bricks: layout.bricks(geometry.dims),
             uid: source.uid(),
             source,
@@ -616,6 +616,64 @@ impl BrickedField {
             geometry,
             layout,
             regions: None,
+        };
+        // Adaptive sources (AMR) sample each region at the level of its own data.
+        match field.source.region_levels(level) {
+            Some(r) if r.iter().any(|&l| usize::from(l) > level) => field.with_levels(r),
+            _ => Ok(field),
+        }
+    }
+
+    /// This field with the absolute level `levels[i]` (clamped to this level and the
+    /// coarsest) in region `i` (one brick of this level each, x fastest).
+    fn with_levels(mut self, levels: Vec<u8>) -> Result<Self> {
+        let base = self.level;
+        let last = self.levels() - 1;
+        let mut top = 0usize;
+        let levels: Vec<u8> = levels
+            .into_iter()
+            .map(|l| {
+                let l = usize::from(l).clamp(base, last) - base;
+                top = top.max(l);
+                u8::try_from(l).unwrap_or(u8::MAX)
+            })
+            .collect();
+        let plain = BrickedField {
+            regions: None,
+            ..self.clone()
+        };
+        let fields = (0..=top)
+            .map(|l| {
+                if l == 0 {
+                    Ok(plain.clone())
+                } else {
+                    plain.plain_at_level(base + l)
+                }
+            })
+            .collect::<Result<Vec<_>>>()?;
+        self.regions = Some(Arc::new(LevelMap {
+            dims: self.bricks,
+            edge: self.layout.brick,
+            levels,
+            fields,
+        }));
+        Ok(self)
+    }
+
+    /// The same source at another level, one level everywhere (no regions).
+    fn plain_at_level(&self, level: usize) -> Result<Self> {
+        let geometry = *self.source.geometries().get(level).ok_or_else(|| {
+            Error::parameter(format!(
+                "level {level} of a bricked volume with {} levels",
+                self.source.geometries().len()
+            ))
+        })?;
+        Ok(BrickedField {
+            bricks: self.layout.bricks(geometry.dims),
+            level,
+            geometry,
+            regions: None,
+            ..self.clone()
         })
     }
 
@@ -634,8 +692,8 @@ impl BrickedField {
         let edge = self.layout.brick;
         let dims = self.bricks;
         let n = self.geometry.dims;
+        let native = self.source.region_levels(base);
         let mut levels = Vec::with_capacity(dims[0] * dims[1] * dims[2]);
-        let mut top = 0usize;
         for rz in 0..dims[2] {
             for ry in 0..dims[1] {
                 for rx in 0..dims[0] {
@@ -644,24 +702,20 @@ impl BrickedField {
                     let hi = [0, 1, 2].map(|a| (((r[a] + 1) * edge).min(n[a]) - 1) as f32);
                     let w0 = self.geometry.index_to_world(Vec3::from(lo));
                     let w1 = self.geometry.index_to_world(Vec3::from(hi));
-                    let l = pick(w0.min(w1), w0.max(w1)).clamp(base, last) - base;
-                    let l = u8::try_from(l).unwrap_or(u8::MAX);
-                    top = top.max(usize::from(l));
-                    levels.push(l);
+                    let mut l = pick(w0.min(w1), w0.max(w1)).clamp(base, last);
+                    // Never finer than an adaptive source's own data there.
+                    if let Some(n) = &native {
+                        l = l.max(usize::from(n[levels.len()]));
+                    }
+                    levels.push(u8::try_from(l).unwrap_or(u8::MAX));
                 }
             }
         }
-        let fields = (0..=top)
-            .map(|l| self.at_level(base + l))
-            .collect::<Result<Vec<_>>>()?;
-        let mut out = self.clone();
-        out.regions = Some(Arc::new(LevelMap {
-            dims,
-            edge,
-            levels,
-            fields,
-        }));
-        Ok(out)
+        BrickedField {
+            regions: None,
+            ..self.clone()
+        }
+        .with_levels(levels)
     }
 
     /// The per-region levels of detail, when [`BrickedField::per_region`] made this field.
@@ -868,6 +922,9 @@ impl BrickedField {
     /// Macrocells of edge `k`: stored ones if the source has them, else built brick by brick.
     pub fn macrocells(&self, k: usize) -> Result<Macrocells> {
         let m = self.level_macrocells(k)?;
+        if self.source.macrocells_bound_all_levels() {
+            return Ok(m);
+        }
         match &self.regions {
             Some(map) if map.fields.len() > 1 => widen_for_levels(&m, map.fields.len() - 1),
             _ => Ok(m),

@@ -49,6 +49,7 @@
 //! positive radial velocity receding (DESIGN.md). Readers check sizes against [`Limits`]
 //! before allocating and return [`Error`], never panic.
 
+pub mod amr;
 pub mod budget;
 pub mod cache;
 mod error;
