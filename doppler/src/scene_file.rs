@@ -111,6 +111,10 @@ pub struct VelocitySpec {
     /// Three scalar files, the x, y and z components, instead of one 3-vector file (how
     /// bricked `.bsv` velocities are given: bricked files hold scalars).
     pub files: Option<[PathBuf; 3]>,
+    /// Three channels of `file`, the x, y and z components (how AMR output names its
+    /// velocities: `["x-velocity", "y-velocity", "z-velocity"]` for Enzo, `["vel1", "vel2",
+    /// "vel3"]` for Athena++).
+    pub channels: Option<[String; 3]>,
     /// Subtract the mean velocity over all voxels.
     #[serde(default)]
     pub subtract_mean: bool,
@@ -274,6 +278,22 @@ impl SceneFile {
             .transpose()
     }
 
+    /// True when a field of the scene is AMR output (an Enzo parameter file, an Athena++
+    /// `.athdf`): such scenes are sampled at the level of detail the view needs by default
+    /// (their finest level may be far finer than any image).
+    #[must_use]
+    pub fn has_amr(&self) -> bool {
+        let specs = self
+            .temperature
+            .iter()
+            .chain(self.velocity.iter().map(|v| &v.field))
+            .chain(self.blackbody.iter().map(|b| &b.density))
+            .chain(self.species.iter().map(|s| &s.density));
+        specs
+            .filter_map(|f| f.file.as_ref())
+            .any(|p| blueshift_volume::amr::is_amr(&self.base.join(p)))
+    }
+
     /// Names of the parts a `--species` selection may name: `bb` (if there is a black body)
     /// and each species' name.
     #[must_use]
@@ -383,15 +403,23 @@ impl SceneFile {
         }
         let first_component;
         if let Some(v) = &self.velocity {
-            match &v.files {
-                Some([x, _, _]) => {
+            match (&v.files, &v.channels) {
+                (Some([x, _, _]), _) => {
                     first_component = FieldSpec {
                         file: Some(x.clone()),
                         ..FieldSpec::default()
                     };
                     files.push(&first_component);
                 }
-                None => files.push(&v.field),
+                (None, Some([x, _, _])) => {
+                    first_component = FieldSpec {
+                        file: v.field.file.clone(),
+                        channel: Some(x.clone()),
+                        ..FieldSpec::default()
+                    };
+                    files.push(&first_component);
+                }
+                (None, None) => files.push(&v.field),
             }
         }
         if let Some(b) = &self.blackbody {
@@ -404,12 +432,13 @@ impl SceneFile {
         let geometry = loader.geometry.ok_or_else(|| {
             Error::scene("the scene names no file, so it has no grid (give at least one \"file\")")
         })?;
-        // Every field not read out of core becomes a grid of f32 of its own.
-        let in_memory = |f: &FieldSpec| {
-            f.file
-                .as_ref()
-                .is_none_or(|p| Path::new(p).extension().is_none_or(|e| e != "bsv"))
+        // Every field not read out of core (.bsv, AMR output) becomes a grid of f32 of its
+        // own.
+        let out_of_core = |p: &Path| {
+            p.extension().is_some_and(|e| e == "bsv")
+                || blueshift_volume::amr::is_amr(&self.base.join(p))
         };
+        let in_memory = |f: &FieldSpec| f.file.as_ref().is_none_or(|p| !out_of_core(p));
         let mut grids = species.iter().filter(|s| in_memory(&s.density)).count();
         if use_bb {
             let bb = self.blackbody.as_ref().expect("checked above");
@@ -417,9 +446,7 @@ impl SceneFile {
         }
         if let Some(v) = &self.velocity {
             let dense = match &v.files {
-                Some(files) => files
-                    .iter()
-                    .any(|f| Path::new(f).extension().is_none_or(|e| e != "bsv")),
+                Some(files) => files.iter().any(|f| !out_of_core(f)),
                 None => in_memory(&v.field),
             };
             grids += 3 * usize::from(dense);
@@ -491,7 +518,7 @@ impl SceneFile {
             })?;
         }
         if let Some(v) = &self.velocity {
-            let grid = loader.velocity(&v.field, v.files.as_ref())?;
+            let grid = loader.velocity(&v.field, v.files.as_ref(), v.channels.as_ref())?;
             scene.set_velocity(grid)?;
             if v.subtract_mean {
                 scene.subtract_mean_velocity()?;
@@ -553,6 +580,25 @@ impl Loader<'_> {
     fn volume(&self, f: &FieldSpec) -> Result<(Field, PathBuf)> {
         let rel = f.file.as_ref().expect("caller checks file");
         let bricked_path = self.base.join(rel);
+        if blueshift_volume::amr::is_amr(&bricked_path)
+            && rel.to_str().and_then(|k| self.memory.get(k)).is_none()
+        {
+            // AMR output: sampled in place, each region at its own level (never resampled).
+            let path = bricked_path;
+            let cache = self
+                .cache
+                .get_or_init(|| BrickCache::new(blueshift_volume::cache::default_budget()))
+                .clone();
+            let (_, b) = blueshift_volume::amr::open_field(
+                &path,
+                f.channel.as_deref(),
+                cache,
+                &blueshift_volume::Limits::default(),
+            )
+            .map_err(|e| file_err(&path, e.to_string()))?;
+            self.check_dims(b.geometry(), &path)?;
+            return Ok((b.into(), path));
+        }
         if bricked_path.extension().is_some_and(|e| e == "bsv")
             && rel.to_str().and_then(|k| self.memory.get(k)).is_none()
         {
@@ -773,7 +819,12 @@ impl Loader<'_> {
         self.scalar("temperature", f, move |v| v * k)
     }
 
-    fn velocity(&self, f: &FieldSpec, files: Option<&[PathBuf; 3]>) -> Result<VectorField> {
+    fn velocity(
+        &self,
+        f: &FieldSpec,
+        files: Option<&[PathBuf; 3]>,
+        channels: Option<&[String; 3]>,
+    ) -> Result<VectorField> {
         let scale = positive_or("velocity", "scale", f.scale, 1.0)?;
         let k = match f.unit.as_deref().unwrap_or("m/s") {
             "m/s" => 1.0,
@@ -787,19 +838,51 @@ impl Loader<'_> {
             }
         } * scale;
         no_mass_keys("velocity", f)?;
-        if let Some(files) = files {
-            if f.file.is_some() || f.value.is_some() || f.channel.is_some() {
+        let specs: Option<Vec<FieldSpec>> = match (files, channels) {
+            (Some(_), Some(_)) => {
                 return Err(Error::scene(
-                    "velocity: give either \"file\" (a 3-vector) or \"files\" (x, y, z), not both",
+                    "velocity: give \"files\" or \"channels\" (of \"file\"), not both",
                 ));
             }
+            (Some(files), None) => {
+                if f.file.is_some() || f.value.is_some() || f.channel.is_some() {
+                    return Err(Error::scene(
+                        "velocity: give either \"file\" (a 3-vector) or \"files\" (x, y, z), not both",
+                    ));
+                }
+                Some(
+                    files
+                        .iter()
+                        .map(|p| FieldSpec {
+                            file: Some(p.clone()),
+                            ..FieldSpec::default()
+                        })
+                        .collect(),
+                )
+            }
+            (None, Some(chans)) => {
+                if f.file.is_none() || f.value.is_some() || f.channel.is_some() {
+                    return Err(Error::scene(
+                        "velocity: \"channels\" name three channels of one \"file\" (no \"channel\" or \"value\")",
+                    ));
+                }
+                Some(
+                    chans
+                        .iter()
+                        .map(|c| FieldSpec {
+                            file: f.file.clone(),
+                            channel: Some(c.clone()),
+                            ..FieldSpec::default()
+                        })
+                        .collect(),
+                )
+            }
+            (None, None) => None,
+        };
+        if let Some(specs) = specs {
             let mut comps = Vec::with_capacity(3);
-            for p in files {
-                let spec = FieldSpec {
-                    file: Some(p.clone()),
-                    ..FieldSpec::default()
-                };
-                let (g, path) = self.volume(&spec)?;
+            for spec in &specs {
+                let (g, path) = self.volume(spec)?;
                 comps.push((g, path));
             }
             if comps.iter().all(|(g, _)| g.as_bricked().is_some()) {

@@ -391,6 +391,29 @@ impl ChannelSpec {
     ) -> Result<(String, Field)> {
         if let (Some(p), None) = (&self.volume, &self.synth) {
             let p = resolve(base, p);
+            if blueshift_volume::amr::is_amr(&p)
+                && !memory.volumes.contains_key(p.to_str().unwrap_or_default())
+            {
+                // AMR output: sampled in place through the brick cache (never resampled).
+                let cache = memory
+                    .cache
+                    .clone()
+                    .unwrap_or_else(|| BrickCache::new(blueshift_volume::cache::default_budget()));
+                let (name, f) = blueshift_volume::amr::open_field(
+                    &p,
+                    self.channel.as_deref(),
+                    cache,
+                    &blueshift_volume::Limits::default(),
+                )
+                .map_err(|e| {
+                    Error::field_from(
+                        format!("channels[{i}].volume"),
+                        Some(format!("cannot read {}", p.display())),
+                        e,
+                    )
+                })?;
+                return Ok((name, f.into()));
+            }
             let bricked = p.extension().is_some_and(|e| e == "bsv")
                 && !memory.volumes.contains_key(p.to_str().unwrap_or_default());
             if bricked {
@@ -846,9 +869,18 @@ impl RenderSceneFile {
     /// # Errors
     /// An unknown `lod` spelling.
     pub fn lod(&self) -> Result<Lod> {
+        // AMR channels default to the level the view needs: their finest level (2048^3 for
+        // the Enzo snapshot) is far finer than any image.
+        let amr = self.channels.iter().any(|c| {
+            c.synth.is_none()
+                && c.volume.as_deref().is_some_and(|p| {
+                    blueshift_volume::amr::is_amr(&resolve(self.base.as_deref(), p))
+                })
+        });
+        let default = if amr { Lod::Auto } else { Lod::Exact };
         self.lod
             .as_deref()
-            .map_or(Ok(Lod::Exact), str::parse)
+            .map_or(Ok(default), str::parse)
             .map_err(|e: blueshift_volume::Error| Error::field_from("lod", None, e))
     }
 

@@ -199,8 +199,25 @@ impl Field {
         }
     }
 
-    /// Mean of the voxels (0 for none).
+    /// Mean of the voxels (0 for none). A field sampled at a level per region (adaptive
+    /// data) is averaged region by region at each region's own level, each coarse voxel
+    /// weighted by the base voxels it stands for, so an AMR field's mean costs its data's
+    /// size, not its finest level's.
     pub fn mean(&self) -> Result<f64> {
+        if let Field::Bricked(b) = self
+            && b.regions.is_some()
+        {
+            let (mut s, mut n) = (0.0f64, 0.0f64);
+            let (mut v, mut w) = (Vec::new(), Vec::new());
+            for r in 0..b.region_count() {
+                b.region_samples(r, &mut v, &mut w)?;
+                for (&x, &k) in v.iter().zip(&w) {
+                    s += f64::from(x) * k;
+                    n += k;
+                }
+            }
+            return Ok(if n == 0.0 { 0.0 } else { s / n });
+        }
         let (mut s, mut n) = (0.0f64, 0usize);
         self.for_each_block(|v| {
             s += v.iter().map(|&x| f64::from(x)).sum::<f64>();
@@ -220,6 +237,24 @@ impl Field {
             }
         };
         match (self, weights) {
+            (Field::Bricked(a), Field::Bricked(b))
+                if a.bricks == b.bricks
+                    && a.layout == b.layout
+                    && a.regions.is_some()
+                    && a.level_map().map(LevelMap::levels)
+                        == b.level_map().map(LevelMap::levels) =>
+            {
+                let (mut x, mut y, mut k, mut k2) =
+                    (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+                for r in 0..a.region_count() {
+                    a.region_samples(r, &mut x, &mut k)?;
+                    b.region_samples(r, &mut y, &mut k2)?;
+                    for ((&p, &q), &n) in x.iter().zip(&y).zip(&k) {
+                        s += f64::from(p) * f64::from(q) * n;
+                        w += f64::from(q) * n;
+                    }
+                }
+            }
             (Field::Bricked(a), Field::Bricked(b))
                 if a.bricks == b.bricks && a.layout == b.layout =>
             {
@@ -897,6 +932,57 @@ impl BrickedField {
     }
 
     /// The own voxels (no apron) of brick `idx`, x fastest, into `out` (read past the cache).
+    /// Number of regions (bricks of this level).
+    fn region_count(&self) -> usize {
+        self.bricks.iter().product()
+    }
+
+    /// Region `r`'s values at its own level and, for each, how many voxels of this level it
+    /// stands for (1 at this level; without regions, brick `r`'s own voxels).
+    fn region_samples(&self, r: usize, vals: &mut Vec<f32>, weights: &mut Vec<f64>) -> Result<()> {
+        vals.clear();
+        weights.clear();
+        let l = self
+            .regions
+            .as_ref()
+            .map_or(0, |m| usize::from(m.levels[r]));
+        if l == 0 {
+            self.own_voxels(r as u64, vals)?;
+            weights.resize(vals.len(), 1.0);
+            return Ok(());
+        }
+        let m = self.regions.as_ref().expect("l > 0 only with regions");
+        let coarse = &m.fields[l];
+        let (b, n) = (self.layout.brick, self.geometry.dims);
+        let nb = self.bricks;
+        let ri = [r % nb[0], (r / nb[0]) % nb[1], r / (nb[0] * nb[1])];
+        let lo = ri.map(|c| c * b);
+        let hi = [0, 1, 2].map(|a| ((ri[a] + 1) * b).min(n[a]));
+        let f = 1usize << l;
+        let cn = coarse.geometry.dims;
+        let c0 = lo.map(|x| x / f);
+        let c1 = [0, 1, 2].map(|a| hi[a].div_ceil(f).min(cn[a]));
+        for cz in c0[2]..c1[2] {
+            for cy in c0[1]..c1[1] {
+                for cx in c0[0]..c1[0] {
+                    let c = [cx, cy, cz];
+                    // Base voxels of this coarse voxel inside the region.
+                    let k: usize = (0..3)
+                        .map(|a| {
+                            let (x0, x1) = (c[a] * f, (c[a] + 1) * f);
+                            x1.min(hi[a]).saturating_sub(x0.max(lo[a]))
+                        })
+                        .product();
+                    if k > 0 {
+                        vals.push(coarse.voxel(c)?);
+                        weights.push(k as f64);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
     fn own_voxels(&self, idx: u64, out: &mut Vec<f32>) -> Result<()> {
         let (b, a, s) = (
             self.layout.brick,
@@ -1285,5 +1371,32 @@ impl BrickSource for CombinedSource {
     }
     fn positive_min(&self) -> Option<f32> {
         self.positive_min
+    }
+    fn region_levels(&self, level: usize) -> Option<Vec<u8>> {
+        // The finer of the inputs' levels, region by region.
+        let a = self.a.source.region_levels(level)?;
+        match &self.b {
+            None => Some(a),
+            Some(b) => {
+                let b = b.source.region_levels(level)?;
+                Some(a.iter().zip(&b).map(|(x, y)| *x.min(y)).collect())
+            }
+        }
+    }
+    fn stored_macrocells(&self, level: usize, k: usize) -> Result<Option<Macrocells>> {
+        // A non-decreasing map of one input keeps its bounds' order.
+        if self.b.is_some() {
+            return Ok(None);
+        }
+        let Some(m) = self.a.source.stored_macrocells(level, k)? else {
+            return Ok(None);
+        };
+        let f = |v: f32| if v.is_finite() { (self.f)(v, v) } else { v };
+        let lo = m.mins().iter().map(|&v| f(v)).collect();
+        let hi = m.maxs().iter().map(|&v| f(v)).collect();
+        Macrocells::from_parts(*m.geometry(), m.k(), lo, hi).map(Some)
+    }
+    fn macrocells_bound_all_levels(&self) -> bool {
+        self.b.is_none() && self.a.source.macrocells_bound_all_levels()
     }
 }

@@ -42,6 +42,16 @@ pub struct Args {
     /// Brick edge for .bsv output (even, 2..=1024).
     #[arg(long, default_value_t = 64)]
     pub brick: usize,
+    /// AMR input (an Enzo parameter file, an Athena++ .athdf): the refinement level of the
+    /// uniform grid written (0 = the root grid). Required for AMR input.
+    #[arg(long)]
+    pub level: Option<u32>,
+    /// AMR input: how cells are filled. `covering`: yt's covering grid (each cell takes the
+    /// value of the finest block of level <= LEVEL over it; coarser cells repeat);
+    /// `interpolated`: the continuous reconstruction blueshift renders, sampled at the cell
+    /// centres.
+    #[arg(long, default_value = "covering", value_parser = ["covering", "interpolated"])]
+    pub sampling: String,
     #[command(flatten)]
     pub input_args: super::volume_common::InputArgs,
 }
@@ -74,6 +84,12 @@ fn progress_bar(total: u64) -> crate::progress::Progress {
 pub fn run(args: Args) -> Result<()> {
     output::check_outputs(&[args.output.as_path()], &[args.input.as_path()])?;
     let fmt = out_format(&args.output)?;
+    if blueshift_volume::amr::is_amr(&args.input) {
+        return run_amr(&args, fmt);
+    }
+    if args.level.is_some() {
+        anyhow::bail!("--level: only AMR input (an Enzo parameter file, an .athdf) has levels");
+    }
     let ctx = || format!("cannot convert {}", args.input.display());
     let read = |p: &std::path::Path| args.input_args.read(p);
     let opts = args.input_args.read_options()?;
@@ -158,6 +174,97 @@ pub fn run(args: Args) -> Result<()> {
     output::check_outputs(&refs, &[args.input.as_path()])?;
     let written = write_volume(&args.output, &vol, args.channel.as_deref(), &opts)?;
     for p in written {
+        output::wrote(&p);
+    }
+    Ok(())
+}
+
+/// AMR input: one field resampled to the uniform grid of `--level`.
+fn run_amr(args: &Args, fmt: OutFormat) -> Result<()> {
+    use blueshift_volume::amr::Hierarchy;
+    let ctx = || format!("cannot convert {}", args.input.display());
+    let h = Hierarchy::open(&args.input).with_context(ctx)?;
+    let Some(level) = args.level else {
+        let levels: Vec<String> = (0..=h.max_level())
+            .map(|l| {
+                let n = h.level_dims(l);
+                format!("{l} ({}x{}x{})", n[0], n[1], n[2])
+            })
+            .collect();
+        anyhow::bail!(
+            "--level: AMR input needs the level of the grid to write: {}",
+            levels.join(", ")
+        );
+    };
+    if level > h.max_level() {
+        anyhow::bail!(
+            "--level {level}: the hierarchy's finest level is {}",
+            h.max_level()
+        );
+    }
+    let name = match &args.channel {
+        Some(n) => n.clone(),
+        None => ["Density", "rho", "density", "dens"]
+            .iter()
+            .find(|n| h.fields.iter().any(|f| f.name == **n))
+            .map(|n| (*n).to_owned())
+            .or_else(|| h.fields.first().map(|f| f.name.clone()))
+            .ok_or_else(|| anyhow::anyhow!("{} has no fields", args.input.display()))?,
+    };
+    let n = h.level_dims(level);
+    crate::limits::check(
+        format_args!("a {}x{}x{} grid of f32 (--level {level})", n[0], n[1], n[2]),
+        blueshift_volume::budget::grid_bytes(n, 4, 1),
+    )?;
+    let limits = blueshift_volume::Limits::no_limits();
+    let field = h.field(&name, &limits).with_context(ctx)?;
+    let grid = if args.sampling == "covering" {
+        field.covering_grid(level, &limits)
+    } else {
+        field.resample(level, &limits)
+    }
+    .with_context(ctx)?;
+    let mut grid = grid;
+    if let Some(s) = args.spacing {
+        grid = blueshift_volume::Grid::from_vec(
+            Geometry {
+                spacing: s,
+                ..*grid.geometry()
+            },
+            grid.into_vec(),
+        )
+        .with_context(ctx)?;
+    }
+    let unit = h
+        .field_info(&name)
+        .map(|f| f.unit.clone())
+        .unwrap_or_default();
+    eprintln!(
+        "{}: {} AMR field {name} [{unit}] at level {level} ({}x{}x{}, {})",
+        args.input.display(),
+        h.code,
+        n[0],
+        n[1],
+        n[2],
+        args.sampling
+    );
+    if fmt == OutFormat::Bricked {
+        let layout = BrickLayout {
+            brick: args.brick,
+            ..BrickLayout::default()
+        };
+        return brick(&mut GridSource(&grid), args, &name, layout);
+    }
+    let mut vol = blueshift_volume::Volume::new(*grid.geometry()).with_context(ctx)?;
+    vol.push(&name, AnyGrid::F32(grid)).with_context(ctx)?;
+    let opts = nrrd::WriteOptions {
+        gzip: args.gzip,
+        disk: args.disk_type,
+    };
+    let all = volume_outputs(&args.output, &vol, None, &opts)?;
+    let refs: Vec<&std::path::Path> = all.iter().map(PathBuf::as_path).collect();
+    output::check_outputs(&refs, &[args.input.as_path()])?;
+    for p in write_volume(&args.output, &vol, None, &opts)? {
         output::wrote(&p);
     }
     Ok(())

@@ -156,11 +156,12 @@ pub struct Args {
     /// [default: a quarter of physical memory]. The image does not depend on it.
     #[arg(long, value_name = "MIB")]
     pub cache_mb: Option<u64>,
-    /// Level of detail of .bsv fields: exact (the finest: the in-core image, the default),
-    /// auto (the coarsest level whose voxels are no larger than a pixel of the default view
-    /// where the volume is nearest), brick (that rule per brick of the finest level, where
-    /// the brick is nearest: far bricks are read coarse; CPU) or a level number (0 =
-    /// finest).
+    /// Level of detail of .bsv and AMR fields: exact (the finest: the in-core image; the
+    /// default for .bsv), auto (the coarsest level whose voxels are no larger than a pixel
+    /// of the default view where the volume is nearest; the default for AMR output, whose
+    /// regions are each sampled at their own data's level below it), brick (that rule per
+    /// brick of the finest level, where the brick is nearest: far bricks are read coarse;
+    /// CPU) or a level number (0 = finest).
     #[arg(long)]
     pub lod: Option<String>,
     /// Progressive levels of detail (scenes whose fields are all .bsv files; CPU): render
@@ -216,7 +217,10 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
             Some(cache),
             crate::limits::budget(),
         )?;
-        let lod: blueshift_volume::Lod = args.lod.as_deref().unwrap_or("exact").parse()?;
+        // AMR scenes default to the level the view needs (their finest level, 2048^3 for
+        // the Enzo snapshot, is finer than any image); other scenes to the finest level.
+        let default_lod = if file.has_amr() { "auto" } else { "exact" };
+        let lod: blueshift_volume::Lod = args.lod.as_deref().unwrap_or(default_lod).parse()?;
         match scene.levels() {
             Some(levels) if lod == blueshift_volume::Lod::Brick => {
                 if args.progressive {

@@ -187,6 +187,9 @@ pub fn run(args: Args) -> Result<()> {
     if args.input.raw_dims.is_none() && is_fits(&args.file) {
         return run_fits(&args);
     }
+    if blueshift_volume::amr::is_amr(&args.file) {
+        return run_amr(&args);
+    }
     let format = if args.input.raw_dims.is_some() {
         blueshift_volume::io::Format::Raw
     } else {
@@ -332,4 +335,47 @@ fn emit(text: &str) -> Result<()> {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e.into()),
         _ => Ok(()),
     }
+}
+
+/// AMR output (an Enzo parameter file, an Athena++ `.athdf`): levels, blocks, fields, units.
+fn run_amr(args: &Args) -> Result<()> {
+    let h = blueshift_volume::amr::Hierarchy::open(&args.file)
+        .map_err(|e| super::volume_common::with_path(&e, &args.file))?;
+    if !args.json {
+        print!("{}", blueshift_volume::amr::describe(&h));
+        return Ok(());
+    }
+    let levels: Vec<_> = (0..=h.max_level())
+        .map(|l| {
+            let blocks: Vec<_> = h.blocks.iter().filter(|b| b.level == l).collect();
+            json!({
+                "level": l,
+                "blocks": blocks.len(),
+                "cells": blocks.iter().map(|b| b.cells()).sum::<usize>(),
+                "cell_size": h.cell_size(l).x,
+                "uniform_dims": h.level_dims(l),
+            })
+        })
+        .collect();
+    let fields: Vec<_> = h
+        .fields
+        .iter()
+        .map(|f| json!({ "name": f.name, "unit": f.unit, "code_to_unit": f.to_unit }))
+        .collect();
+    let out = json!({
+        "file": args.file.display().to_string(),
+        "format": "amr",
+        "code": h.code,
+        "blocks": h.blocks.len(),
+        "levels": levels,
+        "refinement_ratio": h.ratio,
+        "root_dims": h.root_dims,
+        "domain": [h.domain_lo.to_array(), h.domain_hi.to_array()],
+        "time": h.time,
+        "redshift": h.redshift,
+        "length_unit_cm": h.length_unit_cm,
+        "fields": fields,
+    });
+    println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(())
 }

@@ -169,11 +169,12 @@ pub struct Args {
     /// quarter of physical memory]. The image does not depend on it.
     #[arg(long, value_name = "MIB")]
     pub cache_mb: Option<u64>,
-    /// Level of detail of .bsv channels: exact (the finest level: the in-core image, the
-    /// default), auto (the coarsest level whose voxels are no larger than a pixel where the
-    /// volume is nearest to the camera), brick (that rule per brick of the finest level,
-    /// where the brick is nearest: far bricks are read coarse; CPU), or a level number (0 =
-    /// finest).
+    /// Level of detail of .bsv and AMR channels: exact (the finest level: the in-core image;
+    /// the default for .bsv), auto (the coarsest level whose voxels are no larger than a
+    /// pixel where the volume is nearest to the camera; the default for AMR output, whose
+    /// regions are each sampled at their own data's level below it), brick (that rule per
+    /// brick of the finest level, where the brick is nearest: far bricks are read coarse;
+    /// CPU), or a level number (0 = finest).
     #[arg(long)]
     pub lod: Option<String>,
     /// Progressive levels of detail (every channel a .bsv file; CPU): one quick pass (1 spp)

@@ -225,7 +225,7 @@ pub(super) fn open(param: &Path) -> Result<Hierarchy> {
         let dx = (right - left) / DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
         let lv = (root_dx.x / dx.x).log(f64::from(ratio));
         let level = lv.round();
-        if !lv.is_finite() || (lv - level).abs() > 1e-6 || level < 0.0 || level > 30.0 {
+        if !lv.is_finite() || (lv - level).abs() > 1e-6 || !(0.0..=30.0).contains(&level) {
             return Err(Error::invalid(format!(
                 "{}: grid {id}'s cell size {} is not the root's {} refined by {ratio}^n",
                 hpath.display(),

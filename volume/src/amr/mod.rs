@@ -388,7 +388,7 @@ impl AmrField {
                 for z in lo[2]..hi[2] {
                     for y in lo[1]..hi[1] {
                         for x in lo[0]..hi[0] {
-                            let l = local(&b, [x, y, z]);
+                            let l = local(b, [x, y, z]);
                             leaf[i][l] = false;
                         }
                     }
@@ -931,4 +931,32 @@ fn three<T: std::str::FromStr>(v: &str, what: &str) -> Result<[T; 3]> {
         .map_err(|_| Error::invalid(format!("{what} = '{v}': not three numbers")))?;
     <[T; 3]>::try_from(parts)
         .map_err(|_| Error::invalid(format!("{what} = '{v}': not three numbers")))
+}
+
+/// Opens field `name` of the AMR output at `path` (its default field when `None`: the gas
+/// density, `Density`, `rho` or `density`, else the first) as a [`BrickedField`] at the
+/// finest level, each region sampled at its own data's level, read through `cache`.
+/// Returns the field's name with it.
+///
+/// # Errors
+/// As [`Hierarchy::open`] and [`Hierarchy::field`].
+pub fn open_field(
+    path: &Path,
+    name: Option<&str>,
+    cache: Arc<crate::BrickCache>,
+    limits: &Limits,
+) -> Result<(String, crate::BrickedField)> {
+    let h = Hierarchy::open(path)?;
+    let name = match name {
+        Some(n) => n.to_owned(),
+        None => ["Density", "rho", "density", "dens"]
+            .iter()
+            .find(|n| h.fields.iter().any(|f| f.name == **n))
+            .map(|n| (*n).to_owned())
+            .or_else(|| h.fields.first().map(|f| f.name.clone()))
+            .ok_or_else(|| Error::invalid(format!("{}: no fields", path.display())))?,
+    };
+    let field = Arc::new(h.field(&name, limits)?);
+    let bricked = crate::BrickedField::new(field.source(), cache, 0)?;
+    Ok((name, bricked))
 }
