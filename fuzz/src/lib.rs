@@ -2,7 +2,7 @@
 //! MetaImage, VTK, Open SciVis raw names, the bricked `.bsv`), HDR images through the
 //! tonemap reader (EXR, Radiance, PFM), transfer functions (blueshift and ParaView JSON),
 //! Doppler and render scene JSON (parsed and loaded), emission-line lists, spectrum CSV and
-//! FITS headers.
+//! FITS headers, and AMR output (Athena++ `.athdf`, Enzo HDF5 grids).
 //!
 //! Each target takes arbitrary bytes and must return, whatever they are, without a panic,
 //! an abort, unbounded memory or unbounded time: an error is the right answer to a bad
@@ -128,6 +128,16 @@ pub const TARGETS: &[Target] = &[
         name: "fits",
         run: fits,
         seeds: &["fuzz/corpus/fits"],
+    },
+    Target {
+        name: "athdf",
+        run: athdf,
+        seeds: &["volume/tests/data/amr/athena2.athdf"],
+    },
+    Target {
+        name: "enzo_hdf5",
+        run: enzo_hdf5,
+        seeds: &["volume/tests/data/amr/enzo2/amr2_0000.cpu0000"],
     },
 ];
 
@@ -339,4 +349,45 @@ pub fn spectrum_csv(data: &[u8]) -> bool {
 /// A FITS file's primary header (as the cube tests read what the CLI writes).
 pub fn fits(data: &[u8]) -> bool {
     std::hint::black_box(blueshift_doppler::read_fits(data)).is_ok()
+}
+
+/// An AMR hierarchy read whole: the field's blocks, a few reconstructed samples and one
+/// brick of its finest level.
+fn amr(p: &Path, field: &str) -> bool {
+    use blueshift_volume::amr::Hierarchy;
+    let Ok(h) = Hierarchy::open(p) else {
+        return false;
+    };
+    let Ok(f) = h.field(field, &blueshift_volume::Limits::default()) else {
+        return false;
+    };
+    for t in [0.0, 0.31, 0.5, 0.97] {
+        let q = h.domain_lo + (h.domain_hi - h.domain_lo) * t;
+        std::hint::black_box(f.sample(q));
+    }
+    let f = std::sync::Arc::new(f);
+    std::hint::black_box(f.source().read_brick(0, 0)).is_ok()
+}
+
+/// An Athena++ `.athdf` file (HDF5 attributes, block layout, the `prim` dataset).
+pub fn athdf(data: &[u8]) -> bool {
+    with_file(data, "athdf", |p| amr(p, "rho"))
+}
+
+/// The HDF5 grid file of a two-level Enzo hierarchy (its parameter and hierarchy files are
+/// the committed fixture's).
+pub fn enzo_hdf5(data: &[u8]) -> bool {
+    let Ok(dir) = tempfile::tempdir() else {
+        return false;
+    };
+    let src = workspace_root().join("volume/tests/data/amr/enzo2");
+    for name in ["amr2_0000", "amr2_0000.hierarchy"] {
+        if std::fs::copy(src.join(name), dir.path().join(name)).is_err() {
+            return false;
+        }
+    }
+    if std::fs::write(dir.path().join("amr2_0000.cpu0000"), data).is_err() {
+        return false;
+    }
+    amr(&dir.path().join("amr2_0000"), "Density")
 }

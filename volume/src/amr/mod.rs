@@ -70,13 +70,14 @@ impl Block {
     /// One past the last cell, per axis.
     #[must_use]
     pub fn hi(&self) -> [i64; 3] {
-        [0, 1, 2].map(|a| self.lo[a] + self.dims[a] as i64)
+        [0, 1, 2]
+            .map(|a| self.lo[a].saturating_add(i64::try_from(self.dims[a]).unwrap_or(i64::MAX)))
     }
 
     /// Number of cells.
     #[must_use]
     pub fn cells(&self) -> usize {
-        self.dims.iter().product()
+        self.dims.iter().fold(1usize, |a, &d| a.saturating_mul(d))
     }
 }
 
@@ -146,9 +147,9 @@ impl Hierarchy {
     /// the domain, levels not refined by the stated ratio), more than [`MAX_BLOCKS`].
     pub fn open(path: &Path) -> Result<Hierarchy> {
         let h = if path.extension().is_some_and(|e| e == "athdf") {
-            athena::open(path)?
+            guarded(path, || athena::open(path))?
         } else if enzo::hierarchy_path(path).is_file() {
-            enzo::open(path)?
+            guarded(path, || enzo::open(path))?
         } else {
             return Err(Error::unsupported(format!(
                 "{}: not AMR output this reader knows (an Enzo parameter file with its \
@@ -303,8 +304,8 @@ impl Hierarchy {
         let cells: u64 = self.blocks.iter().map(|b| b.cells() as u64).sum();
         limits.check([usize::try_from(cells).unwrap_or(usize::MAX), 1, 1], 4)?;
         let mut values = match &self.reader {
-            Reader::Enzo(f) => enzo::read_field(f, self, &info.name)?,
-            Reader::Athena(f) => athena::read_field(f, self, &info.name)?,
+            Reader::Enzo(f) => guarded(&self.path, || enzo::read_field(f, self, &info.name))?,
+            Reader::Athena(f) => guarded(&self.path, || athena::read_field(f, self, &info.name))?,
             Reader::Memory => {
                 return Err(Error::parameter(
                     "an in-memory hierarchy's fields are made with AmrField::new",
@@ -788,6 +789,17 @@ impl AmrField {
         }
         Macrocells::from_parts(g, k, min, max)
     }
+}
+
+/// Runs an HDF5 read, turning a panic inside the third-party parser (on malformed data it
+/// has not foreseen) into an error for `path`: a bad file never takes the process down.
+fn guarded<T>(path: &Path, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|_| {
+        Err(Error::invalid(format!(
+            "{}: the HDF5 reader failed on malformed data",
+            path.display()
+        )))
+    })
 }
 
 /// Cell `cell` (in cells of the block's level) of block `b`, x fastest.
