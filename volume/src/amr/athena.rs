@@ -59,7 +59,7 @@ fn usize3(v: &[f64], name: &str, path: &Path) -> Result<[usize; 3]> {
     if v.len() < 3
         || v.iter()
             .take(3)
-            .any(|&x| !(1.0..=f64::from(1u32 << 24)).contains(&x))
+            .any(|&x| !(1.0..=f64::from(1u32 << 16)).contains(&x))
     {
         return Err(Error::invalid(format!(
             "{}: {name} = {v:?}",
