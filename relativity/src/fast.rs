@@ -49,19 +49,18 @@ fn atan_small(t: f64) -> f64 {
 }
 
 /// `atan2(y, x)` in `[-pi, pi]` to within [`ATAN2_MAX_ERROR_RAD`], with `f64::atan2`'s
-/// quadrants and signed zeros; `atan2(0, 0)` is `0` or `+-pi` as for `f64::atan2`.
+/// quadrants and signed zeros; `atan2(0, 0)` is `0` or `+-pi` as for `f64::atan2`. One
+/// division: the ratio `t = min / max` of the magnitudes, or above `tan(pi / 8)` the
+/// reduced `(t - 1) / (t + 1) = (min - max) / (min + max)`, then [`atan_small`].
 #[must_use]
 #[inline]
 pub fn atan2(y: f64, x: f64) -> f64 {
     let (ax, ay) = (x.abs(), y.abs());
-    let (num, den) = if ay > ax { (ax, ay) } else { (ay, ax) };
-    // t in [0, 1]: the angle of the smaller over the larger component.
-    let t = if den > 0.0 { num / den } else { 0.0 };
-    let mut a = if t > TAN_PI_8 {
-        FRAC_PI_4 + atan_small((t - 1.0) / (t + 1.0))
-    } else {
-        atan_small(t)
-    };
+    let (mn, mx) = (ax.min(ay), ax.max(ay));
+    let big = mn > TAN_PI_8 * mx;
+    let (num, den) = if big { (mn - mx, mn + mx) } else { (mn, mx) };
+    let r = if den > 0.0 { num / den } else { 0.0 };
+    let mut a = atan_small(r) + if big { FRAC_PI_4 } else { 0.0 };
     if ay > ax {
         a = FRAC_PI_2 - a;
     }
@@ -95,25 +94,33 @@ impl<'a> EquirectTexels<'a> {
         [self.data[i], self.data[i + 1], self.data[i + 2]]
     }
 
-    /// [`EquirectMap::sample`] with [`atan2`] for the longitude and the polar angle
-    /// (`acos(y) = atan2(sqrt(x^2 + z^2), y)` for a unit direction, and for any other length): the same arithmetic
-    /// after the angles.
+    /// The continuous texel coordinates `(x, y)` of direction `d` (the arithmetic of
+    /// [`EquirectMap::sample`] up to its `floor`), with [`atan2`] for the longitude and the
+    /// polar angle (`acos(y) = atan2(sqrt(x^2 + z^2), y)` for a unit direction, and for any
+    /// other length): `x` in `[-0.5, width - 0.5]`, `y` clamped to `[0, height - 1]`.
     #[inline]
-    pub(crate) fn sample(&self, d: DVec3) -> Rgb {
-        let (w, h) = (self.width, self.height);
+    pub(crate) fn coords(&self, d: DVec3) -> (f64, f64) {
         let lon = atan2(d.x, -d.z);
         let polar = atan2((d.x * d.x + d.z * d.z).sqrt(), d.y);
         let u = 0.5 + lon / TAU;
         let v = polar / PI;
-        let x = u * f64::from(w) - 0.5;
-        let y = (v * f64::from(h) - 0.5).clamp(0.0, f64::from(h - 1));
-        let x0 = x.floor();
-        let y0 = y.floor();
-        let fx = (x - x0) as f32;
-        let fy = (y - y0) as f32;
+        let x = u * f64::from(self.width) - 0.5;
+        let y = (v * f64::from(self.height) - 0.5).clamp(0.0, f64::from(self.height - 1));
+        (x, y)
+    }
+
+    /// The bilinear sample at texel coordinates from [`Self::coords`] (wrapping in x).
+    #[inline]
+    pub(crate) fn fetch(&self, (x, y): (f64, f64)) -> Rgb {
+        let (w, h) = (self.width, self.height);
+        // floor without a libm call: x > -1 and y >= 0 here, so truncation corrects by one
+        // below zero only.
+        let xt = x as i64;
+        let xi = if x < xt as f64 { xt - 1 } else { xt };
+        let ya = y as u32;
+        let fx = (x - xi as f64) as f32;
+        let fy = (y - f64::from(ya)) as f32;
         let wi = i64::from(w);
-        // x lies in [-0.5, w - 0.5] (u in [0, 1]): wrap without an integer division.
-        let xi = x0 as i64;
         let xa = if xi < 0 {
             xi + wi
         } else if xi >= wi {
@@ -128,7 +135,7 @@ impl<'a> EquirectTexels<'a> {
         };
         let xb = if xa + 1 == wi { 0 } else { xa + 1 };
         let (xa, xb) = (xa as u32, xb as u32);
-        let ya = y0 as u32;
+        let ya = ya.min(h - 1);
         let yb = (ya + 1).min(h - 1);
         let top = lerp3(self.texel(xa, ya), self.texel(xb, ya), fx);
         let bot = lerp3(self.texel(xa, yb), self.texel(xb, yb), fx);

@@ -250,8 +250,11 @@ pub fn render(
 /// The side of the blocks [`render`] walks the image in, pixels.
 const TILE: usize = 32;
 
-/// The per-pixel work of [`render`] on a run of pixels of one row: `sx` their image-plane
-/// x coordinates, `sy` the row's.
+/// The per-pixel work of [`render`] on a run of at most [`TILE`] pixels of one row (`sx`
+/// their image-plane x coordinates, `sy` the row's), in stages that each loop over the run:
+/// directions and Doppler factors, map coordinates, texel fetches, colour. Each stage's body
+/// is short and its iterations independent, so the processor overlaps many pixels instead
+/// of waiting on one pixel's long chain of divisions and polynomials.
 fn render_block_rows<'a>(
     frame: &'a CameraFrame,
     env: &'a Environment,
@@ -262,28 +265,50 @@ fn render_block_rows<'a>(
 ) -> impl Fn(&mut [f32], &[f64], f64) + Sync + 'a {
     let shade = effects.doppler || effects.searchlight;
     move |row: &mut [f32], sx: &[f64], sy: f64| {
-        for (out, &sx) in row.chunks_exact_mut(3).zip(sx) {
-            let d_obs = frame.direction_at(sx, sy);
-            let d_scene = if effects.aberration {
+        let n = sx.len().min(TILE);
+        let mut dirs = [DVec3::ZERO; TILE];
+        let mut dop = [1.0_f64; TILE];
+        for i in 0..n {
+            let d_obs = frame.direction_at(sx[i], sy);
+            dirs[i] = if effects.aberration {
                 velocity.observer_to_scene(d_obs)
             } else {
                 d_obs
             };
-            let mut rgb = match &equirect {
-                Some(m) => m.sample(d_scene),
-                None => env.sample(d_scene),
-            };
             if shade {
-                let dop = velocity.doppler_factor_observer(d_obs);
-                if let Some(t) = table {
-                    rgb = t.apply_linear_d(dop, rgb);
+                dop[i] = velocity.doppler_factor_observer(d_obs);
+            }
+        }
+        let mut rgb = [[0.0_f32; 3]; TILE];
+        match &equirect {
+            Some(m) => {
+                let mut at = [(0.0_f64, 0.0_f64); TILE];
+                for i in 0..n {
+                    at[i] = m.coords(dirs[i]);
                 }
-                if effects.searchlight {
-                    let f = searchlight_integrated(dop) as f32;
-                    rgb = rgb.map(|c| c * f);
+                for i in 0..n {
+                    rgb[i] = m.fetch(at[i]);
                 }
             }
-            out.copy_from_slice(&rgb);
+            None => {
+                for i in 0..n {
+                    rgb[i] = env.sample(dirs[i]);
+                }
+            }
+        }
+        if shade {
+            for i in 0..n {
+                if let Some(t) = table {
+                    rgb[i] = t.apply_linear_d(dop[i], rgb[i]);
+                }
+                if effects.searchlight {
+                    let f = searchlight_integrated(dop[i]) as f32;
+                    rgb[i] = rgb[i].map(|c| c * f);
+                }
+            }
+        }
+        for (out, c) in row.chunks_exact_mut(3).zip(&rgb[..n]) {
+            out.copy_from_slice(c);
         }
     }
 }
