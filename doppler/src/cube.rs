@@ -418,7 +418,9 @@ impl<'a> KinkBins<'a> {
             SpectralAxis::RadioVelocity => SPEED_OF_LIGHT_M_PER_S * (1.0 - self.spec.rest_nm / x),
             SpectralAxis::Wavelength => x,
         };
-        let guess = ((a - self.spec.min) / self.spec.width()).floor();
+        // Truncation is the floor where it matters (guess > 0); the walks below correct
+        // any rounding.
+        let guess = (a - self.spec.min) / self.spec.width();
         let mut k = if guess > 0.0 {
             (guess as usize).min(n - 1)
         } else {
@@ -437,11 +439,25 @@ impl<'a> KinkBins<'a> {
     fn add_gaussian(&mut self, g: &PwlGaussian, c: f64, sigma: f64, area: f64) {
         self.used = true;
         let origin = self.origin;
+        let e = self.edges;
         let n = self.bins.len();
+        // The kinks come in ascending x: locate the first, then walk up the edges.
+        let mut k: Option<usize> = None;
+        let mut first = true;
         let mut kink = |x: f64, d: f64| {
-            let target = match self.channel_of(x) {
+            if first {
+                k = self.channel_of(x);
+                first = false;
+            } else if let Some(j) = k.as_mut() {
+                while *j < n && x >= e[*j + 1] {
+                    *j += 1;
+                }
+            } else if x >= e[0] {
+                k = self.channel_of(x);
+            }
+            let target = match k {
                 None => &mut self.below,
-                Some(k) if k < n => &mut self.bins[k],
+                Some(j) if j < n => &mut self.bins[j],
                 Some(_) => return,
             };
             let u = x - origin;

@@ -263,7 +263,7 @@ impl DopplerColourTable {
     #[must_use]
     #[inline]
     pub fn apply_linear_d(&self, doppler_factor: f64, rgb: [f32; 3]) -> [f32; 3] {
-        if !(doppler_factor >= TABLE_D_MIN && doppler_factor <= TABLE_D_MAX) {
+        if !(TABLE_D_MIN..=TABLE_D_MAX).contains(&doppler_factor) {
             return [0.0; 3];
         }
         let x = (doppler_factor - TABLE_D_MIN) / self.d_step;
@@ -282,7 +282,7 @@ impl DopplerColourTable {
     /// range, or both neighbouring matrices zero).
     #[must_use]
     pub fn is_black_linear_d(&self, doppler_factor: f64) -> bool {
-        if !(doppler_factor >= TABLE_D_MIN && doppler_factor <= TABLE_D_MAX) {
+        if !(TABLE_D_MIN..=TABLE_D_MAX).contains(&doppler_factor) {
             return true;
         }
         let k = (((doppler_factor - TABLE_D_MIN) / self.d_step) as usize).min(LINEAR_D_ENTRIES - 2);

@@ -99,6 +99,9 @@ impl<'a> EquirectTexels<'a> {
     /// polar angle (`acos(y) = atan2(sqrt(x^2 + z^2), y)` for a unit direction, and for any
     /// other length): `x` in `[-0.5, width - 0.5]`, `y` clamped to `[0, height - 1]`.
     #[inline]
+    // `hypot` guards against overflow that a unit direction cannot reach, at the cost of a
+    // libm call per pixel.
+    #[allow(clippy::imprecise_flops)]
     pub(crate) fn coords(&self, d: DVec3) -> (f64, f64) {
         let lon = atan2(d.x, -d.z);
         let polar = atan2((d.x * d.x + d.z * d.z).sqrt(), d.y);
