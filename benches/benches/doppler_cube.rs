@@ -95,6 +95,30 @@ fn setup(
     (st, spec)
 }
 
+/// Group `doppler_cube_threads`: the galaxy's 128 x 128 x 64-channel cube, thermal
+/// broadening off and on, on a pool of 1 and of 2 threads (the ratio 1 / 2 threads is the
+/// scaling; thermal / unbroadened at 2 threads the cost of broadening).
+fn threads(c: &mut Criterion) {
+    let scene = galaxy_scene();
+    let mut g = c.benchmark_group("doppler_cube_threads");
+    for thermal in [false, true] {
+        let (mut st, mut spec) = setup(&scene, Vec3::X, -300.0, 300.0, thermal);
+        st.width = 128;
+        st.height = 128;
+        spec.channels = 64;
+        for n in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .expect("pool");
+            g.bench_function(format!("thermal_{thermal}/threads_{n}"), |b| {
+                b.iter(|| pool.install(|| render_cube(&scene, &st, &spec, &|| {}).expect("cube")));
+            });
+        }
+    }
+    g.finish();
+}
+
 fn main() {
     let mut c = Criterion::default().configure_from_args().sample_size(10);
     let pool = rayon::ThreadPoolBuilder::new()
@@ -124,6 +148,7 @@ fn main() {
         }
     }
     group.finish();
+    threads(&mut c);
     let path = out_dir().join("doppler_cube.csv");
     std::fs::write(&path, csv).expect("csv");
     println!("wrote {}", path.display());

@@ -4,13 +4,21 @@
 //!
 //! Before criterion runs, a quick single-threaded sweep prints each time as a ratio to the
 //! 1-DDA time measured in the same run (set `BLUESHIFT_SKIP_TABLES` to skip it).
+//!
+//! Group `woodcock_threads`: Woodcock on one channel of `channels12(64)` (the Mitsuba
+//! comparison's density, 48 x 48, 256 spp) on pools of 1 and 2 threads, with an observer
+//! that needs every pass (`every_pass`: one parallel loop and one noise estimate per pass,
+//! the loop before sweeps) and with a progress-bar observer (`sweeps`: up to 64 passes per
+//! parallel loop). The 1 / 2 thread ratio of each is its scaling.
 
 use std::hint::black_box;
 use std::time::Instant;
 
 use blueshift_benches::channel_scene;
+use blueshift_camera::Observer;
 use blueshift_tracking::{
-    Blend, DdaMode, DirectionalLight, Integrator, RenderSettings, Scene, Shading, render,
+    Blend, DdaMode, DirectionalLight, Integrator, Progressive, RenderSettings, Scene, Shading,
+    TrackingSession, render,
 };
 use criterion::{BenchmarkId, Criterion};
 use glam::Vec3;
@@ -121,5 +129,42 @@ fn main() {
         });
     }
     g.finish();
+    woodcock_threads(&mut c);
     c.final_summary();
+}
+
+/// Needs every pass (the default).
+struct EveryPass;
+impl Observer<Progressive> for EveryPass {}
+
+/// A progress bar: passes may run in sweeps.
+struct Sweeps;
+impl Observer<Progressive> for Sweeps {
+    fn every_pass(&self) -> bool {
+        false
+    }
+}
+
+fn woodcock_threads(c: &mut Criterion) {
+    let scene = channel_scene(1, 64, 4, DENSITY).expect("scene");
+    let mut s = RenderSettings::default_for(&scene, 48, 48, true);
+    s.spp = 256;
+    s.seed = 5;
+    let session =
+        TrackingSession::new(scene, Integrator::Woodcock { channel: 0 }, s).expect("session");
+    let mut g = c.benchmark_group("woodcock_threads");
+    g.sample_size(10);
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        g.bench_function(format!("every_pass/threads_{threads}"), |b| {
+            b.iter(|| pool.install(|| session.render(&EveryPass).expect("render")));
+        });
+        g.bench_function(format!("sweeps/threads_{threads}"), |b| {
+            b.iter(|| pool.install(|| session.render(&Sweeps).expect("render")));
+        });
+    }
+    g.finish();
 }

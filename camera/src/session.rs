@@ -39,6 +39,14 @@ pub trait Observer<I: ?Sized>: Sync {
     fn cancelled(&self) -> bool {
         false
     }
+    /// Whether [`Observer::pass`] must see every pass. An observer that answers `false`
+    /// (a progress bar) lets a Monte Carlo engine run several passes in one parallel sweep
+    /// when nothing stops it between passes (no noise target): fewer thread wake-ups and
+    /// serial steps per sample, the same image bit for bit, with `pass` and `progress`
+    /// told after each sweep. The default, `true`, keeps one call per pass.
+    fn every_pass(&self) -> bool {
+        true
+    }
 }
 
 /// An observer that ignores everything and never cancels.

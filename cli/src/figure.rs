@@ -464,7 +464,7 @@ pub fn write_figure(path: &Path, fig: &Figure) -> Result<()> {
     }
     let img = image::RgbImage::from_raw(dims.0, dims.1, buf).context("figure buffer size")?;
     write_via_temp_path(path, |p| {
-        img.save_with_format(p, image::ImageFormat::Png)
+        blueshift_tonemap::io::save_rgb8_png(p, &img)
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }

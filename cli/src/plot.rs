@@ -119,7 +119,7 @@ pub fn line_plot(
     let img =
         image::RgbImage::from_raw(size.0, size.1, buf).context("plot buffer has the wrong size")?;
     crate::output::write_via_temp_path(path, |tmp| {
-        img.save_with_format(tmp, image::ImageFormat::Png)
+        blueshift_tonemap::io::save_rgb8_png(tmp, &img)
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }

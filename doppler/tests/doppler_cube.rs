@@ -577,3 +577,42 @@ fn one_channel_line_width_is_a_box_one_channel_wide() {
         assert_ne!(auto.data, wide.data, "{axis}: the 1 nm box should differ");
     }
 }
+
+/// A cube is the same, byte for byte, on pools of 1, 2 and 3 threads, without broadening
+/// and with thermal broadening (whose wide Gaussians go through the kink bins).
+#[test]
+fn cubes_are_identical_on_one_two_and_three_threads() {
+    let vol = synth::galaxy(24, 1).unwrap();
+    let mut scene = DopplerScene::from_volume(&vol, &["bb", "H"]).unwrap();
+    scene.factors.blackbody = 0.0;
+    for thermal in [false, true] {
+        let mut st = DopplerSettings::default_for(&scene, 20, 12);
+        st.camera = los_camera(&scene, Vec3::X, 20.0 / 12.0, true).unwrap();
+        st.cell_domain = true;
+        st.broadening.thermal = thermal;
+        let spec = CubeSpec {
+            rest_nm: HALPHA,
+            axis: SpectralAxis::OpticalVelocity,
+            min: -300e3,
+            max: 300e3,
+            channels: 48,
+            line_width: CubeLineWidth::OneChannel,
+        };
+        let cubes: Vec<Vec<f32>> = [1, 2, 3]
+            .into_iter()
+            .map(|n| {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .build()
+                    .unwrap();
+                pool.install(|| render_cube(&scene, &st, &spec, &|| {}).unwrap().data)
+            })
+            .collect();
+        assert!(
+            cubes[0].iter().any(|&v| v > 0.0),
+            "thermal {thermal}: empty cube"
+        );
+        assert_eq!(cubes[0], cubes[1], "thermal {thermal}: 1 vs 2 threads");
+        assert_eq!(cubes[0], cubes[2], "thermal {thermal}: 1 vs 3 threads");
+    }
+}

@@ -158,13 +158,32 @@ impl SpectralPrimaries {
 }
 
 /// `K(D)` tabulated over `ln D` for interactive rendering.
+///
+/// The renderer reads a second table made from this one: [`LINEAR_D_ENTRIES`] matrices
+/// (`f32`) uniform in `D` over `[TABLE_D_MIN, TABLE_D_MAX]`, so a pixel's `D` indexes it
+/// without a logarithm ([`DopplerColourTable::apply_linear_d`]).
 #[derive(Clone, Debug)]
 pub struct DopplerColourTable {
     ln_min: f64,
     ln_max: f64,
     step: f64,
     mats: Vec<Mat3>,
+    /// `K(D)` at `TABLE_D_MIN + k * d_step` (row-major 3x3), from [`Self::matrix`].
+    by_d: Vec<[f32; 9]>,
+    d_step: f64,
 }
+
+/// Entries of the table uniform in `D` that the renderer reads
+/// ([`DopplerColourTable::apply_linear_d`]).
+pub const LINEAR_D_ENTRIES: usize = 8192;
+
+/// The largest difference, relative to the matrix's largest entry (at least 1e-3), of
+/// [`DopplerColourTable::apply_linear_d`]'s matrix from the exact `K(D)`
+/// ([`SpectralPrimaries::doppler_matrix`]) for the global table, over `D` in
+/// `[TABLE_D_MIN, TABLE_D_MAX]` (`tests/fast.rs` measures it on a dense grid of `D`: 1.91e-4
+/// at `D = 0.553`, where the `ln D` table of 2048 entries errs by 1.92e-4 itself; the
+/// resampling adds under 1e-5).
+pub const LINEAR_D_MAX_ERROR: f64 = 2.5e-4;
 
 /// `K(D) = 0` exactly below this `D`: 830 nm observed came from below 380 nm.
 pub const TABLE_D_MIN: f64 = 0.45;
@@ -182,12 +201,27 @@ impl DopplerColourTable {
         let mats = (0..entries)
             .map(|k| primaries.doppler_matrix((ln_min + step * k as f64).exp()))
             .collect::<Result<Vec<_>>>()?;
-        Ok(Self {
+        let mut table = Self {
             ln_min,
             ln_max,
             step,
             mats,
-        })
+            by_d: Vec::new(),
+            d_step: (TABLE_D_MAX - TABLE_D_MIN) / (LINEAR_D_ENTRIES - 1) as f64,
+        };
+        table.by_d = (0..LINEAR_D_ENTRIES)
+            .map(|k| {
+                // The last node is TABLE_D_MAX itself (no rounding past the range's end).
+                let d = if k + 1 == LINEAR_D_ENTRIES {
+                    TABLE_D_MAX
+                } else {
+                    TABLE_D_MIN + table.d_step * k as f64
+                };
+                let m = table.matrix(d);
+                std::array::from_fn(|i| m[i / 3][i % 3] as f32)
+            })
+            .collect();
+        Ok(table)
     }
 
     /// The shared table (Mallett-Yuksel primaries, 2048 entries), built on first use.
@@ -219,6 +253,43 @@ impl DopplerColourTable {
             }
         }
         m
+    }
+
+    /// `K(D)` applied to a linear RGB texel with the table uniform in `D` (linear
+    /// interpolation of [`LINEAR_D_ENTRIES`] `f32` matrices made from [`Self::matrix`]; no
+    /// logarithm): what [`crate::render`] uses. Zero outside `[TABLE_D_MIN, TABLE_D_MAX]`,
+    /// like [`Self::apply`]; within [`LINEAR_D_MAX_ERROR`] of the largest entry of the exact
+    /// matrix for the global table.
+    #[must_use]
+    #[inline]
+    pub fn apply_linear_d(&self, doppler_factor: f64, rgb: [f32; 3]) -> [f32; 3] {
+        if !(TABLE_D_MIN..=TABLE_D_MAX).contains(&doppler_factor) {
+            return [0.0; 3];
+        }
+        let x = (doppler_factor - TABLE_D_MIN) / self.d_step;
+        let k = (x as usize).min(LINEAR_D_ENTRIES - 2);
+        let t = (x - k as f64) as f32;
+        let (a, b) = (&self.by_d[k], &self.by_d[k + 1]);
+        std::array::from_fn(|i| {
+            let row =
+                |m: &[f32; 9]| m[3 * i] * rgb[0] + m[3 * i + 1] * rgb[1] + m[3 * i + 2] * rgb[2];
+            let (ra, rb) = (row(a), row(b));
+            ra + (rb - ra) * t
+        })
+    }
+
+    /// Whether [`Self::apply_linear_d`] maps every colour to black at `D` (outside the
+    /// range, or both neighbouring matrices zero).
+    #[must_use]
+    pub fn is_black_linear_d(&self, doppler_factor: f64) -> bool {
+        if !(TABLE_D_MIN..=TABLE_D_MAX).contains(&doppler_factor) {
+            return true;
+        }
+        let k = (((doppler_factor - TABLE_D_MIN) / self.d_step) as usize).min(LINEAR_D_ENTRIES - 2);
+        self.by_d[k]
+            .iter()
+            .chain(&self.by_d[k + 1])
+            .all(|&v| v == 0.0)
     }
 
     /// Applies `K(D)` to a linear RGB texel.

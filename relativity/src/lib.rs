@@ -49,17 +49,22 @@
 mod colour;
 mod envmap;
 mod error;
+mod fast;
 mod lorentz;
 mod observer;
 mod render;
 mod session;
 
-pub use colour::{DopplerColourTable, Mat3, SpectralPrimaries, TABLE_D_MAX, TABLE_D_MIN};
+pub use colour::{
+    DopplerColourTable, LINEAR_D_ENTRIES, LINEAR_D_MAX_ERROR, Mat3, SpectralPrimaries, TABLE_D_MAX,
+    TABLE_D_MIN,
+};
 pub use envmap::{
     Checker, CubeMap, Environment, EquirectMap, FACE_NAMES, MAX_MAP_BYTES, MAX_MAP_SIDE, MapLayout,
     Rgb, check_size, cube_dir, cube_face_st, from_lon_polar, lon_polar, read_linear,
 };
 pub use error::{Error, Result};
+pub use fast::{ATAN2_MAX_ERROR_RAD, atan2 as fast_atan2};
 pub use lorentz::{
     Event, LorentzMatrix, Velocity, searchlight_integrated, searchlight_per_frequency,
     searchlight_per_wavelength, unit,

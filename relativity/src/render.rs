@@ -8,6 +8,7 @@ use rayon::prelude::*;
 use crate::colour::DopplerColourTable;
 use crate::envmap::{Environment, check_size};
 use crate::error::{Error, Result};
+use crate::fast::EquirectTexels;
 use crate::lorentz::{Velocity, searchlight_integrated, unit};
 
 /// A pinhole camera in the observer's frame (C8: plain settings with `Default`).
@@ -152,8 +153,23 @@ impl CameraFrame {
     /// the top).
     #[must_use]
     pub fn pixel_direction(&self, x: f64, y: f64) -> DVec3 {
-        let sx = (2.0 * (x + 0.5) / f64::from(self.width) - 1.0) * self.half_w;
-        let sy = (1.0 - 2.0 * (y + 0.5) / f64::from(self.height)) * self.half_h;
+        self.direction_at(self.screen_x(x), self.screen_y(y))
+    }
+
+    /// The image-plane coordinate of column `x`'s centre at unit distance.
+    #[inline]
+    fn screen_x(&self, x: f64) -> f64 {
+        (2.0 * (x + 0.5) / f64::from(self.width) - 1.0) * self.half_w
+    }
+
+    /// The image-plane coordinate of row `y`'s centre at unit distance.
+    #[inline]
+    fn screen_y(&self, y: f64) -> f64 {
+        (1.0 - 2.0 * (y + 0.5) / f64::from(self.height)) * self.half_h
+    }
+
+    #[inline]
+    fn direction_at(&self, sx: f64, sy: f64) -> DVec3 {
         (self.forward + sx * self.right + sy * self.up).normalize()
     }
 }
@@ -181,6 +197,13 @@ pub fn scene_direction(
 /// shift `K(D)` and the searchlight factor `D^4`, as selected. `table` defaults to
 /// [`DopplerColourTable::global`]. Rows are rendered in parallel; the result does not depend
 /// on the thread count.
+///
+/// The per-pixel work has no logarithm and no libm inverse trigonometry: `K(D)` comes from
+/// the table uniform in `D` ([`DopplerColourTable::apply_linear_d`], within
+/// [`crate::LINEAR_D_MAX_ERROR`] of the exact matrix), and an equirectangular map is looked
+/// up with [`crate::fast_atan2`] (within [`crate::ATAN2_MAX_ERROR_RAD`] of the exact
+/// angles). Aberration, the Doppler factor and the searchlight factor are the exact
+/// formulas, and cube maps and the checker are sampled as [`Environment::sample`] does.
 pub fn render(
     env: &Environment,
     cam: &Camera,
@@ -195,33 +218,99 @@ pub fn render(
         None
     };
     let (w, h) = (cam.width, cam.height);
-    let mut buf = vec![0.0_f32; w as usize * h as usize * 3];
-    buf.par_chunks_mut(w as usize * 3)
+    let sx: Vec<f64> = (0..w).map(|x| frame.screen_x(f64::from(x))).collect();
+    let equirect = match env {
+        Environment::Equirect(m) => Some(EquirectTexels::new(m)),
+        _ => None,
+    };
+    let pixels = render_block_rows(&frame, env, equirect, velocity, effects, table);
+    let (wu, hu) = (w as usize, h as usize);
+    let mut buf = vec![0.0_f32; wu * hu * 3];
+    // Bands of TILE rows in parallel, each walked in TILE x TILE blocks: a block's pixels
+    // look up one compact patch of the map, which stays in cache, where a whole row's
+    // lookups follow a curve across many map rows and miss the cache at almost every pixel.
+    buf.par_chunks_mut(wu * 3 * TILE)
         .enumerate()
-        .for_each(|(y, row)| {
-            for x in 0..w as usize {
-                let d_obs = frame.pixel_direction(x as f64, y as f64);
-                let d_scene = if effects.aberration {
-                    velocity.observer_to_scene(d_obs)
-                } else {
-                    d_obs
-                };
-                let mut rgb = env.sample(d_scene);
-                if effects.doppler || effects.searchlight {
-                    let dop = velocity.doppler_factor_observer(d_obs);
-                    if let Some(t) = table {
-                        rgb = t.apply(dop, rgb);
-                    }
-                    if effects.searchlight {
-                        let f = searchlight_integrated(dop) as f32;
-                        rgb = rgb.map(|c| c * f);
-                    }
+        .for_each(|(band, rows)| {
+            let y0 = band * TILE;
+            let nrows = rows.len() / (3 * wu);
+            for x0 in (0..wu).step_by(TILE) {
+                let x1 = (x0 + TILE).min(wu);
+                for r in 0..nrows {
+                    let sy = frame.screen_y((y0 + r) as f64);
+                    let row = &mut rows[3 * (r * wu + x0)..3 * (r * wu + x1)];
+                    pixels(row, &sx[x0..x1], sy);
                 }
-                row[3 * x..3 * x + 3].copy_from_slice(&rgb);
             }
         });
     Rgb32FImage::from_raw(w, h, buf)
         .ok_or_else(|| Error::param("image size", f64::from(w), "buffer mismatch"))
+}
+
+/// The side of the blocks [`render`] walks the image in, pixels.
+const TILE: usize = 32;
+
+/// The per-pixel work of [`render`] on a run of at most [`TILE`] pixels of one row (`sx`
+/// their image-plane x coordinates, `sy` the row's), in stages that each loop over the run:
+/// directions and Doppler factors, map coordinates, texel fetches, colour. Each stage's body
+/// is short and its iterations independent, so the processor overlaps many pixels instead
+/// of waiting on one pixel's long chain of divisions and polynomials.
+fn render_block_rows<'a>(
+    frame: &'a CameraFrame,
+    env: &'a Environment,
+    equirect: Option<EquirectTexels<'a>>,
+    velocity: Velocity,
+    effects: Effects,
+    table: Option<&'a DopplerColourTable>,
+) -> impl Fn(&mut [f32], &[f64], f64) + Sync + 'a {
+    let shade = effects.doppler || effects.searchlight;
+    move |row: &mut [f32], sx: &[f64], sy: f64| {
+        let n = sx.len().min(TILE);
+        let mut dirs = [DVec3::ZERO; TILE];
+        let mut dop = [1.0_f64; TILE];
+        for i in 0..n {
+            let d_obs = frame.direction_at(sx[i], sy);
+            dirs[i] = if effects.aberration {
+                velocity.observer_to_scene(d_obs)
+            } else {
+                d_obs
+            };
+            if shade {
+                dop[i] = velocity.doppler_factor_observer(d_obs);
+            }
+        }
+        let mut rgb = [[0.0_f32; 3]; TILE];
+        match &equirect {
+            Some(m) => {
+                let mut at = [(0.0_f64, 0.0_f64); TILE];
+                for i in 0..n {
+                    at[i] = m.coords(dirs[i]);
+                }
+                for i in 0..n {
+                    rgb[i] = m.fetch(at[i]);
+                }
+            }
+            None => {
+                for i in 0..n {
+                    rgb[i] = env.sample(dirs[i]);
+                }
+            }
+        }
+        if shade {
+            for i in 0..n {
+                if let Some(t) = table {
+                    rgb[i] = t.apply_linear_d(dop[i], rgb[i]);
+                }
+                if effects.searchlight {
+                    let f = searchlight_integrated(dop[i]) as f32;
+                    rgb[i] = rgb[i].map(|c| c * f);
+                }
+            }
+        }
+        for (out, c) in row.chunks_exact_mut(3).zip(&rgb[..n]) {
+            out.copy_from_slice(c);
+        }
+    }
 }
 
 /// The fraction of the image's pixels whose Doppler colour shift has no answer in an RGB
@@ -245,8 +334,7 @@ pub fn out_of_map_fraction(
     for y in 0..cam.height {
         for x in 0..cam.width {
             let d = frame.pixel_direction(f64::from(x), f64::from(y));
-            let m = table.matrix(velocity.doppler_factor_observer(d));
-            if m.iter().flatten().all(|&v| v == 0.0) {
+            if table.is_black_linear_d(velocity.doppler_factor_observer(d)) {
                 outside += 1;
             }
         }

@@ -166,6 +166,37 @@ impl PwlGaussian {
         Ok(())
     }
 
+    /// Calls `kink(x, slope_change)` at each knot of the Gaussian of area `area` and standard
+    /// deviation `sigma` centred at `centre`, in ascending `x`: the profile is
+    /// `sum_i slope_change_i * max(x - x_i, 0)` (zero below the first knot; the changes sum
+    /// to zero, so it is zero past the last), and its integral up to `e` is
+    /// `sum_i slope_change_i * max(e - x_i, 0)^2 / 2`. Nothing is called for `sigma <= 0`.
+    pub fn for_each_kink(
+        &self,
+        centre: f64,
+        sigma: f64,
+        area: f64,
+        mut kink: impl FnMut(f64, f64),
+    ) {
+        if sigma <= 0.0 || !sigma.is_finite() {
+            return;
+        }
+        let h = self.x[1] - self.x[0];
+        let k = area / (sigma * sigma * h);
+        let n = self.x.len();
+        let mut prev = 0.0;
+        for i in 0..n {
+            // Slope (per unit z, times h) of the piece right of knot i; 0 past the last.
+            let next = if i + 1 < n {
+                self.g[i + 1] - self.g[i]
+            } else {
+                0.0
+            };
+            kink(centre + self.x[i] * sigma, k * (next - prev));
+            prev = next;
+        }
+    }
+
     /// Adds the Gaussian (area `area` >= 0, `sigma` > 0) to a spectrum.
     pub fn add_to(
         &self,

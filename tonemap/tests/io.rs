@@ -141,6 +141,77 @@ fn png_is_srgb_encoded_in_8_and_16_bits() {
     assert!((i32::from(back.get_pixel(1, 0)[0]) - 32896).abs() <= 1);
 }
 
+/// The table-driven 8-bit sRGB code equals `round(255 srgb_encode(v))`, the IEC 61966-2-1
+/// formula with `powf`, bit for bit: on every 61st `f32` in [0, 1], at every code's edge
+/// (each `f32` whose formula code differs from its predecessor's, and its neighbours), and
+/// on the special values.
+#[test]
+fn srgb8_equals_the_formula_bit_for_bit() {
+    let formula = |v: f32| (srgb_encode(v) * 255.0).round() as u8;
+    let one = 1.0f32.to_bits();
+    let mut edges = 0;
+    let mut prev = 0u8;
+    let mut bits = 0u32;
+    while bits <= one {
+        let v = f32::from_bits(bits);
+        let f = formula(v);
+        assert_eq!(srgb8(v), f, "v = {v:e}");
+        if f != prev {
+            // A code edge lies between the previous sample and this one: check it exactly.
+            let mut b = bits.saturating_sub(61);
+            while b <= bits {
+                let w = f32::from_bits(b);
+                assert_eq!(srgb8(w), formula(w), "edge v = {w:e}");
+                b += 1;
+            }
+            edges += 1;
+        }
+        prev = f;
+        bits += 61;
+    }
+    assert_eq!(edges, 255, "every code 1..=255 is reached");
+    for v in [
+        -1.0,
+        -0.0,
+        0.0,
+        f32::MIN_POSITIVE,
+        1e-45,
+        0.5,
+        0.999_999_9,
+        1.0,
+        1.5,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NAN,
+    ] {
+        assert_eq!(srgb8(v), formula(v), "v = {v:e}");
+    }
+}
+
+/// The PNG writer's bytes decode to the formula's codes (every pixel of a ramp with NaN,
+/// negative and over-range values), in 8 and 16 bits.
+#[test]
+fn png_pixels_are_the_formulas_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (97u32, 31u32);
+    let img = Rgb32FImage::from_fn(w, h, |x, y| {
+        let v = (x as f32 / (w - 1) as f32).powi(3) * 1.2 - 0.1;
+        let special = [f32::NAN, f32::INFINITY, -2.0][(x as usize + y as usize) % 3];
+        Rgb([v, if y == 5 { special } else { v * 0.5 }, (y as f32) / 40.0])
+    });
+    let p = dir.path().join("ramp.png");
+    write_png(&p, &img, PngDepth::Eight).unwrap();
+    let back = image::open(&p).unwrap().to_rgb8();
+    for (a, b) in back.as_raw().iter().zip(img.as_raw()) {
+        assert_eq!(*a, (srgb_encode(*b) * 255.0).round() as u8, "{b}");
+    }
+    write_png(&p, &img, PngDepth::Sixteen).unwrap();
+    let back = image::open(&p).unwrap().to_rgb16();
+    for (a, b) in back.as_raw().iter().zip(img.as_raw()) {
+        assert_eq!(*a, (srgb_encode(*b) * 65535.0).round() as u16, "{b}");
+    }
+}
+
 #[test]
 fn luminance_only_exr_reads_as_grey() {
     use exr::prelude::*;

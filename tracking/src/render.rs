@@ -285,14 +285,26 @@ impl Progressive {
         integrator: &Integrator,
         settings: &RenderSettings,
     ) -> Result<()> {
+        self.add_prepared_passes(scene, integrator, settings, 1)
+    }
+
+    /// `passes` passes in one parallel sweep over the rows: each pixel takes its samples
+    /// `samples .. samples + passes` in order, so the sums are those of as many single
+    /// passes, bit for bit.
+    pub(crate) fn add_prepared_passes(
+        &mut self,
+        scene: &Scene,
+        integrator: &Integrator,
+        settings: &RenderSettings,
+        passes: u32,
+    ) -> Result<()> {
         if settings.width != self.width || settings.height != self.height {
             return Err(Error::parameter(
                 "settings: image size differs from the accumulation buffer's",
             ));
         }
         let w = self.width as usize;
-        let sample = self.samples;
-        let count = f64::from(sample + 1);
+        let first = self.samples;
         let (width, height) = (self.width, self.height);
         // At rest the observer changes nothing: skip it, so images keep their bytes.
         let observer = settings.observer.filter(|o| !o.is_at_rest());
@@ -310,7 +322,9 @@ impl Progressive {
             .zip(heat_rows.par_iter_mut())
             .enumerate()
             .for_each(|(y, ((mean_row, m2_row), heat_row))| {
-                for x in 0..w {
+                for (x, sample) in (0..w).flat_map(|x| (first..first + passes).map(move |s| (x, s)))
+                {
+                    let count = f64::from(sample + 1);
                     let start = counting.then(Instant::now);
                     let pixel = (y * w + x) as u64;
                     let mut rng = Rng::new(settings.seed, pixel, u64::from(sample));
@@ -348,9 +362,9 @@ impl Progressive {
             });
         // A brick that failed to read mid-pass voids the pass.
         scene.check_io()?;
-        self.samples += 1;
+        self.samples += passes;
         if counting {
-            self.heat_samples += 1;
+            self.heat_samples += passes;
         }
         Ok(())
     }
@@ -420,7 +434,22 @@ pub fn render(
     integrator: &Integrator,
     settings: &RenderSettings,
 ) -> Result<Rgba32FImage> {
-    Ok(render_progressive(scene, integrator, settings, |_, _| {})?.mean_image())
+    settings.validate()?;
+    let integrator = integrator.prepared(scene)?;
+    Ok(
+        run_loop(scene, &integrator, settings, &Sweeps, &mut |_| {})?
+            .image
+            .mean_image(),
+    )
+}
+
+/// Sees nothing and lets passes run in sweeps ([`Observer::every_pass`] is `false`).
+struct Sweeps;
+
+impl Observer<Progressive> for Sweeps {
+    fn every_pass(&self) -> bool {
+        false
+    }
 }
 
 /// What a tracking run returns: the accumulation buffer (mean image, variance, noise, heat
@@ -432,6 +461,9 @@ pub struct TrackingOutput {
     /// Frame times when [`RenderSettings::timed_frames`] is set.
     pub frame_times: Option<FrameTimes>,
 }
+
+/// The longest a sweep of several passes grows to (see [`run_loop`]).
+const SWEEP_SECONDS: f64 = 0.05;
 
 /// The one render loop: progressive passes under `observer` (or the timing protocol when
 /// `settings.timed_frames` is set), `on_pass` called after every counted pass.
@@ -488,11 +520,26 @@ pub(crate) fn run_loop(
     if settings.heatmaps {
         acc.enable_heatmaps();
     }
-    for _ in 0..settings.spp {
+    // Passes run in sweeps of several when the observer does not need every pass and no
+    // noise target can stop the run between passes: a sweep grows (doubling, up to 64
+    // passes) while it takes under SWEEP_SECONDS, so progress and cancellation still come
+    // a few times a second. The image is the same bit for bit.
+    let batch = !observer.every_pass() && settings.noise_target.is_none();
+    let mut sweep = 1u32;
+    while acc.samples() < settings.spp {
         if observer.cancelled() {
             return Err(Error::Cancelled);
         }
-        acc.add_prepared_pass(scene, integrator, settings)?;
+        let n = if batch {
+            sweep.min(settings.spp - acc.samples())
+        } else {
+            1
+        };
+        let start = Instant::now();
+        acc.add_prepared_passes(scene, integrator, settings, n)?;
+        if start.elapsed().as_secs_f64() < SWEEP_SECONDS {
+            sweep = (sweep * 2).min(64);
+        }
         let noise = report(observer, &acc, 0, u64::from(settings.spp));
         on_pass(&acc);
         if let Some(target) = settings.noise_target

@@ -261,3 +261,69 @@ fn a_session_equals_the_add_pass_loop_with_unevenly_rounding_weights() {
         .unwrap();
     assert_eq!(out.image.mean_image().as_raw(), acc.mean_image().as_raw());
 }
+
+/// Sees only sweeps: a progress bar's observer ([`Observer::every_pass`] `false`).
+#[derive(Default)]
+struct SweepRecorder {
+    passes: Mutex<Vec<u32>>,
+}
+
+impl Observer<Progressive> for SweepRecorder {
+    fn pass(&self, pass: u32, image: &Progressive, _noise: Option<f64>) {
+        assert_eq!(pass, image.samples());
+        self.passes.lock().unwrap().push(pass);
+    }
+    fn every_pass(&self) -> bool {
+        false
+    }
+}
+
+/// Passes run in sweeps for an observer that does not need every pass: the mean, the
+/// variance and the heat-map counts are those of one pass at a time, bit for bit (each
+/// pixel takes its samples in the same order), on 1 and 3 threads, and the observer hears
+/// fewer, growing sweeps ending at the sample count. With a noise target every pass is
+/// still seen (the target is checked after each).
+#[test]
+fn sweeps_of_passes_give_the_bytes_of_single_passes() {
+    let sc = scene(1.0);
+    let mut st = settings(&sc);
+    st.spp = 40;
+    st.heatmaps = true;
+    let session = TrackingSession::new(sc, mdwt(), st.clone()).unwrap();
+    let one = Recorder::default();
+    let single = session.render(&one).unwrap().image;
+    assert_eq!(one.passes.lock().unwrap().len(), 40);
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let rec = SweepRecorder::default();
+        let swept = pool.install(|| session.render(&rec).unwrap().image);
+        let passes = rec.passes.lock().unwrap().clone();
+        assert!(passes.len() < 40, "{threads} threads: {passes:?}");
+        assert_eq!(passes.last(), Some(&40));
+        assert_eq!(swept.samples(), 40);
+        assert_eq!(swept.mean_image().as_raw(), single.mean_image().as_raw());
+        for (x, y) in [(0, 0), (7, 5), (19, 13), (10, 7)] {
+            assert_eq!(swept.variance(x, y), single.variance(x, y));
+        }
+        for map in [HeatMap::Steps, HeatMap::Collisions, HeatMap::Rejections] {
+            assert_eq!(swept.heatmap(map), single.heatmap(map), "{map:?}");
+        }
+    }
+    // The one-call render sweeps too, with the same bytes.
+    let mut plain = st.clone();
+    plain.heatmaps = false;
+    assert_eq!(
+        render(&scene(1.0), &mdwt(), &plain).unwrap().as_raw(),
+        single.mean_image().as_raw()
+    );
+    // A noise target keeps one pass per step.
+    st.noise_target = Some(1e-9);
+    st.spp = 6;
+    let session = TrackingSession::new(scene(1.0), mdwt(), st).unwrap();
+    let rec = SweepRecorder::default();
+    session.render(&rec).unwrap();
+    assert_eq!(*rec.passes.lock().unwrap(), vec![1, 2, 3, 4, 5, 6]);
+}

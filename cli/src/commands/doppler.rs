@@ -457,14 +457,7 @@ fn display_rgb8(
     Ok(out
         .into_raw()
         .into_iter()
-        .map(|v| {
-            let v = if v.is_finite() {
-                v.clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            (blueshift_tonemap::io::srgb_encode(v) * 255.0).round() as u8
-        })
+        .map(blueshift_tonemap::io::srgb8)
         .collect())
 }
 
@@ -581,7 +574,7 @@ fn write_png(path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
 fn stage_png(set: &mut OutputSet, path: &Path, w: u32, h: u32, rgb: Vec<u8>) -> Result<()> {
     let img = image::RgbImage::from_raw(w, h, rgb).ok_or_else(|| anyhow!("image size"))?;
     set.via_path(path, |p| {
-        img.save_with_format(p, image::ImageFormat::Png)
+        blueshift_tonemap::io::save_rgb8_png(p, &img)
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }
@@ -1274,7 +1267,7 @@ fn trace_panels(
     }
     let img = image::RgbImage::from_raw(size.0, size.1, buf).context("plot buffer size")?;
     write_via_temp_path(path, |p| {
-        img.save_with_format(p, image::ImageFormat::Png)
+        blueshift_tonemap::io::save_rgb8_png(p, &img)
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }

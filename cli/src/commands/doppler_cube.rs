@@ -533,7 +533,7 @@ fn colour_png(
     }
     let img = image::RgbImage::from_raw(iw, ih, buf).ok_or_else(|| anyhow!("plot buffer"))?;
     set.via_path(path, |p| {
-        img.save_with_format(p, image::ImageFormat::Png)
+        blueshift_tonemap::io::save_rgb8_png(p, &img)
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }

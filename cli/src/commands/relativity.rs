@@ -167,8 +167,7 @@ fn encode_image(path: &Path, img: &Rgb32FImage, exposure: f64) -> Result<()> {
             "hdr" => image::DynamicImage::ImageRgb32F(img.clone())
                 .save(tmp)
                 .with_context(|| format!("cannot encode {}", path.display()))?,
-            "png" => to_srgb8(img, exposure)
-                .save(tmp)
+            "png" => blueshift_tonemap::io::save_rgb8_png(tmp, &to_srgb8(img, exposure))
                 .with_context(|| format!("cannot encode {}", path.display()))?,
             _ => bail!("unsupported output extension {ext:?} (use .exr, .hdr or .png)"),
         }

@@ -750,15 +750,21 @@ impl blueshift_camera::Observer<Progressive> for OnPass<'_> {
         self.0.set_position(p.done);
     }
 
-    fn pass(&self, _pass: u32, acc: &Progressive, _noise: Option<f64>) {
-        let noise = acc.noise();
-        if noise.is_finite() {
+    fn pass(&self, _pass: u32, _acc: &Progressive, noise: Option<f64>) {
+        // The loop's own estimate: computing it again here was a second serial pass over
+        // the image after every pass.
+        if let Some(noise) = noise.filter(|n| n.is_finite()) {
             self.0.set_message(format!("noise {noise:.4}"));
         }
     }
 
     fn cancelled(&self) -> bool {
         crate::signals::cancelled()
+    }
+
+    /// A progress bar needs no image per pass: passes may run in sweeps.
+    fn every_pass(&self) -> bool {
+        false
     }
 }
 

@@ -153,7 +153,7 @@ fn colour_mapped_png(
     }
     let img = image::RgbImage::from_raw(iw, ih, buf).ok_or_else(|| anyhow!("heat map buffer"))?;
     set.via_path(path, |p| {
-        img.save_with_format(p, image::ImageFormat::Png)
+        blueshift_tonemap::io::save_rgb8_png(p, &img)
             .with_context(|| format!("cannot write {}", path.display()))
     })
 }

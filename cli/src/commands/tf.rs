@@ -200,7 +200,7 @@ fn show(a: ShowArgs) -> Result<()> {
     };
     let img = render_editor_view(&tf, &view)?;
     write_via_temp_path(&a.out, |p| {
-        img.save_with_format(p, image::ImageFormat::Png)
+        blueshift_tonemap::io::save_rgb8_png(p, &img)
             .with_context(|| format!("cannot write {}", a.out.display()))
     })?;
     crate::output::wrote_with(

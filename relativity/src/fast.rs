@@ -1,0 +1,156 @@
+//! The renderer's per-pixel arithmetic without libm transcendentals: an `atan2` by range
+//! reduction and a Taylor polynomial (for the equirectangular lookup), and the bilinear
+//! equirectangular sample on the map's raw texels.
+//!
+//! Error bound (tested in `tests/fast.rs` against `f64::atan2`): [`atan2`] differs from the
+//! exact angle by at most [`ATAN2_MAX_ERROR_RAD`]. The equirectangular coordinates then
+//! differ from [`crate::EquirectMap::sample`]'s by at most `ATAN2_MAX_ERROR_RAD * width / (2
+//! pi)` texels horizontally and `ATAN2_MAX_ERROR_RAD * height / pi` vertically (under 1e-7
+//! texel for the largest accepted map side, 32,768), so a bilinear sample differs by at most
+//! that fraction of the largest texel-to-texel step of the map (plus f32 rounding).
+
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
+
+use glam::DVec3;
+
+use crate::envmap::{EquirectMap, Rgb};
+
+/// The largest difference of [`atan2`] from the exact angle, radians: the first omitted
+/// Taylor term `tan(pi/8)^25 / 25 = 1.07e-11` plus rounding.
+pub const ATAN2_MAX_ERROR_RAD: f64 = 2e-11;
+
+/// `tan(pi / 8)`.
+const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
+
+/// `atan(t)` for `|t| <= tan(pi / 8)`: the Taylor series to `t^23` (alternating with
+/// decreasing terms, so the error is below the first omitted term, `|t|^25 / 25 <= 1.07e-11`).
+#[inline]
+fn atan_small(t: f64) -> f64 {
+    const C: [f64; 12] = [
+        1.0,
+        -1.0 / 3.0,
+        1.0 / 5.0,
+        -1.0 / 7.0,
+        1.0 / 9.0,
+        -1.0 / 11.0,
+        1.0 / 13.0,
+        -1.0 / 15.0,
+        1.0 / 17.0,
+        -1.0 / 19.0,
+        1.0 / 21.0,
+        -1.0 / 23.0,
+    ];
+    let t2 = t * t;
+    let mut p = C[11];
+    for &c in C[..11].iter().rev() {
+        p = p * t2 + c;
+    }
+    t * p
+}
+
+/// `atan2(y, x)` in `[-pi, pi]` to within [`ATAN2_MAX_ERROR_RAD`], with `f64::atan2`'s
+/// quadrants and signed zeros; `atan2(0, 0)` is `0` or `+-pi` as for `f64::atan2`. One
+/// division: the ratio `t = min / max` of the magnitudes, or above `tan(pi / 8)` the
+/// reduced `(t - 1) / (t + 1) = (min - max) / (min + max)`, then [`atan_small`].
+#[must_use]
+#[inline]
+pub fn atan2(y: f64, x: f64) -> f64 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let (mn, mx) = (ax.min(ay), ax.max(ay));
+    let big = mn > TAN_PI_8 * mx;
+    let (num, den) = if big { (mn - mx, mn + mx) } else { (mn, mx) };
+    let r = if den > 0.0 { num / den } else { 0.0 };
+    let mut a = atan_small(r) + if big { FRAC_PI_4 } else { 0.0 };
+    if ay > ax {
+        a = FRAC_PI_2 - a;
+    }
+    if x.is_sign_negative() {
+        a = PI - a;
+    }
+    a.copysign(y)
+}
+
+/// The equirectangular map's texels as one slice and its size, for the renderer's loop.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct EquirectTexels<'a> {
+    data: &'a [f32],
+    width: u32,
+    height: u32,
+}
+
+impl<'a> EquirectTexels<'a> {
+    pub(crate) fn new(map: &'a EquirectMap) -> Self {
+        let img = map.image();
+        Self {
+            data: img.as_raw(),
+            width: img.width(),
+            height: img.height(),
+        }
+    }
+
+    #[inline]
+    fn texel(&self, x: u32, y: u32) -> Rgb {
+        let i = 3 * (y as usize * self.width as usize + x as usize);
+        [self.data[i], self.data[i + 1], self.data[i + 2]]
+    }
+
+    /// The continuous texel coordinates `(x, y)` of direction `d` (the arithmetic of
+    /// [`EquirectMap::sample`] up to its `floor`), with [`atan2`] for the longitude and the
+    /// polar angle (`acos(y) = atan2(sqrt(x^2 + z^2), y)` for a unit direction, and for any
+    /// other length): `x` in `[-0.5, width - 0.5]`, `y` clamped to `[0, height - 1]`.
+    #[inline]
+    // `hypot` guards against overflow that a unit direction cannot reach, at the cost of a
+    // libm call per pixel.
+    #[allow(clippy::imprecise_flops)]
+    pub(crate) fn coords(&self, d: DVec3) -> (f64, f64) {
+        let lon = atan2(d.x, -d.z);
+        let polar = atan2((d.x * d.x + d.z * d.z).sqrt(), d.y);
+        let u = 0.5 + lon / TAU;
+        let v = polar / PI;
+        let x = u * f64::from(self.width) - 0.5;
+        let y = (v * f64::from(self.height) - 0.5).clamp(0.0, f64::from(self.height - 1));
+        (x, y)
+    }
+
+    /// The bilinear sample at texel coordinates from [`Self::coords`] (wrapping in x).
+    #[inline]
+    pub(crate) fn fetch(&self, (x, y): (f64, f64)) -> Rgb {
+        let (w, h) = (self.width, self.height);
+        // floor without a libm call: x > -1 and y >= 0 here, so truncation corrects by one
+        // below zero only.
+        let xt = x as i64;
+        let xi = if x < xt as f64 { xt - 1 } else { xt };
+        let ya = y as u32;
+        let fx = (x - xi as f64) as f32;
+        let fy = (y - f64::from(ya)) as f32;
+        let wi = i64::from(w);
+        let xa = if xi < 0 {
+            xi + wi
+        } else if xi >= wi {
+            xi - wi
+        } else {
+            xi
+        };
+        let xa = if (0..wi).contains(&xa) {
+            xa
+        } else {
+            xi.rem_euclid(wi)
+        };
+        let xb = if xa + 1 == wi { 0 } else { xa + 1 };
+        let (xa, xb) = (xa as u32, xb as u32);
+        let ya = ya.min(h - 1);
+        let yb = (ya + 1).min(h - 1);
+        let top = lerp3(self.texel(xa, ya), self.texel(xb, ya), fx);
+        let bot = lerp3(self.texel(xa, yb), self.texel(xb, yb), fx);
+        lerp3(top, bot, fy)
+    }
+}
+
+#[inline]
+fn lerp3(a: Rgb, b: Rgb, t: f32) -> Rgb {
+    [
+        a[0] + (b[0] - a[0]) * t,
+        a[1] + (b[1] - a[1]) * t,
+        a[2] + (b[2] - a[2]) * t,
+    ]
+}
