@@ -5,6 +5,7 @@
 //! receives, so pairwise exchanges never deadlock; [`Communicator::all_ok`] is an
 //! `MPI_Allreduce` with logical and.
 
+use mpi::Threading;
 use mpi::collective::SystemOperation;
 use mpi::environment::Universe;
 use mpi::topology::SimpleCommunicator;
@@ -37,8 +38,13 @@ impl MpiComm {
     /// # Errors
     /// [`Error::Comm`] when MPI is already initialised or cannot start.
     pub fn init() -> Result<Self> {
-        let universe = mpi::initialize()
+        let (universe, level) = mpi::initialize_with_threading(Threading::Serialized)
             .ok_or_else(|| Error::comm("MPI could not be initialised (already initialised?)"))?;
+        if level < Threading::Serialized {
+            return Err(Error::comm(format!(
+                "the MPI library offers thread level {level:?}; blueshift needs Serialized"
+            )));
+        }
         Ok(Self {
             world: universe.world(),
             _universe: universe,
@@ -50,6 +56,13 @@ impl MpiComm {
         self.world.abort(code)
     }
 }
+
+// SAFETY: MPI is initialised with MPI_THREAD_SERIALIZED (checked in `init`), under which any
+// thread may make MPI calls as long as no two make them at once. `MpiComm`'s handles are
+// plain MPI handles with no thread affinity; holders that share it across threads (the CLI
+// keeps it in a `Mutex`) serialise the calls.
+#[allow(unsafe_code)]
+unsafe impl Send for MpiComm {}
 
 fn rank_of(r: usize) -> i32 {
     i32::try_from(r).unwrap_or(i32::MAX)
