@@ -318,6 +318,7 @@ pub fn render_marcher_data(
     let mut mean = vec![[0.0f64; 4]; w * h];
     let mut m2 = vec![[0.0f64; 4]; w * h];
     let mut result = Ok(());
+    let clock = Phases::start(me);
     for s in 0..settings.spp {
         let local: Vec<f64> = (0..h)
             .into_par_iter()
@@ -338,11 +339,15 @@ pub fn render_marcher_data(
                 })
             })
             .collect();
+        clock.mark("render");
         if let Err(e) = agree(comm, "rendering", scene.check_io().map_err(Error::from)) {
             result = Err(e);
             break;
         }
-        match composite(comm, local, 4, Op::Over, decomp.factors(), &position) {
+        clock.mark("wait for all");
+        let img = composite(comm, local, 4, Op::Over, decomp.factors(), &position);
+        clock.mark("composite");
+        match img {
             Ok(Some(img)) => {
                 for (i, px) in img.chunks_exact(4).enumerate() {
                     let t = 1.0 - px[3];
@@ -363,6 +368,7 @@ pub fn render_marcher_data(
         }
     }
     scene.clip = saved;
+    clock.report();
     result?;
     if me != 0 {
         return Ok(None);
@@ -374,6 +380,62 @@ pub fn render_marcher_data(
         mean,
         m2,
     )?))
+}
+
+/// Wall time per phase of a distributed render, printed to stderr per rank when
+/// `BLUESHIFT_DIST_TIMING=1` (for the scaling measurements; nothing otherwise).
+struct Phases {
+    rank: usize,
+    on: bool,
+    last: std::cell::Cell<(std::time::Instant, f64)>,
+    marks: std::cell::RefCell<Vec<(&'static str, f64, f64)>>,
+}
+
+/// This process's CPU seconds (user + system, Linux `/proc/self/stat`; 0 elsewhere).
+fn cpu_seconds() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the command name (which may hold spaces) start at state (field 3);
+    // utime and stime are fields 14 and 15, in clock ticks (100 per second on Linux).
+    let rest = s.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
+impl Phases {
+    fn start(rank: usize) -> Self {
+        let on = std::env::var("BLUESHIFT_DIST_TIMING").is_ok_and(|v| v == "1");
+        Self {
+            rank,
+            on,
+            last: std::cell::Cell::new((
+                std::time::Instant::now(),
+                if on { cpu_seconds() } else { 0.0 },
+            )),
+            marks: std::cell::RefCell::new(Vec::new()),
+        }
+    }
+    fn mark(&self, phase: &'static str) {
+        if self.on {
+            let now = (std::time::Instant::now(), cpu_seconds());
+            let (t0, c0) = self.last.replace(now);
+            let wall = now.0.duration_since(t0).as_secs_f64();
+            self.marks.borrow_mut().push((phase, wall, now.1 - c0));
+        }
+    }
+    fn report(&self) {
+        if self.on {
+            let m: Vec<String> = self
+                .marks
+                .borrow()
+                .iter()
+                .map(|(p, t, c)| format!("{p} {t:.3} s (cpu {c:.2} s)"))
+                .collect();
+            eprintln!("rank {}: {}", self.rank, m.join(", "));
+        }
+    }
 }
 
 /// Encodes per-pixel piece lists as `[count, (start, end, v0, v1) x count, ...]`.
@@ -470,12 +532,16 @@ pub fn render_doppler_data(
         position[r] = p;
     }
     let pixels = settings.width as usize * settings.height as usize;
-    let front = if scene.absorbs() {
-        let depth = agree(
-            comm,
-            "optical depth",
-            optical_depth_part(scene, settings, &clip).map_err(Error::from),
-        )?;
+    let clock = Phases::start(me);
+    let front = if scene.absorbs() && n > 1 {
+        // The last piece in the order is in front of nothing: its depth is not needed.
+        let depth = if order.last() == Some(&me) {
+            Ok(vec![Vec::new(); pixels])
+        } else {
+            optical_depth_part(scene, settings, &clip).map_err(Error::from)
+        };
+        let depth = agree(comm, "optical depth", depth)?;
+        clock.mark("optical depth");
         let front = exclusive_scan(
             comm,
             &order,
@@ -485,17 +551,20 @@ pub fn render_doppler_data(
             |v| encode_pieces(v),
             |d| decode_pieces(d, pixels),
         );
-        Some(agree(comm, "optical depth scan", front)?)
+        let front = agree(comm, "optical depth scan", front)?;
+        clock.mark("depth scan");
+        Some(front)
     } else {
         None
     };
-    let part = agree(
-        comm,
-        "rendering",
-        render_doppler_part(scene, settings, &clip, front.as_deref()).map_err(Error::from),
-    )?;
+    let part = render_doppler_part(scene, settings, &clip, front.as_deref());
+    clock.mark("render");
+    let part = agree(comm, "rendering", part.map_err(Error::from))?;
+    clock.mark("wait for all");
     let local: Vec<f64> = part.xyz.iter().flatten().copied().collect();
     let img = composite(comm, local, 3, Op::Add, decomp.factors(), &position)?;
+    clock.mark("composite");
+    clock.report();
     Ok(img.map(|v| DopplerImage {
         width: settings.width,
         height: settings.height,

@@ -592,15 +592,31 @@ pub(crate) fn front_to_back_behind(
 /// The optical depth of all the segments of `s` (sorted, disjoint pieces), each segment's
 /// absorption lines as the march takes them (no line left out, no merge).
 pub(crate) fn total_depth(ctx: &Context<'_>, s: &RaySamples) -> Result<Vec<Piece>> {
-    let mut lines = Vec::new();
-    let mut all = Vec::new();
+    // Each segment's lines summed on their own (small clusters), then the segments' sums
+    // added pairwise, as a balanced tree: O(P log n) for P pieces over n segments (one sum
+    // of all the lines at once is quadratic in an overlapping cluster).
+    let (mut lines, mut cuts) = (Vec::new(), Vec::new());
+    let mut level: Vec<Vec<Piece>> = Vec::new();
     for j in 0..s.len().saturating_sub(1) {
         segment_lines(ctx, s, j, false, 1.0, &mut lines)?;
-        all.extend_from_slice(&lines);
+        if lines.is_empty() {
+            continue;
+        }
+        let mut one = Vec::new();
+        sum_trapezoids(&mut lines, 1.0, &mut one, &mut cuts);
+        level.push(one);
     }
-    let (mut out, mut cuts) = (Vec::new(), Vec::new());
-    sum_trapezoids(&mut all, 1.0, &mut out, &mut cuts);
-    Ok(out)
+    while level.len() > 1 {
+        level = level
+            .chunks(2)
+            .map(|c| match c {
+                [a, b] => add_depths(a, b),
+                [a] => a.clone(),
+                _ => unreachable!("chunks of at most two"),
+            })
+            .collect();
+    }
+    Ok(level.pop().unwrap_or_default())
 }
 
 /// `a + b` for sorted, disjoint piece lists (exact: the sum of two piecewise-linear
