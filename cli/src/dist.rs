@@ -5,7 +5,7 @@
 //!
 //! Rank 0 writes the image (every rank writes its own frames in `frames` mode). A failure on
 //! any rank stops all of them: the distributed renders agree on success after every phase
-//! (an `MPI_Allreduce` of an error flag), the failing rank prints its error and every rank
+//! (an `MPI_Allreduce` of the lowest failed rank), that rank prints its error and every rank
 //! exits 1; a rank that dies outright makes `mpirun` end the job.
 
 use anyhow::{Result, bail};

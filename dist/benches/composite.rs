@@ -64,7 +64,7 @@ fn radix8(n: usize) -> Vec<usize> {
     let mut f = Vec::new();
     let mut m = n;
     while m > 1 {
-        let k = if m % 8 == 0 { 8 } else { m };
+        let k = if m.is_multiple_of(8) { 8 } else { m };
         f.push(k);
         m /= k;
     }

@@ -32,13 +32,22 @@ pub trait Communicator {
     /// # Errors
     /// [`Error::Comm`] when a peer is gone.
     fn send_recv(&self, data: &[f64], to: usize, from: usize) -> Result<Vec<f64>>;
-    /// A collective every rank calls at the same point: whether every rank passed `true`.
-    /// Renders call it after each phase, so a failure on one rank stops all of them there
-    /// instead of leaving them waiting for its messages.
+    /// A collective every rank calls at the same point: the lowest rank that passed
+    /// `failed = true`, if any. Renders call it after each phase, so a failure on one rank
+    /// stops all of them there instead of leaving them waiting for its messages, and only
+    /// that rank reports (one message).
     ///
     /// # Errors
     /// [`Error::Comm`] when a peer is gone.
-    fn all_ok(&self, ok: bool) -> Result<bool>;
+    fn first_failed(&self, failed: bool) -> Result<Option<usize>>;
+
+    /// Whether every rank passed `true` ([`Communicator::first_failed`]).
+    ///
+    /// # Errors
+    /// [`Error::Comm`] when a peer is gone.
+    fn all_ok(&self, ok: bool) -> Result<bool> {
+        Ok(self.first_failed(!ok)?.is_none())
+    }
 }
 
 /// An in-process world of `n` ranks, one thread each, over channels.
@@ -52,8 +61,8 @@ pub struct ThreadComm {
     to: Vec<Sender<Vec<f64>>>,
     from: Vec<Receiver<Vec<f64>>>,
     // The collective's own channels (not counted as messages of the schedules).
-    ctl_to: Vec<Sender<bool>>,
-    ctl_from: Vec<Receiver<bool>>,
+    ctl_to: Vec<Sender<usize>>,
+    ctl_from: Vec<Receiver<usize>>,
 }
 
 impl ThreadWorld {
@@ -67,8 +76,8 @@ impl ThreadWorld {
         assert!(n > 0, "a world needs at least one rank");
         let mut senders: Vec<Vec<Option<Sender<Vec<f64>>>>> = vec![];
         let mut receivers: Vec<Vec<Option<Receiver<Vec<f64>>>>> = vec![];
-        let mut ctl_s: Vec<Vec<Option<Sender<bool>>>> = vec![];
-        let mut ctl_r: Vec<Vec<Option<Receiver<bool>>>> = vec![];
+        let mut ctl_s: Vec<Vec<Option<Sender<usize>>>> = vec![];
+        let mut ctl_r: Vec<Vec<Option<Receiver<usize>>>> = vec![];
         for _ in 0..n {
             senders.push((0..n).map(|_| None).collect());
             receivers.push((0..n).map(|_| None).collect());
@@ -132,21 +141,24 @@ impl Communicator for ThreadComm {
         self.send(to, data)?;
         self.recv(from)
     }
-    fn all_ok(&self, ok: bool) -> Result<bool> {
-        // Gather to rank 0, which answers everyone.
-        if self.rank == 0 {
-            let mut all = ok;
-            for r in 1..self.size() {
-                all &= self.ctl_from[r].recv().map_err(|_| gone(r))?;
+    fn first_failed(&self, failed: bool) -> Result<Option<usize>> {
+        // Gather to rank 0, which answers everyone: the lowest failed rank, or `size`.
+        let n = self.size();
+        let mine = if failed { self.rank } else { n };
+        let first = if self.rank == 0 {
+            let mut first = mine;
+            for r in 1..n {
+                first = first.min(self.ctl_from[r].recv().map_err(|_| gone(r))?);
             }
-            for r in 1..self.size() {
-                self.ctl_to[r].send(all).map_err(|_| gone(r))?;
+            for r in 1..n {
+                self.ctl_to[r].send(first).map_err(|_| gone(r))?;
             }
-            Ok(all)
+            first
         } else {
-            self.ctl_to[0].send(ok).map_err(|_| gone(0))?;
-            self.ctl_from[0].recv().map_err(|_| gone(0))
-        }
+            self.ctl_to[0].send(mine).map_err(|_| gone(0))?;
+            self.ctl_from[0].recv().map_err(|_| gone(0))?
+        };
+        Ok((first < n).then_some(first))
     }
 }
 
@@ -171,7 +183,7 @@ impl Counters {
 }
 
 /// A communicator that counts every point-to-point message it sends into shared
-/// [`Counters`] (the collective [`Communicator::all_ok`] is not counted).
+/// [`Counters`] (the collective [`Communicator::first_failed`] is not counted).
 #[derive(Debug)]
 pub struct Counting<C> {
     inner: C,
@@ -209,7 +221,7 @@ impl<C: Communicator> Communicator for Counting<C> {
         self.count(data);
         self.inner.send_recv(data, to, from)
     }
-    fn all_ok(&self, ok: bool) -> Result<bool> {
-        self.inner.all_ok(ok)
+    fn first_failed(&self, failed: bool) -> Result<Option<usize>> {
+        self.inner.first_failed(failed)
     }
 }

@@ -77,7 +77,7 @@ impl Strategy {
         let mut m = n;
         let mut p = 2;
         while p * p <= m {
-            while m % p == 0 {
+            while m.is_multiple_of(p) {
                 primes.push(p);
                 m /= p;
             }
@@ -172,7 +172,7 @@ pub fn composite(
             position.len()
         )));
     }
-    if channels == 0 || image.len() % channels != 0 {
+    if channels == 0 || !image.len().is_multiple_of(channels) {
         return Err(Error::parameter(
             "compositing: image length not a pixel multiple",
         ));

@@ -2,8 +2,8 @@
 //!
 //! Messages are `f64` vectors of any length (`MPI_DOUBLE`), received with a probe for the
 //! size; [`Communicator::send_recv`] posts the send as an immediate request and then
-//! receives, so pairwise exchanges never deadlock; [`Communicator::all_ok`] is an
-//! `MPI_Allreduce` with logical and.
+//! receives, so pairwise exchanges never deadlock; [`Communicator::first_failed`] is an
+//! `MPI_Allreduce` with min over the failed ranks.
 
 use mpi::Threading;
 use mpi::collective::SystemOperation;
@@ -97,11 +97,12 @@ impl Communicator for MpiComm {
             v
         }))
     }
-    fn all_ok(&self, ok: bool) -> Result<bool> {
-        let mine = i32::from(ok);
-        let mut all = 0i32;
+    fn first_failed(&self, failed: bool) -> Result<Option<usize>> {
+        let n = self.world.size();
+        let mine = if failed { self.world.rank() } else { n };
+        let mut first = n;
         self.world
-            .all_reduce_into(&mine, &mut all, SystemOperation::logical_and());
-        Ok(all != 0)
+            .all_reduce_into(&mine, &mut first, SystemOperation::min());
+        Ok((first < n).then_some(first as usize))
     }
 }

@@ -2,7 +2,7 @@
 //! of the k-d split, the partial images are composited sort-last), sample-parallel and
 //! tile-parallel Monte Carlo, and frame farming. Rank 0 returns the image, the others
 //! `None`. After every phase all ranks agree whether every rank succeeded
-//! ([`Communicator::all_ok`]), so a failure on one rank (a brick that does not read, a bad
+//! ([`Communicator::first_failed`]), so a failure on one rank (a brick that does not read, a bad
 //! setting) stops all of them at that point with an error instead of leaving them waiting.
 
 use blueshift_doppler::part::{add_depths, optical_depth_part, render_doppler_part};
@@ -48,17 +48,17 @@ impl std::str::FromStr for Mode {
     }
 }
 
-/// Makes every rank agree on the outcome of a phase: the local error when this rank failed,
-/// [`Error::PeerFailed`] when another did, the value when all succeeded.
+/// Makes every rank agree on the outcome of a phase: the local error on the lowest rank
+/// that failed, [`Error::PeerFailed`] on every other rank when any failed (so one message
+/// reports the failure), the value when all succeeded.
 ///
 /// # Errors
 /// As described.
 pub fn agree<T>(comm: &dyn Communicator, phase: &'static str, r: Result<T>) -> Result<T> {
-    let all = comm.all_ok(r.is_ok())?;
-    match r {
-        Err(e) => Err(e),
-        Ok(_) if !all => Err(Error::PeerFailed(phase)),
-        Ok(v) => Ok(v),
+    match (comm.first_failed(r.is_err())?, r) {
+        (None, Ok(v)) => Ok(v),
+        (Some(first), Err(e)) if first == comm.rank() => Err(e),
+        _ => Err(Error::PeerFailed(phase)),
     }
 }
 

@@ -402,6 +402,19 @@ fn a_failing_rank_stops_every_rank_at_the_same_phase() {
             }
         }
     }
+    // Several failing: only the lowest reports its error.
+    let got = ThreadWorld::run(4, |c| {
+        let r = if c.rank() % 2 == 1 {
+            Err(Error::Parameter(format!("rank {} broke", c.rank())))
+        } else {
+            Ok(())
+        };
+        agree(&c, "x", r)
+    });
+    assert!(matches!(&got[1], Err(Error::Parameter(m)) if m == "rank 1 broke"));
+    for r in [0, 2, 3] {
+        assert!(matches!(got[r], Err(Error::PeerFailed("x"))), "{r}: {:?}", got[r]);
+    }
     // And all succeed together.
     let got = ThreadWorld::run(3, |c| agree(&c, "x", Ok::<_, Error>(c.rank())).unwrap());
     assert_eq!(got, vec![0, 1, 2]);
