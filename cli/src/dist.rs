@@ -40,8 +40,8 @@ pub fn factors(flag: &str, ranks: usize) -> Result<Vec<usize>> {
                 })?,
         ),
     };
-    Ok(s.factors(ranks)
-        .map_err(|e| anyhow::anyhow!("--compositing: {e}"))?)
+    s.factors(ranks)
+        .map_err(|e| anyhow::anyhow!("--compositing: {e}"))
 }
 
 /// An error every rank already knows about (another rank failed and printed why): the

@@ -413,7 +413,11 @@ fn a_failing_rank_stops_every_rank_at_the_same_phase() {
     });
     assert!(matches!(&got[1], Err(Error::Parameter(m)) if m == "rank 1 broke"));
     for r in [0, 2, 3] {
-        assert!(matches!(got[r], Err(Error::PeerFailed("x"))), "{r}: {:?}", got[r]);
+        assert!(
+            matches!(got[r], Err(Error::PeerFailed("x"))),
+            "{r}: {:?}",
+            got[r]
+        );
     }
     // And all succeed together.
     let got = ThreadWorld::run(3, |c| agree(&c, "x", Ok::<_, Error>(c.rank())).unwrap());
