@@ -467,3 +467,45 @@ impl std::fmt::Display for View {
         f.write_str(self.name())
     }
 }
+
+/// A half-open world box `lo <= p < hi` (per axis) that restricts a render to the samples
+/// inside it, for distributed (sort-last) rendering: boxes that tile space give every sample
+/// point of a ray to exactly one box. Faces may be infinite (`-inf` / `+inf`), so the boxes
+/// at the domain's edge take everything beyond it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClipBox {
+    /// Lower corner (inclusive).
+    pub lo: Vec3,
+    /// Upper corner (exclusive).
+    pub hi: Vec3,
+}
+
+impl ClipBox {
+    /// The box taking all of space.
+    pub const ALL: Self = Self {
+        lo: Vec3::splat(f32::NEG_INFINITY),
+        hi: Vec3::splat(f32::INFINITY),
+    };
+
+    /// Whether `p` is inside: `lo <= p < hi` on every axis.
+    #[must_use]
+    #[inline]
+    pub fn contains(&self, p: Vec3) -> bool {
+        p.cmpge(self.lo).all() && p.cmplt(self.hi).all()
+    }
+
+    /// The ray parameters `[t0, t1]` where `ray` is inside this box intersected with the
+    /// closed box `[lo, hi]` (the render domain), widened by `margin` on both sides; `None`
+    /// if it misses. A conservative range: callers still test each sample with
+    /// [`ClipBox::contains`].
+    #[must_use]
+    pub fn ray_range(&self, ray: &Ray, lo: Vec3, hi: Vec3, margin: f32) -> Option<(f32, f32)> {
+        let lo = lo.max(self.lo);
+        let hi = hi.min(self.hi);
+        if lo.cmpgt(hi).any() {
+            return None;
+        }
+        let (t0, t1) = ray.clip_box(lo, hi)?;
+        Some(((t0 - margin).max(0.0), t1 + margin))
+    }
+}

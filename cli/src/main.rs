@@ -9,6 +9,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod commands;
+mod dist;
 mod figure;
 mod limits;
 mod output;
@@ -145,8 +146,12 @@ fn main() -> ExitCode {
         Command::View(args) => commands::view::run(*args),
         Command::Clean(args) => commands::clean::run(args),
     });
+    // Every rank of an MPI job finalises (nothing when MPI was not used).
+    dist::finalize();
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // Another rank failed and said why: exit 1 without a second message.
+        Err(err) if err.downcast_ref::<dist::Quiet>().is_some() => ExitCode::from(1),
         // A loop stopped on SIGINT/SIGTERM: the watcher is cleaning up and sets the exit code.
         Err(_) if signals::cancelled() => signals::wait_for_exit(),
         Err(err) => {

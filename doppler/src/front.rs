@@ -568,14 +568,77 @@ thread_local! {
 
 /// The XYZ of a ray with absorption (see the module docs).
 pub(crate) fn front_to_back(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples) -> Result<RayOut> {
+    front_to_back_behind(ctx, t, s, &[])
+}
+
+/// [`front_to_back`] for samples that lie behind an optical depth `front` (sorted, disjoint
+/// pieces: everything in front of the first segment, as distributed rendering's exclusive
+/// scan gives it): each segment's light is attenuated by `front` plus the depth in front of
+/// it here, exactly as in the ray's single-process march, where `front` is the sum of the
+/// depths of the segments before.
+pub(crate) fn front_to_back_behind(
+    ctx: &Context<'_>,
+    t: &PwlTables,
+    s: &RaySamples,
+    front: &[Piece],
+) -> Result<RayOut> {
     SCRATCH.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut scratch) => march(ctx, t, s, &mut scratch),
+        Ok(mut scratch) => march(ctx, t, s, front, &mut scratch),
         // Re-entered on this thread (not done today): fresh buffers.
-        Err(_) => march(ctx, t, s, &mut Scratch::default()),
+        Err(_) => march(ctx, t, s, front, &mut Scratch::default()),
     })
 }
 
-fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> Result<RayOut> {
+/// The optical depth of all the segments of `s` (sorted, disjoint pieces), each segment's
+/// absorption lines as the march takes them (no line left out, no merge).
+pub(crate) fn total_depth(ctx: &Context<'_>, s: &RaySamples) -> Result<Vec<Piece>> {
+    // Each segment's lines summed on their own (small clusters), then the segments' sums
+    // added pairwise, as a balanced tree: O(P log n) for P pieces over n segments (one sum
+    // of all the lines at once is quadratic in an overlapping cluster).
+    let (mut lines, mut cuts) = (Vec::new(), Vec::new());
+    let mut level: Vec<Vec<Piece>> = Vec::new();
+    for j in 0..s.len().saturating_sub(1) {
+        segment_lines(ctx, s, j, false, 1.0, &mut lines)?;
+        if lines.is_empty() {
+            continue;
+        }
+        let mut one = Vec::new();
+        sum_trapezoids(&mut lines, 1.0, &mut one, &mut cuts);
+        level.push(one);
+    }
+    while level.len() > 1 {
+        level = level
+            .chunks(2)
+            .map(|c| match c {
+                [a, b] => add_depths(a, b),
+                [a] => a.clone(),
+                _ => unreachable!("chunks of at most two"),
+            })
+            .collect();
+    }
+    Ok(level.pop().unwrap_or_default())
+}
+
+/// `a + b` for sorted, disjoint piece lists (exact: the sum of two piecewise-linear
+/// functions, cut at both lists' breakpoints).
+#[must_use]
+pub fn add_depths(a: &[Piece], b: &[Piece]) -> Vec<Piece> {
+    let mut out = Vec::with_capacity(a.len() + 2 * b.len());
+    if a.len() >= b.len() {
+        add_sorted(a, b, &mut out);
+    } else {
+        add_sorted(b, a, &mut out);
+    }
+    out
+}
+
+fn march(
+    ctx: &Context<'_>,
+    t: &PwlTables,
+    s: &RaySamples,
+    front: &[Piece],
+    sc: &mut Scratch,
+) -> Result<RayOut> {
     let st = ctx.settings;
     let n = s.len();
     let k = t.lambdas.len();
@@ -692,6 +755,12 @@ fn march(ctx: &Context<'_>, t: &PwlTables, s: &RaySamples, sc: &mut Scratch) -> 
         w: std::mem::take(w),
     };
     p.clear();
+    if !front.is_empty() {
+        // W_i = integral hat_i cmf (1 - exp(-front)): the depth in front, taken in one step
+        // from nothing (no emission of its own here).
+        sweep.run(p, front, &[]);
+        p.extend_from_slice(front);
+    }
     let mut prev_own = 0..0;
     let mut taken = [0.0f64; 3];
     let mut merges = 0u32;

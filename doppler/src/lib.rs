@@ -91,6 +91,7 @@ mod key;
 mod model;
 #[cfg(test)]
 mod names;
+pub mod part;
 mod prepared;
 mod profile;
 mod pwl;

@@ -307,6 +307,8 @@ pub(crate) struct Context<'a> {
     pub scene: &'a DopplerScene,
     pub settings: &'a DopplerSettings,
     prep: Prep<'a>,
+    /// Keep only the segments whose middle lies in this box (distributed rendering).
+    pub clip: Option<blueshift_camera::ClipBox>,
 }
 
 #[derive(Debug)]
@@ -332,6 +334,7 @@ impl<'a> Context<'a> {
             scene,
             settings,
             prep: Prep::Owned(Box::new(Prepared::new(scene, settings)?)),
+            clip: None,
         })
     }
 
@@ -345,6 +348,7 @@ impl<'a> Context<'a> {
             scene,
             settings,
             prep: Prep::Borrowed(prepared),
+            clip: None,
         }
     }
 
@@ -373,10 +377,30 @@ impl<'a> Context<'a> {
             return out;
         };
         let (t0, len, n_seg) = (span.t0, span.len, span.n_seg as usize);
+        let path = |i: usize| {
+            if i == n_seg {
+                len
+            } else {
+                (i as f32 * self.step).min(len)
+            }
+        };
+        // With a clip box: the segments whose middle lies inside (a contiguous run, as the
+        // box is convex and the middles' coordinates are monotonic along the ray), sampled
+        // at their global positions; an empty run gives no samples.
+        let (first, last) = match &self.clip {
+            None => (0, n_seg),
+            Some(c) => {
+                let inside = |g: usize| c.contains(ray.at(t0 + 0.5 * (path(g) + path(g + 1))));
+                match (0..n_seg).position(inside) {
+                    None => return out,
+                    Some(a) => (a, a + (a..n_seg).take_while(|&g| inside(g)).count()),
+                }
+            }
+        };
         let dir = ray.dir.normalize();
         out.los = [f64::from(dir.x), f64::from(dir.y), f64::from(dir.z)];
         // Exact capacities, so kept samples take what the session's budget counts.
-        let n = n_seg + 1;
+        let n = last - first + 1;
         out.t.reserve_exact(n);
         out.rho.reserve_exact(n * self.scene.species.len());
         if self.scene.blackbody.is_some() {
@@ -387,12 +411,8 @@ impl<'a> Context<'a> {
         if self.scene.velocity.is_some() {
             out.vel.reserve_exact(n);
         }
-        for i in (0..=n_seg).rev() {
-            let t = if i == n_seg {
-                len
-            } else {
-                (i as f32 * self.step).min(len)
-            };
+        for i in (first..=last).rev() {
+            let t = path(i);
             let p = g.world_to_index(ray.at(t0 + t));
             out.t.push(t);
             for sp in &self.scene.species {

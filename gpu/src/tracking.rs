@@ -633,6 +633,11 @@ pub fn supports(scene: &Scene, settings: &RenderSettings) -> std::result::Result
     if settings.heatmaps {
         return Err(Unsupported("heat maps are CPU-only".into()));
     }
+    if scene.clip.is_some() {
+        return Err(Unsupported(
+            "a clip box (data-parallel distributed rendering) is CPU-only".into(),
+        ));
+    }
     if settings.observer.is_some_and(|o| !o.is_at_rest()) {
         return Err(Unsupported(
             "a moving observer (aberration and colour shift are CPU-only)".into(),

@@ -324,6 +324,12 @@ impl Integrator {
         if let Some(l) = &scene.light {
             crate::scene::check_light(l)?;
         }
+        if scene.clip.is_some() && !matches!(self, Integrator::Marcher(_)) {
+            return Err(Error::parameter(
+                "a clip box (data-parallel rendering) is supported by the ray marcher only; \
+                 the trackers run sample- or tile-parallel",
+            ));
+        }
         Ok(match self {
             Integrator::Woodcock { channel } => {
                 if *channel >= n {
@@ -881,7 +887,19 @@ fn march(
             Some(n) => vec![n],
             None => (0..scene.channel_count()).collect(),
         };
-        for i in 0..n_steps {
+        // With a clip box: the steps whose sample may lie in it (a margin of two steps),
+        // each then tested, so boxes tiling space share out the same global samples.
+        let (first, last) = match &scene.clip {
+            None => (0, n_steps),
+            Some(c) => match c.ray_range(ray, lo, hi, 2.0 * step) {
+                None => (0, 0),
+                Some((ca, cb)) => (
+                    (((ca - t0) / step).floor().max(0.0) as u64).min(n_steps),
+                    ((((cb - t0) / step).ceil().max(0.0) as u64) + 1).min(n_steps),
+                ),
+            },
+        };
+        for i in first..last {
             let ta = t0 + i as f32 * step;
             let tb = (ta + step).min(t1);
             let len = tb - ta;
@@ -890,6 +908,9 @@ fn march(
             }
             stats.cells += 1;
             let p = ray.at(ta + jitter * len);
+            if scene.clip.as_ref().is_some_and(|c| !c.contains(p)) {
+                continue;
+            }
             let (sigma, emit) = point_emission(scene, blend, &channels, p);
             if sigma <= 0.0 {
                 continue;
@@ -907,7 +928,11 @@ fn march(
             }
         }
     }
-    let bg = scene.background;
+    let bg = if scene.clip.is_some() {
+        [0.0; 3]
+    } else {
+        scene.background
+    };
     [
         c[0] + (1.0 - a) * bg[0],
         c[1] + (1.0 - a) * bg[1],

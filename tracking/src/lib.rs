@@ -67,8 +67,8 @@ pub use integrator::{
 };
 pub use majorant::MajorantGrid;
 pub use render::{
-    FrameTimes, HeatMap, Progressive, RenderSettings, TrackingOutput, render, render_progressive,
-    render_timed,
+    FrameTimes, HeatMap, Progressive, RenderSettings, TrackingOutput, pixel_sample, render,
+    render_progressive, render_timed, welford_add,
 };
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};

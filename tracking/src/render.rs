@@ -109,6 +109,56 @@ fn check_size(width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
+/// One sample of pixel `(x, y)` (RGBA; `sample` is the sample index of the counter-based
+/// random numbers, `Rng::new(seed, pixel, sample)`): what every pass of the render loop
+/// computes per pixel, so distributed renders (sample- or tile-parallel) compute the same
+/// values. `observer` is the settings' observer when it moves (`None` at rest, which
+/// leaves the colour untouched). `integrator` must be prepared for `scene`.
+#[must_use]
+pub fn pixel_sample(
+    scene: &Scene,
+    integrator: &Integrator,
+    settings: &RenderSettings,
+    observer: Option<&MovingObserver>,
+    (x, y): (u32, u32),
+    sample: u32,
+    stats: &mut RayStats,
+) -> [f32; 4] {
+    let (width, height) = (settings.width, settings.height);
+    let pixel = u64::from(y) * u64::from(width) + u64::from(x);
+    let mut rng = Rng::new(settings.seed, pixel, u64::from(sample));
+    let (jx, jy) = if settings.jitter_pixels {
+        (rng.uniform(), rng.uniform())
+    } else {
+        (0.5, 0.5)
+    };
+    let mut ray = settings
+        .camera
+        .ray(x as f32 + jx, y as f32 + jy, width, height);
+    if let Some(o) = observer {
+        ray.dir = o.scene_direction(ray.dir);
+    }
+    let mut v = integrator.li_with_stats(scene, &ray, &mut rng, stats);
+    if let Some(o) = observer {
+        let rgb = o.shift_rgb(ray.dir.normalize(), [v[0], v[1], v[2]]);
+        v[..3].copy_from_slice(&rgb);
+    }
+    v
+}
+
+/// Adds the `count`-th sample `v` to a pixel's running mean and sum of squared deviations
+/// (Welford), in the render loop's arithmetic: accumulating the same samples in the same
+/// order anywhere gives the same bits.
+#[inline]
+pub fn welford_add(mean: &mut [f64; 4], m2: &mut [f64; 4], v: [f32; 4], count: f64) {
+    for c in 0..4 {
+        let v = f64::from(v[c]);
+        let d = v - mean[c];
+        mean[c] += d / count;
+        m2[c] += d * (v - mean[c]);
+    }
+}
+
 /// A progressive accumulation buffer: per pixel the running mean and the sum of squared
 /// deviations (Welford) of RGBA over the samples added so far.
 #[derive(Clone, Debug)]
@@ -305,7 +355,7 @@ impl Progressive {
         }
         let w = self.width as usize;
         let first = self.samples;
-        let (width, height) = (self.width, self.height);
+        let height = self.height;
         // At rest the observer changes nothing: skip it, so images keep their bytes.
         let observer = settings.observer.filter(|o| !o.is_at_rest());
         let mut no_heat = Vec::new();
@@ -326,25 +376,16 @@ impl Progressive {
                 {
                     let count = f64::from(sample + 1);
                     let start = counting.then(Instant::now);
-                    let pixel = (y * w + x) as u64;
-                    let mut rng = Rng::new(settings.seed, pixel, u64::from(sample));
-                    let (jx, jy) = if settings.jitter_pixels {
-                        (rng.uniform(), rng.uniform())
-                    } else {
-                        (0.5, 0.5)
-                    };
-                    let mut ray = settings
-                        .camera
-                        .ray(x as f32 + jx, y as f32 + jy, width, height);
-                    if let Some(o) = &observer {
-                        ray.dir = o.scene_direction(ray.dir);
-                    }
                     let mut stats = RayStats::default();
-                    let mut v = integrator.li_with_stats(scene, &ray, &mut rng, &mut stats);
-                    if let Some(o) = &observer {
-                        let rgb = o.shift_rgb(ray.dir.normalize(), [v[0], v[1], v[2]]);
-                        v[..3].copy_from_slice(&rgb);
-                    }
+                    let v = pixel_sample(
+                        scene,
+                        integrator,
+                        settings,
+                        observer.as_ref(),
+                        (x as u32, y as u32),
+                        sample,
+                        &mut stats,
+                    );
                     if let Some(start) = start {
                         let h = &mut heat_row[x];
                         h[0] += f64::from(stats.cells);
@@ -352,12 +393,7 @@ impl Progressive {
                         h[2] += f64::from(stats.rejections);
                         h[3] += start.elapsed().as_secs_f64() * 1e6;
                     }
-                    for c in 0..4 {
-                        let v = f64::from(v[c]);
-                        let d = v - mean_row[x][c];
-                        mean_row[x][c] += d / count;
-                        m2_row[x][c] += d * (v - mean_row[x][c]);
-                    }
+                    welford_add(&mut mean_row[x], &mut m2_row[x], v, count);
                 }
             });
         // A brick that failed to read mid-pass voids the pass.

@@ -1,6 +1,7 @@
 //! Scenes: N scalar channels sharing one geometry, each with its own transfer function and
 //! majorant grid, a background colour, a density scale and an optional directional light.
 
+use blueshift_camera::ClipBox;
 use blueshift_tfedit::TransferFunction;
 use blueshift_volume::{Field, Geometry, Macrocells, Volume};
 use glam::Vec3;
@@ -83,6 +84,15 @@ pub struct Scene {
     pub light: Option<DirectionalLight>,
     /// Gradient shading at real collisions (`None`, the default: emission-absorption).
     pub shading: Option<Shading>,
+    /// Render only the samples inside this box (`None`, the default: all), for sort-last
+    /// distributed rendering (`blueshift-dist`): the ray marcher keeps its global sample
+    /// positions (steps from the ray's entry into the whole volume) and takes the samples
+    /// that fall inside, so the partial images of boxes that tile space composite to the
+    /// whole render. Only the ray marcher supports it ([`Integrator::prepared`] refuses the
+    /// trackers), and it renders with a transparent background (alpha is returned).
+    ///
+    /// [`Integrator::prepared`]: crate::Integrator::prepared
+    pub clip: Option<ClipBox>,
 }
 
 impl Scene {
@@ -142,6 +152,7 @@ impl Scene {
             background: [0.0; 3],
             light: None,
             shading: None,
+            clip: None,
         })
     }
 

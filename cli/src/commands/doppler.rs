@@ -152,6 +152,15 @@ pub struct Args {
     /// picked spectra and traces.
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
+    /// Spread the render over the ranks of an MPI job (run under `mpirun -np N`; needs a
+    /// build with the `mpi` feature): `data` (each rank renders its piece of a k-d split of the volume; without absorption the XYZ images add, with absorption the optical depth in front of each piece is summed first, so the spectra are composited exactly) or `frames` (the frames of `--ramp`, round robin; each rank writes its own). Rank 0 writes the outputs.
+    #[arg(long, value_name = "MODE")]
+    pub distributed: Option<String>,
+    /// Compositing schedule of `--distributed data`: auto (binary swap for a power-of-two
+    /// rank count, radix-k otherwise), direct-send, binary-swap, or radix-k factors `K1,K2,..`
+    /// (bottom round first; their product is the rank count).
+    #[arg(long, value_name = "SCHEDULE", default_value = "auto")]
+    pub compositing: String,
     /// Out-of-core (.bsv) fields of --scene: budget of the brick cache they share, MiB
     /// [default: a quarter of physical memory]. The image does not depend on it.
     #[arg(long, value_name = "MIB")]
@@ -633,7 +642,13 @@ fn sibling(out: &Path, suffix: &str) -> PathBuf {
 /// Runs `blueshift doppler`: one frame, or with `--ramp` one frame per speed (each output
 /// `STEM_kkkk.EXT`).
 pub fn run(args: Args) -> Result<()> {
+    let mode = crate::dist::mode(args.distributed.as_deref())?;
+    use blueshift_dist::Mode;
+    crate::dist::check_mode(mode, &[Mode::Data, Mode::Frames], "doppler")?;
     let Some(speeds) = args.observer.ramp_speeds()? else {
+        if mode == Some(Mode::Frames) {
+            bail!("--distributed frames: spreads the frames of --ramp; give --ramp");
+        }
         return run_frame(args);
     };
     use super::observer_args::{frame_path, run_ramp};
@@ -646,7 +661,14 @@ pub fn run(args: Args) -> Result<()> {
             a.figure = a.figure.as_deref().map(|p| frame_path(p, k));
             a.cube.cube = a.cube.cube.as_deref().map(|p| frame_path(p, k));
         },
-        run_frame,
+        |mut a| {
+            // Each rank renders whole frames on its own.
+            if mode == Some(Mode::Frames) {
+                a.distributed = None;
+            }
+            run_frame(a)
+        },
+        |k| crate::dist::keeps_frame(mode, k),
     )
 }
 
@@ -667,6 +689,9 @@ fn observer_for(
 }
 
 fn run_frame(args: Args) -> Result<()> {
+    if args.distributed.is_some() && args.cube.cube.is_some() {
+        bail!("--distributed: spectral cubes are rendered by one process (not distributed yet)");
+    }
     // Refuse an output that cannot be written before loading or rendering anything.
     let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
     match &args.cube.cube {
@@ -751,59 +776,79 @@ fn run_frame(args: Args) -> Result<()> {
     } else {
         args.device
     };
-    let ran = blueshift_gpu::run_with_fallback(
-        device,
-        || blueshift_gpu::doppler::supports(scene, st),
-        |ctx| {
-            let double = args.gpu_precision.is_double_on(ctx)?;
-            on = if double { "gpu (f64)" } else { "gpu (f32)" };
-            super::render::set_gpu_pool(ctx, args.gpu_pool_mb)?;
-            let asked = level0.as_ref().map(|(_, l)| *l);
-            let bricked = scene.levels().is_some()
-                || scene
-                    .species()
-                    .iter()
-                    .any(|s| s.density.as_bricked().is_some());
-            let auto = args.lod.as_deref().map(str::trim) == Some("auto");
-            let mut level = asked;
-            let mut coarser: Option<(DopplerScene, DopplerSettings)> = None;
-            loop {
-                let (s, t) = coarser.as_ref().map_or((scene, st), |(s, t)| (s, t));
-                match blueshift_gpu::doppler::render_doppler_gpu_pooled(
-                    ctx,
-                    s,
-                    t,
-                    args.gpu_precision,
-                ) {
-                    Ok((img, stats)) => {
-                        super::render::report_pool(&stats, bricked, asked, level);
-                        return Ok(img);
-                    }
-                    // --lod auto: the finest coarser level whose bricks fit the pool.
-                    Err(e) if auto && blueshift_gpu::pool::is_pool_full(&e) => {
-                        let (Some((s0, _)), Some(l)) = (&level0, level) else {
-                            return Err(e);
-                        };
-                        if l + 1 >= s0.levels().map_or(1, |g| g.len()) {
-                            return Err(e);
+    let distributed = if crate::dist::mode(args.distributed.as_deref())?.is_some() {
+        if args.progressive || args.cube.cube.is_some() {
+            bail!("--distributed data: images only (not --progressive, not cubes)");
+        }
+        match crate::dist::doppler(scene, st, &args.compositing)? {
+            // Not rank 0: rank 0 writes the outputs.
+            None => return Ok(()),
+            Some(img) => Some(blueshift_gpu::Ran {
+                value: img,
+                device: blueshift_camera::DeviceKind::Cpu,
+                fallback: None,
+            }),
+        }
+    } else {
+        None
+    };
+    let ran = if let Some(ran) = distributed {
+        ran
+    } else {
+        blueshift_gpu::run_with_fallback(
+            device,
+            || blueshift_gpu::doppler::supports(scene, st),
+            |ctx| {
+                let double = args.gpu_precision.is_double_on(ctx)?;
+                on = if double { "gpu (f64)" } else { "gpu (f32)" };
+                super::render::set_gpu_pool(ctx, args.gpu_pool_mb)?;
+                let asked = level0.as_ref().map(|(_, l)| *l);
+                let bricked = scene.levels().is_some()
+                    || scene
+                        .species()
+                        .iter()
+                        .any(|s| s.density.as_bricked().is_some());
+                let auto = args.lod.as_deref().map(str::trim) == Some("auto");
+                let mut level = asked;
+                let mut coarser: Option<(DopplerScene, DopplerSettings)> = None;
+                loop {
+                    let (s, t) = coarser.as_ref().map_or((scene, st), |(s, t)| (s, t));
+                    match blueshift_gpu::doppler::render_doppler_gpu_pooled(
+                        ctx,
+                        s,
+                        t,
+                        args.gpu_precision,
+                    ) {
+                        Ok((img, stats)) => {
+                            super::render::report_pool(&stats, bricked, asked, level);
+                            return Ok(img);
                         }
-                        // As `--lod` of that level would render it (its own framing).
-                        let bad = |e: String| blueshift_gpu::Error::InvalidInput(e);
-                        let s = s0.at_level(l + 1).map_err(|e| bad(e.to_string()))?;
-                        let t = reframe(&args, &s, st).map_err(|e| bad(format!("{e:#}")))?;
-                        coarser = Some((s, t));
-                        level = Some(l + 1);
+                        // --lod auto: the finest coarser level whose bricks fit the pool.
+                        Err(e) if auto && blueshift_gpu::pool::is_pool_full(&e) => {
+                            let (Some((s0, _)), Some(l)) = (&level0, level) else {
+                                return Err(e);
+                            };
+                            if l + 1 >= s0.levels().map_or(1, |g| g.len()) {
+                                return Err(e);
+                            }
+                            // As `--lod` of that level would render it (its own framing).
+                            let bad = |e: String| blueshift_gpu::Error::InvalidInput(e);
+                            let s = s0.at_level(l + 1).map_err(|e| bad(e.to_string()))?;
+                            let t = reframe(&args, &s, st).map_err(|e| bad(format!("{e:#}")))?;
+                            coarser = Some((s, t));
+                            level = Some(l + 1);
+                        }
+                        Err(e) => return Err(e),
                     }
-                    Err(e) => return Err(e),
                 }
-            }
-        },
-        || match &level0 {
-            Some((s0, target)) if args.progressive => render_progressive(s0, st, *target),
-            _ => render(&session),
-        },
-    )
-    .map_err(device_error)?;
+            },
+            || match &level0 {
+                Some((s0, target)) if args.progressive => render_progressive(s0, st, *target),
+                _ => render(&session),
+            },
+        )
+        .map_err(device_error)?
+    };
     if let Some(why) = &ran.fallback {
         eprintln!("--device auto: {why}; rendering on the CPU");
     }

@@ -100,8 +100,12 @@ pub fn run_ramp<A: Clone>(
     observer: impl Fn(&mut A) -> &mut ObserverArgs,
     outputs: impl Fn(&mut A, usize),
     mut frame: impl FnMut(A) -> Result<()>,
+    keep: impl Fn(usize) -> Result<bool>,
 ) -> Result<()> {
     for (k, &b) in speeds.iter().enumerate() {
+        if !keep(k)? {
+            continue;
+        }
         let mut a = args.clone();
         outputs(&mut a, k);
         let o = observer(&mut a);

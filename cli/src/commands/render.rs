@@ -189,6 +189,15 @@ pub struct Args {
     /// lavapipe's loop limit) fails on gpu; auto renders those on the CPU.
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
+    /// Spread the render over the ranks of an MPI job (run under `mpirun -np N`; needs a
+    /// build with the `mpi` feature): `data` (the ray marcher: each rank marches its piece of a k-d split of the volume, composited sort-last), `samples` (each rank takes every N-th sample index: the image is the single-process image, bit for bit), `tiles` (bands of rows, also bit for bit), `frames` (the frames of `--ramp`, round robin; each rank writes its own). Rank 0 writes the outputs.
+    #[arg(long, value_name = "MODE")]
+    pub distributed: Option<String>,
+    /// Compositing schedule of `--distributed data`: auto (binary swap for a power-of-two
+    /// rank count, radix-k otherwise), direct-send, binary-swap, or radix-k factors `K1,K2,..`
+    /// (bottom round first; their product is the rank count).
+    #[arg(long, value_name = "SCHEDULE", default_value = "auto")]
+    pub compositing: String,
     /// GPU: cap of the device brick pool, MiB [default: the adapter's largest storage
     /// buffer]. The pool holds only bricks that are not constant; when a level's do not fit,
     /// --lod auto renders the finest coarser level that does, other levels fail on gpu (auto
@@ -382,7 +391,17 @@ pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
 
 /// Runs `blueshift render`.
 pub fn run(args: Args) -> Result<()> {
+    let mode = crate::dist::mode(args.distributed.as_deref())?;
+    use blueshift_dist::Mode;
+    crate::dist::check_mode(
+        mode,
+        &[Mode::Data, Mode::Samples, Mode::Tiles, Mode::Frames],
+        "render",
+    )?;
     let Some(speeds) = args.observer.ramp_speeds()? else {
+        if mode == Some(Mode::Frames) {
+            bail!("--distributed frames: spreads the frames of --ramp; give --ramp");
+        }
         return run_frame(args);
     };
     use super::observer_args::{frame_path, run_ramp};
@@ -394,7 +413,14 @@ pub fn run(args: Args) -> Result<()> {
             a.out = frame_path(&a.out, k);
             a.png = a.png.as_deref().map(|p| frame_path(p, k));
         },
-        run_frame,
+        |mut a| {
+            // Each rank renders whole frames on its own.
+            if mode == Some(Mode::Frames) {
+                a.distributed = None;
+            }
+            run_frame(a)
+        },
+        |k| crate::dist::keeps_frame(mode, k),
     )
 }
 
@@ -526,7 +552,8 @@ fn run_inner(args: &Args) -> Result<()> {
             bail!("--progressive renders on the CPU (not --device gpu)");
         }
     }
-    if level.is_some() {
+    // Distributed: each rank reads only the bricks its piece samples (no whole-view prefetch).
+    if level.is_some() && args.distributed.is_none() {
         prefetch_view(&scene, &settings);
     }
     let settings_camera = settings.camera;
@@ -567,39 +594,63 @@ fn run_inner(args: &Args) -> Result<()> {
         }
     };
     let start = Instant::now();
-    let ran = blueshift_gpu::run_with_fallback(
-        device,
-        || supported.clone(),
-        |ctx| {
-            let scene = match device {
-                blueshift_gpu::DeviceChoice::Auto => slot.borrow().clone(),
-                _ => slot.borrow_mut().take(),
-            }
-            .ok_or_else(|| blueshift_gpu::Error::InvalidInput("no scene".into()))?;
-            set_gpu_pool(ctx, args.gpu_pool_mb)?;
-            let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx)?;
-            let (gs, got) = if lod == blueshift_volume::Lod::Auto {
-                tracker.upload_fitting(scene)?
-            } else {
-                (tracker.upload(scene)?, level)
-            };
-            report_pool(&gs.pool_stats(), level.is_some(), level, got);
-            let image = tracker.render_progressive(&gs, &integrator, &settings, show)?;
-            Ok(TrackingOutput {
-                image,
-                frame_times: None,
-            })
-        },
-        || -> Result<TrackingOutput> {
-            let session = TrackingSession::new(take()?, integrator.clone(), settings.clone())?;
+    let distributed = match crate::dist::mode(args.distributed.as_deref())? {
+        Some(mode) => {
             if args.progressive {
-                let observer = Steps::new(&show, session.scene());
-                return Ok(session.render_lod(&observer)?);
+                bail!("--distributed: not with --progressive");
             }
-            Ok(session.render(&OnPass(&bar))?)
-        },
-    )
-    .map_err(crate::commands::doppler::device_error)?;
+            match crate::dist::tracking(mode, take()?, &integrator, &settings, &args.compositing)? {
+                // Not rank 0: rank 0 writes the outputs.
+                None => return Ok(()),
+                Some(acc) => Some(blueshift_gpu::Ran {
+                    value: TrackingOutput {
+                        image: acc,
+                        frame_times: None,
+                    },
+                    device: blueshift_camera::DeviceKind::Cpu,
+                    fallback: None,
+                }),
+            }
+        }
+        None => None,
+    };
+    let ran = if let Some(ran) = distributed {
+        ran
+    } else {
+        blueshift_gpu::run_with_fallback(
+            device,
+            || supported.clone(),
+            |ctx| {
+                let scene = match device {
+                    blueshift_gpu::DeviceChoice::Auto => slot.borrow().clone(),
+                    _ => slot.borrow_mut().take(),
+                }
+                .ok_or_else(|| blueshift_gpu::Error::InvalidInput("no scene".into()))?;
+                set_gpu_pool(ctx, args.gpu_pool_mb)?;
+                let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx)?;
+                let (gs, got) = if lod == blueshift_volume::Lod::Auto {
+                    tracker.upload_fitting(scene)?
+                } else {
+                    (tracker.upload(scene)?, level)
+                };
+                report_pool(&gs.pool_stats(), level.is_some(), level, got);
+                let image = tracker.render_progressive(&gs, &integrator, &settings, show)?;
+                Ok(TrackingOutput {
+                    image,
+                    frame_times: None,
+                })
+            },
+            || -> Result<TrackingOutput> {
+                let session = TrackingSession::new(take()?, integrator.clone(), settings.clone())?;
+                if args.progressive {
+                    let observer = Steps::new(&show, session.scene());
+                    return Ok(session.render_lod(&observer)?);
+                }
+                Ok(session.render(&OnPass(&bar))?)
+            },
+        )
+        .map_err(crate::commands::doppler::device_error)?
+    };
     bar.finish();
     if let Some(why) = &ran.fallback {
         eprintln!("--device auto: {why}; rendering on the CPU");

@@ -1,0 +1,196 @@
+//! `--distributed MODE`: a render spread over the ranks of an MPI job (`mpirun -np N
+//! blueshift render|doppler ... --distributed data|samples|tiles|frames`), through
+//! `blueshift-dist`. Needs a build with the `mpi` feature; without it the flag is refused
+//! with the one line saying how to build it.
+//!
+//! Rank 0 writes the image (every rank writes its own frames in `frames` mode). A failure on
+//! any rank stops all of them: the distributed renders agree on success after every phase
+//! (an `MPI_Allreduce` of the lowest failed rank), that rank prints its error and every rank
+//! exits 1; a rank that dies outright makes `mpirun` end the job.
+
+use anyhow::{Result, bail};
+use blueshift_dist::Mode;
+
+/// The mode of `--distributed`, parsed.
+pub fn mode(flag: Option<&str>) -> Result<Option<Mode>> {
+    Ok(match flag {
+        None => None,
+        Some(s) => Some(s.trim().parse::<Mode>()?),
+    })
+}
+
+/// The compositing factors of `--compositing` for `ranks` ranks: `auto` (binary swap for
+/// powers of two, radix-k otherwise; [`blueshift_dist::Strategy::auto`]), `direct-send`,
+/// `binary-swap`, or radix-k factors `K1,K2,...` (bottom round first).
+pub fn factors(flag: &str, ranks: usize) -> Result<Vec<usize>> {
+    use blueshift_dist::Strategy;
+    let s = match flag.trim() {
+        "auto" => Strategy::auto(ranks),
+        "direct-send" => Strategy::DirectSend,
+        "binary-swap" => Strategy::BinarySwap,
+        list => Strategy::RadixK(
+            list.split(',')
+                .map(|k| k.trim().parse::<usize>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| {
+                    anyhow::anyhow!(
+                        "--compositing {list:?}: expected auto, direct-send, binary-swap or \
+                         radix-k factors like 4,2"
+                    )
+                })?,
+        ),
+    };
+    s.factors(ranks)
+        .map_err(|e| anyhow::anyhow!("--compositing: {e}"))
+}
+
+/// An error every rank already knows about (another rank failed and printed why): the
+/// process exits 1 without a message of its own.
+#[derive(Debug)]
+pub struct Quiet;
+
+impl std::fmt::Display for Quiet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("another rank failed")
+    }
+}
+
+impl std::error::Error for Quiet {}
+
+/// A distributed render's error for the CLI: [`Quiet`] for a peer's failure, the error
+/// prefixed with this rank otherwise.
+pub fn error(e: blueshift_dist::Error, rank: usize) -> anyhow::Error {
+    match e {
+        blueshift_dist::Error::PeerFailed(_) => anyhow::Error::new(Quiet),
+        e => anyhow::anyhow!("rank {rank}: {e}"),
+    }
+}
+
+#[cfg(feature = "mpi")]
+mod world {
+    use std::sync::Mutex;
+
+    use anyhow::Result;
+    use blueshift_dist::mpi::MpiComm;
+
+    static COMM: Mutex<Option<MpiComm>> = Mutex::new(None);
+
+    /// Runs `f` with the job's communicator (MPI initialised on first use).
+    pub fn with<T>(f: impl FnOnce(&MpiComm) -> Result<T>) -> Result<T> {
+        let mut g = COMM
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if g.is_none() {
+            *g = Some(MpiComm::init()?);
+        }
+        f(g.as_ref().expect("initialised above"))
+    }
+
+    /// Finalises MPI if it was initialised (at the end of `main`).
+    pub fn finalize() {
+        let mut g = COMM
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        g.take();
+    }
+}
+
+#[cfg(feature = "mpi")]
+pub use world::finalize;
+
+/// Finalises MPI if it was initialised (nothing without the `mpi` feature).
+#[cfg(not(feature = "mpi"))]
+pub fn finalize() {}
+
+/// Runs `f(comm)` with the MPI world.
+#[cfg(feature = "mpi")]
+pub fn with_comm<T>(f: impl FnOnce(&dyn blueshift_dist::Communicator) -> Result<T>) -> Result<T> {
+    world::with(|c| f(c))
+}
+
+/// Refused: this build has no MPI.
+#[cfg(not(feature = "mpi"))]
+pub fn with_comm<T>(_f: impl FnOnce(&dyn blueshift_dist::Communicator) -> Result<T>) -> Result<T> {
+    bail!(
+        "--distributed needs a blueshift built with MPI: install MPI (Debian: apt-get install \
+         openmpi-bin libopenmpi-dev libclang-dev) and build with `cargo build --release -p \
+         blueshift-cli --features mpi`"
+    )
+}
+
+/// Whether this rank renders frame `k` (`frames` mode: round robin; otherwise every frame).
+pub fn keeps_frame(mode: Option<Mode>, k: usize) -> Result<bool> {
+    if mode != Some(Mode::Frames) {
+        return Ok(true);
+    }
+    with_comm(|c| Ok(k % c.size() == c.rank()))
+}
+
+/// Refuses a mode the command does not have.
+pub fn check_mode(mode: Option<Mode>, allowed: &[Mode], command: &str) -> Result<()> {
+    if let Some(m) = mode
+        && !allowed.contains(&m)
+    {
+        bail!(
+            "--distributed {}: `{command}` distributes {}",
+            name(m),
+            allowed
+                .iter()
+                .map(|m| name(*m))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    Ok(())
+}
+
+fn name(m: Mode) -> &'static str {
+    match m {
+        Mode::Data => "data",
+        Mode::Samples => "samples",
+        Mode::Tiles => "tiles",
+        Mode::Frames => "frames",
+    }
+}
+
+/// A tracking render (`data`, `samples` or `tiles`): rank 0 gets the accumulation.
+pub fn tracking(
+    mode: Mode,
+    mut scene: blueshift_tracking::Scene,
+    integrator: &blueshift_tracking::Integrator,
+    settings: &blueshift_tracking::RenderSettings,
+    compositing: &str,
+) -> Result<Option<blueshift_tracking::Progressive>> {
+    use blueshift_dist::render::{render_marcher_data, render_samples, render_tiles};
+    with_comm(|c| {
+        let r = match mode {
+            Mode::Samples => render_samples(c, &scene, integrator, settings),
+            Mode::Tiles => render_tiles(c, &scene, integrator, settings),
+            Mode::Data => {
+                let g = *scene.geometry();
+                let f = factors(compositing, c.size())?;
+                let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?;
+                render_marcher_data(c, &mut scene, integrator, settings, &d)
+            }
+            Mode::Frames => return Ok(None),
+        };
+        r.map_err(|e| error(e, c.rank()))
+    })
+}
+
+/// A data-parallel Doppler image: rank 0 gets it.
+pub fn doppler(
+    scene: &blueshift_doppler::DopplerScene,
+    settings: &blueshift_doppler::DopplerSettings,
+    compositing: &str,
+) -> Result<Option<blueshift_doppler::DopplerImage>> {
+    with_comm(|c| {
+        let g = *scene.geometry();
+        let f = factors(compositing, c.size())?;
+        let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        blueshift_dist::render::render_doppler_data(c, scene, settings, &d)
+            .map_err(|e| error(e, c.rank()))
+    })
+}

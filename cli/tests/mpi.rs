@@ -1,0 +1,330 @@
+//! `--distributed` under `mpirun --oversubscribe` (the `mpi` feature): the data-parallel
+//! marcher and Doppler with absorption against the single-process image, sample- and
+//! tile-parallel tracking bit for bit, and a rank that cannot read its bricks stopping every
+//! rank within seconds. Without `mpirun` (or without the feature) these tests skip with a
+//! SKIP line, unless `BLUESHIFT_REQUIRE_MPI_TESTS=1` (CI), where that fails them.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+mod common;
+
+fn require() -> bool {
+    std::env::var("BLUESHIFT_REQUIRE_MPI_TESTS").is_ok_and(|v| v == "1")
+}
+
+#[test]
+fn mpi_tests_run_where_required() {
+    if require() {
+        if !cfg!(feature = "mpi") {
+            panic!("BLUESHIFT_REQUIRE_MPI_TESTS=1 but the CLI was built without --features mpi");
+        }
+        assert!(
+            mpirun().is_some(),
+            "BLUESHIFT_REQUIRE_MPI_TESTS=1 but no mpirun"
+        );
+    }
+}
+
+/// `mpirun`, if there is one.
+fn mpirun() -> Option<String> {
+    let out = Command::new("mpirun").arg("--version").output().ok()?;
+    out.status.success().then(|| "mpirun".to_owned())
+}
+
+/// Whether the MPI tests can run here: `false` (after a SKIP line) when not, failing
+/// instead under [`require`].
+fn can_run() -> bool {
+    if !cfg!(feature = "mpi") {
+        assert!(!require(), "built without the mpi feature");
+        eprintln!("SKIP: the CLI was built without the mpi feature");
+        return false;
+    }
+    if mpirun().is_none() {
+        assert!(!require(), "no mpirun");
+        eprintln!("SKIP: no mpirun");
+        return false;
+    }
+    true
+}
+
+/// `mpirun --oversubscribe -np N blueshift ARGS` in `dir`, killed after `limit_s`.
+fn mpi(n: usize, args: &[&str], dir: &Path, limit_s: u64) -> (Output, bool) {
+    let mut cmd = Command::new("mpirun");
+    cmd.args(["--oversubscribe", "-np", &n.to_string()])
+        .arg(env!("CARGO_BIN_EXE_blueshift"))
+        .args(args)
+        .current_dir(dir)
+        // Root in containers and CI; harmless otherwise.
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+    common::output_within(&mut cmd, limit_s)
+}
+
+fn single(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .unwrap()
+}
+
+fn ok(out: &Output, what: &str) {
+    assert!(
+        out.status.success(),
+        "{what}: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn max_diff(a: &image::Rgba32FImage, b: &image::Rgba32FImage) -> f32 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    a.as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+const RENDER: [&str; 12] = [
+    "render",
+    "--synth",
+    "three-cubes",
+    "--res",
+    "20",
+    "--tf",
+    "builtin:viridis",
+    "--width",
+    "24",
+    "--height",
+    "20",
+    "--device",
+];
+
+#[test]
+fn distributed_tracking_matches_the_single_process_render() {
+    if !can_run() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    fn with<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+        let mut a: Vec<&str> = RENDER.to_vec();
+        a.push("cpu");
+        a.extend_from_slice(extra);
+        a
+    }
+    // The marcher, data-parallel: within f32 rounding of the single process (a density where
+    // no ray reaches the early-termination alpha, which a piece cannot know in front of it).
+    let marcher = ["--method", "marcher", "--density-scale", "1", "--spp", "2"];
+    let mut a = with(&marcher);
+    a.extend(["--out", "one.exr"]);
+    ok(&single(&a, d), "single marcher");
+    let want = common::read_exr(&d.join("one.exr"));
+    assert!(
+        want.pixels().any(|p| p.0[3] > 0.3),
+        "the marcher image shows something"
+    );
+    for n in [2, 3, 4] {
+        let out = format!("data{n}.exr");
+        let mut a = with(&marcher);
+        a.extend(["--distributed", "data", "--out", &out]);
+        let (o, in_time) = mpi(n, &a, d, 120);
+        assert!(in_time, "mpirun -np {n} data hung");
+        ok(&o, &format!("-np {n} data"));
+        let got = common::read_exr(&d.join(&out));
+        let diff = max_diff(&got, &want);
+        assert!(diff <= 2e-5, "-np {n}: {diff}");
+    }
+    // Woodcock sample- and tile-parallel: bit for bit at the same seed.
+    let mdwt = [
+        "--method",
+        "mdwt-1dda",
+        "--density-scale",
+        "4",
+        "--spp",
+        "5",
+        "--seed",
+        "9",
+    ];
+    let mut a = with(&mdwt);
+    a.extend(["--out", "mc.exr"]);
+    ok(&single(&a, d), "single mdwt");
+    let want = common::read_exr(&d.join("mc.exr"));
+    for (n, mode) in [(3, "samples"), (2, "tiles"), (4, "samples")] {
+        let out = format!("{mode}{n}.exr");
+        let mut a = with(&mdwt);
+        a.extend(["--distributed", mode, "--out", &out]);
+        let (o, in_time) = mpi(n, &a, d, 120);
+        assert!(in_time, "mpirun -np {n} {mode} hung");
+        ok(&o, &format!("-np {n} {mode}"));
+        let got = common::read_exr(&d.join(&out));
+        assert_eq!(got.as_raw(), want.as_raw(), "-np {n} {mode}");
+    }
+}
+
+#[test]
+fn distributed_doppler_with_absorption_matches_the_single_process_image() {
+    if !can_run() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let args = |out: &str| -> Vec<String> {
+        [
+            "doppler",
+            "--synth",
+            "galaxy",
+            "--res",
+            "20",
+            "--species",
+            "bb,H,C",
+            "--velocity-factor",
+            "30",
+            "--absorption-factor",
+            "5",
+            "--merge-tol",
+            "0",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--device",
+            "cpu",
+            "--exr-space",
+            "xyz",
+            "--out",
+            out,
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let a = args("one.exr");
+    let a: Vec<&str> = a.iter().map(String::as_str).collect();
+    ok(&single(&a, d), "single doppler");
+    let want = common::read_exr(&d.join("one.exr"));
+    let peak = want.as_raw().iter().fold(0.0f32, |m, &v| m.max(v));
+    assert!(peak > 0.0);
+    for n in [2, 3] {
+        let out = format!("d{n}.exr");
+        let mut a = args(&out);
+        a.extend(["--distributed".into(), "data".into()]);
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        let (o, in_time) = mpi(n, &a, d, 120);
+        assert!(in_time, "mpirun -np {n} doppler hung");
+        ok(&o, &format!("-np {n} doppler"));
+        let got = common::read_exr(&d.join(&out));
+        // Exact compositing, merge tolerance 0: equal up to rounding (stored as f32).
+        let diff = max_diff(&got, &want);
+        assert!(diff <= 1e-5 * peak, "-np {n}: {diff} (peak {peak})");
+    }
+}
+
+#[test]
+fn a_rank_that_cannot_read_its_bricks_stops_every_rank() {
+    if !can_run() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(
+        &single(
+            &[
+                "synth",
+                "marschner-lobb",
+                "m.bsv",
+                "--res",
+                "32",
+                "--brick",
+                "8",
+            ],
+            d,
+        ),
+        "synth",
+    );
+    // Level 0 holds 4x4x4 bricks of 10^3 f32 (edge 8, apron 1) from byte 4096, x fastest.
+    // Two ranks split x at voxel 16: brick (3, 0, 0) is read by rank 1 only. Damage it (its
+    // checksum then fails on read).
+    let p = d.join("m.bsv");
+    let mut bytes = std::fs::read(&p).unwrap();
+    let at = 4096 + 3 * 4000 + 2000;
+    for b in &mut bytes[at..at + 64] {
+        *b ^= 0x5a;
+    }
+    std::fs::write(&p, bytes).unwrap();
+    let start = std::time::Instant::now();
+    let (o, in_time) = mpi(
+        2,
+        &[
+            "render",
+            "--volume",
+            "m.bsv",
+            "--tf",
+            "builtin:viridis",
+            "--method",
+            "marcher",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--device",
+            "cpu",
+            "--distributed",
+            "data",
+            "--out",
+            "bad.exr",
+        ],
+        d,
+        60,
+    );
+    let secs = start.elapsed().as_secs_f64();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(in_time, "the job hung: {err}");
+    assert!(!o.status.success(), "{err}");
+    assert!(secs < 30.0, "{secs} s");
+    // One message, from the rank that failed, naming the brick's problem.
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("blueshift:"))
+        .collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("rank 1"), "{err}");
+    assert!(!d.join("bad.exr").exists());
+}
+
+#[test]
+fn distributed_is_refused_without_the_mpi_build_or_for_a_wrong_mode() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = single(
+        &[
+            "doppler",
+            "--synth",
+            "galaxy",
+            "--res",
+            "8",
+            "--width",
+            "4",
+            "--height",
+            "4",
+            "--distributed",
+            "samples",
+            "--out",
+            "x.exr",
+        ],
+        d,
+    );
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("`doppler` distributes data, frames"), "{err}");
+    if !cfg!(feature = "mpi") {
+        let mut a: Vec<&str> = RENDER.to_vec();
+        a.extend(["cpu", "--distributed", "samples", "--out", "y.exr"]);
+        let o = single(&a, d);
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("--features mpi"), "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+    }
+}
