@@ -345,9 +345,19 @@ fn progress_is_reported_in_plain_lines_when_stderr_is_not_a_terminal() {
     // counts rising to the last pass, which reports the noise.
     let counts: Vec<u32> = lines
         .iter()
-        .map(|l| l["render: ".len()..].split('/').next().unwrap().parse().unwrap())
+        .map(|l| {
+            l["render: ".len()..]
+                .split('/')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
+        })
         .collect();
-    assert!(!counts.is_empty() && counts.windows(2).all(|w| w[0] < w[1]), "{err}");
+    assert!(
+        !counts.is_empty() && counts.windows(2).all(|w| w[0] < w[1]),
+        "{err}"
+    );
     let last = lines.last().unwrap();
     assert!(last.starts_with("render: 4/4 passes (100 %)"), "{err}");
     assert!(last.contains("noise"), "{err}");
