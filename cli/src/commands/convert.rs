@@ -204,12 +204,7 @@ fn run_amr(args: &Args, fmt: OutFormat) -> Result<()> {
     }
     let name = match &args.channel {
         Some(n) => n.clone(),
-        None => ["Density", "rho", "density", "dens"]
-            .iter()
-            .find(|n| h.fields.iter().any(|f| f.name == **n))
-            .map(|n| (*n).to_owned())
-            .or_else(|| h.fields.first().map(|f| f.name.clone()))
-            .ok_or_else(|| anyhow::anyhow!("{} has no fields", args.input.display()))?,
+        None => h.default_field().with_context(ctx)?.to_owned(),
     };
     let n = h.level_dims(level);
     crate::limits::check(

@@ -275,6 +275,20 @@ impl Hierarchy {
         }
     }
 
+    /// The field read when none is named: the gas density (`Density`, `rho`, `density` or
+    /// `dens`), else the first.
+    ///
+    /// # Errors
+    /// The hierarchy has no fields.
+    pub fn default_field(&self) -> Result<&str> {
+        ["Density", "rho", "density", "dens"]
+            .iter()
+            .copied()
+            .find(|n| self.fields.iter().any(|f| f.name == *n))
+            .or_else(|| self.fields.first().map(|f| f.name.as_str()))
+            .ok_or_else(|| Error::invalid(format!("{}: no fields", self.path.display())))
+    }
+
     /// The field named `name` (its info).
     ///
     /// # Errors
@@ -590,9 +604,8 @@ impl AmrField {
         let j = (self.max_level - level) as usize;
         let g = self.geometries[j];
         let mut out = Grid::<f32>::zeros(g, limits)?;
-        let src = self.source_ref();
         let [nx, ny, _] = g.dims;
-        let layout = src.layout();
+        let layout = Self::layout();
         let bricks = layout.bricks(g.dims);
         let b = layout.brick;
         let s = layout.stored_edge();
@@ -602,7 +615,7 @@ impl AmrField {
             for by in 0..bricks[1] {
                 for bx in 0..bricks[0] {
                     let idx = (bx + bricks[0] * (by + bricks[1] * bz)) as u64;
-                    let brick = src.read_brick(j, idx)?;
+                    let brick = self.read_brick(j, idx)?;
                     for z in bz * b..((bz + 1) * b).min(g.dims[2]) {
                         for y in by * b..((by + 1) * b).min(ny) {
                             for x in bx * b..((bx + 1) * b).min(nx) {
@@ -623,8 +636,12 @@ impl AmrField {
         Arc::new(AmrSource(self.clone()))
     }
 
-    fn source_ref(&self) -> AmrSourceRef<'_> {
-        AmrSourceRef(self)
+    /// Brick `idx` of pyramid level `j`, allocated.
+    fn read_brick(&self, j: usize, idx: u64) -> Result<Vec<f32>> {
+        let s = Self::layout().stored_edge();
+        let mut v = vec![0.0; s * s * s];
+        self.read_brick_into(j, idx, &mut v)?;
+        Ok(v)
     }
 
     /// Pyramid level `j` (0 the finest) of this field.
@@ -813,22 +830,6 @@ fn local(b: &Block, cell: [i64; 3]) -> usize {
 #[derive(Debug)]
 struct AmrSource(Arc<AmrField>);
 
-/// A borrowed [`AmrSource`] (for [`AmrField::resample`]).
-struct AmrSourceRef<'a>(&'a AmrField);
-
-impl AmrSourceRef<'_> {
-    fn layout(&self) -> BrickLayout {
-        AmrField::layout()
-    }
-
-    fn read_brick(&self, j: usize, idx: u64) -> Result<Vec<f32>> {
-        let s = AmrField::layout().stored_edge();
-        let mut v = vec![0.0; s * s * s];
-        self.0.read_brick_into(j, idx, &mut v)?;
-        Ok(v)
-    }
-}
-
 impl BrickSource for AmrSource {
     fn uid(&self) -> u64 {
         self.0.uid
@@ -843,7 +844,7 @@ impl BrickSource for AmrSource {
     }
 
     fn read_brick(&self, level: usize, idx: u64) -> Result<Vec<f32>> {
-        AmrSourceRef(&self.0).read_brick(level, idx)
+        self.0.read_brick(level, idx)
     }
 
     fn read_brick_into(&self, level: usize, idx: u64, out: &mut [f32]) -> Result<()> {
@@ -961,12 +962,7 @@ pub fn open_field(
     let h = Hierarchy::open(path)?;
     let name = match name {
         Some(n) => n.to_owned(),
-        None => ["Density", "rho", "density", "dens"]
-            .iter()
-            .find(|n| h.fields.iter().any(|f| f.name == **n))
-            .map(|n| (*n).to_owned())
-            .or_else(|| h.fields.first().map(|f| f.name.clone()))
-            .ok_or_else(|| Error::invalid(format!("{}: no fields", path.display())))?,
+        None => h.default_field()?.to_owned(),
     };
     let field = Arc::new(h.field(&name, limits)?);
     let bricked = crate::BrickedField::new(field.source(), cache, 0)?;
