@@ -179,18 +179,61 @@ pub fn tracking(
     })
 }
 
-/// A data-parallel Doppler image: rank 0 gets it.
+/// A distributed Doppler image (`data` or `tiles`): rank 0 gets it.
 pub fn doppler(
+    mode: Mode,
     scene: &blueshift_doppler::DopplerScene,
     settings: &blueshift_doppler::DopplerSettings,
     compositing: &str,
 ) -> Result<Option<blueshift_doppler::DopplerImage>> {
+    use blueshift_dist::render::{render_doppler_data, render_doppler_tiles};
     with_comm(|c| {
-        let g = *scene.geometry();
-        let f = factors(compositing, c.size())?;
-        let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        blueshift_dist::render::render_doppler_data(c, scene, settings, &d)
-            .map_err(|e| error(e, c.rank()))
+        let r = match mode {
+            Mode::Tiles => render_doppler_tiles(c, scene, settings),
+            _ => render_doppler_data(
+                c,
+                scene,
+                settings,
+                &doppler_decomposition(scene, c.size(), compositing)?,
+            ),
+        };
+        r.map_err(|e| error(e, c.rank()))
     })
+}
+
+/// A distributed spectral cube (`data`: emission-only scenes, pieces of the volume add;
+/// `tiles`: image rows, any scene): rank 0 gets it.
+pub fn cube(
+    mode: Mode,
+    scene: &blueshift_doppler::DopplerScene,
+    settings: &blueshift_doppler::DopplerSettings,
+    spec: &blueshift_doppler::CubeSpec,
+    compositing: &str,
+) -> Result<Option<blueshift_doppler::SpectralCube>> {
+    use blueshift_dist::render::{render_cube_data, render_cube_tiles};
+    with_comm(|c| {
+        let r = match mode {
+            Mode::Tiles => render_cube_tiles(c, scene, settings, spec),
+            _ => render_cube_data(
+                c,
+                scene,
+                settings,
+                spec,
+                &doppler_decomposition(scene, c.size(), compositing)?,
+            ),
+        };
+        r.map_err(|e| error(e, c.rank()))
+    })
+}
+
+/// The k-d split of a Doppler scene's domain over `ranks` ranks.
+fn doppler_decomposition(
+    scene: &blueshift_doppler::DopplerScene,
+    ranks: usize,
+    compositing: &str,
+) -> Result<blueshift_dist::Decomposition> {
+    let g = *scene.geometry();
+    let f = factors(compositing, ranks)?;
+    blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
+        .map_err(|e| anyhow::anyhow!("{e}"))
 }

@@ -248,9 +248,13 @@ fn gather(
 }
 
 /// An exclusive scan in visibility order: the rank at position `p` of `order` gets the sum
-/// (by `add`) of the `local` values of the ranks at positions `0..p` (`empty` for the first)
-/// and passes that plus its own on. A chain: `n - 1` messages, `n - 1` steps of latency.
-/// Values travel encoded by `encode` / `decode`.
+/// (by `add`, front operand first) of the `local` values of the ranks at positions `0..p`
+/// (`empty` for the first). Recursive doubling (Hillis and Steele): in round `d = 1, 2, 4,
+/// ...` the rank at `p` sends the sum it holds of positions `p - 2d + 1 ..= p` (clipped at
+/// 0) to position `p + d` and adds the one from `p - d` in front of its own. `ceil(log2 n)`
+/// rounds of latency instead of a chain's `n - 1`; `sum_d (n - d)` messages. `add` must be
+/// associative (the sums group differently from a chain's; the optical depths are, up to
+/// rounding). Values travel encoded by `encode` / `decode`.
 ///
 /// # Errors
 /// [`Error::Comm`] from the communicator or `decode`.
@@ -264,19 +268,53 @@ pub fn exclusive_scan<T>(
     decode: impl Fn(&[f64]) -> Result<T>,
 ) -> Result<T> {
     let me = comm.rank();
+    let n = order.len();
     let p = order
         .iter()
         .position(|&r| r == me)
         .ok_or_else(|| Error::parameter(format!("scan: rank {me} not in the order")))?;
-    let front = if p == 0 {
-        empty
-    } else {
-        decode(&comm.recv(order[p - 1])?)?
-    };
-    if p + 1 < order.len() {
-        comm.send(order[p + 1], &encode(&add(&front, local)))?;
+    // `front`: the sum of the positions in front of p received so far (exclusive);
+    // `held`: that plus the local value (what p passes on).
+    let mut front: Option<T> = None;
+    let mut held: Option<T> = None;
+    let mut d = 1;
+    while d < n {
+        let to = (p + d < n).then(|| order[p + d]);
+        let from = (p >= d).then(|| order[p - d]);
+        let out = to.map(|_| encode(held.as_ref().unwrap_or(local)));
+        let got = match (to, from, out) {
+            (Some(t), Some(f), Some(o)) => Some(comm.send_recv(&o, t, f)?),
+            (Some(t), None, Some(o)) => {
+                comm.send(t, &o)?;
+                None
+            }
+            (None, Some(f), _) => Some(comm.recv(f)?),
+            _ => None,
+        };
+        if let Some(g) = got {
+            let g = decode(&g)?;
+            held = Some(add(&g, held.as_ref().unwrap_or(local)));
+            front = Some(match &front {
+                Some(f) => add(&g, f),
+                None => g,
+            });
+        }
+        d *= 2;
     }
-    Ok(front)
+    Ok(front.unwrap_or(empty))
+}
+
+/// Messages and rounds of [`exclusive_scan`] over `n` ranks: `sum_d (n - d)` messages for
+/// `d = 1, 2, 4, ... < n`, in `ceil(log2 n)` rounds.
+#[must_use]
+pub fn scan_cost(n: usize) -> (u64, u64) {
+    let (mut messages, mut rounds, mut d) = (0u64, 0u64, 1usize);
+    while d < n {
+        messages += (n - d) as u64;
+        rounds += 1;
+        d *= 2;
+    }
+    (messages, rounds)
 }
 
 /// Messages and bytes of a compositing run, all ranks together.

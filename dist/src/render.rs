@@ -5,8 +5,12 @@
 //! ([`Communicator::first_failed`]), so a failure on one rank (a brick that does not read, a bad
 //! setting) stops all of them at that point with an error instead of leaving them waiting.
 
-use blueshift_doppler::part::{add_depths, optical_depth_part, render_doppler_part};
-use blueshift_doppler::{DopplerImage, DopplerScene, DopplerSettings, PieceStats};
+use blueshift_doppler::part::{
+    add_depths, cube_from_rows, optical_depth_part, render_cube_part, render_doppler_part,
+};
+use blueshift_doppler::{
+    CubeSpec, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralCube,
+};
 use blueshift_spectrum::Piece;
 use blueshift_tracking::{
     Integrator, Progressive, RayStats, RenderSettings, Scene, pixel_sample, welford_add,
@@ -575,4 +579,152 @@ pub fn render_doppler_data(
             fallback_rays: part.pieces.fallback_rays,
         },
     }))
+}
+
+/// Tile-parallel Doppler image: rank `r` renders the rows [`rows_of`] gives it (the whole
+/// data on every rank, or every rank's bricks from a `.bsv` through its own cache), rank 0
+/// gathers them. The same per-pixel arithmetic as [`blueshift_doppler::render_doppler`]:
+/// bit-identical to the single-process image for any integrator, with or without
+/// absorption. Bytes: each pixel's XYZ crosses once.
+///
+/// # Errors
+/// The engine's errors (on any rank: see [`agree`]), communication.
+pub fn render_doppler_tiles(
+    comm: &dyn Communicator,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+) -> Result<Option<DopplerImage>> {
+    use blueshift_doppler::part::{ImageRows, image_from_rows, render_doppler_rows};
+    let (n, me) = (comm.size(), comm.rank());
+    let (y0, y1) = rows_of(me, n, settings.height);
+    let part = render_doppler_rows(scene, settings, y0..y1).map_err(Error::from);
+    let part = agree(comm, "rendering", part)?;
+    let encode = |t: &ImageRows| {
+        let mut v = vec![t.pieces_sum, t.pieces_max as f64, t.fallback_rays as f64];
+        v.extend(t.xyz.iter().flatten());
+        v
+    };
+    if me != 0 {
+        comm.send(0, &encode(&part))?;
+        return Ok(None);
+    }
+    let mut tiles = vec![part];
+    for r in 1..n {
+        let v = comm.recv(r)?;
+        let (a, b) = rows_of(r, n, settings.height);
+        let want = 3 + 3 * (b - a) as usize * settings.width as usize;
+        if v.len() != want {
+            return Err(Error::comm(format!(
+                "tiles: {} values from rank {r}, expected {want}",
+                v.len()
+            )));
+        }
+        tiles.push(ImageRows {
+            pieces_sum: v[0],
+            pieces_max: v[1] as usize,
+            fallback_rays: v[2] as usize,
+            xyz: v[3..].chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        });
+    }
+    Ok(Some(image_from_rows(settings, &tiles)?))
+}
+
+/// Tile-parallel spectral cube: rank `r` renders the image rows [`rows_of`] gives it, rank
+/// 0 gathers the channel values (f64) and rounds them to the cube's f32 as the
+/// single-process cube does: bit-identical to [`blueshift_doppler::render_cube`], with or
+/// without absorption. Bytes: `pixels x channels` values cross once.
+///
+/// # Errors
+/// As [`render_doppler_tiles`]; the cube's own checks.
+pub fn render_cube_tiles(
+    comm: &dyn Communicator,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    spec: &CubeSpec,
+) -> Result<Option<SpectralCube>> {
+    let (n, me) = (comm.size(), comm.rank());
+    let (y0, y1) = rows_of(me, n, settings.height);
+    let part = render_cube_part(scene, settings, spec, None, y0 as usize..y1 as usize)
+        .map_err(Error::from);
+    let part = agree(comm, "rendering", part)?;
+    if me != 0 {
+        comm.send(0, &part)?;
+        return Ok(None);
+    }
+    let row = settings.width as usize * spec.channels;
+    let mut all = part;
+    for r in 1..n {
+        let v = comm.recv(r)?;
+        let (a, b) = rows_of(r, n, settings.height);
+        if v.len() != (b - a) as usize * row {
+            return Err(Error::comm(format!(
+                "cube tiles: {} values from rank {r}, expected {}",
+                v.len(),
+                (b - a) as usize * row
+            )));
+        }
+        all.extend_from_slice(&v);
+    }
+    Ok(Some(cube_from_rows(settings, spec, &all)?))
+}
+
+/// Data-parallel spectral cube of an emission-only scene: each rank bins the line light of
+/// the segments inside its piece of the k-d split into the channels, and the partial cubes
+/// add (radix-k over the decomposition's factors, the channels of a pixel composited
+/// together). Equal to the single-process cube up to the rounding of the sums (the f64
+/// channel values are summed in another grouping before the cube's rounding to f32).
+/// Absorbing scenes are refused: their light is attenuated by all the depth in front, so
+/// use [`render_cube_tiles`].
+///
+/// # Errors
+/// An absorbing scene; a decomposition for another rank count; as [`render_cube_tiles`].
+pub fn render_cube_data(
+    comm: &dyn Communicator,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    spec: &CubeSpec,
+    decomp: &Decomposition,
+) -> Result<Option<SpectralCube>> {
+    let (n, me) = (comm.size(), comm.rank());
+    let pre = if decomp.ranks() != n {
+        Err(Error::parameter(format!(
+            "decomposition for {} ranks, the world has {n}",
+            decomp.ranks()
+        )))
+    } else if scene.absorbs() {
+        Err(Error::parameter(
+            "a data-parallel spectral cube needs an emission-only scene (absorption attenuates \
+             each piece by the depth in front of it): use --distributed tiles",
+        ))
+    } else {
+        Ok(())
+    };
+    agree(comm, "preparation", pre)?;
+    let clip = decomp.pieces()[me].clip;
+    let order = decomp.visibility_order(doppler_viewpoint(settings));
+    let mut position = vec![0; n];
+    for (p, &r) in order.iter().enumerate() {
+        position[r] = p;
+    }
+    let part = render_cube_part(
+        scene,
+        settings,
+        spec,
+        Some(&clip),
+        0..settings.height as usize,
+    )
+    .map_err(Error::from);
+    let part = agree(comm, "rendering", part)?;
+    let all = composite(
+        comm,
+        part,
+        spec.channels,
+        Op::Add,
+        decomp.factors(),
+        &position,
+    )?;
+    match all {
+        None => Ok(None),
+        Some(v) => Ok(Some(cube_from_rows(settings, spec, &v)?)),
+    }
 }

@@ -671,81 +671,147 @@ pub(crate) fn render_cube_with(
     spec: &CubeSpec,
     observer: &dyn Observer<DopplerImage>,
 ) -> Result<SpectralCube> {
-    if settings.integrator != SpectralIntegrator::PiecewiseLinear {
-        return Err(Error::parameter(
-            "spectral cubes need the piecewise-linear integrator",
-        ));
-    }
-    spec.validate(settings.range_nm)?;
-    let ph = match settings.camera.projection {
-        Projection::Orthographic { height } => f64::from(height) / f64::from(settings.height),
-        Projection::Perspective { .. } => {
+    let plan = CubePlan::new(settings, spec)?;
+    let rows = plan.rows(scene, None, 0..plan.h, observer)?;
+    plan.assemble(rows.iter().map(Vec::as_slice))
+}
+
+/// A checked cube render: the settings with the lines' width, the image size and the pixel
+/// size ([`render_cube`]'s arithmetic, shared with the partial renders of
+/// [`crate::part`]).
+pub(crate) struct CubePlan<'a> {
+    settings: std::borrow::Cow<'a, DopplerSettings>,
+    spec: CubeSpec,
+    pub(crate) w: usize,
+    pub(crate) h: usize,
+    ph: f64,
+}
+
+impl<'a> CubePlan<'a> {
+    /// Checks the integrator, the channels, the projection and the size.
+    pub(crate) fn new(settings: &'a DopplerSettings, spec: &CubeSpec) -> Result<Self> {
+        if settings.integrator != SpectralIntegrator::PiecewiseLinear {
             return Err(Error::parameter(
-                "spectral cubes need an orthographic camera",
+                "spectral cubes need the piecewise-linear integrator",
             ));
         }
-    };
-    let one_channel;
-    let settings = match spec.line_width {
-        CubeLineWidth::Settings => settings,
-        CubeLineWidth::OneChannel => {
-            one_channel = DopplerSettings {
+        spec.validate(settings.range_nm)?;
+        let ph = match settings.camera.projection {
+            Projection::Orthographic { height } => f64::from(height) / f64::from(settings.height),
+            Projection::Perspective { .. } => {
+                return Err(Error::parameter(
+                    "spectral cubes need an orthographic camera",
+                ));
+            }
+        };
+        let settings = match spec.line_width {
+            CubeLineWidth::Settings => std::borrow::Cow::Borrowed(settings),
+            CubeLineWidth::OneChannel => std::borrow::Cow::Owned(DopplerSettings {
                 line_width_nm: spec.line_width_nm(settings),
                 ..settings.clone()
-            };
-            &one_channel
-        }
-    };
-    let (w, h) = (settings.width as usize, settings.height as usize);
-    let cells = w
-        .checked_mul(h)
-        .and_then(|n| n.checked_mul(spec.channels))
-        .filter(|&n| n <= 1 << 30)
-        .ok_or_else(|| Error::parameter("cube larger than 2^30 values"))?;
-    let ctx = Context::new(scene, settings)?;
-    let edges: Vec<f64> = (0..=spec.channels).map(|i| spec.edge_nm(i)).collect();
-    let lines = reachable_lines(&ctx, &edges);
-    let done = AtomicU64::new(0);
-    let rows: Vec<Result<Vec<Vec<f64>>>> = (0..h)
-        .into_par_iter()
-        .map(|y| {
-            if observer.cancelled() {
-                return Err(Error::Cancelled);
-            }
-            let mut kinks = KinkBins::new(&edges, spec);
-            let row = (0..w)
-                .map(|x| {
-                    let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
-                    let mut acc = vec![0.0; spec.channels];
-                    ray_channels(&ctx, &lines, &ray, &edges, &mut kinks, &mut acc)?;
-                    Ok(acc)
-                })
-                .collect::<Result<Vec<_>>>();
-            observer.progress(Progress {
-                done: done.fetch_add(1, Ordering::Relaxed) + 1,
-                total: h as u64,
-                pass: 0,
-            });
-            row
+            }),
+        };
+        let (w, h) = (settings.width as usize, settings.height as usize);
+        w.checked_mul(h)
+            .and_then(|n| n.checked_mul(spec.channels))
+            .filter(|&n| n <= 1 << 30)
+            .ok_or_else(|| Error::parameter("cube larger than 2^30 values"))?;
+        Ok(Self {
+            settings,
+            spec: *spec,
+            w,
+            h,
+            ph,
         })
-        .collect();
-    scene.check_io()?;
-    let mut data = vec![0.0f32; cells];
-    for (y, row) in rows.into_iter().enumerate() {
-        let fy = h - 1 - y;
-        for (x, acc) in row?.into_iter().enumerate() {
-            for (k, v) in acc.into_iter().enumerate() {
-                data[(k * h + fy) * w + x] = v as f32;
+    }
+
+    /// The settings the rays use (the lines' box width applied).
+    pub(crate) fn settings(&self) -> &DopplerSettings {
+        &self.settings
+    }
+
+    /// Image rows `rows` (top row 0), each `w x channels` values (x, then channel), of the
+    /// segments inside `clip` (all of them for `None`; an absorbing scene takes no clip).
+    pub(crate) fn rows(
+        &self,
+        scene: &DopplerScene,
+        clip: Option<&blueshift_camera::ClipBox>,
+        rows: std::ops::Range<usize>,
+        observer: &dyn Observer<DopplerImage>,
+    ) -> Result<Vec<Vec<f64>>> {
+        let (spec, settings, w) = (&self.spec, self.settings(), self.w);
+        let mut ctx = Context::new(scene, settings)?;
+        if clip.is_some() && ctx.absorbing {
+            return Err(Error::parameter(
+                "a spectral cube of an absorbing scene does not split along the rays (use \
+                 image tiles)",
+            ));
+        }
+        ctx.clip = clip.copied();
+        let edges: Vec<f64> = (0..=spec.channels).map(|i| spec.edge_nm(i)).collect();
+        let lines = reachable_lines(&ctx, &edges);
+        let done = AtomicU64::new(0);
+        let total = rows.len() as u64;
+        let out: Vec<Result<Vec<f64>>> = rows
+            .into_par_iter()
+            .map(|y| {
+                if observer.cancelled() {
+                    return Err(Error::Cancelled);
+                }
+                let mut kinks = KinkBins::new(&edges, spec);
+                let mut row = vec![0.0; w * spec.channels];
+                for (x, acc) in row.chunks_exact_mut(spec.channels).enumerate() {
+                    let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
+                    ray_channels(&ctx, &lines, &ray, &edges, &mut kinks, acc)?;
+                }
+                observer.progress(Progress {
+                    done: done.fetch_add(1, Ordering::Relaxed) + 1,
+                    total,
+                    pass: 0,
+                });
+                Ok(row)
+            })
+            .collect();
+        scene.check_io()?;
+        out.into_iter().collect()
+    }
+
+    /// The cube of every image row (top row first, as [`Self::rows`] gives them).
+    pub(crate) fn assemble<'r>(
+        &self,
+        rows: impl ExactSizeIterator<Item = &'r [f64]>,
+    ) -> Result<SpectralCube> {
+        let (w, h, nc) = (self.w, self.h, self.spec.channels);
+        if rows.len() != h {
+            return Err(Error::parameter(format!(
+                "cube: {} rows given, the image has {h}",
+                rows.len()
+            )));
+        }
+        let mut data = vec![0.0f32; w * h * nc];
+        for (y, row) in rows.enumerate() {
+            if row.len() != w * nc {
+                return Err(Error::parameter(format!(
+                    "cube row {y}: {} values, expected {}",
+                    row.len(),
+                    w * nc
+                )));
+            }
+            let fy = h - 1 - y;
+            for (x, acc) in row.chunks_exact(nc).enumerate() {
+                for (k, &v) in acc.iter().enumerate() {
+                    data[(k * h + fy) * w + x] = v as f32;
+                }
             }
         }
+        Ok(SpectralCube {
+            nx: w,
+            ny: h,
+            spec: self.spec,
+            data,
+            pixel_world: (self.ph, self.ph),
+        })
     }
-    Ok(SpectralCube {
-        nx: w,
-        ny: h,
-        spec: *spec,
-        data,
-        pixel_world: (ph, ph),
-    })
 }
 
 #[cfg(test)]

@@ -164,3 +164,147 @@ pub fn optical_depth_part(
     }
     Ok(out)
 }
+
+/// Rows `rows` of [`crate::render_doppler`]'s image (an image tile for tile-parallel
+/// rendering), with the same arithmetic per pixel: the rows of every tile, put together,
+/// are that image bit for bit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageRows {
+    /// XYZ per pixel of the rows, row-major.
+    pub xyz: Vec<[f64; 3]>,
+    /// The sum over these pixels of the most pieces a ray held (for [`PieceStats::mean`]).
+    pub pieces_sum: f64,
+    /// The most pieces any of these rays held.
+    pub pieces_max: usize,
+    /// Rays of these rows that fell back past the piece budget.
+    pub fallback_rays: usize,
+}
+
+/// Renders image rows `rows` of `settings` (see [`ImageRows`]).
+///
+/// # Errors
+/// As [`crate::render_doppler`]; rows outside the image.
+pub fn render_doppler_rows(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    rows: std::ops::Range<u32>,
+) -> Result<ImageRows> {
+    if rows.start > rows.end || rows.end > settings.height {
+        return Err(Error::parameter(format!(
+            "rows {}..{} of an image of {} rows",
+            rows.start, rows.end, settings.height
+        )));
+    }
+    let ctx = Context::new(scene, settings)?;
+    let w = settings.width;
+    let out: Vec<Result<Vec<crate::render::RayOut>>> = rows
+        .into_par_iter()
+        .map(|y| {
+            (0..w)
+                .map(|x| {
+                    integrate_samples(&ctx, &ctx.sample(&pixel_ray(settings, x, y)?)?, Want::Xyz)
+                })
+                .collect()
+        })
+        .collect();
+    scene.check_io()?;
+    let mut r = ImageRows {
+        xyz: Vec::new(),
+        pieces_sum: 0.0,
+        pieces_max: 0,
+        fallback_rays: 0,
+    };
+    for row in out {
+        for o in row? {
+            r.xyz.push(o.xyz.to_array());
+            r.pieces_sum += o.max_pieces as f64;
+            r.pieces_max = r.pieces_max.max(o.max_pieces);
+            r.fallback_rays += usize::from(o.fallback);
+        }
+    }
+    Ok(r)
+}
+
+/// The image of tiles of rows (top to bottom, together every row once), as
+/// [`crate::render_doppler`] gives it.
+///
+/// # Errors
+/// [`Error::Parameter`] when the tiles do not make up the image.
+pub fn image_from_rows(settings: &DopplerSettings, tiles: &[ImageRows]) -> Result<DopplerImage> {
+    let pixels = settings.width as usize * settings.height as usize;
+    let got: usize = tiles.iter().map(|t| t.xyz.len()).sum();
+    if got != pixels {
+        return Err(Error::parameter(format!(
+            "image tiles: {got} pixels, the image has {pixels}"
+        )));
+    }
+    let (mut sum, mut max, mut fb) = (0.0f64, 0usize, 0usize);
+    let mut xyz = Vec::with_capacity(pixels);
+    for t in tiles {
+        xyz.extend_from_slice(&t.xyz);
+        sum += t.pieces_sum;
+        max = max.max(t.pieces_max);
+        fb += t.fallback_rays;
+    }
+    Ok(DopplerImage {
+        width: settings.width,
+        height: settings.height,
+        xyz,
+        pieces: PieceStats {
+            mean: sum / pixels.max(1) as f64,
+            max,
+            fallback_rays: fb,
+        },
+    })
+}
+
+/// Image rows `rows` (top row 0) of [`crate::render_cube`]'s cube, each `width x channels`
+/// values (x, then channel; f64, before the cube's rounding to f32), from the segments
+/// inside `clip` (every segment for `None`). The channels of emission-only scenes add over
+/// boxes that tile space; an absorbing scene's cube takes no clip (its rows split, not its
+/// rays).
+///
+/// # Errors
+/// As [`crate::render_cube`]; a clip on an absorbing scene.
+pub fn render_cube_part(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    spec: &crate::CubeSpec,
+    clip: Option<&ClipBox>,
+    rows: std::ops::Range<usize>,
+) -> Result<Vec<f64>> {
+    let plan = crate::cube::CubePlan::new(settings, spec)?;
+    if rows.start > rows.end || rows.end > plan.h {
+        return Err(Error::parameter(format!(
+            "rows {}..{} of an image of {} rows",
+            rows.start, rows.end, plan.h
+        )));
+    }
+    Ok(plan
+        .rows(scene, clip, rows, &Silent)?
+        .into_iter()
+        .flatten()
+        .collect())
+}
+
+/// The cube from the values of every image row (top row first, [`render_cube_part`]'s
+/// layout for all rows).
+///
+/// # Errors
+/// [`Error::Parameter`] for the wrong number of values; as [`crate::render_cube`].
+pub fn cube_from_rows(
+    settings: &DopplerSettings,
+    spec: &crate::CubeSpec,
+    values: &[f64],
+) -> Result<crate::SpectralCube> {
+    let plan = crate::cube::CubePlan::new(settings, spec)?;
+    let row = plan.w * spec.channels;
+    if values.len() != row * plan.h {
+        return Err(Error::parameter(format!(
+            "cube: {} values, expected {}",
+            values.len(),
+            row * plan.h
+        )));
+    }
+    plan.assemble(values.chunks_exact(row.max(1)).take(plan.h))
+}

@@ -153,7 +153,13 @@ pub struct Args {
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
     /// Spread the render over the ranks of an MPI job (run under `mpirun -np N`; needs a
-    /// build with the `mpi` feature): `data` (each rank renders its piece of a k-d split of the volume; without absorption the XYZ images add, with absorption the optical depth in front of each piece is summed first, so the spectra are composited exactly) or `frames` (the frames of `--ramp`, round robin; each rank writes its own). Rank 0 writes the outputs.
+    /// build with the `mpi` feature): `data` (each rank renders its piece of a k-d split of
+    /// the volume; without absorption the XYZ images add, with absorption the optical depth
+    /// in front of each piece is summed first, so the spectra are composited exactly; a
+    /// `--cube` of an emission-only scene adds its channels the same way), `tiles` (each rank
+    /// renders a band of image rows: the single-process image or cube bit for bit, any
+    /// integrator, absorbing cubes included) or `frames` (the frames of `--ramp`, round
+    /// robin; each rank writes its own). Rank 0 writes the outputs.
     #[arg(long, value_name = "MODE")]
     pub distributed: Option<String>,
     /// Compositing schedule of `--distributed data`: auto (binary swap for a power-of-two
@@ -644,32 +650,36 @@ fn sibling(out: &Path, suffix: &str) -> PathBuf {
 pub fn run(args: Args) -> Result<()> {
     let mode = crate::dist::mode(args.distributed.as_deref())?;
     use blueshift_dist::Mode;
-    crate::dist::check_mode(mode, &[Mode::Data, Mode::Frames], "doppler")?;
-    let Some(speeds) = args.observer.ramp_speeds()? else {
+    // Doppler integrators are deterministic: no sample-parallel mode.
+    crate::dist::check_mode(mode, &[Mode::Data, Mode::Tiles, Mode::Frames], "doppler")?;
+    use super::observer_args::{frame_path, run_ramp};
+    let outputs = |a: &mut Args, k: usize| {
+        a.out = frame_path(&a.out, k);
+        a.figure = a.figure.as_deref().map(|p| frame_path(p, k));
+        a.cube.cube = a.cube.cube.as_deref().map(|p| frame_path(p, k));
+    };
+    // Each rank renders whole frames on its own.
+    let frame = |mut a: Args| {
         if mode == Some(Mode::Frames) {
-            bail!("--distributed frames: spreads the frames of --ramp; give --ramp");
+            a.distributed = None;
+        }
+        run_frame(a)
+    };
+    let keep = |k| crate::dist::keeps_frame(mode, k);
+    let speeds = args.observer.ramp_speeds()?;
+    if let Some(angles) = args.view.orbit_angles()? {
+        if speeds.is_some() {
+            bail!("give one of --orbit and --ramp");
+        }
+        return super::view_args::run_orbit(&args, &angles, |a| &mut a.view, outputs, frame, keep);
+    }
+    let Some(speeds) = speeds else {
+        if mode == Some(Mode::Frames) {
+            bail!("--distributed frames: spreads the frames of --ramp or --orbit; give one");
         }
         return run_frame(args);
     };
-    use super::observer_args::{frame_path, run_ramp};
-    run_ramp(
-        &args,
-        &speeds,
-        |a| &mut a.observer,
-        |a, k| {
-            a.out = frame_path(&a.out, k);
-            a.figure = a.figure.as_deref().map(|p| frame_path(p, k));
-            a.cube.cube = a.cube.cube.as_deref().map(|p| frame_path(p, k));
-        },
-        |mut a| {
-            // Each rank renders whole frames on its own.
-            if mode == Some(Mode::Frames) {
-                a.distributed = None;
-            }
-            run_frame(a)
-        },
-        |k| crate::dist::keeps_frame(mode, k),
-    )
+    run_ramp(&args, &speeds, |a| &mut a.observer, outputs, frame, keep)
 }
 
 /// The observer of `args` for the view of `st` (the default direction of `--beta`), else the
@@ -689,9 +699,6 @@ fn observer_for(
 }
 
 fn run_frame(args: Args) -> Result<()> {
-    if args.distributed.is_some() && args.cube.cube.is_some() {
-        bail!("--distributed: spectral cubes are rendered by one process (not distributed yet)");
-    }
     // Refuse an output that cannot be written before loading or rendering anything.
     let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
     match &args.cube.cube {
@@ -740,7 +747,14 @@ fn run_frame(args: Args) -> Result<()> {
             Some(p) => SceneFile::read(p)?.cube,
             None => None,
         };
-        return super::doppler_cube::run_cube(&args.cube, &scene, &st, units.as_ref());
+        let mode = crate::dist::mode(args.distributed.as_deref())?;
+        return super::doppler_cube::run_cube(
+            &args.cube,
+            &scene,
+            &st,
+            units.as_ref(),
+            mode.map(|m| (m, args.compositing.as_str())),
+        );
     }
     let disp = display(&args)?;
     let stops = exposure_stops(&args)?;
@@ -776,11 +790,11 @@ fn run_frame(args: Args) -> Result<()> {
     } else {
         args.device
     };
-    let distributed = if crate::dist::mode(args.distributed.as_deref())?.is_some() {
-        if args.progressive || args.cube.cube.is_some() {
-            bail!("--distributed data: images only (not --progressive, not cubes)");
+    let distributed = if let Some(mode) = crate::dist::mode(args.distributed.as_deref())? {
+        if args.progressive {
+            bail!("--distributed: not with --progressive");
         }
-        match crate::dist::doppler(scene, st, &args.compositing)? {
+        match crate::dist::doppler(mode, scene, st, &args.compositing)? {
             // Not rank 0: rank 0 writes the outputs.
             None => return Ok(()),
             Some(img) => Some(blueshift_gpu::Ran {

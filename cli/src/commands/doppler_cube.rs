@@ -252,6 +252,7 @@ pub fn run_cube(
     scene: &DopplerScene,
     st: &DopplerSettings,
     units: Option<&CubeUnitsSpec>,
+    distributed: Option<(blueshift_dist::Mode, &str)>,
 ) -> Result<()> {
     let out = args.cube.as_ref().ok_or_else(|| anyhow!("no --cube"))?;
     let spec = cube_spec(args)?;
@@ -296,7 +297,16 @@ pub fn run_cube(
         "rows",
     );
     let start = Instant::now();
-    let cube = render_cube(scene, st, &spec, &|| bar.inc(1))?;
+    let cube = match distributed {
+        None => render_cube(scene, st, &spec, &|| bar.inc(1))?,
+        // Rank 0 gets the cube and writes it; the other ranks are done.
+        Some((mode, compositing)) => {
+            match crate::dist::cube(mode, scene, st, &spec, compositing)? {
+                Some(c) => c,
+                None => return Ok(()),
+            }
+        }
+    };
     bar.finish();
     let secs = start.elapsed().as_secs_f64();
     let fits = fits_bytes(&cube, &meta)?;

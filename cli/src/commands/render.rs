@@ -398,30 +398,33 @@ pub fn run(args: Args) -> Result<()> {
         &[Mode::Data, Mode::Samples, Mode::Tiles, Mode::Frames],
         "render",
     )?;
-    let Some(speeds) = args.observer.ramp_speeds()? else {
+    use super::observer_args::{frame_path, run_ramp};
+    let outputs = |a: &mut Args, k: usize| {
+        a.out = frame_path(&a.out, k);
+        a.png = a.png.as_deref().map(|p| frame_path(p, k));
+    };
+    // Each rank renders whole frames on its own.
+    let frame = |mut a: Args| {
         if mode == Some(Mode::Frames) {
-            bail!("--distributed frames: spreads the frames of --ramp; give --ramp");
+            a.distributed = None;
+        }
+        run_frame(a)
+    };
+    let keep = |k| crate::dist::keeps_frame(mode, k);
+    let speeds = args.observer.ramp_speeds()?;
+    if let Some(angles) = args.view.orbit_angles()? {
+        if speeds.is_some() {
+            bail!("give one of --orbit and --ramp");
+        }
+        return super::view_args::run_orbit(&args, &angles, |a| &mut a.view, outputs, frame, keep);
+    }
+    let Some(speeds) = speeds else {
+        if mode == Some(Mode::Frames) {
+            bail!("--distributed frames: spreads the frames of --ramp or --orbit; give one");
         }
         return run_frame(args);
     };
-    use super::observer_args::{frame_path, run_ramp};
-    run_ramp(
-        &args,
-        &speeds,
-        |a| &mut a.observer,
-        |a, k| {
-            a.out = frame_path(&a.out, k);
-            a.png = a.png.as_deref().map(|p| frame_path(p, k));
-        },
-        |mut a| {
-            // Each rank renders whole frames on its own.
-            if mode == Some(Mode::Frames) {
-                a.distributed = None;
-            }
-            run_frame(a)
-        },
-        |k| crate::dist::keeps_frame(mode, k),
-    )
+    run_ramp(&args, &speeds, |a| &mut a.observer, outputs, frame, keep)
 }
 
 fn run_frame(args: Args) -> Result<()> {
@@ -532,6 +535,7 @@ fn run_inner(args: &Args) -> Result<()> {
         ..Default::default()
     };
     let (scene, integrator, mut settings) = f.build_with(&memory)?;
+    settings.camera = args.view.orbited(settings.camera)?;
     let view = (settings.camera.target - settings.camera.eye).normalize_or_zero();
     let searchlight = args.searchlight || f.searchlight.unwrap_or(false);
     if let Some(o) = args.observer.observer(view, None, searchlight)? {

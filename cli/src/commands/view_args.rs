@@ -25,6 +25,15 @@ pub struct ViewArgs {
     /// Magnification about the view centre [default: 1].
     #[arg(long, allow_hyphen_values = true)]
     pub zoom: Option<f32>,
+    /// A camera path: N frames orbiting the eye about the target, around the up direction,
+    /// DEG degrees in all (default 360: equal steps, the last one step short of the first,
+    /// so the sequence loops; positive is counter-clockwise seen from above). Every output
+    /// becomes STEM_kkkk.EXT; `--distributed frames` spreads the frames over the ranks.
+    #[arg(long, value_name = "N[:DEG]")]
+    pub orbit: Option<String>,
+    /// The angle of the orbit frame being rendered, degrees (set per frame by the driver).
+    #[arg(skip)]
+    pub orbit_deg: Option<f32>,
 }
 
 /// Three finite numbers from a comma-separated flag.
@@ -73,6 +82,77 @@ impl ViewArgs {
         }
         cam.validate()
             .map_err(|e| anyhow::anyhow!("--eye/--target/--up: {e}"))?;
+        self.orbited(cam)
+    }
+
+    /// `cam` turned to this orbit frame's angle (unchanged outside an orbit): the eye
+    /// rotates about the target around `up`, which stays as it is.
+    pub fn orbited(&self, cam: Camera) -> Result<Camera> {
+        let Some(deg) = self.orbit_deg else {
+            return Ok(cam);
+        };
+        let axis = cam.up.normalize_or_zero();
+        if axis == Vec3::ZERO {
+            bail!("--orbit: the camera's up direction is zero");
+        }
+        let turn = glam::Quat::from_axis_angle(axis, deg.to_radians());
+        let cam = Camera {
+            eye: cam.target + turn * (cam.eye - cam.target),
+            ..cam
+        };
+        cam.validate()
+            .map_err(|e| anyhow::anyhow!("--orbit: {e}"))?;
         Ok(cam)
     }
+
+    /// The frame angles of `--orbit N[:DEG]` (degrees), `None` without it.
+    pub fn orbit_angles(&self) -> Result<Option<Vec<f32>>> {
+        let Some(spec) = self.orbit.as_deref() else {
+            return Ok(None);
+        };
+        let bad = || {
+            anyhow::anyhow!(
+                "--orbit {spec:?}: expected N or N:DEG (N frames from 1 to 100000, DEG finite)"
+            )
+        };
+        let (n, deg) = match spec.split_once(':') {
+            Some((n, d)) => (n, d.trim().parse::<f32>().map_err(|_| bad())?),
+            None => (spec, 360.0),
+        };
+        let n: usize = n.trim().parse().map_err(|_| bad())?;
+        if !(1..=100_000).contains(&n) || !deg.is_finite() {
+            return Err(bad());
+        }
+        Ok(Some(
+            (0..n)
+                .map(|k| (f64::from(deg) * k as f64 / n as f64) as f32)
+                .collect(),
+        ))
+    }
+}
+
+/// Runs `--orbit`: `frame` once per angle of `angles` on a copy of `args` whose outputs
+/// `outputs` renames for frame `k` and whose view is turned by that angle; frames that
+/// `keep` declines (another rank's, under `--distributed frames`) are skipped.
+pub fn run_orbit<A: Clone>(
+    args: &A,
+    angles: &[f32],
+    view: impl Fn(&mut A) -> &mut ViewArgs,
+    outputs: impl Fn(&mut A, usize),
+    mut frame: impl FnMut(A) -> Result<()>,
+    keep: impl Fn(usize) -> Result<bool>,
+) -> Result<()> {
+    for (k, &deg) in angles.iter().enumerate() {
+        if !keep(k)? {
+            continue;
+        }
+        let mut a = args.clone();
+        outputs(&mut a, k);
+        let v = view(&mut a);
+        v.orbit = None;
+        v.orbit_deg = Some(deg);
+        eprintln!("frame {k}: orbit {deg:.3} degrees");
+        frame(a)?;
+    }
+    Ok(())
 }
