@@ -1732,6 +1732,22 @@ impl Sampler for LevelSampler {
 mod tests {
     use super::*;
 
+    /// A reserved output has its planned length and, where `fallocate` works (any Linux
+    /// temporary directory: ext4, xfs, btrfs, tmpfs), a block behind every byte already.
+    #[test]
+    fn a_reserved_output_has_its_length_and_its_blocks() {
+        let tmp = tempfile::NamedTempFile::new().unwrap();
+        let len = 3 * 1024 * 1024 + 12_345;
+        reserve(tmp.as_file(), len).unwrap();
+        let meta = tmp.as_file().metadata().unwrap();
+        assert_eq!(meta.len(), len);
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::fs::MetadataExt;
+            assert!(meta.blocks() * 512 >= len, "{} blocks", meta.blocks());
+        }
+    }
+
     /// The SSE2 lane statistics give the portable version's bits (NaNs of either sign,
     /// infinities, signed zeros, subnormals and ordinary values mixed).
     #[test]
