@@ -903,10 +903,13 @@ fn reserve(file: &File, len: u64) -> Result<()> {
     #[cfg(target_os = "linux")]
     {
         use rustix::io::Errno;
-        match rustix::fs::fallocate(file, rustix::fs::FallocateFlags::empty(), 0, len) {
-            Ok(()) => return Ok(()),
-            Err(e) if e == Errno::OPNOTSUPP || e == Errno::NOSYS => {}
-            Err(e) => return Err(Error::Io(e.into())),
+        loop {
+            match rustix::fs::fallocate(file, rustix::fs::FallocateFlags::empty(), 0, len) {
+                Ok(()) => return Ok(()),
+                Err(Errno::INTR) => {}
+                Err(e) if e == Errno::OPNOTSUPP || e == Errno::NOSYS => break,
+                Err(e) => return Err(Error::Io(e.into())),
+            }
         }
     }
     file.set_len(len)?;
