@@ -135,8 +135,10 @@ fn macrocells(c: &mut Criterion) {
 /// input is native f32, read with positioned reads (never mapped); the converter writes
 /// about 1.3 times the input's bytes (every level, with the bricks' aprons) into blocks it
 /// reserved first, so it is bound by the kernel's copies into the page cache more than by
-/// its own work. On a virtual machine that hands freed memory back to its host, the cost of
-/// those copies varies several-fold from run to run with how recently the pages were freed.
+/// its own work. On a virtual machine that reports freed memory to its host (free page
+/// reporting), a newly allocated page can cost a fault on the host at its first touch (about
+/// 4 us a page on the 2-core development machine, 20 times a warm page), so those copies
+/// vary several-fold from run to run: compare `cp` and conversion in the same run.
 fn conversion(c: &mut Criterion) {
     for n in [128usize, 256] {
         let g = grid(n);
