@@ -132,9 +132,13 @@ fn macrocells(c: &mut Criterion) {
 
 /// Conversion to `.bsv` against `cp` of the same file (`std::fs::copy`, a read plus a write:
 /// the floor of any conversion; issue 22's goal is a throughput ratio of 0.7 or more). The
-/// input is native f32, which the converter maps and reads in place; it writes about 1.3
-/// times the input's bytes (every level, with the bricks' aprons), so the conversion is
-/// bound by the kernel's copies into the page cache more than by its own work.
+/// input is native f32, read with positioned reads (never mapped); the converter writes
+/// about 1.3 times the input's bytes (every level, with the bricks' aprons) into blocks it
+/// reserved first, so it is bound by the kernel's copies into the page cache more than by
+/// its own work. On a virtual machine that reports freed memory to its host (free page
+/// reporting), a newly allocated page can cost a fault on the host at its first touch (about
+/// 4 us a page on the 2-core development machine, 20 times a warm page), so those copies
+/// vary several-fold from run to run: compare `cp` and conversion in the same run.
 fn conversion(c: &mut Criterion) {
     for n in [128usize, 256] {
         let g = grid(n);

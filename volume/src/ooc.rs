@@ -893,6 +893,29 @@ impl<'a> Writer<'a> {
     }
 }
 
+/// Sets the length of the temporary output `file` to `len`, reserving all its blocks where
+/// the file system can (Linux `fallocate`). Reserved blocks make the writes cheaper and the
+/// end of the conversion immediate: ext4 need not allocate blocks as it caches each page,
+/// nor flush the whole file when it is renamed over an existing one (its `auto_da_alloc`,
+/// which made the rename wait for the file's write-back). A full disk is this call's error,
+/// before any work. Where `fallocate` is unsupported, only the length is set.
+fn reserve(file: &File, len: u64) -> Result<()> {
+    #[cfg(target_os = "linux")]
+    {
+        use rustix::io::Errno;
+        loop {
+            match rustix::fs::fallocate(file, rustix::fs::FallocateFlags::empty(), 0, len) {
+                Ok(()) => return Ok(()),
+                Err(Errno::INTR) => {}
+                Err(e) if e == Errno::OPNOTSUPP || e == Errno::NOSYS => break,
+                Err(e) => return Err(Error::Io(e.into())),
+            }
+        }
+    }
+    file.set_len(len)?;
+    Ok(())
+}
+
 fn writer_gone() -> Error {
     Error::invalid("the bricked-file writer thread stopped")
 }
@@ -1169,7 +1192,7 @@ pub fn convert_many(
         // Mode 0666 less the umask, as `File::create` gives (tempfile's default is 0600).
         b.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
         let tmp = b.tempfile_in(dir)?;
-        tmp.as_file().set_len(plans[c].total)?;
+        reserve(tmp.as_file(), plans[c].total)?;
         tmps.push(tmp);
     }
     let pool = Mutex::new(Vec::new());
@@ -1711,6 +1734,22 @@ impl Sampler for LevelSampler {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A reserved output has its planned length and, where `fallocate` works (any Linux
+    /// temporary directory: ext4, xfs, btrfs, tmpfs), a block behind every byte already.
+    #[test]
+    fn a_reserved_output_has_its_length_and_its_blocks() {
+        let tmp = tempfile::NamedTempFile::new().unwrap();
+        let len = 3 * 1024 * 1024 + 12_345;
+        reserve(tmp.as_file(), len).unwrap();
+        let meta = tmp.as_file().metadata().unwrap();
+        assert_eq!(meta.len(), len);
+        #[cfg(target_os = "linux")]
+        {
+            use std::os::unix::fs::MetadataExt;
+            assert!(meta.blocks() * 512 >= len, "{} blocks", meta.blocks());
+        }
+    }
 
     /// The SSE2 lane statistics give the portable version's bits (NaNs of either sign,
     /// infinities, signed zeros, subnormals and ordinary values mixed).
