@@ -376,6 +376,10 @@ fn he_rich(c: &mut Criterion) {
         p.merge_tolerance = tol;
         let (t, img) = timed(&s, &p);
         let e = xyz_error(&img, &r);
+        println!(
+            "doppler_he_rich: pwl tol {tol:e} {t:.4} s (error {e:.3e}): {:.2}x banded:4000",
+            tb / t
+        );
         if e <= eb {
             pick = Some((p, t, e));
         }

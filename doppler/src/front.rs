@@ -24,7 +24,7 @@
 //! recurrence of [`exp_moments`], taken from the end where the depth is smaller so nothing
 //! overflows.
 //!
-//! Error bound (`tol = merge_tolerance`), a budget for the whole ray in three shares:
+//! Error bound (`tol = merge_tolerance`), a budget for the whole ray in four shares:
 //! - merges of `P` (the `k`-th with `tol/8 * 6 / (pi k)^2`; the series sums to `tol/8`).
 //!   `W` is not recomputed after a merge (that would be a pass over all of `P`): the updates
 //!   after it are exact differences, so `W` keeps what the merges moved, at most `tol/8` of
@@ -32,25 +32,26 @@
 //! - leaving out the weakest absorption: single lines of single segments, smallest peak
 //!   depth first, at most `tol/4` in total (they are known before the march, see
 //!   `choose_omissions`);
-//! - for the faintest segments' line light (faintest first, at most `tol/2` of each XYZ
+//! - within one segment's sweep, `P` is read as chords across several of its pieces
+//!   (`chord_over`), each within `eps = ln(1 + tol/4)` of `P` on the chord's span, with the
+//!   slope that keeps `P`'s integral where the allowed slopes include it (so the error is
+//!   mostly of second order). Segment `k` moves `W` by `integral hat cmf exp(-P_{k-1}) (1 -
+//!   exp(-D_k))`, here off by a factor of at most `e^eps - 1 = tol/4`, and these weights
+//!   summed over the segments telescope to at most `1 - exp(-P)`: the chords move `W` by at
+//!   most `tol/4` of each hat's XYZ in all, and each line's absorbed part by at most `tol/4`
+//!   of its light. (Most of `P`'s breakpoints inside a line window are the edges of earlier
+//!   segments' sweeps of the same lines, which the chords step over: on the He-rich Fig. 13
+//!   scene they cut the sub-intervals 2.5-fold);
+//! - for the faintest segments' line light (faintest first, at most `3 tol/8` of each XYZ
 //!   channel's unattenuated total), each line attenuated by the transmittance at its middle
 //!   instead of exactly: off by at most the line's own light.
 //!
-//! - within one segment's sweep, `P` is read as chords across several of its pieces
-//!   (`chord_over`), each within `eps = ln(1 + tol/8)` of `P` on the chord's span, with the
-//!   slope that keeps `P`'s integral where the allowed slopes include it. Segment `k` then
-//!   moves `W` by `integral hat cmf exp(-P_{k-1}) (1 - exp(-D_k))` times at most `e^eps - 1
-//!   = tol/8` too much or too little, and these weights sum over the segments to at most
-//!   `1 - exp(-P)` (they telescope): the chords add at most `tol/8` of each hat's XYZ to `W`
-//!   in all, and at most `tol/8` of each line's light to its absorbed part. Most of `P`'s
-//!   breakpoints inside a line window are the edges of earlier segments' sweeps of the same
-//!   line, so the chords remove most sub-intervals.
-//!
 //! So `P` is within `3 tol/8` of the exact depth everywhere and each transmittance within
-//! `3 tol/8`, the chords add `tol/8`: the black body's absorbed part is within `tol/2` of its
-//! unattenuated XYZ, the lines' within `tol/2 + tol/2`, and every XYZ channel within `tol` x
-//! the same channel of the unattenuated emission. `tol = 0` leaves out and merges nothing
-//! and reads `P` exactly. Only the piece-budget fallback (counted) can break the bound.
+//! `3 tol/8`, the chords add `tol/4`: the black body's absorbed part is within `5 tol/8` of
+//! its unattenuated XYZ, the lines' within `5 tol/8 + 3 tol/8`, and every XYZ channel within
+//! `tol` x the same channel of the unattenuated emission. `tol = 0` leaves out and merges
+//! nothing and reads `P` exactly. Only the piece-budget fallback (counted) can break the
+//! bound.
 
 use blueshift_spectrum::{Piece, Xyz, merge_pieces};
 
@@ -838,7 +839,7 @@ fn march(
     }
     let total = total.to_array();
     if tol > 0.0 {
-        choose_omissions(segs, abs_all, abs_omit, 0.25 * tol, 0.5 * tol, total);
+        choose_omissions(segs, abs_all, abs_omit, 0.25 * tol, 0.375 * tol, total);
     } else {
         abs_omit.clear();
         abs_omit.resize(abs_all.len(), false);
@@ -857,13 +858,14 @@ fn march(
         seg.own = start..own_all.len();
     }
 
-    // March from the eye. Error budget (module docs): merges tol/4, omitted depth tol/4,
-    // omitted line corrections tol/2 of each channel of the unattenuated emission.
+    // March from the eye. Error budget (module docs): merges tol/8, omitted depth tol/4,
+    // chords tol/4, omitted line corrections 3 tol/8 of each channel of the unattenuated
+    // emission.
     w.clear();
     w.resize(k, [0.0; 3]);
     let mut sweep = Sweep {
         t,
-        eps: (0.125 * tol).ln_1p(),
+        eps: (0.25 * tol).ln_1p(),
         w: std::mem::take(w),
     };
     p.clear();
