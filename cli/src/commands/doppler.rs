@@ -652,7 +652,7 @@ pub fn run(args: Args) -> Result<()> {
     use blueshift_dist::Mode;
     // Doppler integrators are deterministic: no sample-parallel mode.
     crate::dist::check_mode(mode, &[Mode::Data, Mode::Tiles, Mode::Frames], "doppler")?;
-    use super::observer_args::{frame_path, run_ramp};
+    use super::observer_args::{frame_path, run_frames};
     let outputs = |a: &mut Args, k: usize| {
         a.out = frame_path(&a.out, k);
         a.figure = a.figure.as_deref().map(|p| frame_path(p, k));
@@ -666,20 +666,20 @@ pub fn run(args: Args) -> Result<()> {
         run_frame(a)
     };
     let keep = |k| crate::dist::keeps_frame(mode, k);
-    let speeds = args.observer.ramp_speeds()?;
-    if let Some(angles) = args.view.orbit_angles()? {
-        if speeds.is_some() {
-            bail!("give one of --orbit and --ramp");
-        }
-        return super::view_args::run_orbit(&args, &angles, |a| &mut a.view, outputs, frame, keep);
+    if run_frames(
+        &args,
+        |a| &mut a.view,
+        |a| &mut a.observer,
+        outputs,
+        frame,
+        keep,
+    )? {
+        return Ok(());
     }
-    let Some(speeds) = speeds else {
-        if mode == Some(Mode::Frames) {
-            bail!("--distributed frames: spreads the frames of --ramp or --orbit; give one");
-        }
-        return run_frame(args);
-    };
-    run_ramp(&args, &speeds, |a| &mut a.observer, outputs, frame, keep)
+    if mode == Some(Mode::Frames) {
+        bail!("--distributed frames: spreads the frames of --ramp or --orbit; give one");
+    }
+    run_frame(args)
 }
 
 /// The observer of `args` for the view of `st` (the default direction of `--beta`), else the

@@ -92,29 +92,51 @@ impl ObserverArgs {
     }
 }
 
-/// Runs `--ramp`: `frame` once per speed `b` of `speeds`, on a copy of `args` whose outputs
-/// `outputs` renames for frame `k` ([`frame_path`]) and whose observer flies at `b`.
-pub fn run_ramp<A: Clone>(
+/// Runs the frame sequence of `--orbit` (a camera path) or `--ramp` (speeds), when one is
+/// given (`Ok(false)` when neither is; both at once is an error): `frame` once per frame on
+/// a copy of `args` whose outputs `outputs` renames for frame `k` ([`frame_path`]) and
+/// whose view is turned, or observer sped up, to that frame's value. Frames that `keep`
+/// declines (another rank's, under `--distributed frames`) are skipped.
+pub fn run_frames<A: Clone>(
     args: &A,
-    speeds: &[f64],
+    view: impl Fn(&mut A) -> &mut super::view_args::ViewArgs,
     observer: impl Fn(&mut A) -> &mut ObserverArgs,
     outputs: impl Fn(&mut A, usize),
     mut frame: impl FnMut(A) -> Result<()>,
     keep: impl Fn(usize) -> Result<bool>,
-) -> Result<()> {
-    for (k, &b) in speeds.iter().enumerate() {
+) -> Result<bool> {
+    let mut probe = args.clone();
+    let angles = view(&mut probe).orbit_angles()?;
+    let speeds = observer(&mut probe).ramp_speeds()?;
+    let values = match (angles, speeds) {
+        (Some(_), Some(_)) => bail!("give one of --orbit and --ramp"),
+        (None, None) => return Ok(false),
+        (Some(a), None) => a
+            .into_iter()
+            .map(|d| (true, f64::from(d)))
+            .collect::<Vec<_>>(),
+        (None, Some(b)) => b.into_iter().map(|b| (false, b)).collect(),
+    };
+    for (k, (orbit, v)) in values.into_iter().enumerate() {
         if !keep(k)? {
             continue;
         }
         let mut a = args.clone();
         outputs(&mut a, k);
-        let o = observer(&mut a);
-        o.ramp = None;
-        o.beta = Some(b);
-        eprintln!("frame {k}: beta {b:.4}");
+        if orbit {
+            let w = view(&mut a);
+            w.orbit = None;
+            w.orbit_deg = Some(v as f32);
+            eprintln!("frame {k}: orbit {v:.3} degrees");
+        } else {
+            let o = observer(&mut a);
+            o.ramp = None;
+            o.beta = Some(v);
+            eprintln!("frame {k}: beta {v:.4}");
+        }
         frame(a)?;
     }
-    Ok(())
+    Ok(true)
 }
 
 /// Frame `k`'s path for `path`: `STEM_kkkk.EXT` beside it.

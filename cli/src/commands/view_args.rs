@@ -130,29 +130,3 @@ impl ViewArgs {
         ))
     }
 }
-
-/// Runs `--orbit`: `frame` once per angle of `angles` on a copy of `args` whose outputs
-/// `outputs` renames for frame `k` and whose view is turned by that angle; frames that
-/// `keep` declines (another rank's, under `--distributed frames`) are skipped.
-pub fn run_orbit<A: Clone>(
-    args: &A,
-    angles: &[f32],
-    view: impl Fn(&mut A) -> &mut ViewArgs,
-    outputs: impl Fn(&mut A, usize),
-    mut frame: impl FnMut(A) -> Result<()>,
-    keep: impl Fn(usize) -> Result<bool>,
-) -> Result<()> {
-    for (k, &deg) in angles.iter().enumerate() {
-        if !keep(k)? {
-            continue;
-        }
-        let mut a = args.clone();
-        outputs(&mut a, k);
-        let v = view(&mut a);
-        v.orbit = None;
-        v.orbit_deg = Some(deg);
-        eprintln!("frame {k}: orbit {deg:.3} degrees");
-        frame(a)?;
-    }
-    Ok(())
-}
