@@ -90,6 +90,26 @@ fn check_tracking(settings: &RenderSettings) -> Result<()> {
     Ok(())
 }
 
+/// Checks the settings and prepares the integrator as the render loop does (twice: the loop
+/// prepares it once more, and that is kept for its bits), every rank agreeing on the outcome.
+fn prepare(
+    comm: &dyn Communicator,
+    scene: &Scene,
+    integrator: &Integrator,
+    settings: &RenderSettings,
+) -> Result<Integrator> {
+    let prep = agree(
+        comm,
+        "preparation",
+        check_tracking(settings).and_then(|()| Ok(integrator.prepared(scene)?)),
+    )?;
+    agree(
+        comm,
+        "preparation",
+        prep.prepared(scene).map_err(Error::from),
+    )
+}
+
 /// Sample-parallel tracking (any integrator): rank `r` computes the samples `s` with
 /// `s % ranks == r` of every pixel and sends their RGBA to rank 0, which adds all samples
 /// of each pixel in sample order with the render loop's own arithmetic
@@ -106,17 +126,7 @@ pub fn render_samples(
     settings: &RenderSettings,
 ) -> Result<Option<Progressive>> {
     let (n, me) = (comm.size(), comm.rank());
-    let prep = agree(
-        comm,
-        "preparation",
-        check_tracking(settings).and_then(|()| Ok(integrator.prepared(scene)?)),
-    )?;
-    // The render loop prepares the integrator once more (kept for its bits): so do we.
-    let prep = agree(
-        comm,
-        "preparation",
-        prep.prepared(scene).map_err(Error::from),
-    )?;
+    let prep = prepare(comm, scene, integrator, settings)?;
     let (w, h) = (settings.width as usize, settings.height as usize);
     let observer = settings.observer.filter(|o| !o.is_at_rest());
     let mine: Vec<u32> = (0..settings.spp)
@@ -203,16 +213,7 @@ pub fn render_tiles(
     settings: &RenderSettings,
 ) -> Result<Option<Progressive>> {
     let (n, me) = (comm.size(), comm.rank());
-    let prep = agree(
-        comm,
-        "preparation",
-        check_tracking(settings).and_then(|()| Ok(integrator.prepared(scene)?)),
-    )?;
-    let prep = agree(
-        comm,
-        "preparation",
-        prep.prepared(scene).map_err(Error::from),
-    )?;
+    let prep = prepare(comm, scene, integrator, settings)?;
     let w = settings.width as usize;
     let observer = settings.observer.filter(|o| !o.is_at_rest());
     let (y0, y1) = rows_of(me, n, settings.height);
