@@ -201,7 +201,8 @@ pub fn doppler(
     })
 }
 
-/// A distributed spectral cube (`data`: emission-only scenes, pieces of the volume add;
+/// A distributed spectral cube (`data`: pieces of the volume add, absorbing ones behind the
+/// depth in front of them;
 /// `tiles`: image rows, any scene): rank 0 gets it.
 pub fn cube(
     mode: Mode,

@@ -6,7 +6,8 @@
 //! setting) stops all of them at that point with an error instead of leaving them waiting.
 
 use blueshift_doppler::part::{
-    add_depths, cube_from_rows, optical_depth_part, render_cube_part, render_doppler_part,
+    add_depths, cube_from_rows, cube_optical_depth_part, optical_depth_part, render_cube_part,
+    render_doppler_part,
 };
 use blueshift_doppler::{
     CubeSpec, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralCube,
@@ -503,6 +504,38 @@ fn doppler_viewpoint(settings: &DopplerSettings) -> Viewpoint {
     }
 }
 
+/// The optical depth in front of this rank's piece per pixel (row-major): each rank but
+/// the last in visibility `order` computes its own piece's depth (`depth`), and an
+/// exclusive scan in that order ([`exclusive_scan`], exact piecewise-linear sums) adds the
+/// depths of the pieces in front.
+///
+/// # Errors
+/// `depth`'s error on any rank (see [`agree`]); communication.
+fn front_depths(
+    comm: &dyn Communicator,
+    order: &[usize],
+    pixels: usize,
+    depth: impl FnOnce() -> Result<Vec<Vec<Piece>>>,
+) -> Result<Vec<Vec<Piece>>> {
+    // The last piece in the order is in front of nothing: its depth is not needed.
+    let own = if order.last() == Some(&comm.rank()) {
+        Ok(vec![Vec::new(); pixels])
+    } else {
+        depth()
+    };
+    let own = agree(comm, "optical depth", own)?;
+    let front = exclusive_scan(
+        comm,
+        order,
+        &own,
+        vec![Vec::new(); pixels],
+        |a, b| a.iter().zip(b).map(|(a, b)| add_depths(a, b)).collect(),
+        |v| encode_pieces(v),
+        |d| decode_pieces(d, pixels),
+    );
+    agree(comm, "optical depth scan", front)
+}
+
 /// Data-parallel Doppler rendering (see `blueshift_doppler::part`): without absorption
 /// the ranks' XYZ images add; with absorption (piecewise-linear integrator) each rank first
 /// gives its optical depth per pixel, an exclusive scan in visibility order
@@ -539,26 +572,11 @@ pub fn render_doppler_data(
     let pixels = settings.width as usize * settings.height as usize;
     let clock = Phases::start(me);
     let front = if scene.absorbs() && n > 1 {
-        // The last piece in the order is in front of nothing: its depth is not needed.
-        let depth = if order.last() == Some(&me) {
-            Ok(vec![Vec::new(); pixels])
-        } else {
+        let f = front_depths(comm, &order, pixels, || {
             optical_depth_part(scene, settings, &clip).map_err(Error::from)
-        };
-        let depth = agree(comm, "optical depth", depth)?;
-        clock.mark("optical depth");
-        let front = exclusive_scan(
-            comm,
-            &order,
-            &depth,
-            vec![Vec::new(); pixels],
-            |a, b| a.iter().zip(b).map(|(a, b)| add_depths(a, b)).collect(),
-            |v| encode_pieces(v),
-            |d| decode_pieces(d, pixels),
-        );
-        let front = agree(comm, "optical depth scan", front)?;
+        })?;
         clock.mark("depth scan");
-        Some(front)
+        Some(f)
     } else {
         None
     };
@@ -645,7 +663,7 @@ pub fn render_cube_tiles(
 ) -> Result<Option<SpectralCube>> {
     let (n, me) = (comm.size(), comm.rank());
     let (y0, y1) = rows_of(me, n, settings.height);
-    let part = render_cube_part(scene, settings, spec, None, y0 as usize..y1 as usize)
+    let part = render_cube_part(scene, settings, spec, None, None, y0 as usize..y1 as usize)
         .map_err(Error::from);
     let part = agree(comm, "rendering", part)?;
     if me != 0 {
@@ -669,16 +687,22 @@ pub fn render_cube_tiles(
     Ok(Some(cube_from_rows(settings, spec, &all)?))
 }
 
-/// Data-parallel spectral cube of an emission-only scene: each rank bins the line light of
-/// the segments inside its piece of the k-d split into the channels, and the partial cubes
-/// add (radix-k over the decomposition's factors, the channels of a pixel composited
-/// together). Equal to the single-process cube up to the rounding of the sums (the f64
-/// channel values are summed in another grouping before the cube's rounding to f32).
-/// Absorbing scenes are refused: their light is attenuated by all the depth in front, so
-/// use [`render_cube_tiles`].
+/// Data-parallel spectral cube: each rank bins the light of the segments inside its piece
+/// of the k-d split into the channels, and the partial cubes add (radix-k over the
+/// decomposition's factors, the channels of a pixel composited together). Emission-only
+/// scenes: equal to the single-process cube up to the rounding of the sums (the f64 channel
+/// values are summed in another grouping before the cube's rounding to f32). Absorbing
+/// scenes compose exactly as [`render_doppler_data`] does: each rank's piece gives its
+/// optical depth per pixel, an exclusive scan in visibility order gives the depth in front
+/// of each piece, and each piece's spectrum (its own emission and absorption, the
+/// single-process back-to-front arithmetic over its segments) is attenuated by that depth
+/// before it is binned. The sum then differs from the single-process spectrum only by the
+/// attenuation's chord error (`max_depth_step`, see
+/// `PiecewiseLinear::attenuated`) and the merges (`merge_tolerance`), each bounded as in
+/// the single-process spectrum.
 ///
 /// # Errors
-/// An absorbing scene; a decomposition for another rank count; as [`render_cube_tiles`].
+/// A decomposition for another rank count; as [`render_cube_tiles`].
 pub fn render_cube_data(
     comm: &dyn Communicator,
     scene: &DopplerScene,
@@ -687,18 +711,13 @@ pub fn render_cube_data(
     decomp: &Decomposition,
 ) -> Result<Option<SpectralCube>> {
     let (n, me) = (comm.size(), comm.rank());
-    let pre = if decomp.ranks() != n {
+    let pre = if decomp.ranks() == n {
+        Ok(())
+    } else {
         Err(Error::parameter(format!(
             "decomposition for {} ranks, the world has {n}",
             decomp.ranks()
         )))
-    } else if scene.absorbs() {
-        Err(Error::parameter(
-            "a data-parallel spectral cube needs an emission-only scene (absorption attenuates \
-             each piece by the depth in front of it): use --distributed tiles",
-        ))
-    } else {
-        Ok(())
     };
     agree(comm, "preparation", pre)?;
     let clip = decomp.pieces()[me].clip;
@@ -707,11 +726,20 @@ pub fn render_cube_data(
     for (p, &r) in order.iter().enumerate() {
         position[r] = p;
     }
+    let pixels = settings.width as usize * settings.height as usize;
+    let front = if scene.absorbs() && n > 1 {
+        Some(front_depths(comm, &order, pixels, || {
+            cube_optical_depth_part(scene, settings, spec, &clip).map_err(Error::from)
+        })?)
+    } else {
+        None
+    };
     let part = render_cube_part(
         scene,
         settings,
         spec,
         Some(&clip),
+        front.as_deref(),
         0..settings.height as usize,
     )
     .map_err(Error::from);

@@ -15,7 +15,7 @@
 //! integrated with [`PiecewiseLinear::integrate`].
 
 use blueshift_camera::{Observer, Progress};
-use blueshift_spectrum::{PiecewiseLinear, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
+use blueshift_spectrum::{Piece, PiecewiseLinear, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -548,11 +548,14 @@ fn reachable_lines(ctx: &Context<'_>, edges: &[f64]) -> Vec<Vec<blueshift_spectr
         .collect()
 }
 
+/// One ray's channel values into `acc`; `front`: the optical depth in front of the
+/// context's clip box (absorbing scenes; empty: none).
 fn ray_channels(
     ctx: &Context<'_>,
     lines: &[Vec<blueshift_spectrum::EmissionLine>],
     ray: &crate::Ray,
     edges: &[f64],
+    front: &[Piece],
     kinks: &mut KinkBins<'_>,
     acc: &mut [f64],
 ) -> Result<()> {
@@ -562,7 +565,15 @@ fn ray_channels(
     let absorbing = ctx.absorbing;
     if absorbing {
         let out = super::render::integrate(ctx, ray, Want::Spectrum)?;
-        let spec = out.spectrum.unwrap_or_default();
+        let mut spec = out.spectrum.unwrap_or_default();
+        if !front.is_empty() && !spec.is_empty() {
+            // The light of the box's segments crosses everything in front of the box.
+            let depth = PiecewiseLinear::from_pieces(front.iter().copied())
+                .map_err(|e| Error::parameter(format!("front depth: {e}")))?;
+            spec = spec
+                .attenuated(&depth, st.max_depth_step)
+                .map_err(|e| Error::parameter(format!("spectrum: {e}")))?;
+        }
         for k in 0..acc.len() {
             acc[k] = integrate_clipped(&spec, edges[k], edges[k + 1])?;
         }
@@ -672,7 +683,7 @@ pub(crate) fn render_cube_with(
     observer: &dyn Observer<DopplerImage>,
 ) -> Result<SpectralCube> {
     let plan = CubePlan::new(settings, spec)?;
-    let rows = plan.rows(scene, None, 0..plan.h, observer)?;
+    let rows = plan.rows(scene, None, None, 0..plan.h, observer)?;
     plan.assemble(rows.iter().map(Vec::as_slice))
 }
 
@@ -731,21 +742,28 @@ impl<'a> CubePlan<'a> {
     }
 
     /// Image rows `rows` (top row 0), each `w x channels` values (x, then channel), of the
-    /// segments inside `clip` (all of them for `None`; an absorbing scene takes no clip).
+    /// segments inside `clip` (all of them for `None`). `front`, for an absorbing scene cut
+    /// by `clip`: the optical depth in front of the box per pixel of the whole image
+    /// (row-major; `None` or an empty entry: nothing in front), by which each pixel's
+    /// spectrum is attenuated before it is binned.
     pub(crate) fn rows(
         &self,
         scene: &DopplerScene,
         clip: Option<&blueshift_camera::ClipBox>,
+        front: Option<&[Vec<Piece>]>,
         rows: std::ops::Range<usize>,
         observer: &dyn Observer<DopplerImage>,
     ) -> Result<Vec<Vec<f64>>> {
         let (spec, settings, w) = (&self.spec, self.settings(), self.w);
         let mut ctx = Context::new(scene, settings)?;
-        if clip.is_some() && ctx.absorbing {
-            return Err(Error::parameter(
-                "a spectral cube of an absorbing scene does not split along the rays (use \
-                 image tiles)",
-            ));
+        if let Some(f) = front
+            && f.len() != w * self.h
+        {
+            return Err(Error::parameter(format!(
+                "front depth: {} pixels given, the cube has {}",
+                f.len(),
+                w * self.h
+            )));
         }
         ctx.clip = clip.copied();
         let edges: Vec<f64> = (0..=spec.channels).map(|i| spec.edge_nm(i)).collect();
@@ -762,7 +780,8 @@ impl<'a> CubePlan<'a> {
                 let mut row = vec![0.0; w * spec.channels];
                 for (x, acc) in row.chunks_exact_mut(spec.channels).enumerate() {
                     let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
-                    ray_channels(&ctx, &lines, &ray, &edges, &mut kinks, acc)?;
+                    let f = front.map_or(&[][..], |f| &f[y * w + x][..]);
+                    ray_channels(&ctx, &lines, &ray, &edges, f, &mut kinks, acc)?;
                 }
                 observer.progress(Progress {
                     done: done.fetch_add(1, Ordering::Relaxed) + 1,

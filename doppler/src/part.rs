@@ -260,17 +260,20 @@ pub fn image_from_rows(settings: &DopplerSettings, tiles: &[ImageRows]) -> Resul
 
 /// Image rows `rows` (top row 0) of [`crate::render_cube`]'s cube, each `width x channels`
 /// values (x, then channel; f64, before the cube's rounding to f32), from the segments
-/// inside `clip` (every segment for `None`). The channels of emission-only scenes add over
-/// boxes that tile space; an absorbing scene's cube takes no clip (its rows split, not its
-/// rays).
+/// inside `clip` (every segment for `None`). The channels of boxes that tile space add:
+/// for an emission-only scene directly; for an absorbing one when `front` gives each
+/// pixel's optical depth in front of the box ([`cube_optical_depth_part`] of the boxes in
+/// front, summed in visibility order), by which the box's spectrum is attenuated before
+/// it is binned.
 ///
 /// # Errors
-/// As [`crate::render_cube`]; a clip on an absorbing scene.
+/// As [`crate::render_cube`]; a `front` of the wrong length.
 pub fn render_cube_part(
     scene: &DopplerScene,
     settings: &DopplerSettings,
     spec: &crate::CubeSpec,
     clip: Option<&ClipBox>,
+    front: Option<&[Vec<Piece>]>,
     rows: std::ops::Range<usize>,
 ) -> Result<Vec<f64>> {
     let plan = crate::cube::CubePlan::new(settings, spec)?;
@@ -281,10 +284,25 @@ pub fn render_cube_part(
         )));
     }
     Ok(plan
-        .rows(scene, clip, rows, &Silent)?
+        .rows(scene, clip, front, rows, &Silent)?
         .into_iter()
         .flatten()
         .collect())
+}
+
+/// The optical depth of the segments inside `clip` per pixel of a cube (as
+/// [`optical_depth_part`], with the settings the cube's rays use: its lines' width).
+///
+/// # Errors
+/// As [`crate::render_cube`].
+pub fn cube_optical_depth_part(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    spec: &crate::CubeSpec,
+    clip: &ClipBox,
+) -> Result<Vec<Vec<Piece>>> {
+    let plan = crate::cube::CubePlan::new(settings, spec)?;
+    optical_depth_part(scene, plan.settings(), clip)
 }
 
 /// The cube from the values of every image row (top row first, [`render_cube_part`]'s

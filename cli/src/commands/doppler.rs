@@ -156,7 +156,8 @@ pub struct Args {
     /// build with the `mpi` feature): `data` (each rank renders its piece of a k-d split of
     /// the volume; without absorption the XYZ images add, with absorption the optical depth
     /// in front of each piece is summed first, so the spectra are composited exactly; a
-    /// `--cube` of an emission-only scene adds its channels the same way), `tiles` (each rank
+    /// `--cube` adds its channels the same way, each piece's spectrum attenuated by the depth
+    /// in front of it), `tiles` (each rank
     /// renders a band of image rows: the single-process image or cube bit for bit, any
     /// integrator, absorbing cubes included) or `frames` (the frames of `--ramp`, round
     /// robin; each rank writes its own). Rank 0 writes the outputs.
