@@ -537,16 +537,18 @@ fn front_depths(
 }
 
 /// Data-parallel Doppler rendering (see `blueshift_doppler::part`): without absorption
-/// the ranks' XYZ images add; with absorption (piecewise-linear integrator) each rank first
+/// the ranks' XYZ images add; with absorption each rank first
 /// gives its optical depth per pixel, an exclusive scan in visibility order
 /// ([`exclusive_scan`], exact piecewise-linear sums) gives each rank the depth in front of
 /// its piece, each renders its segments behind it, and the XYZ images add (radix-k over the
 /// decomposition's factors). Exact spectral compositing: equal to the single-process image
 /// up to rounding when `merge_tolerance` is 0, within twice the merge tolerance's bound
-/// otherwise.
+/// otherwise. The banded integrators compose per band the same way (a depth per band),
+/// equal to the single process up to a second-order term of the samples on the pieces'
+/// faces (see `blueshift_doppler::part`).
 ///
 /// # Errors
-/// As [`render_marcher_data`]; a banded integrator on an absorbing scene.
+/// As [`render_marcher_data`].
 pub fn render_doppler_data(
     comm: &dyn Communicator,
     scene: &DopplerScene,

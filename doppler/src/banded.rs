@@ -1,6 +1,6 @@
 //! The banded integrator (Algorithm 1) with the nearest-band or energy-conserving shift.
 
-use blueshift_spectrum::{BandLayout, BandWeights, Banded, Blackbody};
+use blueshift_spectrum::{BandLayout, BandWeights, Banded, Blackbody, Piece};
 
 use super::DopplerScene;
 use super::render::{BandShift, Context, RayOut, RaySamples, TraceStep, Want};
@@ -127,15 +127,16 @@ impl BandTables {
     }
 }
 
-/// Attenuates the bands by the optical depth of sample `j` over the path length `len`.
-fn absorb_half(
+/// Calls `add(band, depth)` for every band that sample `j` absorbs in over the path length
+/// `len`, with that band's optical depth there.
+fn for_each_depth(
     t: &BandTables,
     scene: &DopplerScene,
     s: &RaySamples,
     j: usize,
     len: f64,
     w: f64,
-    v: &mut [f64],
+    mut add: impl FnMut(usize, f64),
 ) {
     let f = scene.factors;
     let nsp = scene.species.len();
@@ -149,7 +150,7 @@ fn absorb_half(
             BandShift::Nearest => {
                 for &(i, k) in &t.rest_absorption[m] {
                     if let Some(d) = t.layout.band_of(t.centres[i] * sh) {
-                        v[d] *= (-len * rho * k).exp();
+                        add(d, len * rho * k);
                     }
                 }
             }
@@ -161,12 +162,100 @@ fn absorb_half(
                         sh * (c - 0.5 * w),
                         sh * (c + 0.5 * w),
                         l.strength * f.absorption,
-                        |i, k| v[i] *= (-len * rho * k).exp(),
+                        |i, k| add(i, len * rho * k),
                     );
                 }
             }
         }
     }
+}
+
+/// Attenuates the bands by the optical depth of sample `j` over the path length `len`.
+fn absorb_half(
+    t: &BandTables,
+    scene: &DopplerScene,
+    s: &RaySamples,
+    j: usize,
+    len: f64,
+    w: f64,
+    v: &mut [f64],
+) {
+    for_each_depth(t, scene, s, j, len, w, |d, x| v[d] *= (-x).exp());
+}
+
+/// The trapezoid-rule weight of sample `j` along the ray.
+fn weight(s: &RaySamples, j: usize) -> f64 {
+    let n = s.len();
+    let d_prev = if j > 0 {
+        f64::from(s.t[j - 1] - s.t[j]).abs()
+    } else {
+        0.0
+    };
+    let d_next = if j + 1 < n {
+        f64::from(s.t[j] - s.t[j + 1]).abs()
+    } else {
+        0.0
+    };
+    0.5 * (d_prev + d_next)
+}
+
+/// The optical depth of the samples per band (what [`integrate`] attenuates by), as
+/// constant pieces over the bands that absorb (for distributed compositing: these sum
+/// exactly over pieces of the ray, see [`crate::part`]).
+pub(crate) fn total_depth(ctx: &Context<'_>, t: &BandTables, s: &RaySamples) -> Vec<Piece> {
+    let mut d = vec![0.0; t.layout.bands()];
+    if ctx.scene.factors.absorption > 0.0 {
+        for j in 0..s.len() {
+            let wt = weight(s, j);
+            let w = ctx.settings.line_width_nm;
+            for_each_depth(t, ctx.scene, s, j, wt, w, |i, x| d[i] += x);
+        }
+    }
+    let bw = t.layout.width_nm();
+    d.iter()
+        .enumerate()
+        .filter(|(_, x)| **x > 0.0)
+        .map(|(i, &x)| {
+            let start = t.layout.band_start_nm(i);
+            Piece {
+                start_nm: start,
+                end_nm: start + bw,
+                value_start: x,
+                value_end: x,
+            }
+        })
+        .collect()
+}
+
+/// [`integrate`]'s XYZ of the samples' light after it crosses `front`, an optical depth per
+/// band ([`total_depth`] of what lies in front, summed): each band's value is multiplied by
+/// `exp(-depth)` at the band's centre.
+pub(crate) fn integrate_behind(
+    ctx: &Context<'_>,
+    t: &BandTables,
+    s: &RaySamples,
+    front: &[Piece],
+) -> Result<RayOut> {
+    let mut out = RayOut::default();
+    let mut v = bands(ctx, t, s, Want::Xyz, &mut out)?;
+    for p in front {
+        let first = t.layout.band_of(p.start_nm).unwrap_or(0).saturating_sub(1);
+        for (i, x) in v.iter_mut().enumerate().skip(first) {
+            let c = t.centres[i];
+            if c >= p.end_nm {
+                break;
+            }
+            if c >= p.start_nm {
+                *x *= (-p.at(c)).exp();
+            }
+        }
+    }
+    let b = Banded::from_values(t.layout, v).map_err(|e| Error::parameter(e.to_string()))?;
+    out.xyz = t
+        .weights
+        .xyz(&b)
+        .map_err(|e| Error::parameter(e.to_string()))?;
+    Ok(out)
 }
 
 pub(crate) fn integrate(
@@ -175,6 +264,28 @@ pub(crate) fn integrate(
     s: &RaySamples,
     want: Want,
 ) -> Result<RayOut> {
+    let mut out = RayOut::default();
+    let v = bands(ctx, t, s, want, &mut out)?;
+    let b = Banded::from_values(t.layout, v).map_err(|e| Error::parameter(e.to_string()))?;
+    out.xyz = t
+        .weights
+        .xyz(&b)
+        .map_err(|e| Error::parameter(e.to_string()))?;
+    if want != Want::Xyz {
+        out.spectrum = Some(b.to_piecewise());
+    }
+    Ok(out)
+}
+
+/// The band values of the samples' light at the ray's near end (Algorithm 1), with the
+/// trace's steps in `out` for [`Want::Trace`].
+fn bands(
+    ctx: &Context<'_>,
+    t: &BandTables,
+    s: &RaySamples,
+    want: Want,
+    out: &mut RayOut,
+) -> Result<Vec<f64>> {
     let scene = ctx.scene;
     let f = scene.factors;
     let w = ctx.settings.line_width_nm;
@@ -182,20 +293,8 @@ pub(crate) fn integrate(
     let n = s.len();
     let nb = t.layout.bands();
     let mut v = vec![0.0; nb];
-    let mut out = RayOut::default();
     for j in 0..n {
-        // Trapezoid-rule weight of sample j along the ray.
-        let d_prev = if j > 0 {
-            f64::from(s.t[j - 1] - s.t[j]).abs()
-        } else {
-            0.0
-        };
-        let d_next = if j + 1 < n {
-            f64::from(s.t[j] - s.t[j + 1]).abs()
-        } else {
-            0.0
-        };
-        let wt = 0.5 * (d_prev + d_next);
+        let wt = weight(s, j);
         let sh = s.shift[j];
         let g = ctx.value_factor(sh) * sh;
         // Half of the sample's optical depth before its emission and half after (the
@@ -252,13 +351,5 @@ pub(crate) fn integrate(
             });
         }
     }
-    let b = Banded::from_values(t.layout, v).map_err(|e| Error::parameter(e.to_string()))?;
-    out.xyz = t
-        .weights
-        .xyz(&b)
-        .map_err(|e| Error::parameter(e.to_string()))?;
-    if want != Want::Xyz {
-        out.spectrum = Some(b.to_piecewise());
-    }
-    Ok(out)
+    Ok(v)
 }

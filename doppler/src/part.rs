@@ -8,7 +8,8 @@
 //! add. With absorption (piecewise-linear integrator) a segment's light is attenuated by the
 //! optical depth of everything in front of it, which is not a colour: the parts compose
 //! exactly in two steps. First each box gives the optical depth of its segments per pixel
-//! ([`optical_depth_part`], a piecewise-linear function of the wavelength, exact); an
+//! ([`optical_depth_part`], a piecewise-linear function of the wavelength, exact; for the
+//! banded integrators one constant per band, the exponents it attenuates by); an
 //! exclusive scan in visibility order sums the depths in front of each box
 //! ([`add_depths`]); then each box renders its segments behind that depth
 //! ([`render_doppler_part`] with `front`), with the closed-form integrals of the
@@ -16,6 +17,15 @@
 //! image up to rounding, and within the merge tolerance's bound of each (both are within
 //! `merge_tolerance` of the exact XYZ per channel times the unattenuated emission, so they
 //! differ by at most twice that).
+//!
+//! The banded integrators weigh each sample by the trapezoid rule and attenuate by half its
+//! depth before and half after its emission. A sample on a face between two boxes belongs
+//! to both, each with its one-sided weight: the light from behind crosses the same total
+//! depth, and the sample's emission adds up, but its own emission is attenuated by its own
+//! depth split differently (`e_A exp(-(w_A/2 + w_B) tau) + e_B exp(-w_B tau/2)` against
+//! `(e_A + e_B) exp(-(w_A + w_B) tau / 2)`). The composite therefore differs from the single
+//! process by at most the face samples' emission times `1 - exp(-w tau)`: second order in
+//! the step, it vanishes as the step shrinks.
 
 use blueshift_camera::{ClipBox, Observer, Progress, Silent};
 use blueshift_spectrum::Piece;
@@ -28,12 +38,12 @@ use crate::render::{
 use crate::{DopplerScene, Error, Result};
 
 /// The XYZ image of the segments inside `clip` (see the module docs). `front`, one entry
-/// per pixel (row-major): the optical depth in front of the box along that pixel's ray, for
-/// scenes that absorb (the piecewise-linear integrator; `None` is no depth in front).
+/// per pixel (row-major): the optical depth in front of the box along that pixel's ray
+/// ([`optical_depth_part`] of the boxes in front, summed), for scenes that absorb (`None`
+/// is no depth in front).
 ///
 /// # Errors
-/// As [`crate::render_doppler`]; [`Error::Parameter`] for a banded integrator on an
-/// absorbing scene (its partial images do not compose) or a `front` of the wrong length.
+/// As [`crate::render_doppler`]; [`Error::Parameter`] for a `front` of the wrong length.
 pub fn render_doppler_part(
     scene: &DopplerScene,
     settings: &DopplerSettings,
@@ -67,16 +77,6 @@ pub fn render_doppler_part_observed(
         )));
     }
     let absorbing = ctx.absorbing;
-    let tables = match (&ctx.pwl, absorbing) {
-        (Some(t), true) => Some(t),
-        (None, true) => {
-            return Err(Error::parameter(
-                "distributed rendering of an absorbing scene needs the piecewise-linear \
-                 integrator (banded partial images do not compose)",
-            ));
-        }
-        _ => None,
-    };
     let done = std::sync::atomic::AtomicU64::new(0);
     let rows: Vec<Result<Vec<crate::render::RayOut>>> = (0..h)
         .into_par_iter()
@@ -87,10 +87,13 @@ pub fn render_doppler_part_observed(
             let mut outs = Vec::with_capacity(w as usize);
             for x in 0..w {
                 let s = ctx.sample(&pixel_ray(settings, x, y)?)?;
-                let out = match tables {
-                    Some(t) if s.len() >= 2 => {
-                        let f = front.map_or(&[][..], |f| &f[(y * w + x) as usize][..]);
+                let f = front.map_or(&[][..], |f| &f[(y * w + x) as usize][..]);
+                let out = match (&ctx.pwl, &ctx.banded) {
+                    (Some(t), _) if absorbing && s.len() >= 2 => {
                         crate::front::front_to_back_behind(&ctx, t, &s, f)?
+                    }
+                    (None, Some(t)) if absorbing && s.len() >= 2 => {
+                        crate::banded::integrate_behind(&ctx, t, &s, f)?
                     }
                     _ => integrate_samples(&ctx, &s, Want::Xyz)?,
                 };
@@ -152,7 +155,10 @@ pub fn optical_depth_part(
             (0..w)
                 .map(|x| {
                     let s = ctx.sample(&pixel_ray(settings, x, y)?)?;
-                    crate::front::total_depth(&ctx, &s)
+                    match &ctx.banded {
+                        Some(t) if ctx.pwl.is_none() => Ok(crate::banded::total_depth(&ctx, t, &s)),
+                        _ => crate::front::total_depth(&ctx, &s),
+                    }
                 })
                 .collect()
         })
