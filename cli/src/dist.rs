@@ -153,7 +153,8 @@ fn name(m: Mode) -> &'static str {
     }
 }
 
-/// A tracking render (`data`, `samples` or `tiles`): rank 0 gets the accumulation.
+/// A tracking render (`data`: the marcher composited, Woodcock with rays forwarded;
+/// `samples` or `tiles`: any integrator): rank 0 gets the accumulation.
 pub fn tracking(
     mode: Mode,
     mut scene: blueshift_tracking::Scene,
@@ -171,7 +172,15 @@ pub fn tracking(
                 let f = factors(compositing, c.size())?;
                 let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
                     .map_err(|e| anyhow::anyhow!("{e}"))?;
-                render_marcher_data(c, &mut scene, integrator, settings, &d)
+                if let blueshift_tracking::Integrator::Woodcock { .. } = integrator {
+                    // Rays forwarded between the pieces (barney's approach).
+                    blueshift_dist::forward::render_woodcock_forwarded(
+                        c, &scene, integrator, settings, &d,
+                    )
+                    .map(|(img, _)| img)
+                } else {
+                    render_marcher_data(c, &mut scene, integrator, settings, &d)
+                }
             }
             Mode::Frames => return Ok(None),
         };

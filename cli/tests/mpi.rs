@@ -162,6 +162,31 @@ fn distributed_tracking_matches_the_single_process_render() {
         let got = common::read_exr(&d.join(&out));
         assert_eq!(got.as_raw(), want.as_raw(), "-np {n} {mode}");
     }
+    // Woodcock data-parallel, rays forwarded between the pieces: bit for bit at the seed.
+    let woodcock = [
+        "--method",
+        "woodcock",
+        "--density-scale",
+        "4",
+        "--spp",
+        "4",
+        "--seed",
+        "5",
+    ];
+    let mut a = with(&woodcock);
+    a.extend(["--out", "wc.exr"]);
+    ok(&single(&a, d), "single woodcock");
+    let want = common::read_exr(&d.join("wc.exr"));
+    for n in [2, 3] {
+        let out = format!("wc{n}.exr");
+        let mut a = with(&woodcock);
+        a.extend(["--distributed", "data", "--out", &out]);
+        let (o, in_time) = mpi(n, &a, d, 120);
+        assert!(in_time, "mpirun -np {n} woodcock data hung");
+        ok(&o, &format!("-np {n} woodcock data"));
+        let got = common::read_exr(&d.join(&out));
+        assert_eq!(got.as_raw(), want.as_raw(), "-np {n} woodcock data");
+    }
 }
 
 #[test]

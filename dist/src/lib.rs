@@ -14,6 +14,8 @@
 //!   a cost model ([`cost`]) of messages and bytes;
 //! - renders ([`render`]): data-parallel marcher and Doppler, sample-parallel and
 //!   tile-parallel Monte Carlo (bit-identical to the single process), frame farming;
+//! - data-parallel Woodcock tracking with rays forwarded between ranks ([`forward`]),
+//!   bit-identical to the single process;
 //! - communicators: the [`Communicator`] trait, in process over threads ([`ThreadWorld`],
 //!   used by the tests and benchmarks), counted ([`Counting`]), and MPI (rsmpi) behind the
 //!   `mpi` feature (`mpi::MpiComm`), so the default build needs no MPI library.
@@ -22,6 +24,7 @@ pub mod comm;
 pub mod composite;
 pub mod decomp;
 mod error;
+pub mod forward;
 #[cfg(feature = "mpi")]
 pub mod mpi;
 pub mod render;

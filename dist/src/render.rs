@@ -91,6 +91,16 @@ fn check_tracking(settings: &RenderSettings) -> Result<()> {
     Ok(())
 }
 
+/// [`prepare`] on this rank alone (its caller agrees on the outcome).
+pub(crate) fn prepare_local(
+    scene: &Scene,
+    integrator: &Integrator,
+    settings: &RenderSettings,
+) -> Result<Integrator> {
+    check_tracking(settings)?;
+    Ok(integrator.prepared(scene)?.prepared(scene)?)
+}
+
 /// Checks the settings and prepares the integrator as the render loop does (twice: the loop
 /// prepares it once more, and that is kept for its bits), every rank agreeing on the outcome.
 fn prepare(
@@ -303,8 +313,9 @@ pub fn render_marcher_data(
         }
         if !matches!(integrator, Integrator::Marcher(_)) {
             return Err(Error::parameter(
-                "data-parallel tracking renders the ray marcher only; use --distributed \
-                 samples or tiles for the trackers",
+                "data-parallel tracking renders the ray marcher (composited) and Woodcock \
+                 (rays forwarded: forward::render_woodcock_forwarded); use --distributed \
+                 samples or tiles for MDWT",
             ));
         }
         let saved = scene.clip.take();

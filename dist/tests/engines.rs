@@ -646,3 +646,84 @@ fn data_parallel_banded_absorption_converges_to_the_single_process() {
         );
     }
 }
+
+/// Data-parallel Woodcock with rays forwarded between ranks: the image (mean and variance)
+/// is the single-process render's bit for bit at the same seed, for 1 to 4 ranks, views
+/// along each axis both ways and an oblique one, orthographic and perspective, with
+/// emission-absorption and with gradient shading (no shadows); rays do cross pieces (the
+/// forwarded count is positive with 2 or more ranks). Shadows and other trackers are
+/// refused with one message.
+#[test]
+fn forwarded_woodcock_is_bit_identical() {
+    use blueshift_dist::forward::render_woodcock_forwarded;
+    let mut scene = three_cubes(16, 6.0);
+    let geom = *scene.geometry();
+    let (lo, hi) = scene.bounds();
+    for shading in [false, true] {
+        scene.shading = shading.then(|| blueshift_tracking::Shading {
+            materials: Vec::new(),
+            shadows: false,
+        });
+        // Rays crossing between pieces, per rank count, over all views: a view along
+        // the split axis forwards every ray; one across it may forward none.
+        let mut crossed = [0u64; 5];
+        for orthographic in [true, false] {
+            for camera in views(lo, hi, orthographic) {
+                let mut s = RenderSettings::default_for(&scene, 10, 8, false);
+                s.camera = camera;
+                s.spp = 3;
+                s.seed = 77;
+                let integ = Integrator::Woodcock { channel: 1 };
+                let single = render_progressive(&scene, &integ, &s, |_, _| {}).unwrap();
+                for n in 1..=4 {
+                    let d = decomposition(&geom, n);
+                    let got = ThreadWorld::run(n, |c| {
+                        render_woodcock_forwarded(&c, &scene, &integ, &s, &d).unwrap()
+                    });
+                    let img = got[0].0.as_ref().unwrap();
+                    assert_eq!(
+                        img.mean_image().as_raw(),
+                        single.mean_image().as_raw(),
+                        "n {n} {camera:?} shading {shading}"
+                    );
+                    assert_eq!(img.noise(), single.noise());
+                    let forwarded: u64 = got.iter().map(|g| g.1.forwarded).sum();
+                    let finished: u64 = got.iter().map(|g| g.1.finished).sum();
+                    assert!(finished <= 10 * 8 * 3);
+                    assert!(finished > 0);
+                    crossed[n] += forwarded;
+                }
+            }
+        }
+        assert_eq!(crossed[1], 0);
+        for (n, c) in crossed.iter().enumerate().skip(2) {
+            assert!(
+                *c > 0,
+                "{n} ranks, shading {shading}: no ray crossed a piece"
+            );
+        }
+    }
+    // Refusals, from rank 0 only.
+    let d = decomposition(&geom, 2);
+    let s = RenderSettings::default_for(&scene, 4, 4, false);
+    let mdwt = Integrator::Mdwt {
+        dda: DdaMode::OneDda,
+        blend: Blend::Density,
+    };
+    let got = ThreadWorld::run(2, |c| {
+        render_woodcock_forwarded(&c, &scene, &mdwt, &s, &d).map(|_| ())
+    });
+    assert!(matches!(&got[0], Err(e) if e.to_string().contains("woodcock")));
+    assert!(matches!(&got[1], Err(blueshift_dist::Error::PeerFailed(_))));
+    scene.shading = Some(blueshift_tracking::Shading::default());
+    scene.light = Some(blueshift_tracking::DirectionalLight {
+        direction: Vec3::Y,
+        radiance: [1.0; 3],
+        ambient: 0.1,
+    });
+    let integ = Integrator::Woodcock { channel: 0 };
+    let got = ThreadWorld::run(2, |c| {
+        render_woodcock_forwarded(&c, &scene, &integ, &s, &d).map(|_| ())
+    });
+    assert!(matches!(&got[0], Err(e) if e.to_string().contains("shadow")));
+}

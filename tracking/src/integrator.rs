@@ -672,29 +672,111 @@ fn background(scene: &Scene) -> [f32; 4] {
 
 /// Woodcock tracking of channel `n` alone (MDWT Listings 1-2).
 fn woodcock(scene: &Scene, n: usize, ray: &Ray, rng: &mut Rng, stats: &mut RayStats) -> [f32; 4] {
+    match woodcock_walk(scene, n, ray, rng, None, |_| true, stats) {
+        WalkStop::Done(v) => v,
+        WalkStop::Left { .. } => background(scene),
+    }
+}
+
+/// Where a resumable Woodcock walk ([`woodcock_walk`]) stopped.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum WalkStop {
+    /// The sample's radiance: the real collision shaded, or the background.
+    Done([f32; 4]),
+    /// A tentative collision at ray parameter `t` (world point `p`) outside the region the
+    /// walk was given: the random stream stands just after the distance that reached it, so
+    /// whoever holds the data there continues with `pending = Some(t)`.
+    Left {
+        /// Ray parameter.
+        t: f32,
+        /// World position.
+        p: Vec3,
+    },
+}
+
+/// Woodcock tracking of channel `n` ([`Integrator::Woodcock`]) that stops at the first
+/// tentative collision outside the points `inside` accepts: the walk of data-parallel
+/// tracking, where each rank holds a piece of the volume and forwards the ray to the rank
+/// that holds the next tentative collision (as Wald et al.'s barney does).
+///
+/// `pending = Some(t)` resumes a walk that stopped with [`WalkStop::Left`] at `t`, with
+/// `rng` restored to where it stood then: the majorant segments are recomputed from the
+/// ray, the one holding `t` is found, the collision at `t` is tested and the walk goes
+/// on. A walk stopped and resumed any number of times draws the same numbers and returns
+/// the same value, bit for bit, as one walk with `inside` always true (which is what
+/// [`Integrator::Woodcock`] runs). Shading at the collision (gradients, shadow rays)
+/// samples the scene wherever it needs to.
+pub fn woodcock_walk(
+    scene: &Scene,
+    n: usize,
+    ray: &Ray,
+    rng: &mut Rng,
+    pending: Option<f32>,
+    inside: impl Fn(Vec3) -> bool,
+    stats: &mut RayStats,
+) -> WalkStop {
+    if n >= scene.channel_count() {
+        return WalkStop::Done(background(scene));
+    }
     let grid = scene.channels()[n].majorant();
-    let mut hit: Option<Hit> = None;
     let t0 = stats.tentative;
-    let _ = sample_t_maj_counted(grid, ray, f32::INFINITY, rng, stats, |rng, ev| {
-        let (s, c) = scene.sample(n, ev.p);
-        if rng.uniform() * ev.sigma_maj < s {
-            hit = Some(Hit {
-                p: ev.p,
-                channel: n,
-                colour: c,
-            });
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
+    let mut resume = pending;
+    let mut hit: Option<Hit> = None;
+    'segments: for seg in DdaMajorantIterator::new(grid, ray, f32::INFINITY) {
+        if resume.is_some_and(|t| seg.t_max <= t) {
+            continue;
         }
-    });
-    stats.rejections += stats.tentative - t0 - u32::from(hit.is_some());
-    match hit {
+        stats.cells += 1;
+        if seg.sigma_maj <= 0.0 {
+            continue;
+        }
+        let mut t = seg.t_min;
+        let mut at = resume.take();
+        loop {
+            t = match at.take() {
+                Some(t) => t,
+                None => {
+                    let next = advance(t, rng.exponential(seg.sigma_maj));
+                    if next >= seg.t_max {
+                        break;
+                    }
+                    stats.tentative += 1;
+                    next
+                }
+            };
+            let p = ray.at(t);
+            if !inside(p) {
+                return WalkStop::Left { t, p };
+            }
+            let (s, c) = scene.sample(n, p);
+            if rng.uniform() * seg.sigma_maj < s {
+                hit = Some(Hit {
+                    p,
+                    channel: n,
+                    colour: c,
+                });
+                break 'segments;
+            }
+        }
+    }
+    stats.rejections += (stats.tentative - t0).saturating_sub(u32::from(hit.is_some()));
+    WalkStop::Done(match hit {
         None => background(scene),
         Some(h) => {
             let [r, g, b] = shade(scene, &h, ray, rng, grid, |q| scene.sample(n, q).0);
             [r, g, b, 1.0]
         }
+    })
+}
+
+/// Whether shading a real collision of `scene` traces shadow rays (which cross the whole
+/// volume, not only the piece around the collision).
+#[must_use]
+pub fn traces_shadows(scene: &Scene) -> bool {
+    match (&scene.shading, &scene.light) {
+        (None, Some(_)) => true,
+        (Some(sh), Some(_)) => sh.shadows,
+        _ => false,
     }
 }
 

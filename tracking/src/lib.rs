@@ -63,12 +63,12 @@ pub use dda::{CellLayout, Dda, DdaCell, DdaMajorantIterator, MajorantSegment};
 pub use error::{Error, Result};
 pub use integrator::{
     Blend, BlendKind, DdaMode, Integrator, Method, Precision, RayMarcher, RayStats,
-    TentativeCollision, sample_t_maj,
+    TentativeCollision, WalkStop, sample_t_maj, traces_shadows, woodcock_walk,
 };
 pub use majorant::MajorantGrid;
 pub use render::{
-    FrameTimes, HeatMap, Progressive, RenderSettings, TrackingOutput, pixel_sample, render,
-    render_progressive, render_timed, welford_add,
+    FrameTimes, HeatMap, Progressive, RenderSettings, TrackingOutput, observed, pixel_sample,
+    primary_ray, render, render_progressive, render_timed, welford_add,
 };
 pub use rng::Rng;
 pub use scene::{DirectionalLight, Scene, SceneChannel};

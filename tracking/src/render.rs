@@ -5,7 +5,7 @@ use blueshift_camera::{Observer, Progress, Silent};
 use image::Rgba32FImage;
 use rayon::prelude::*;
 
-use crate::Camera;
+use crate::{Camera, Ray};
 use blueshift_relativity::MovingObserver;
 use std::time::Instant;
 
@@ -124,6 +124,21 @@ pub fn pixel_sample(
     sample: u32,
     stats: &mut RayStats,
 ) -> [f32; 4] {
+    let (ray, mut rng) = primary_ray(settings, observer, (x, y), sample);
+    let v = integrator.li_with_stats(scene, &ray, &mut rng, stats);
+    observed(observer, &ray, v)
+}
+
+/// The camera ray of sample `sample` of pixel `(x, y)` (jittered when the settings say so,
+/// aberrated into the scene's frame by a moving `observer`) and the random stream after
+/// the jitter: where [`pixel_sample`] starts the integrator.
+#[must_use]
+pub fn primary_ray(
+    settings: &RenderSettings,
+    observer: Option<&MovingObserver>,
+    (x, y): (u32, u32),
+    sample: u32,
+) -> (Ray, Rng) {
     let (width, height) = (settings.width, settings.height);
     let pixel = u64::from(y) * u64::from(width) + u64::from(x);
     let mut rng = Rng::new(settings.seed, pixel, u64::from(sample));
@@ -138,7 +153,13 @@ pub fn pixel_sample(
     if let Some(o) = observer {
         ray.dir = o.scene_direction(ray.dir);
     }
-    let mut v = integrator.li_with_stats(scene, &ray, &mut rng, stats);
+    (ray, rng)
+}
+
+/// A sample's radiance `v` along `ray` as a moving `observer` sees it (Doppler and
+/// searchlight; unchanged for `None`): where [`pixel_sample`] ends.
+#[must_use]
+pub fn observed(observer: Option<&MovingObserver>, ray: &Ray, mut v: [f32; 4]) -> [f32; 4] {
     if let Some(o) = observer {
         let rgb = o.shift_rgb(ray.dir.normalize(), [v[0], v[1], v[2]]);
         v[..3].copy_from_slice(&rgb);

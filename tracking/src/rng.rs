@@ -71,4 +71,11 @@ impl Rng {
     pub fn dimension(&self) -> u64 {
         self.dim
     }
+
+    /// Moves the stream to dimension `dim` (what [`Rng::dimension`] said when the stream
+    /// was handed on): a stream rebuilt with the same seed, pixel and sample and moved
+    /// there draws what the original would have drawn next.
+    pub fn set_dimension(&mut self, dim: u64) {
+        self.dim = dim;
+    }
 }
