@@ -187,6 +187,48 @@ fn distributed_tracking_matches_the_single_process_render() {
         let got = common::read_exr(&d.join(&out));
         assert_eq!(got.as_raw(), want.as_raw(), "-np {n} woodcock data");
     }
+    // Frame farming of a time series: three snapshots over 2 ranks, the single process's
+    // frames byte for byte.
+    for s in 1..=3 {
+        let name = format!("t{s}.nrrd");
+        let seed = s.to_string();
+        let a = ["synth", "turbulence", &name, "--res", "12", "--seed", &seed];
+        ok(&single(&a, d), "synth");
+    }
+    let series = [
+        "render",
+        "--tf",
+        "builtin:inferno",
+        "--tf-range",
+        "0:1",
+        "--method",
+        "marcher",
+        "--width",
+        "16",
+        "--height",
+        "12",
+        "--device",
+        "cpu",
+        "--series",
+        "t1.nrrd",
+        "t2.nrrd",
+        "t3.nrrd",
+    ];
+    let mut a = series.to_vec();
+    a.extend(["--out", "ts1.exr"]);
+    ok(&single(&a, d), "single series");
+    let mut a = series.to_vec();
+    a.extend(["--out", "ts2.exr", "--distributed", "frames"]);
+    let (o, in_time) = mpi(2, &a, d, 120);
+    assert!(in_time, "series frames hung");
+    ok(&o, "series frames");
+    for k in 0..3 {
+        assert_eq!(
+            std::fs::read(d.join(format!("ts2_{k:04}.exr"))).unwrap(),
+            std::fs::read(d.join(format!("ts1_{k:04}.exr"))).unwrap(),
+            "series frame {k}"
+        );
+    }
 }
 
 #[test]

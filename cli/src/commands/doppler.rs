@@ -28,6 +28,11 @@ pub struct Args {
     /// black body) and the factor flags override the file's factors.
     #[arg(long, conflicts_with_all = ["synth", "res"])]
     pub scene: Option<PathBuf>,
+    /// A time series of snapshots, one frame each (frame k written as STEM_kkkk.EXT for
+    /// every output): scene files, each the frame's --scene. `--distributed frames` spreads
+    /// the frames over the ranks.
+    #[arg(long, num_args = 1.., value_name = "SCENE", conflicts_with_all = ["scene", "synth", "res"])]
+    pub series: Vec<PathBuf>,
     /// Synthetic dataset: galaxy or shell.
     #[arg(long, default_value = "galaxy")]
     pub synth: String,
@@ -159,7 +164,7 @@ pub struct Args {
     /// `--cube` adds its channels the same way, each piece's spectrum attenuated by the depth
     /// in front of it), `tiles` (each rank
     /// renders a band of image rows: the single-process image or cube bit for bit, any
-    /// integrator, absorbing cubes included) or `frames` (the frames of `--ramp`, round
+    /// integrator, absorbing cubes included) or `frames` (the frames of `--series`, `--orbit` or `--ramp`, round
     /// robin; each rank writes its own). Rank 0 writes the outputs.
     #[arg(long, value_name = "MODE")]
     pub distributed: Option<String>,
@@ -653,7 +658,7 @@ pub fn run(args: Args) -> Result<()> {
     use blueshift_dist::Mode;
     // Doppler integrators are deterministic: no sample-parallel mode.
     crate::dist::check_mode(mode, &[Mode::Data, Mode::Tiles, Mode::Frames], "doppler")?;
-    use super::observer_args::{frame_path, run_frames};
+    use super::observer_args::{Series, frame_path, run_frames};
     let outputs = |a: &mut Args, k: usize| {
         a.out = frame_path(&a.out, k);
         a.figure = a.figure.as_deref().map(|p| frame_path(p, k));
@@ -667,8 +672,17 @@ pub fn run(args: Args) -> Result<()> {
         run_frame(a)
     };
     let keep = |k| crate::dist::keeps_frame(mode, k);
+    let input = |a: &mut Args, p: &Path| -> Result<()> {
+        a.scene = Some(p.to_path_buf());
+        Ok(())
+    };
+    let series = Series {
+        paths: &args.series,
+        input: &input,
+    };
     if run_frames(
         &args,
+        &series,
         |a| &mut a.view,
         |a| &mut a.observer,
         outputs,
@@ -678,7 +692,7 @@ pub fn run(args: Args) -> Result<()> {
         return Ok(());
     }
     if mode == Some(Mode::Frames) {
-        bail!("--distributed frames: spreads the frames of --ramp or --orbit; give one");
+        bail!("--distributed frames: spreads the frames of --series, --orbit or --ramp; give one");
     }
     run_frame(args)
 }

@@ -92,13 +92,31 @@ impl ObserverArgs {
     }
 }
 
-/// Runs the frame sequence of `--orbit` (a camera path) or `--ramp` (speeds), when one is
-/// given (`Ok(false)` when neither is; both at once is an error): `frame` once per frame on
-/// a copy of `args` whose outputs `outputs` renames for frame `k` ([`frame_path`]) and
-/// whose view is turned, or observer sped up, to that frame's value. Frames that `keep`
-/// declines (another rank's, under `--distributed frames`) are skipped.
+/// The inputs of one command's frame sequence: its time series of snapshots (`--series`)
+/// and how a snapshot becomes the frame's input.
+pub struct Series<'a, A> {
+    /// The snapshots, one frame each, in order.
+    pub paths: &'a [PathBuf],
+    /// Makes `path` the input of a copy of the arguments (the volume or the scene file).
+    pub input: &'a dyn Fn(&mut A, &Path) -> Result<()>,
+}
+
+/// One frame of a sequence: what changes from the arguments.
+enum FrameValue {
+    Orbit(f64),
+    Beta(f64),
+    Snapshot(PathBuf),
+}
+
+/// Runs the frame sequence of `--series` (a time series of snapshots), `--orbit` (a camera
+/// path) or `--ramp` (speeds), when one is given (`Ok(false)` when none is; two at once is
+/// an error): `frame` once per frame on a copy of `args` whose outputs `outputs` renames
+/// for frame `k` ([`frame_path`]) and whose input is that snapshot, or view turned, or
+/// observer sped up, to that frame's value. Frames that `keep` declines (another rank's,
+/// under `--distributed frames`) are skipped.
 pub fn run_frames<A: Clone>(
     args: &A,
+    series: &Series<'_, A>,
     view: impl Fn(&mut A) -> &mut super::view_args::ViewArgs,
     observer: impl Fn(&mut A) -> &mut ObserverArgs,
     outputs: impl Fn(&mut A, usize),
@@ -108,31 +126,54 @@ pub fn run_frames<A: Clone>(
     let mut probe = args.clone();
     let angles = view(&mut probe).orbit_angles()?;
     let speeds = observer(&mut probe).ramp_speeds()?;
-    let values = match (angles, speeds) {
-        (Some(_), Some(_)) => bail!("give one of --orbit and --ramp"),
-        (None, None) => return Ok(false),
-        (Some(a), None) => a
-            .into_iter()
-            .map(|d| (true, f64::from(d)))
-            .collect::<Vec<_>>(),
-        (None, Some(b)) => b.into_iter().map(|b| (false, b)).collect(),
+    let given = [angles.is_some(), speeds.is_some(), !series.paths.is_empty()];
+    if given.iter().filter(|g| **g).count() > 1 {
+        bail!("give one of --series, --orbit and --ramp");
+    }
+    let values: Vec<FrameValue> = if let Some(a) = angles {
+        a.into_iter()
+            .map(|d| FrameValue::Orbit(f64::from(d)))
+            .collect()
+    } else if let Some(b) = speeds {
+        b.into_iter().map(FrameValue::Beta).collect()
+    } else if !series.paths.is_empty() {
+        // A missing snapshot stops the run before any frame is written.
+        for p in series.paths {
+            if !p.exists() {
+                bail!("--series: {}: no such file", p.display());
+            }
+        }
+        series
+            .paths
+            .iter()
+            .map(|p| FrameValue::Snapshot(p.clone()))
+            .collect()
+    } else {
+        return Ok(false);
     };
-    for (k, (orbit, v)) in values.into_iter().enumerate() {
+    for (k, v) in values.into_iter().enumerate() {
         if !keep(k)? {
             continue;
         }
         let mut a = args.clone();
         outputs(&mut a, k);
-        if orbit {
-            let w = view(&mut a);
-            w.orbit = None;
-            w.orbit_deg = Some(v as f32);
-            eprintln!("frame {k}: orbit {v:.3} degrees");
-        } else {
-            let o = observer(&mut a);
-            o.ramp = None;
-            o.beta = Some(v);
-            eprintln!("frame {k}: beta {v:.4}");
+        match v {
+            FrameValue::Orbit(v) => {
+                let w = view(&mut a);
+                w.orbit = None;
+                w.orbit_deg = Some(v as f32);
+                eprintln!("frame {k}: orbit {v:.3} degrees");
+            }
+            FrameValue::Beta(v) => {
+                let o = observer(&mut a);
+                o.ramp = None;
+                o.beta = Some(v);
+                eprintln!("frame {k}: beta {v:.4}");
+            }
+            FrameValue::Snapshot(p) => {
+                (series.input)(&mut a, &p)?;
+                eprintln!("frame {k}: {}", p.display());
+            }
         }
         frame(a)?;
     }

@@ -27,6 +27,13 @@ pub struct Args {
     /// Volume file of a channel (repeat; pairs with --tf in order). Its first channel is used.
     #[arg(long = "volume")]
     pub volumes: Vec<PathBuf>,
+    /// A time series of snapshots, one frame each (frame k written as STEM_kkkk.EXT for
+    /// every output): volume files (each the one channel's --volume; raw, NRRD, .bsv, AMR
+    /// output, ...) or scene files (`.json`, each the frame's scene). Give --tf-range LO:HI
+    /// to keep one colour scale over the series. `--distributed frames` spreads the frames
+    /// over the ranks.
+    #[arg(long, num_args = 1.., value_name = "PATH", conflicts_with = "synth")]
+    pub series: Vec<PathBuf>,
     /// Synthetic dataset whose channels are all rendered (three-cubes, galaxy, channels12, ...).
     #[arg(long)]
     pub synth: Option<String>,
@@ -190,7 +197,7 @@ pub struct Args {
     #[arg(long, default_value = "cpu")]
     pub device: blueshift_gpu::DeviceChoice,
     /// Spread the render over the ranks of an MPI job (run under `mpirun -np N`; needs a
-    /// build with the `mpi` feature): `data` (the ray marcher: each rank marches its piece of a k-d split of the volume, composited sort-last), `samples` (each rank takes every N-th sample index: the image is the single-process image, bit for bit), `tiles` (bands of rows, also bit for bit), `frames` (the frames of `--ramp`, round robin; each rank writes its own). Rank 0 writes the outputs.
+    /// build with the `mpi` feature): `data` (a k-d split of the volume: the ray marcher marches each rank's piece, composited sort-last; Woodcock forwards each ray to the rank whose piece holds its next tentative collision, bit for bit), `samples` (each rank takes every N-th sample index: the image is the single-process image, bit for bit), `tiles` (bands of rows, also bit for bit), `frames` (the frames of `--series`, `--orbit` or `--ramp`, round robin; each rank writes its own). Rank 0 writes the outputs.
     #[arg(long, value_name = "MODE")]
     pub distributed: Option<String>,
     /// Compositing schedule of `--distributed data`: auto (binary swap for a power-of-two
@@ -398,7 +405,7 @@ pub fn run(args: Args) -> Result<()> {
         &[Mode::Data, Mode::Samples, Mode::Tiles, Mode::Frames],
         "render",
     )?;
-    use super::observer_args::{frame_path, run_frames};
+    use super::observer_args::{Series, frame_path, run_frames};
     let outputs = |a: &mut Args, k: usize| {
         a.out = frame_path(&a.out, k);
         a.png = a.png.as_deref().map(|p| frame_path(p, k));
@@ -411,8 +418,30 @@ pub fn run(args: Args) -> Result<()> {
         run_frame(a)
     };
     let keep = |k| crate::dist::keeps_frame(mode, k);
+    let input = |a: &mut Args, p: &Path| -> Result<()> {
+        if p.extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+        {
+            a.scene = Some(p.to_path_buf());
+        } else {
+            if a.volumes.len() > 1 {
+                bail!(
+                    "--series {}: a volume series replaces the one --volume; for several \
+                     channels give one scene file per snapshot",
+                    p.display()
+                );
+            }
+            a.volumes = vec![p.to_path_buf()];
+        }
+        Ok(())
+    };
+    let series = Series {
+        paths: &args.series,
+        input: &input,
+    };
     if run_frames(
         &args,
+        &series,
         |a| &mut a.view,
         |a| &mut a.observer,
         outputs,
@@ -422,7 +451,7 @@ pub fn run(args: Args) -> Result<()> {
         return Ok(());
     }
     if mode == Some(Mode::Frames) {
-        bail!("--distributed frames: spreads the frames of --ramp or --orbit; give one");
+        bail!("--distributed frames: spreads the frames of --series, --orbit or --ramp; give one");
     }
     run_frame(args)
 }
