@@ -603,6 +603,48 @@ fn assert_bricks_identical(
     compared
 }
 
+/// The stored macrocells of the finest level bound the reconstruction at every voxel of
+/// each macrocell lying in `r`.
+fn assert_macrocells_bound(h: &Hierarchy, values: &[Vec<f32>], r: &Region) {
+    let part = Arc::new(AmrField::new_within(h, info("g"), values.to_vec(), Some(*r)).unwrap());
+    let src = part.source();
+    let k = 4;
+    let cells = src.stored_macrocells(0, k).unwrap().unwrap();
+    let n = src.geometries()[0].dims;
+    let cell = h.cell_size(h.max_level());
+    let world = |v: [usize; 3]| {
+        h.domain_lo + (DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64) + 0.5) * cell
+    };
+    let mut checked = 0;
+    let d = cells.dims();
+    for mz in 0..d[2] {
+        for my in 0..d[1] {
+            for mx in 0..d[0] {
+                let m = [mx, my, mz];
+                let lo = m.map(|a| a * k);
+                let hi = [0, 1, 2].map(|a| (m[a] * k + k).min(n[a] - 1));
+                if !(r.contains(world(lo)) && r.contains(world(hi))) {
+                    continue;
+                }
+                let (min, max) = cells.min_max(m);
+                for z in lo[2]..=hi[2] {
+                    for y in lo[1]..=hi[1] {
+                        for x in lo[0]..=hi[0] {
+                            let v = part.sample(world([x, y, z]));
+                            assert!(
+                                v.is_nan() || (min <= v && v <= max),
+                                "{v} outside macrocell {m:?} [{min}, {max}]"
+                            );
+                        }
+                    }
+                }
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 0, "no macrocell inside {r:?}");
+}
+
 /// Synthetic hierarchy: halves along each axis read strictly fewer blocks than all, the
 /// union of their needed blocks is every block, and inside each half samples and bricks are
 /// bit-identical to the whole field's.
@@ -615,21 +657,29 @@ fn regions_read_only_their_blocks_and_sample_bit_identically() {
     assert_eq!(full.blocks_read(), total);
     let fine = h.cell_size(h.max_level()).x;
     let mut counts = Vec::new();
-    for axis in 0..3 {
-        let parts = halves(h.domain_lo, h.domain_hi, axis, 0.5);
+    // Splits on block faces, and within half a cell of a root, level-1 or level-2 block's
+    // face (where only that block's tents reach the region); halves at the middle read
+    // strictly fewer blocks than all.
+    for (axis, at) in (0..3).flat_map(|a| [0.5, 0.48, 0.52, 0.61, 0.745, 0.155].map(|t| (a, t))) {
+        let parts = halves(h.domain_lo, h.domain_hi, axis, at);
         let mut union = vec![false; total];
         for r in &parts {
             let part = AmrField::new_within(&h, info("g"), values.clone(), Some(*r)).unwrap();
             let needed = h.needed_blocks(Some(r));
             assert_eq!(part.blocks_read(), needed.iter().filter(|&&n| n).count());
-            assert!(part.blocks_read() < total, "axis {axis}: {r:?} reads all");
+            if (0.48..=0.52).contains(&at) {
+                assert!(part.blocks_read() < total, "axis {axis}: {r:?} reads all");
+            }
             for (i, u) in union.iter_mut().enumerate() {
                 assert_eq!(part.is_present(i), needed[i]);
                 assert_eq!(part.block_values(i).is_empty(), !needed[i]);
                 *u |= part.is_present(i);
             }
-            counts.push(part.blocks_read());
+            if at == 0.5 {
+                counts.push(part.blocks_read());
+            }
             assert_samples_identical(&full, &part, r, fine);
+            assert_macrocells_bound(&h, &values, r);
         }
         assert!(
             union.iter().all(|&u| u),
