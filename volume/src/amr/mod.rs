@@ -32,6 +32,14 @@
 //! and the clump at level 7 is read at level 7: nothing is resampled to one resolution.
 //! The stored macrocells bound the reconstruction from the leaf cells directly, so a
 //! majorant grid never needs a dense pass.
+//!
+//! # Reading a region
+//!
+//! One rank of a data-parallel render samples only a box ([`Region`]: its piece plus a
+//! ghost layer). [`Hierarchy::field_within`] reads just the blocks whose tents, grown by one
+//! root cell, reach that box; the others are absent and never evaluated, so inside the box
+//! samples and bricks are bit-identical to the whole field's. [`open_field_within`] reduces
+//! the ranks' [`AmrStats`] collectively so that every rank serves the whole field's.
 
 mod athena;
 mod enzo;
