@@ -6,8 +6,10 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use blueshift_volume::amr::{AmrField, Block, Hierarchy, is_amr};
-use blueshift_volume::{BrickCache, BrickedField, Field, Geometry, Grid, Limits};
+use blueshift_volume::amr::{
+    AmrField, AmrStats, Block, FieldInfo, Hierarchy, Region, is_amr, open_field_within,
+};
+use blueshift_volume::{BrickCache, BrickedField, Error, Field, Geometry, Grid, Limits};
 use glam::{DVec3, Vec3};
 
 fn data(rel: &str) -> PathBuf {
@@ -455,4 +457,498 @@ fn bad_amr_files_are_clean_errors() {
                 .is_err()
         );
     }
+}
+
+// Distributed reading: each rank reads only the blocks its region needs.
+
+fn info(name: &str) -> FieldInfo {
+    FieldInfo {
+        name: name.into(),
+        unit: "code".into(),
+        to_unit: 1.0,
+    }
+}
+
+/// A three-level hierarchy of 70 blocks: a 16^3 root grid in 64 blocks of 4^3, four
+/// level-1 and two level-2 blocks (nested), a smooth field of both signs, one NaN in a
+/// covered root cell. Returns the hierarchy and every block's values.
+fn many_blocks() -> (Hierarchy, Vec<Vec<f32>>) {
+    let mut blocks = Vec::new();
+    for z in 0..4 {
+        for y in 0..4 {
+            for x in 0..4 {
+                blocks.push(Block {
+                    level: 0,
+                    lo: [4 * x, 4 * y, 4 * z],
+                    dims: [4, 4, 4],
+                });
+            }
+        }
+    }
+    for (level, lo, dims) in [
+        (1, [4, 4, 4], [4, 4, 4]),
+        (1, [8, 4, 4], [4, 4, 4]),
+        (1, [24, 20, 24], [4, 4, 8]),
+        (1, [20, 20, 8], [4, 4, 4]),
+        (2, [10, 10, 10], [6, 6, 6]),
+        (2, [48, 40, 52], [8, 8, 8]),
+    ] {
+        blocks.push(Block { level, lo, dims });
+    }
+    let h = Hierarchy::new(DVec3::ZERO, DVec3::ONE, [16, 16, 16], 2, blocks).unwrap();
+    let g = |p: DVec3| (5.0 * p.x).sin() + (3.0 * p.y).cos() + p.z - 0.5;
+    let mut values: Vec<Vec<f32>> = h
+        .blocks
+        .iter()
+        .map(|b| cells(b).map(|c| g(centre(&h, b, c)) as f32).collect())
+        .collect();
+    // Root cell (3, 3, 3) lies under the first level-1 block: covered, never sampled.
+    values[0][3 + 4 * (3 + 4 * 3)] = f32::NAN;
+    (h, values)
+}
+
+/// The two halves of the unit domain along `axis`, split at `at`.
+fn halves(lo: DVec3, hi: DVec3, axis: usize, at: f64) -> [Region; 2] {
+    let mut a = Region::new(lo, hi);
+    let mut b = a;
+    a.hi[axis] = at;
+    b.lo[axis] = at;
+    [a, b]
+}
+
+/// Deterministic points in `r`: random ones, ones on its faces and corners, and ones within
+/// one voxel of size `fine` of its faces.
+fn points_in(r: &Region, fine: f64, n: usize, seed: u64) -> Vec<DVec3> {
+    let mut rng = seed;
+    let mut next = || {
+        rng = rng.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        (rng >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let size = r.hi - r.lo;
+    let mut out = Vec::new();
+    for corner in 0..8 {
+        out.push(DVec3::new(
+            if corner & 1 == 0 { r.lo.x } else { r.hi.x },
+            if corner & 2 == 0 { r.lo.y } else { r.hi.y },
+            if corner & 4 == 0 { r.lo.z } else { r.hi.z },
+        ));
+    }
+    for i in 0..n {
+        let mut p = r.lo + DVec3::new(next(), next(), next()) * size;
+        let axis = i % 3;
+        match (i / 3) % 5 {
+            0 => p[axis] = r.lo[axis],
+            1 => p[axis] = r.hi[axis],
+            2 => p[axis] = (r.lo[axis] + next() * fine).min(r.hi[axis]),
+            3 => p[axis] = (r.hi[axis] - next() * fine).max(r.lo[axis]),
+            _ => {}
+        }
+        assert!(r.contains(p), "{p} outside {r:?}");
+        out.push(p);
+    }
+    out
+}
+
+fn assert_samples_identical(full: &AmrField, part: &AmrField, r: &Region, fine: f64) {
+    for p in points_in(r, fine, 3000, 7) {
+        assert_eq!(
+            part.sample(p).to_bits(),
+            full.sample(p).to_bits(),
+            "{p} in {r:?}: {} vs {}",
+            part.sample(p),
+            full.sample(p)
+        );
+    }
+}
+
+/// Compares every brick (all levels) whose stored voxels lie in `r`; returns how many.
+fn assert_bricks_identical(
+    h: &Hierarchy,
+    full: &Arc<AmrField>,
+    part: &Arc<AmrField>,
+    r: &Region,
+) -> usize {
+    let (fs, ps) = (full.source(), part.source());
+    let layout = fs.layout();
+    let (b, s) = (layout.brick, layout.stored_edge());
+    let mut compared = 0;
+    for (j, g) in fs.geometries().iter().enumerate() {
+        let n = layout.bricks(g.dims);
+        // The exact voxel centres, as the source computes them.
+        let cell = h.cell_size(h.max_level() - j as u32);
+        for idx in 0..(n[0] * n[1] * n[2]) {
+            let bi = [idx % n[0], (idx / n[0]) % n[1], idx / (n[0] * n[1])];
+            let inside = (0..3).all(|a| {
+                let v0 = (bi[a] * b) as i64 - 1;
+                let v1 = v0 + s as i64 - 1;
+                let c = |v: i64| {
+                    h.domain_lo[a] + (v.clamp(0, g.dims[a] as i64 - 1) as f64 + 0.5) * cell[a]
+                };
+                c(v0) >= r.lo[a] && c(v1) <= r.hi[a]
+            });
+            if !inside {
+                continue;
+            }
+            let want = fs.read_brick(j, idx as u64).unwrap();
+            let got = ps.read_brick(j, idx as u64).unwrap();
+            assert!(
+                want.iter()
+                    .zip(&got)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "level {j} brick {idx} differs in {r:?}"
+            );
+            compared += 1;
+        }
+    }
+    compared
+}
+
+/// The stored macrocells of the finest level bound the reconstruction at every voxel of
+/// each macrocell lying in `r`.
+fn assert_macrocells_bound(h: &Hierarchy, values: &[Vec<f32>], r: &Region) {
+    let part = Arc::new(AmrField::new_within(h, info("g"), values.to_vec(), Some(*r)).unwrap());
+    let src = part.source();
+    let k = 4;
+    let cells = src.stored_macrocells(0, k).unwrap().unwrap();
+    let n = src.geometries()[0].dims;
+    let cell = h.cell_size(h.max_level());
+    let world = |v: [usize; 3]| {
+        h.domain_lo + (DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64) + 0.5) * cell
+    };
+    let mut checked = 0;
+    let d = cells.dims();
+    for mz in 0..d[2] {
+        for my in 0..d[1] {
+            for mx in 0..d[0] {
+                let m = [mx, my, mz];
+                let lo = m.map(|a| a * k);
+                let hi = [0, 1, 2].map(|a| (m[a] * k + k).min(n[a] - 1));
+                if !(r.contains(world(lo)) && r.contains(world(hi))) {
+                    continue;
+                }
+                let (min, max) = cells.min_max(m);
+                for z in lo[2]..=hi[2] {
+                    for y in lo[1]..=hi[1] {
+                        for x in lo[0]..=hi[0] {
+                            let v = part.sample(world([x, y, z]));
+                            assert!(
+                                v.is_nan() || (min <= v && v <= max),
+                                "{v} outside macrocell {m:?} [{min}, {max}]"
+                            );
+                        }
+                    }
+                }
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 0, "no macrocell inside {r:?}");
+}
+
+/// Synthetic hierarchy: halves along each axis read strictly fewer blocks than all, the
+/// union of their needed blocks is every block, and inside each half samples and bricks are
+/// bit-identical to the whole field's.
+#[test]
+fn regions_read_only_their_blocks_and_sample_bit_identically() {
+    let (h, values) = many_blocks();
+    let total = h.blocks.len();
+    assert_eq!(total, 70);
+    let full = Arc::new(AmrField::new(&h, info("g"), values.clone()).unwrap());
+    assert_eq!(full.blocks_read(), total);
+    let fine = h.cell_size(h.max_level()).x;
+    let mut counts = Vec::new();
+    // Splits on block faces, and within half a cell of a root, level-1 or level-2 block's
+    // face (where only that block's tents reach the region); halves at the middle read
+    // strictly fewer blocks than all.
+    for (axis, at) in (0..3).flat_map(|a| [0.5, 0.48, 0.52, 0.61, 0.745, 0.155].map(|t| (a, t))) {
+        let parts = halves(h.domain_lo, h.domain_hi, axis, at);
+        let mut union = vec![false; total];
+        for r in &parts {
+            let part = AmrField::new_within(&h, info("g"), values.clone(), Some(*r)).unwrap();
+            let needed = h.needed_blocks(Some(r));
+            assert_eq!(part.blocks_read(), needed.iter().filter(|&&n| n).count());
+            if (0.48..=0.52).contains(&at) {
+                assert!(part.blocks_read() < total, "axis {axis}: {r:?} reads all");
+            }
+            for (i, u) in union.iter_mut().enumerate() {
+                assert_eq!(part.is_present(i), needed[i]);
+                assert_eq!(part.block_values(i).is_empty(), !needed[i]);
+                *u |= part.is_present(i);
+            }
+            if at == 0.5 {
+                counts.push(part.blocks_read());
+            }
+            assert_samples_identical(&full, &part, r, fine);
+            assert_macrocells_bound(&h, &values, r);
+        }
+        assert!(
+            union.iter().all(|&u| u),
+            "axis {axis}: a block nobody reads"
+        );
+    }
+    // Overlapping halves (a k-d split plus a ghost layer) hold whole finest bricks.
+    let mut bricks = 0;
+    for axis in 0..3 {
+        let [a, _] = halves(h.domain_lo, h.domain_hi, axis, 0.55);
+        let [_, b] = halves(h.domain_lo, h.domain_hi, axis, 0.45);
+        for r in [a, b] {
+            let part =
+                Arc::new(AmrField::new_within(&h, info("g"), values.clone(), Some(r)).unwrap());
+            assert!(part.blocks_read() < total);
+            assert_samples_identical(&full, &part, &r, fine);
+            bricks += assert_bricks_identical(&h, &full, &part, &r);
+        }
+    }
+    assert!(bricks >= 24, "{bricks} bricks compared");
+    eprintln!("synthetic halves read {counts:?} of {total} blocks; {bricks} bricks compared");
+}
+
+/// A uneven partition into 8 boxes: the combined statistics of the restricted fields are
+/// the whole field's (the duplicated NaN counted more than once, never zero).
+#[test]
+fn combined_region_stats_equal_the_whole_fields() {
+    let (h, values) = many_blocks();
+    let full = AmrField::new(&h, info("g"), values.clone()).unwrap();
+    let whole = full.stats();
+    assert_eq!(whole.non_finite, 1);
+    assert!(whole.range.is_some_and(|(a, b)| a < 0.0 && b > 0.0));
+    for cut in [
+        DVec3::splat(0.5),
+        DVec3::new(0.3, 0.6, 0.45),
+        DVec3::splat(0.9),
+    ] {
+        let mut acc = AmrStats::default();
+        for k in 0..8 {
+            let pick = |a: usize| {
+                if k >> a & 1 == 0 {
+                    (h.domain_lo[a], cut[a])
+                } else {
+                    (cut[a], h.domain_hi[a])
+                }
+            };
+            let (x, y, z) = (pick(0), pick(1), pick(2));
+            let r = Region::new(DVec3::new(x.0, y.0, z.0), DVec3::new(x.1, y.1, z.1));
+            let part = AmrField::new_within(&h, info("g"), values.clone(), Some(r)).unwrap();
+            acc = AmrStats::combine(acc, part.stats());
+        }
+        assert_eq!(acc.range, whole.range, "cut {cut}");
+        assert_eq!(acc.positive_min, whole.positive_min, "cut {cut}");
+        assert!(acc.non_finite >= whole.non_finite);
+        assert_eq!(acc.non_finite == 0, whole.non_finite == 0);
+    }
+    // with_stats serves the given statistics through the brick source.
+    let part = AmrField::new_within(
+        &h,
+        info("g"),
+        values,
+        Some(Region::new(DVec3::ZERO, DVec3::splat(0.2))),
+    )
+    .unwrap();
+    assert_ne!(part.stats(), whole);
+    let part = Arc::new(part.with_stats(whole));
+    let src = part.source();
+    assert_eq!(src.finite_range(), whole.range);
+    assert_eq!(src.positive_min(), whole.positive_min);
+    assert_eq!(src.non_finite(), whole.non_finite);
+}
+
+/// The Enzo and Athena++ fixtures read per region: blocks away from the region are not
+/// read, and inside it samples and values are the whole field's.
+#[test]
+fn fixtures_read_only_the_regions_blocks() {
+    // Enzo: the root grid and one level-1 grid over [0.25, 0.75]^3.
+    let h = Hierarchy::open(&data("enzo2/amr2_0000")).unwrap();
+    let lim = Limits::default();
+    let full = Arc::new(h.field("Density", &lim).unwrap());
+    let fine = h.cell_size(1).x;
+    let mut seen = Vec::new();
+    for axis in 0..3 {
+        let parts = halves(h.domain_lo, h.domain_hi, axis, 0.05);
+        let mut union = [false; 2];
+        for r in &parts {
+            let part = h.field_within("Density", &lim, Some(*r)).unwrap();
+            for (i, u) in union.iter_mut().enumerate() {
+                *u |= part.is_present(i);
+                if part.is_present(i) {
+                    assert_eq!(part.block_values(i), full.block_values(i));
+                }
+            }
+            seen.push(part.blocks_read());
+            assert_samples_identical(&full, &part, r, fine);
+        }
+        assert_eq!(union, [true; 2]);
+    }
+    assert_eq!(seen, [1, 2, 1, 2, 1, 2], "enzo");
+    // Athena++: 7 root blocks and 8 level-1 blocks in the (-x, -y, -z) octant.
+    let h = Hierarchy::open(&data("athena2.athdf")).unwrap();
+    let full = Arc::new(h.field("rho", &lim).unwrap());
+    let fine = h.cell_size(1).x;
+    let mut seen = Vec::new();
+    for axis in 0..3 {
+        let mut union = [false; 15];
+        for at in [-0.5, 0.5] {
+            for r in &halves(h.domain_lo, h.domain_hi, axis, at) {
+                let part = h.field_within("rho", &lim, Some(*r)).unwrap();
+                for (i, u) in union.iter_mut().enumerate() {
+                    *u |= part.is_present(i);
+                    if part.is_present(i) {
+                        assert_eq!(part.block_values(i), full.block_values(i));
+                    }
+                }
+                seen.push(part.blocks_read());
+                assert_samples_identical(&full, &part, r, fine);
+            }
+        }
+        assert_eq!(union, [true; 15]);
+    }
+    // x < -0.5 skips the four root blocks at x > 0; x > 0.5 every level-1 block and the
+    // three root blocks at x < 0.
+    assert_eq!(seen[..4], [11, 15, 15, 4], "athena");
+    assert_eq!(seen[4..], seen[..4].repeat(2));
+    // A region outside the domain needs nothing and reads nothing.
+    let far = Region::new(DVec3::splat(5.0), DVec3::splat(6.0));
+    assert_eq!(
+        h.field_within("rho", &lim, Some(far))
+            .unwrap()
+            .blocks_read(),
+        0
+    );
+    // A malformed region is a parameter error.
+    let bad = Region::new(DVec3::ONE, DVec3::ZERO);
+    assert!(matches!(
+        h.field_within("rho", &lim, Some(bad)),
+        Err(Error::Parameter(_))
+    ));
+}
+
+/// Enzo output with grid 2 in its own file: when that file is missing or truncated, a
+/// region needing grid 2 fails naming it, and one that does not reads fine.
+#[test]
+fn a_missing_block_file_fails_only_the_regions_that_need_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = data("enzo2");
+    for name in ["amr2_0000", "amr2_0000.cpu0000"] {
+        std::fs::copy(src.join(name), dir.path().join(name)).unwrap();
+    }
+    // The same packed file under a second name holds grid 2 (found by its group name).
+    let hier = std::fs::read_to_string(src.join("amr2_0000.hierarchy")).unwrap();
+    let at = hier.rfind("amr2_0000.cpu0000").unwrap();
+    let hier = format!("{}amr2_0000.cpu0001{}", &hier[..at], &hier[at + 17..]);
+    std::fs::write(dir.path().join("amr2_0000.hierarchy"), hier).unwrap();
+    let second = dir.path().join("amr2_0000.cpu0001");
+    let bytes = std::fs::read(src.join("amr2_0000.cpu0000")).unwrap();
+    std::fs::write(&second, &bytes).unwrap();
+    let p = dir.path().join("amr2_0000");
+    let lim = Limits::default();
+    let h = Hierarchy::open(&p).unwrap();
+    let whole = h.field("Density", &lim).unwrap();
+    let want = Hierarchy::open(&data("enzo2/amr2_0000"))
+        .unwrap()
+        .field("Density", &lim)
+        .unwrap();
+    for i in 0..2 {
+        assert_eq!(whole.block_values(i), want.block_values(i));
+    }
+    let corner = Some(Region::new(DVec3::ZERO, DVec3::splat(0.05)));
+    let centre = Some(Region::new(DVec3::splat(0.4), DVec3::splat(0.6)));
+    // Missing.
+    std::fs::remove_file(&second).unwrap();
+    let ok = h.field_within("Density", &lim, corner).unwrap();
+    assert_eq!(ok.blocks_read(), 1);
+    assert_eq!(ok.block_values(0), want.block_values(0));
+    let e = h.field_within("Density", &lim, centre).unwrap_err();
+    assert!(matches!(e, Error::Io(_)), "{e:?}");
+    assert!(e.to_string().contains("amr2_0000.cpu0001"), "{e}");
+    // Truncated anywhere: an error naming the file, never a panic (a cut that spares grid
+    // 2's bytes, which h5py wrote first, still reads them right).
+    let mut failed = 0;
+    for cut in (0..bytes.len()).step_by(61) {
+        std::fs::write(&second, &bytes[..cut]).unwrap();
+        assert_eq!(
+            h.field_within("Density", &lim, corner)
+                .unwrap()
+                .blocks_read(),
+            1
+        );
+        match h.field_within("Density", &lim, centre) {
+            Ok(f) => assert_eq!(f.block_values(1), want.block_values(1), "cut {cut}"),
+            Err(e) => {
+                assert!(
+                    e.to_string().contains("amr2_0000.cpu0001"),
+                    "cut {cut}: {e}"
+                );
+                failed += 1;
+            }
+        }
+        if cut < 1000 {
+            assert!(
+                h.field_within("Density", &lim, centre).is_err(),
+                "cut {cut}"
+            );
+        }
+    }
+    assert!(failed >= 17, "{failed} cuts failed");
+}
+
+/// `open_field_within` calls the reduction exactly once, on success and on failure, and
+/// serves what it returns.
+#[test]
+fn open_field_within_reduces_exactly_once() {
+    use std::cell::Cell;
+    let path = data("athena2.athdf");
+    let lim = Limits::default();
+    let cache = BrickCache::new(16 << 20);
+    let region = Some(Region::new(DVec3::splat(-1.0), DVec3::splat(-0.6)));
+    let local = Hierarchy::open(&path)
+        .unwrap()
+        .field_within("rho", &lim, region)
+        .unwrap()
+        .stats();
+    let global = AmrStats {
+        range: Some((-7.0, 9.0)),
+        positive_min: Some(0.25),
+        non_finite: 3,
+    };
+    let calls = Cell::new(0);
+    let (name, f) = open_field_within(&path, None, cache.clone(), &lim, region, &|s| {
+        calls.set(calls.get() + 1);
+        assert_eq!(s.unwrap(), local);
+        Ok(global)
+    })
+    .unwrap();
+    assert_eq!(calls.get(), 1);
+    assert_eq!(name, "rho");
+    assert_eq!(f.source().finite_range(), global.range);
+    assert_eq!(f.source().positive_min(), global.positive_min);
+    assert_eq!(f.source().non_finite(), 3);
+    // A peer failed: the reduction's error is returned.
+    calls.set(0);
+    let e = open_field_within(&path, None, cache.clone(), &lim, region, &|s| {
+        calls.set(calls.get() + 1);
+        assert!(s.is_ok());
+        Err(Error::Invalid("rank 3 failed".into()))
+    })
+    .unwrap_err();
+    assert_eq!(calls.get(), 1);
+    assert!(e.to_string().contains("rank 3"), "{e}");
+    // This rank fails (a missing file, an unknown field): still exactly one call, with Err.
+    for (p, name) in [
+        (data("nothing.athdf"), None),
+        (path.clone(), Some("no-such-field")),
+    ] {
+        calls.set(0);
+        let e = open_field_within(&p, name, cache.clone(), &lim, region, &|s| {
+            calls.set(calls.get() + 1);
+            s
+        })
+        .unwrap_err();
+        assert_eq!(calls.get(), 1, "{e}");
+    }
+    // A reduction that returns statistics for a failed read still fails.
+    let e = open_field_within(&data("nothing.athdf"), None, cache, &lim, region, &|s| {
+        assert!(s.is_err());
+        Ok(AmrStats::default())
+    })
+    .unwrap_err();
+    assert!(e.to_string().contains("read failed"), "{e}");
 }

@@ -216,13 +216,23 @@ fn read_ints(ds: &hdf5_reader::Dataset, n: usize, path: &Path) -> Result<Vec<i64
     Ok(arr)
 }
 
-pub(super) fn read_field(files: &Files, h: &Hierarchy, name: &str) -> Result<Vec<Vec<f32>>> {
+/// Reads variable `name` of the `needed` blocks (the others' values are left empty), one
+/// hyperslab `(var, run, z, y, x)` per run of consecutive needed blocks.
+pub(super) fn read_field(
+    files: &Files,
+    h: &Hierarchy,
+    name: &str,
+    needed: &[bool],
+) -> Result<Vec<Vec<f32>>> {
     let path = &files.path;
     let (_, ds_name, j) = files
         .vars
         .iter()
         .find(|(v, _, _)| v == name)
         .ok_or_else(|| Error::parameter(format!("{}: no variable '{name}'", path.display())))?;
+    if !needed.contains(&true) {
+        return Ok(vec![Vec::new(); h.blocks.len()]);
+    }
     let file = open_h5(path)?;
     let ds = file
         .dataset(&format!("/{ds_name}"))
@@ -245,28 +255,47 @@ pub(super) fn read_field(files: &Files, h: &Hierarchy, name: &str) -> Result<Vec
         end: u64::MAX,
         step: 1,
     };
-    let sel = SliceInfo {
-        selections: vec![
-            SliceInfoElem::Index(*j),
-            all.clone(),
-            all.clone(),
-            all.clone(),
-            all,
-        ],
-    };
-    let arr = ds
-        .read_slice::<f32>(&sel)
-        .or_else(|_| ds.read_slice::<f64>(&sel).map(|a| a.mapv(|x| x as f32)))
-        .map_err(|e| h5(path, e))?;
-    let flat: Vec<f32> = arr.iter().copied().collect();
     let per = d[0] * d[1] * d[2];
-    if flat.len() != per * n as usize {
-        return Err(Error::invalid(format!(
-            "{}: {ds_name}[{j}] read {} values, {} expected",
-            path.display(),
-            flat.len(),
-            per * n as usize
-        )));
+    let mut out = vec![Vec::new(); n as usize];
+    let mut i = 0;
+    while i < needed.len() {
+        if !needed[i] {
+            i += 1;
+            continue;
+        }
+        let end = (i..needed.len())
+            .find(|&k| !needed[k])
+            .unwrap_or(needed.len());
+        let sel = SliceInfo {
+            selections: vec![
+                SliceInfoElem::Index(*j),
+                SliceInfoElem::Slice {
+                    start: i as u64,
+                    end: end as u64,
+                    step: 1,
+                },
+                all.clone(),
+                all.clone(),
+                all.clone(),
+            ],
+        };
+        let arr = ds
+            .read_slice::<f32>(&sel)
+            .or_else(|_| ds.read_slice::<f64>(&sel).map(|a| a.mapv(|x| x as f32)))
+            .map_err(|e| h5(path, e))?;
+        let flat: Vec<f32> = arr.iter().copied().collect();
+        if flat.len() != per * (end - i) {
+            return Err(Error::invalid(format!(
+                "{}: {ds_name}[{j}] blocks {i}..{end} read {} values, {} expected",
+                path.display(),
+                flat.len(),
+                per * (end - i)
+            )));
+        }
+        for (k, chunk) in flat.chunks_exact(per).enumerate() {
+            out[i + k] = chunk.to_vec();
+        }
+        i = end;
     }
-    Ok(flat.chunks_exact(per).map(<[f32]>::to_vec).collect())
+    Ok(out)
 }

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 
-use super::{Block, FieldInfo, Hierarchy, Reader, three};
+use super::{Block, FieldInfo, Hierarchy, Reader, guarded, three};
 use crate::{Error, Result};
 
 /// Largest parameter or hierarchy file read, bytes.
@@ -424,36 +424,68 @@ fn grid_group(
     }
 }
 
-pub(super) fn read_field(files: &Files, h: &Hierarchy, name: &str) -> Result<Vec<Vec<f32>>> {
+/// Reads field `name` of the `needed` blocks (the others' values are left empty), each
+/// grid file opened once per run of consecutive needed grids it holds; a file holding no
+/// needed grid is never opened. A failure names the grid's file.
+pub(super) fn read_field(
+    files: &Files,
+    h: &Hierarchy,
+    name: &str,
+    needed: &[bool],
+) -> Result<Vec<Vec<f32>>> {
     let mut out = Vec::with_capacity(h.blocks.len());
     let mut open: Option<(PathBuf, hdf5_reader::Hdf5File)> = None;
-    for (b, (path, id)) in h.blocks.iter().zip(&files.grids) {
+    for ((b, (path, id)), &need) in h.blocks.iter().zip(&files.grids).zip(needed) {
+        if !need {
+            out.push(Vec::new());
+            continue;
+        }
         if open.as_ref().is_none_or(|(p, _)| p != path) {
-            open = Some((path.clone(), open_h5(path)?));
+            drop(open.take());
+            open = Some((path.clone(), guarded(path, || open_h5(path))?));
         }
         let file = &open.as_ref().expect("opened above").1;
-        let group = grid_group(file, *id, path)?;
-        let ds = group.dataset(name).map_err(|e| {
-            Error::invalid(format!(
-                "{}: grid {id} has no field '{name}': {e}",
-                path.display()
-            ))
-        })?;
-        let want = [b.dims[2] as u64, b.dims[1] as u64, b.dims[0] as u64];
-        if ds.shape() != want {
-            return Err(Error::invalid(format!(
-                "{}: grid {id} field '{name}' has shape {:?}, the hierarchy says {want:?} (z, y, x)",
-                path.display(),
-                ds.shape()
-            )));
-        }
-        let mut v = vec![0.0f32; b.cells()];
-        if ds.read_into(&mut v).is_err() {
-            // Double-precision output.
-            let a = ds.read_array::<f64>().map_err(|e| h5(path, e))?;
-            v = a.iter().map(|&x| x as f32).collect();
-        }
-        out.push(v);
+        out.push(guarded(path, || read_block(file, path, *id, b, name))?);
     }
     Ok(out)
+}
+
+/// Field `name` of grid `id` (block `b`) in the open `file` at `path`.
+fn read_block(
+    file: &hdf5_reader::Hdf5File,
+    path: &Path,
+    id: u64,
+    b: &Block,
+    name: &str,
+) -> Result<Vec<f32>> {
+    let group = grid_group(file, id, path)?;
+    let ds = group.dataset(name).map_err(|e| {
+        Error::invalid(format!(
+            "{}: grid {id} has no field '{name}': {e}",
+            path.display()
+        ))
+    })?;
+    let want = [b.dims[2] as u64, b.dims[1] as u64, b.dims[0] as u64];
+    if ds.shape() != want {
+        return Err(Error::invalid(format!(
+            "{}: grid {id} field '{name}' has shape {:?}, the hierarchy says {want:?} (z, y, x)",
+            path.display(),
+            ds.shape()
+        )));
+    }
+    let mut v = vec![0.0f32; b.cells()];
+    if ds.read_into(&mut v).is_err() {
+        // Double-precision output.
+        let a = ds.read_array::<f64>().map_err(|e| h5(path, e))?;
+        if a.len() != v.len() {
+            return Err(Error::invalid(format!(
+                "{}: grid {id} field '{name}' read {} values, {} expected",
+                path.display(),
+                a.len(),
+                v.len()
+            )));
+        }
+        v = a.iter().map(|&x| x as f32).collect();
+    }
+    Ok(v)
 }

@@ -32,6 +32,14 @@
 //! and the clump at level 7 is read at level 7: nothing is resampled to one resolution.
 //! The stored macrocells bound the reconstruction from the leaf cells directly, so a
 //! majorant grid never needs a dense pass.
+//!
+//! # Reading a region
+//!
+//! One rank of a data-parallel render samples only a box ([`Region`]: its piece plus a
+//! ghost layer). [`Hierarchy::field_within`] reads just the blocks whose tents, grown by one
+//! root cell, reach that box; the others are absent and never evaluated, so inside the box
+//! samples and bricks are bit-identical to the whole field's. [`open_field_within`] reduces
+//! the ranks' [`AmrStats`] collectively so that every rank serves the whole field's.
 
 mod athena;
 mod enzo;
@@ -308,18 +316,75 @@ impl Hierarchy {
     }
 
     /// Reads field `name` of every block, converted to [`FieldInfo::unit`], checked against
-    /// `limits` (the total cells count as one channel).
+    /// `limits` (the total cells count as one channel): [`Hierarchy::field_within`] with no
+    /// region.
     ///
     /// # Errors
-    /// No such field, a malformed or truncated file, a block whose data has another shape
-    /// than the hierarchy says, more cells than `limits` allow.
+    /// As [`Hierarchy::field_within`].
     pub fn field(&self, name: &str, limits: &Limits) -> Result<AmrField> {
+        self.field_within(name, limits, None)
+    }
+
+    /// Which blocks can influence the reconstruction inside `region` (all of them for
+    /// `None`): a block is needed when the tent of any of its cells, grown by one root cell
+    /// (`centre ± (h + root cell)` per axis, the margin [`AmrField`]'s macrocells use),
+    /// meets the closed box. Geometry only; no data is read.
+    #[must_use]
+    pub fn needed_blocks(&self, region: Option<&Region>) -> Vec<bool> {
+        let Some(r) = region else {
+            return vec![true; self.blocks.len()];
+        };
+        let grow = self.cell_size(0);
+        self.blocks
+            .iter()
+            .map(|b| {
+                let h = self.cell_size(b.level);
+                (0..3).all(|a| {
+                    // First cell's centre minus its tent, last cell's centre plus its tent.
+                    let lo = self.domain_lo[a] + (b.lo[a] as f64 - 0.5) * h[a] - grow[a];
+                    let hi = self.domain_lo[a] + (b.hi()[a] as f64 + 0.5) * h[a] + grow[a];
+                    hi >= r.lo[a] && lo <= r.hi[a]
+                })
+            })
+            .collect()
+    }
+
+    /// Reads field `name` of the blocks that can influence samples inside `region` (every
+    /// block for `None`; see [`Hierarchy::needed_blocks`]), converted to
+    /// [`FieldInfo::unit`], checked against `limits` (the cells read count as one
+    /// channel). The other blocks are never read: they are absent from the field
+    /// ([`AmrField::is_present`]), which inside `region` samples, and makes bricks,
+    /// bit-identical to the whole field's. Enzo's grid files are opened only when a needed
+    /// grid lives in them; Athena++'s dataset is read in slabs of consecutive needed blocks.
+    ///
+    /// # Errors
+    /// No such field, a region that is not finite or has `lo > hi`, a missing, malformed or
+    /// truncated file holding a needed block (the message names the file), a block whose
+    /// data has another shape than the hierarchy says, more cells than `limits` allow.
+    pub fn field_within(
+        &self,
+        name: &str,
+        limits: &Limits,
+        region: Option<Region>,
+    ) -> Result<AmrField> {
         let info = self.field_info(name)?.clone();
-        let cells: u64 = self.blocks.iter().map(|b| b.cells() as u64).sum();
+        if let Some(r) = &region {
+            r.check()?;
+        }
+        let needed = self.needed_blocks(region.as_ref());
+        let cells: u64 = self
+            .blocks
+            .iter()
+            .zip(&needed)
+            .filter(|(_, n)| **n)
+            .map(|(b, _)| b.cells() as u64)
+            .sum();
         limits.check([usize::try_from(cells).unwrap_or(usize::MAX), 1, 1], 4)?;
         let mut values = match &self.reader {
-            Reader::Enzo(f) => guarded(&self.path, || enzo::read_field(f, self, &info.name))?,
-            Reader::Athena(f) => guarded(&self.path, || athena::read_field(f, self, &info.name))?,
+            Reader::Enzo(f) => enzo::read_field(f, self, &info.name, &needed)?,
+            Reader::Athena(f) => guarded(&self.path, || {
+                athena::read_field(f, self, &info.name, &needed)
+            })?,
             Reader::Memory => {
                 return Err(Error::parameter(
                     "an in-memory hierarchy's fields are made with AmrField::new",
@@ -331,7 +396,94 @@ impl Hierarchy {
                 *v = (f64::from(*v) * info.to_unit) as f32;
             }
         }
-        AmrField::new(self, info, values)
+        AmrField::from_parts(self, info, values, needed)
+    }
+}
+
+/// A box in world (code-length) coordinates, closed: what one rank of a data-parallel
+/// render samples (its k-d piece plus a ghost layer), given to
+/// [`Hierarchy::field_within`] so that only the blocks that can reach it are read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Region {
+    /// Low corner.
+    pub lo: DVec3,
+    /// High corner.
+    pub hi: DVec3,
+}
+
+impl Region {
+    /// The box `lo..=hi`.
+    #[must_use]
+    pub fn new(lo: DVec3, hi: DVec3) -> Region {
+        Region { lo, hi }
+    }
+
+    /// Whether `p` lies in the closed box.
+    #[must_use]
+    pub fn contains(&self, p: DVec3) -> bool {
+        p.cmpge(self.lo).all() && p.cmple(self.hi).all()
+    }
+
+    fn check(&self) -> Result<()> {
+        if !self.lo.is_finite() || !self.hi.is_finite() || self.lo.cmpgt(self.hi).any() {
+            return Err(Error::parameter(format!(
+                "region {:?}..{:?} is not finite or has lo > hi",
+                self.lo, self.hi
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The value statistics of a field's present blocks (every cell, leaf or covered), which
+/// set a transfer function's automatic range. A distributed render all-reduces each rank's
+/// with [`AmrStats::combine`] and applies the result with [`AmrField::with_stats`], so every
+/// rank sees the whole field's.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AmrStats {
+    /// Least and greatest finite value (`None`: no finite value).
+    pub range: Option<(f32, f32)>,
+    /// Least positive finite value.
+    pub positive_min: Option<f32>,
+    /// NaN and infinite values counted.
+    pub non_finite: u64,
+}
+
+impl AmrStats {
+    /// The statistics of the union of two sets of values (min, max, min, sum): the
+    /// reduction's operator. Associative and commutative; [`AmrStats::default`] is its
+    /// identity. Blocks read by two ranks count twice in `non_finite`, so a reduced count
+    /// is an upper bound that is zero exactly when the whole field's is.
+    #[must_use]
+    pub fn combine(a: AmrStats, b: AmrStats) -> AmrStats {
+        let opt = |x: Option<f32>, y: Option<f32>, f: fn(f32, f32) -> f32| match (x, y) {
+            (Some(x), Some(y)) => Some(f(x, y)),
+            (x, None) => x,
+            (None, y) => y,
+        };
+        AmrStats {
+            range: match (a.range, b.range) {
+                (Some((a0, a1)), Some((b0, b1))) => Some((a0.min(b0), a1.max(b1))),
+                (r, None) | (None, r) => r,
+            },
+            positive_min: opt(a.positive_min, b.positive_min, f32::min),
+            non_finite: a.non_finite.saturating_add(b.non_finite),
+        }
+    }
+
+    fn of<'a>(values: impl Iterator<Item = &'a f32>) -> AmrStats {
+        let mut s = AmrStats::default();
+        for &v in values {
+            if !v.is_finite() {
+                s.non_finite += 1;
+                continue;
+            }
+            s.range = Some(s.range.map_or((v, v), |(a, b)| (a.min(v), b.max(v))));
+            if v > 0.0 {
+                s.positive_min = Some(s.positive_min.map_or(v, |m| m.min(v)));
+            }
+        }
+        s
     }
 }
 
@@ -346,17 +498,17 @@ pub struct AmrField {
     ratio: u32,
     max_level: u32,
     blocks: Vec<Block>,
-    /// Values per block, x fastest.
+    /// Values per block, x fastest (empty for an absent block).
     values: Vec<Vec<f32>>,
+    /// Whether each block's values were read (see [`Hierarchy::field_within`]).
+    present: Vec<bool>,
     /// Leaf flag per cell of each block (not covered by the next level).
     leaf: Vec<Vec<bool>>,
-    /// Block indices per level.
-    by_level: Vec<Vec<u32>>,
+    /// Present block indices per level: the blocks the reconstruction evaluates.
+    present_by_level: Vec<Vec<u32>>,
     uid: u64,
     geometries: Vec<Geometry>,
-    range: Option<(f32, f32)>,
-    positive_min: Option<f32>,
-    non_finite: u64,
+    stats: AmrStats,
 }
 
 impl AmrField {
@@ -365,15 +517,60 @@ impl AmrField {
     /// # Errors
     /// A block's value count differs from its cell count.
     pub fn new(h: &Hierarchy, info: FieldInfo, values: Vec<Vec<f32>>) -> Result<AmrField> {
-        if values.len() != h.blocks.len() {
+        AmrField::new_within(h, info, values, None)
+    }
+
+    /// A field from all its blocks' values, keeping only those of the blocks `region`
+    /// needs ([`Hierarchy::needed_blocks`]): the others are dropped and absent, as
+    /// [`Hierarchy::field_within`] would leave them. For in-memory hierarchies and tests.
+    ///
+    /// # Errors
+    /// As [`AmrField::new`]; a region that is not finite or has `lo > hi`.
+    pub fn new_within(
+        h: &Hierarchy,
+        info: FieldInfo,
+        mut values: Vec<Vec<f32>>,
+        region: Option<Region>,
+    ) -> Result<AmrField> {
+        if let Some(r) = &region {
+            r.check()?;
+        }
+        let needed = h.needed_blocks(region.as_ref());
+        if values.len() == h.blocks.len() {
+            for (i, (b, v)) in h.blocks.iter().zip(&values).enumerate() {
+                if v.len() != b.cells() {
+                    return Err(Error::invalid(format!(
+                        "block {i}: {} values for {:?} cells",
+                        v.len(),
+                        b.dims
+                    )));
+                }
+            }
+            for (v, n) in values.iter_mut().zip(&needed) {
+                if !n {
+                    *v = Vec::new();
+                }
+            }
+        }
+        AmrField::from_parts(h, info, values, needed)
+    }
+
+    /// A field from the values of the `present` blocks (the others' values empty).
+    fn from_parts(
+        h: &Hierarchy,
+        info: FieldInfo,
+        values: Vec<Vec<f32>>,
+        present: Vec<bool>,
+    ) -> Result<AmrField> {
+        if values.len() != h.blocks.len() || present.len() != h.blocks.len() {
             return Err(Error::invalid(format!(
                 "{} blocks of data for {} blocks",
                 values.len(),
                 h.blocks.len()
             )));
         }
-        for (i, (b, v)) in h.blocks.iter().zip(&values).enumerate() {
-            if v.len() != b.cells() {
+        for (i, ((b, v), &p)) in h.blocks.iter().zip(&values).zip(&present).enumerate() {
+            if v.len() != if p { b.cells() } else { 0 } {
                 return Err(Error::invalid(format!(
                     "block {i}: {} values for {:?} cells",
                     v.len(),
@@ -410,19 +607,16 @@ impl AmrField {
                 }
             }
         }
-        let mut range: Option<(f32, f32)> = None;
-        let mut positive_min: Option<f32> = None;
-        let mut non_finite = 0;
-        for v in values.iter().flatten() {
-            if !v.is_finite() {
-                non_finite += 1;
-                continue;
-            }
-            range = Some(range.map_or((*v, *v), |(a, b)| (a.min(*v), b.max(*v))));
-            if *v > 0.0 {
-                positive_min = Some(positive_min.map_or(*v, |m| m.min(*v)));
-            }
-        }
+        let stats = AmrStats::of(values.iter().flatten());
+        let present_by_level = by_level
+            .into_iter()
+            .map(|ids| {
+                ids.iter()
+                    .copied()
+                    .filter(|&i| present[i as usize])
+                    .collect()
+            })
+            .collect();
         let geometries = (0..=max_level).rev().map(|l| h.level_geometry(l)).collect();
         Ok(AmrField {
             info,
@@ -433,14 +627,43 @@ impl AmrField {
             max_level,
             blocks: h.blocks.clone(),
             values,
+            present,
             leaf,
-            by_level,
+            present_by_level,
             uid: next_uid(),
             geometries,
-            range,
-            positive_min,
-            non_finite,
+            stats,
         })
+    }
+
+    /// Whether block `i`'s values were read (every block of a field read without a region;
+    /// the blocks the region needs otherwise). An absent block is never evaluated.
+    #[must_use]
+    pub fn is_present(&self, i: usize) -> bool {
+        self.present.get(i).copied().unwrap_or(false)
+    }
+
+    /// How many blocks' values were read.
+    #[must_use]
+    pub fn blocks_read(&self) -> usize {
+        self.present.iter().filter(|&&p| p).count()
+    }
+
+    /// The statistics of the present blocks' values, or those set by
+    /// [`AmrField::with_stats`].
+    #[must_use]
+    pub fn stats(&self) -> AmrStats {
+        self.stats
+    }
+
+    /// This field serving `stats` as its value statistics (the brick source's finite range,
+    /// positive minimum and non-finite count): a distributed render sets every rank's to
+    /// the all-reduced ones ([`AmrStats::combine`]), so transfer functions' automatic
+    /// ranges agree with the single process's.
+    #[must_use]
+    pub fn with_stats(mut self, stats: AmrStats) -> AmrField {
+        self.stats = stats;
+        self
     }
 
     /// The field's name and unit.
@@ -455,7 +678,7 @@ impl AmrField {
         &self.blocks
     }
 
-    /// Block `i`'s values, x fastest.
+    /// Block `i`'s values, x fastest (empty when the block is absent).
     #[must_use]
     pub fn block_values(&self, i: usize) -> &[f32] {
         &self.values[i]
@@ -486,7 +709,7 @@ impl AmrField {
     /// The reconstruction at world point `p` (see the module docs).
     #[must_use]
     pub fn sample(&self, p: DVec3) -> f32 {
-        let all: Vec<&[u32]> = self.by_level.iter().map(Vec::as_slice).collect();
+        let all: Vec<&[u32]> = self.present_by_level.iter().map(Vec::as_slice).collect();
         self.eval(p, &all)
     }
 
@@ -528,9 +751,9 @@ impl AmrField {
         if sw > 0.0 { (sv / sw) as f32 } else { 0.0 }
     }
 
-    /// Blocks per level whose cells' tents reach the world box `lo..hi`.
+    /// Present blocks per level whose cells' tents reach the world box `lo..hi`.
     fn candidates(&self, lo: DVec3, hi: DVec3) -> Vec<Vec<u32>> {
-        self.by_level
+        self.present_by_level
             .iter()
             .enumerate()
             .map(|(level, ids)| {
@@ -552,7 +775,8 @@ impl AmrField {
 
     /// yt's covering grid at `level`: each cell of the uniform grid of that level takes the
     /// value of the finest block of level `<= level` that covers it (coarser cells repeat),
-    /// with Enzo's averaged parent values where no block of `level` reaches.
+    /// with Enzo's averaged parent values where no block of `level` reaches. Absent blocks
+    /// ([`AmrField::is_present`]) are skipped: only a field read whole gives yt's grid.
     ///
     /// # Errors
     /// A level above the finest, or a grid larger than `limits`.
@@ -573,7 +797,7 @@ impl AmrField {
         let data = out.data_mut();
         for l in 0..=level {
             let f = i64::from(self.ratio).pow(level - l);
-            for &bi in &self.by_level[l as usize] {
+            for &bi in &self.present_by_level[l as usize] {
                 let b = &self.blocks[bi as usize];
                 let v = &self.values[bi as usize];
                 for z in b.lo[2] * f..b.hi()[2] * f {
@@ -746,7 +970,10 @@ impl AmrField {
 
     /// Macrocells of pyramid level `j` bounding the reconstruction sampled at any level of
     /// a region (see [`BrickSource::macrocells_bound_all_levels`]): each leaf cell's value
-    /// widens every macrocell its tent reaches, the tent grown by one root cell.
+    /// widens every macrocell its tent reaches, the tent grown by one root cell. Only
+    /// present blocks contribute: inside the region a field was read for they still bound
+    /// it (every block reaching the region is present), outside it macrocells may be empty
+    /// (min > max) and bound nothing.
     fn macrocells(&self, j: usize, k: usize) -> Result<Macrocells> {
         self.pyramid_level(j)?;
         if k == 0 {
@@ -765,6 +992,9 @@ impl AmrField {
         max.resize(cells, f32::NEG_INFINITY);
         let grow = self.cell_size(0);
         for (bi, blk) in self.blocks.iter().enumerate() {
+            if !self.present[bi] {
+                continue;
+            }
             let h = self.cell_size(blk.level);
             let vals = &self.values[bi];
             let leaf = &self.leaf[bi];
@@ -856,15 +1086,15 @@ impl BrickSource for AmrSource {
     }
 
     fn finite_range(&self) -> Option<(f32, f32)> {
-        self.0.range
+        self.0.stats.range
     }
 
     fn non_finite(&self) -> u64 {
-        self.0.non_finite
+        self.0.stats.non_finite
     }
 
     fn positive_min(&self) -> Option<f32> {
-        self.0.positive_min
+        self.0.stats.positive_min
     }
 
     fn region_levels(&self, level: usize) -> Option<Vec<u8>> {
@@ -949,7 +1179,9 @@ fn three<T: std::str::FromStr>(v: &str, what: &str) -> Result<[T; 3]> {
 /// Opens field `name` of the AMR output at `path` (its default field when `None`: the gas
 /// density, `Density`, `rho` or `density`, else the first) as a [`BrickedField`] at the
 /// finest level, each region sampled at its own data's level, read through `cache`.
-/// Returns the field's name with it.
+/// Returns the field's name with it. [`open_field_within`] with no region and no reduction.
+///
+/// [`BrickedField`]: crate::BrickedField
 ///
 /// # Errors
 /// As [`Hierarchy::open`] and [`Hierarchy::field`].
@@ -959,12 +1191,58 @@ pub fn open_field(
     cache: Arc<crate::BrickCache>,
     limits: &Limits,
 ) -> Result<(String, crate::BrickedField)> {
-    let h = Hierarchy::open(path)?;
-    let name = match name {
-        Some(n) => n.to_owned(),
-        None => h.default_field()?.to_owned(),
+    open_field_within(path, name, cache, limits, None, &|s| s)
+}
+
+/// [`open_field`] for one rank of a data-parallel render: reads only the blocks `region`
+/// needs ([`Hierarchy::field_within`]), and serves the statistics `reduce` returns.
+///
+/// # The collective contract
+/// `reduce` is called exactly once, whatever happens: with `Ok` of this rank's statistics
+/// ([`AmrField::stats`]) when the hierarchy opened and the region's field was read, with
+/// `Err` of the failure otherwise, so that peers in a collective reduction never wait for
+/// a rank that failed. A distributed caller all-reduces there (with
+/// [`AmrStats::combine`], and a flag saying whether any rank failed), returning `Ok` of
+/// the global statistics when every rank succeeded and `Err` otherwise (its own error, or
+/// one naming the rank that failed); the field then serves the returned statistics
+/// ([`AmrField::with_stats`]), so transfer functions' automatic ranges match the single
+/// process's. A single process passes `&|s| s`.
+///
+/// # Errors
+/// As [`open_field`], or the error `reduce` returns. Should `reduce` return `Ok` for a
+/// failed read, a [`Error::Invalid`] saying so.
+pub fn open_field_within(
+    path: &Path,
+    name: Option<&str>,
+    cache: Arc<crate::BrickCache>,
+    limits: &Limits,
+    region: Option<Region>,
+    reduce: &dyn Fn(Result<AmrStats>) -> Result<AmrStats>,
+) -> Result<(String, crate::BrickedField)> {
+    let read = (|| {
+        let h = Hierarchy::open(path)?;
+        let name = match name {
+            Some(n) => n.to_owned(),
+            None => h.default_field()?.to_owned(),
+        };
+        let field = h.field_within(&name, limits, region)?;
+        Ok((name, field))
+    })();
+    let (read, stats) = match read {
+        Ok((name, field)) => {
+            let stats = field.stats();
+            (Some((name, field)), Ok(stats))
+        }
+        Err(e) => (None, Err(e)),
     };
-    let field = Arc::new(h.field(&name, limits)?);
+    let stats = reduce(stats)?;
+    let Some((name, field)) = read else {
+        return Err(Error::invalid(format!(
+            "{}: the read failed, yet the reduction returned statistics",
+            path.display()
+        )));
+    };
+    let field = Arc::new(field.with_stats(stats));
     let bricked = crate::BrickedField::new(field.source(), cache, 0)?;
     Ok((name, bricked))
 }
