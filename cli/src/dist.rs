@@ -247,3 +247,141 @@ fn doppler_decomposition(
     blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
         .map_err(|e| anyhow::anyhow!("{e}"))
 }
+
+/// Set when a collective step during loading learnt that another rank failed (that rank
+/// prints why): `main` exits 1 without a second message.
+static PEER_FAILED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Whether another rank failed during a collective step of loading.
+pub fn peer_failed() -> bool {
+    PEER_FAILED.load(std::sync::atomic::Ordering::Relaxed)
+}
+
+/// Loads a scene for `--distributed data` so that AMR fields read only this rank's blocks:
+/// the k-d piece of the field's finest level for the job's rank count (the decomposition
+/// the render then makes, `compositing`'s factors), with its ghost layer and a voxel more,
+/// through [`blueshift_volume::amr::with_scope`]; the fields' statistics (value range,
+/// least positive value, non-finite count: what automatic transfer-function ranges and the
+/// input checks read) are all-reduced so every rank sees the single process's. A rank that
+/// fails to read its blocks fails every rank there. Rank 0 prints `AMR blocks read per
+/// rank (of N): B0 B1 ...` when AMR fields were opened.
+pub fn load_scoped<T>(compositing: &str, load: impl FnOnce() -> Result<T>) -> Result<T> {
+    use blueshift_volume::amr::{AmrStats, ReadScope, Region, with_scope};
+    let compositing = compositing.to_owned();
+    let region = move |g: &blueshift_volume::Geometry,
+                       root: &blueshift_volume::Geometry|
+          -> Option<Region> {
+        with_comm(|c| {
+            let f = factors(&compositing, c.size())?;
+            let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            let p = &d.pieces()[c.rank()];
+            let (lo, hi) = (p.read_lo(), p.read_hi(g.dims));
+            // The ghost layer, a voxel more, and a root cell: a render at a coarser level
+            // splits that level's voxels, whose faces lie within a root cell of these.
+            let at = |i: [usize; 3], side: f64| {
+                glam::DVec3::from_array([0, 1, 2].map(|a| {
+                    f64::from(g.origin[a])
+                        + (i[a] as f64 + side) * f64::from(g.spacing[a])
+                        + side * f64::from(root.spacing[a])
+                }))
+            };
+            Ok(Region::new(at(lo, -1.0), at(hi, 1.0)))
+        })
+        // No decomposition: read the whole field (the render then refuses the same way).
+        .ok()
+    };
+    let reduce = |r: blueshift_volume::Result<AmrStats>| -> blueshift_volume::Result<AmrStats> {
+        let failed = r.is_err();
+        // Ok(stats) when every rank read its blocks; Err(lowest failed rank is this one).
+        let out = with_comm(|c| {
+            let first = c.first_failed(failed).map_err(|e| anyhow::anyhow!("{e}"))?;
+            Ok(match first {
+                Some(f) => Err(f == c.rank()),
+                None => Ok(all_combine(
+                    c,
+                    r.as_ref().ok().copied().unwrap_or_default(),
+                )?),
+            })
+        });
+        match (r, out) {
+            (Ok(_), Ok(Ok(s))) => Ok(s),
+            // The lowest rank that failed says why.
+            (Err(e), Ok(Err(true))) => Err(e),
+            (_, Ok(Err(_))) => {
+                PEER_FAILED.store(true, std::sync::atomic::Ordering::Relaxed);
+                Err(blueshift_volume::Error::Invalid(
+                    "another rank failed to read its AMR blocks".into(),
+                ))
+            }
+            (Err(e), _) => Err(e),
+            (Ok(_), Err(e)) => Err(blueshift_volume::Error::Invalid(format!("{e}"))),
+        }
+    };
+    let scope = ReadScope::new(Box::new(region), Box::new(reduce));
+    let (out, (read, total)) = with_scope(scope, load);
+    let out = out?;
+    if total > 0 {
+        // One line from rank 0 (lines of several ranks interleave under mpirun).
+        with_comm(|c| {
+            let e = |e: blueshift_dist::Error| anyhow::anyhow!("{e}");
+            if c.rank() == 0 {
+                let mut all = vec![read.to_string()];
+                for r in 1..c.size() {
+                    let v = c.recv(r).map_err(e)?;
+                    all.push(v.first().map_or(0, |&x| x as usize).to_string());
+                }
+                eprintln!("AMR blocks read per rank (of {total}): {}", all.join(" "));
+            } else {
+                c.send(0, &[read as f64]).map_err(e)?;
+            }
+            Ok(())
+        })?;
+    }
+    Ok(out)
+}
+
+/// The statistics of every rank combined ([`blueshift_volume::amr::AmrStats::combine`]),
+/// on every rank: gathered on rank 0 and sent back.
+fn all_combine(
+    c: &dyn blueshift_dist::Communicator,
+    s: blueshift_volume::amr::AmrStats,
+) -> Result<blueshift_volume::amr::AmrStats> {
+    use blueshift_volume::amr::AmrStats;
+    let enc = |s: &AmrStats| -> Vec<f64> {
+        let (lo, hi) = s.range.unwrap_or((0.0, 0.0));
+        vec![
+            f64::from(lo),
+            f64::from(hi),
+            f64::from(u8::from(s.range.is_some())),
+            f64::from(s.positive_min.unwrap_or(0.0)),
+            f64::from(u8::from(s.positive_min.is_some())),
+            s.non_finite as f64,
+        ]
+    };
+    let dec = |v: &[f64]| -> Result<AmrStats> {
+        if v.len() != 6 {
+            bail!("AMR statistics: {} values from a peer", v.len());
+        }
+        Ok(AmrStats {
+            range: (v[2] != 0.0).then_some((v[0] as f32, v[1] as f32)),
+            positive_min: (v[4] != 0.0).then_some(v[3] as f32),
+            non_finite: v[5] as u64,
+        })
+    };
+    let e = |e: blueshift_dist::Error| anyhow::anyhow!("{e}");
+    if c.rank() == 0 {
+        let mut all = s;
+        for r in 1..c.size() {
+            all = AmrStats::combine(all, dec(&c.recv(r).map_err(e)?)?);
+        }
+        let v = enc(&all);
+        for r in 1..c.size() {
+            c.send(r, &v).map_err(e)?;
+        }
+        Ok(all)
+    } else {
+        c.send(0, &enc(&s)).map_err(e)?;
+        dec(&c.recv(0).map_err(e)?)
+    }
+}

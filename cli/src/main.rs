@@ -151,7 +151,9 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         // Another rank failed and said why: exit 1 without a second message.
-        Err(err) if err.downcast_ref::<dist::Quiet>().is_some() => ExitCode::from(1),
+        Err(err) if err.downcast_ref::<dist::Quiet>().is_some() || dist::peer_failed() => {
+            ExitCode::from(1)
+        }
         // A loop stopped on SIGINT/SIGTERM: the watcher is cleaning up and sets the exit code.
         Err(_) if signals::cancelled() => signals::wait_for_exit(),
         Err(err) => {

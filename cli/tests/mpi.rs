@@ -583,3 +583,116 @@ fn distributed_is_refused_without_the_mpi_build_or_for_a_wrong_mode() {
         assert_eq!(err.lines().count(), 1, "{err}");
     }
 }
+
+/// The Enzo snapshot copied into `d` (grid 9's data pointed at a missing file when `break9`)
+/// with an emission-only AMR scene file (the mean velocity not subtracted: a pass over the
+/// whole field) beside it.
+fn enzo_scene(d: &Path, break9: bool) -> std::path::PathBuf {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let src = root.join("../shared/data/enzo-moving7/original");
+    let snap = d.join("enzo");
+    std::fs::create_dir_all(&snap).unwrap();
+    for e in std::fs::read_dir(&src).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), snap.join(e.file_name())).unwrap();
+    }
+    if break9 {
+        let h = snap.join("moving7_0010.hierarchy");
+        let text = std::fs::read_to_string(&h).unwrap();
+        let at = text.find("Grid = 9").unwrap();
+        let (head, tail) = text.split_at(at);
+        let tail = tail.replacen("moving7_0010.cpu0000", "moving7_0010.cpu0009", 1);
+        std::fs::write(&h, format!("{head}{tail}")).unwrap();
+    }
+    let scene = std::fs::read_to_string(root.join("scenes/enzo-moving7-amr.json")).unwrap();
+    let scene = scene
+        .replace("\"../../shared/data/enzo-moving7/original\"", "\"enzo\"")
+        .replace("\"subtract_mean\": true", "\"subtract_mean\": false");
+    let p = d.join(if break9 { "broken.json" } else { "amr.json" });
+    std::fs::write(&p, scene).unwrap();
+    p
+}
+
+/// Rank 0's `AMR blocks read per rank (of N): B0 B1 ...` line: (reads, N).
+fn amr_reads(stderr: &[u8]) -> (Vec<usize>, usize) {
+    let err = String::from_utf8_lossy(stderr);
+    let line = err
+        .lines()
+        .find_map(|l| l.strip_prefix("AMR blocks read per rank (of "))
+        .unwrap_or_else(|| panic!("no AMR reads line: {err}"));
+    let (total, reads) = line.split_once("): ").unwrap();
+    (
+        reads
+            .split_whitespace()
+            .map(|v| v.parse().unwrap())
+            .collect(),
+        total.parse().unwrap(),
+    )
+}
+
+#[test]
+fn data_parallel_amr_reads_only_each_ranks_blocks() {
+    if !can_run() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = enzo_scene(d, false);
+    let scene = scene.to_str().unwrap();
+    let args = |out: &'static str| {
+        vec![
+            "doppler",
+            "--scene",
+            scene,
+            "--width",
+            "24",
+            "--height",
+            "20",
+            "--exr-space",
+            "xyz",
+            "--device",
+            "cpu",
+            "--out",
+            out,
+        ]
+    };
+    ok(&single(&args("one.exr"), d), "single AMR");
+    let want = common::read_exr(&d.join("one.exr"));
+    let peak = want.as_raw().iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(peak > 0.0);
+    for n in [2, 4] {
+        let out: &'static str = if n == 2 { "data2.exr" } else { "data4.exr" };
+        let mut a = args(out);
+        a.extend(["--distributed", "data"]);
+        let (o, in_time) = mpi(n, &a, d, 300);
+        assert!(in_time, "-np {n} AMR data hung");
+        ok(&o, &format!("-np {n} AMR data"));
+        // Emission only: additive XYZ, equal up to f32 rounding of the sums.
+        let got = common::read_exr(&d.join(out));
+        let diff = max_diff(&got, &want);
+        assert!(diff <= 1e-5 * peak, "-np {n}: {diff} of {peak}");
+        // Every rank reports its reads; the ranks away from the collapsing clump (grids 6 to
+        // 10 around (0.75, 0.75, 0.75)) read fewer blocks than the hierarchy holds.
+        let (reads, total) = amr_reads(&o.stderr);
+        assert_eq!(reads.len(), n);
+        assert!(total > 0 && reads.iter().all(|&r| r <= total));
+        assert!(
+            reads.iter().any(|&r| r < total),
+            "-np {n}: every rank read every block: {reads:?} of {total}"
+        );
+    }
+    // A rank that cannot read a block it needs (grid 9's file is missing) stops every rank
+    // with one message naming the file; the ranks that do not need it say nothing.
+    let broken = enzo_scene(d, true);
+    let mut a = args("broken.exr");
+    let broken = broken.to_str().unwrap();
+    a[2] = broken;
+    a.extend(["--distributed", "data"]);
+    let (o, in_time) = mpi(2, &a, d, 120);
+    assert!(in_time, "a missing AMR grid file hung the job");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.matches("moving7_0010.cpu0009").count(), 1, "{err}");
+    assert_eq!(err.matches("blueshift:").count(), 1, "{err}");
+    assert!(!d.join("broken.exr").exists());
+}

@@ -232,12 +232,30 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
             .as_deref()
             .map(|sp| sp.split(',').filter(|t| !t.trim().is_empty()).collect());
         let cache = super::render::brick_cache(args.cache_mb)?;
-        let scene = file.load_within(
-            tokens.as_deref(),
-            &blueshift_doppler::MemoryVolumes::new(),
-            Some(cache),
-            crate::limits::budget(),
-        )?;
+        let load = || {
+            Ok(file.load_within(
+                tokens.as_deref(),
+                &blueshift_doppler::MemoryVolumes::new(),
+                Some(cache),
+                crate::limits::budget(),
+            )?)
+        };
+        // `--distributed data`: each rank reads only its piece's AMR blocks, unless the mean
+        // velocity is subtracted (a pass over the whole field, which every rank then reads).
+        let mean =
+            args.subtract_mean_velocity || file.velocity.as_ref().is_some_and(|v| v.subtract_mean);
+        let data =
+            crate::dist::mode(args.distributed.as_deref())? == Some(blueshift_dist::Mode::Data);
+        if data && mean && file.has_amr() {
+            eprintln!(
+                "note: the mean velocity is subtracted: every rank reads the whole AMR fields"
+            );
+        }
+        let scene = if data && !mean {
+            crate::dist::load_scoped(&args.compositing, load)?
+        } else {
+            load()?
+        };
         // AMR scenes default to the level the view needs (their finest level, 2048^3 for
         // the Enzo snapshot, is finer than any image); other scenes to the finest level.
         let default_lod = if file.has_amr() { "auto" } else { "exact" };

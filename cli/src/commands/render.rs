@@ -563,7 +563,16 @@ fn run_inner(args: &Args) -> Result<()> {
         budget: Some(crate::limits::budget().clone()),
         ..Default::default()
     };
-    let (scene, integrator, mut settings) = f.build_with(&memory)?;
+    // `--distributed data` with the marcher: each rank reads only its piece's AMR blocks
+    // (Woodcock's forwarded rays need the majorants of the whole volume on every rank).
+    let data_parallel = crate::dist::mode(args.distributed.as_deref())?
+        == Some(blueshift_dist::Mode::Data)
+        && f.method != Some(blueshift_tracking::Method::Woodcock);
+    let (scene, integrator, mut settings) = if data_parallel {
+        crate::dist::load_scoped(&args.compositing, || Ok(f.build_with(&memory)?))?
+    } else {
+        f.build_with(&memory)?
+    };
     settings.camera = args.view.orbited(settings.camera)?;
     let view = (settings.camera.target - settings.camera.eye).normalize_or_zero();
     let searchlight = args.searchlight || f.searchlight.unwrap_or(false);

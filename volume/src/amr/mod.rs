@@ -1191,7 +1191,78 @@ pub fn open_field(
     cache: Arc<crate::BrickCache>,
     limits: &Limits,
 ) -> Result<(String, crate::BrickedField)> {
-    open_field_within(path, name, cache, limits, None, &|s| s)
+    let scope = SCOPE.with(|s| s.borrow().clone());
+    match scope {
+        None => open_field_within(path, name, cache, limits, None, &|s| s),
+        Some(scope) => {
+            let (name, field, read) =
+                open_region(path, name, cache, limits, &*scope.region, &*scope.reduce)?;
+            let (r, t) = scope.blocks.get();
+            scope.blocks.set((r + read.0, t + read.1));
+            Ok((name, field))
+        }
+    }
+}
+
+/// The region of a data-parallel rank, from the geometries of a field's finest level and
+/// of its root level (a render at a coarser level splits that level's voxels, so the
+/// pieces' faces move by up to a root cell).
+pub type RegionOf = dyn Fn(&Geometry, &Geometry) -> Option<Region>;
+/// The collective reduction of the ranks' statistics ([`open_field_within`]).
+pub type Reduce = dyn Fn(Result<AmrStats>) -> Result<AmrStats>;
+
+/// How [`open_field`] reads AMR fields on this thread while [`with_scope`] runs: only the
+/// blocks of `region` (given the field's finest-level geometry: the k-d piece of a
+/// data-parallel rank, with its ghost layer), the statistics reduced over the ranks by
+/// `reduce` (the collective contract of [`open_field_within`]). Scene loaders call
+/// [`open_field`], so a scene loaded inside the scope reads only this rank's blocks.
+pub struct ReadScope {
+    region: Box<RegionOf>,
+    reduce: Box<Reduce>,
+    blocks: std::cell::Cell<(usize, usize)>,
+}
+
+impl ReadScope {
+    /// A scope from the region rule and the reduction.
+    pub fn new(region: Box<RegionOf>, reduce: Box<Reduce>) -> ReadScope {
+        ReadScope {
+            region,
+            reduce,
+            blocks: std::cell::Cell::new((0, 0)),
+        }
+    }
+}
+
+impl std::fmt::Debug for ReadScope {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ReadScope")
+            .field("blocks", &self.blocks.get())
+            .finish_non_exhaustive()
+    }
+}
+
+thread_local! {
+    static SCOPE: std::cell::RefCell<Option<std::rc::Rc<ReadScope>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Runs `f` with AMR fields opened on this thread through `scope` (see [`ReadScope`]);
+/// returns its result with the blocks read and the blocks of the fields opened (summed
+/// over the fields).
+pub fn with_scope<T>(scope: ReadScope, f: impl FnOnce() -> T) -> (T, (usize, usize)) {
+    let scope = std::rc::Rc::new(scope);
+    let prev = SCOPE.with(|s| s.borrow_mut().replace(scope.clone()));
+    struct Restore(Option<std::rc::Rc<ReadScope>>);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            let prev = self.0.take();
+            SCOPE.with(|s| *s.borrow_mut() = prev);
+        }
+    }
+    let restore = Restore(prev);
+    let out = f();
+    drop(restore);
+    (out, scope.blocks.get())
 }
 
 /// [`open_field`] for one rank of a data-parallel render: reads only the blocks `region`
@@ -1219,12 +1290,26 @@ pub fn open_field_within(
     region: Option<Region>,
     reduce: &dyn Fn(Result<AmrStats>) -> Result<AmrStats>,
 ) -> Result<(String, crate::BrickedField)> {
+    open_region(path, name, cache, limits, &|_, _| region, reduce).map(|(n, f, _)| (n, f))
+}
+
+/// [`open_field_within`] with the region given by the field's finest-level geometry;
+/// returns the blocks read and the hierarchy's blocks with the field.
+fn open_region(
+    path: &Path,
+    name: Option<&str>,
+    cache: Arc<crate::BrickCache>,
+    limits: &Limits,
+    region_of: &dyn Fn(&Geometry, &Geometry) -> Option<Region>,
+    reduce: &dyn Fn(Result<AmrStats>) -> Result<AmrStats>,
+) -> Result<(String, crate::BrickedField, (usize, usize))> {
     let read = (|| {
         let h = Hierarchy::open(path)?;
         let name = match name {
             Some(n) => n.to_owned(),
             None => h.default_field()?.to_owned(),
         };
+        let region = region_of(&h.level_geometry(h.max_level()), &h.level_geometry(0));
         let field = h.field_within(&name, limits, region)?;
         Ok((name, field))
     })();
@@ -1242,7 +1327,8 @@ pub fn open_field_within(
             path.display()
         )));
     };
+    let blocks = (field.blocks_read(), field.blocks().len());
     let field = Arc::new(field.with_stats(stats));
     let bricked = crate::BrickedField::new(field.source(), cache, 0)?;
-    Ok((name, bricked))
+    Ok((name, bricked, blocks))
 }
