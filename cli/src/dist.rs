@@ -263,14 +263,24 @@ pub fn peer_failed() -> bool {
 /// through [`blueshift_volume::amr::with_scope`]; the fields' statistics (value range,
 /// least positive value, non-finite count: what automatic transfer-function ranges and the
 /// input checks read) are all-reduced so every rank sees the single process's. A rank that
-/// fails to read its blocks fails every rank there. Rank 0 prints `AMR blocks read per
+/// fails to read its blocks fails every rank there. The fields named in `whole` are read
+/// whole (a pass over the whole field follows: the mean velocity). Rank 0 prints `AMR blocks read per
 /// rank (of N): B0 B1 ...` when AMR fields were opened.
-pub fn load_scoped<T>(compositing: &str, load: impl FnOnce() -> Result<T>) -> Result<T> {
+pub fn load_scoped<T>(
+    compositing: &str,
+    whole: &[String],
+    load: impl FnOnce() -> Result<T>,
+) -> Result<T> {
     use blueshift_volume::amr::{AmrStats, ReadScope, Region, with_scope};
     let compositing = compositing.to_owned();
-    let region = move |g: &blueshift_volume::Geometry,
+    let whole = whole.to_vec();
+    let region = move |name: &str,
+                       g: &blueshift_volume::Geometry,
                        root: &blueshift_volume::Geometry|
           -> Option<Region> {
+        if whole.iter().any(|w| w == name) {
+            return None;
+        }
         with_comm(|c| {
             let f = factors(&compositing, c.size())?;
             let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)

@@ -585,9 +585,9 @@ fn distributed_is_refused_without_the_mpi_build_or_for_a_wrong_mode() {
 }
 
 /// The Enzo snapshot copied into `d` (grid 9's data pointed at a missing file when `break9`)
-/// with an emission-only AMR scene file (the mean velocity not subtracted: a pass over the
-/// whole field) beside it.
-fn enzo_scene(d: &Path, break9: bool) -> std::path::PathBuf {
+/// with an emission-only AMR scene file beside it, subtracting the mean velocity (a pass
+/// over the whole velocity, which every rank then reads) when `mean`.
+fn enzo_scene(d: &Path, break9: bool, mean: bool) -> std::path::PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let src = root.join("../shared/data/enzo-moving7/original");
     let snap = d.join("enzo");
@@ -607,8 +607,11 @@ fn enzo_scene(d: &Path, break9: bool) -> std::path::PathBuf {
     let scene = std::fs::read_to_string(root.join("scenes/enzo-moving7-amr.json")).unwrap();
     let scene = scene
         .replace("\"../../shared/data/enzo-moving7/original\"", "\"enzo\"")
-        .replace("\"subtract_mean\": true", "\"subtract_mean\": false");
-    let p = d.join(if break9 { "broken.json" } else { "amr.json" });
+        .replace(
+            "\"subtract_mean\": true",
+            &format!("\"subtract_mean\": {mean}"),
+        );
+    let p = d.join(format!("amr_{break9}_{mean}.json"));
     std::fs::write(&p, scene).unwrap();
     p
 }
@@ -637,45 +640,55 @@ fn data_parallel_amr_reads_only_each_ranks_blocks() {
     }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let scene = enzo_scene(d, false);
-    let scene = scene.to_str().unwrap();
-    let args = |out: &'static str| {
-        vec![
-            "doppler",
-            "--scene",
-            scene,
-            "--width",
-            "24",
-            "--height",
-            "20",
-            "--exr-space",
-            "xyz",
-            "--device",
-            "cpu",
-            "--out",
-            out,
-        ]
-    };
-    ok(&single(&args("one.exr"), d), "single AMR");
-    let want = common::read_exr(&d.join("one.exr"));
-    let peak = want.as_raw().iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    assert!(peak > 0.0);
-    for n in [2, 4] {
-        let out: &'static str = if n == 2 { "data2.exr" } else { "data4.exr" };
-        let mut a = args(out);
-        a.extend(["--distributed", "data"]);
+    for (n, mean) in [(2, false), (4, false), (3, true)] {
+        let scene = enzo_scene(d, false, mean);
+        let scene = scene.to_str().unwrap();
+        let args = |out: &str| {
+            [
+                "doppler",
+                "--scene",
+                scene,
+                "--width",
+                "24",
+                "--height",
+                "20",
+                "--exr-space",
+                "xyz",
+                "--device",
+                "cpu",
+                "--out",
+                out,
+            ]
+            .map(String::from)
+            .to_vec()
+        };
+        let one = format!("one_{mean}.exr");
+        let a = args(&one);
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
+        ok(&single(&a, d), "single AMR");
+        let want = common::read_exr(&d.join(&one));
+        let peak = want.as_raw().iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(peak > 0.0);
+        let out = format!("data{n}_{mean}.exr");
+        let mut a = args(&out);
+        a.extend(["--distributed", "data"].map(String::from));
+        let a: Vec<&str> = a.iter().map(String::as_str).collect();
         let (o, in_time) = mpi(n, &a, d, 300);
         assert!(in_time, "-np {n} AMR data hung");
         ok(&o, &format!("-np {n} AMR data"));
         // Emission only: additive XYZ, equal up to f32 rounding of the sums.
-        let got = common::read_exr(&d.join(out));
+        let got = common::read_exr(&d.join(&out));
         let diff = max_diff(&got, &want);
         assert!(diff <= 1e-5 * peak, "-np {n}: {diff} of {peak}");
         // Every rank reports its reads; the ranks away from the collapsing clump (grids 6 to
-        // 10 around (0.75, 0.75, 0.75)) read fewer blocks than the hierarchy holds.
+        // 10 around (0.75, 0.75, 0.75)) read fewer blocks than the hierarchy holds (with the
+        // mean velocity subtracted, every rank reads the velocity's 30 whole).
         let (reads, total) = amr_reads(&o.stderr);
         assert_eq!(reads.len(), n);
         assert!(total > 0 && reads.iter().all(|&r| r <= total));
+        if mean {
+            assert!(reads.iter().all(|&r| r >= 30), "{reads:?}");
+        }
         assert!(
             reads.iter().any(|&r| r < total),
             "-np {n}: every rank read every block: {reads:?} of {total}"
@@ -683,11 +696,23 @@ fn data_parallel_amr_reads_only_each_ranks_blocks() {
     }
     // A rank that cannot read a block it needs (grid 9's file is missing) stops every rank
     // with one message naming the file; the ranks that do not need it say nothing.
-    let broken = enzo_scene(d, true);
-    let mut a = args("broken.exr");
+    let broken = enzo_scene(d, true, false);
     let broken = broken.to_str().unwrap();
-    a[2] = broken;
-    a.extend(["--distributed", "data"]);
+    let a = [
+        "doppler",
+        "--scene",
+        broken,
+        "--width",
+        "24",
+        "--height",
+        "20",
+        "--device",
+        "cpu",
+        "--out",
+        "broken.exr",
+        "--distributed",
+        "data",
+    ];
     let (o, in_time) = mpi(2, &a, d, 120);
     assert!(in_time, "a missing AMR grid file hung the job");
     assert!(!o.status.success());

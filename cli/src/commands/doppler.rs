@@ -240,19 +240,29 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
                 crate::limits::budget(),
             )?)
         };
-        // `--distributed data`: each rank reads only its piece's AMR blocks, unless the mean
-        // velocity is subtracted (a pass over the whole field, which every rank then reads).
+        // `--distributed data`: each rank reads only its piece's AMR blocks, except the
+        // velocity's when its mean is subtracted (a pass over the whole field); velocities
+        // not named as AMR channels are then read whole with the rest.
         let mean =
             args.subtract_mean_velocity || file.velocity.as_ref().is_some_and(|v| v.subtract_mean);
+        let whole: Option<Vec<String>> = if mean {
+            file.velocity
+                .as_ref()
+                .and_then(|v| v.channels.clone())
+                .map(|c| c.to_vec())
+        } else {
+            Some(Vec::new())
+        };
         let data =
             crate::dist::mode(args.distributed.as_deref())? == Some(blueshift_dist::Mode::Data);
-        if data && mean && file.has_amr() {
+        if data && whole.is_none() && file.has_amr() {
             eprintln!(
-                "note: the mean velocity is subtracted: every rank reads the whole AMR fields"
+                "note: the mean velocity is subtracted from a velocity that is not named by \
+                 AMR channels: every rank reads the whole AMR fields"
             );
         }
-        let scene = if data && !mean {
-            crate::dist::load_scoped(&args.compositing, load)?
+        let scene = if let (true, Some(whole)) = (data, &whole) {
+            crate::dist::load_scoped(&args.compositing, whole, load)?
         } else {
             load()?
         };

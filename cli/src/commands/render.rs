@@ -569,7 +569,7 @@ fn run_inner(args: &Args) -> Result<()> {
         == Some(blueshift_dist::Mode::Data)
         && f.method != Some(blueshift_tracking::Method::Woodcock);
     let (scene, integrator, mut settings) = if data_parallel {
-        crate::dist::load_scoped(&args.compositing, || Ok(f.build_with(&memory)?))?
+        crate::dist::load_scoped(&args.compositing, &[], || Ok(f.build_with(&memory)?))?
     } else {
         f.build_with(&memory)?
     };
