@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Strong scaling of `--distributed data` on one machine: the same Doppler render (with
 # absorption, exact compositing) and the same marcher render on 1..4 ranks under
-# `mpirun --oversubscribe`, wall time of the whole job (MPI start-up included), against the
+# `mpirun --oversubscribe` (and Woodcock with forwarded rays), wall time of the whole job (MPI start-up included), against the
 # single process without MPI. Each rank runs one rendering thread (RAYON_NUM_THREADS=1),
 # so the ranks are the only parallelism. Usage: dist/scripts/scaling.sh [BLUESHIFT_BINARY] [RES] [SIZE]
 # (the binary must be built with --features mpi).
@@ -24,7 +24,10 @@ doppler=(doppler --synth galaxy --res "$RES" --species bb,H,C --absorption-facto
          --velocity-factor 30 --width "$SIZE" --height "$SIZE" --device cpu)
 marcher=(render --synth three-cubes --res "$RES" --tf builtin:viridis --method marcher
          --density-scale 1 --width "$SIZE" --height "$SIZE" --device cpu)
-for what in doppler marcher; do
+# Woodcock with rays forwarded between the ranks' pieces (bit-identical to the single process).
+woodcock=(render --synth three-cubes --res "$RES" --tf builtin:viridis --method woodcock
+          --density-scale 4 --spp 4 --width "$SIZE" --height "$SIZE" --device cpu)
+for what in doppler marcher woodcock; do
     declare -n args=$what
     run "$what single" "$BIN" "${args[@]}" --out "$dir/s.exr"
     for n in 1 2 3 4; do
