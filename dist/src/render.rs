@@ -6,8 +6,8 @@
 //! setting) stops all of them at that point with an error instead of leaving them waiting.
 
 use blueshift_doppler::part::{
-    add_depths, cube_from_rows, cube_optical_depth_part, optical_depth_part, render_cube_part,
-    render_doppler_part,
+    add_depths, cube_from_rows, cube_optical_depth_part, front_chord_budget,
+    optical_depth_part_chorded, render_cube_part, render_doppler_part_chorded,
 };
 use blueshift_doppler::{
     CubeSpec, DopplerImage, DopplerScene, DopplerSettings, PieceStats, SpectralCube,
@@ -584,16 +584,21 @@ pub fn render_doppler_data(
     }
     let pixels = settings.width as usize * settings.height as usize;
     let clock = Phases::start(me);
+    // The depth in front, read as chords: half the sweep's chord budget, shared by the at
+    // most n - 1 pieces in front of any other (their strays add); the sweeps behind keep
+    // within the other half, so the image keeps the single process's bound.
+    let budget = front_chord_budget(settings);
     let front = if scene.absorbs() && n > 1 {
+        let eps = budget / (n - 1) as f64;
         let f = front_depths(comm, &order, pixels, || {
-            optical_depth_part(scene, settings, &clip).map_err(Error::from)
+            optical_depth_part_chorded(scene, settings, &clip, eps).map_err(Error::from)
         })?;
         clock.mark("depth scan");
         Some(f)
     } else {
         None
     };
-    let part = render_doppler_part(scene, settings, &clip, front.as_deref());
+    let part = render_doppler_part_chorded(scene, settings, &clip, front.as_deref(), budget);
     clock.mark("render");
     let part = agree(comm, "rendering", part.map_err(Error::from))?;
     clock.mark("wait for all");

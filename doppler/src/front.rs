@@ -141,6 +141,60 @@ fn from(p: Piece, x: f64) -> Piece {
     }
 }
 
+/// The depth `p` (sorted, disjoint pieces) as chords, each within `eps` of it on its span
+/// ([`chord_over`]'s rule, the integral kept where the allowed slopes include it): fewer
+/// pieces for a depth that is sent and swept again (distributed rendering). `eps <= 0`
+/// returns `p` unchanged.
+#[must_use]
+pub fn chord_depth(p: &[Piece], eps: f64) -> Vec<Piece> {
+    let (Some(first), Some(last)) = (p.first(), p.last()) else {
+        return Vec::new();
+    };
+    if eps <= 0.0 || p.len() < 3 {
+        return p.to_vec();
+    }
+    let (mut u, limit) = (first.start_nm, last.end_nm);
+    let mut c = Cursor::new(p);
+    let mut out = Vec::new();
+    // P's own pieces over [u, end) (where a chord would not do).
+    let exact = |u: f64, end: f64, out: &mut Vec<Piece>| {
+        for q in p.iter().filter(|q| q.end_nm > u && q.start_nm < end) {
+            let mut q = *q;
+            if q.start_nm < u {
+                q.value_start = value_at(&q, u);
+                q.start_nm = u;
+            }
+            if q.end_nm > end {
+                q.value_end = value_at(&q, end);
+                q.end_nm = end;
+            }
+            out.push(q);
+        }
+    };
+    while u < limit {
+        let cur = c.at(u);
+        let (end, a, b) = chord_over(&c, cur, u, limit, eps);
+        if end <= u {
+            // Rounding left no room: keep the rest exact.
+            exact(u, limit, &mut out);
+            break;
+        }
+        if a < 0.0 || b < 0.0 {
+            // A depth is never negative: keep P itself here.
+            exact(u, end, &mut out);
+        } else if a != 0.0 || b != 0.0 {
+            out.push(Piece {
+                start_nm: u,
+                end_nm: end,
+                value_start: a,
+                value_end: b,
+            });
+        }
+        u = end;
+    }
+    out
+}
+
 /// `a + b` for sorted, disjoint piece lists, into `out` (cleared first). Runs of `a` that `b`
 /// does not touch are copied as they are; `b` is expected to be the short one.
 fn add_sorted(a: &[Piece], b: &[Piece], out: &mut Vec<Piece>) {
@@ -865,7 +919,8 @@ fn march(
     w.resize(k, [0.0; 3]);
     let mut sweep = Sweep {
         t,
-        eps: (0.25 * tol).ln_1p(),
+        // The chords' budget, less what the depth in front already took (distributed).
+        eps: ((0.25 * tol).ln_1p() - ctx.front_eps).max(0.0),
         w: std::mem::take(w),
     };
     p.clear();
@@ -1069,6 +1124,54 @@ mod tests {
             .iter()
             .find(|p| p.start_nm < x && x <= p.end_nm)
             .map_or(0.0, |p| p.at(x))
+    }
+
+    #[test]
+    fn a_chorded_depth_stays_within_eps_and_is_smaller() {
+        let mut cuts = Vec::new();
+        let (mut before, mut after) = (0usize, 0usize);
+        for seed in 0..60 {
+            // Jumps (random trapezoids) and continuous line profiles (tents of depth up to
+            // 0.02, as weak lines' are): chords can cross only the latter's breakpoints.
+            let mut tr = random_traps(seed, 5 + (seed as usize % 40));
+            let mut st = seed + 99;
+            for _ in 0..60 {
+                let (c, w, h) = (
+                    400.0 + 50.0 * lcg(&mut st),
+                    0.05 + 2.0 * lcg(&mut st),
+                    0.02 * lcg(&mut st),
+                );
+                tr.push((c - w, c, 0.0, h));
+                tr.push((c, c + w, h, 0.0));
+            }
+            if seed % 2 == 0 {
+                tr.retain(|t| t.2 == 0.0 || t.3 == 0.0);
+            }
+            let mut p = Vec::new();
+            sum_trapezoids(&mut tr, 0.3, &mut p, &mut cuts);
+            let eps = [1e-4, 1e-3, 1e-2][seed as usize % 3];
+            let c = chord_depth(&p, eps);
+            assert!(sorted_disjoint(&c), "seed {seed}: {c:?}");
+            assert!(c.iter().all(|q| q.value_start >= 0.0 && q.value_end >= 0.0));
+            // Everywhere, from both sides, including the gaps and past the ends.
+            for i in 0..=6000 {
+                let x = 395.0 + 65.0 * f64::from(i) / 6000.0;
+                for (got, want) in [
+                    (eval_right(&c, x), eval_right(&p, x)),
+                    (eval_left(&c, x), eval_left(&p, x)),
+                ] {
+                    assert!(
+                        (got - want).abs() <= eps * (1.0 + 1e-9) + 1e-12,
+                        "seed {seed} x {x}: {got} vs {want} (eps {eps})"
+                    );
+                }
+            }
+            assert_eq!(chord_depth(&p, 0.0), p, "eps 0 is the depth itself");
+            before += p.len();
+            after += c.len();
+        }
+        // Half the cases are continuous profiles: the chords take many of their breakpoints.
+        assert!(2 * after < before, "{after} pieces of {before}");
     }
 
     #[test]

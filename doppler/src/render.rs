@@ -309,6 +309,10 @@ pub(crate) struct Context<'a> {
     prep: Prep<'a>,
     /// Keep only the segments whose middle lies in this box (distributed rendering).
     pub clip: Option<blueshift_camera::ClipBox>,
+    /// How far (optical depth) a given depth in front already strays from the exact one
+    /// (chords taken before it was sent: distributed rendering); the sweep's chords take
+    /// the rest of their budget.
+    pub front_eps: f64,
 }
 
 #[derive(Debug)]
@@ -335,6 +339,7 @@ impl<'a> Context<'a> {
             settings,
             prep: Prep::Owned(Box::new(Prepared::new(scene, settings)?)),
             clip: None,
+            front_eps: 0.0,
         })
     }
 
@@ -349,6 +354,7 @@ impl<'a> Context<'a> {
             settings,
             prep: Prep::Borrowed(prepared),
             clip: None,
+            front_eps: 0.0,
         }
     }
 
