@@ -26,7 +26,7 @@ marcher=(render --synth three-cubes --res "$RES" --tf builtin:viridis --method m
          --density-scale 1 --width "$SIZE" --height "$SIZE" --device cpu)
 # Woodcock with rays forwarded between the ranks' pieces (bit-identical to the single process).
 woodcock=(render --synth three-cubes --res "$RES" --tf builtin:viridis --method woodcock
-          --density-scale 4 --spp 4 --width "$SIZE" --height "$SIZE" --device cpu)
+          --density-scale 4 --spp 256 --width "$SIZE" --height "$SIZE" --device cpu)
 for what in doppler marcher woodcock; do
     declare -n args=$what
     run "$what single" "$BIN" "${args[@]}" --out "$dir/s.exr"

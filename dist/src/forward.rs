@@ -15,16 +15,16 @@
 //!
 //! Rounds (bulk synchronous): every rank walks its rays until each is done or has left its
 //! piece, the rays that left are exchanged all to all, and the ranks agree whether any ray
-//! is still moving. The first round's rays: every rank draws each ray's first tentative
-//! collision (no density is needed for it) and keeps the rays whose first collision is in
-//! its piece; rays that meet no majorant go to rank 0 as background.
+//! is still moving. The first round's rays: rank r starts every n-th ray and walks it
+//! while its tentative collisions lie in r's piece (the first needs no density), then sends
+//! it to the rank whose piece holds the next one.
 //!
 //! Shading reads the data around the collision (the gradient: one voxel, within the
 //! pieces' ghost layer); shadow rays would cross every piece, so scenes with shadows are
 //! refused (use `samples` or `tiles`).
 
 use blueshift_tracking::{
-    Integrator, Progressive, RayStats, RenderSettings, Rng, Scene, WalkStop, observed, primary_ray,
+    Integrator, Progressive, RayStats, RenderSettings, Scene, WalkStop, observed, primary_ray,
     traces_shadows, welford_add, woodcock_walk,
 };
 use rayon::prelude::*;
@@ -46,8 +46,24 @@ struct InFlight {
 
 /// Values per forwarded ray on the wire.
 const RAY_VALUES: usize = 4;
-/// Values per finished sample on the wire: pixel, sample, RGBA.
-const RESULT_VALUES: usize = 6;
+/// Values per finished sample on the wire: the ray index (pixel x spp + sample) and RGBA,
+/// two f32s' bits per value ([`sample_values`]).
+const RESULT_VALUES: usize = 3;
+
+/// A finished sample on the wire: its ray index, then R and G, B and A, each pair of f32
+/// bit patterns in one f64's bits (moved, never computed on, so the bits arrive).
+fn sample_values(ray: u64, v: [f32; 4]) -> [f64; RESULT_VALUES] {
+    let pair =
+        |a: f32, b: f32| f64::from_bits(u64::from(a.to_bits()) << 32 | u64::from(b.to_bits()));
+    [ray as f64, pair(v[0], v[1]), pair(v[2], v[3])]
+}
+
+/// [`sample_values`] back: the ray index and RGBA.
+fn sample_from(c: &[f64]) -> (u64, [f32; 4]) {
+    let hi = |x: f64| f32::from_bits((x.to_bits() >> 32) as u32);
+    let lo = |x: f64| f32::from_bits(x.to_bits() as u32);
+    (c[0] as u64, [hi(c[1]), lo(c[1]), hi(c[2]), lo(c[2])])
+}
 
 /// Counts of a forwarded render, per rank: what the benchmarks and the note report.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -108,120 +124,91 @@ pub fn render_woodcock_forwarded(
     let xy = |pixel: u64| ((pixel % u64::from(w)) as u32, (pixel / u64::from(w)) as u32);
     let mut stats = ForwardStats::default();
 
-    // The first round: every rank draws each ray's first tentative collision.
+    // One walk: ray `i` (pixel x spp + sample) from its start, or resumed at a pending
+    // collision `(t, dim)`, while its tentative collisions lie in this rank's piece.
     let total = u64::from(settings.width) * u64::from(settings.height);
-    let start: Vec<(Option<InFlight>, Option<[f32; 4]>)> = (0..total)
-        .into_par_iter()
-        .flat_map_iter(|pixel| {
-            (0..settings.spp).map(move |sample| {
-                let (ray, mut rng) = primary_ray(settings, observer.as_ref(), xy(pixel), sample);
-                let stop = woodcock_walk(
-                    scene,
-                    channel,
-                    &ray,
-                    &mut rng,
-                    None,
-                    |_| false,
-                    &mut RayStats::default(),
+    let spp = u64::from(settings.spp);
+    let walk = |i: u64, resume: Option<(f32, u64)>| -> Outcome {
+        let (pixel, sample) = (i / spp, (i % spp) as u32);
+        let (ray, mut rng) = primary_ray(settings, observer.as_ref(), xy(pixel), sample);
+        if let Some((_, dim)) = resume {
+            rng.set_dimension(dim);
+        }
+        let stop = woodcock_walk(
+            scene,
+            channel,
+            &ray,
+            &mut rng,
+            resume.map(|r| r.0),
+            |p| mine.contains(p),
+            &mut RayStats::default(),
+        );
+        let v = match stop {
+            // Another rank's point (the boxes tile space, so one holds it).
+            WalkStop::Left { t, p } if owner(p).is_some() => {
+                let to = owner(p).expect("checked");
+                return Outcome::Fly(
+                    to,
+                    InFlight {
+                        pixel,
+                        sample,
+                        t,
+                        dim: rng.dimension(),
+                    },
                 );
-                match stop {
-                    WalkStop::Left { t, p } if owner(p) == Some(me) => (
-                        Some(InFlight {
-                            pixel,
-                            sample,
-                            t,
-                            dim: rng.dimension(),
-                        }),
-                        None,
-                    ),
-                    WalkStop::Done(v) if me == 0 => {
-                        (None, Some(observed(observer.as_ref(), &ray, v)))
-                    }
-                    _ => (None, None),
-                }
-            })
-        })
-        .collect();
-    let mut results: Vec<f64> = Vec::new();
-    let mut active: Vec<InFlight> = Vec::new();
-    for (i, (f, v)) in start.into_iter().enumerate() {
-        if let Some(f) = f {
-            active.push(f);
-        }
-        if let Some(v) = v {
-            let spp = u64::from(settings.spp);
-            let (pixel, sample) = (i as u64 / spp, i as u64 % spp);
-            results.extend([pixel as f64, sample as f64]);
-            results.extend(v.map(f64::from));
-        }
-    }
+            }
+            WalkStop::Done(v) => v,
+            // Outside every box (rounding at the domain's edge): the background.
+            WalkStop::Left { .. } => {
+                let [r, g, b] = scene.background;
+                [r, g, b, 0.0]
+            }
+        };
+        Outcome::Done(i, observed(observer.as_ref(), &ray, v))
+    };
+    // The first round: rank r starts every n-th ray (ray index mod n = r), walks it while
+    // its tentative collisions are in r's piece and sends it on from the first one that is
+    // not (to the rank whose piece holds it).
+    let rays = total * spp;
+    let count = rays.saturating_sub(me as u64).div_ceil(n as u64);
+    let first = (0..count)
+        .into_par_iter()
+        .fold(
+            || Batch::new(n, me),
+            |mut b, k| {
+                b.add(walk(me as u64 + k * n as u64, None));
+                b
+            },
+        )
+        .reduce(|| Batch::new(n, me), Batch::join);
+    let mut results = first.results;
+    stats.finished += first.finished;
+    stats.forwarded += first.forwarded;
+    let mut active = first.keep;
+    active.extend(exchange(comm, &first.outbox)?);
 
     loop {
         // Walk every ray this rank holds until it is done or leaves the piece.
-        let walked: Vec<(Option<usize>, Vec<f64>)> = active
+        let walked = active
             .par_iter()
-            .map(|f| {
-                let (x, y) = xy(f.pixel);
-                let (ray, _) = primary_ray(settings, observer.as_ref(), (x, y), f.sample);
-                let mut rng = Rng::new(settings.seed, f.pixel, u64::from(f.sample));
-                rng.set_dimension(f.dim);
-                let stop = woodcock_walk(
-                    scene,
-                    channel,
-                    &ray,
-                    &mut rng,
-                    Some(f.t),
-                    |p| mine.contains(p),
-                    &mut RayStats::default(),
-                );
-                match stop {
-                    // Another rank's point (the boxes tile space, so one holds it).
-                    WalkStop::Left { t, p } if owner(p).is_some() => (
-                        owner(p),
-                        vec![
-                            f.pixel as f64,
-                            f64::from(f.sample),
-                            f64::from(t),
-                            rng.dimension() as f64,
-                        ],
-                    ),
-                    stop => {
-                        let v = match stop {
-                            WalkStop::Done(v) => v,
-                            WalkStop::Left { .. } => {
-                                let [r, g, b] = scene.background;
-                                [r, g, b, 0.0]
-                            }
-                        };
-                        let v = observed(observer.as_ref(), &ray, v);
-                        let mut out = vec![f.pixel as f64, f64::from(f.sample)];
-                        out.extend(v.map(f64::from));
-                        (None, out)
-                    }
-                }
-            })
-            .collect();
+            .fold(
+                || Batch::new(n, me),
+                |mut b, f| {
+                    b.add(walk(
+                        f.pixel * spp + u64::from(f.sample),
+                        Some((f.t, f.dim)),
+                    ));
+                    b
+                },
+            )
+            .reduce(|| Batch::new(n, me), Batch::join);
         agree(comm, "tracking", scene.check_io().map_err(Error::from))?;
-        let mut outbox = vec![Vec::new(); n];
-        for (to, v) in walked {
-            match to {
-                None => {
-                    results.extend(v);
-                    stats.finished += 1;
-                }
-                Some(to) => {
-                    stats.forwarded += 1;
-                    outbox[to].extend(v);
-                }
-            }
-        }
-        // All to all: in step d, send to me + d, receive from me - d.
-        active = Vec::new();
-        for d in 1..n {
-            let (to, from) = ((me + d) % n, (me + n - d) % n);
-            let got = comm.send_recv(&outbox[to], to, from)?;
-            active.extend(decode_rays(&got, from)?);
-        }
+        results.extend(walked.results);
+        stats.finished += walked.finished;
+        stats.forwarded += walked.forwarded;
+        // A walk resumed here always leaves the piece or finishes.
+        active = walked.keep;
+        active.extend(exchange(comm, &walked.outbox)?);
         stats.rounds += 1;
         if comm.all_ok(active.is_empty())? {
             break;
@@ -250,13 +237,11 @@ pub fn render_woodcock_forwarded(
             )));
         }
         for c in part.chunks_exact(RESULT_VALUES) {
-            let (pixel, sample) = (c[0] as usize, c[1] as usize);
-            if pixel >= pixels || sample >= spp {
-                return Err(Error::comm(format!(
-                    "sample {sample} of pixel {pixel} from rank {r}"
-                )));
-            }
-            samples[pixel * spp + sample] = [c[2] as f32, c[3] as f32, c[4] as f32, c[5] as f32];
+            let (ray, v) = sample_from(c);
+            let Some(slot) = samples.get_mut(usize::try_from(ray).unwrap_or(usize::MAX)) else {
+                return Err(Error::comm(format!("sample of ray {ray} from rank {r}")));
+            };
+            *slot = v;
             seen += 1;
         }
     }
@@ -268,13 +253,97 @@ pub fn render_woodcock_forwarded(
     }
     let mut mean = vec![[0.0f64; 4]; pixels];
     let mut m2 = vec![[0.0f64; 4]; pixels];
-    for (i, px) in samples.chunks_exact(spp).enumerate() {
-        for (s, v) in px.iter().enumerate() {
-            welford_add(&mut mean[i], &mut m2[i], *v, (s + 1) as f64);
-        }
-    }
+    // Pixel by pixel (in parallel), each pixel's samples in sample order.
+    samples
+        .par_chunks_exact(spp)
+        .zip(mean.par_iter_mut().zip(m2.par_iter_mut()))
+        .for_each(|(px, (mean, m2))| {
+            for (s, v) in px.iter().enumerate() {
+                welford_add(mean, m2, *v, (s + 1) as f64);
+            }
+        });
     let img = Progressive::from_moments(settings.width, settings.height, settings.spp, mean, m2)?;
     Ok((Some(img), stats))
+}
+
+/// What one walk ends in: the ray sent to a rank, or its sample (ray index, RGBA).
+enum Outcome {
+    Fly(usize, InFlight),
+    Done(u64, [f32; 4]),
+}
+
+/// The outcomes of a batch of walks, sorted for the exchange: finished samples on the
+/// wire, rays this rank keeps, rays per rank.
+struct Batch {
+    me: usize,
+    results: Vec<f64>,
+    keep: Vec<InFlight>,
+    outbox: Vec<Vec<f64>>,
+    forwarded: u64,
+    finished: u64,
+}
+
+impl Batch {
+    fn new(n: usize, me: usize) -> Batch {
+        Batch {
+            me,
+            results: Vec::new(),
+            keep: Vec::new(),
+            outbox: vec![Vec::new(); n],
+            forwarded: 0,
+            finished: 0,
+        }
+    }
+
+    fn add(&mut self, o: Outcome) {
+        match o {
+            Outcome::Fly(to, f) if to == self.me => self.keep.push(f),
+            Outcome::Fly(to, f) => {
+                self.outbox[to].extend(f.values());
+                self.forwarded += 1;
+            }
+            Outcome::Done(i, v) => {
+                self.results.extend(sample_values(i, v));
+                self.finished += 1;
+            }
+        }
+    }
+
+    fn join(mut self, other: Batch) -> Batch {
+        self.results.extend(other.results);
+        self.keep.extend(other.keep);
+        for (a, b) in self.outbox.iter_mut().zip(other.outbox) {
+            a.extend(b);
+        }
+        self.forwarded += other.forwarded;
+        self.finished += other.finished;
+        self
+    }
+}
+
+impl InFlight {
+    /// The ray on the wire.
+    fn values(&self) -> [f64; RAY_VALUES] {
+        [
+            self.pixel as f64,
+            f64::from(self.sample),
+            f64::from(self.t),
+            self.dim as f64,
+        ]
+    }
+}
+
+/// All to all (in step d, send to me + d, receive from me - d): the rays `outbox[r]` go to
+/// rank r; returns the rays the others sent here.
+fn exchange(comm: &dyn Communicator, outbox: &[Vec<f64>]) -> Result<Vec<InFlight>> {
+    let (n, me) = (comm.size(), comm.rank());
+    let mut got_all = Vec::new();
+    for d in 1..n {
+        let (to, from) = ((me + d) % n, (me + n - d) % n);
+        let got = comm.send_recv(&outbox[to], to, from)?;
+        got_all.extend(decode_rays(&got, from)?);
+    }
+    Ok(got_all)
 }
 
 /// The rays of a message from rank `from`.
