@@ -44,6 +44,10 @@ struct InFlight {
     dim: u64,
 }
 
+/// The most bytes of finished samples a pass holds (rank 0 gathers a pass's samples before
+/// it adds them in sample order): 256 MiB, 11 million samples.
+const PASS_BYTES: u64 = 256 << 20;
+
 /// Values per forwarded ray on the wire.
 const RAY_VALUES: usize = 4;
 /// Values per finished sample on the wire: the ray index (pixel x spp + sample) and RGBA,
@@ -91,6 +95,23 @@ pub fn render_woodcock_forwarded(
     integrator: &Integrator,
     settings: &RenderSettings,
     decomp: &Decomposition,
+) -> Result<(Option<Progressive>, ForwardStats)> {
+    render_woodcock_forwarded_in_passes(comm, scene, integrator, settings, decomp, PASS_BYTES)
+}
+
+/// [`render_woodcock_forwarded`] with passes of samples holding at most `pass_bytes` of
+/// finished samples each (at least one sample per pixel): the same image for any
+/// `pass_bytes`.
+///
+/// # Errors
+/// As [`render_woodcock_forwarded`].
+pub fn render_woodcock_forwarded_in_passes(
+    comm: &dyn Communicator,
+    scene: &Scene,
+    integrator: &Integrator,
+    settings: &RenderSettings,
+    decomp: &Decomposition,
+    pass_bytes: u64,
 ) -> Result<(Option<Progressive>, ForwardStats)> {
     let (n, me) = (comm.size(), comm.rank());
     let pre = (|| {
@@ -166,102 +187,119 @@ pub fn render_woodcock_forwarded(
         };
         Outcome::Done(i, observed(observer.as_ref(), &ray, v))
     };
-    // The first round: rank r starts every n-th ray (ray index mod n = r), walks it while
-    // its tentative collisions are in r's piece and sends it on from the first one that is
-    // not (to the rank whose piece holds it).
-    let rays = total * spp;
-    let count = rays.saturating_sub(me as u64).div_ceil(n as u64);
-    let first = (0..count)
-        .into_par_iter()
-        .fold(
-            || Batch::new(n, me),
-            |mut b, k| {
-                b.add(walk(me as u64 + k * n as u64, None));
-                b
-            },
-        )
-        .reduce(|| Batch::new(n, me), Batch::join);
-    let mut results = first.results;
-    stats.finished += first.finished;
-    stats.forwarded += first.forwarded;
-    let mut active = first.keep;
-    active.extend(exchange(comm, &first.outbox)?);
-
-    loop {
-        // Walk every ray this rank holds until it is done or leaves the piece.
-        let walked = active
-            .par_iter()
+    let pixels = usize::try_from(total).map_err(|_| Error::parameter("image too large"))?;
+    let mut mean = vec![[0.0f64; 4]; if me == 0 { pixels } else { 0 }];
+    let mut m2 = mean.clone();
+    // Passes of samples, in sample order, each holding at most PASS_BYTES of finished
+    // samples: the memory stays bounded at any spp and rank 0 still adds every pixel's
+    // samples in sample order.
+    let per_pass = (pass_bytes / (total.max(1) * RESULT_VALUES as u64 * 8)).clamp(1, spp.max(1));
+    let mut s0 = 0;
+    while s0 < spp {
+        let len = per_pass.min(spp - s0);
+        // The ray index of the k-th ray of the pass.
+        let ray_of = |k: u64| (k / len) * spp + s0 + k % len;
+        // The first round: rank r starts every n-th ray of the pass, walks it while its
+        // tentative collisions are in r's piece and sends it on from the first one that is
+        // not (to the rank whose piece holds it).
+        let count = (total * len).saturating_sub(me as u64).div_ceil(n as u64);
+        let first = (0..count)
+            .into_par_iter()
             .fold(
                 || Batch::new(n, me),
-                |mut b, f| {
-                    b.add(walk(
-                        f.pixel * spp + u64::from(f.sample),
-                        Some((f.t, f.dim)),
-                    ));
+                |mut b, k| {
+                    b.add(walk(ray_of(me as u64 + k * n as u64), None));
                     b
                 },
             )
             .reduce(|| Batch::new(n, me), Batch::join);
-        agree(comm, "tracking", scene.check_io().map_err(Error::from))?;
-        results.extend(walked.results);
-        stats.finished += walked.finished;
-        stats.forwarded += walked.forwarded;
-        // A walk resumed here always leaves the piece or finishes.
-        active = walked.keep;
-        active.extend(exchange(comm, &walked.outbox)?);
-        stats.rounds += 1;
-        if comm.all_ok(active.is_empty())? {
-            break;
-        }
-    }
+        let mut results = first.results;
+        stats.finished += first.finished;
+        stats.forwarded += first.forwarded;
+        let mut active = first.keep;
+        active.extend(exchange(comm, &first.outbox)?);
 
-    // Gather the finished samples on rank 0 and add them in sample order.
+        loop {
+            // Walk every ray this rank holds until it is done or leaves the piece.
+            let walked = active
+                .par_iter()
+                .fold(
+                    || Batch::new(n, me),
+                    |mut b, f| {
+                        b.add(walk(
+                            f.pixel * spp + u64::from(f.sample),
+                            Some((f.t, f.dim)),
+                        ));
+                        b
+                    },
+                )
+                .reduce(|| Batch::new(n, me), Batch::join);
+            agree(comm, "tracking", scene.check_io().map_err(Error::from))?;
+            results.extend(walked.results);
+            stats.finished += walked.finished;
+            stats.forwarded += walked.forwarded;
+            // A walk resumed here always leaves the piece or finishes.
+            active = walked.keep;
+            active.extend(exchange(comm, &walked.outbox)?);
+            stats.rounds += 1;
+            if comm.all_ok(active.is_empty())? {
+                break;
+            }
+        }
+
+        // Gather the pass's samples on rank 0 and add them in sample order.
+        if me != 0 {
+            comm.send(0, &results)?;
+        } else {
+            let len = len as usize;
+            let mut samples = vec![[f32::NAN; 4]; pixels * len];
+            let mut seen = 0usize;
+            for r in 0..n {
+                let part = if r == 0 {
+                    std::mem::take(&mut results)
+                } else {
+                    comm.recv(r)?
+                };
+                if !part.len().is_multiple_of(RESULT_VALUES) {
+                    return Err(Error::comm(format!(
+                        "samples: {} values from rank {r}",
+                        part.len()
+                    )));
+                }
+                for c in part.chunks_exact(RESULT_VALUES) {
+                    let (ray, v) = sample_from(c);
+                    let (pixel, sample) = (ray / spp, ray % spp);
+                    let slot = (sample >= s0 && sample < s0 + len as u64)
+                        .then(|| pixel as usize * len + (sample - s0) as usize)
+                        .and_then(|k| samples.get_mut(k));
+                    let Some(slot) = slot else {
+                        return Err(Error::comm(format!("sample of ray {ray} from rank {r}")));
+                    };
+                    *slot = v;
+                    seen += 1;
+                }
+            }
+            if seen != pixels * len {
+                return Err(Error::comm(format!(
+                    "{seen} samples finished, {} expected",
+                    pixels * len
+                )));
+            }
+            // Pixel by pixel (in parallel), each pixel's samples in sample order.
+            samples
+                .par_chunks_exact(len)
+                .zip(mean.par_iter_mut().zip(m2.par_iter_mut()))
+                .for_each(|(px, (mean, m2))| {
+                    for (j, v) in px.iter().enumerate() {
+                        welford_add(mean, m2, *v, (s0 as usize + j + 1) as f64);
+                    }
+                });
+        }
+        s0 += len;
+    }
     if me != 0 {
-        comm.send(0, &results)?;
         return Ok((None, stats));
     }
-    let pixels = usize::try_from(total).map_err(|_| Error::parameter("image too large"))?;
-    let spp = settings.spp as usize;
-    let mut samples = vec![[f32::NAN; 4]; pixels * spp];
-    let mut seen = 0usize;
-    for r in 0..n {
-        let part = if r == 0 {
-            std::mem::take(&mut results)
-        } else {
-            comm.recv(r)?
-        };
-        if !part.len().is_multiple_of(RESULT_VALUES) {
-            return Err(Error::comm(format!(
-                "samples: {} values from rank {r}",
-                part.len()
-            )));
-        }
-        for c in part.chunks_exact(RESULT_VALUES) {
-            let (ray, v) = sample_from(c);
-            let Some(slot) = samples.get_mut(usize::try_from(ray).unwrap_or(usize::MAX)) else {
-                return Err(Error::comm(format!("sample of ray {ray} from rank {r}")));
-            };
-            *slot = v;
-            seen += 1;
-        }
-    }
-    if seen != pixels * spp {
-        return Err(Error::comm(format!(
-            "{seen} samples finished, {} expected",
-            pixels * spp
-        )));
-    }
-    let mut mean = vec![[0.0f64; 4]; pixels];
-    let mut m2 = vec![[0.0f64; 4]; pixels];
-    // Pixel by pixel (in parallel), each pixel's samples in sample order.
-    samples
-        .par_chunks_exact(spp)
-        .zip(mean.par_iter_mut().zip(m2.par_iter_mut()))
-        .for_each(|(px, (mean, m2))| {
-            for (s, v) in px.iter().enumerate() {
-                welford_add(mean, m2, *v, (s + 1) as f64);
-            }
-        });
     let img = Progressive::from_moments(settings.width, settings.height, settings.spp, mean, m2)?;
     Ok((Some(img), stats))
 }
