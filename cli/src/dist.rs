@@ -258,14 +258,16 @@ pub fn peer_failed() -> bool {
 }
 
 /// Loads a scene for `--distributed data` so that AMR fields read only this rank's blocks:
-/// the k-d piece of the field's finest level for the job's rank count (the decomposition
-/// the render then makes, `compositing`'s factors), with its ghost layer and a voxel more,
-/// through [`blueshift_volume::amr::with_scope`]; the fields' statistics (value range,
-/// least positive value, non-finite count: what automatic transfer-function ranges and the
-/// input checks read) are all-reduced so every rank sees the single process's. A rank that
-/// fails to read its blocks fails every rank there. The fields named in `whole` are read
-/// whole (a pass over the whole field follows: the mean velocity). Rank 0 prints `AMR blocks read per
-/// rank (of N): B0 B1 ...` when AMR fields were opened.
+/// the union of its k-d pieces over the field's levels for the job's rank count (the
+/// decomposition the render then makes at the level it picks, `compositing`'s factors),
+/// each with its ghost layer, through
+/// [`blueshift_volume::amr::with_scope`]; the fields' statistics (value range, least
+/// positive value, non-finite count: what automatic transfer-function ranges and the input
+/// checks read) are all-reduced so every rank sees the single process's. A rank that fails
+/// to read its blocks fails every rank there (the other inputs are taken to read the same
+/// on every rank: a file only one rank cannot read makes the others wait). The fields named
+/// in `whole` are read whole (a pass over the whole field follows: the mean velocity).
+/// Rank 0 prints `AMR blocks read per rank (of N): B0 B1 ...` when AMR fields were opened.
 pub fn load_scoped<T>(
     compositing: &str,
     whole: &[String],
@@ -274,32 +276,38 @@ pub fn load_scoped<T>(
     use blueshift_volume::amr::{AmrStats, ReadScope, Region, with_scope};
     let compositing = compositing.to_owned();
     let whole = whole.to_vec();
-    let region = move |name: &str,
-                       g: &blueshift_volume::Geometry,
-                       root: &blueshift_volume::Geometry|
-          -> Option<Region> {
+    let region = move |name: &str, levels: &[blueshift_volume::Geometry]| -> Option<Region> {
         if whole.iter().any(|w| w == name) {
             return None;
         }
         with_comm(|c| {
             let f = factors(&compositing, c.size())?;
-            let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
-            let p = &d.pieces()[c.rank()];
-            let (lo, hi) = (p.read_lo(), p.read_hi(g.dims));
-            // The ghost layer, a voxel more, and a root cell: a render at a coarser level
-            // splits that level's voxels, whose faces lie within a root cell of these.
-            let at = |i: [usize; 3], side: f64| {
-                glam::DVec3::from_array([0, 1, 2].map(|a| {
-                    f64::from(g.origin[a])
-                        + (i[a] as f64 + side) * f64::from(g.spacing[a])
-                        + side * f64::from(root.spacing[a])
-                }))
-            };
-            Ok(Region::new(at(lo, -1.0), at(hi, 1.0)))
+            // The union of this rank's pieces over the levels a render may pick (each level
+            // splits its own voxels, so the pieces differ from level to level), each with
+            // its ghost layer: the voxels its samples read (the blocks are chosen with a
+            // root cell's margin beyond that).
+            let mut out: Option<Region> = None;
+            for g in levels {
+                let d = blueshift_dist::Decomposition::new(g.dims, g.origin, g.spacing, &f)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?;
+                let p = &d.pieces()[c.rank()];
+                let (lo, hi) = (p.read_lo(), p.read_hi(g.dims));
+                let at = |i: [usize; 3], side: f64| {
+                    glam::DVec3::from_array([0, 1, 2].map(|a| {
+                        f64::from(g.origin[a]) + (i[a] as f64 + side) * f64::from(g.spacing[a])
+                    }))
+                };
+                let (a, b) = (at(lo, 0.0), at(hi, -1.0));
+                out = Some(match out {
+                    None => Region::new(a, b),
+                    Some(r) => Region::new(r.lo.min(a), r.hi.max(b)),
+                });
+            }
+            Ok(out)
         })
         // No decomposition: read the whole field (the render then refuses the same way).
         .ok()
+        .flatten()
     };
     let reduce = |r: blueshift_volume::Result<AmrStats>| -> blueshift_volume::Result<AmrStats> {
         let failed = r.is_err();
@@ -381,15 +389,21 @@ fn all_combine(
     };
     let e = |e: blueshift_dist::Error| anyhow::anyhow!("{e}");
     if c.rank() == 0 {
-        let mut all = s;
+        // Every peer's message is received and every peer answered (an empty answer: the
+        // statistics did not decode), so no rank waits on a failure here.
+        let mut all = Ok(s);
         for r in 1..c.size() {
-            all = AmrStats::combine(all, dec(&c.recv(r).map_err(e)?)?);
+            let got = c.recv(r).map_err(e)?;
+            all = match (all, dec(&got)) {
+                (Ok(a), Ok(b)) => Ok(AmrStats::combine(a, b)),
+                (Err(x), _) | (_, Err(x)) => Err(x),
+            };
         }
-        let v = enc(&all);
+        let v = all.as_ref().map(enc).unwrap_or_default();
         for r in 1..c.size() {
             c.send(r, &v).map_err(e)?;
         }
-        Ok(all)
+        all
     } else {
         c.send(0, &enc(&s)).map_err(e)?;
         dec(&c.recv(0).map_err(e)?)

@@ -1,8 +1,9 @@
 //! Data-parallel Woodcock tracking with rays forwarded between ranks (the approach of Wald
-//! et al.'s barney): each rank holds a piece of the volume and tracks every ray whose next
-//! tentative collision lies in its piece; a ray whose walk reaches a tentative collision
-//! in another piece is sent to the rank that holds it, with its random stream's position,
-//! and continues there.
+//! et al.'s barney): each rank tracks every ray whose next tentative collision lies in its
+//! piece of the volume and samples the density there only (bricked files are read lazily,
+//! so only that piece's bricks; the majorant grid is the whole volume's, on every rank); a
+//! ray whose walk reaches a tentative collision in another piece is sent to the rank that
+//! holds it, with its random stream's position, and continues there.
 //!
 //! The ray's random numbers are counter-based (seed, pixel, sample, dimension) and the
 //! majorant grid (a small grid of macrocell maxima) is the same on every rank, so the
@@ -247,54 +248,63 @@ pub fn render_woodcock_forwarded_in_passes(
             }
         }
 
-        // Gather the pass's samples on rank 0 and add them in sample order.
-        if me != 0 {
+        // Gather the pass's samples on rank 0 and add them in sample order; the ranks agree
+        // on the outcome (a malformed gather stops every rank, not rank 0 alone).
+        let gathered = if me != 0 {
             comm.send(0, &results)?;
+            Ok(())
         } else {
             let len = len as usize;
             let mut samples = vec![[f32::NAN; 4]; pixels * len];
-            let mut seen = 0usize;
-            for r in 0..n {
-                let part = if r == 0 {
-                    std::mem::take(&mut results)
-                } else {
-                    comm.recv(r)?
-                };
-                if !part.len().is_multiple_of(RESULT_VALUES) {
+            let mut filled = vec![false; pixels * len];
+            (|| {
+                for r in 0..n {
+                    let part = if r == 0 {
+                        std::mem::take(&mut results)
+                    } else {
+                        comm.recv(r)?
+                    };
+                    if !part.len().is_multiple_of(RESULT_VALUES) {
+                        return Err(Error::comm(format!(
+                            "samples: {} values from rank {r}",
+                            part.len()
+                        )));
+                    }
+                    for c in part.chunks_exact(RESULT_VALUES) {
+                        let (ray, v) = sample_from(c);
+                        let (pixel, sample) = (ray / spp, ray % spp);
+                        let k = (sample >= s0 && sample < s0 + len as u64)
+                            .then(|| pixel as usize * len + (sample - s0) as usize)
+                            .filter(|&k| k < filled.len() && !filled[k]);
+                        let Some(k) = k else {
+                            return Err(Error::comm(format!(
+                                "sample of ray {ray} from rank {r}: outside the pass or twice"
+                            )));
+                        };
+                        samples[k] = v;
+                        filled[k] = true;
+                    }
+                }
+                if let Some(k) = filled.iter().position(|f| !f) {
                     return Err(Error::comm(format!(
-                        "samples: {} values from rank {r}",
-                        part.len()
+                        "sample {} of pixel {} never finished",
+                        s0 + (k % len) as u64,
+                        k / len
                     )));
                 }
-                for c in part.chunks_exact(RESULT_VALUES) {
-                    let (ray, v) = sample_from(c);
-                    let (pixel, sample) = (ray / spp, ray % spp);
-                    let slot = (sample >= s0 && sample < s0 + len as u64)
-                        .then(|| pixel as usize * len + (sample - s0) as usize)
-                        .and_then(|k| samples.get_mut(k));
-                    let Some(slot) = slot else {
-                        return Err(Error::comm(format!("sample of ray {ray} from rank {r}")));
-                    };
-                    *slot = v;
-                    seen += 1;
-                }
-            }
-            if seen != pixels * len {
-                return Err(Error::comm(format!(
-                    "{seen} samples finished, {} expected",
-                    pixels * len
-                )));
-            }
-            // Pixel by pixel (in parallel), each pixel's samples in sample order.
-            samples
-                .par_chunks_exact(len)
-                .zip(mean.par_iter_mut().zip(m2.par_iter_mut()))
-                .for_each(|(px, (mean, m2))| {
-                    for (j, v) in px.iter().enumerate() {
-                        welford_add(mean, m2, *v, (s0 as usize + j + 1) as f64);
-                    }
-                });
-        }
+                // Pixel by pixel (in parallel), each pixel's samples in sample order.
+                samples
+                    .par_chunks_exact(len)
+                    .zip(mean.par_iter_mut().zip(m2.par_iter_mut()))
+                    .for_each(|(px, (mean, m2))| {
+                        for (j, v) in px.iter().enumerate() {
+                            welford_add(mean, m2, *v, (s0 as usize + j + 1) as f64);
+                        }
+                    });
+                Ok(())
+            })()
+        };
+        agree(comm, "gather", gathered)?;
         s0 += len;
     }
     if me != 0 {

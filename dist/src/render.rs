@@ -598,7 +598,9 @@ pub fn render_doppler_data(
     } else {
         None
     };
-    let part = render_doppler_part_chorded(scene, settings, &clip, front.as_deref(), budget);
+    // No depth in front (emission only, or one rank): the sweeps keep their whole budget.
+    let front_eps = if front.is_some() { budget } else { 0.0 };
+    let part = render_doppler_part_chorded(scene, settings, &clip, front.as_deref(), front_eps);
     clock.mark("render");
     let part = agree(comm, "rendering", part.map_err(Error::from))?;
     clock.mark("wait for all");

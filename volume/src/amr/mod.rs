@@ -1205,9 +1205,9 @@ pub fn open_field(
 }
 
 /// The region of a data-parallel rank for field `name` (`None`: read it whole), from the
-/// geometries of the field's finest level and of its root level (a render at a coarser
-/// level splits that level's voxels, so the pieces' faces move by up to a root cell).
-pub type RegionOf = dyn Fn(&str, &Geometry, &Geometry) -> Option<Region>;
+/// geometries of the field's levels, finest first (the pyramid levels a render may pick:
+/// each splits its own voxels over the ranks).
+pub type RegionOf = dyn Fn(&str, &[Geometry]) -> Option<Region>;
 /// The collective reduction of the ranks' statistics ([`open_field_within`]).
 pub type Reduce = dyn Fn(Result<AmrStats>) -> Result<AmrStats>;
 
@@ -1290,7 +1290,7 @@ pub fn open_field_within(
     region: Option<Region>,
     reduce: &dyn Fn(Result<AmrStats>) -> Result<AmrStats>,
 ) -> Result<(String, crate::BrickedField)> {
-    open_region(path, name, cache, limits, &|_, _, _| region, reduce).map(|(n, f, _)| (n, f))
+    open_region(path, name, cache, limits, &|_, _| region, reduce).map(|(n, f, _)| (n, f))
 }
 
 /// [`open_field_within`] with the region given by the field's finest-level geometry;
@@ -1300,7 +1300,7 @@ fn open_region(
     name: Option<&str>,
     cache: Arc<crate::BrickCache>,
     limits: &Limits,
-    region_of: &dyn Fn(&str, &Geometry, &Geometry) -> Option<Region>,
+    region_of: &dyn Fn(&str, &[Geometry]) -> Option<Region>,
     reduce: &dyn Fn(Result<AmrStats>) -> Result<AmrStats>,
 ) -> Result<(String, crate::BrickedField, (usize, usize))> {
     let read = (|| {
@@ -1309,11 +1309,11 @@ fn open_region(
             Some(n) => n.to_owned(),
             None => h.default_field()?.to_owned(),
         };
-        let region = region_of(
-            &name,
-            &h.level_geometry(h.max_level()),
-            &h.level_geometry(0),
-        );
+        let levels: Vec<Geometry> = (0..=h.max_level())
+            .rev()
+            .map(|l| h.level_geometry(l))
+            .collect();
+        let region = region_of(&name, &levels);
         let field = h.field_within(&name, limits, region)?;
         Ok((name, field))
     })();
