@@ -152,6 +152,9 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         // Another rank failed and said why: exit 1 without a second message.
         Err(err) if err.downcast_ref::<dist::Quiet>().is_some() || dist::peer_failed() => {
+            // The rank that failed says why: leave it the time to, before this exit makes
+            // mpirun end the job (and signal that rank).
+            std::thread::sleep(std::time::Duration::from_millis(500));
             ExitCode::from(1)
         }
         // A loop stopped on SIGINT/SIGTERM: the watcher is cleaning up and sets the exit code.
