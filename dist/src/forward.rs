@@ -73,7 +73,7 @@ fn sample_from(c: &[f64]) -> (u64, [f32; 4]) {
 /// Counts of a forwarded render, per rank: what the benchmarks and the note report.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ForwardStats {
-    /// Exchange rounds until no ray moved.
+    /// Rounds of resumed walks after the first (each after an exchange), over all passes.
     pub rounds: usize,
     /// Rays this rank sent to other ranks, in all rounds.
     pub forwarded: u64,
@@ -166,25 +166,27 @@ pub fn render_woodcock_forwarded_in_passes(
             &mut RayStats::default(),
         );
         let v = match stop {
-            // Another rank's point (the boxes tile space, so one holds it).
-            WalkStop::Left { t, p } if owner(p).is_some() => {
-                let to = owner(p).expect("checked");
-                return Outcome::Fly(
-                    to,
-                    InFlight {
-                        pixel,
-                        sample,
-                        t,
-                        dim: rng.dimension(),
-                    },
-                );
-            }
             WalkStop::Done(v) => v,
-            // Outside every box (rounding at the domain's edge): the background.
-            WalkStop::Left { .. } => {
-                let [r, g, b] = scene.background;
-                [r, g, b, 0.0]
-            }
+            WalkStop::Left { t, p } => match owner(p) {
+                // Another rank's point (the boxes tile space, so one holds it).
+                Some(to) => {
+                    let dim = rng.dimension();
+                    return Outcome::Fly(
+                        to,
+                        InFlight {
+                            pixel,
+                            sample,
+                            t,
+                            dim,
+                        },
+                    );
+                }
+                // Outside every box (rounding at the domain's edge): the background.
+                None => {
+                    let [r, g, b] = scene.background;
+                    [r, g, b, 0.0]
+                }
+            },
         };
         Outcome::Done(i, observed(observer.as_ref(), &ray, v))
     };
@@ -204,48 +206,33 @@ pub fn render_woodcock_forwarded_in_passes(
         // tentative collisions are in r's piece and sends it on from the first one that is
         // not (to the rank whose piece holds it).
         let count = (total * len).saturating_sub(me as u64).div_ceil(n as u64);
-        let first = (0..count)
-            .into_par_iter()
-            .fold(
-                || Batch::new(n, me),
-                |mut b, k| {
-                    b.add(walk(ray_of(me as u64 + k * n as u64), None));
-                    b
-                },
-            )
-            .reduce(|| Batch::new(n, me), Batch::join);
-        let mut results = first.results;
-        stats.finished += first.finished;
-        stats.forwarded += first.forwarded;
-        let mut active = first.keep;
-        active.extend(exchange(comm, &first.outbox)?);
-
+        let mut walked = batch(
+            (0..count)
+                .into_par_iter()
+                .map(|k| walk(ray_of(me as u64 + k * n as u64), None)),
+            n,
+            me,
+        );
+        let mut results = Vec::new();
         loop {
-            // Walk every ray this rank holds until it is done or leaves the piece.
-            let walked = active
-                .par_iter()
-                .fold(
-                    || Batch::new(n, me),
-                    |mut b, f| {
-                        b.add(walk(
-                            f.pixel * spp + u64::from(f.sample),
-                            Some((f.t, f.dim)),
-                        ));
-                        b
-                    },
-                )
-                .reduce(|| Batch::new(n, me), Batch::join);
             agree(comm, "tracking", scene.check_io().map_err(Error::from))?;
             results.extend(walked.results);
             stats.finished += walked.finished;
             stats.forwarded += walked.forwarded;
-            // A walk resumed here always leaves the piece or finishes.
-            active = walked.keep;
+            let mut active = walked.keep;
             active.extend(exchange(comm, &walked.outbox)?);
-            stats.rounds += 1;
             if comm.all_ok(active.is_empty())? {
                 break;
             }
+            // Walk every ray this rank now holds until it is done or leaves the piece.
+            walked = batch(
+                active
+                    .par_iter()
+                    .map(|f| walk(f.pixel * spp + u64::from(f.sample), Some((f.t, f.dim)))),
+                n,
+                me,
+            );
+            stats.rounds += 1;
         }
 
         // Gather the pass's samples on rank 0 and add them in sample order; the ranks agree
@@ -312,6 +299,19 @@ pub fn render_woodcock_forwarded_in_passes(
     }
     let img = Progressive::from_moments(settings.width, settings.height, settings.spp, mean, m2)?;
     Ok((Some(img), stats))
+}
+
+/// The outcomes of walks run in parallel, sorted into one [`Batch`].
+fn batch(outcomes: impl ParallelIterator<Item = Outcome>, n: usize, me: usize) -> Batch {
+    outcomes
+        .fold(
+            || Batch::new(n, me),
+            |mut b, o| {
+                b.add(o);
+                b
+            },
+        )
+        .reduce(|| Batch::new(n, me), Batch::join)
 }
 
 /// What one walk ends in: the ray sent to a rank, or its sample (ray index, RGBA).

@@ -31,7 +31,12 @@ pub struct Args {
     /// A time series of snapshots, one frame each (frame k written as STEM_kkkk.EXT for
     /// every output): scene files, each the frame's --scene. `--distributed frames` spreads
     /// the frames over the ranks.
-    #[arg(long, num_args = 1.., value_name = "SCENE", conflicts_with_all = ["scene", "synth", "res"])]
+    #[arg(
+        long,
+        num_args = 1..,
+        value_name = "SCENE",
+        conflicts_with_all = ["scene", "synth", "res"]
+    )]
     pub series: Vec<PathBuf>,
     /// Synthetic dataset: galaxy or shell.
     #[arg(long, default_value = "galaxy")]
@@ -162,10 +167,10 @@ pub struct Args {
     /// the volume; without absorption the XYZ images add, with absorption the optical depth
     /// in front of each piece is summed first, so the spectra are composited exactly; a
     /// `--cube` adds its channels the same way, each piece's spectrum attenuated by the depth
-    /// in front of it), `tiles` (each rank
-    /// renders a band of image rows: the single-process image or cube bit for bit, any
-    /// integrator, absorbing cubes included) or `frames` (the frames of `--series`, `--orbit` or `--ramp`, round
-    /// robin; each rank writes its own). Rank 0 writes the outputs.
+    /// in front of it), `tiles` (each rank renders a band of image rows: the single-process
+    /// image or cube bit for bit, any integrator, absorbing cubes included) or `frames` (the
+    /// frames of `--series`, `--orbit` or `--ramp`, round robin; each rank writes its own).
+    /// Rank 0 writes the outputs.
     #[arg(long, value_name = "MODE")]
     pub distributed: Option<String>,
     /// Compositing schedule of `--distributed data`: auto (binary swap for a power-of-two
