@@ -261,7 +261,7 @@ impl DopplerColourTable {
     /// like [`Self::apply`]; within [`LINEAR_D_MAX_ERROR`] of the largest entry of the exact
     /// matrix for the global table.
     #[must_use]
-    #[inline]
+    #[inline(always)]
     pub fn apply_linear_d(&self, doppler_factor: f64, rgb: [f32; 3]) -> [f32; 3] {
         if !(TABLE_D_MIN..=TABLE_D_MAX).contains(&doppler_factor) {
             return [0.0; 3];

@@ -24,7 +24,7 @@ const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
 
 /// `atan(t)` for `|t| <= tan(pi / 8)`: the Taylor series to `t^23` (alternating with
 /// decreasing terms, so the error is below the first omitted term, `|t|^25 / 25 <= 1.07e-11`).
-#[inline]
+#[inline(always)]
 fn atan_small(t: f64) -> f64 {
     const C: [f64; 12] = [
         1.0,
@@ -53,20 +53,23 @@ fn atan_small(t: f64) -> f64 {
 /// division: the ratio `t = min / max` of the magnitudes, or above `tan(pi / 8)` the
 /// reduced `(t - 1) / (t + 1) = (min - max) / (min + max)`, then [`atan_small`].
 #[must_use]
-#[inline]
+#[inline(always)]
 pub fn atan2(y: f64, x: f64) -> f64 {
+    // Written as selects, not branches, so that loops over many angles vectorise (the
+    // renderer's lanes); the arithmetic is that of the branches.
     let (ax, ay) = (x.abs(), y.abs());
-    let (mn, mx) = (ax.min(ay), ax.max(ay));
+    // Selects rather than `f64::min`/`max` (whose NaN handling branches); a NaN input
+    // gives NaN, as `f64::atan2` does.
+    let lt = ax < ay;
+    let (mn, mx) = (if lt { ax } else { ay }, if lt { ay } else { ax });
     let big = mn > TAN_PI_8 * mx;
-    let (num, den) = if big { (mn - mx, mn + mx) } else { (mn, mx) };
-    let r = if den > 0.0 { num / den } else { 0.0 };
-    let mut a = atan_small(r) + if big { FRAC_PI_4 } else { 0.0 };
-    if ay > ax {
-        a = FRAC_PI_2 - a;
-    }
-    if x.is_sign_negative() {
-        a = PI - a;
-    }
+    let num = if big { mn - mx } else { mn };
+    let den = if big { mn + mx } else { mx };
+    let q = num / den;
+    let r = if den > 0.0 { q } else { 0.0 };
+    let a = atan_small(r) + if big { FRAC_PI_4 } else { 0.0 };
+    let a = if ay > ax { FRAC_PI_2 - a } else { a };
+    let a = if x.is_sign_negative() { PI - a } else { a };
     a.copysign(y)
 }
 
@@ -76,6 +79,10 @@ pub(crate) struct EquirectTexels<'a> {
     data: &'a [f32],
     width: u32,
     height: u32,
+    /// `width`, `height` and `height - 1` as `f64`, for the coordinates' loop.
+    wf: f64,
+    hf: f64,
+    top: f64,
 }
 
 impl<'a> EquirectTexels<'a> {
@@ -85,10 +92,13 @@ impl<'a> EquirectTexels<'a> {
             data: img.as_raw(),
             width: img.width(),
             height: img.height(),
+            wf: f64::from(img.width()),
+            hf: f64::from(img.height()),
+            top: f64::from(img.height().saturating_sub(1)),
         }
     }
 
-    #[inline]
+    #[inline(always)]
     fn texel(&self, x: u32, y: u32) -> Rgb {
         let i = 3 * (y as usize * self.width as usize + x as usize);
         [self.data[i], self.data[i + 1], self.data[i + 2]]
@@ -98,7 +108,7 @@ impl<'a> EquirectTexels<'a> {
     /// [`EquirectMap::sample`] up to its `floor`), with [`atan2`] for the longitude and the
     /// polar angle (`acos(y) = atan2(sqrt(x^2 + z^2), y)` for a unit direction, and for any
     /// other length): `x` in `[-0.5, width - 0.5]`, `y` clamped to `[0, height - 1]`.
-    #[inline]
+    #[inline(always)]
     // `hypot` guards against overflow that a unit direction cannot reach, at the cost of a
     // libm call per pixel.
     #[allow(clippy::imprecise_flops)]
@@ -107,13 +117,16 @@ impl<'a> EquirectTexels<'a> {
         let polar = atan2((d.x * d.x + d.z * d.z).sqrt(), d.y);
         let u = 0.5 + lon / TAU;
         let v = polar / PI;
-        let x = u * f64::from(self.width) - 0.5;
-        let y = (v * f64::from(self.height) - 0.5).clamp(0.0, f64::from(self.height - 1));
+        let x = u * self.wf - 0.5;
+        // `clamp(0, height - 1)` as two selects (no assertion in the loop).
+        let y = v * self.hf - 0.5;
+        let y = if y < 0.0 { 0.0 } else { y };
+        let y = if y > self.top { self.top } else { y };
         (x, y)
     }
 
     /// The bilinear sample at texel coordinates from [`Self::coords`] (wrapping in x).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn fetch(&self, (x, y): (f64, f64)) -> Rgb {
         let (w, h) = (self.width, self.height);
         // floor without a libm call: x > -1 and y >= 0 here, so truncation corrects by one
@@ -146,7 +159,7 @@ impl<'a> EquirectTexels<'a> {
     }
 }
 
-#[inline]
+#[inline(always)]
 fn lerp3(a: Rgb, b: Rgb, t: f32) -> Rgb {
     [
         a[0] + (b[0] - a[0]) * t,
