@@ -5,8 +5,10 @@
 //! Group `equirect_vs_exact`: [`render`] against `exact_render` below, the same loop with
 //! the exact per-pixel formulas it replaced (libm `atan2`/`acos` through
 //! [`EquirectMap::sample`], `K(D)` through the `ln D` table, [`DopplerColourTable::apply`]),
-//! measured in the same run: the ratio of the two is the speed-up of the table and
-//! polynomial path.
+//! measured in the same run: the ratio of the two is the speed-up of the table,
+//! polynomial and vectorised-lanes path. `render` runs for each effect set (none,
+//! aberration, + Doppler, + searchlight), `exact` for the first and the last; the issue's
+//! goal is 30 frames per second (33 ms) for all effects at 1920x1080 on 2 cores.
 
 use std::hint::black_box;
 
@@ -87,10 +89,12 @@ fn bench(c: &mut Criterion) {
             height: h,
             ..Camera::default()
         };
-        for (name, fx) in [sets[0], sets[3]] {
-            g.bench_function(format!("exact/{name}/{w}x{h}"), |b| {
-                b.iter(|| exact_render(black_box(&equirect), &cam, v, fx));
-            });
+        for (name, fx) in sets {
+            if name == "none" || name.ends_with("searchlight") {
+                g.bench_function(format!("exact/{name}/{w}x{h}"), |b| {
+                    b.iter(|| exact_render(black_box(&equirect), &cam, v, fx));
+                });
+            }
             g.bench_function(format!("render/{name}/{w}x{h}"), |b| {
                 b.iter(|| render(black_box(&equirect), &cam, v, fx, None).expect("renders"));
             });

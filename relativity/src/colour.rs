@@ -170,6 +170,10 @@ pub struct DopplerColourTable {
     mats: Vec<Mat3>,
     /// `K(D)` at `TABLE_D_MIN + k * d_step` (row-major 3x3), from [`Self::matrix`].
     by_d: Vec<[f32; 9]>,
+    /// The same entries by matrix element (`by_element[e][k] = by_d[k][e]`), for the
+    /// renderer's lanes ([`Self::apply_linear_d_lanes`]): each element is one array that a
+    /// vector of lanes indexes.
+    by_element: Box<[[f32; LINEAR_D_ENTRIES]]>,
     d_step: f64,
 }
 
@@ -207,6 +211,7 @@ impl DopplerColourTable {
             step,
             mats,
             by_d: Vec::new(),
+            by_element: Box::default(),
             d_step: (TABLE_D_MAX - TABLE_D_MIN) / (LINEAR_D_ENTRIES - 1) as f64,
         };
         table.by_d = (0..LINEAR_D_ENTRIES)
@@ -221,6 +226,13 @@ impl DopplerColourTable {
                 std::array::from_fn(|i| m[i / 3][i % 3] as f32)
             })
             .collect();
+        let mut by_element = vec![[0.0_f32; LINEAR_D_ENTRIES]; 9];
+        for (k, m) in table.by_d.iter().enumerate() {
+            for (e, v) in m.iter().enumerate() {
+                by_element[e][k] = *v;
+            }
+        }
+        table.by_element = by_element.into_boxed_slice();
         Ok(table)
     }
 
@@ -276,6 +288,51 @@ impl DopplerColourTable {
             let (ra, rb) = (row(a), row(b));
             ra + (rb - ra) * t
         })
+    }
+
+    /// [`Self::apply_linear_d`] on `N` lanes (`rgb` red, green and blue per lane), with each
+    /// lane's bits: the index arithmetic and the matrix products run as loops over all
+    /// lanes, which vectorise (the matrix elements gathered from [`Self::by_element`]).
+    #[inline(always)]
+    pub(crate) fn apply_linear_d_lanes<const N: usize>(
+        &self,
+        doppler_factor: &[f64; N],
+        rgb: &mut [[f32; N]; 3],
+    ) {
+        let mut inside = [false; N];
+        let mut k = [0_u32; N];
+        let mut t = [0.0_f32; N];
+        for i in 0..N {
+            let d = doppler_factor[i];
+            inside[i] = (TABLE_D_MIN..=TABLE_D_MAX).contains(&d);
+            let x = (d - TABLE_D_MIN) / self.d_step;
+            // `x` is in [0, LINEAR_D_ENTRIES - 1] inside the range; other lanes read entry 0.
+            let xi = if inside[i] { x as i32 } else { 0 };
+            let ki = if xi < LINEAR_D_ENTRIES as i32 - 2 {
+                xi
+            } else {
+                LINEAR_D_ENTRIES as i32 - 2
+            };
+            k[i] = ki as u32;
+            t[i] = (x - f64::from(ki)) as f32;
+        }
+        // Entry `k` and `k + 1` (`k <= LINEAR_D_ENTRIES - 2`); the mask, a power of two
+        // minus one, changes no index but lets the compiler drop the bounds checks, so the
+        // loops below vectorise with gathers.
+        const MASK: usize = LINEAR_D_ENTRIES - 1;
+        let [r, g, b] = *rgb;
+        for (c, out) in rgb.iter_mut().enumerate() {
+            let e = &self.by_element[3 * c..3 * c + 3];
+            let (e0, e1, e2) = (&e[0], &e[1], &e[2]);
+            for i in 0..N {
+                let ka = k[i] as usize & MASK;
+                let kb = (k[i] as usize + 1) & MASK;
+                let ra = e0[ka] * r[i] + e1[ka] * g[i] + e2[ka] * b[i];
+                let rb = e0[kb] * r[i] + e1[kb] * g[i] + e2[kb] * b[i];
+                let v = ra + (rb - ra) * t[i];
+                out[i] = if inside[i] { v } else { 0.0 };
+            }
+        }
     }
 
     /// Whether [`Self::apply_linear_d`] maps every colour to black at `D` (outside the

@@ -13,7 +13,9 @@ use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
 
 use glam::DVec3;
 
-use crate::envmap::{EquirectMap, Rgb};
+use crate::envmap::EquirectMap;
+#[cfg(test)]
+use crate::envmap::Rgb;
 
 /// The largest difference of [`atan2`] from the exact angle, radians: the first omitted
 /// Taylor term `tan(pi/8)^25 / 25 = 1.07e-11` plus rounding.
@@ -98,7 +100,7 @@ impl<'a> EquirectTexels<'a> {
         }
     }
 
-    #[inline(always)]
+    #[cfg(test)]
     fn texel(&self, x: u32, y: u32) -> Rgb {
         let i = 3 * (y as usize * self.width as usize + x as usize);
         [self.data[i], self.data[i + 1], self.data[i + 2]]
@@ -125,8 +127,9 @@ impl<'a> EquirectTexels<'a> {
         (x, y)
     }
 
-    /// The bilinear sample at texel coordinates from [`Self::coords`] (wrapping in x).
-    #[inline(always)]
+    /// The bilinear sample at texel coordinates from [`Self::coords`] (wrapping in x): the
+    /// scalar statement of [`Self::fetch_lanes`], its reference in the tests.
+    #[cfg(test)]
     pub(crate) fn fetch(&self, (x, y): (f64, f64)) -> Rgb {
         let (w, h) = (self.width, self.height);
         // floor without a libm call: x > -1 and y >= 0 here, so truncation corrects by one
@@ -157,9 +160,86 @@ impl<'a> EquirectTexels<'a> {
         let bot = lerp3(self.texel(xa, yb), self.texel(xb, yb), fx);
         lerp3(top, bot, fy)
     }
+
+    /// [`Self::fetch`] on `N` lanes of coordinates from [`Self::coords`], the first `n` of
+    /// them wanted: `out` gets red, green and blue per lane. The corner arithmetic runs as
+    /// loops over all lanes (they vectorise: `i32` texel columns, the map's sides being at
+    /// most 32,768), the texel reads as scalar loops, the bilinear weights as loops again.
+    /// Each lane gets [`Self::fetch`]'s bits for every coordinate [`Self::coords`] can give
+    /// (`x` in `[-0.5, width - 0.5]` or NaN, `y` in `[0, height - 1]`), where one wrap of the
+    /// column suffices.
+    #[inline(always)]
+    pub(crate) fn fetch_lanes<const N: usize>(
+        &self,
+        x: &[f64; N],
+        y: &[f64; N],
+        n: usize,
+        out: &mut [[f32; N]; 3],
+    ) {
+        let w = self.width as i32;
+        let last = self.height as i32 - 1;
+        let mut corner = [[0_u32; N]; 4];
+        let (mut fx, mut fy) = ([0.0_f32; N], [0.0_f32; N]);
+        for i in 0..N {
+            let xt = x[i] as i32;
+            let xi = if x[i] < f64::from(xt) {
+                xt.wrapping_sub(1)
+            } else {
+                xt
+            };
+            let ya = y[i] as i32;
+            fx[i] = (x[i] - f64::from(xi)) as f32;
+            fy[i] = (y[i] - f64::from(ya)) as f32;
+            let xa = if xi < 0 {
+                xi.wrapping_add(w)
+            } else if xi >= w {
+                xi.wrapping_sub(w)
+            } else {
+                xi
+            };
+            // Unreachable for coordinates from `coords` (see above); keeps reads in bounds.
+            let xa = if xa >= 0 && xa < w { xa } else { 0 };
+            let xb = if xa.wrapping_add(1) == w {
+                0
+            } else {
+                xa.wrapping_add(1)
+            };
+            let ya = if ya < last { ya } else { last };
+            let yb = if ya.wrapping_add(1) < last {
+                ya.wrapping_add(1)
+            } else {
+                last
+            };
+            let (ra, rb) = (ya.wrapping_mul(w), yb.wrapping_mul(w));
+            corner[0][i] = ra.wrapping_add(xa) as u32;
+            corner[1][i] = ra.wrapping_add(xb) as u32;
+            corner[2][i] = rb.wrapping_add(xa) as u32;
+            corner[3][i] = rb.wrapping_add(xb) as u32;
+        }
+        let mut texel = [[[0.0_f32; N]; 3]; 4];
+        // Corner by corner over the lanes, the two rows' first corners first: each loop's
+        // body is short, so the processor keeps many lanes' cache misses in flight at once.
+        for k in [0, 2, 1, 3] {
+            for i in 0..n.min(N) {
+                let j = 3 * corner[k][i] as usize;
+                let v = &self.data[j..j + 3];
+                texel[k][0][i] = v[0];
+                texel[k][1][i] = v[1];
+                texel[k][2][i] = v[2];
+            }
+        }
+        for (c, o) in out.iter_mut().enumerate() {
+            let [a, b, cc, d] = [&texel[0][c], &texel[1][c], &texel[2][c], &texel[3][c]];
+            for i in 0..N {
+                let top = a[i] + (b[i] - a[i]) * fx[i];
+                let bot = cc[i] + (d[i] - cc[i]) * fx[i];
+                o[i] = top + (bot - top) * fy[i];
+            }
+        }
+    }
 }
 
-#[inline(always)]
+#[cfg(test)]
 fn lerp3(a: Rgb, b: Rgb, t: f32) -> Rgb {
     [
         a[0] + (b[0] - a[0]) * t,

@@ -293,7 +293,7 @@ impl<'a> Kernel<'a> {
         let speed = velocity.speed();
         // `Velocity::aberrate` with sign -1, its loop-invariant part computed once.
         let aberration = (effects.aberration && speed != 0.0)
-            .then(|| (velocity.beta() / speed, speed * -1.0, velocity.gamma()));
+            .then(|| (velocity.beta() / speed, -speed, velocity.gamma()));
         Self {
             frame,
             env,
@@ -378,36 +378,40 @@ impl<'a> Kernel<'a> {
                 (dx[i], dy[i], dz[i]) = (ox * k, oy * k, oz * k);
             }
         }
-        let mut rgb = [[0.0_f32; 3]; TILE];
+        // Red, green and blue per lane.
+        let mut rgb = [[0.0_f32; TILE]; 3];
         match &self.equirect {
             Some(m) => {
                 let (mut ux, mut uy) = ([0.0_f64; TILE], [0.0_f64; TILE]);
                 for i in 0..TILE {
                     (ux[i], uy[i]) = m.coords(DVec3::new(dx[i], dy[i], dz[i]));
                 }
-                for i in 0..n {
-                    rgb[i] = m.fetch((ux[i], uy[i]));
-                }
+                m.fetch_lanes(&ux, &uy, n, &mut rgb);
             }
             None => {
                 for i in 0..n {
-                    rgb[i] = self.env.sample(DVec3::new(dx[i], dy[i], dz[i]));
+                    let c = self.env.sample(DVec3::new(dx[i], dy[i], dz[i]));
+                    (rgb[0][i], rgb[1][i], rgb[2][i]) = (c[0], c[1], c[2]);
                 }
             }
         }
-        if self.shade {
-            for i in 0..n {
-                if let Some(t) = self.table {
-                    rgb[i] = t.apply_linear_d(dop[i], rgb[i]);
-                }
-                if self.searchlight {
-                    let f = searchlight_integrated(dop[i]) as f32;
-                    rgb[i] = rgb[i].map(|c| c * f);
+        if let Some(t) = self.table {
+            t.apply_linear_d_lanes(&dop, &mut rgb);
+        }
+        if self.searchlight {
+            for i in 0..TILE {
+                let f = searchlight_integrated(dop[i]) as f32;
+                for c in &mut rgb {
+                    c[i] *= f;
                 }
             }
         }
-        for (out, c) in row.chunks_exact_mut(3).zip(&rgb[..n]) {
-            out.copy_from_slice(c);
+        // Channel by channel: gathering a pixel's three floats into an array first and
+        // copying it out makes the copy's 8-byte load wait on two 4-byte stores.
+        for (i, out) in row.chunks_exact_mut(3).take(n).enumerate() {
+            out[0] = rgb[0][i];
+            out[1] = rgb[1][i];
+            out[2] = rgb[2][i];
         }
     }
 }
