@@ -891,3 +891,63 @@ fn an_hdr_save_writes_the_png_its_tonemap_command_writes() {
             .contains("no flag")
     );
 }
+
+/// Out of core (HDR VolVis 6.3): after an edit, the quarter-size preview of a `.bsv` volume
+/// samples a coarser level (its pixels are four times the full image's, and the LOD rule
+/// follows them), and the full render the finest; the statuses say which.
+#[test]
+fn an_out_of_core_preview_samples_a_coarser_level_than_the_full_render() {
+    let data = tempfile::tempdir().unwrap();
+    let bsv = data.path().join("t.bsv");
+    let out = Command::new(BIN)
+        .args(["synth", "turbulence"])
+        .arg(&bsv)
+        .args(["--res", "128", "--brick", "16"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = Viewer::start(&[
+        "--volume",
+        bsv.to_str().unwrap(),
+        "--tf",
+        "builtin:viridis",
+        "--width",
+        "128",
+        "--height",
+        "128",
+        "--spp",
+        "2",
+    ]);
+    let mut tab = v.connect();
+    let info = tab.expect("info");
+    let first = tab.until_done();
+    assert_eq!(first["lod_level"], 0, "{first}");
+    assert_eq!(first["lod_levels"], 4, "{first}");
+    let cam = &info["camera"];
+    tab.send(
+        &json!({"type": "camera", "eye": cam["eye"], "target": cam["target"],
+                     "up": cam["up"], "fov": 30.0}),
+    );
+    tab.expect("camera");
+    let mut preview_levels = Vec::new();
+    let done = loop {
+        let s = tab.expect("status");
+        if s["done"] == true {
+            break s;
+        }
+        if s["preview"] == true {
+            preview_levels.push(s["lod_level"].as_u64().unwrap());
+        }
+    };
+    assert!(!preview_levels.is_empty(), "no preview status");
+    // 32 x 32 preview pixels over a 128^3 volume framed in the view: several voxels each.
+    for &l in &preview_levels {
+        assert!((1..4).contains(&l), "preview level {l}");
+    }
+    assert_eq!(done["lod_level"], 0, "{done}");
+    assert_eq!(done["spp"], 2);
+}

@@ -206,7 +206,10 @@ function showStatus(st) {
   const ms = Number.isFinite(st.ms) ? `${st.ms.toFixed(0)} ms/pass` : '';
   $('status').textContent =
     `pass ${st.pass} · ${st.spp}/${st.target_spp} spp · noise ${noise} · ${st.device} · ${ms} · ` +
-    `${st.level ?? (st.preview ? 'preview' : 'full')}${st.done ? ' · done' : ''}`;
+    `${st.level ?? (st.preview ? 'preview' : 'full')}` +
+    // Out-of-core volumes: the level of detail the frame sampled (0 the finest).
+    `${Number.isInteger(st.lod_level) ? ` · LOD ${st.lod_level}/${st.lod_levels - 1}` : ''}` +
+    `${st.done ? ' · done' : ''}`;
   render?.status(st);
 }
 

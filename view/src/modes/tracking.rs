@@ -387,6 +387,8 @@ impl TrackingMode {
         display::to_rgb8(&rgb, op.as_ref(), self.exposure)
     }
 
+    /// Sends the frame and its status. `lod`: the level of detail the frame's passes sampled
+    /// (0 the finest) when the scene's channels are out of core, with the number of levels.
     fn send_frame(
         &self,
         ctx: &Ctx,
@@ -394,6 +396,7 @@ impl TrackingMode {
         preview: bool,
         done: bool,
         ms: f64,
+        lod: Option<(usize, usize)>,
     ) -> Result<()> {
         let img = self.display_image(acc)?;
         let st = self.session.settings();
@@ -408,6 +411,7 @@ impl TrackingMode {
             "target_spp": st.spp, "noise": noise.is_finite().then_some(noise), "ms": ms,
             "device": self.device_name(), "preview": preview, "done": done,
             "level": if preview { "preview" } else { "full" },
+            "lod_level": lod.map(|l| l.0), "lod_levels": lod.map(|l| l.1),
         }));
         Ok(())
     }
@@ -519,6 +523,8 @@ struct Streamer<'a> {
     ctx: &'a Ctx,
     preview: bool,
     target: u32,
+    /// The level of detail and the number of levels (out-of-core scenes).
+    lod: Option<(usize, usize)>,
     last_pass: std::sync::Mutex<std::time::Instant>,
     /// The time of the last pass, ms (for the final status).
     last_ms: std::sync::Mutex<f64>,
@@ -537,7 +543,9 @@ impl Observer<Progressive> for Streamer<'_> {
         let done = acc.samples() >= self.target;
         *self.last_ms.lock().unwrap_or_else(|e| e.into_inner()) = ms;
         if self.ctx.frame_due(done || self.preview)
-            && let Err(e) = self.mode.send_frame(self.ctx, acc, self.preview, false, ms)
+            && let Err(e) = self
+                .mode
+                .send_frame(self.ctx, acc, self.preview, false, ms, self.lod)
         {
             self.ctx.error(&e.to_string(), None);
         }
@@ -706,7 +714,7 @@ impl Mode for TrackingMode {
         let full: RenderSettings = self.session.settings().clone();
         if stage == Stage::Display {
             if let Some(acc) = &self.last {
-                self.send_frame(ctx, acc, false, true, 0.0)?;
+                self.send_frame(ctx, acc, false, true, 0.0, self.session.scene().lod())?;
             }
             return Ok(());
         }
@@ -716,23 +724,54 @@ impl Mode for TrackingMode {
         } else {
             Vec::new()
         };
+        // Out of core on the CPU (HDR VolVis 6.3): each preview samples the level the LOD
+        // rule picks for its own pixels (4 or 2 times the full image's), never finer than
+        // the scene's, while the I/O thread loads the full render's bricks along its rays.
+        let lod = self.session.scene().lod();
+        let cpu_lod = lod.filter(|_| self.gpu.is_none());
+        if cpu_lod.is_some() && !previews.is_empty() {
+            self.prefetch_full(&full)?;
+        }
         for (w, h) in previews {
             let mut p = full.clone();
             p.width = w;
             p.height = h;
             p.spp = 1;
             p.noise_target = None;
-            self.set_render_settings(p)?;
+            let level = cpu_lod.map(|(level, count)| (self.preview_level(&p, level), count));
+            // A coarser level than the scene's renders through its own session.
+            let coarse = level
+                .map(|l| l.0)
+                .filter(|&l| Some(l) != lod.map(|x| x.0))
+                .map(|l| -> Result<TrackingSession> {
+                    let scene = self.session.scene().at_level(l)?;
+                    Ok(TrackingSession::new(
+                        scene,
+                        self.session.integrator().clone(),
+                        p.clone(),
+                    )?)
+                })
+                .transpose()?;
+            if coarse.is_none() {
+                self.set_render_settings(p)?;
+            }
             let streamer = Streamer {
                 mode: self,
                 ctx,
                 preview: true,
                 target: 1,
+                lod: level.or(lod),
                 last_pass: std::sync::Mutex::new(std::time::Instant::now()),
                 last_ms: std::sync::Mutex::new(0.0),
             };
-            let r = self.run_session(&streamer);
-            self.set_render_settings(full.clone())?;
+            let r = match &coarse {
+                Some(session) => session.render(&streamer).map(|_| ()).map_err(Error::from),
+                None => self.run_session(&streamer).map(|_| ()),
+            };
+            drop(streamer);
+            if coarse.is_none() {
+                self.set_render_settings(full.clone())?;
+            }
             r?;
         }
         let streamer = Streamer {
@@ -740,18 +779,51 @@ impl Mode for TrackingMode {
             ctx,
             preview: false,
             target: full.spp,
+            lod,
             last_pass: std::sync::Mutex::new(std::time::Instant::now()),
             last_ms: std::sync::Mutex::new(0.0),
         };
         let acc = self.run_session(&streamer)?;
         let ms = *streamer.last_ms.lock().unwrap_or_else(|e| e.into_inner());
-        self.send_frame(ctx, &acc, false, true, ms)?;
+        self.send_frame(ctx, &acc, false, true, ms, lod)?;
         self.last = Some(acc);
         Ok(())
     }
 }
 
 impl TrackingMode {
+    /// The level a preview of settings `p` samples: [`blueshift_volume::lod_level`] for the
+    /// preview's pixel footprint where the volume is nearest, at least the scene's `level`.
+    fn preview_level(&self, p: &RenderSettings, level: usize) -> usize {
+        let scene = self.session.scene();
+        let Some(b) = scene.channels().first().and_then(|c| c.grid().as_bricked()) else {
+            return level;
+        };
+        let geoms = b.source().geometries();
+        let (lo, hi) = scene.frame_bounds();
+        let footprint = p.camera.pixel_footprint(lo, hi, p.height);
+        blueshift_volume::lod_level(geoms, footprint)
+            .max(level)
+            .min(geoms.len().saturating_sub(1))
+    }
+
+    /// Queues the bricks the full render of `full` meets along every 16th pixel's ray on
+    /// the brick cache's I/O thread (out-of-core channels only).
+    fn prefetch_full(&self, full: &RenderSettings) -> Result<()> {
+        let fields: Vec<&blueshift_volume::BrickedField> = self
+            .session
+            .scene()
+            .channels()
+            .iter()
+            .filter_map(|c| c.grid().as_bricked())
+            .collect();
+        if !fields.is_empty() {
+            let rays = full.camera.sparse_rays(full.width, full.height, 16);
+            blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+        }
+        Ok(())
+    }
+
     fn set_render_settings(&mut self, s: RenderSettings) -> Result<()> {
         self.session.set_settings(s.clone())?;
         if let Some(g) = &mut self.gpu {
