@@ -768,7 +768,6 @@ impl Mode for TrackingMode {
                 Some(session) => session.render(&streamer).map(|_| ()).map_err(Error::from),
                 None => self.run_session(&streamer).map(|_| ()),
             };
-            drop(streamer);
             if coarse.is_none() {
                 self.set_render_settings(full.clone())?;
             }
