@@ -552,9 +552,47 @@ fn progressive_render_previews_each_coarser_level_then_renders_the_exact_image()
     );
     assert!(steps[2].contains("pass 3, level 0 (32x32x32):"), "{log}");
     assert_eq!(prog, exact, "the last step is the exact render");
+    // Brick by brick: the coarsest level first, quick steps over what has loaded (each says
+    // how many bricks are at the final level), the exact render last.
+    let (bricks, log) = run("c.exr", &["--progressive", "bricks"]);
+    let steps: Vec<&str> = log
+        .lines()
+        .filter(|l| l.starts_with("progressive:"))
+        .collect();
+    assert!(steps.len() >= 2, "{log}");
+    assert!(steps[0].contains("pass 1, level 2 (8x8x8), 1 spp"), "{log}");
+    for s in &steps[1..steps.len() - 1] {
+        assert!(
+            s.contains("and finer where loaded") && s.contains(" of 64 bricks"),
+            "{log}"
+        );
+    }
+    assert!(
+        steps[steps.len() - 1].contains("level 0 (32x32x32):"),
+        "{log}"
+    );
+    assert_eq!(bricks, exact, "the last step is the exact render");
     let o = blueshift(
         &["--synth", "three-cubes", "--progressive", "--out", "c.exr"],
         d,
     );
     assert!(!o.status.success());
+    let o = blueshift(
+        &[
+            "--volume",
+            "m.bsv",
+            "--tf",
+            "builtin:viridis",
+            "--progressive",
+            "rows",
+            "--out",
+            "d.exr",
+        ],
+        d,
+    );
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("levels or bricks"), "{err}");
+    assert!(!d.join("d.exr").exists());
 }

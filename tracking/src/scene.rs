@@ -280,6 +280,38 @@ impl Scene {
         Ok(s)
     }
 
+    /// The same scene with every channel sampled, region by region (one brick of its level
+    /// each), at the finest level its cache holds there now
+    /// ([`blueshift_volume::BrickedField::resident_regions`]): the view of a progressive
+    /// render while bricks load. Returns the scene and, summed over the channels, the regions
+    /// at the scene's own level and all regions.
+    ///
+    /// # Errors
+    /// A channel in memory; as [`Scene::new`].
+    pub fn resident_view(&self) -> Result<(Scene, usize, usize)> {
+        let k = self.channels[0].macrocells.k();
+        let mut chans = Vec::with_capacity(self.channels.len());
+        let (mut at_base, mut regions) = (0, 0);
+        for (i, c) in self.channels.iter().enumerate() {
+            let b = c.grid.as_bricked().ok_or_else(|| {
+                Error::scene(format!(
+                    "channels[{i}] ('{}'): levels of detail need every channel bricked (.bsv)",
+                    c.name
+                ))
+            })?;
+            let (f, n) = b.resident_regions()?;
+            at_base += n;
+            regions += b.brick_counts().iter().product::<usize>();
+            chans.push((c.name.clone(), Field::from(f), c.tf.clone()));
+        }
+        let mut s = Scene::new(chans, self.density_scale, k)?;
+        s.frame = self.frame;
+        s.background = self.background;
+        s.light = self.light;
+        s.shading = self.shading.clone();
+        Ok((s, at_base, regions))
+    }
+
     /// The first brick read that failed while rendering (out-of-core channels), as an
     /// error; renders call this after every pass.
     pub fn check_io(&self) -> Result<()> {

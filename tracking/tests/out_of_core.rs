@@ -252,3 +252,102 @@ fn progressive_lod_previews_coarse_levels_then_gives_the_plain_render() {
     }
     assert!(s.at_level(count).is_err());
 }
+
+/// Residency-driven levels (HDR VolVis 6.3, refining while bricks load): with nothing
+/// cached every region samples the coarsest level; with the finest level's bricks of one
+/// half of the volume read, exactly the regions whose centres lie in those bricks sample
+/// the finest level, and their samples are the finest level's.
+#[test]
+fn resident_regions_follow_what_the_cache_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, bricked, cache) = channels(dir.path(), 64 << 20);
+    let b = bricked[0].as_bricked().unwrap().clone();
+    let coarsest = b.levels() - 1;
+    cache.clear();
+    let (f, at0) = b.resident_regions().unwrap();
+    assert_eq!(at0, 0);
+    let map = f.level_map().unwrap();
+    assert!(map.levels().iter().all(|&l| usize::from(l) == coarsest));
+    // Read the finest bricks with x index below 2 (voxels 0..16 of 40), through samples.
+    let n = b.brick_counts();
+    assert_eq!(n, [5, 5, 5]);
+    for z in 0..40 {
+        for y in 0..40 {
+            for x in 0..16 {
+                let _ = b.sample_index(glam::Vec3::new(x as f32, y as f32, z as f32));
+            }
+        }
+    }
+    let (f, at0) = b.resident_regions().unwrap();
+    assert_eq!(at0, 2 * 5 * 5, "two slabs of 5 x 5 bricks");
+    let map = f.level_map().unwrap();
+    for (i, &l) in map.levels().iter().enumerate() {
+        let x = i % 5;
+        assert_eq!(usize::from(l) == 0, x < 2, "region {i}: level {l}");
+    }
+    // A region at level 0 samples the finest level itself.
+    let p = glam::Vec3::new(5.3, 17.6, 30.2);
+    assert_eq!(f.sample_index(p).to_bits(), b.sample_index(p).to_bits());
+}
+
+/// Brick-by-brick progressive: a coarsest-level pass, quick passes over whatever has
+/// loaded, then the plain render's bytes; the steps are numbered in order and every quick
+/// step before the last samples a coarser level somewhere.
+#[test]
+fn brick_progressive_ends_on_the_plain_render() {
+    use blueshift_tracking::{Progressive, TrackingSession};
+    use std::sync::Mutex;
+    let dir = tempfile::tempdir().unwrap();
+    let (_, bricked, cache) = channels(dir.path(), 64 << 20);
+    let s = scene(bricked);
+    let (level, count) = s.lod().unwrap();
+    let mut st = RenderSettings::default_for(&s, 16, 12, false);
+    st.spp = 3;
+    #[derive(Default)]
+    struct Log(Mutex<Vec<(char, u32, usize)>>);
+    impl blueshift_camera::Observer<Progressive> for Log {
+        fn level(&self, step: u32, level: usize) {
+            self.0.lock().unwrap().push(('l', step, level));
+        }
+        fn pass(&self, pass: u32, _: &Progressive, _: Option<f64>) {
+            self.0.lock().unwrap().push(('p', pass, 0));
+        }
+    }
+    let session = TrackingSession::new(s, Integrator::Woodcock { channel: 0 }, st).unwrap();
+    let plain = session.render(&blueshift_camera::Silent).unwrap();
+    cache.clear();
+    let log = Log::default();
+    let mut steps = Vec::new();
+    let out = session
+        .render_bricks(&log, &mut |step, at, regions| {
+            steps.push((step, at, regions))
+        })
+        .unwrap();
+    assert_eq!(
+        out.image.mean_image().as_raw(),
+        plain.image.mean_image().as_raw()
+    );
+    let log = log.0.into_inner().unwrap();
+    assert_eq!(log[0], ('l', 1, count - 1), "{log:?}");
+    assert_eq!(log[1], ('p', 1, 0));
+    let last_step = log.iter().filter(|e| e.0 == 'l').count() as u32;
+    assert_eq!(log[log.len() - 4], ('l', last_step, level), "{log:?}");
+    for (i, e) in log[2..log.len() - 4].chunks(2).enumerate() {
+        let step = i as u32 + 2;
+        assert_eq!(e[1], ('p', step, 0), "{log:?}");
+        assert_eq!(e[0].1, step);
+        assert!(
+            e[0].2 > level,
+            "a quick step samples coarser bricks somewhere"
+        );
+    }
+    // The regions at the finest level never decrease while bricks load.
+    for w in steps.windows(2) {
+        assert!(w[1].1 > w[0].1, "{steps:?}");
+    }
+    assert!(
+        steps
+            .iter()
+            .all(|&(_, at, regions)| at < regions && regions == 250)
+    );
+}

@@ -753,6 +753,62 @@ impl BrickedField {
         .with_levels(levels)
     }
 
+    /// [`BrickedField::per_region`] by what the cache holds now (HDR VolVis 6.3's
+    /// progressive refinement while bricks load): each region (one brick of this level)
+    /// takes the finest level, from this one to the coarsest, whose brick holding the
+    /// region's centre is in the cache, and the coarsest level where none is (it is read on
+    /// demand). Returns the field and how many regions sample this level itself.
+    ///
+    /// # Errors
+    /// As [`BrickedField::per_region`].
+    pub fn resident_regions(&self) -> Result<(Self, usize)> {
+        let geoms = self.source.geometries().to_vec();
+        let edge = self.layout.brick;
+        let (base, last) = (self.level, self.levels() - 1);
+        let mut at_base = 0;
+        let field = self.per_region(|lo, hi| {
+            let centre = (lo + hi) * 0.5;
+            let level = (base..=last)
+                .find(|&l| {
+                    let g = &geoms[l];
+                    let nb = g.dims.map(|n| n.div_ceil(edge));
+                    let i = g.world_to_index(centre);
+                    let b: [usize; 3] = std::array::from_fn(|a| {
+                        let c = (i[a].max(0.0) / edge as f32) as usize;
+                        c.min(nb[a] - 1)
+                    });
+                    let idx = (b[0] + nb[0] * (b[1] + nb[1] * b[2])) as u64;
+                    self.cache.contains(&*self.source, l, idx)
+                })
+                .unwrap_or(last);
+            if level == base {
+                at_base += 1;
+            }
+            level
+        })?;
+        Ok((field, at_base))
+    }
+
+    /// Bricks of this level per axis.
+    #[must_use]
+    pub fn brick_counts(&self) -> [usize; 3] {
+        self.bricks
+    }
+
+    /// Whether every brick of this level that `rays` cross (as [`BrickedField::bricks_along`]
+    /// finds them) is in the cache now.
+    #[must_use]
+    pub fn resident_along(&self, rays: &[(Vec3, Vec3)]) -> bool {
+        let mut along = Vec::new();
+        rays.iter().all(|&(o, d)| {
+            along.clear();
+            self.bricks_along(o, d, &mut along);
+            along
+                .iter()
+                .all(|&b| self.cache.contains(&*self.source, self.level, b))
+        })
+    }
+
     /// The per-region levels of detail, when [`BrickedField::per_region`] made this field.
     #[must_use]
     pub fn level_map(&self) -> Option<&LevelMap> {

@@ -184,11 +184,15 @@ pub struct Args {
     /// CPU), or a level number (0 = finest).
     #[arg(long)]
     pub lod: Option<String>,
-    /// Progressive levels of detail (every channel a .bsv file; CPU): one quick pass (1 spp)
-    /// at each level from the coarsest down to the one above the --lod level, then the full
-    /// render at the --lod level (exact by default); each step's level and time go to stderr.
-    #[arg(long)]
-    pub progressive: bool,
+    /// Progressive levels of detail (every channel a .bsv file; CPU). `levels` (the default):
+    /// one quick pass (1 spp) at each level from the coarsest down to the one above the --lod
+    /// level, then the full render at the --lod level (exact by default). `bricks` (HDR
+    /// VolVis 6.3, refining while bricks load): a quick pass at the coarsest level, then
+    /// quick passes in which each brick's region samples the finest level loaded there so
+    /// far while the --lod level loads along the view, then the full render. Each step's
+    /// level and time go to stderr
+    #[arg(long, num_args = 0..=1, default_missing_value = "levels", value_name = "levels|bricks")]
+    pub progressive: Option<String>,
     /// Where to render: cpu (default, bit-reproducible), gpu (a wgpu adapter or an error)
     /// or auto (a hardware GPU when present, or the adapter $BLUESHIFT_GPU forces, else the
     /// CPU). The GPU supports every method, blend and light; shading, heat maps and
@@ -586,7 +590,12 @@ fn run_inner(args: &Args) -> Result<()> {
         .channels()
         .iter()
         .find_map(|c| c.grid().as_bricked().map(|b| b.level()));
-    if args.progressive {
+    let by_bricks = match args.progressive.as_deref() {
+        None | Some("levels") => false,
+        Some("bricks") => true,
+        Some(other) => bail!("--progressive {other}: levels or bricks"),
+    };
+    if args.progressive.is_some() {
         if scene.lod().is_none() {
             bail!("--progressive: levels of detail need every channel in a .bsv file");
         }
@@ -607,7 +616,7 @@ fn run_inner(args: &Args) -> Result<()> {
     let method = integrator.method().name();
     let n = scene.channels().len();
     let (width, height) = (settings.width, settings.height);
-    let device = if args.progressive {
+    let device = if args.progressive.is_some() {
         blueshift_gpu::DeviceChoice::Cpu
     } else {
         args.device
@@ -638,7 +647,7 @@ fn run_inner(args: &Args) -> Result<()> {
     let start = Instant::now();
     let distributed = match crate::dist::mode(args.distributed.as_deref())? {
         Some(mode) => {
-            if args.progressive {
+            if args.progressive.is_some() {
                 bail!("--distributed: not with --progressive");
             }
             match crate::dist::tracking(mode, take()?, &integrator, &settings, &args.compositing)? {
@@ -684,8 +693,18 @@ fn run_inner(args: &Args) -> Result<()> {
             },
             || -> Result<TrackingOutput> {
                 let session = TrackingSession::new(take()?, integrator.clone(), settings.clone())?;
-                if args.progressive {
+                if args.progressive.is_some() {
                     let observer = Steps::new(&show, session.scene());
+                    if by_bricks {
+                        let mut on_step = |_, at: usize, regions: usize| {
+                            *observer
+                                .note
+                                .lock()
+                                .unwrap_or_else(std::sync::PoisonError::into_inner) =
+                                format!(", {at} of {regions} bricks at the final level");
+                        };
+                        return Ok(session.render_bricks(&observer, &mut on_step)?);
+                    }
                     return Ok(session.render_lod(&observer)?);
                 }
                 Ok(session.render(&OnPass(&bar))?)
@@ -890,6 +909,9 @@ struct Steps<'a, F> {
     current: std::sync::Mutex<(u32, usize, Instant)>,
     final_level: usize,
     dims: Vec<[usize; 3]>,
+    /// Said after the next quick step's level (`--progressive bricks`: the share of bricks
+    /// at the final level).
+    note: std::sync::Mutex<String>,
 }
 
 impl<'a, F> Steps<'a, F> {
@@ -906,6 +928,7 @@ impl<'a, F> Steps<'a, F> {
             current: std::sync::Mutex::new((0, 0, Instant::now())),
             final_level: scene.lod().map_or(0, |l| l.0),
             dims,
+            note: std::sync::Mutex::new(String::new()),
         }
     }
 
@@ -929,7 +952,18 @@ impl<F: Fn(u32, f64) + Sync> blueshift_camera::Observer<Progressive> for Steps<'
         if level == self.final_level {
             (self.show)(pass, acc.noise());
         } else {
-            self.line(step, level, began, ", 1 spp");
+            let note = std::mem::take(
+                &mut *self
+                    .note
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner),
+            );
+            let what = if note.is_empty() {
+                ", 1 spp".to_string()
+            } else {
+                format!(" and finer where loaded{note}, 1 spp")
+            };
+            self.line(step, level, began, &what);
         }
     }
 }
