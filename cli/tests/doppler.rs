@@ -501,6 +501,34 @@ fn progressive_bricked_scene_reports_each_level_and_ends_on_the_exact_image() {
     );
     let (lod1, _) = run("lod1.exr", &["--lod", "1"]);
     assert_eq!(one, lod1);
+    // Brick by brick: the coarsest level, images over what has loaded, the exact image.
+    let (bricks, logb) = run("bricks.exr", &["--progressive", "bricks"]);
+    let steps: Vec<&str> = logb
+        .lines()
+        .filter(|l| l.starts_with("progressive:"))
+        .collect();
+    assert!(steps.len() >= 2, "{logb}");
+    assert!(steps[0].contains("pass 1, level 2 (8x8x8)"), "{logb}");
+    for s in &steps[1..steps.len() - 1] {
+        assert!(s.contains("and finer where loaded"), "{logb}");
+    }
+    assert!(
+        steps[steps.len() - 1].contains("level 0 (32x32x32)"),
+        "{logb}"
+    );
+    assert_eq!(bricks, exact, "the last image is the exact one");
+    let o = blueshift(&[
+        "doppler",
+        "--scene",
+        s.to_str().unwrap(),
+        "--progressive",
+        "tiles",
+        "--out",
+        d.join("t.exr").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("levels or bricks"));
+    assert!(!d.join("t.exr").exists());
     // A scene in memory has no levels.
     let o = blueshift(&[
         "doppler",

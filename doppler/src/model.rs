@@ -279,6 +279,26 @@ impl DopplerScene {
         self.map_bricked(|b| Ok(b.per_region(&pick)?))
     }
 
+    /// The same scene with every bricked field sampled, region by region (one brick of its
+    /// level each), at the finest level its cache holds there now
+    /// ([`blueshift_volume::BrickedField::resident_regions`]): the view of a progressive
+    /// render while bricks load. Returns the scene and, summed over the fields, the regions
+    /// at the fields' own level and all regions.
+    ///
+    /// # Errors
+    /// A field in memory (every field must be bricked alike, [`DopplerScene::levels`]).
+    pub fn resident_view(&self) -> Result<(DopplerScene, usize, usize)> {
+        let counts = std::cell::Cell::new((0, 0));
+        let view = self.map_bricked(|b| {
+            let (f, at) = b.resident_regions()?;
+            let (a, n) = counts.get();
+            counts.set((a + at, n + b.brick_counts().iter().product::<usize>()));
+            Ok(f)
+        })?;
+        let (at, regions) = counts.get();
+        Ok((view, at, regions))
+    }
+
     /// This scene with every bricked field replaced by `f` of it (every field bricked alike).
     fn map_bricked(
         &self,

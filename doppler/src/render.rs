@@ -675,6 +675,80 @@ pub fn render_doppler_lod(
     last.ok_or_else(|| Error::parameter("no level rendered"))
 }
 
+/// Progressive refinement brick by brick while the bricks load (HDR VolVis section 6.3): the
+/// coarsest level first, then images in which every region (one brick of level `target`)
+/// samples the finest level its cache holds there ([`DopplerScene::resident_view`]) while
+/// level `target` loads along every 16th pixel's ray
+/// ([`blueshift_volume::refine_while_loading`] says when that stops), then the image at
+/// level `target`, returned: [`render_doppler`] on `scene.at_level(target)`.
+///
+/// `observer` hears [`Observer::level`] before each image (numbered from 1) with the
+/// coarsest level it samples and [`Observer::pass`] after it; `on_step(step, at_level,
+/// regions)` hears, before each image of mixed levels, how many regions sample level
+/// `target`.
+///
+/// # Errors
+/// As [`render_doppler_lod`].
+pub fn render_doppler_bricks(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    target: usize,
+    observer: &dyn Observer<DopplerImage>,
+    on_step: &mut dyn FnMut(u32, usize, usize),
+) -> Result<DopplerImage> {
+    let levels = scene.levels().ok_or_else(|| {
+        Error::parameter("progressive levels of detail need every field bricked (.bsv) alike")
+    })?;
+    let coarsest = levels.len() - 1;
+    if target > coarsest {
+        return Err(Error::parameter(format!(
+            "level {target} of {} levels",
+            levels.len()
+        )));
+    }
+    let rays = settings
+        .camera
+        .sparse_rays(settings.width, settings.height, 16);
+    let goal = scene.at_level(target)?;
+    let fields: Vec<&blueshift_volume::BrickedField> = goal
+        .fields()
+        .into_iter()
+        .filter_map(blueshift_volume::Field::as_bricked)
+        .collect();
+    blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+    let image = |s: &DopplerScene, pass: u32, level: usize| -> Result<DopplerImage> {
+        observer.level(pass, level);
+        let ctx = Context::new(s, settings)?;
+        let img = render_rows(&ctx, &RowsOnly(observer))?;
+        s.check_io()?;
+        observer.pass(pass, &img, None);
+        Ok(img)
+    };
+    let mut step = 1;
+    if coarsest > target {
+        image(&scene.at_level(coarsest)?, step, coarsest)?;
+        step = blueshift_volume::refine_while_loading(
+            &fields,
+            &rays,
+            2,
+            || goal.resident_view(),
+            |step, view: DopplerScene, at_level, regions| {
+                on_step(step, at_level, regions);
+                let level = view
+                    .fields()
+                    .into_iter()
+                    .filter_map(blueshift_volume::Field::as_bricked)
+                    .map(blueshift_volume::BrickedField::coarsest_sampled_level)
+                    .max()
+                    .unwrap_or(target);
+                image(&view, step, level).map(|_| ())
+            },
+            || observer.cancelled(),
+        )?;
+    }
+    image(&goal, step + 1, target)
+}
+
 /// Forwards row progress and cancellation, not the single pass's end (the caller numbers
 /// passes itself).
 struct RowsOnly<'a>(&'a dyn Observer<DopplerImage>);

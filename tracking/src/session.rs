@@ -192,22 +192,14 @@ impl TrackingSession {
     }
 }
 
-/// Most quick passes of [`TrackingSession::render_bricks`] between the coarsest level and
-/// the full render.
-pub const MAX_BRICK_STEPS: u32 = 16;
-
-/// How long [`TrackingSession::render_bricks`] waits for another brick of the scene's level
-/// before it renders the full image (the rest then load on demand), seconds.
-const BRICK_WAIT_SECONDS: f64 = 0.2;
-
 impl TrackingSession {
     /// Progressive refinement brick by brick while the bricks load (HDR VolVis section 6.3),
     /// for a scene of bricked channels ([`Scene::lod`]): a quick pass (1 spp) at the coarsest
     /// level, then quick passes in which every region (one brick of the scene's level)
     /// samples the finest level the cache holds there ([`Scene::resident_view`]) while the
-    /// cache's I/O thread loads the scene's level along every 16th pixel's ray; once those
-    /// are all loaded, or no brick arrived for 0.2 s, or after [`MAX_BRICK_STEPS`] passes,
-    /// the full render at the scene's level: the same output as [`TrackingSession::render`].
+    /// cache's I/O thread loads the scene's level along every 16th pixel's ray
+    /// ([`blueshift_volume::refine_while_loading`] says when it stops), then the full render
+    /// at the scene's level: the same output as [`TrackingSession::render`].
     ///
     /// `observer` hears [`Observer::level`] before each step (steps numbered from 1) with the
     /// coarsest level the step samples and [`Observer::pass`] after each quick pass; the
@@ -253,34 +245,24 @@ impl TrackingSession {
         let mut step = 1;
         if count > level + 1 {
             quick(&self.scene.at_level(count - 1)?, step, count - 1)?;
-            let mut last = None;
-            while step <= MAX_BRICK_STEPS && !fields.iter().all(|f| f.resident_along(&rays)) {
-                let waited = std::time::Instant::now();
-                let (view, at_level, regions) = loop {
-                    let v = self.scene.resident_view()?;
-                    if Some(v.1) != last
-                        || waited.elapsed().as_secs_f64() > BRICK_WAIT_SECONDS
-                        || observer.cancelled()
-                    {
-                        break v;
-                    }
-                    std::thread::sleep(std::time::Duration::from_millis(20));
-                };
-                if Some(at_level) == last || at_level == regions {
-                    break;
-                }
-                last = Some(at_level);
-                step += 1;
-                on_step(step, at_level, regions);
-                let coarsest = view
-                    .channels()
-                    .iter()
-                    .filter_map(|c| c.grid().as_bricked()?.level_map())
-                    .filter_map(|m| m.levels().iter().max().map(|&l| usize::from(l)))
-                    .max()
-                    .unwrap_or(level);
-                quick(&view, step, coarsest)?;
-            }
+            step = blueshift_volume::refine_while_loading(
+                &fields,
+                &rays,
+                2,
+                || self.scene.resident_view(),
+                |step, view: Scene, at_level, regions| {
+                    on_step(step, at_level, regions);
+                    let coarsest = view
+                        .channels()
+                        .iter()
+                        .filter_map(|c| c.grid().as_bricked())
+                        .map(blueshift_volume::BrickedField::coarsest_sampled_level)
+                        .max()
+                        .unwrap_or(level);
+                    quick(&view, step, coarsest)
+                },
+                || observer.cancelled(),
+            )?;
         }
         observer.level(step + 1, level);
         self.render(observer)

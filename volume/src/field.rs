@@ -789,6 +789,16 @@ impl BrickedField {
         Ok((field, at_base))
     }
 
+    /// The coarsest level any sample of this field reads: the largest of its per-region
+    /// levels ([`BrickedField::per_region`]), else its level.
+    #[must_use]
+    pub fn coarsest_sampled_level(&self) -> usize {
+        self.regions
+            .as_deref()
+            .and_then(|m| m.levels().iter().max())
+            .map_or(self.level, |&l| usize::from(l))
+    }
+
     /// Bricks of this level per axis.
     #[must_use]
     pub fn brick_counts(&self) -> [usize; 3] {
@@ -1240,6 +1250,61 @@ impl BrickedField {
             t_next[a] += t_delta[a];
         }
     }
+}
+
+/// Most quick passes [`refine_while_loading`] renders.
+pub const MAX_REFINE_STEPS: u32 = 16;
+
+/// How long [`refine_while_loading`] waits for another brick before it gives up, seconds.
+const REFINE_WAIT_SECONDS: f64 = 0.2;
+
+/// The loop of progressive refinement brick by brick while bricks load (HDR VolVis section
+/// 6.3), which every engine's progressive render shares. While the bricks of `fields` along
+/// `rays` ([`BrickedField::resident_along`]) are not all in their caches, it waits (up to
+/// 0.2 s, polling every 20 ms) for more regions to sample the fields' own level, builds the
+/// engine's view of what is loaded (`view()`: the view, how many regions sample the fields'
+/// own level, and how many regions there are; see [`BrickedField::resident_regions`]) and
+/// renders it (`pass(step, view, at_level, regions)`), steps numbered from `first`. It stops
+/// when those bricks are loaded, when no region changed in 0.2 s (a cache budget smaller
+/// than the view), when every region is at the fields' level, when `cancelled()`, or after
+/// [`MAX_REFINE_STEPS`] passes, and returns the number of the last step rendered
+/// (`first - 1` when none was).
+///
+/// # Errors
+/// The first error of `view` or `pass`.
+pub fn refine_while_loading<V, E>(
+    fields: &[&BrickedField],
+    rays: &[(Vec3, Vec3)],
+    first: u32,
+    mut view: impl FnMut() -> std::result::Result<(V, usize, usize), E>,
+    mut pass: impl FnMut(u32, V, usize, usize) -> std::result::Result<(), E>,
+    cancelled: impl Fn() -> bool,
+) -> std::result::Result<u32, E> {
+    let mut step = first - 1;
+    let mut last = None;
+    while step + 1 - first < MAX_REFINE_STEPS
+        && !cancelled()
+        && !fields.iter().all(|f| f.resident_along(rays))
+    {
+        let waited = std::time::Instant::now();
+        let (v, at_level, regions) = loop {
+            let v = view()?;
+            if Some(v.1) != last
+                || waited.elapsed().as_secs_f64() > REFINE_WAIT_SECONDS
+                || cancelled()
+            {
+                break v;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        if Some(at_level) == last || at_level == regions {
+            break;
+        }
+        last = Some(at_level);
+        step += 1;
+        pass(step, v, at_level, regions)?;
+    }
+    Ok(step)
 }
 
 /// The level of detail for a view (HDR VolVis section 6.3): the coarsest level whose voxel

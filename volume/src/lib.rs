@@ -65,7 +65,10 @@ mod volume;
 pub use budget::{BudgetError, MemoryBudget};
 pub use cache::{BrickCache, BrickSource, CacheStats};
 pub use error::{Error, Limits, Result};
-pub use field::{BrickedField, Field, LevelMap, Lod, VectorField, lod_level};
+pub use field::{
+    BrickedField, Field, LevelMap, Lod, MAX_REFINE_STEPS, VectorField, lod_level,
+    refine_while_loading,
+};
 pub use grid::{AnyGrid, Geometry, Grid, Interpolant, ScalarType, Voxel};
 pub use io::{DiskType, RawSpec, ReadOptions, read, read_with};
 pub use macrocell::{DEFAULT_K, Macrocells, ValueInterval, ValueIntervals};

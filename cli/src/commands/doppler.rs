@@ -190,12 +190,14 @@ pub struct Args {
     /// CPU) or a level number (0 = finest).
     #[arg(long)]
     pub lod: Option<String>,
-    /// Progressive levels of detail (scenes whose fields are all .bsv files; CPU): render
-    /// the coarsest level first, then each finer one down to the --lod level (exact by
-    /// default) while its bricks load ahead; each pass's level and time go to stderr and the
-    /// last image is written.
-    #[arg(long)]
-    pub progressive: bool,
+    /// Progressive levels of detail (scenes whose fields are all .bsv files; CPU). `levels`
+    /// (the default): render the coarsest level first, then each finer one down to the --lod
+    /// level (exact by default) while its bricks load ahead. `bricks` (HDR VolVis 6.3): the
+    /// coarsest level, then images in which each brick's region samples the finest level
+    /// loaded there so far while the --lod level loads, then the --lod level. Each pass's
+    /// level and time go to stderr and the last image is written
+    #[arg(long, num_args = 0..=1, default_missing_value = "levels", value_name = "levels|bricks")]
+    pub progressive: Option<String>,
     /// Working precision of the GPU kernels: auto (f64 where the adapter has SHADER_F64, as
     /// the CPU; else f32), f64 (agrees with the CPU to rounding; an error without SHADER_F64)
     /// or f32 (faster on GPUs with slow f64; within 2e-3 of the CPU per pixel, see
@@ -277,7 +279,7 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
         let lod: blueshift_volume::Lod = args.lod.as_deref().unwrap_or(default_lod).parse()?;
         match scene.levels() {
             Some(levels) if lod == blueshift_volume::Lod::Brick => {
-                if args.progressive {
+                if args.progressive.is_some() {
                     bail!("--lod brick: --progressive renders whole levels");
                 }
                 // Each brick its own level: the footprint of the default view where the
@@ -290,7 +292,7 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
                     )
                 })?
             }
-            Some(levels) if lod != blueshift_volume::Lod::Exact || args.progressive => {
+            Some(levels) if lod != blueshift_volume::Lod::Exact || args.progressive.is_some() => {
                 let st = DopplerSettings::default_for(&scene, args.width, args.height);
                 let (lo, hi) = scene.geometry().world_bounds();
                 let level = lod.pick(&levels, st.camera.pixel_footprint(lo, hi, args.height));
@@ -532,11 +534,14 @@ fn render_progressive(
     scene0: &DopplerScene,
     st: &DopplerSettings,
     target: usize,
+    mode: Option<&str>,
 ) -> Result<DopplerImage> {
     struct Passes {
         start: Instant,
         level: std::sync::Mutex<(usize, Instant)>,
         dims: Vec<[usize; 3]>,
+        /// `--progressive bricks`: the share of bricks at the final level of the next image.
+        note: std::sync::Mutex<String>,
     }
     impl blueshift_camera::Observer<DopplerImage> for Passes {
         fn level(&self, _pass: u32, level: usize) {
@@ -550,7 +555,18 @@ fn render_progressive(
                 .level
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner);
-            super::render::progressive_line(pass, level, &self.dims, "", began, self.start);
+            let note = std::mem::take(
+                &mut *self
+                    .note
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner),
+            );
+            let what = if note.is_empty() {
+                String::new()
+            } else {
+                format!(" and finer where loaded{note}")
+            };
+            super::render::progressive_line(pass, level, &self.dims, &what, began, self.start);
         }
     }
     let dims = scene0
@@ -563,7 +579,23 @@ fn render_progressive(
         start: Instant::now(),
         level: std::sync::Mutex::new((0, Instant::now())),
         dims,
+        note: std::sync::Mutex::new(String::new()),
     };
+    if mode == Some("bricks") {
+        let mut on_step = |_, at: usize, regions: usize| {
+            *obs.note
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) =
+                format!(", {at} of {regions} bricks at the final level");
+        };
+        return Ok(blueshift_doppler::render_doppler_bricks(
+            scene0,
+            st,
+            target,
+            &obs,
+            &mut on_step,
+        )?);
+    }
     Ok(blueshift_doppler::render_doppler_lod(
         scene0, st, target, &obs,
     )?)
@@ -775,7 +807,13 @@ fn run_frame(args: Args) -> Result<()> {
         }
     }
     let (scene, mut st, level0) = build_levels(&args)?;
-    if args.progressive {
+    if let Some(mode) = args.progressive.as_deref()
+        && mode != "levels"
+        && mode != "bricks"
+    {
+        bail!("--progressive {mode}: levels or bricks");
+    }
+    if args.progressive.is_some() {
         if level0.is_none() {
             bail!("--progressive: levels of detail need every field of the scene in .bsv files");
         }
@@ -833,13 +871,13 @@ fn run_frame(args: Args) -> Result<()> {
     }
     let start = Instant::now();
     let mut on = "cpu";
-    let device = if args.progressive {
+    let device = if args.progressive.is_some() {
         blueshift_gpu::DeviceChoice::Cpu
     } else {
         args.device
     };
     let distributed = if let Some(mode) = crate::dist::mode(args.distributed.as_deref())? {
-        if args.progressive {
+        if args.progressive.is_some() {
             bail!("--distributed: not with --progressive");
         }
         match crate::dist::doppler(mode, scene, st, &args.compositing)? {
@@ -905,7 +943,9 @@ fn run_frame(args: Args) -> Result<()> {
                 }
             },
             || match &level0 {
-                Some((s0, target)) if args.progressive => render_progressive(s0, st, *target),
+                Some((s0, target)) if args.progressive.is_some() => {
+                    render_progressive(s0, st, *target, args.progressive.as_deref())
+                }
                 _ => render(&session),
             },
         )
