@@ -572,6 +572,39 @@ fn progressive_render_previews_each_coarser_level_then_renders_the_exact_image()
         "{log}"
     );
     assert_eq!(bricks, exact, "the last step is the exact render");
+    // From --lod 1: levels are absolute, the last step is level 1's render.
+    let (b1, log1) = run("e.exr", &["--progressive", "bricks", "--lod", "1"]);
+    let steps: Vec<&str> = log1
+        .lines()
+        .filter(|l| l.starts_with("progressive:"))
+        .collect();
+    assert!(
+        steps[0].contains("pass 1, level 2 (8x8x8), 1 spp"),
+        "{log1}"
+    );
+    assert!(
+        steps[steps.len() - 1].contains("level 1 (16x16x16):"),
+        "{log1}"
+    );
+    let (l1, _) = run("f.exr", &["--lod", "1"]);
+    assert_eq!(b1, l1);
+    let o = blueshift(
+        &[
+            "--volume",
+            "m.bsv",
+            "--tf",
+            "builtin:viridis",
+            "--lod",
+            "brick",
+            "--progressive",
+            "bricks",
+            "--out",
+            "g.exr",
+        ],
+        d,
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--progressive renders whole levels"));
     let o = blueshift(
         &["--synth", "three-cubes", "--progressive", "--out", "c.exr"],
         d,

@@ -724,8 +724,9 @@ pub fn render_doppler_bricks(
         observer.pass(pass, &img, None);
         Ok(img)
     };
-    let mut step = 1;
+    let mut step = 0;
     if coarsest > target {
+        step = 1;
         image(&scene.at_level(coarsest)?, step, coarsest)?;
         step = blueshift_volume::refine_while_loading(
             &fields,

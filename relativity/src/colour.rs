@@ -320,6 +320,7 @@ impl DopplerColourTable {
         // minus one, changes no index but lets the compiler drop the bounds checks, so the
         // loops below vectorise with gathers.
         const MASK: usize = LINEAR_D_ENTRIES - 1;
+        const _: () = assert!(LINEAR_D_ENTRIES.is_power_of_two());
         let [r, g, b] = *rgb;
         for (c, out) in rgb.iter_mut().enumerate() {
             let e = &self.by_element[3 * c..3 * c + 3];

@@ -60,8 +60,9 @@ pub fn atan2(y: f64, x: f64) -> f64 {
     // Written as selects, not branches, so that loops over many angles vectorise (the
     // renderer's lanes); the arithmetic is that of the branches.
     let (ax, ay) = (x.abs(), y.abs());
-    // Selects rather than `f64::min`/`max` (whose NaN handling branches); a NaN input
-    // gives NaN, as `f64::atan2` does.
+    // Selects rather than `f64::min`/`max` (whose NaN handling branches). Finite inputs get
+    // the same result either way; NaN inputs are not defined here (the renderer's
+    // directions are finite).
     let lt = ax < ay;
     let (mn, mx) = (if lt { ax } else { ay }, if lt { ay } else { ax });
     let big = mn > TAN_PI_8 * mx;

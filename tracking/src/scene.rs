@@ -277,6 +277,7 @@ impl Scene {
         s.background = self.background;
         s.light = self.light;
         s.shading = self.shading.clone();
+        s.clip = self.clip;
         Ok(s)
     }
 
@@ -309,6 +310,7 @@ impl Scene {
         s.background = self.background;
         s.light = self.light;
         s.shading = self.shading.clone();
+        s.clip = self.clip;
         Ok((s, at_base, regions))
     }
 

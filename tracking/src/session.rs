@@ -242,8 +242,9 @@ impl TrackingSession {
         };
         // The scene's level loads on the I/O thread from the start.
         blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
-        let mut step = 1;
+        let mut step = 0;
         if count > level + 1 {
+            step = 1;
             quick(&self.scene.at_level(count - 1)?, step, count - 1)?;
             step = blueshift_volume::refine_while_loading(
                 &fields,

@@ -288,6 +288,15 @@ fn resident_regions_follow_what_the_cache_holds() {
     // A region at level 0 samples the finest level itself.
     let p = glam::Vec3::new(5.3, 17.6, 30.2);
     assert_eq!(f.sample_index(p).to_bits(), b.sample_index(p).to_bits());
+    assert_eq!(f.coarsest_sampled_level(), coarsest);
+    assert_eq!(f.resident_count(), 2 * 5 * 5);
+    // From level 1 (20^3 in bricks of 8: 3^3 regions), levels are absolute: nothing of
+    // level 1 is held yet, so every region reads the coarsest level.
+    let b1 = b.at_level(1).unwrap();
+    let (f1, at1) = b1.resident_regions().unwrap();
+    assert_eq!((at1, b1.resident_count()), (0, 0));
+    assert_eq!(f1.coarsest_sampled_level(), coarsest);
+    assert_eq!(b1.coarsest_sampled_level(), 1);
 }
 
 /// Brick-by-brick progressive: a coarsest-level pass, quick passes over whatever has
@@ -295,14 +304,25 @@ fn resident_regions_follow_what_the_cache_holds() {
 /// step before the last samples a coarser level somewhere.
 #[test]
 fn brick_progressive_ends_on_the_plain_render() {
-    use blueshift_tracking::{Progressive, TrackingSession};
-    use std::sync::Mutex;
     let dir = tempfile::tempdir().unwrap();
     let (_, bricked, cache) = channels(dir.path(), 64 << 20);
     let s = scene(bricked);
-    let (level, count) = s.lod().unwrap();
+    let (_, count) = s.lod().unwrap();
     let mut st = RenderSettings::default_for(&s, 16, 12, false);
     st.spp = 3;
+    // From the scene's level 1 too: steps report absolute levels, coarser than 1.
+    for from in [0, 1] {
+        let s = s.at_level(from).unwrap();
+        let (level, _) = s.lod().unwrap();
+        assert_eq!(level, from);
+        brick_steps(&s, &st, &cache, count);
+    }
+}
+
+fn brick_steps(s: &Scene, st: &RenderSettings, cache: &std::sync::Arc<BrickCache>, count: usize) {
+    use blueshift_tracking::{Progressive, TrackingSession};
+    use std::sync::Mutex;
+    let (level, _) = s.lod().unwrap();
     #[derive(Default)]
     struct Log(Mutex<Vec<(char, u32, usize)>>);
     impl blueshift_camera::Observer<Progressive> for Log {
@@ -313,7 +333,8 @@ fn brick_progressive_ends_on_the_plain_render() {
             self.0.lock().unwrap().push(('p', pass, 0));
         }
     }
-    let session = TrackingSession::new(s, Integrator::Woodcock { channel: 0 }, st).unwrap();
+    let session =
+        TrackingSession::new(s.clone(), Integrator::Woodcock { channel: 0 }, st.clone()).unwrap();
     let plain = session.render(&blueshift_camera::Silent).unwrap();
     cache.clear();
     let log = Log::default();
@@ -345,9 +366,22 @@ fn brick_progressive_ends_on_the_plain_render() {
     for w in steps.windows(2) {
         assert!(w[1].1 > w[0].1, "{steps:?}");
     }
+    let all: usize = s
+        .channels()
+        .iter()
+        .map(|c| {
+            c.grid()
+                .as_bricked()
+                .unwrap()
+                .brick_counts()
+                .iter()
+                .product::<usize>()
+        })
+        .sum();
+    assert_eq!(all, if level == 0 { 250 } else { 54 });
     assert!(
         steps
             .iter()
-            .all(|&(_, at, regions)| at < regions && regions == 250)
+            .all(|&(_, at, regions)| at < regions && regions == all)
     );
 }

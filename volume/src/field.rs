@@ -793,16 +793,28 @@ impl BrickedField {
     /// levels ([`BrickedField::per_region`]), else its level.
     #[must_use]
     pub fn coarsest_sampled_level(&self) -> usize {
+        // The map holds levels relative to this field's own.
         self.regions
             .as_deref()
             .and_then(|m| m.levels().iter().max())
-            .map_or(self.level, |&l| usize::from(l))
+            .map_or(self.level, |&l| self.level + usize::from(l))
     }
 
     /// Bricks of this level per axis.
     #[must_use]
     pub fn brick_counts(&self) -> [usize; 3] {
         self.bricks
+    }
+
+    /// How many bricks of this level the cache holds now: the regions
+    /// [`BrickedField::resident_regions`] would put at this level (a region is one brick of
+    /// it), counted without building a field.
+    #[must_use]
+    pub fn resident_count(&self) -> usize {
+        let n = self.bricks.iter().product::<usize>() as u64;
+        (0..n)
+            .filter(|&b| self.cache.contains(&*self.source, self.level, b))
+            .count()
     }
 
     /// Whether every brick of this level that `rays` cross (as [`BrickedField::bricks_along`]
@@ -1261,14 +1273,15 @@ const REFINE_WAIT_SECONDS: f64 = 0.2;
 /// The loop of progressive refinement brick by brick while bricks load (HDR VolVis section
 /// 6.3), which every engine's progressive render shares. While the bricks of `fields` along
 /// `rays` ([`BrickedField::resident_along`]) are not all in their caches, it waits (up to
-/// 0.2 s, polling every 20 ms) for more regions to sample the fields' own level, builds the
-/// engine's view of what is loaded (`view()`: the view, how many regions sample the fields'
-/// own level, and how many regions there are; see [`BrickedField::resident_regions`]) and
-/// renders it (`pass(step, view, at_level, regions)`), steps numbered from `first`. It stops
-/// when those bricks are loaded, when no region changed in 0.2 s (a cache budget smaller
-/// than the view), when every region is at the fields' level, when `cancelled()`, or after
-/// [`MAX_REFINE_STEPS`] passes, and returns the number of the last step rendered
-/// (`first - 1` when none was).
+/// 0.2 s, polling every 20 ms the cheap [`BrickedField::resident_count`]) for more bricks of
+/// the fields' own level, then builds the engine's view of what is loaded (`view()`: the
+/// view, how many regions sample the fields' own level, and how many regions there are; see
+/// [`BrickedField::resident_regions`]) and renders it (`pass(step, view, at_level,
+/// regions)`), steps numbered from `first`. It stops when those bricks are loaded, when no
+/// brick arrived in 0.2 s (a cache budget smaller than the view), when every region is at
+/// the fields' level, when `cancelled()`, or after [`MAX_REFINE_STEPS`] passes, and returns
+/// the number of the last step rendered (`first - 1` when none was, `first` taken as at
+/// least 1).
 ///
 /// # Errors
 /// The first error of `view` or `pass`.
@@ -1280,27 +1293,30 @@ pub fn refine_while_loading<V, E>(
     mut pass: impl FnMut(u32, V, usize, usize) -> std::result::Result<(), E>,
     cancelled: impl Fn() -> bool,
 ) -> std::result::Result<u32, E> {
+    let first = first.max(1);
     let mut step = first - 1;
     let mut last = None;
+    let count = || fields.iter().map(|f| f.resident_count()).sum::<usize>();
     while step + 1 - first < MAX_REFINE_STEPS
         && !cancelled()
         && !fields.iter().all(|f| f.resident_along(rays))
     {
         let waited = std::time::Instant::now();
-        let (v, at_level, regions) = loop {
-            let v = view()?;
-            if Some(v.1) != last
-                || waited.elapsed().as_secs_f64() > REFINE_WAIT_SECONDS
-                || cancelled()
-            {
-                break v;
-            }
+        while last == Some(count())
+            && waited.elapsed().as_secs_f64() <= REFINE_WAIT_SECONDS
+            && !cancelled()
+        {
             std::thread::sleep(std::time::Duration::from_millis(20));
-        };
-        if Some(at_level) == last || at_level == regions {
+        }
+        let now = count();
+        if last == Some(now) {
             break;
         }
-        last = Some(at_level);
+        last = Some(now);
+        let (v, at_level, regions) = view()?;
+        if at_level == regions {
+            break;
+        }
         step += 1;
         pass(step, v, at_level, regions)?;
     }

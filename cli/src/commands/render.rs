@@ -599,6 +599,14 @@ fn run_inner(args: &Args) -> Result<()> {
         if scene.lod().is_none() {
             bail!("--progressive: levels of detail need every channel in a .bsv file");
         }
+        let per_brick = scene.channels().iter().any(|c| {
+            c.grid()
+                .as_bricked()
+                .is_some_and(|b| b.level_map().is_some())
+        });
+        if per_brick {
+            bail!("--lod brick: --progressive renders whole levels");
+        }
         if args.device == blueshift_gpu::DeviceChoice::Gpu {
             bail!("--progressive renders on the CPU (not --device gpu)");
         }
