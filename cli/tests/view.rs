@@ -941,6 +941,7 @@ fn an_out_of_core_preview_samples_a_coarser_level_than_the_full_render() {
         }
         if s["preview"] == true {
             preview_levels.push(s["lod_level"].as_u64().unwrap());
+            assert_eq!(s["target_spp"], 1, "{s}");
         }
     };
     assert!(!preview_levels.is_empty(), "no preview status");

@@ -408,7 +408,9 @@ impl TrackingMode {
         )?;
         ctx.send(&json!({
             "type": "status", "pass": acc.samples(), "spp": acc.samples(),
-            "target_spp": st.spp, "noise": noise.is_finite().then_some(noise), "ms": ms,
+            // Previews are one pass (a coarser level's runs beside the session's settings).
+            "target_spp": if preview { 1 } else { st.spp },
+            "noise": noise.is_finite().then_some(noise), "ms": ms,
             "device": self.device_name(), "preview": preview, "done": done,
             "level": if preview { "preview" } else { "full" },
             "lod_level": lod.map(|l| l.0), "lod_levels": lod.map(|l| l.1),
