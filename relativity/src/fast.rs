@@ -162,25 +162,21 @@ impl<'a> EquirectTexels<'a> {
         lerp3(top, bot, fy)
     }
 
-    /// [`Self::fetch`] on `N` lanes of coordinates from [`Self::coords`], the first `n` of
-    /// them wanted: `out` gets red, green and blue per lane. The corner arithmetic runs as
-    /// loops over all lanes (they vectorise: `i32` texel columns, the map's sides being at
-    /// most 32,768), the texel reads as scalar loops, the bilinear weights as loops again.
-    /// Each lane gets [`Self::fetch`]'s bits for every coordinate [`Self::coords`] can give
+    /// The corner arithmetic of [`Self::fetch`] on `N` lanes of coordinates from
+    /// [`Self::coords`]: each lane's four texel indices and bilinear weights. The loop
+    /// vectorises (`i32` texel columns, the map's sides being at most 32,768). Each lane gets
+    /// [`Self::fetch`]'s corners and weights for every coordinate [`Self::coords`] can give
     /// (`x` in `[-0.5, width - 0.5]` or NaN, `y` in `[0, height - 1]`), where one wrap of the
     /// column suffices.
     #[inline(always)]
-    pub(crate) fn fetch_lanes<const N: usize>(
+    pub(crate) fn corners_lanes<const N: usize>(
         &self,
         x: &[f64; N],
         y: &[f64; N],
-        n: usize,
-        out: &mut [[f32; N]; 3],
+        out: &mut Corners<N>,
     ) {
         let w = self.width as i32;
         let last = self.height as i32 - 1;
-        let mut corner = [[0_u32; N]; 4];
-        let (mut fx, mut fy) = ([0.0_f32; N], [0.0_f32; N]);
         for i in 0..N {
             let xt = x[i] as i32;
             let xi = if x[i] < f64::from(xt) {
@@ -189,8 +185,8 @@ impl<'a> EquirectTexels<'a> {
                 xt
             };
             let ya = y[i] as i32;
-            fx[i] = (x[i] - f64::from(xi)) as f32;
-            fy[i] = (y[i] - f64::from(ya)) as f32;
+            out.fx[i] = (x[i] - f64::from(xi)) as f32;
+            out.fy[i] = (y[i] - f64::from(ya)) as f32;
             let xa = if xi < 0 {
                 xi.wrapping_add(w)
             } else if xi >= w {
@@ -212,30 +208,92 @@ impl<'a> EquirectTexels<'a> {
                 last
             };
             let (ra, rb) = (ya.wrapping_mul(w), yb.wrapping_mul(w));
-            corner[0][i] = ra.wrapping_add(xa) as u32;
-            corner[1][i] = ra.wrapping_add(xb) as u32;
-            corner[2][i] = rb.wrapping_add(xa) as u32;
-            corner[3][i] = rb.wrapping_add(xb) as u32;
+            out.index[0][i] = ra.wrapping_add(xa) as u32;
+            out.index[1][i] = ra.wrapping_add(xb) as u32;
+            out.index[2][i] = rb.wrapping_add(xa) as u32;
+            out.index[3][i] = rb.wrapping_add(xb) as u32;
         }
+    }
+
+    /// Asks the processor to bring the texels of the first `n` lanes' corners into its
+    /// caches, without waiting for them: the renderer issues this for a whole block of
+    /// pixels before it reads any of their texels, so the memory latency of a map larger
+    /// than the caches overlaps the block's arithmetic. A hint only: no effect on results.
+    #[inline(always)]
+    pub(crate) fn prefetch<const N: usize>(&self, c: &Corners<N>, n: usize) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let base = self.data.as_ptr();
+            // The two rows' first corners; the second corners share their cache lines but
+            // at the lines' ends.
+            for row in [&c.index[0], &c.index[2]] {
+                for &j in &row[..n.min(N)] {
+                    let p = base.wrapping_add(3 * j as usize).cast::<i8>();
+                    // SAFETY: a prefetch reads nothing and cannot fault, whatever the
+                    // address (this one is a texel's, inside the map); SSE, the
+                    // instruction's only requirement, is part of every x86-64 processor.
+                    #[allow(unsafe_code)]
+                    unsafe {
+                        _mm_prefetch::<_MM_HINT_T0>(p);
+                    }
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (c, n);
+    }
+
+    /// The bilinear samples of the first `n` lanes of `c` ([`Self::fetch`]'s bits): `out`
+    /// gets red, green and blue per lane. The texel reads are scalar loops, corner by
+    /// corner, the weights loops over all lanes again.
+    #[inline(always)]
+    pub(crate) fn gather_lanes<const N: usize>(
+        &self,
+        c: &Corners<N>,
+        n: usize,
+        out: &mut [[f32; N]; 3],
+    ) {
         let mut texel = [[[0.0_f32; N]; 3]; 4];
         // Corner by corner over the lanes, the two rows' first corners first: each loop's
         // body is short, so the processor keeps many lanes' cache misses in flight at once.
         for k in [0, 2, 1, 3] {
             for i in 0..n.min(N) {
-                let j = 3 * corner[k][i] as usize;
+                let j = 3 * c.index[k][i] as usize;
                 let v = &self.data[j..j + 3];
                 texel[k][0][i] = v[0];
                 texel[k][1][i] = v[1];
                 texel[k][2][i] = v[2];
             }
         }
-        for (c, o) in out.iter_mut().enumerate() {
-            let [a, b, cc, d] = [&texel[0][c], &texel[1][c], &texel[2][c], &texel[3][c]];
+        let (fx, fy) = (&c.fx, &c.fy);
+        for (ch, o) in out.iter_mut().enumerate() {
+            let [a, b, cc, d] = [&texel[0][ch], &texel[1][ch], &texel[2][ch], &texel[3][ch]];
             for i in 0..N {
                 let top = a[i] + (b[i] - a[i]) * fx[i];
                 let bot = cc[i] + (d[i] - cc[i]) * fx[i];
                 o[i] = top + (bot - top) * fy[i];
             }
+        }
+    }
+}
+
+/// `N` lanes' bilinear corners on an equirectangular map ([`EquirectTexels::corners_lanes`]):
+/// the texel indices of the top-left, top-right, bottom-left and bottom-right corners, and
+/// the horizontal and vertical weights.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Corners<const N: usize> {
+    pub(crate) index: [[u32; N]; 4],
+    pub(crate) fx: [f32; N],
+    pub(crate) fy: [f32; N],
+}
+
+impl<const N: usize> Default for Corners<N> {
+    fn default() -> Self {
+        Self {
+            index: [[0; N]; 4],
+            fx: [0.0; N],
+            fy: [0.0; N],
         }
     }
 }

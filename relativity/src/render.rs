@@ -1,6 +1,8 @@
 //! The renderer: a pinhole camera in the observer's frame, inverse aberration, environment
 //! lookup, Doppler colour shift and searchlight; a velocity ramp; a simple PNG encoding.
 
+use std::ops::Range;
+
 use glam::DVec3;
 use image::{Rgb32FImage, RgbImage};
 use rayon::prelude::*;
@@ -8,7 +10,7 @@ use rayon::prelude::*;
 use crate::colour::DopplerColourTable;
 use crate::envmap::{Environment, check_size};
 use crate::error::{Error, Result};
-use crate::fast::EquirectTexels;
+use crate::fast::{Corners, EquirectTexels};
 use crate::lorentz::{Velocity, searchlight_integrated, unit};
 
 /// A pinhole camera in the observer's frame (C8: plain settings with `Default`).
@@ -229,20 +231,25 @@ pub fn render(
     // Bands of TILE rows in parallel, each walked in TILE x TILE blocks: a block's pixels
     // look up one compact patch of the map, which stays in cache, where a whole row's
     // lookups follow a curve across many map rows and miss the cache at almost every pixel.
-    buf.par_chunks_mut(wu * 3 * TILE)
-        .enumerate()
-        .for_each(|(band, rows)| {
+    let sy: Vec<f64> = (0..h).map(|y| frame.screen_y(f64::from(y))).collect();
+    buf.par_chunks_mut(wu * 3 * TILE).enumerate().for_each_init(
+        || vec![Lanes::default(); TILE],
+        |lanes, (band, rows)| {
             let y0 = band * TILE;
             let nrows = rows.len() / (3 * wu);
             for x0 in (0..wu).step_by(TILE) {
                 let x1 = (x0 + TILE).min(wu);
-                for r in 0..nrows {
-                    let sy = frame.screen_y((y0 + r) as f64);
-                    let row = &mut rows[3 * (r * wu + x0)..3 * (r * wu + x1)];
-                    kernel.run(row, &sx[x0..x1], sy);
-                }
+                kernel.run(
+                    rows,
+                    wu,
+                    x0..x1,
+                    &sx[x0..x1],
+                    &sy[y0..y0 + nrows],
+                    &mut lanes[..nrows],
+                );
             }
-        });
+        },
+    );
     Rgb32FImage::from_raw(w, h, buf)
         .ok_or_else(|| Error::param("image size", f64::from(w), "buffer mismatch"))
 }
@@ -309,34 +316,85 @@ impl<'a> Kernel<'a> {
         }
     }
 
-    /// One run of pixels: `row` their RGB output, `sx` their image-plane x coordinates, `sy`
-    /// the row's.
-    fn run(&self, row: &mut [f32], sx: &[f64], sy: f64) {
+    /// One block of pixels: columns `cols` of the rows in `rows` (RGB, `width` pixels a
+    /// row), `sx` the columns' image-plane x coordinates and `sy` the rows', `lanes` one
+    /// scratch state per row. Every row's front stages run first ([`Self::front`], which
+    /// asks for the block's map texels ahead), then every row's back stages
+    /// ([`Self::back`]), so the texels arrive while the block's arithmetic runs.
+    fn run(
+        &self,
+        rows: &mut [f32],
+        width: usize,
+        cols: Range<usize>,
+        sx: &[f64],
+        sy: &[f64],
+        lanes: &mut [Lanes],
+    ) {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: the processor has AVX2 (detected in `Kernel::new`), the only
             // requirement of `run_avx2`.
             #[allow(unsafe_code)]
             unsafe {
-                self.run_avx2(row, sx, sy);
+                self.run_avx2(rows, width, cols, sx, sy, lanes);
             }
             return;
         }
-        self.stages(row, sx, sy);
+        self.block(rows, width, cols, sx, sy, lanes);
     }
 
-    /// [`Self::stages`] compiled for AVX2.
+    /// [`Self::block`] compiled for AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn run_avx2(&self, row: &mut [f32], sx: &[f64], sy: f64) {
-        self.stages(row, sx, sy);
+    fn run_avx2(
+        &self,
+        rows: &mut [f32],
+        width: usize,
+        cols: Range<usize>,
+        sx: &[f64],
+        sy: &[f64],
+        lanes: &mut [Lanes],
+    ) {
+        self.block(rows, width, cols, sx, sy, lanes);
     }
 
     #[inline(always)]
+    fn block(
+        &self,
+        rows: &mut [f32],
+        width: usize,
+        cols: Range<usize>,
+        sx: &[f64],
+        sy: &[f64],
+        lanes: &mut [Lanes],
+    ) {
+        for (l, &y) in lanes.iter_mut().zip(sy) {
+            self.front(l, sx, y);
+        }
+        for (r, l) in lanes.iter().enumerate() {
+            let row = &mut rows[3 * (r * width + cols.start)..3 * (r * width + cols.end)];
+            self.back(l, row);
+        }
+    }
+
+    /// [`Self::front`] then [`Self::back`] on one run of pixels: `row` their RGB output,
+    /// `sx` their image-plane x coordinates, `sy` the row's.
+    #[cfg(test)]
     fn stages(&self, row: &mut [f32], sx: &[f64], sy: f64) {
+        let mut l = Lanes::default();
+        self.front(&mut l, sx, sy);
+        self.back(&l, row);
+    }
+
+    /// The stages of one run of at most [`TILE`] pixels up to the map lookup: directions,
+    /// Doppler factors and, for an equirectangular map, the bilinear corners (whose texels
+    /// are asked for) or else the scene directions.
+    #[inline(always)]
+    fn front(&self, l: &mut Lanes, sx: &[f64], sy: f64) {
         // Every stage runs over all TILE lanes (a constant trip count, which the vectoriser
         // needs); lanes past the run repeat its last pixel and are not written.
         let n = sx.len().min(TILE);
+        l.n = n;
         if n == 0 {
             return;
         }
@@ -347,7 +405,7 @@ impl<'a> Kernel<'a> {
         let su = sy * up;
         // Observer-frame directions: (forward + sx right + sy up), normalised as glam does
         // (times the reciprocal of the length).
-        let (mut dx, mut dy, mut dz) = ([0.0_f64; TILE], [0.0_f64; TILE], [0.0_f64; TILE]);
+        let [dx, dy, dz] = &mut l.dir;
         for i in 0..TILE {
             let s = sx[i];
             let (px, py, pz) = (
@@ -358,11 +416,10 @@ impl<'a> Kernel<'a> {
             let k = 1.0 / ((px * px + py * py) + pz * pz).sqrt();
             (dx[i], dy[i], dz[i]) = (px * k, py * k, pz * k);
         }
-        let mut dop = [1.0_f64; TILE];
         if self.shade {
             let (b, g) = (self.beta, self.gamma);
             for i in 0..TILE {
-                dop[i] = 1.0 / (g * (1.0 - ((b.x * dx[i] + b.y * dy[i]) + b.z * dz[i])));
+                l.dop[i] = 1.0 / (g * (1.0 - ((b.x * dx[i] + b.y * dy[i]) + b.z * dz[i])));
             }
         }
         if let Some((u, b, gamma)) = self.aberration {
@@ -378,25 +435,36 @@ impl<'a> Kernel<'a> {
                 (dx[i], dy[i], dz[i]) = (ox * k, oy * k, oz * k);
             }
         }
+        if let Some(m) = &self.equirect {
+            let (mut ux, mut uy) = ([0.0_f64; TILE], [0.0_f64; TILE]);
+            for i in 0..TILE {
+                (ux[i], uy[i]) = m.coords(DVec3::new(dx[i], dy[i], dz[i]));
+            }
+            m.corners_lanes(&ux, &uy, &mut l.corners);
+            m.prefetch(&l.corners, n);
+        }
+    }
+
+    /// The stages of one run after [`Self::front`]: texels, colour shift, searchlight, and
+    /// the run's RGB output `row`.
+    #[inline(always)]
+    fn back(&self, l: &Lanes, row: &mut [f32]) {
+        let n = l.n;
         // Red, green and blue per lane.
         let mut rgb = [[0.0_f32; TILE]; 3];
         match &self.equirect {
-            Some(m) => {
-                let (mut ux, mut uy) = ([0.0_f64; TILE], [0.0_f64; TILE]);
-                for i in 0..TILE {
-                    (ux[i], uy[i]) = m.coords(DVec3::new(dx[i], dy[i], dz[i]));
-                }
-                m.fetch_lanes(&ux, &uy, n, &mut rgb);
-            }
+            Some(m) => m.gather_lanes(&l.corners, n, &mut rgb),
             None => {
+                let [dx, dy, dz] = &l.dir;
                 for i in 0..n {
                     let c = self.env.sample(DVec3::new(dx[i], dy[i], dz[i]));
                     (rgb[0][i], rgb[1][i], rgb[2][i]) = (c[0], c[1], c[2]);
                 }
             }
         }
+        let dop = &l.dop;
         if let Some(t) = self.table {
-            t.apply_linear_d_lanes(&dop, &mut rgb);
+            t.apply_linear_d_lanes(dop, &mut rgb);
         }
         if self.searchlight {
             for i in 0..TILE {
@@ -412,6 +480,30 @@ impl<'a> Kernel<'a> {
             out[0] = rgb[0][i];
             out[1] = rgb[1][i];
             out[2] = rgb[2][i];
+        }
+    }
+}
+
+/// One run's state between [`Kernel::front`] and [`Kernel::back`].
+#[derive(Clone, Copy, Debug)]
+struct Lanes {
+    /// Pixels in the run (at most [`TILE`]).
+    n: usize,
+    /// Scene-frame directions per lane (x, y, z).
+    dir: [[f64; TILE]; 3],
+    /// Doppler factors (1 when neither colour shift nor searchlight is on).
+    dop: [f64; TILE],
+    /// The equirectangular map's corners, when the map is one.
+    corners: Corners<TILE>,
+}
+
+impl Default for Lanes {
+    fn default() -> Self {
+        Self {
+            n: 0,
+            dir: [[0.0; TILE]; 3],
+            dop: [1.0; TILE],
+            corners: Corners::default(),
         }
     }
 }
