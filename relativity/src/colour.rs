@@ -170,16 +170,57 @@ pub struct DopplerColourTable {
     mats: Vec<Mat3>,
     /// `K(D)` at `TABLE_D_MIN + k * d_step` (row-major 3x3), from [`Self::matrix`].
     by_d: Vec<[f32; 9]>,
-    /// The same entries by matrix element (`by_element[e][k] = by_d[k][e]`), for the
+    /// The same entries by matrix element, each with its successor
+    /// (`pairs[e][k] = [by_d[k][e], by_d[k + 1][e]]`, the last entry repeated), for the
     /// renderer's lanes ([`Self::apply_linear_d_lanes`]): each element is one array that a
-    /// vector of lanes indexes.
-    by_element: Box<[[f32; LINEAR_D_ENTRIES]]>,
+    /// vector of lanes indexes, and one 8-byte read gives a lane both ends of its interval.
+    pairs: Box<[[[f32; 2]; LINEAR_D_ENTRIES]]>,
     d_step: f64,
+    /// `1 / d_step`: the entry of `D` is a product, not a division.
+    d_scale: f64,
 }
 
 /// Entries of the table uniform in `D` that the renderer reads
 /// ([`DopplerColourTable::apply_linear_d`]).
 pub const LINEAR_D_ENTRIES: usize = 8192;
+
+/// `LINEAR_D_ENTRIES - 1`: masks an entry index into the table.
+const LINEAR_D_MASK: u32 = LINEAR_D_ENTRIES as u32 - 1;
+const _: () = assert!(LINEAR_D_ENTRIES.is_power_of_two());
+
+/// Eight lanes' pairs `p[idx[i]]`: the first elements in lane order, then the second.
+///
+/// # Safety
+/// Every index in `idx` must be below `LINEAR_D_ENTRIES`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+unsafe fn gather_pairs(
+    p: &[[f32; 2]; LINEAR_D_ENTRIES],
+    idx: std::arch::x86_64::__m256i,
+) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256) {
+    use std::arch::x86_64::{
+        _mm256_castpd_ps, _mm256_castps_pd, _mm256_castsi256_ps, _mm256_castsi256_si128,
+        _mm256_extracti128_si256, _mm256_i32gather_epi64, _mm256_permute4x64_pd, _mm256_shuffle_ps,
+    };
+    let base = p.as_ptr().cast::<i64>();
+    // SAFETY: each index addresses one 8-byte pair inside `p` (the caller's bound); a
+    // gather needs no alignment.
+    let (lo, hi) = unsafe {
+        (
+            _mm256_i32gather_epi64::<8>(base, _mm256_castsi256_si128(idx)),
+            _mm256_i32gather_epi64::<8>(base, _mm256_extracti128_si256::<1>(idx)),
+        )
+    };
+    // lo = [a0 b0 a1 b1 | a2 b2 a3 b3], hi = [a4 b4 a5 b5 | a6 b6 a7 b7].
+    let (lo, hi) = (_mm256_castsi256_ps(lo), _mm256_castsi256_ps(hi));
+    // Within each 128-bit half: [a0 a1 a4 a5 | a2 a3 a6 a7], then the 64-bit quarters put in
+    // order 0, 2, 1, 3.
+    let firsts = _mm256_shuffle_ps::<0b10_00_10_00>(lo, hi);
+    let seconds = _mm256_shuffle_ps::<0b11_01_11_01>(lo, hi);
+    let order = |v| _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)));
+    (order(firsts), order(seconds))
+}
 
 /// The largest difference, relative to the matrix's largest entry (at least 1e-3), of
 /// [`DopplerColourTable::apply_linear_d`]'s matrix from the exact `K(D)`
@@ -211,8 +252,9 @@ impl DopplerColourTable {
             step,
             mats,
             by_d: Vec::new(),
-            by_element: Box::default(),
+            pairs: Box::default(),
             d_step: (TABLE_D_MAX - TABLE_D_MIN) / (LINEAR_D_ENTRIES - 1) as f64,
+            d_scale: (LINEAR_D_ENTRIES - 1) as f64 / (TABLE_D_MAX - TABLE_D_MIN),
         };
         table.by_d = (0..LINEAR_D_ENTRIES)
             .map(|k| {
@@ -226,13 +268,14 @@ impl DopplerColourTable {
                 std::array::from_fn(|i| m[i / 3][i % 3] as f32)
             })
             .collect();
-        let mut by_element = vec![[0.0_f32; LINEAR_D_ENTRIES]; 9];
+        let mut pairs = vec![[[0.0_f32; 2]; LINEAR_D_ENTRIES]; 9];
         for (k, m) in table.by_d.iter().enumerate() {
-            for (e, v) in m.iter().enumerate() {
-                by_element[e][k] = *v;
+            let next = table.by_d.get(k + 1).unwrap_or(m);
+            for (e, p) in pairs.iter_mut().enumerate() {
+                p[k] = [m[e], next[e]];
             }
         }
-        table.by_element = by_element.into_boxed_slice();
+        table.pairs = pairs.into_boxed_slice();
         Ok(table)
     }
 
@@ -278,7 +321,7 @@ impl DopplerColourTable {
         if !(TABLE_D_MIN..=TABLE_D_MAX).contains(&doppler_factor) {
             return [0.0; 3];
         }
-        let x = (doppler_factor - TABLE_D_MIN) / self.d_step;
+        let x = (doppler_factor - TABLE_D_MIN) * self.d_scale;
         let k = (x as usize).min(LINEAR_D_ENTRIES - 2);
         let t = (x - k as f64) as f32;
         let (a, b) = (&self.by_d[k], &self.by_d[k + 1]);
@@ -290,48 +333,111 @@ impl DopplerColourTable {
         })
     }
 
+    /// [`Self::apply_linear_d`]'s index arithmetic on `N` lanes: per lane, all ones where `D`
+    /// is inside the table's range (zero elsewhere), the entry `k` (at most
+    /// `LINEAR_D_ENTRIES - 2`; 0 outside the range) and the weight of entry `k + 1`.
+    #[inline(always)]
+    fn linear_d_lanes_index<const N: usize>(
+        &self,
+        doppler_factor: &[f64; N],
+    ) -> ([u32; N], [u32; N], [f32; N]) {
+        let mut inside = [0_u32; N];
+        let mut k = [0_u32; N];
+        let mut t = [0.0_f32; N];
+        for i in 0..N {
+            let d = doppler_factor[i];
+            let is_in = (TABLE_D_MIN..=TABLE_D_MAX).contains(&d);
+            inside[i] = if is_in { u32::MAX } else { 0 };
+            let x = (d - TABLE_D_MIN) * self.d_scale;
+            // `x` is in [0, LINEAR_D_ENTRIES - 1] inside the range; other lanes read entry 0.
+            let xi = if is_in { x as i32 } else { 0 };
+            let ki = if xi < LINEAR_D_ENTRIES as i32 - 2 {
+                xi
+            } else {
+                LINEAR_D_ENTRIES as i32 - 2
+            };
+            // The mask, a power of two minus one, changes no index but bounds every index
+            // by the table's length for the compiler (no bounds checks: the loops using it
+            // vectorise with gathers) and for the gathers of the AVX2 variant.
+            k[i] = ki as u32 & LINEAR_D_MASK;
+            t[i] = (x - f64::from(ki)) as f32;
+        }
+        (inside, k, t)
+    }
+
     /// [`Self::apply_linear_d`] on `N` lanes (`rgb` red, green and blue per lane), with each
     /// lane's bits: the index arithmetic and the matrix products run as loops over all
-    /// lanes, which vectorise (the matrix elements gathered from [`Self::by_element`]).
+    /// lanes, which vectorise (the matrix elements gathered from [`Self::pairs`]).
     #[inline(always)]
     pub(crate) fn apply_linear_d_lanes<const N: usize>(
         &self,
         doppler_factor: &[f64; N],
         rgb: &mut [[f32; N]; 3],
     ) {
-        let mut inside = [false; N];
-        let mut k = [0_u32; N];
-        let mut t = [0.0_f32; N];
-        for i in 0..N {
-            let d = doppler_factor[i];
-            inside[i] = (TABLE_D_MIN..=TABLE_D_MAX).contains(&d);
-            let x = (d - TABLE_D_MIN) / self.d_step;
-            // `x` is in [0, LINEAR_D_ENTRIES - 1] inside the range; other lanes read entry 0.
-            let xi = if inside[i] { x as i32 } else { 0 };
-            let ki = if xi < LINEAR_D_ENTRIES as i32 - 2 {
-                xi
-            } else {
-                LINEAR_D_ENTRIES as i32 - 2
-            };
-            k[i] = ki as u32;
-            t[i] = (x - f64::from(ki)) as f32;
-        }
-        // Entry `k` and `k + 1` (`k <= LINEAR_D_ENTRIES - 2`); the mask, a power of two
-        // minus one, changes no index but lets the compiler drop the bounds checks, so the
-        // loops below vectorise with gathers.
-        const MASK: usize = LINEAR_D_ENTRIES - 1;
-        const _: () = assert!(LINEAR_D_ENTRIES.is_power_of_two());
+        let (inside, k, t) = self.linear_d_lanes_index(doppler_factor);
         let [r, g, b] = *rgb;
         for (c, out) in rgb.iter_mut().enumerate() {
-            let e = &self.by_element[3 * c..3 * c + 3];
+            let e = &self.pairs[3 * c..3 * c + 3];
             let (e0, e1, e2) = (&e[0], &e[1], &e[2]);
             for i in 0..N {
-                let ka = k[i] as usize & MASK;
-                let kb = (k[i] as usize + 1) & MASK;
-                let ra = e0[ka] * r[i] + e1[ka] * g[i] + e2[ka] * b[i];
-                let rb = e0[kb] * r[i] + e1[kb] * g[i] + e2[kb] * b[i];
+                let k = k[i] as usize;
+                let ra = e0[k][0] * r[i] + e1[k][0] * g[i] + e2[k][0] * b[i];
+                let rb = e0[k][1] * r[i] + e1[k][1] * g[i] + e2[k][1] * b[i];
                 let v = ra + (rb - ra) * t[i];
-                out[i] = if inside[i] { v } else { 0.0 };
+                out[i] = if inside[i] != 0 { v } else { 0.0 };
+            }
+        }
+    }
+
+    /// [`Self::apply_linear_d_lanes`] written with AVX2 intrinsics, with its bits (the same
+    /// products and sums in the same order, no fused multiply-adds): each lane's pair of
+    /// entries comes in one 8-byte gather, where the compiler's loops gather the two ends
+    /// separately, 4-byte element by element, which costs twice the loads.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    pub(crate) fn apply_linear_d_lanes_avx2<const N: usize>(
+        &self,
+        doppler_factor: &[f64; N],
+        rgb: &mut [[f32; N]; 3],
+    ) {
+        use std::arch::x86_64::{
+            __m256, _mm256_add_ps, _mm256_and_ps, _mm256_castsi256_ps, _mm256_loadu_ps,
+            _mm256_loadu_si256, _mm256_mul_ps, _mm256_storeu_ps, _mm256_sub_ps,
+        };
+        const { assert!(N.is_multiple_of(8), "lanes in whole vectors of 8") };
+        let (inside, k, t) = self.linear_d_lanes_index(doppler_factor);
+        let [r, g, b] = *rgb;
+        // SAFETY (every pointer access below): `j + 8 <= N` for `j` a multiple of 8 below
+        // `N`, a multiple of 8, so each 8-lane load and store lies within its `[_; N]`
+        // array; the loads and stores are the unaligned kind.
+        let load = |a: &[f32; N], j: usize| unsafe { _mm256_loadu_ps(a.as_ptr().add(j)) };
+        for j in (0..N).step_by(8) {
+            let (rv, gv, bv, tv) = (load(&r, j), load(&g, j), load(&b, j), load(&t, j));
+            let (idx, keep) = unsafe {
+                (
+                    _mm256_loadu_si256(k.as_ptr().add(j).cast()),
+                    _mm256_castsi256_ps(_mm256_loadu_si256(inside.as_ptr().add(j).cast())),
+                )
+            };
+            for (c, out) in rgb.iter_mut().enumerate() {
+                let e = &self.pairs[3 * c..3 * c + 3];
+                let [(a0, b0), (a1, b1), (a2, b2)] = [&e[0], &e[1], &e[2]].map(|p| {
+                    // SAFETY: every index in `idx` is at most LINEAR_D_MASK (masked in
+                    // `linear_d_lanes_index`), below the LINEAR_D_ENTRIES pairs of `p`.
+                    unsafe { gather_pairs(p, idx) }
+                });
+                let ra = _mm256_add_ps(
+                    _mm256_add_ps(_mm256_mul_ps(a0, rv), _mm256_mul_ps(a1, gv)),
+                    _mm256_mul_ps(a2, bv),
+                );
+                let rb = _mm256_add_ps(
+                    _mm256_add_ps(_mm256_mul_ps(b0, rv), _mm256_mul_ps(b1, gv)),
+                    _mm256_mul_ps(b2, bv),
+                );
+                let v: __m256 = _mm256_add_ps(ra, _mm256_mul_ps(_mm256_sub_ps(rb, ra), tv));
+                // `v & 0` is +0.0, what the scalar code writes outside the range.
+                unsafe { _mm256_storeu_ps(out.as_mut_ptr().add(j), _mm256_and_ps(v, keep)) };
             }
         }
     }
@@ -343,7 +449,8 @@ impl DopplerColourTable {
         if !(TABLE_D_MIN..=TABLE_D_MAX).contains(&doppler_factor) {
             return true;
         }
-        let k = (((doppler_factor - TABLE_D_MIN) / self.d_step) as usize).min(LINEAR_D_ENTRIES - 2);
+        let k =
+            (((doppler_factor - TABLE_D_MIN) * self.d_scale) as usize).min(LINEAR_D_ENTRIES - 2);
         self.by_d[k]
             .iter()
             .chain(&self.by_d[k + 1])
@@ -356,5 +463,68 @@ impl DopplerColourTable {
         let m = self.matrix(doppler_factor);
         let v = rgb.map(f64::from);
         std::array::from_fn(|i| (m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2]) as f32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both lane variants give [`DopplerColourTable::apply_linear_d`]'s bits on every lane:
+    /// `D` across the range and past both ends, at the nodes, NaN and infinities.
+    #[test]
+    fn lane_variants_equal_the_scalar_bits() {
+        let table = DopplerColourTable::global();
+        let mut ds: Vec<f64> = (0..4000)
+            .map(|i| 0.3 + 2.1 * f64::from(i) / 3999.0)
+            .collect();
+        ds.extend([
+            TABLE_D_MIN,
+            TABLE_D_MAX,
+            TABLE_D_MAX - 1e-12,
+            f64::NAN,
+            f64::INFINITY,
+            -1.0,
+        ]);
+        ds.extend((0..64).map(|k| TABLE_D_MIN + k as f64 * 127.0 * table.d_step));
+        for (n, chunk) in ds.chunks(16).enumerate() {
+            let mut d = [1.0_f64; 16];
+            d[..chunk.len()].copy_from_slice(chunk);
+            let colour = |i: usize| {
+                let x = (n * 16 + i) as f32;
+                [
+                    0.1 + (x * 0.37) % 1.0,
+                    0.5 + (x * 0.11) % 2.0,
+                    (x * 0.73) % 0.9,
+                ]
+            };
+            let mut lanes = [[0.0_f32; 16]; 3];
+            for i in 0..16 {
+                let c = colour(i);
+                (lanes[0][i], lanes[1][i], lanes[2][i]) = (c[0], c[1], c[2]);
+            }
+            let want: Vec<[u32; 3]> = (0..16)
+                .map(|i| table.apply_linear_d(d[i], colour(i)).map(f32::to_bits))
+                .collect();
+            let mut portable = lanes;
+            table.apply_linear_d_lanes(&d, &mut portable);
+            let mut variants = vec![("portable", portable)];
+            #[cfg(target_arch = "x86_64")]
+            if std::arch::is_x86_feature_detected!("avx2") {
+                let mut avx2 = lanes;
+                // SAFETY: AVX2 detected just above.
+                #[allow(unsafe_code)]
+                unsafe {
+                    table.apply_linear_d_lanes_avx2(&d, &mut avx2);
+                }
+                variants.push(("avx2", avx2));
+            }
+            for (name, got) in variants {
+                for (i, w) in want.iter().enumerate() {
+                    let g = [got[0][i], got[1][i], got[2][i]].map(f32::to_bits);
+                    assert_eq!(&g, w, "{name}, D = {}", d[i]);
+                }
+            }
+        }
     }
 }

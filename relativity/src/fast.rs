@@ -129,7 +129,7 @@ impl<'a> EquirectTexels<'a> {
     }
 
     /// The bilinear sample at texel coordinates from [`Self::coords`] (wrapping in x): the
-    /// scalar statement of [`Self::fetch_lanes`], its reference in the tests.
+    /// scalar statement of [`Self::gather_lanes`], its reference in the tests.
     #[cfg(test)]
     pub(crate) fn fetch(&self, (x, y): (f64, f64)) -> Rgb {
         let (w, h) = (self.width, self.height);
@@ -245,16 +245,17 @@ impl<'a> EquirectTexels<'a> {
     }
 
     /// The bilinear samples of the first `n` lanes of `c` ([`Self::fetch`]'s bits): `out`
-    /// gets red, green and blue per lane. The texel reads are scalar loops, corner by
-    /// corner, the weights loops over all lanes again.
+    /// gets red, green and blue per lane (the other lanes, arbitrary values). The texel reads
+    /// are scalar loops, corner by corner, into the scratch `texel` (the caller's, so no
+    /// zeroing per call), the weights loops over all lanes again.
     #[inline(always)]
     pub(crate) fn gather_lanes<const N: usize>(
         &self,
         c: &Corners<N>,
         n: usize,
+        texel: &mut [[[f32; N]; 3]; 4],
         out: &mut [[f32; N]; 3],
     ) {
-        let mut texel = [[[0.0_f32; N]; 3]; 4];
         // Corner by corner over the lanes, the two rows' first corners first: each loop's
         // body is short, so the processor keeps many lanes' cache misses in flight at once.
         for k in [0, 2, 1, 3] {

@@ -227,26 +227,22 @@ pub fn render(
     };
     let kernel = Kernel::new(&frame, env, equirect, velocity, effects, table);
     let (wu, hu) = (w as usize, h as usize);
-    let mut buf = vec![0.0_f32; wu * hu * 3];
+    // Zeroed in parallel: one thread's zeroing (and first touch of the pages) of a full-HD
+    // frame's 25 MB costs a tenth of the frame.
+    let mut buf = Vec::with_capacity(wu * hu * 3);
+    buf.par_extend(rayon::iter::repeat_n(0.0_f32, wu * hu * 3));
     // Bands of TILE rows in parallel, each walked in TILE x TILE blocks: a block's pixels
     // look up one compact patch of the map, which stays in cache, where a whole row's
     // lookups follow a curve across many map rows and miss the cache at almost every pixel.
     let sy: Vec<f64> = (0..h).map(|y| frame.screen_y(f64::from(y))).collect();
     buf.par_chunks_mut(wu * 3 * TILE).enumerate().for_each_init(
-        || vec![Lanes::default(); TILE],
-        |lanes, (band, rows)| {
+        || Box::new(Work::default()),
+        |work, (band, rows)| {
             let y0 = band * TILE;
             let nrows = rows.len() / (3 * wu);
             for x0 in (0..wu).step_by(TILE) {
                 let x1 = (x0 + TILE).min(wu);
-                kernel.run(
-                    rows,
-                    wu,
-                    x0..x1,
-                    &sx[x0..x1],
-                    &sy[y0..y0 + nrows],
-                    &mut lanes[..nrows],
-                );
+                kernel.run(rows, wu, x0..x1, &sx[x0..x1], &sy[y0..y0 + nrows], work);
             }
         },
     );
@@ -317,8 +313,8 @@ impl<'a> Kernel<'a> {
     }
 
     /// One block of pixels: columns `cols` of the rows in `rows` (RGB, `width` pixels a
-    /// row), `sx` the columns' image-plane x coordinates and `sy` the rows', `lanes` one
-    /// scratch state per row. Every row's front stages run first ([`Self::front`], which
+    /// row), `sx` the columns' image-plane x coordinates and `sy` the rows' (at most
+    /// [`TILE`]), `work` the thread's scratch state. Every row's front stages run first ([`Self::front`], which
     /// asks for the block's map texels ahead), then every row's back stages
     /// ([`Self::back`]), so the texels arrive while the block's arithmetic runs.
     fn run(
@@ -328,7 +324,7 @@ impl<'a> Kernel<'a> {
         cols: Range<usize>,
         sx: &[f64],
         sy: &[f64],
-        lanes: &mut [Lanes],
+        work: &mut Work,
     ) {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
@@ -336,11 +332,11 @@ impl<'a> Kernel<'a> {
             // requirement of `run_avx2`.
             #[allow(unsafe_code)]
             unsafe {
-                self.run_avx2(rows, width, cols, sx, sy, lanes);
+                self.run_avx2(rows, width, cols, sx, sy, work);
             }
             return;
         }
-        self.block(rows, width, cols, sx, sy, lanes);
+        self.block(rows, width, cols, sx, sy, work);
     }
 
     /// [`Self::block`] compiled for AVX2.
@@ -353,9 +349,9 @@ impl<'a> Kernel<'a> {
         cols: Range<usize>,
         sx: &[f64],
         sy: &[f64],
-        lanes: &mut [Lanes],
+        work: &mut Work,
     ) {
-        self.block(rows, width, cols, sx, sy, lanes);
+        self.block(rows, width, cols, sx, sy, work);
     }
 
     #[inline(always)]
@@ -366,14 +362,15 @@ impl<'a> Kernel<'a> {
         cols: Range<usize>,
         sx: &[f64],
         sy: &[f64],
-        lanes: &mut [Lanes],
+        work: &mut Work,
     ) {
+        let Work { lanes, scratch } = work;
         for (l, &y) in lanes.iter_mut().zip(sy) {
-            self.front(l, sx, y);
+            self.front(l, scratch, sx, y);
         }
-        for (r, l) in lanes.iter().enumerate() {
+        for (r, l) in lanes[..sy.len()].iter().enumerate() {
             let row = &mut rows[3 * (r * width + cols.start)..3 * (r * width + cols.end)];
-            self.back(l, row);
+            self.back(l, scratch, row);
         }
     }
 
@@ -381,16 +378,16 @@ impl<'a> Kernel<'a> {
     /// `sx` their image-plane x coordinates, `sy` the row's.
     #[cfg(test)]
     fn stages(&self, row: &mut [f32], sx: &[f64], sy: f64) {
-        let mut l = Lanes::default();
-        self.front(&mut l, sx, sy);
-        self.back(&l, row);
+        let (mut l, mut scratch) = (Lanes::default(), Scratch::default());
+        self.front(&mut l, &mut scratch, sx, sy);
+        self.back(&l, &mut scratch, row);
     }
 
     /// The stages of one run of at most [`TILE`] pixels up to the map lookup: directions,
     /// Doppler factors and, for an equirectangular map, the bilinear corners (whose texels
     /// are asked for) or else the scene directions.
     #[inline(always)]
-    fn front(&self, l: &mut Lanes, sx: &[f64], sy: f64) {
+    fn front(&self, l: &mut Lanes, scratch: &mut Scratch, sx: &[f64], sy: f64) {
         // Every stage runs over all TILE lanes (a constant trip count, which the vectoriser
         // needs); lanes past the run repeat its last pixel and are not written.
         let n = sx.len().min(TILE);
@@ -436,11 +433,11 @@ impl<'a> Kernel<'a> {
             }
         }
         if let Some(m) = &self.equirect {
-            let (mut ux, mut uy) = ([0.0_f64; TILE], [0.0_f64; TILE]);
+            let [ux, uy] = &mut scratch.uv;
             for i in 0..TILE {
                 (ux[i], uy[i]) = m.coords(DVec3::new(dx[i], dy[i], dz[i]));
             }
-            m.corners_lanes(&ux, &uy, &mut l.corners);
+            m.corners_lanes(ux, uy, &mut l.corners);
             m.prefetch(&l.corners, n);
         }
     }
@@ -448,12 +445,12 @@ impl<'a> Kernel<'a> {
     /// The stages of one run after [`Self::front`]: texels, colour shift, searchlight, and
     /// the run's RGB output `row`.
     #[inline(always)]
-    fn back(&self, l: &Lanes, row: &mut [f32]) {
+    fn back(&self, l: &Lanes, scratch: &mut Scratch, row: &mut [f32]) {
         let n = l.n;
-        // Red, green and blue per lane.
-        let mut rgb = [[0.0_f32; TILE]; 3];
+        // Red, green and blue per lane (lanes past `n`: arbitrary, never written out).
+        let Scratch { texel, rgb, .. } = scratch;
         match &self.equirect {
-            Some(m) => m.gather_lanes(&l.corners, n, &mut rgb),
+            Some(m) => m.gather_lanes(&l.corners, n, texel, rgb),
             None => {
                 let [dx, dy, dz] = &l.dir;
                 for i in 0..n {
@@ -464,13 +461,29 @@ impl<'a> Kernel<'a> {
         }
         let dop = &l.dop;
         if let Some(t) = self.table {
-            t.apply_linear_d_lanes(dop, &mut rgb);
+            #[cfg(target_arch = "x86_64")]
+            if self.avx2 {
+                // SAFETY: the processor has AVX2 (detected in `Kernel::new`), the only
+                // requirement of the variant.
+                #[allow(unsafe_code)]
+                unsafe {
+                    t.apply_linear_d_lanes_avx2(dop, rgb);
+                }
+            } else {
+                t.apply_linear_d_lanes(dop, rgb);
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            t.apply_linear_d_lanes(dop, rgb);
         }
         if self.searchlight {
+            // Factors first, then channel by channel: unit-stride loops that vectorise.
+            let mut f = [0.0_f32; TILE];
             for i in 0..TILE {
-                let f = searchlight_integrated(dop[i]) as f32;
-                for c in &mut rgb {
-                    c[i] *= f;
+                f[i] = searchlight_integrated(dop[i]) as f32;
+            }
+            for c in rgb.iter_mut() {
+                for i in 0..TILE {
+                    c[i] *= f[i];
                 }
             }
         }
@@ -480,6 +493,46 @@ impl<'a> Kernel<'a> {
             out[0] = rgb[0][i];
             out[1] = rgb[1][i];
             out[2] = rgb[2][i];
+        }
+    }
+}
+
+/// A thread's state for [`Kernel::run`]: one [`Lanes`] per row of a block, and the scratch
+/// arrays of the stages.
+#[derive(Clone, Debug)]
+struct Work {
+    lanes: [Lanes; TILE],
+    scratch: Scratch,
+}
+
+impl Default for Work {
+    fn default() -> Self {
+        Self {
+            lanes: [Lanes::default(); TILE],
+            scratch: Scratch::default(),
+        }
+    }
+}
+
+/// A thread's scratch arrays for [`Kernel::front`] and [`Kernel::back`], reused from run to
+/// run: zeroing them per run cost a twentieth of the frame. Their contents between stages
+/// mean nothing.
+#[derive(Clone, Copy, Debug)]
+struct Scratch {
+    /// Equirectangular coordinates per lane.
+    uv: [[f64; TILE]; 2],
+    /// Texels per corner, channel and lane.
+    texel: [[[f32; TILE]; 3]; 4],
+    /// Red, green and blue per lane.
+    rgb: [[f32; TILE]; 3],
+}
+
+impl Default for Scratch {
+    fn default() -> Self {
+        Self {
+            uv: [[0.0; TILE]; 2],
+            texel: [[[0.0; TILE]; 3]; 4],
+            rgb: [[0.0; TILE]; 3],
         }
     }
 }
