@@ -143,9 +143,10 @@ impl Velocity {
         let u = self.beta / self.speed;
         let c = d.dot(u);
         let perp = d - c * u;
-        let denom = 1.0 + b * c;
-        let par = (c + b) / denom;
-        let out = par * u + perp / (self.gamma * denom);
+        // One division: `1 / (1 + b c)`, then products (the renderer's lanes do the same).
+        let inv = 1.0 / (1.0 + b * c);
+        let par = (c + b) * inv;
+        let out = par * u + perp * (inv * (1.0 / self.gamma));
         // Renormalise to stop rounding drift (the exact map preserves length).
         out.normalize()
     }

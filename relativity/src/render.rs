@@ -272,7 +272,7 @@ struct Kernel<'a> {
     frame: &'a CameraFrame,
     env: &'a Environment,
     equirect: Option<EquirectTexels<'a>>,
-    /// `(u, b, gamma)` of the inverse aberration (unit velocity, `-speed`, gamma), `None`
+    /// `(u, b, 1 / gamma)` of the inverse aberration (unit velocity, `-speed`), `None`
     /// when it is off or the observer is at rest (the identity).
     aberration: Option<(DVec3, f64, f64)>,
     beta: DVec3,
@@ -296,7 +296,7 @@ impl<'a> Kernel<'a> {
         let speed = velocity.speed();
         // `Velocity::aberrate` with sign -1, its loop-invariant part computed once.
         let aberration = (effects.aberration && speed != 0.0)
-            .then(|| (velocity.beta() / speed, -speed, velocity.gamma()));
+            .then(|| (velocity.beta() / speed, -speed, 1.0 / velocity.gamma()));
         Self {
             frame,
             env,
@@ -419,15 +419,15 @@ impl<'a> Kernel<'a> {
                 l.dop[i] = 1.0 / (g * (1.0 - ((b.x * dx[i] + b.y * dy[i]) + b.z * dz[i])));
             }
         }
-        if let Some((u, b, gamma)) = self.aberration {
+        if let Some((u, b, inv_gamma)) = self.aberration {
             for i in 0..TILE {
                 let (x, y, z) = (dx[i], dy[i], dz[i]);
                 let c = (x * u.x + y * u.y) + z * u.z;
                 let (qx, qy, qz) = (x - c * u.x, y - c * u.y, z - c * u.z);
-                let denom = 1.0 + b * c;
-                let par = (c + b) / denom;
-                let g = gamma * denom;
-                let (ox, oy, oz) = (par * u.x + qx / g, par * u.y + qy / g, par * u.z + qz / g);
+                let inv = 1.0 / (1.0 + b * c);
+                let par = (c + b) * inv;
+                let g = inv * inv_gamma;
+                let (ox, oy, oz) = (par * u.x + qx * g, par * u.y + qy * g, par * u.z + qz * g);
                 let k = 1.0 / ((ox * ox + oy * oy) + oz * oz).sqrt();
                 (dx[i], dy[i], dz[i]) = (ox * k, oy * k, oz * k);
             }
