@@ -934,17 +934,7 @@ impl BrickedField {
                 return f.try_sample_index(f.geometry.world_to_index(w));
             }
         }
-        let [nx, ny, nz] = self.geometry.dims;
-        let max = Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32);
-        let p = p.max(Vec3::ZERO).min(max);
-        let p = Vec3::new(
-            if p.x.is_nan() { 0.0 } else { p.x },
-            if p.y.is_nan() { 0.0 } else { p.y },
-            if p.z.is_nan() { 0.0 } else { p.z },
-        );
-        let f = p.floor();
-        let t = p - f;
-        let v0 = [f.x as usize, f.y as usize, f.z as usize];
+        let (v0, t) = crate::grid::clamped_cell(p, self.geometry.dims);
         let (b, a, s) = (
             self.layout.brick,
             self.layout.apron,

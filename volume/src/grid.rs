@@ -341,17 +341,7 @@ impl<T: Voxel> Grid<T> {
     #[must_use]
     pub fn sample_trilinear_index(&self, p: Vec3) -> T::Value {
         let [nx, ny, nz] = self.geometry.dims;
-        let max = Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32);
-        // `max(ZERO)` first so NaN maps to 0.
-        let p = p.max(Vec3::ZERO).min(max);
-        let p = Vec3::new(
-            if p.x.is_nan() { 0.0 } else { p.x },
-            if p.y.is_nan() { 0.0 } else { p.y },
-            if p.z.is_nan() { 0.0 } else { p.z },
-        );
-        let f = p.floor();
-        let t = p - f;
-        let (x0, y0, z0) = (f.x as usize, f.y as usize, f.z as usize);
+        let ([x0, y0, z0], t) = clamped_cell(p, self.geometry.dims);
         let x1 = (x0 + 1).min(nx - 1);
         let y1 = (y0 + 1).min(ny - 1);
         let z1 = (z0 + 1).min(nz - 1);
@@ -389,6 +379,28 @@ impl<T: Voxel> Grid<T> {
     pub fn sample_nearest(&self, world: Vec3) -> T::Value {
         self.sample_nearest_index(self.geometry.world_to_index(world))
     }
+}
+
+/// The trilinear cell of continuous index coordinates `p` in a grid of `dims` voxels: `p`
+/// clamped to `[0, dims - 1]` per axis (NaN to 0), the cell's lower corner and the weights
+/// `p - corner`. The corner is the clamped coordinate's floor, computed by truncation (the
+/// coordinate is never negative, and at or above 2^24 an `f32` is an integer): the same bits
+/// as `floor`, without the libm call `floor` costs on the x86-64 baseline, which has no
+/// rounding instruction.
+#[inline(always)]
+pub(crate) fn clamped_cell(p: Vec3, dims: [usize; 3]) -> ([usize; 3], Vec3) {
+    let [nx, ny, nz] = dims;
+    let max = Vec3::new((nx - 1) as f32, (ny - 1) as f32, (nz - 1) as f32);
+    // `max(ZERO)` first so NaN maps to 0.
+    let p = p.max(Vec3::ZERO).min(max);
+    let p = Vec3::new(
+        if p.x.is_nan() { 0.0 } else { p.x },
+        if p.y.is_nan() { 0.0 } else { p.y },
+        if p.z.is_nan() { 0.0 } else { p.z },
+    );
+    let c = [p.x as usize, p.y as usize, p.z as usize];
+    let t = p - Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
+    (c, t)
 }
 
 /// A grid of any supported voxel type, for code that loads files of unknown type.
