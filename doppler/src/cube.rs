@@ -579,7 +579,7 @@ fn ray_channels(
         }
         return Ok(());
     }
-    let s = ctx.sample(ray)?;
+    let s = ctx.sample_lines(ray, ctx.profiles.active)?;
     let nsp = scene.species.len();
     let (wlo, whi) = (edges[0], edges[edges.len() - 1]);
     // The narrowest channel (nm), against which a Gaussian's span is measured.

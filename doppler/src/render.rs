@@ -377,6 +377,21 @@ impl<'a> Context<'a> {
     /// The factor-independent part of [`Context::sample`]: the trilinear values along the
     /// ray, before any of the scene's factors (kept by sessions across factor edits).
     pub fn sample_raw(&self, ray: &Ray) -> RawSamples {
+        self.sample_raw_with(ray, true, true)
+    }
+
+    /// [`Context::sample`] for emission lines alone (spectral cubes): no black-body
+    /// densities or temperatures (their samples are zero), and the gas temperature only when
+    /// `temperature` (thermal broadening). The other samples are [`Context::sample`]'s bits.
+    pub(crate) fn sample_lines(&self, ray: &Ray, temperature: bool) -> Result<RaySamples> {
+        let mut raw = self.sample_raw_with(ray, false, temperature);
+        let (t, rho) = (std::mem::take(&mut raw.t), std::mem::take(&mut raw.rho));
+        self.finish_with(&raw, t, rho)
+    }
+
+    /// [`Context::sample_raw`], the black body's samples only when `blackbody` and the
+    /// temperature only when `temperature` (or `blackbody`).
+    fn sample_raw_with(&self, ray: &Ray, blackbody: bool, temperature: bool) -> RawSamples {
         let g = &self.scene.geometry;
         let mut out = RawSamples::default();
         let Some(span) = RaySpan::clip(self.scene, self.settings, self.step, ray) else {
@@ -409,10 +424,15 @@ impl<'a> Context<'a> {
         let n = last - first + 1;
         out.t.reserve_exact(n);
         out.rho.reserve_exact(n * self.scene.species.len());
+        let temperature = temperature || blackbody;
         if self.scene.blackbody.is_some() {
-            out.bb.reserve_exact(n);
-            out.temp.reserve_exact(n);
-            out.bb_temp.reserve_exact(n);
+            if blackbody {
+                out.bb.reserve_exact(n);
+                out.bb_temp.reserve_exact(n);
+            }
+            if temperature {
+                out.temp.reserve_exact(n);
+            }
         }
         if self.scene.velocity.is_some() {
             out.vel.reserve_exact(n);
@@ -429,16 +449,20 @@ impl<'a> Context<'a> {
                 // Thermal broadening takes the interpolated T; the black body the brightness
                 // temperature of the interpolated emission (see
                 // DopplerScene::set_blackbody), not B of the interpolated T.
-                let rho = f64::from(d.sample_scalar_index(p)).max(0.0);
-                out.bb.push(rho);
-                out.temp
-                    .push(f64::from(temp.sample_scalar_index(p)).max(0.0));
-                let g = f64::from(rho_t.sample_scalar_index(p)).max(0.0);
-                out.bb_temp.push(if rho > 0.0 {
-                    super::model::brightness_temperature(g / rho)
-                } else {
-                    0.0
-                });
+                if temperature {
+                    out.temp
+                        .push(f64::from(temp.sample_scalar_index(p)).max(0.0));
+                }
+                if blackbody {
+                    let rho = f64::from(d.sample_scalar_index(p)).max(0.0);
+                    out.bb.push(rho);
+                    let g = f64::from(rho_t.sample_scalar_index(p)).max(0.0);
+                    out.bb_temp.push(if rho > 0.0 {
+                        super::model::brightness_temperature(g / rho)
+                    } else {
+                        0.0
+                    });
+                }
             }
             if let Some(vg) = &self.scene.velocity {
                 out.vel.push(vg.sample_index(p));
@@ -470,15 +494,15 @@ impl<'a> Context<'a> {
             v_r: Vec::with_capacity(n),
         };
         for i in 0..n {
-            if raw.bb.is_empty() {
-                out.bb.push(0.0);
-                out.temp.push(0.0);
-                out.bb_temp.push(0.0);
-            } else {
-                out.bb.push(raw.bb[i] * f.blackbody * BB_UNIT);
-                out.temp.push(raw.temp[i] * f.temperature);
-                out.bb_temp.push(raw.bb_temp[i] * f.temperature);
-            }
+            // Absent samples (no black body, or not asked for) are zero.
+            let (bb, bb_temp) = match (raw.bb.get(i), raw.bb_temp.get(i)) {
+                (Some(&b), Some(&t)) => (b * f.blackbody * BB_UNIT, t * f.temperature),
+                _ => (0.0, 0.0),
+            };
+            out.bb.push(bb);
+            out.bb_temp.push(bb_temp);
+            out.temp
+                .push(raw.temp.get(i).map_or(0.0, |&t| t * f.temperature));
             let v = match raw.vel.get(i) {
                 Some(&v) => v * f.velocity as f32,
                 None => Vec3::ZERO,
