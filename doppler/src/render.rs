@@ -368,8 +368,12 @@ impl<'a> Context<'a> {
     }
 
     /// Samples a ray back to front. Returns an empty set if the ray misses the volume.
+    /// The black body is sampled only where it shines (a zero factor makes its samples
+    /// zero, and they are read only where its density is positive), the gas temperature
+    /// only for thermal broadening or the black body: absent samples are zero.
     pub fn sample(&self, ray: &Ray) -> Result<RaySamples> {
-        let mut raw = self.sample_raw(ray);
+        let blackbody = self.scene.factors.blackbody != 0.0;
+        let mut raw = self.sample_raw_with(ray, blackbody, self.profiles.active);
         let (t, rho) = (std::mem::take(&mut raw.t), std::mem::take(&mut raw.rho));
         self.finish_with(&raw, t, rho)
     }
