@@ -54,6 +54,7 @@
 //! - `serde`: derive `Serialize`/`Deserialize` on parameter structs and [`GlobalCurve`].
 
 pub mod error;
+pub mod fastmath;
 pub mod inverse;
 pub mod io;
 pub mod ops;
