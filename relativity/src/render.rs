@@ -327,9 +327,9 @@ impl<'a> Kernel<'a> {
 
     /// One block of pixels: columns `cols` of the rows in `rows` (RGB, `width` pixels a
     /// row), `sx` the columns' image-plane x coordinates and `sy` the rows' (at most
-    /// [`TILE`]), `work` the thread's scratch state. Every row's front stages run first ([`Self::front`], which
-    /// asks for the block's map texels ahead), then every row's back stages
-    /// ([`Self::back`]), so the texels arrive while the block's arithmetic runs.
+    /// [`TILE`]), `work` the thread's scratch state. Every row's front stages run first
+    /// ([`Self::front`], which asks for the block's map texels ahead), then every row's back
+    /// stages ([`Self::back`]), so the texels arrive while the block's arithmetic runs.
     fn run(
         &self,
         rows: &mut [MaybeUninit<f32>],
