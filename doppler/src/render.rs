@@ -642,6 +642,22 @@ pub fn render_doppler(
     render_rows(&ctx, &RowCallback(progress))
 }
 
+/// The coarsest level of a scene whose fields are all bricked alike, checking that
+/// `target` is one of its levels.
+fn coarsest_level(scene: &DopplerScene, target: usize) -> Result<usize> {
+    let levels = scene.levels().ok_or_else(|| {
+        Error::parameter("progressive levels of detail need every field bricked (.bsv) alike")
+    })?;
+    let coarsest = levels.len() - 1;
+    if target > coarsest {
+        return Err(Error::parameter(format!(
+            "level {target} of {} levels",
+            levels.len()
+        )));
+    }
+    Ok(coarsest)
+}
+
 /// Progressive levels of detail (HDR VolVis section 6.3) for a scene whose fields are all
 /// bricked alike ([`DopplerScene::levels`]), given at level 0: pass 1 renders the coarsest
 /// level, each further pass the next finer one, down to `target` (0: the exact image).
@@ -660,16 +676,7 @@ pub fn render_doppler_lod(
     target: usize,
     observer: &dyn Observer<DopplerImage>,
 ) -> Result<DopplerImage> {
-    let levels = scene.levels().ok_or_else(|| {
-        Error::parameter("progressive levels of detail need every field bricked (.bsv) alike")
-    })?;
-    let coarsest = levels.len() - 1;
-    if target > coarsest {
-        return Err(Error::parameter(format!(
-            "level {target} of {} levels",
-            levels.len()
-        )));
-    }
+    let coarsest = coarsest_level(scene, target)?;
     let rays = settings
         .camera
         .sparse_rays(settings.width, settings.height, 16);
@@ -724,16 +731,7 @@ pub fn render_doppler_bricks(
     observer: &dyn Observer<DopplerImage>,
     on_step: &mut dyn FnMut(u32, usize, usize),
 ) -> Result<DopplerImage> {
-    let levels = scene.levels().ok_or_else(|| {
-        Error::parameter("progressive levels of detail need every field bricked (.bsv) alike")
-    })?;
-    let coarsest = levels.len() - 1;
-    if target > coarsest {
-        return Err(Error::parameter(format!(
-            "level {target} of {} levels",
-            levels.len()
-        )));
-    }
+    let coarsest = coarsest_level(scene, target)?;
     let rays = settings
         .camera
         .sparse_rays(settings.width, settings.height, 16);

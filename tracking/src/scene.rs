@@ -257,6 +257,18 @@ impl Scene {
     /// # Errors
     /// A channel in memory, or a level past the coarsest.
     pub fn at_level(&self, level: usize) -> Result<Scene> {
+        self.with_bricked(|b| Ok(Field::from(b.at_level(level)?)))
+    }
+
+    /// The same scene (transfer functions, frame, background, light, shading, clip) with
+    /// each channel's field replaced by `field` of its bricked field.
+    ///
+    /// # Errors
+    /// A channel in memory; `field`'s error; as [`Scene::new`].
+    fn with_bricked(
+        &self,
+        mut field: impl FnMut(&blueshift_volume::BrickedField) -> Result<Field>,
+    ) -> Result<Scene> {
         let k = self.channels[0].macrocells.k();
         let mut chans = Vec::with_capacity(self.channels.len());
         for (i, c) in self.channels.iter().enumerate() {
@@ -266,11 +278,7 @@ impl Scene {
                     c.name
                 ))
             })?;
-            chans.push((
-                c.name.clone(),
-                Field::from(b.at_level(level)?),
-                c.tf.clone(),
-            ));
+            chans.push((c.name.clone(), field(b)?, c.tf.clone()));
         }
         let mut s = Scene::new(chans, self.density_scale, k)?;
         s.frame = self.frame;
@@ -290,27 +298,13 @@ impl Scene {
     /// # Errors
     /// A channel in memory; as [`Scene::new`].
     pub fn resident_view(&self) -> Result<(Scene, usize, usize)> {
-        let k = self.channels[0].macrocells.k();
-        let mut chans = Vec::with_capacity(self.channels.len());
         let (mut at_base, mut regions) = (0, 0);
-        for (i, c) in self.channels.iter().enumerate() {
-            let b = c.grid.as_bricked().ok_or_else(|| {
-                Error::scene(format!(
-                    "channels[{i}] ('{}'): levels of detail need every channel bricked (.bsv)",
-                    c.name
-                ))
-            })?;
+        let s = self.with_bricked(|b| {
             let (f, n) = b.resident_regions()?;
             at_base += n;
             regions += b.brick_counts().iter().product::<usize>();
-            chans.push((c.name.clone(), Field::from(f), c.tf.clone()));
-        }
-        let mut s = Scene::new(chans, self.density_scale, k)?;
-        s.frame = self.frame;
-        s.background = self.background;
-        s.light = self.light;
-        s.shading = self.shading.clone();
-        s.clip = self.clip;
+            Ok(Field::from(f))
+        })?;
         Ok((s, at_base, regions))
     }
 

@@ -163,14 +163,7 @@ impl TrackingSession {
             blueshift_volume::BrickedField::prefetch_along(&refs, &rays);
             Ok(())
         };
-        let preview = RenderSettings {
-            spp: 1,
-            noise_target: None,
-            heatmaps: false,
-            timed_frames: None,
-            warmup: 0,
-            ..st.clone()
-        };
+        let preview = preview_settings(st);
         let mut step = 0;
         for l in (level + 1..count).rev() {
             step += 1;
@@ -225,14 +218,7 @@ impl TrackingSession {
             .iter()
             .filter_map(|c| c.grid().as_bricked())
             .collect();
-        let preview = RenderSettings {
-            spp: 1,
-            noise_target: None,
-            heatmaps: false,
-            timed_frames: None,
-            warmup: 0,
-            ..st.clone()
-        };
+        let preview = preview_settings(st);
         let quick = |s: &Scene, step: u32, coarsest: usize| -> Result<()> {
             observer.level(step, coarsest);
             let prepared = self.integrator.prepared(s)?;
@@ -293,5 +279,18 @@ impl Session for TrackingSession {
 
     fn device(&self) -> DeviceKind {
         DeviceKind::Cpu
+    }
+}
+
+/// The settings of a progressive render's quick passes: one sample per pixel, no noise
+/// target, heat maps, timed frames or warm-up.
+fn preview_settings(st: &RenderSettings) -> RenderSettings {
+    RenderSettings {
+        spp: 1,
+        noise_target: None,
+        heatmaps: false,
+        timed_frames: None,
+        warmup: 0,
+        ..st.clone()
     }
 }

@@ -108,8 +108,15 @@ fn nearer_bricks_are_finer_and_far_ones_are_read_coarse() {
     let mut st = RenderSettings::default_for(&s, 24, 24, false);
     st.camera = cam;
     st.spp = 1;
+    // On one thread, so each read is of a distinct brick: two threads that miss the same
+    // brick at once both read it (the cache reads outside its lock), counting it twice.
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
     m.cache().reset_stats();
-    render(&s, &Integrator::Marcher(RayMarcher::default()), &st).unwrap();
+    one.install(|| render(&s, &Integrator::Marcher(RayMarcher::default()), &st))
+        .unwrap();
     let reads = m.cache().stats().reads;
     assert!(
         reads[0] > 0 && reads[0] as usize <= hist[0],
@@ -119,11 +126,13 @@ fn nearer_bricks_are_finer_and_far_ones_are_read_coarse() {
     // Exact reads every level-0 brick a ray meets: more than the map's.
     b.cache().clear();
     b.cache().reset_stats();
-    render(
-        &scene(b.clone()),
-        &Integrator::Marcher(RayMarcher::default()),
-        &st,
-    )
+    one.install(|| {
+        render(
+            &scene(b.clone()),
+            &Integrator::Marcher(RayMarcher::default()),
+            &st,
+        )
+    })
     .unwrap();
     let exact = b.cache().stats().reads[0];
     eprintln!("per brick: regions per level {hist:?}, reads per level {reads:?}; exact: {exact}");
