@@ -386,7 +386,8 @@ impl<T: Voxel> Grid<T> {
 /// `p - corner`. The corner is the clamped coordinate's floor, computed by truncation (the
 /// coordinate is never negative, and at or above 2^24 an `f32` is an integer): the same bits
 /// as `floor`, without the libm call `floor` costs on the x86-64 baseline, which has no
-/// rounding instruction.
+/// rounding instruction. The corner is at most `dims - 1` on every axis, also where a side
+/// is too long for `f32` to hold its last index exactly.
 #[inline(always)]
 pub(crate) fn clamped_cell(p: Vec3, dims: [usize; 3]) -> ([usize; 3], Vec3) {
     let [nx, ny, nz] = dims;
@@ -398,7 +399,12 @@ pub(crate) fn clamped_cell(p: Vec3, dims: [usize; 3]) -> ([usize; 3], Vec3) {
         if p.y.is_nan() { 0.0 } else { p.y },
         if p.z.is_nan() { 0.0 } else { p.z },
     );
-    let c = [p.x as usize, p.y as usize, p.z as usize];
+    // `min`: past 2^24 voxels a side, `(n - 1) as f32` can round up to `n`.
+    let c = [
+        (p.x as usize).min(nx - 1),
+        (p.y as usize).min(ny - 1),
+        (p.z as usize).min(nz - 1),
+    ];
     let t = p - Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
     (c, t)
 }
@@ -565,3 +571,29 @@ from_grid!(u16, U16);
 from_grid!(f16, F16);
 from_grid!(f32, F32);
 from_grid!(Vec3, Vec3);
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clamped_cell_is_the_floor_and_stays_inside_the_grid() {
+        // The floor of the clamped coordinate, against `f32::floor`.
+        for i in 0..20_000 {
+            let x = i as f32 * 0.0137 - 3.0;
+            let ([c, _, _], t) = clamped_cell(Vec3::new(x, 0.5, 0.5), [200, 2, 2]);
+            let p = x.clamp(0.0, 199.0);
+            assert_eq!(c as f32, p.floor(), "x = {x}");
+            assert_eq!(t.x.to_bits(), (p - p.floor()).to_bits(), "x = {x}");
+        }
+        // NaN and values below the grid go to 0, with +0 weights.
+        let (c, t) = clamped_cell(Vec3::new(f32::NAN, -3.0, f32::NEG_INFINITY), [4, 4, 4]);
+        assert_eq!(c, [0, 0, 0]);
+        assert_eq!(t.to_array().map(f32::to_bits), [0; 3]);
+        // A side of 2^24 + 4 voxels: its last index, 2^24 + 3, rounds up to 2^24 + 4 in f32.
+        let n = (1usize << 24) + 4;
+        assert_eq!((n - 1) as f32 as usize, n);
+        let (c, _) = clamped_cell(Vec3::new(f32::INFINITY, 0.0, 0.0), [n, 1, 1]);
+        assert_eq!(c[0], n - 1);
+    }
+}
