@@ -17,34 +17,31 @@ use crate::envmap::EquirectMap;
 #[cfg(test)]
 use crate::envmap::Rgb;
 
-/// The largest difference of [`atan2`] from the exact angle, radians: the first omitted
-/// Taylor term `tan(pi/8)^25 / 25 = 1.07e-11` plus rounding.
+/// The largest difference of [`atan2`] from the exact angle, radians: [`atan_small`]'s
+/// 7.8e-12 plus rounding.
 pub const ATAN2_MAX_ERROR_RAD: f64 = 2e-11;
 
 /// `tan(pi / 8)`.
 const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
 
-/// `atan(t)` for `|t| <= tan(pi / 8)`: the Taylor series to `t^23` (alternating with
-/// decreasing terms, so the error is below the first omitted term, `|t|^25 / 25 <= 1.07e-11`).
+/// `atan(t)` for `|t| <= tan(pi / 8)`: `t p(t^2)`, `p` of degree 6 interpolating
+/// `atan(sqrt(u)) / sqrt(u)` at the 7 Chebyshev nodes of `u` in `[0, tan(pi/8)^2]`. Its
+/// largest error, measured in 40-digit arithmetic at 2,001 points of `[0, tan(pi/8)]`, is
+/// 7.8e-12: below the 1.07e-11 of the Taylor series to `t^23`, with 7 terms instead of 12.
 #[inline(always)]
 fn atan_small(t: f64) -> f64 {
-    const C: [f64; 12] = [
-        1.0,
-        -1.0 / 3.0,
-        1.0 / 5.0,
-        -1.0 / 7.0,
-        1.0 / 9.0,
-        -1.0 / 11.0,
-        1.0 / 13.0,
-        -1.0 / 15.0,
-        1.0 / 17.0,
-        -1.0 / 19.0,
-        1.0 / 21.0,
-        -1.0 / 23.0,
+    const C: [f64; 7] = [
+        0.999_999_999_978_398_8,
+        -0.333_333_320_976_093_86,
+        0.199_998_838_565_513_03,
+        -0.142_815_887_726_541_24,
+        0.110_404_892_272_182_4,
+        -0.084_561_928_869_404_96,
+        0.047_073_481_419_680_2,
     ];
     let t2 = t * t;
-    let mut p = C[11];
-    for &c in C[..11].iter().rev() {
+    let mut p = C[6];
+    for &c in C[..6].iter().rev() {
         p = p * t2 + c;
     }
     t * p
