@@ -61,7 +61,10 @@ impl std::error::Error for Quiet {}
 /// prefixed with this rank otherwise.
 pub fn error(e: blueshift_dist::Error, rank: usize) -> anyhow::Error {
     match e {
-        blueshift_dist::Error::PeerFailed(_) => anyhow::Error::new(Quiet),
+        blueshift_dist::Error::PeerFailed(_) => {
+            mark_peer_failed();
+            anyhow::Error::new(Quiet)
+        }
         e => anyhow::anyhow!("rank {rank}: {e}"),
     }
 }
@@ -252,7 +255,13 @@ fn doppler_decomposition(
 /// prints why): `main` exits 1 without a second message.
 static PEER_FAILED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
-/// Whether another rank failed during a collective step of loading.
+/// Records that another rank failed and reports it (this rank then says nothing, not even
+/// `interrupted` when mpirun ends it for that failure).
+pub fn mark_peer_failed() {
+    PEER_FAILED.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Whether another rank failed during a collective step (of loading or of a render).
 pub fn peer_failed() -> bool {
     PEER_FAILED.load(std::sync::atomic::Ordering::Relaxed)
 }
@@ -327,7 +336,7 @@ pub fn load_scoped<T>(
             // The lowest rank that failed says why.
             (Err(e), Ok(Err(true))) => Err(e),
             (_, Ok(Err(_))) => {
-                PEER_FAILED.store(true, std::sync::atomic::Ordering::Relaxed);
+                mark_peer_failed();
                 Err(blueshift_volume::Error::Invalid(
                     "another rank failed to read its AMR blocks".into(),
                 ))

@@ -152,6 +152,8 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         // Another rank failed and said why: exit 1 without a second message.
         Err(err) if err.downcast_ref::<dist::Quiet>().is_some() || dist::peer_failed() => {
+            // mpirun may end this rank meanwhile: its signal watcher stays silent.
+            dist::mark_peer_failed();
             // The rank that failed says why: leave it the time to, before this exit makes
             // mpirun end the job (and signal that rank).
             std::thread::sleep(std::time::Duration::from_millis(500));

@@ -6,7 +6,9 @@
 //! renamed is finished first and no new temporary file appears after), removes this
 //! process's temporary files (`.blueshift-<pid>-*` in every folder outputs go to, including
 //! the `.bsv` converter's) and the private runtime folder, prints one line `blueshift:
-//! interrupted` and exits with 130 (SIGINT) or 143 (SIGTERM), as a shell reports a process
+//! interrupted` (not in an MPI rank that knows another rank failed: mpirun is ending the
+//! job for that failure, which the failing rank reported) and exits with 130 (SIGINT) or
+//! 143 (SIGTERM), as a shell reports a process
 //! killed by that signal. No partial output is left: outputs are only ever renamed into
 //! place complete. The viewer (`blueshift view`) keeps its own Ctrl-C handling.
 
@@ -95,7 +97,11 @@ fn watch() {
         // Past the progress bar and the echoed ^C.
         eprintln!();
     }
-    eprintln!("blueshift: interrupted");
+    // A rank of an MPI job that knows another rank failed is being ended by mpirun because
+    // of that failure, which the failing rank has said in its one line: no second line.
+    if !crate::dist::peer_failed() {
+        eprintln!("blueshift: interrupted");
+    }
     std::process::exit(128 + sig);
 }
 
