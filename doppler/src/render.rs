@@ -373,9 +373,7 @@ impl<'a> Context<'a> {
     /// only for thermal broadening or the black body: absent samples are zero.
     pub fn sample(&self, ray: &Ray) -> Result<RaySamples> {
         let blackbody = self.scene.factors.blackbody != 0.0;
-        let mut raw = self.sample_raw_with(ray, blackbody, self.profiles.active);
-        let (t, rho) = (std::mem::take(&mut raw.t), std::mem::take(&mut raw.rho));
-        self.finish_with(&raw, t, rho)
+        self.sample_with(ray, blackbody, self.profiles.active)
     }
 
     /// The factor-independent part of [`Context::sample`]: the trilinear values along the
@@ -388,7 +386,12 @@ impl<'a> Context<'a> {
     /// densities or temperatures (their samples are zero), and the gas temperature only when
     /// `temperature` (thermal broadening). The other samples are [`Context::sample`]'s bits.
     pub(crate) fn sample_lines(&self, ray: &Ray, temperature: bool) -> Result<RaySamples> {
-        let mut raw = self.sample_raw_with(ray, false, temperature);
+        self.sample_with(ray, false, temperature)
+    }
+
+    /// [`Context::sample_raw_with`] then the factors and the Doppler model.
+    fn sample_with(&self, ray: &Ray, blackbody: bool, temperature: bool) -> Result<RaySamples> {
+        let mut raw = self.sample_raw_with(ray, blackbody, temperature);
         let (t, rho) = (std::mem::take(&mut raw.t), std::mem::take(&mut raw.rho));
         self.finish_with(&raw, t, rho)
     }

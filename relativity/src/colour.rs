@@ -357,8 +357,7 @@ impl DopplerColourTable {
                 LINEAR_D_ENTRIES as i32 - 2
             };
             // The mask, a power of two minus one, changes no index but bounds every index
-            // by the table's length for the compiler (no bounds checks: the loops using it
-            // vectorise with gathers) and for the gathers of the AVX2 variant.
+            // by the table's length for the gathers of the AVX2 variant.
             k[i] = ki as u32 & LINEAR_D_MASK;
             t[i] = (x - f64::from(ki)) as f32;
         }
@@ -380,7 +379,9 @@ impl DopplerColourTable {
             let e = &self.pairs[3 * c..3 * c + 3];
             let (e0, e1, e2) = (&e[0], &e[1], &e[2]);
             for i in 0..N {
-                let k = k[i] as usize;
+                // Masked again where it is read, so the compiler sees the bound (no bounds
+                // checks: the loop vectorises with gathers).
+                let k = (k[i] & LINEAR_D_MASK) as usize;
                 let ra = e0[k][0] * r[i] + e1[k][0] * g[i] + e2[k][0] * b[i];
                 let rb = e0[k][1] * r[i] + e1[k][1] * g[i] + e2[k][1] * b[i];
                 let v = ra + (rb - ra) * t[i];
