@@ -644,14 +644,16 @@ pub fn srgb8(v: f32) -> u8 {
 
 #[inline]
 fn srgb8_with(t: &Srgb8Tables, v: f32) -> u8 {
-    if !(v > 0.0 && v.is_finite()) {
-        return 0;
-    }
-    if v >= 1.0 {
-        return 255;
-    }
-    let code = t.start[(v.to_bits() >> SRGB8_SHIFT) as usize];
-    code + u8::from(v >= t.thresholds[code as usize])
+    // Branch-free: NaN, negatives and +inf to 0, values from 1 on to 1 (code 255: 1.0's
+    // entry starts at 255 and `thresholds[255]` is infinite).
+    let x = if v > 0.0 && v < f32::INFINITY {
+        v.min(1.0)
+    } else {
+        0.0
+    };
+    let i = ((x.to_bits() >> SRGB8_SHIFT) as usize).min(t.start.len() - 1);
+    let code = t.start[i];
+    code + u8::from(x >= t.thresholds[code as usize])
 }
 
 /// `f32` bit patterns per entry of [`Srgb8Tables::start`].
