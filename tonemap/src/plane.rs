@@ -351,6 +351,28 @@ fn recolour_by(
                 // Every pixel's output luminance first (`lum_out(first pixel, input row,
                 // output row)`), whatever its input.
                 lum_out(row0, lrow, louts);
+                if saturation == 1.0 {
+                    // One factor `lout / lin` per pixel (0 where either luminance is not
+                    // positive, NaN included; capped so a zero channel stays 0), in a
+                    // loop without branches, then three products.
+                    for (k, &lin) in louts.iter_mut().zip(lrow) {
+                        let lout = *k;
+                        *k = if lin > 0.0 && lout > 0.0 {
+                            (lout / lin).min(f32::MAX)
+                        } else {
+                            0.0
+                        };
+                    }
+                    for (o, (s, &k)) in orow
+                        .chunks_exact_mut(3)
+                        .zip(srow.chunks_exact(3).zip(louts.iter()))
+                    {
+                        o[0] = s[0] * k;
+                        o[1] = s[1] * k;
+                        o[2] = s[2] * k;
+                    }
+                    return;
+                }
                 for ((o, s), (&lin, &lout)) in orow
                     .chunks_exact_mut(3)
                     .zip(srow.chunks_exact(3))
@@ -366,12 +388,7 @@ fn recolour_by(
                         continue;
                     }
                     for c in 0..3 {
-                        let ratio = s[c] / lin;
-                        o[c] = if saturation == 1.0 {
-                            ratio * lout
-                        } else {
-                            ratio.powf(saturation) * lout
-                        };
+                        o[c] = (s[c] / lin).powf(saturation) * lout;
                     }
                 }
             },

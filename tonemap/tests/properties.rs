@@ -606,3 +606,65 @@ fn pseudocolour_bar_names_its_quantity() {
     assert!(dark > 20, "no label above the bar ({dark} dark pixels)");
     assert_eq!(PseudocolourParams::default().label, "luminance");
 }
+
+/// Without infinities the cleaning pass also gives the luminance statistics: against a
+/// value-by-value count and the luminance plane's own range, on widths that leave every
+/// remainder of the four-pixel lanes (1..=5 pixels past a multiple of 4), with NaN,
+/// negatives, -Inf, zeros and black pixels spread by a hash.
+#[test]
+fn one_pass_statistics_equal_a_value_by_value_count() {
+    for w in [1u32, 2, 3, 5, 7, 13, 37] {
+        let h = 9u32;
+        let img = Rgb32FImage::from_fn(w, h, |x, y| {
+            let i = u64::from(y * w + x);
+            let pick = |c: u64| {
+                let u = hash01(3 * i + c);
+                match (u * 16.0) as u32 {
+                    0 => f32::NAN,
+                    1 => -0.25,
+                    2 => f32::NEG_INFINITY,
+                    3 | 4 => 0.0,
+                    _ => (10.0f64.powf(6.0 * u - 3.0)) as f32,
+                }
+            };
+            Rgb([pick(0), pick(1), pick(2)])
+        });
+        let clean = CleanImage::new(&img);
+        let (mut nan, mut neg) = (0u64, 0u64);
+        let mut cleaned = img.clone();
+        for v in cleaned.iter_mut() {
+            if v.is_nan() {
+                nan += 1;
+                *v = 0.0;
+            } else if *v < 0.0 {
+                neg += 1;
+                *v = 0.0;
+            }
+        }
+        assert_eq!(
+            clean.report,
+            SanitizeReport {
+                nan,
+                negative: neg,
+                positive_infinite: 0
+            },
+            "width {w}"
+        );
+        assert_eq!(clean.image.as_raw(), cleaned.as_raw(), "width {w}");
+        let lum: Vec<f32> = cleaned.pixels().map(|p| luminance(p.0)).collect();
+        assert_eq!(clean.luminance.data, lum, "width {w}");
+        let zeros = lum.iter().filter(|&&v| v <= 0.0).count() as u64;
+        let positive: Vec<f32> = lum.iter().copied().filter(|&v| v > 0.0).collect();
+        match clean.dynamic_range() {
+            Some(dr) => {
+                assert_eq!(dr.zero_pixels, zeros, "width {w}");
+                assert_eq!(
+                    dr.min_positive,
+                    positive.iter().copied().fold(f32::INFINITY, f32::min)
+                );
+                assert_eq!(dr.max, positive.iter().copied().fold(0.0, f32::max));
+            }
+            None => assert!(positive.is_empty(), "width {w}"),
+        }
+    }
+}
