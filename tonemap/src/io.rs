@@ -256,11 +256,24 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     let bytes = std::fs::read(path).map_err(|e| Error::io("cannot read", path, e))?;
     let start = find(&bytes[..bytes.len().min(4096)], b"#?")
         .ok_or_else(|| Error::invalid("Radiance HDR", "no #? magic line in the header", path))?;
-    let cursor = std::io::Cursor::new(&bytes[start..]);
-    let decoder = image::codecs::hdr::HdrDecoder::new(cursor)
+    let mut cursor = std::io::Cursor::new(&bytes[start..]);
+    let decoder = image::codecs::hdr::HdrDecoder::new(&mut cursor)
         .map_err(|e| Error::invalid("Radiance HDR", e.to_string(), path))?;
     let (w, h) = decoder.dimensions();
     limits.check(u64::from(w), u64::from(h))?;
+    drop(decoder);
+    // The header ends where the decoder stopped reading.
+    let data_at = start + usize::try_from(cursor.position()).unwrap_or(usize::MAX);
+    if let Some(img) = bytes
+        .get(data_at..)
+        .and_then(|data| decode_rle_rows(data, w, h))
+    {
+        return Ok(img);
+    }
+    // Other scanline encodings (flat, the old run-length one) and damaged data: the image
+    // crate's decoder, with its messages.
+    let decoder = image::codecs::hdr::HdrDecoder::new(std::io::Cursor::new(&bytes[start..]))
+        .map_err(|e| Error::invalid("Radiance HDR", e.to_string(), path))?;
     let img = image::DynamicImage::from_decoder(decoder).map_err(|e| {
         Error::invalid(
             "Radiance HDR",
@@ -269,6 +282,88 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
         )
     })?;
     Ok(img.into_rgb32f())
+}
+
+/// Decodes Radiance pixel data whose every scanline uses the per-component run-length
+/// encoding (what current writers produce), rows in parallel, into the image crate's
+/// values bit for bit (its `to_hdr`: `c * 2^(e - 136)`, `e = 0` black). A first pass finds
+/// each scanline's start (the run headers only); `None` when a scanline is encoded another
+/// way or the data does not add up (the caller then uses the image crate's decoder).
+fn decode_rle_rows(data: &[u8], w: u32, h: u32) -> Option<Rgb32FImage> {
+    use rayon::prelude::*;
+    let (wu, hu) = (w as usize, h as usize);
+    if wu == 0 || hu == 0 {
+        return None;
+    }
+    // Where each component of a scanline at `pos` ends (after its 4-byte marker), checked
+    // exactly as the image crate reads it.
+    let skip = |mut pos: usize| -> Option<usize> {
+        let mut x = 0usize;
+        while x < wu {
+            let rl = usize::from(*data.get(pos)?);
+            pos += 1;
+            let n = if rl <= 128 { rl } else { rl - 128 };
+            if x + n > wu {
+                return None;
+            }
+            pos += if rl <= 128 { rl } else { 1 };
+            x += n;
+        }
+        (pos <= data.len()).then_some(pos)
+    };
+    let mut starts = Vec::with_capacity(hu);
+    let mut pos = 0usize;
+    for _ in 0..hu {
+        let m = data.get(pos..pos + 4)?;
+        if !(m[0] == 2 && m[1] == 2 && m[2] < 128) {
+            return None;
+        }
+        starts.push(pos + 4);
+        pos += 4;
+        for _ in 0..4 {
+            pos = skip(pos)?;
+        }
+    }
+    let n = wu.checked_mul(hu)?.checked_mul(3)?;
+    let mut out = vec![0.0f32; n];
+    out.par_chunks_mut(wu * 3)
+        .zip(starts.par_iter())
+        .for_each_init(
+            || vec![0u8; 4 * wu],
+            |planes, (row, &at)| {
+                // The four components one after the other (bounds were checked above).
+                let mut pos = at;
+                for plane in planes.chunks_exact_mut(wu) {
+                    let mut x = 0usize;
+                    while x < wu {
+                        let rl = usize::from(data[pos]);
+                        pos += 1;
+                        if rl <= 128 {
+                            plane[x..x + rl].copy_from_slice(&data[pos..pos + rl]);
+                            pos += rl;
+                            x += rl;
+                        } else {
+                            let n = rl - 128;
+                            plane[x..x + n].fill(data[pos]);
+                            pos += 1;
+                            x += n;
+                        }
+                    }
+                }
+                let (rgb, e) = planes.split_at(3 * wu);
+                for (i, (px, &e)) in row.chunks_exact_mut(3).zip(e).enumerate() {
+                    let scale = f32::from_bits(if e > 1 {
+                        u32::from(e - 1) << 23
+                    } else {
+                        u32::from(e) << 22
+                    }) * 0.003_906_25;
+                    px[0] = scale * f32::from(rgb[i]);
+                    px[1] = scale * f32::from(rgb[wu + i]);
+                    px[2] = scale * f32::from(rgb[2 * wu + i]);
+                }
+            },
+        );
+    Rgb32FImage::from_raw(w, h, out)
 }
 
 /// Reads a PFM file (`PF` colour or `Pf` grey, either byte order, bottom row first).
