@@ -9,6 +9,33 @@ use crate::ops::drago::drago_curve;
 use crate::ops::reinhard::{reinhard_curve, reinhard_curve_inverse};
 use crate::plane::{Plane, luminance};
 
+/// Where [`GlobalCurve::luminance_curve`] sends the recoloured image (generic over the
+/// curve, so each curve's loop is compiled on its own and vectorises).
+trait CurveOutput {
+    type Out;
+    fn run<F: Fn(f32) -> f32 + Sync>(self, curve: F) -> Self::Out;
+}
+
+/// The floating-point display image ([`crate::plane::recolour_with`]).
+struct ToImage<'a>(&'a Rgb32FImage, &'a Plane, f32);
+
+impl CurveOutput for ToImage<'_> {
+    type Out = Rgb32FImage;
+    fn run<F: Fn(f32) -> f32 + Sync>(self, curve: F) -> Rgb32FImage {
+        crate::plane::recolour_with(self.0, self.1, self.2, curve)
+    }
+}
+
+/// Its 8-bit sRGB codes ([`crate::plane::recolour_with_srgb8`]).
+struct ToSrgb8<'a>(&'a Rgb32FImage, &'a Plane, f32);
+
+impl CurveOutput for ToSrgb8<'_> {
+    type Out = Vec<u8>;
+    fn run<F: Fn(f32) -> f32 + Sync>(self, curve: F) -> Vec<u8> {
+        crate::plane::recolour_with_srgb8(self.0, self.1, self.2, curve)
+    }
+}
+
 /// A global operator resolved for one image: its parameters and the image statistics it
 /// uses. Keep it with a tone-mapped picture to recover HDR values later.
 #[derive(Clone, Debug, PartialEq)]
@@ -166,12 +193,38 @@ impl GlobalCurve {
             let data = img.as_raw().par_iter().map(|v| v * s).collect();
             return Rgb32FImage::from_raw(img.width(), img.height(), data).expect("same size");
         }
-        // One fused row-parallel pass: the curve and the recolouring per pixel. The
-        // per-image constants are resolved once in f64; the per-pixel arithmetic runs in
-        // f32 (the output precision), Drago's logarithms and power by `fastmath`'s
-        // polynomials, which vectorise (agreement with `map_luminance` is tested to 1e-5
-        // relative).
-        let sat = self.saturation();
+        self.luminance_curve(ToImage(img, lum, self.saturation()))
+    }
+
+    /// [`GlobalCurve::apply_clean`] as 8-bit sRGB codes ([`crate::io::display_to_srgb8`] of
+    /// its image, the same bytes), without the floating-point display image.
+    pub(crate) fn apply_clean_srgb8(&self, img: &Rgb32FImage, lum: &Plane) -> Vec<u8> {
+        if let GlobalCurve::Linear { scale } = *self {
+            let s = scale as f32;
+            let mut out = vec![0u8; img.as_raw().len()];
+            let row = (3 * img.width() as usize).max(1);
+            out.par_chunks_mut(row)
+                .zip(img.as_raw().par_chunks(row))
+                .for_each_init(
+                    || vec![0.0f32; row],
+                    |scaled, (codes, src)| {
+                        for (o, v) in scaled.iter_mut().zip(src) {
+                            *o = v * s;
+                        }
+                        crate::io::srgb8_row(&scaled[..src.len()], codes);
+                    },
+                );
+            return out;
+        }
+        self.luminance_curve(ToSrgb8(img, lum, self.saturation()))
+    }
+
+    /// Runs `out` with the luminance curve of Drago or Reinhard. One fused row-parallel
+    /// pass: the curve and the recolouring per pixel. The per-image constants are resolved
+    /// once in f64; the per-pixel arithmetic runs in f32 (the output precision), Drago's
+    /// logarithms and power by `fastmath`'s polynomials, which vectorise (agreement with
+    /// `map_luminance` is tested to 1e-5 relative).
+    fn luminance_curve<O: CurveOutput>(&self, out: O) -> O::Out {
         match *self {
             GlobalCurve::Drago {
                 adaptation,
@@ -184,7 +237,7 @@ impl GlobalCurve {
                 let inv_max = (1.0 / scaled_max) as f32;
                 let exponent = (bias.ln() / 0.5f64.ln()) as f32;
                 let coef = (max_display_luminance * 0.01 / (scaled_max + 1.0).log10()) as f32;
-                crate::plane::recolour_with(img, lum, sat, move |l| {
+                out.run(move |l| {
                     let x = l * inv_adapt;
                     use crate::fastmath::{ln, ln_1p, pow};
                     coef * ln_1p(x) / ln(2.0 + 8.0 * pow(x * inv_max, exponent))
@@ -197,12 +250,12 @@ impl GlobalCurve {
                 } else {
                     0.0
                 };
-                crate::plane::recolour_with(img, lum, sat, move |l| {
+                out.run(move |l| {
                     let x = l * scale;
                     x * (1.0 + x * inv_w2) / (1.0 + x)
                 })
             }
-            GlobalCurve::Linear { .. } => unreachable!("handled above"),
+            GlobalCurve::Linear { .. } => unreachable!("Linear maps channels: the callers"),
         }
     }
 

@@ -737,6 +737,14 @@ pub fn srgb8(v: f32) -> u8 {
     srgb8_with(srgb8_tables(), v)
 }
 
+/// [`srgb8`] of every value of `values` into `out` (the same length).
+pub(crate) fn srgb8_row(values: &[f32], out: &mut [u8]) {
+    let t = srgb8_tables();
+    for (o, &v) in out.iter_mut().zip(values) {
+        *o = srgb8_with(t, v);
+    }
+}
+
 #[inline]
 fn srgb8_with(t: &Srgb8Tables, v: f32) -> u8 {
     // Branch-free: NaN, negatives and +inf to 0, values from 1 on to 1 (code 255: 1.0's
@@ -798,16 +806,11 @@ fn srgb8_tables() -> &'static Srgb8Tables {
 #[must_use]
 pub fn display_to_srgb8(display: &Rgb32FImage) -> Vec<u8> {
     use rayon::prelude::*;
-    let t = srgb8_tables();
     let mut out = vec![0u8; display.as_raw().len()];
     let row = 3 * display.width().max(1) as usize;
     out.par_chunks_mut(row)
         .zip(display.as_raw().par_chunks(row))
-        .for_each(|(o, i)| {
-            for (o, &v) in o.iter_mut().zip(i) {
-                *o = srgb8_with(t, v);
-            }
-        });
+        .for_each(|(o, i)| srgb8_row(i, o));
     out
 }
 

@@ -345,57 +345,102 @@ fn recolour_by(
         out.par_chunks_mut(wu * 3).enumerate().for_each_init(
             || vec![0.0f32; wu],
             |louts, (y, orow)| {
-                let row0 = y * wu;
-                let srow = &src[row0 * 3..(row0 + wu) * 3];
-                let lrow = &lum_in.data[row0..row0 + wu];
-                // Every pixel's output luminance first (`lum_out(first pixel, input row,
-                // output row)`), whatever its input.
-                lum_out(row0, lrow, louts);
-                if saturation == 1.0 {
-                    // One factor `lout / lin` per pixel (0 where either luminance is not
-                    // positive, NaN included; capped so a zero channel stays 0), in a
-                    // loop without branches, then three products.
-                    for (k, &lin) in louts.iter_mut().zip(lrow) {
-                        let lout = *k;
-                        *k = if lin > 0.0 && lout > 0.0 {
-                            (lout / lin).min(f32::MAX)
-                        } else {
-                            0.0
-                        };
-                    }
-                    for (o, (s, &k)) in orow
-                        .chunks_exact_mut(3)
-                        .zip(srow.chunks_exact(3).zip(louts.iter()))
-                    {
-                        o[0] = s[0] * k;
-                        o[1] = s[1] * k;
-                        o[2] = s[2] * k;
-                    }
-                    return;
-                }
-                for ((o, s), (&lin, &lout)) in orow
-                    .chunks_exact_mut(3)
-                    .zip(srow.chunks_exact(3))
-                    .zip(lrow.iter().zip(louts.iter()))
-                {
-                    if lin <= 0.0 {
-                        o.fill(0.0);
-                        continue;
-                    }
-                    // `lout > 0` is false for NaN too: such a pixel comes out black.
-                    if lout.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                        o.fill(0.0);
-                        continue;
-                    }
-                    for c in 0..3 {
-                        o[c] = (s[c] / lin).powf(saturation) * lout;
-                    }
-                }
+                recolour_row(src, lum_in, saturation, &lum_out, y, louts, orow);
             },
         );
     }
     Rgb32FImage::from_raw(w, h, out).expect("buffer size matches dimensions")
 }
+
+/// [`recolour_with`] straight to 8-bit sRGB codes (row-major RGB, [`crate::io::srgb8`] of
+/// every value): the same bytes as [`crate::io::display_to_srgb8`] of its image, without
+/// the floating-point display image (each row goes through a buffer of its own).
+#[must_use]
+pub fn recolour_with_srgb8(
+    img: &Rgb32FImage,
+    lum_in: &Plane,
+    saturation: f32,
+    curve: impl Fn(f32) -> f32 + Sync,
+) -> Vec<u8> {
+    let src = img.as_raw();
+    let mut out = vec![0u8; src.len()];
+    let wu = img.width() as usize;
+    if wu > 0 {
+        let curve = |_: usize, lin: &[f32], out: &mut [f32]| {
+            for (o, &l) in out.iter_mut().zip(lin) {
+                *o = curve(l);
+            }
+        };
+        out.par_chunks_mut(wu * 3).enumerate().for_each_init(
+            || (vec![0.0f32; wu], vec![0.0f32; 3 * wu]),
+            |(louts, orow), (y, codes)| {
+                recolour_row(src, lum_in, saturation, &curve, y, louts, orow);
+                crate::io::srgb8_row(orow, codes);
+            },
+        );
+    }
+    out
+}
+
+/// Row `y` of the recolouring into `orow` (`louts`: a buffer of one row of luminances).
+fn recolour_row(
+    src: &[f32],
+    lum_in: &Plane,
+    saturation: f32,
+    lum_out: &impl Fn(usize, &[f32], &mut [f32]),
+    y: usize,
+    louts: &mut [f32],
+    orow: &mut [f32],
+) {
+    let wu = louts.len();
+    let row0 = y * wu;
+    let srow = &src[row0 * 3..(row0 + wu) * 3];
+    let lrow = &lum_in.data[row0..row0 + wu];
+    // Every pixel's output luminance first (`lum_out(first pixel, input row, output row)`),
+    // whatever its input.
+    lum_out(row0, lrow, louts);
+    if saturation == 1.0 {
+        // One factor `lout / lin` per pixel (0 where either luminance is not positive, NaN
+        // included; capped so a zero channel stays 0), in a loop without branches, then
+        // three products.
+        for (k, &lin) in louts.iter_mut().zip(lrow) {
+            let lout = *k;
+            *k = if lin > 0.0 && lout > 0.0 {
+                (lout / lin).min(f32::MAX)
+            } else {
+                0.0
+            };
+        }
+        for (o, (s, &k)) in orow
+            .chunks_exact_mut(3)
+            .zip(srow.chunks_exact(3).zip(louts.iter()))
+        {
+            o[0] = s[0] * k;
+            o[1] = s[1] * k;
+            o[2] = s[2] * k;
+        }
+        return;
+    }
+    for ((o, s), (&lin, &lout)) in orow
+        .chunks_exact_mut(3)
+        .zip(srow.chunks_exact(3))
+        .zip(lrow.iter().zip(louts.iter()))
+    {
+        if lin <= 0.0 {
+            o.fill(0.0);
+            continue;
+        }
+        // `lout > 0` is false for NaN too: such a pixel comes out black.
+        if lout.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            o.fill(0.0);
+            continue;
+        }
+        for c in 0..3 {
+            o[c] = (s[c] / lin).powf(saturation) * lout;
+        }
+    }
+}
+
 /// Log-average (geometric mean) of the positive values inside an optional circle
 /// `(cx, cy, r)` in pixels. Zero pixels (a render's empty background) are left out, so
 /// they cannot drag the adaptation level down. Summed in `f64` per row, then over rows

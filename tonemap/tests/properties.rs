@@ -668,3 +668,43 @@ fn one_pass_statistics_equal_a_value_by_value_count() {
         }
     }
 }
+
+/// Straight to 8-bit codes is the float display image's codes, byte for byte: every
+/// operator (the global ones take the one-pass path), saturation 1 and not, an image with
+/// dirty pixels and a black block, and an all-black image.
+#[test]
+fn srgb8_output_equals_the_display_images_codes() {
+    let mut img = scene(61, 23);
+    img.put_pixel(1, 1, Rgb([f32::NAN, 1.0, 1.0]));
+    img.put_pixel(2, 1, Rgb([-0.5, -1.0, 0.2]));
+    img.put_pixel(3, 1, Rgb([f32::INFINITY, 2.0, 1.0]));
+    for y in 10..20 {
+        for x in 0..9 {
+            img.put_pixel(x, y, Rgb([0.0, 0.0, 0.0]));
+        }
+    }
+    let black = Rgb32FImage::new(9, 4);
+    let mut ops = all_operators();
+    ops.push(Operator::Drago(DragoParams {
+        saturation: 0.6,
+        exposure_stops: 1.5,
+        ..DragoParams::default()
+    }));
+    ops.push(Operator::Reinhard(ReinhardParams {
+        saturation: 1.3,
+        white: Some(4.0),
+        ..ReinhardParams::default()
+    }));
+    for image in [&img, &black] {
+        let clean = CleanImage::new(image);
+        for op in &ops {
+            let display = op.apply_clean(&clean).unwrap();
+            assert_eq!(
+                op.apply_clean_srgb8(&clean).unwrap(),
+                io::display_to_srgb8(&display),
+                "{}",
+                op.name()
+            );
+        }
+    }
+}

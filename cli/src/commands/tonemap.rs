@@ -292,6 +292,20 @@ pub fn run(args: Args) -> Result<()> {
             write_display(&path, img, args.depth)?;
             outputs.push(path);
         }
+    } else if ext == "png"
+        && args.depth != 16
+        && args.device == blueshift_gpu::DeviceChoice::Cpu
+        && (args.exposure.is_none_or(|s| s == 0.0) || matches!(args.op, Op::Linear | Op::Drago))
+    {
+        // An 8-bit PNG on the CPU: straight to the sRGB codes (the same bytes as the float
+        // display image and `write_display`; global operators skip that image).
+        kind = op.name();
+        let codes = op.apply_clean_srgb8(&clean)?;
+        let (w, h) = hdr.dimensions();
+        let pic = image::RgbImage::from_raw(w, h, codes)
+            .ok_or_else(|| anyhow::anyhow!("the display image does not match its size"))?;
+        crate::output::write_via_temp_path(&args.out, |p| Ok(io::write_rgb8_png(p, &pic)?))?;
+        outputs.push(args.out.clone());
     } else {
         kind = op.name();
         let ran = blueshift_gpu::run_with_fallback(

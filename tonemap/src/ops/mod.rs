@@ -191,6 +191,23 @@ impl Operator {
         ))
     }
 
+    /// [`Operator::apply_clean`] followed by [`crate::io::display_to_srgb8`], the same
+    /// bytes: 8-bit sRGB codes, row-major RGB. The global operators (linear, Drago,
+    /// Reinhard) go straight to the codes in one pass, without the floating-point display
+    /// image (the CLI's 8-bit PNG output).
+    ///
+    /// # Errors
+    /// As [`Operator::apply_clean`].
+    pub fn apply_clean_srgb8(&self, clean: &CleanImage) -> Result<Vec<u8>> {
+        self.validate()?;
+        check_not_empty(&clean.image)?;
+        if self.is_global() && clean.positive_range.is_some() {
+            let curve = self.curve_of(clean)?;
+            return Ok(curve.apply_clean_srgb8(&clean.image, &clean.luminance));
+        }
+        Ok(crate::io::display_to_srgb8(&self.apply_clean(clean)?))
+    }
+
     /// The resolved global curve of this operator for `img`: the operator's parameters plus
     /// the image statistics it depends on (adaptation and maximum luminance). It maps and
     /// inverts display values (HDR VolVis Sec. 4, last paragraph).
