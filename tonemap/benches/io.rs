@@ -156,6 +156,23 @@ fn bench(c: &mut Criterion) {
     g.bench_function("image_crate_default", |b| b.iter(|| png_before(&display)));
     g.bench_function("blueshift", |b| b.iter(|| png_after(&display)));
     g.bench_function("srgb8_only", |b| b.iter(|| io::display_to_srgb8(&display)));
+    // The compression alone: blueshift's parallel zlib stream against `fast_up` (the png
+    // crate's fdeflate on one thread, the setting before), on the same codes.
+    g.bench_function("encode_only", |b| {
+        b.iter(|| {
+            let mut out = Vec::new();
+            io::encode_png(
+                &mut out,
+                w,
+                h,
+                png::ColorType::Rgb,
+                png::BitDepth::Eight,
+                &rgb,
+            )
+            .expect("png");
+            out
+        })
+    });
     for (name, comp, filt) in variants {
         g.bench_function(name, |b| b.iter(|| png_with(&rgb, w, h, comp, filt)));
     }

@@ -814,11 +814,11 @@ pub fn display_to_srgb8(display: &Rgb32FImage) -> Vec<u8> {
     out
 }
 
-/// The PNG encoder settings every blueshift PNG is written with: `fdeflate`'s fast
-/// compression (the `png` crate's [`png::Compression::Fast`]) and the Up filter on every
-/// row. Adaptive filtering (`image`'s default) tries all five filters per row and took
-/// twice the time of the compression for files 3 % smaller (`benches/io.rs`, group
-/// `png_8mp`, on an 8-megapixel tone-mapped image).
+/// The PNG header settings every blueshift PNG is written with: the Up filter on every row
+/// (adaptive filtering, `image`'s default, tries all five filters per row and took twice
+/// the time of the compression for files 3 % smaller: `benches/io.rs`, group `png_8mp`, on
+/// an 8-megapixel tone-mapped image). [`encode_png`] compresses the filtered rows itself,
+/// in parallel ([`crate::zlib`]), and writes them as IDAT chunks.
 pub fn png_encoder<W: Write>(w: W, width: u32, height: u32) -> png::Encoder<'static, W> {
     let mut enc = png::Encoder::new(w, width, height);
     enc.set_compression(png::Compression::Fast);
@@ -866,7 +866,11 @@ pub fn encode_png<W: Write>(
     enc.set_depth(depth);
     let err = |e: png::EncodingError| Error::invalid("PNG", e.to_string(), Path::new("<png>"));
     let mut wr = enc.write_header().map_err(err)?;
-    wr.write_image_data(data).map_err(err)?;
+    // The pixel data compressed in parallel ([`crate::zlib`]), as IDAT chunks.
+    let row_bytes = data.len() / height.max(1) as usize;
+    for part in crate::zlib::png_zlib_parts(data, row_bytes, height as usize) {
+        wr.write_chunk(png::chunk::IDAT, &part).map_err(err)?;
+    }
     wr.finish().map_err(err)
 }
 

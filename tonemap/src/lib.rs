@@ -63,6 +63,7 @@ pub mod poisson;
 pub mod pseudocolour;
 pub mod sanitize;
 pub mod session;
+pub mod zlib;
 
 pub use error::{Error, Result};
 pub use inverse::GlobalCurve;

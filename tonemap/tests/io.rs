@@ -425,3 +425,98 @@ fn radiance_rle_rows_read_in_parallel_equal_the_image_crate() {
         image_crate_hdr(&bytes).as_raw()
     );
 }
+
+/// The IDAT chunks of a PNG file, concatenated (its zlib stream).
+fn idat_stream(png: &[u8]) -> Vec<u8> {
+    let mut at = 8;
+    let mut out = Vec::new();
+    while at + 8 <= png.len() {
+        let len = u32::from_be_bytes(png[at..at + 4].try_into().unwrap()) as usize;
+        if &png[at + 4..at + 8] == b"IDAT" {
+            out.extend_from_slice(&png[at + 8..at + 8 + len]);
+        }
+        at += 12 + len;
+    }
+    out
+}
+
+/// PNGs compressed in parallel decode to their samples with the png crate's decoder, and
+/// their zlib stream inflates with flate2 (which checks the Adler-32) to the Up-filtered
+/// rows: noise (long codes), zeros (runs past 258 bytes), a gradient (runs and literals),
+/// RGB and RGBA, 8 and 16 bits, one row, one column, and images of several chunks
+/// (`zlib::CHUNK_BYTES`); the bytes do not depend on the thread count.
+#[test]
+fn parallel_png_compression_round_trips_through_independent_decoders() {
+    use std::io::Read;
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let mut noise = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 24) as u8
+    };
+    let cases: Vec<(u32, u32, png::ColorType, png::BitDepth, Vec<u8>)> = {
+        let mut v = Vec::new();
+        for (w, h) in [(1u32, 1u32), (1, 300), (777, 1), (64, 48), (1500, 700)] {
+            let n = (w * h) as usize;
+            let grad: Vec<u8> = (0..n * 3)
+                .map(|i| ((i / 3) % w as usize / 7 + (i / 3) / w as usize / 5) as u8)
+                .collect();
+            v.push((w, h, png::ColorType::Rgb, png::BitDepth::Eight, grad));
+            v.push((
+                w,
+                h,
+                png::ColorType::Rgb,
+                png::BitDepth::Eight,
+                vec![0; n * 3],
+            ));
+            let rgba: Vec<u8> = (0..n * 4).map(|_| noise()).collect();
+            v.push((w, h, png::ColorType::Rgba, png::BitDepth::Eight, rgba));
+            let deep: Vec<u8> = (0..n * 6)
+                .map(|i| {
+                    if i % 2 == 0 {
+                        (i / 6 % 3) as u8
+                    } else {
+                        noise()
+                    }
+                })
+                .collect();
+            v.push((w, h, png::ColorType::Rgb, png::BitDepth::Sixteen, deep));
+        }
+        v
+    };
+    for (w, h, color, depth, data) in cases {
+        let mut png_bytes = Vec::new();
+        encode_png(&mut png_bytes, w, h, color, depth, &data).unwrap();
+        let what = format!("{w}x{h} {color:?} {depth:?}");
+        // The png crate's decoder.
+        let dec = png::Decoder::new(std::io::Cursor::new(&png_bytes));
+        let mut reader = dec.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!(&buf[..info.buffer_size()], &data[..], "{what}");
+        // flate2: the stream and its checksum, to the Up-filtered rows.
+        let mut rows = Vec::new();
+        flate2::read::ZlibDecoder::new(&idat_stream(&png_bytes)[..])
+            .read_to_end(&mut rows)
+            .unwrap();
+        let row = data.len() / h as usize;
+        let mut expect = Vec::new();
+        for y in 0..h as usize {
+            expect.push(2);
+            for x in 0..row {
+                let above = if y == 0 { 0 } else { data[(y - 1) * row + x] };
+                expect.push(data[y * row + x].wrapping_sub(above));
+            }
+        }
+        assert_eq!(rows, expect, "{what}");
+        // One thread: the same bytes.
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let mut again = Vec::new();
+        one.install(|| encode_png(&mut again, w, h, color, depth, &data).unwrap());
+        assert_eq!(again, png_bytes, "{what}");
+    }
+}
