@@ -1,5 +1,6 @@
-//! HDR image input and output: OpenEXR (through `exr`), Radiance `.hdr` (through
-//! `image`), PFM, 8- and 16-bit PNG, and numbered EXR sequences for HDR video.
+//! HDR image input and output: OpenEXR (through `exr`), Radiance `.hdr` (run-length
+//! scanlines decoded here in parallel, anything else through `image`), PFM, 8- and 16-bit
+//! PNG (compressed by [`crate::zlib`]), and numbered EXR sequences for HDR video.
 //!
 //! Readers check the image size against [`Limits`] before allocating pixels and turn
 //! truncated or malformed files into [`Error::Invalid`]. Writers write to a temporary
@@ -262,11 +263,15 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     let (w, h) = decoder.dimensions();
     limits.check(u64::from(w), u64::from(h))?;
     drop(decoder);
-    // The header ends where the decoder stopped reading.
-    let data_at = start + usize::try_from(cursor.position()).unwrap_or(usize::MAX);
-    if let Some(img) = bytes
-        .get(data_at..)
-        .and_then(|data| decode_rle_rows(data, w, h))
+    // The pixels start after the header's empty line and the resolution line; the fast path
+    // is taken only where that agrees with where the image crate's decoder stopped reading.
+    let data_at = radiance_data_start(&bytes, start);
+    let read_to = usize::try_from(cursor.position())
+        .ok()
+        .and_then(|p| p.checked_add(start));
+    if let Some(img) = data_at
+        .filter(|&at| Some(at) == read_to)
+        .and_then(|at| decode_rle_rows(&bytes[at..], w, h))
     {
         return Ok(img);
     }
@@ -282,6 +287,24 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
         )
     })?;
     Ok(img.into_rgb32f())
+}
+
+/// Where a Radiance file's pixel data starts: past its first line (the `#?` signature), the
+/// header lines up to the first empty one, and the resolution line.
+fn radiance_data_start(bytes: &[u8], start: usize) -> Option<usize> {
+    let next_line = |at: usize| -> Option<usize> {
+        let nl = bytes.get(at..)?.iter().position(|&b| b == b'\n')?;
+        Some(at + nl + 1)
+    };
+    let mut at = next_line(start)?;
+    loop {
+        let end = next_line(at)?;
+        if end == at + 1 {
+            break;
+        }
+        at = end;
+    }
+    next_line(at + 1)
 }
 
 /// Decodes Radiance pixel data whose every scanline uses the per-component run-length
@@ -848,12 +871,18 @@ pub fn encode_png<W: Write>(
         png::ColorType::Rgba => 4,
         png::ColorType::Grayscale => 1,
         png::ColorType::GrayscaleAlpha => 2,
-        png::ColorType::Indexed => 1,
+        png::ColorType::Indexed => {
+            return Err(Error::parameter("PNG: indexed colour is not written"));
+        }
     };
-    let bytes = if depth == png::BitDepth::Sixteen {
-        2
-    } else {
-        1
+    let bytes = match depth {
+        png::BitDepth::Eight => 1,
+        png::BitDepth::Sixteen => 2,
+        other => {
+            return Err(Error::parameter(format!(
+                "PNG: {other:?} bit samples are not written (8 or 16)"
+            )));
+        }
     };
     if data.len() as u64 != u64::from(width) * u64::from(height) * channels * bytes {
         return Err(Error::parameter(format!(
@@ -867,7 +896,7 @@ pub fn encode_png<W: Write>(
     let err = |e: png::EncodingError| Error::invalid("PNG", e.to_string(), Path::new("<png>"));
     let mut wr = enc.write_header().map_err(err)?;
     // The pixel data compressed in parallel ([`crate::zlib`]), as IDAT chunks.
-    let row_bytes = data.len() / height.max(1) as usize;
+    let row_bytes = (u64::from(width) * channels * bytes) as usize;
     for part in crate::zlib::png_zlib_parts(data, row_bytes, height as usize) {
         wr.write_chunk(png::chunk::IDAT, &part).map_err(err)?;
     }
@@ -1025,4 +1054,34 @@ pub fn list_exr_sequence(dir: impl AsRef<Path>, prefix: &str) -> Result<Vec<Path
         .collect();
     frames.sort();
     Ok(frames.into_iter().map(|(_, p)| p).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The fast path is the one taken for run-length files (the integration tests check
+    /// the values, whichever path reads them): the image crate's encoder writes run-length
+    /// scanlines from width 8; the data start found here is where its decoder stops; the
+    /// rows decode, to its values.
+    #[test]
+    fn run_length_files_take_the_parallel_path() {
+        let (w, h) = (37u32, 5u32);
+        let px: Vec<image::Rgb<f32>> = (0..w * h)
+            .map(|i| image::Rgb([(i % 7) as f32, 0.25 * (i % 3) as f32, 1e3 / (1 + i) as f32]))
+            .collect();
+        let mut file = b"VIEW= -vf x\n".to_vec();
+        image::codecs::hdr::HdrEncoder::new(&mut file)
+            .encode(&px, w as usize, h as usize)
+            .unwrap();
+        let start = find(&file, b"#?").unwrap();
+        let mut cursor = std::io::Cursor::new(&file[start..]);
+        drop(image::codecs::hdr::HdrDecoder::new(&mut cursor).unwrap());
+        let at = radiance_data_start(&file, start).unwrap();
+        assert_eq!(at, start + cursor.position() as usize);
+        let ours = decode_rle_rows(&file[at..], w, h).expect("run-length rows");
+        let d = image::codecs::hdr::HdrDecoder::new(std::io::Cursor::new(&file[start..])).unwrap();
+        let theirs = image::DynamicImage::from_decoder(d).unwrap().into_rgb32f();
+        assert_eq!(ours.as_raw(), theirs.as_raw());
+    }
 }

@@ -415,9 +415,10 @@ fn recolour_row(
             .chunks_exact_mut(3)
             .zip(srow.chunks_exact(3).zip(louts.iter()))
         {
-            o[0] = s[0] * k;
-            o[1] = s[1] * k;
-            o[2] = s[2] * k;
+            // (A select, not `s * 0`: a non-finite channel of a black pixel stays 0.)
+            for c in 0..3 {
+                o[c] = if k > 0.0 { s[c] * k } else { 0.0 };
+            }
         }
         return;
     }

@@ -101,6 +101,8 @@ fn clean_row(row: &mut [f32]) -> (SanitizeReport, [f32; 3]) {
     (r, [channel(0), channel(1), channel(2)])
 }
 
+/// Sums the per-row reports and takes the maximum of the per-row maxima, in row order
+/// (max is order-independent, so the result does not depend on the thread count).
 fn merge_rows(rows: &[(SanitizeReport, [f32; 3])]) -> (SanitizeReport, [f32; 3]) {
     rows.iter().fold(
         (SanitizeReport::default(), [0.0f32; 3]),

@@ -36,7 +36,12 @@ const UP: u8 = 2;
 /// If `data` is shorter than `height * row_bytes`.
 #[must_use]
 pub fn png_zlib_parts(data: &[u8], row_bytes: usize, height: usize) -> Vec<Vec<u8>> {
-    assert!(data.len() >= row_bytes * height, "rows past the data");
+    assert!(
+        row_bytes
+            .checked_mul(height)
+            .is_some_and(|n| n <= data.len()),
+        "rows past the data"
+    );
     let rows_per_chunk = (CHUNK_BYTES / (row_bytes + 1)).max(1);
     let starts: Vec<usize> = (0..height).step_by(rows_per_chunk).collect();
     let chunks: Vec<(Vec<u8>, u32, usize)> = starts

@@ -485,6 +485,20 @@ fn parallel_png_compression_round_trips_through_independent_decoders() {
         }
         v
     };
+    // The filter the rows are compressed with is the one the header settings name.
+    assert_eq!(PNG_FILTER, png::Filter::Up);
+    // Sample layouts the writer does not produce are refused, not written wrong.
+    for (color, depth) in [
+        (png::ColorType::Indexed, png::BitDepth::Eight),
+        (png::ColorType::Grayscale, png::BitDepth::Four),
+        (png::ColorType::Grayscale, png::BitDepth::One),
+    ] {
+        let r = encode_png(Vec::new(), 4, 4, color, depth, &[0; 16]);
+        assert!(
+            matches!(r, Err(Error::Parameter(_))),
+            "{color:?} {depth:?}: {r:?}"
+        );
+    }
     for (w, h, color, depth, data) in cases {
         let mut png_bytes = Vec::new();
         encode_png(&mut png_bytes, w, h, color, depth, &data).unwrap();
