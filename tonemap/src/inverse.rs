@@ -36,6 +36,25 @@ impl CurveOutput for ToSrgb8<'_> {
     }
 }
 
+/// Drago's curve per pixel in f32: the per-image constants resolved once in f64, the
+/// logarithms and the power by `fastmath`'s polynomials.
+fn drago_f32(
+    adaptation: f64,
+    scaled_max: f64,
+    bias: f64,
+    max_display_luminance: f64,
+) -> impl Fn(f32) -> f32 + Copy + Sync {
+    let inv_adapt = (1.0 / adaptation) as f32;
+    let inv_max = (1.0 / scaled_max) as f32;
+    let exponent = (bias.ln() / 0.5f64.ln()) as f32;
+    let coef = (max_display_luminance * 0.01 / (scaled_max + 1.0).log10()) as f32;
+    move |l: f32| {
+        use crate::fastmath::{ln, ln_1p, pow};
+        let x = l * inv_adapt;
+        coef * ln_1p(x) / ln(2.0 + 8.0 * pow(x * inv_max, exponent))
+    }
+}
+
 /// A luminance curve tabulated at every 2^-10 of an octave (f32 bit patterns whose low 13
 /// bits are zero) over the 40 octaves below the image's largest luminance, read by linear
 /// interpolation within the octave's step (the value then moves linearly with the bit
@@ -284,15 +303,7 @@ impl GlobalCurve {
                 max_display_luminance,
                 ..
             } => {
-                let inv_adapt = (1.0 / adaptation) as f32;
-                let inv_max = (1.0 / scaled_max) as f32;
-                let exponent = (bias.ln() / 0.5f64.ln()) as f32;
-                let coef = (max_display_luminance * 0.01 / (scaled_max + 1.0).log10()) as f32;
-                let direct = move |l: f32| {
-                    let x = l * inv_adapt;
-                    use crate::fastmath::{ln, ln_1p, pow};
-                    coef * ln_1p(x) / ln(2.0 + 8.0 * pow(x * inv_max, exponent))
-                };
+                let direct = drago_f32(adaptation, scaled_max, bias, max_display_luminance);
                 // Read from a table of the curve (three logarithms and an exponential per
                 // pixel were half of a Drago run).
                 let table = CurveTable::new(&direct, (scaled_max * adaptation) as f32);
@@ -363,15 +374,7 @@ mod tests {
         let (adapt, max) = (0.37f64, 5.0e4f64);
         let (bias, ld_max) = (0.85f64, 100.0f64);
         let scaled_max = max / adapt;
-        let inv_adapt = (1.0 / adapt) as f32;
-        let inv_max = (1.0 / scaled_max) as f32;
-        let exponent = (bias.ln() / 0.5f64.ln()) as f32;
-        let coef = (ld_max * 0.01 / (scaled_max + 1.0).log10()) as f32;
-        let direct = move |l: f32| {
-            let x = l * inv_adapt;
-            use crate::fastmath::{ln, ln_1p, pow};
-            coef * ln_1p(x) / ln(2.0 + 8.0 * pow(x * inv_max, exponent))
-        };
+        let direct = drago_f32(adapt, scaled_max, bias, ld_max);
         let table = CurveTable::new(&direct, max as f32);
         assert!(!table.values.is_empty());
         let mut worst = 0.0f64;
