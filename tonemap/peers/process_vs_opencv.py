@@ -1,0 +1,66 @@
+#!/usr/bin/env python3
+"""Issue 24 item 1: the whole `blueshift tonemap` process (start, read, tone map, PNG
+written) against OpenCV's operator alone, in process, on an image already read.
+
+Needs the `blueshift` binary (cargo build --release -p blueshift-cli) and PyPI
+`opencv-python-headless` and `numpy`. Writes a 3840x2160 Radiance file with `cv2.imwrite`
+(`exp(6 sin(x/400) cos(y/300))` per pixel with small per-channel modulations), then runs
+both interleaved, `--rounds` times each, 2 threads for both, and prints the medians and
+their ratio. Usage:
+
+    python3 tonemap/peers/process_vs_opencv.py [--blueshift target/release/blueshift]
+                                               [--rounds 9] [--ops drago,reinhard]
+"""
+import argparse, os, statistics, subprocess, tempfile, time
+
+import cv2
+import numpy as np
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--blueshift", default="target/release/blueshift")
+    ap.add_argument("--rounds", type=int, default=9)
+    ap.add_argument("--ops", default="drago,reinhard")
+    a = ap.parse_args()
+    cv2.setNumThreads(2)
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "big.hdr")
+        w, h = 3840, 2160
+        x = np.arange(w)[None, :].astype(np.float32)
+        y = np.arange(h)[:, None].astype(np.float32)
+        base = np.exp(6 * np.sin(x / 400) * np.cos(y / 300))
+        img = np.stack(
+            [
+                base * (1 + 0.05 * np.sin(x / 37)),
+                base * (1 + 0.05 * np.cos(y / 53)),
+                base * (1 + 0.03 * np.sin((x + y) / 71)),
+            ],
+            axis=-1,
+        ).astype(np.float32)
+        cv2.imwrite(path, img)
+        im = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+        peers = {
+            "drago": cv2.createTonemapDrago(1.0, 1.0, 0.85),
+            "reinhard": cv2.createTonemapReinhard(1.0, 0.0, 0.0, 0.0),
+        }
+        env = dict(os.environ, RAYON_NUM_THREADS="2")
+        for op in a.ops.split(","):
+            ours, theirs = [], []
+            for _ in range(a.rounds):
+                t = time.perf_counter()
+                subprocess.run(
+                    [a.blueshift, "tonemap", path, "--op", op, "--out", os.path.join(d, "o.png")],
+                    check=True, stdout=subprocess.DEVNULL, env=env,
+                )
+                ours.append(time.perf_counter() - t)
+                t = time.perf_counter()
+                peers[op].process(im)
+                theirs.append(time.perf_counter() - t)
+            m1, m2 = statistics.median(ours), statistics.median(theirs)
+            print(f"{op}: blueshift whole process {m1:.3f} s, OpenCV operator alone {m2:.3f} s, "
+                  f"ratio {m1 / m2:.2f} (medians of {a.rounds}, interleaved)")
+
+
+if __name__ == "__main__":
+    main()
