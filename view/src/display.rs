@@ -62,7 +62,12 @@ pub fn encode_srgb8(v: f32) -> u8 {
 /// The operator's own.
 pub fn to_rgb8(img: &Rgb32FImage, op: Option<&Operator>, stops: f32) -> Result<RgbImage> {
     let display = match op {
-        Some(op) => op.apply(img)?,
+        // Straight to the sRGB codes (the same bytes as `encode_srgb8` of `op.apply`).
+        Some(op) => {
+            let codes = op.apply_clean_srgb8(&blueshift_tonemap::CleanImage::new(img))?;
+            return RgbImage::from_raw(img.width(), img.height(), codes)
+                .ok_or_else(|| Error::invalid("a display image of the wrong size"));
+        }
         None => {
             let gain = stops.exp2();
             Rgb32FImage::from_fn(img.width(), img.height(), |x, y| {
@@ -77,22 +82,20 @@ pub fn to_rgb8(img: &Rgb32FImage, op: Option<&Operator>, stops: f32) -> Result<R
     ))
 }
 
-/// PNG bytes of an 8-bit RGB image, compressed for speed (frames are re-sent often).
+/// PNG bytes of an 8-bit RGB image (frames are re-sent often): blueshift's PNG writer,
+/// compressed in parallel ([`blueshift_tonemap::io::encode_png`]).
 ///
 /// # Errors
 /// [`Error::Invalid`] when the encoder fails.
 pub fn png_bytes(img: &RgbImage) -> Result<Vec<u8>> {
     let mut out = Vec::with_capacity(img.as_raw().len() / 2 + 1024);
-    image::codecs::png::PngEncoder::new_with_quality(
+    blueshift_tonemap::io::encode_png(
         &mut out,
-        image::codecs::png::CompressionType::Fast,
-        image::codecs::png::FilterType::Sub,
-    )
-    .write_image(
-        img.as_raw(),
         img.width(),
         img.height(),
-        image::ExtendedColorType::Rgb8,
+        png::ColorType::Rgb,
+        png::BitDepth::Eight,
+        img.as_raw(),
     )
     .map_err(|e| Error::invalid(format!("cannot encode a PNG frame: {e}")))?;
     Ok(out)
