@@ -5,7 +5,7 @@ use blueshift_tonemap::{
     DragoParams, DurandParams, FattalParams, LinearParams, Operator, ReinhardLocalParams,
     ReinhardParams,
 };
-use image::{ImageEncoder, Rgb32FImage, RgbImage};
+use image::{Rgb32FImage, RgbImage};
 
 use crate::{Error, Result};
 
