@@ -255,13 +255,17 @@ pub fn recolour_with(
     saturation: f32,
     curve: impl Fn(f32) -> f32 + Sync,
 ) -> Rgb32FImage {
-    // The curve over a whole row first: a loop without branches, which vectorises when
-    // the curve does (the `fastmath` curves).
-    recolour_by(img, lum_in, saturation, |_, lin, out| {
+    recolour_by(img, lum_in, saturation, curve_rows(curve))
+}
+
+/// A global curve as a `lum_out` of [`recolour_row`]: the curve over a whole row first, a
+/// loop without branches, which vectorises when the curve does (the `fastmath` curves).
+fn curve_rows(curve: impl Fn(f32) -> f32) -> impl Fn(usize, &[f32], &mut [f32]) {
+    move |_, lin, out| {
         for (o, &l) in out.iter_mut().zip(lin) {
             *o = curve(l);
         }
-    })
+    }
 }
 
 /// [`recolour`] followed by [`fit_to_display`] on every pixel: the
@@ -366,11 +370,7 @@ pub fn recolour_with_srgb8(
     let mut out = vec![0u8; src.len()];
     let wu = img.width() as usize;
     if wu > 0 {
-        let curve = |_: usize, lin: &[f32], out: &mut [f32]| {
-            for (o, &l) in out.iter_mut().zip(lin) {
-                *o = curve(l);
-            }
-        };
+        let curve = curve_rows(curve);
         out.par_chunks_mut(wu * 3).enumerate().for_each_init(
             || (vec![0.0f32; wu], vec![0.0f32; 3 * wu]),
             |(louts, orow), (y, codes)| {
