@@ -212,6 +212,37 @@ fn png_pixels_are_the_formulas_codes() {
     }
 }
 
+/// The real OpenEXR photographs (written by OpenEXR itself, PIZ) read to the exr
+/// crate's own reader's values, bit for bit.
+#[test]
+fn real_exr_photographs_read_as_the_exr_crate_reads_them() {
+    use exr::prelude::*;
+    let Some(dir) = data_dir() else { return };
+    for name in ["Desk.exr", "MtTamWest.exr"] {
+        let path = dir.join(name);
+        let img = read_hdr_image(&path).unwrap();
+        let reference = read_all_flat_layers_from_file(&path).unwrap();
+        let layer = &reference.layer_data[0];
+        let find = |n: &str| {
+            let c = layer
+                .channel_data
+                .list
+                .iter()
+                .find(|c| c.name.to_string() == n);
+            c.unwrap().sample_data.values_as_f32().collect::<Vec<f32>>()
+        };
+        let (r, g, b) = (find("R"), find("G"), find("B"));
+        assert_eq!(img.as_raw().len(), 3 * r.len(), "{name}");
+        for (i, p) in img.as_raw().chunks_exact(3).enumerate() {
+            assert_eq!(
+                [p[0].to_bits(), p[1].to_bits(), p[2].to_bits()],
+                [r[i].to_bits(), g[i].to_bits(), b[i].to_bits()],
+                "{name} pixel {i}"
+            );
+        }
+    }
+}
+
 #[test]
 fn luminance_only_exr_reads_as_grey() {
     use exr::prelude::*;
