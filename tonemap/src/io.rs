@@ -254,8 +254,9 @@ pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
 /// The common OpenEXR layout read block by block: one part of scan lines, every channel
 /// sampled at every pixel, R, G, B (or Y) found as [`read_exr`] finds them. The compressed
 /// blocks are read in file order; each is then decompressed (by the exr crate, every
-/// compression it reads) and converted straight into its rows of the interleaved f32 image,
-/// the blocks in parallel on the caller's thread pool. The exr crate's image reader, which
+/// compression it reads; PIZ by [`crate::piz`]) and converted straight into its rows of the
+/// interleaved f32 image, the blocks in parallel on the caller's thread pool while the next
+/// ones are read. The exr crate's image reader, which
 /// [`read_exr`] uses otherwise, decompresses in parallel too, but on a thread pool it
 /// builds per file (none at all for uncompressed files) and converts each sample through a
 /// per-line callback, which cost more than the decompression here.
@@ -265,9 +266,8 @@ pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
 /// crate's image reader and its messages. Damaged blocks are errors.
 fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
     use exr::block::UncompressedBlock;
-    use exr::block::chunk::Chunk;
+    use exr::block::chunk::{Chunk, CompressedBlock};
     use exr::meta::BlockDescription;
-    use rayon::prelude::*;
     let file = File::open(path).map_err(|e| Error::io("cannot read", path, e))?;
     let reader = exr::block::read(std::io::BufReader::with_capacity(1 << 20, file), false)
         .map_err(|e| exr_error(e, path))?;
@@ -303,59 +303,151 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
         starts.push(line_bytes);
         line_bytes += w * c.sample_type.bytes_per_sample();
     }
-    // The blocks, each in its place; a block missing or given twice leaves the file to the
-    // exr crate.
-    let mut blocks: Vec<Option<Chunk>> = (0..h.div_ceil(per)).map(|_| None).collect();
-    for chunk in reader.all_chunks(false).map_err(|e| exr_error(e, path))? {
-        let chunk = chunk.map_err(|e| exr_error(e, path))?;
-        let at = header
-            .get_block_data_indices(&chunk.compressed_block)
-            .map_err(|e| exr_error(e, path))?
-            .tile_index
-            .y();
-        match blocks.get_mut(at) {
-            Some(slot @ None) if chunk.layer_index == 0 => *slot = Some(chunk),
-            _ => return Ok(None),
-        }
-    }
-    let Some(blocks) = blocks.into_iter().collect::<Option<Vec<Chunk>>>() else {
-        return Ok(None);
-    };
-    let mut data = vec![0.0f32; 3 * w * h];
-    data.par_chunks_mut(3 * w * per)
-        .zip(blocks)
-        .try_for_each(|(rows, chunk)| -> Result<()> {
-            let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)
-                .map_err(|e| exr_error(e, path))?;
-            let lines = rows.len() / (3 * w);
-            if block.data.len() != lines * line_bytes {
-                return Err(Error::invalid(
-                    "OpenEXR",
-                    "a block's data does not match its size",
-                    path,
-                ));
+    // 16-bit words per sample of each channel, for PIZ blocks.
+    let words: Vec<usize> = list
+        .iter()
+        .map(|c| c.sample_type.bytes_per_sample() / 2)
+        .collect();
+    let block = |rows: &mut [f32], chunk: Chunk| -> Result<()> {
+        let lines = rows.len() / (3 * w);
+        let mut planes = [vec![0.0f32; w], vec![0.0f32; w], vec![0.0f32; w]];
+        let interleave = |row: &mut [f32], planes: &[Vec<f32>; 3]| {
+            let [r, g, b] = planes;
+            for (((o, r), g), b) in row.as_chunks_mut::<3>().0.iter_mut().zip(r).zip(g).zip(b) {
+                *o = [*r, *g, *b];
             }
-            let mut planes = [vec![0.0f32; w], vec![0.0f32; w], vec![0.0f32; w]];
-            for (row, line) in rows
-                .chunks_exact_mut(3 * w)
-                .zip(block.data.chunks_exact(line_bytes))
-            {
+        };
+        // PIZ through `piz` (a block stored raw, when compressing did not shrink it,
+        // goes the general way).
+        if let CompressedBlock::ScanLine(b) = &chunk.compressed_block
+            && header.compression == exr::compression::Compression::PIZ
+            && b.compressed_pixels_le.len() != lines * line_bytes
+        {
+            let all = crate::piz::decompress(&b.compressed_pixels_le, &words, w, lines)
+                .map_err(|e| Error::invalid("OpenEXR", e, path))?;
+            let mut first = Vec::with_capacity(words.len());
+            let mut at = 0;
+            for &k in &words {
+                first.push(at);
+                at += k * w * lines;
+            }
+            for (y, row) in rows.chunks_exact_mut(3 * w).enumerate() {
                 for (plane, &c) in planes.iter_mut().zip(&picked) {
-                    let ty = list[c].sample_type;
-                    let src = &line[starts[c]..starts[c] + w * ty.bytes_per_sample()];
-                    samples_to_f32(ty, src, plane);
+                    let k = words[c];
+                    let line = &all[first[c] + y * k * w..first[c] + (y + 1) * k * w];
+                    words_to_f32(list[c].sample_type, line, plane);
                 }
-                let [r, g, b] = &planes;
-                for (((o, r), g), b) in row.as_chunks_mut::<3>().0.iter_mut().zip(r).zip(g).zip(b) {
-                    *o = [*r, *g, *b];
+                interleave(row, &planes);
+            }
+            return Ok(());
+        }
+        let block = UncompressedBlock::decompress_chunk(chunk, &meta, false)
+            .map_err(|e| exr_error(e, path))?;
+        if block.data.len() != lines * line_bytes {
+            return Err(Error::invalid(
+                "OpenEXR",
+                "a block's data does not match its size",
+                path,
+            ));
+        }
+        for (row, line) in rows
+            .chunks_exact_mut(3 * w)
+            .zip(block.data.chunks_exact(line_bytes))
+        {
+            for (plane, &c) in planes.iter_mut().zip(&picked) {
+                let ty = list[c].sample_type;
+                let src = &line[starts[c]..starts[c] + w * ty.bytes_per_sample()];
+                samples_to_f32(ty, src, plane);
+            }
+            interleave(row, &planes);
+        }
+        Ok(())
+    };
+    // Each block is decoded into its rows as soon as it is read: the reading overlaps the
+    // decoding. A block missing or given twice leaves the file to the exr crate.
+    let mut data = vec![0.0f32; 3 * w * h];
+    let mut slots: Vec<Option<&mut [f32]>> = data.chunks_mut(3 * w * per).map(Some).collect();
+    // The error of the first chunk in file order that failed (whichever thread saw it
+    // first), so that a damaged file always gives the same message.
+    let failed: std::sync::Mutex<Option<(usize, Error)>> = std::sync::Mutex::new(None);
+    let fail = |i: usize, e: Error| {
+        let mut f = failed
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if f.as_ref().is_none_or(|(j, _)| i < *j) {
+            *f = Some((i, e));
+        }
+    };
+    let mut irregular = false;
+    let chunks = reader.all_chunks(false).map_err(|e| exr_error(e, path))?;
+    rayon::scope(|scope| {
+        for (i, chunk) in chunks.enumerate() {
+            let chunk = match chunk {
+                Ok(c) => c,
+                Err(e) => return fail(i, exr_error(e, path)),
+            };
+            let at = match header.get_block_data_indices(&chunk.compressed_block) {
+                Ok(t) => t.tile_index.y(),
+                Err(e) => return fail(i, exr_error(e, path)),
+            };
+            let rows = slots.get_mut(at).and_then(Option::take);
+            match rows {
+                Some(rows) if chunk.layer_index == 0 => {
+                    let block = &block;
+                    let fail = &fail;
+                    scope.spawn(move |_| {
+                        if let Err(e) = block(rows, chunk) {
+                            fail(i, e);
+                        }
+                    });
+                }
+                _ => {
+                    irregular = true;
+                    return;
                 }
             }
-            Ok(())
-        })?;
+        }
+    });
+    if let Some((_, e)) = failed
+        .into_inner()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+    {
+        return Err(e);
+    }
+    if irregular || slots.iter().any(Option::is_some) {
+        return Ok(None);
+    }
     Ok(Some(
         Rgb32FImage::from_raw(w as u32, h as u32, data)
             .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))?,
     ))
+}
+
+/// Converts one channel's line of PIZ words to f32, as [`samples_to_f32`]: a half per
+/// word, or a 32-bit sample per two words (low half first).
+fn words_to_f32(ty: exr::meta::attribute::SampleType, src: &[u16], out: &mut [f32]) {
+    use exr::meta::attribute::SampleType;
+    use exr::prelude::f16;
+    use half::slice::HalfFloatSliceExt;
+    let pairs = || {
+        src.as_chunks::<2>()
+            .0
+            .iter()
+            .map(|p| u32::from(p[0]) | u32::from(p[1]) << 16)
+    };
+    match ty {
+        SampleType::F16 => bytemuck::cast_slice::<u16, f16>(src).convert_to_f32_slice(out),
+        SampleType::F32 => {
+            for (o, v) in out.iter_mut().zip(pairs()) {
+                *o = f32::from_bits(v);
+            }
+        }
+        SampleType::U32 => {
+            for (o, v) in out.iter_mut().zip(pairs()) {
+                *o = v as f32;
+            }
+        }
+    }
 }
 
 /// Converts one channel's native-endian samples of one line to f32 (`values_as_f32`'s

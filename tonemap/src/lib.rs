@@ -58,6 +58,7 @@ pub mod fastmath;
 pub mod inverse;
 pub mod io;
 pub mod ops;
+mod piz;
 pub mod plane;
 pub mod poisson;
 pub mod pseudocolour;
