@@ -26,13 +26,14 @@ const SHORTEST_LONG_RUN: usize = 2 + (LONG_ZERO_RUN - SHORT_ZERO_RUN) as usize;
 /// Decodes one PIZ block of `lines` lines of `width` pixels whose channels take
 /// `words[c]` 16-bit words per sample (1 for half, 2 for float and uint). Returns the
 /// channels' planes one after another, each `lines * width * words[c]` words, line by line
-/// (the two words of a 32-bit sample are its low and high halves).
+/// (the two words of a 32-bit sample are its low and high halves), as indices into the
+/// values that occur: the caller looks them up (in one step with the conversion to f32).
 pub(crate) fn decompress(
     data: &[u8],
     words: &[usize],
     width: usize,
     lines: usize,
-) -> Result<Vec<u16>, PizError> {
+) -> Result<Decoded, PizError> {
     let total: usize = words.iter().map(|&k| k * width * lines).sum();
     let mut rest = data;
     let min_nz = usize::from(u16::from_le_bytes(take::<2>(&mut rest)?));
@@ -74,10 +75,19 @@ pub(crate) fn decompress(
         }
         at += n;
     }
-    for v in &mut planes {
-        *v = lut[usize::from(*v)];
-    }
-    Ok(planes)
+    Ok(Decoded {
+        planes,
+        values: lut,
+        count,
+    })
+}
+
+/// A decoded block: the planes hold indices into `values`, the 16-bit values that occur
+/// (`count` of them, zeros after).
+pub(crate) struct Decoded {
+    pub(crate) planes: Vec<u16>,
+    pub(crate) values: Vec<u16>,
+    pub(crate) count: usize,
 }
 
 fn take<const N: usize>(rest: &mut &[u8]) -> Result<[u8; N], PizError> {
@@ -272,7 +282,47 @@ impl Table {
         // `w` holds the bits from `base` on; `used` of them are decoded.
         let (mut base, mut used) = (0usize, 0u32);
         let mut w = window(0);
+        // Far from the ends of the data and of the block, codes of up to 24 bits and pairs
+        // need no checks (the inner loop); the rest takes the checked step after it.
+        let safe_bits = nbits.saturating_sub(64);
+        let safe_values = n.saturating_sub(2);
         while base + (used as usize) < nbits {
+            while base + (used as usize) < safe_bits && k < safe_values {
+                if used > 32 {
+                    base += used as usize;
+                    used = 0;
+                    w = window(base);
+                }
+                let cur = w << used;
+                let top = (cur >> (64 - FIRST_BITS)) as usize;
+                let pair = self.pairs[top];
+                if pair != 0 {
+                    out[k] = pair as u16;
+                    out[k + 1] = (pair >> 16) as u16;
+                    k += 2;
+                    used += (pair >> 32) as u32;
+                    continue;
+                }
+                let e = self.first[top];
+                let e = if e & 0x80 == 0 {
+                    e
+                } else {
+                    let bits = e & 0x7f;
+                    let at = (e >> 8) as usize + ((cur << FIRST_BITS) >> (64 - bits)) as usize;
+                    self.second[at]
+                };
+                let symbol = e >> 8;
+                let len = e & 0xff;
+                if len == 0 || len == SCAN || symbol == rlc {
+                    break;
+                }
+                used += len;
+                out[k] = symbol as u16;
+                k += 1;
+            }
+            if base + (used as usize) >= nbits {
+                break;
+            }
             if used > 32 {
                 base += used as usize;
                 used = 0;
