@@ -83,7 +83,7 @@ fn png_after(display: &Rgb32FImage) -> Vec<u8> {
     out
 }
 
-fn write_piz_half(path: &std::path::Path, img: &Rgb32FImage) {
+fn write_half(path: &std::path::Path, img: &Rgb32FImage, compression: exr::prelude::Compression) {
     use exr::prelude::*;
     let (w, h) = (img.width() as usize, img.height() as usize);
     let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
@@ -98,12 +98,27 @@ fn write_piz_half(path: &std::path::Path, img: &Rgb32FImage) {
         (w, h),
         LayerAttributes::default(),
         Encoding {
-            compression: Compression::PIZ,
+            compression,
             ..Encoding::default()
         },
         channels,
     );
     Image::from_layer(layer).write().to_file(path).expect("exr");
+}
+
+/// The exr crate's own image reader (parallel), which `read_hdr_image` used before it read
+/// scan-line files block by block.
+fn read_exr_crate(path: &std::path::Path) -> usize {
+    use exr::prelude::*;
+    let img = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .expect("exr");
+    img.layer_data.channel_data.list.len()
 }
 
 fn read_exr_serial(path: &std::path::Path) -> usize {
@@ -183,12 +198,23 @@ fn bench(c: &mut Criterion) {
     let dir = tempfile::tempdir().expect("tempdir");
     let exr_path = dir.path().join("scene.exr");
     let hdr_path = dir.path().join("scene.hdr");
-    write_piz_half(&exr_path, &hdr);
+    write_half(&exr_path, &hdr, exr::prelude::Compression::PIZ);
+    let zip_path = dir.path().join("scene_zip.exr");
+    write_half(&zip_path, &hdr, exr::prelude::Compression::ZIP16);
     io::write_radiance_hdr(&hdr_path, &hdr).expect("hdr");
     let mut g = c.benchmark_group("read_8mp");
     g.sample_size(10);
     g.bench_function("exr_piz_half", |b| {
         b.iter(|| io::read_hdr_image(&exr_path).expect("exr"));
+    });
+    g.bench_function("exr_piz_half_exr_crate", |b| {
+        b.iter(|| read_exr_crate(&exr_path));
+    });
+    g.bench_function("exr_zip_half", |b| {
+        b.iter(|| io::read_hdr_image(&zip_path).expect("exr"));
+    });
+    g.bench_function("exr_zip_half_exr_crate", |b| {
+        b.iter(|| read_exr_crate(&zip_path));
     });
     g.bench_function("exr_piz_half_decode_one_thread", |b| {
         b.iter(|| read_exr_serial(&exr_path));
@@ -231,6 +257,7 @@ fn bench(c: &mut Criterion) {
         out
     };
     g.bench_function("exr_read_drago_png", |b| b.iter(|| whole(&exr_path)));
+    g.bench_function("exr_zip_read_drago_png", |b| b.iter(|| whole(&zip_path)));
     g.bench_function("rgbe_read_drago_png", |b| b.iter(|| whole(&hdr_path)));
     g.finish();
 }

@@ -3,13 +3,16 @@
 written) against OpenCV's operator alone, in process, on an image already read.
 
 Needs the `blueshift` binary (cargo build --release -p blueshift-cli) and PyPI
-`opencv-python-headless` and `numpy`. Writes a 3840x2160 Radiance file with `cv2.imwrite`
-(`exp(6 sin(x/400) cos(y/300))` per pixel with small per-channel modulations), then runs
-both interleaved, `--rounds` times each, 2 threads for both, and prints the medians and
-their ratio. Usage:
+`opencv-python-headless` and `numpy` (and PyPI `OpenEXR` for the EXR formats). Writes a
+3840x2160 image (`exp(6 sin(x/400) cos(y/300))` per pixel with small per-channel
+modulations): a Radiance file with `cv2.imwrite` (`--formats hdr`, the default), or a
+half-float OpenEXR file with OpenEXR's own writer in PIZ, ZIP (16 lines), ZIPS (1 line) or
+no compression (`exr-piz`, `exr-zip`, `exr-zips`, `exr-none`). Then runs both interleaved,
+`--rounds` times each, 2 threads for both, and prints the medians and their ratio. OpenCV
+runs on the same pixels (as float32, BGR). Usage:
 
     python3 tonemap/peers/process_vs_opencv.py [--blueshift target/release/blueshift]
-                                               [--rounds 9] [--ops drago,reinhard]
+        [--rounds 9] [--ops drago,reinhard] [--formats hdr,exr-piz,exr-zip,exr-zips,exr-none]
 """
 import argparse, os, statistics, subprocess, tempfile, time
 
@@ -22,6 +25,7 @@ def main():
     ap.add_argument("--blueshift", default="target/release/blueshift")
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--ops", default="drago,reinhard")
+    ap.add_argument("--formats", default="hdr")
     a = ap.parse_args()
     cv2.setNumThreads(2)
     with tempfile.TemporaryDirectory() as d:
@@ -39,27 +43,48 @@ def main():
             axis=-1,
         ).astype(np.float32)
         cv2.imwrite(path, img)
+        paths = {"hdr": path}
+        for fmt in a.formats.split(","):
+            if fmt.startswith("exr-"):
+                import OpenEXR
+
+                comp = {"piz": "PIZ", "zip": "ZIP", "zips": "ZIPS", "none": "NO"}[fmt[4:]]
+                p = os.path.join(d, f"big_{fmt}.exr")
+                header = {
+                    "compression": getattr(OpenEXR, comp + "_COMPRESSION"),
+                    "type": OpenEXR.scanlineimage,
+                }
+                half = {n: img[:, :, i].astype(np.float16) for i, n in enumerate("RGB")}
+                with OpenEXR.File(header, half) as f:
+                    f.write(p)
+                paths[fmt] = p
+        # OpenCV's image: what cv2.imread gives for the Radiance file (BGR, float32), or the
+        # half-float values of the EXR.
         im = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+        im_half = img.astype(np.float16).astype(np.float32)[:, :, ::-1].copy()
         peers = {
             "drago": cv2.createTonemapDrago(1.0, 1.0, 0.85),
             "reinhard": cv2.createTonemapReinhard(1.0, 0.0, 0.0, 0.0),
         }
         env = dict(os.environ, RAYON_NUM_THREADS="2")
-        for op in a.ops.split(","):
-            ours, theirs = [], []
-            for _ in range(a.rounds):
-                t = time.perf_counter()
-                subprocess.run(
-                    [a.blueshift, "tonemap", path, "--op", op, "--out", os.path.join(d, "o.png")],
-                    check=True, stdout=subprocess.DEVNULL, env=env,
-                )
-                ours.append(time.perf_counter() - t)
-                t = time.perf_counter()
-                peers[op].process(im)
-                theirs.append(time.perf_counter() - t)
-            m1, m2 = statistics.median(ours), statistics.median(theirs)
-            print(f"{op}: blueshift whole process {m1:.3f} s, OpenCV operator alone {m2:.3f} s, "
-                  f"ratio {m1 / m2:.2f} (medians of {a.rounds}, interleaved)")
+        for fmt in a.formats.split(","):
+            src, pixels = paths[fmt], (im if fmt == "hdr" else im_half)
+            for op in a.ops.split(","):
+                ours, theirs = [], []
+                for _ in range(a.rounds):
+                    t = time.perf_counter()
+                    subprocess.run(
+                        [a.blueshift, "tonemap", src, "--op", op, "--out",
+                         os.path.join(d, "o.png")],
+                        check=True, stdout=subprocess.DEVNULL, env=env,
+                    )
+                    ours.append(time.perf_counter() - t)
+                    t = time.perf_counter()
+                    peers[op].process(pixels)
+                    theirs.append(time.perf_counter() - t)
+                m1, m2 = statistics.median(ours), statistics.median(theirs)
+                print(f"{fmt} {op}: blueshift whole process {m1:.3f} s, OpenCV operator alone "
+                      f"{m2:.3f} s, ratio {m1 / m2:.2f} (medians of {a.rounds}, interleaved)")
 
 
 if __name__ == "__main__":

@@ -21,6 +21,8 @@ const BITMAP_BYTES: usize = 1 << 13;
 const SYMBOLS: usize = (1 << 16) + 1;
 const SHORT_ZERO_RUN: u64 = 59;
 const LONG_ZERO_RUN: u64 = 63;
+/// Blocks of at least this many values get the table of pairs of codes.
+const PAIRS_FROM: usize = 1 << 15;
 const SHORTEST_LONG_RUN: usize = 2 + (LONG_ZERO_RUN - SHORT_ZERO_RUN) as usize;
 
 /// Decodes one PIZ block of `lines` lines of `width` pixels whose channels take
@@ -109,7 +111,8 @@ fn decode_huffman(data: &[u8], n: usize) -> Result<Vec<u16>, PizError> {
     }
     // The code lengths, six bits each, with runs of zero lengths; bytes are fetched only
     // as bits are needed, and the codes start at the next byte.
-    let mut lengths = vec![0u8; SYMBOLS];
+    let mut coded: Vec<(u32, u8)> = Vec::new();
+    let mut per_length = [0u64; 59];
     let (mut bits, mut have, mut pos) = (0u64, 0u32, 0usize);
     let mut read = |k: u32| -> Result<u64, PizError> {
         while have < k {
@@ -129,7 +132,10 @@ fn decode_huffman(data: &[u8], n: usize) -> Result<Vec<u16>, PizError> {
         } else if l >= SHORT_ZERO_RUN {
             (l - SHORT_ZERO_RUN) as usize + 2
         } else {
-            lengths[s] = l as u8;
+            if l > 0 {
+                coded.push((s as u32, l as u8));
+                per_length[l as usize] += 1;
+            }
             s += 1;
             continue;
         };
@@ -142,7 +148,7 @@ fn decode_huffman(data: &[u8], n: usize) -> Result<Vec<u16>, PizError> {
     if nbits.div_ceil(8) > codes.len() {
         return Err("PIZ Huffman data truncated");
     }
-    let table = Table::new(&lengths, im, i_max)?;
+    let table = Table::new(&coded, &per_length, i_max as u32, n >= PAIRS_FROM)?;
     table.decode(&codes[..nbits.div_ceil(8)], nbits, i_max as u32, n)
 }
 
@@ -156,7 +162,8 @@ struct Table {
     second: Vec<u32>,
     scan: Vec<(u64, u32, u32)>,
     /// Indexed like `first`: `symbol_1 | symbol_2 << 16 | length << 32` where the 12 bits
-    /// hold two whole codes (neither the run code) of `length` bits together, else 0.
+    /// hold two whole codes (neither the run code) of `length` bits together, else 0; empty
+    /// for small blocks, where building it costs more than it saves.
     pairs: Vec<u64>,
 }
 
@@ -165,14 +172,16 @@ const TWO_LEVEL_BITS: u32 = 24;
 const SCAN: u32 = 0xff;
 
 impl Table {
-    /// The canonical codes of `lengths` (OpenEXR's assignment: the codes of each length
-    /// are consecutive in symbol order, longer lengths take the lower numbers).
-    fn new(lengths: &[u8], im: usize, i_max: usize) -> Result<Self, PizError> {
-        let used = &lengths[im..=i_max];
-        let mut per_length = [0u64; 59];
-        for &l in used {
-            per_length[usize::from(l)] += 1;
-        }
+    /// The canonical codes of the symbols `coded` of lengths (OpenEXR's assignment: the
+    /// codes of each length are consecutive in symbol order, longer lengths take the lower
+    /// numbers), `per_length` of each length; `rlc` the run code; `pairs`: whether to build
+    /// the table of pairs (worth it for large blocks only).
+    fn new(
+        coded: &[(u32, u8)],
+        per_length: &[u64; 59],
+        rlc: u32,
+        pairs: bool,
+    ) -> Result<Self, PizError> {
         let mut next = [0u64; 59];
         let mut code = 0u64;
         for l in (1..59).rev() {
@@ -180,12 +189,9 @@ impl Table {
             code = (code + per_length[l]) >> 1;
         }
         // Each symbol's code, and for each first-level prefix the longest code under it.
-        let mut codes = Vec::with_capacity(used.len());
-        let mut longest = vec![0u8; 1 << FIRST_BITS];
-        for (s, &l) in used.iter().enumerate() {
-            if l == 0 {
-                continue;
-            }
+        let mut codes = Vec::with_capacity(coded.len());
+        let mut longest = [0u8; 1 << FIRST_BITS];
+        for &(s, l) in coded {
             let l32 = u32::from(l);
             let code = next[usize::from(l)];
             next[usize::from(l)] += 1;
@@ -196,7 +202,7 @@ impl Table {
                 let prefix = (code >> (l32 - FIRST_BITS)) as usize;
                 longest[prefix] = longest[prefix].max(l);
             }
-            codes.push((code, l32, (im + s) as u32));
+            codes.push((code, l32, s));
         }
         let mut first = vec![0u32; 1 << FIRST_BITS];
         let mut second = Vec::new();
@@ -232,7 +238,14 @@ impl Table {
                 scan.push((code, l, s));
             }
         }
-        let rlc = i_max as u32;
+        if !pairs {
+            return Ok(Table {
+                first,
+                second,
+                scan,
+                pairs: Vec::new(),
+            });
+        }
         let pairs = (0..1usize << FIRST_BITS)
             .map(|i| {
                 let a = first[i];
@@ -295,7 +308,7 @@ impl Table {
                 }
                 let cur = w << used;
                 let top = (cur >> (64 - FIRST_BITS)) as usize;
-                let pair = self.pairs[top];
+                let pair = self.pairs.get(top).copied().unwrap_or(0);
                 if pair != 0 {
                     out[k] = pair as u16;
                     out[k + 1] = (pair >> 16) as u16;
@@ -332,7 +345,7 @@ impl Table {
             let cur = w << used;
             let top = (cur >> (64 - FIRST_BITS)) as usize;
             // Two short codes at once, where both lie in the data and the block.
-            let pair = self.pairs[top];
+            let pair = self.pairs.get(top).copied().unwrap_or(0);
             let len = (pair >> 32) as u32;
             if len != 0 && base + (used + len) as usize <= nbits && k + 2 <= n {
                 out[k] = pair as u16;
