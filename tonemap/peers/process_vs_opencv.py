@@ -76,7 +76,7 @@ def main():
                     subprocess.run(
                         [a.blueshift, "tonemap", src, "--op", op, "--out",
                          os.path.join(d, "o.png")],
-                        check=True, stdout=subprocess.DEVNULL, env=env,
+                        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
                     )
                     ours.append(time.perf_counter() - t)
                     t = time.perf_counter()
