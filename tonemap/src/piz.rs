@@ -21,7 +21,7 @@ const BITMAP_BYTES: usize = 1 << 13;
 const SYMBOLS: usize = (1 << 16) + 1;
 const SHORT_ZERO_RUN: u64 = 59;
 const LONG_ZERO_RUN: u64 = 63;
-/// Blocks of at least this many values get the table of pairs of codes.
+/// Blocks of at least this many values get pairs of codes in the `fast` table.
 const PAIRS_FROM: usize = 1 << 15;
 const SHORTEST_LONG_RUN: usize = 2 + (LONG_ZERO_RUN - SHORT_ZERO_RUN) as usize;
 
@@ -161,21 +161,24 @@ struct Table {
     first: Vec<u32>,
     second: Vec<u32>,
     scan: Vec<(u64, u32, u32)>,
-    /// Indexed like `first`: `symbol_1 | symbol_2 << 16 | length << 32` where the 12 bits
-    /// hold two whole codes (neither the run code) of `length` bits together, else 0; empty
-    /// for small blocks, where building it costs more than it saves.
-    pairs: Vec<u64>,
+    /// Indexed like `first`, for the unchecked loop: `symbol_1 | symbol_2 << 16 | length
+    /// << 32 | count << 40`, one code (count 1) or, in large blocks, two whole codes (count
+    /// 2, neither the run code) in the 12 bits; [`SLOW`] where the first code is longer, the
+    /// run code or no code.
+    fast: Vec<u64>,
 }
 
 const FIRST_BITS: u32 = 12;
 const TWO_LEVEL_BITS: u32 = 24;
 const SCAN: u32 = 0xff;
+/// A `fast` entry that the unchecked loop leaves to the checked step.
+const SLOW: u64 = 1 << 48;
 
 impl Table {
     /// The canonical codes of the symbols `coded` of lengths (OpenEXR's assignment: the
     /// codes of each length are consecutive in symbol order, longer lengths take the lower
-    /// numbers), `per_length` of each length; `rlc` the run code; `pairs`: whether to build
-    /// the table of pairs (worth it for large blocks only).
+    /// numbers), `per_length` of each length; `rlc` the run code; `pairs`: whether `fast`
+    /// holds pairs of codes (worth building for large blocks only).
     fn new(
         coded: &[(u32, u8)],
         per_length: &[u64; 59],
@@ -238,34 +241,31 @@ impl Table {
                 scan.push((code, l, s));
             }
         }
-        if !pairs {
-            return Ok(Table {
-                first,
-                second,
-                scan,
-                pairs: Vec::new(),
-            });
-        }
-        let pairs = (0..1usize << FIRST_BITS)
+        let short = |e: u32| e & 0x80 == 0 && e & 0xff != 0 && e >> 8 != rlc;
+        let fast = (0..1usize << FIRST_BITS)
             .map(|i| {
                 let a = first[i];
+                if !short(a) {
+                    return SLOW;
+                }
                 let la = a & 0xff;
-                if a & 0x80 != 0 || la == 0 || la >= FIRST_BITS || a >> 8 == rlc {
-                    return 0;
+                let one = u64::from(a >> 8) | u64::from(la) << 32 | 1 << 40;
+                if !pairs || la >= FIRST_BITS {
+                    return one;
                 }
                 let b = first[(i << la) & ((1 << FIRST_BITS) - 1)];
                 let lb = b & 0xff;
-                if b & 0x80 != 0 || lb == 0 || la + lb > FIRST_BITS || b >> 8 == rlc {
-                    return 0;
+                if !short(b) || la + lb > FIRST_BITS {
+                    return one;
                 }
-                u64::from(a >> 8) | u64::from(b >> 8) << 16 | u64::from(la + lb) << 32
+                u64::from(a >> 8) | u64::from(b >> 8) << 16 | u64::from(la + lb) << 32 | 2 << 40
             })
             .collect();
         Ok(Table {
             first,
             second,
             scan,
-            pairs,
+            fast,
         })
     }
 
@@ -295,43 +295,46 @@ impl Table {
         // `w` holds the bits from `base` on; `used` of them are decoded.
         let (mut base, mut used) = (0usize, 0u32);
         let mut w = window(0);
-        // Far from the ends of the data and of the block, codes of up to 24 bits and pairs
-        // need no checks (the inner loop); the rest takes the checked step after it.
+        // Far from the ends of the data and of the block, short codes need no checks (the
+        // inner loop); the rest takes the checked step after it.
         let safe_bits = nbits.saturating_sub(64);
-        let safe_values = n.saturating_sub(2);
         while base + (used as usize) < nbits {
-            while base + (used as usize) < safe_bits && k < safe_values {
-                if used > 32 {
-                    base += used as usize;
-                    used = 0;
-                    w = window(base);
-                }
-                let cur = w << used;
-                let top = (cur >> (64 - FIRST_BITS)) as usize;
-                let pair = self.pairs.get(top).copied().unwrap_or(0);
-                if pair != 0 {
-                    out[k] = pair as u16;
-                    out[k + 1] = (pair >> 16) as u16;
-                    k += 2;
-                    used += (pair >> 32) as u32;
-                    continue;
-                }
-                let e = self.first[top];
-                let e = if e & 0x80 == 0 {
-                    e
-                } else {
-                    let bits = e & 0x7f;
-                    let at = (e >> 8) as usize + ((cur << FIRST_BITS) >> (64 - bits)) as usize;
-                    self.second[at]
+            // Away from the ends: a bit buffer refilled without branches (its bits past the
+            // valid count are the next byte's, so OR-ing the reload over them is exact),
+            // then four table lookups, each one or two codes of at most 12 bits together.
+            let pos = base + used as usize;
+            if pos < safe_bits && k + 8 <= n {
+                let load = |p: usize| -> u64 {
+                    buf.get(p..p + 8)
+                        .and_then(|b| b.try_into().ok())
+                        .map_or(0, u64::from_be_bytes)
                 };
-                let symbol = e >> 8;
-                let len = e & 0xff;
-                if len == 0 || len == SCAN || symbol == rlc {
-                    break;
+                // `have` bits of `bits` are valid (at most 63, so the reload's shift is in
+                // range); the next byte to load is `p`; the bit position is `8 p - have`.
+                let mut p = pos >> 3;
+                let mut bits = load(p) << (pos & 7);
+                p += 7;
+                let mut have = 56 - (pos & 7) as u32;
+                'fast: while p * 8 - (have as usize) < safe_bits && k + 8 <= n {
+                    bits |= load(p) >> have;
+                    p += ((63 - have) >> 3) as usize;
+                    have |= 56;
+                    for _ in 0..4 {
+                        let e = self.fast[(bits >> (64 - FIRST_BITS)) as usize];
+                        if e >> 48 != 0 {
+                            break 'fast;
+                        }
+                        out[k] = e as u16;
+                        out[k + 1] = (e >> 16) as u16;
+                        k += ((e >> 40) & 3) as usize;
+                        let len = ((e >> 32) & 0xff) as u32;
+                        bits <<= len;
+                        have -= len;
+                    }
                 }
-                used += len;
-                out[k] = symbol as u16;
-                k += 1;
+                base = p * 8 - have as usize;
+                used = 0;
+                w = window(base);
             }
             if base + (used as usize) >= nbits {
                 break;
@@ -344,16 +347,6 @@ impl Table {
             // At least 25 bits of the data's: a whole code of up to 24 bits.
             let cur = w << used;
             let top = (cur >> (64 - FIRST_BITS)) as usize;
-            // Two short codes at once, where both lie in the data and the block.
-            let pair = self.pairs.get(top).copied().unwrap_or(0);
-            let len = (pair >> 32) as u32;
-            if len != 0 && base + (used + len) as usize <= nbits && k + 2 <= n {
-                out[k] = pair as u16;
-                out[k + 1] = (pair >> 16) as u16;
-                k += 2;
-                used += len;
-                continue;
-            }
             let e = self.first[top];
             let e = if e & 0x80 == 0 {
                 e
