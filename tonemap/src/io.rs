@@ -1562,6 +1562,24 @@ mod tests {
         }
     }
 
+    /// `bytes` with one to four bits flipped in their last three quarters (where the pixel
+    /// data lies), drawn from the xorshift state `state`.
+    fn damaged(bytes: &[u8], state: &mut u64) -> Vec<u8> {
+        let mut next = || {
+            *state ^= *state << 13;
+            *state ^= *state >> 7;
+            *state ^= *state << 17;
+            *state
+        };
+        let mut out = bytes.to_vec();
+        let from = bytes.len() / 4;
+        for _ in 0..1 + next() % 4 {
+            let at = from + (next() as usize) % (bytes.len() - from);
+            out[at] ^= 1 << (next() % 8);
+        }
+        out
+    }
+
     /// PIZ blocks with bytes changed at random (fixed seed): reading never panics, refuses
     /// exactly the damaged files the exr crate's reader refuses, and reads the others to the
     /// same values.
@@ -1599,23 +1617,10 @@ mod tests {
         Image::from_layer(layer).write().to_file(&path).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         assert!(bytes.len() < w * h * 6 / 2, "PIZ compressed the image");
-        // The pixel data follows the header and the offset table: damage the last 3/4.
-        let from = bytes.len() / 4;
         let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
         let (mut failed, mut agreed, mut stricter) = (0, 0, 0);
         for _ in 0..300 {
-            let mut damaged = bytes.clone();
-            for _ in 0..1 + next() % 4 {
-                let at = from + (next() as usize) % (bytes.len() - from);
-                damaged[at] ^= 1 << (next() % 8);
-            }
-            std::fs::write(&path, &damaged).unwrap();
+            std::fs::write(&path, damaged(&bytes, &mut state)).unwrap();
             let ours = read_hdr_image(&path);
             let theirs = read_all_flat_layers_from_file(&path);
             match (ours, theirs) {
@@ -1649,12 +1654,6 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("t.exr");
         let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
         let compressions = [
             Compression::RLE,
             Compression::ZIP1,
@@ -1676,14 +1675,8 @@ mod tests {
                     };
                     exr_file(&path, (61, 70), &["R", "G", "B"], ty, encoding, (0, 0));
                     let bytes = std::fs::read(&path).unwrap();
-                    let from = bytes.len() / 4;
                     for _ in 0..40 {
-                        let mut damaged = bytes.clone();
-                        for _ in 0..1 + next() % 4 {
-                            let at = from + (next() as usize) % (bytes.len() - from);
-                            damaged[at] ^= 1 << (next() % 8);
-                        }
-                        std::fs::write(&path, &damaged).unwrap();
+                        std::fs::write(&path, damaged(&bytes, &mut state)).unwrap();
                         let read = std::panic::catch_unwind(|| read_hdr_image(&path).is_err());
                         let what = format!("{compression:?} {blocks:?} {ty:?}");
                         errors += usize::from(read.expect(&what));
