@@ -711,7 +711,10 @@ pub fn render_cube_tiles(
 /// of the k-d split into the channels, and the partial cubes add (radix-k over the
 /// decomposition's factors, the channels of a pixel composited together). Emission-only
 /// scenes: equal to the single-process cube up to the rounding of the sums (the f64 channel
-/// values are summed in another grouping before the cube's rounding to f32). Absorbing
+/// values are summed in another grouping before the cube's rounding to f32); with line
+/// broadening, Gaussians are merged along a ray only within each piece, so the cubes
+/// differ within the merge's error (0.25 % of a merged Gaussian's peak, see the doppler
+/// crate's cubes). Absorbing
 /// scenes compose exactly as [`render_doppler_data`] does: each rank's piece gives its
 /// optical depth per pixel, an exclusive scan in visibility order gives the depth in front
 /// of each piece, and each piece's spectrum (its own emission and absorption, the

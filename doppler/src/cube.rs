@@ -499,7 +499,7 @@ const KINK_MIN_CHANNELS: f64 = 24.0;
 
 /// The largest estimated error, as a fraction of the peak, of replacing a run of a line's
 /// Gaussians by one Gaussian of the same area, mean and variance ([`GaussRun`]).
-const MERGE_ERROR: f64 = 2e-3;
+const MERGE_ERROR: f64 = 1.2e-3;
 
 /// Consecutive Gaussians of one line along a ray (a segment's sub-Gaussians and those of the
 /// next segments), replaced by one Gaussian of the same area, mean and variance while the
@@ -512,8 +512,12 @@ const MERGE_ERROR: f64 = 2e-3;
 /// the centres stay within two of the narrowest sigma of each other and the sigmas within a
 /// factor 1.5, where the estimate holds. Area and first moment are kept exactly, so moment
 /// maps 0 and 1 keep their values; the sum's shape errs by at most 0.25 % of its peak
-/// (`merged_runs_stay_within_the_stated_error` checks the true sums), below the 0.87 % of
-/// the piecewise-linear Gaussian itself.
+/// (`merged_runs_stay_within_the_stated_error` checks the true sums, including the
+/// estimate's worst case, a weak narrow Gaussian beside a strong wide one, where the true
+/// error is about twice the estimate: hence the limit of 0.12 %), below the 0.87 % of the
+/// piecewise-linear Gaussian itself. With broadening, a cube rendered in boxes (data
+/// parallel) merges only within each box, so it differs from the whole cube within this
+/// bound.
 #[derive(Clone, Copy, Debug)]
 struct GaussRun {
     /// The first Gaussian's centre (nm): the moments are taken about it.
@@ -1119,6 +1123,23 @@ mod tests {
             "{runs} runs, worst error {worst:.2e} of the peak; slow drifts: {per_run:.1} per run"
         );
         assert!(worst <= 2.5e-3, "worst error {worst:.3e} of the peak");
+        // The estimate's worst case (found in review): a weak narrow Gaussian beside a strong
+        // wide one at the same centre, where the true error is about twice the estimate.
+        for (area, wide) in [(0.0178, 1.49), (0.03, 1.45), (0.01, 1.3), (0.05, 1.4)] {
+            let mut r = GaussRun::EMPTY;
+            assert!(r.try_add(656.0, 0.1, area));
+            if r.try_add(656.0, 0.1 * wide, 1.0) {
+                let (mc, ms, ma) = r.take();
+                let (mut err, mut peak) = (0.0f64, 0.0f64);
+                for i in 0..=4000 {
+                    let x = mc + ms * (-8.0 + 16.0 * f64::from(i) / 4000.0);
+                    let sum = density(x, 656.0, 0.1, area) + density(x, 656.0, 0.1 * wide, 1.0);
+                    err = err.max((sum - density(x, mc, ms, ma)).abs());
+                    peak = peak.max(sum);
+                }
+                assert!(err / peak <= 2.5e-3, "{area} {wide}: {:.3e}", err / peak);
+            }
+        }
         assert!(
             runs > 500 && per_run >= 4.0,
             "{runs} runs; {per_run} per slow run"

@@ -323,7 +323,8 @@ pub fn image_from_rows(settings: &DopplerSettings, tiles: &[ImageRows]) -> Resul
 /// Image rows `rows` (top row 0) of [`crate::render_cube`]'s cube, each `width x channels`
 /// values (x, then channel; f64, before the cube's rounding to f32), from the segments
 /// inside `clip` (every segment for `None`). The channels of boxes that tile space add:
-/// for an emission-only scene directly; for an absorbing one when `front` gives each
+/// for an emission-only scene directly (with line broadening, within the error of merging
+/// Gaussians along a ray, done here within the box only); for an absorbing one when `front` gives each
 /// pixel's optical depth in front of the box ([`cube_optical_depth_part`] of the boxes in
 /// front, summed in visibility order), by which the box's spectrum is attenuated before
 /// it is binned.

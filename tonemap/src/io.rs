@@ -320,7 +320,10 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
     // crate.
     let mut data = vec![0.0f32; 3 * w * h];
     let mut slots: Vec<Option<&mut [f32]>> = data.chunks_mut(3 * w * band).map(Some).collect();
-    let mut pending: Vec<Vec<(usize, Chunk)>> = (0..slots.len()).map(|_| Vec::new()).collect();
+    // Each band's blocks read so far: (chunk number in the file, column, chunk).
+    let mut pending: Vec<Vec<(usize, usize, Chunk)>> =
+        (0..slots.len()).map(|_| Vec::new()).collect();
+    let mut open = slots.len();
     // The error of the first chunk in file order that failed (whichever thread saw it
     // first), so that a damaged file always gives the same message.
     let failed: std::sync::Mutex<Option<(usize, Error)>> = std::sync::Mutex::new(None);
@@ -358,11 +361,16 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
                 irregular = true;
                 return;
             };
-            if chunk.layer_index != 0 || column >= across || blocks.iter().any(|b| b.0 == column) {
+            // A block of a band already decoded is a repeat too.
+            if chunk.layer_index != 0
+                || column >= across
+                || slots[at].is_none()
+                || blocks.iter().any(|b| b.1 == column)
+            {
                 irregular = true;
                 return;
             }
-            blocks.push((column, chunk));
+            blocks.push((i, column, chunk));
             if blocks.len() < across {
                 continue;
             }
@@ -373,7 +381,7 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
             let blocks = std::mem::take(blocks);
             let (layout, meta, fail) = (&layout, &meta, &fail);
             scope.spawn(move |_| {
-                for (column, chunk) in blocks {
+                for (i, column, chunk) in blocks {
                     let x0 = column * tile_w;
                     let cols = tile_w.min(w - x0);
                     if let Err(e) = layout.decode(meta, chunk, rows, x0, cols, path) {
@@ -381,6 +389,12 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
                     }
                 }
             });
+            // Every band taken: the rest of the file holds smaller mip levels only, which
+            // need not be read (nor be intact).
+            open -= 1;
+            if open == 0 {
+                return;
+            }
         }
     });
     if let Some((_, e)) = failed
