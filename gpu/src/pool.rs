@@ -19,12 +19,21 @@
 //! renders on the CPU); the callers' level-of-detail rule picks a coarser level that fits
 //! ([`fits`]).
 //!
+//! Per-brick levels of detail (`--lod brick`, [`BrickedField::per_region`]; HDR VolVis 6.3)
+//! are held level by level: the page table has each level's bricks after the finest's, a
+//! table of the levels' geometries and each region's level, and a sample in a region of
+//! level L looks up level L's brick at the same world point, as the CPU samples it. Only
+//! the bricks of a level that some region at that level samples are read and held, so a
+//! view whose far regions take coarse levels holds their coarse bricks only. Every channel
+//! of a pool shares the regions' levels (the CLI's and the scenes' per-brick rule gives
+//! every field the same); channels that differ are refused ([`per_brick_unsupported`]).
+//!
 //! Constant bricks of a `.bsv` level are found from its stored macrocells without reading
 //! the brick (when the file has no NaN or infinite voxel); all others are read through the
 //! field's brick cache, a batch of bricks at a time in parallel, and uploaded batch by batch,
 //! so host memory stays at one batch whatever the volume's size.
 
-use blueshift_volume::{Field, VectorField};
+use blueshift_volume::{BrickedField, Field, LevelMap, VectorField};
 use rayon::prelude::*;
 
 use crate::context::GpuContext;
@@ -60,7 +69,21 @@ pub enum PoolChannel<'a> {
 }
 
 impl PoolChannel<'_> {
-    fn read_block(&self, lo: [usize; 3], out: &mut [f32]) -> Result<()> {
+    /// The channel's per-region levels of detail ([`BrickedField::per_region`]), if any.
+    fn level_map(&self) -> Option<&LevelMap> {
+        self.bricked().and_then(BrickedField::level_map)
+    }
+
+    /// Reads the pool brick at voxel `lo` of level `level` (counted from the channel's own;
+    /// above 0 only for a channel with per-region levels).
+    fn read_block(&self, level: usize, lo: [usize; 3], out: &mut [f32]) -> Result<()> {
+        if let Some(m) = self.level_map() {
+            let f = m.fields().get(level).ok_or_else(|| {
+                Error::InvalidInput(format!("level {level} of a channel's levels of detail"))
+            })?;
+            f.read_block(lo, POOL_EDGE, out)?;
+            return Ok(());
+        }
         match self {
             PoolChannel::Scalar(f) => f.read_block(lo, POOL_EDGE, out)?,
             PoolChannel::Component(v, a) => v.read_block(*a, lo, POOL_EDGE, out)?,
@@ -69,7 +92,7 @@ impl PoolChannel<'_> {
         Ok(())
     }
 
-    fn bricked(&self) -> Option<&blueshift_volume::BrickedField> {
+    fn bricked(&self) -> Option<&BrickedField> {
         match self {
             PoolChannel::Scalar(f) => f.as_bricked(),
             PoolChannel::Component(VectorField::Components(c), a) => c[*a].as_bricked(),
@@ -77,16 +100,26 @@ impl PoolChannel<'_> {
         }
     }
 
-    /// Each brick's value when it is known to be constant without reading it: every brick
-    /// of a zero channel; for a `.bsv` level without NaN or infinite voxels, bricks whose
-    /// stored macrocells (edge 4, each covering its 5 voxels per axis) all have one value.
-    fn constant_hint(&self, dims: [usize; 3]) -> Option<Vec<Option<f32>>> {
+    /// The bricked level that holds this channel's voxels at `level` (see
+    /// [`PoolChannel::read_block`]).
+    fn bricked_at(&self, level: usize) -> Option<&BrickedField> {
+        match self.level_map() {
+            Some(m) => m.fields().get(level),
+            None => self.bricked().filter(|_| level == 0),
+        }
+    }
+
+    /// Each brick's value, at `level` (a grid of `dims` voxels), when it is known to be
+    /// constant without reading it: every brick of a zero channel; for a `.bsv` level
+    /// without NaN or infinite voxels, bricks whose stored macrocells (edge 4, each
+    /// covering its 5 voxels per axis) all have one value.
+    fn constant_hint(&self, level: usize, dims: [usize; 3]) -> Option<Vec<Option<f32>>> {
         let nb = pool_bricks(dims);
         let n = nb[0] * nb[1] * nb[2];
         if matches!(self, PoolChannel::Zero) {
             return Some(vec![Some(0.0); n]);
         }
-        let b = self.bricked()?;
+        let b = self.bricked_at(level)?;
         if b.source().non_finite() != 0 {
             return None;
         }
@@ -120,19 +153,29 @@ impl PoolChannel<'_> {
     }
 }
 
-/// Fields with a level of detail per brick (`BrickedField::per_region`) are the CPU's: the
-/// pool holds one level per channel.
+/// Whether the GPU can hold `fields` in one pool: per-brick levels of detail
+/// ([`BrickedField::per_region`], `--lod brick`) are held level by level when every field
+/// that has them samples the same level at every point and no field lacks them (the pool's
+/// lookup picks one level per sample for all channels).
 pub(crate) fn per_brick_unsupported<'a>(
     fields: impl Iterator<Item = &'a Field>,
 ) -> std::result::Result<(), crate::Unsupported> {
-    for f in fields {
-        if f.as_bricked().and_then(|b| b.level_map()).is_some() {
-            return Err(crate::Unsupported(
-                "per-brick levels of detail (--lod brick) are CPU-only".into(),
-            ));
-        }
+    let maps: Vec<Option<&LevelMap>> = fields
+        .map(|f| f.as_bricked().and_then(BrickedField::level_map))
+        .collect();
+    let first = maps.iter().flatten().next();
+    let agree = maps.iter().all(|m| match (m, first) {
+        (Some(m), Some(f)) => m.same_regions(f),
+        (None, None) => true,
+        _ => false,
+    });
+    if agree {
+        Ok(())
+    } else {
+        Err(crate::Unsupported(
+            "channels with different per-brick levels of detail (--lod brick) are CPU-only".into(),
+        ))
     }
-    Ok(())
 }
 
 /// Pool bricks per axis for a grid of `dims` voxels.
@@ -146,14 +189,20 @@ pub fn pool_bricks(dims: [usize; 3]) -> [usize; 3] {
 pub struct PoolStats {
     /// Channels in the pool.
     pub channels: usize,
-    /// Bricks per channel (the page table's length per channel).
+    /// Bricks per channel (the page table's length per channel, every level together).
     pub bricks_per_channel: usize,
+    /// Levels of detail the pool holds bricks of (1 unless the channels have per-brick
+    /// levels).
+    pub levels: usize,
     /// Bricks held in slots (all channels).
     pub resident: usize,
     /// Constant bricks, held as a page-table value only.
     pub constant: usize,
     /// Constant bricks found from stored macrocells, never read.
     pub skipped_reads: usize,
+    /// Bricks of a level that no sample reads (per-brick levels of detail: the level's
+    /// bricks outside the regions at that level), never read.
+    pub unsampled: usize,
     /// Bytes of the pool buffer.
     pub pool_bytes: u64,
     /// Bytes the channels would take as dense f32 grids (what the backends uploaded before).
@@ -166,13 +215,23 @@ impl std::fmt::Display for PoolStats {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "GPU brick pool: {} of {} bricks resident ({:.1} MiB; {} constant, {} never read), \
-             {:.1} MiB dense, capacity {:.1} MiB",
+            "GPU brick pool: {} of {} bricks resident ({:.1} MiB; {} constant, {} never read",
             self.resident,
             self.channels * self.bricks_per_channel,
             self.pool_bytes as f64 / 1048576.0,
             self.constant,
             self.skipped_reads,
+        )?;
+        if self.levels > 1 {
+            write!(
+                f,
+                "; {} levels per brick, {} bricks no sample reads",
+                self.levels, self.unsampled
+            )?;
+        }
+        write!(
+            f,
+            "), {:.1} MiB dense, capacity {:.1} MiB",
             self.dense_bytes as f64 / 1048576.0,
             self.capacity_bytes as f64 / 1048576.0,
         )
@@ -184,7 +243,8 @@ impl std::fmt::Display for PoolStats {
 pub struct DevicePool {
     /// The slots (f32, [`SLOT_VALUES`] each).
     pub pool: wgpu::Buffer,
-    /// Per channel, per brick: `(slot, 0)` or `(CONSTANT, value bits)`.
+    /// The header, the level-of-detail table and, per channel, per brick: `(slot, 0)` or
+    /// `(CONSTANT, value bits)` (the layout `shaders/pool.wgsl` states).
     pub pages: wgpu::Buffer,
     /// What it holds.
     pub stats: PoolStats,
@@ -226,6 +286,216 @@ fn capacity_slots(ctx: &GpuContext) -> u64 {
     (ctx.pool_capacity_bytes() / SLOT_BYTES).min(u64::from(u32::MAX) / SLOT_VALUES as u64)
 }
 
+/// Margin, in voxels of a level, around the voxels a region's samples read there (covers
+/// the f32 rounding of the world-to-level transform).
+const NEED_MARGIN: f32 = 1.0;
+
+/// One level of a pool's page table.
+struct LevelPages {
+    dims: [usize; 3],
+    nb: [usize; 3],
+    /// The level's first page within a channel's pages.
+    offset: usize,
+    /// Which pool bricks some sample reads (`None`: all).
+    need: Option<Vec<bool>>,
+}
+
+/// Where each brick of a pool goes, before any brick is read.
+struct Plan {
+    /// The page table: header, level-of-detail table, then the pages.
+    pages: Vec<[u32; 2]>,
+    /// First page.
+    t0: usize,
+    /// Pages per channel (all levels).
+    per: usize,
+    levels: Vec<LevelPages>,
+    /// Bricks to read: (channel, level, brick of the level).
+    todo: Vec<(usize, usize, usize)>,
+    /// Whether every channel's constant bricks are known (no brick is read to count slots).
+    known: bool,
+    /// Constant bricks found from stored macrocells (non-zero channels).
+    skipped: usize,
+    unsampled: usize,
+}
+
+impl Plan {
+    fn new(ctx: &GpuContext, what: &str, channels: &[PoolChannel<'_>]) -> Result<Plan> {
+        let dims = common_dims(what, channels)?;
+        let map = shared_level_map(what, channels)?;
+        let levels = match map {
+            Some(m) => level_pages(m),
+            None => vec![LevelPages {
+                dims,
+                nb: pool_bricks(dims),
+                offset: 0,
+                need: None,
+            }],
+        };
+        let per: usize = levels.iter().map(|l| l.nb.iter().product::<usize>()).sum();
+        let mut head = vec![[u32::try_from(levels.len()).unwrap_or(u32::MAX), 0], [0, 0]];
+        if let Some(m) = map.filter(|_| levels.len() > 1) {
+            let r = m.dims();
+            let bits = |v: f32| v.to_bits();
+            head.push([r[0] as u32, r[1] as u32]);
+            head.push([r[2] as u32, m.edge() as u32]);
+            for (l, f) in levels.iter().zip(m.fields()) {
+                let g = f.geometry();
+                head.push([l.dims[0] as u32, l.dims[1] as u32]);
+                head.push([l.dims[2] as u32, l.offset as u32]);
+                head.push([bits(g.origin.x), bits(g.origin.y)]);
+                head.push([bits(g.origin.z), bits(g.spacing.x)]);
+                head.push([bits(g.spacing.y), bits(g.spacing.z)]);
+            }
+            // The regions' levels, four bytes to a u32, eight to an entry.
+            for chunk in m.levels().chunks(8) {
+                let mut w = [0u32; 2];
+                for (i, &l) in chunk.iter().enumerate() {
+                    w[i / 4] |= u32::from(l) << (8 * (i % 4));
+                }
+                head.push(w);
+            }
+        }
+        let t0 = head.len();
+        let n_pages =
+            (t0 as u64).saturating_add((per as u64).saturating_mul(channels.len().max(1) as u64));
+        ctx.check_storage_size("GPU brick pool page table", n_pages.saturating_mul(8))?;
+        if u32::try_from(per).is_err() {
+            return Err(Error::LimitExceeded {
+                what: format!("{what}: page table"),
+                limit: "u32 page index",
+                requested: per as u64,
+                max: u64::from(u32::MAX),
+            });
+        }
+        head[0][1] = per as u32;
+        head[1][0] = t0 as u32;
+        let mut pages = head;
+        pages.resize(n_pages as usize, [CONSTANT, 0]);
+        let mut plan = Plan {
+            pages,
+            t0,
+            per,
+            levels,
+            todo: Vec::new(),
+            known: true,
+            skipped: 0,
+            unsampled: 0,
+        };
+        for (c, ch) in channels.iter().enumerate() {
+            for l in 0..plan.levels.len() {
+                let lv = &plan.levels[l];
+                let n = lv.nb.iter().product::<usize>();
+                let first = t0 + c * per + lv.offset;
+                let hint = ch.constant_hint(l, lv.dims);
+                plan.known &= hint.is_some();
+                for i in 0..n {
+                    if lv.need.as_ref().is_some_and(|need| !need[i]) {
+                        // No sample reads it: a constant page, never read.
+                        plan.unsampled += usize::from(!matches!(ch, PoolChannel::Zero));
+                        continue;
+                    }
+                    match hint.as_ref().and_then(|h| h[i]) {
+                        Some(v) => {
+                            plan.pages[first + i] = [CONSTANT, v.to_bits()];
+                            plan.skipped += usize::from(!matches!(ch, PoolChannel::Zero));
+                        }
+                        None => plan.todo.push((c, l, i)),
+                    }
+                }
+            }
+        }
+        Ok(plan)
+    }
+
+    fn page(&self, c: usize, l: usize, i: usize) -> usize {
+        self.t0 + c * self.per + self.levels[l].offset + i
+    }
+}
+
+/// The per-region levels of detail every non-zero channel shares, if any (an error when
+/// some have them and others differ or lack them).
+fn shared_level_map<'a>(what: &str, channels: &[PoolChannel<'a>]) -> Result<Option<&'a LevelMap>> {
+    let mut first: Option<&'a LevelMap> = None;
+    let mut plain = false;
+    for c in channels {
+        let m: Option<&'a LevelMap> = match *c {
+            PoolChannel::Scalar(f) => f.as_bricked().and_then(BrickedField::level_map),
+            PoolChannel::Component(VectorField::Components(v), a) => {
+                v[a].as_bricked().and_then(BrickedField::level_map)
+            }
+            PoolChannel::Component(..) => None,
+            PoolChannel::Zero => continue,
+        };
+        match (m, first) {
+            (Some(m), Some(f)) if !m.same_regions(f) => plain = true,
+            (Some(m), None) => first = Some(m),
+            (None, _) => plain = true,
+            _ => {}
+        }
+    }
+    match first {
+        Some(_) if plain => Err(Error::InvalidInput(format!(
+            "{what}: channels with different per-brick levels of detail (--lod brick)"
+        ))),
+        f => Ok(f),
+    }
+}
+
+/// The levels of a per-region map: each level's bricks that some region at that level
+/// samples (with the corners its trilinear samples read, and [`NEED_MARGIN`]).
+fn level_pages(m: &LevelMap) -> Vec<LevelPages> {
+    let fields = m.fields();
+    let base = *fields[0].geometry();
+    let r = m.dims();
+    let edge = m.edge();
+    let mut offset = 0;
+    let mut out: Vec<LevelPages> = fields
+        .iter()
+        .map(|f| {
+            let dims = f.geometry().dims;
+            let nb = pool_bricks(dims);
+            let lp = LevelPages {
+                dims,
+                nb,
+                offset,
+                need: Some(vec![false; nb.iter().product()]),
+            };
+            offset += nb.iter().product::<usize>();
+            lp
+        })
+        .collect();
+    for (ri, &l) in m.levels().iter().enumerate() {
+        let l = usize::from(l);
+        let g = fields[l].geometry();
+        let lv = &mut out[l];
+        let reg = [ri % r[0], (ri / r[0]) % r[1], ri / (r[0] * r[1])];
+        // Base-level index coordinates of the region: [r edge, (r + 1) edge], and beyond
+        // the grid for the boundary regions (samples outside clamp to the same voxels).
+        let lo = glam::Vec3::from(reg.map(|c| (c * edge) as f32));
+        let hi = glam::Vec3::from(reg.map(|c| ((c + 1) * edge) as f32));
+        let (a, b) = (
+            g.world_to_index(base.index_to_world(lo)),
+            g.world_to_index(base.index_to_world(hi)),
+        );
+        let (qa, qb) = (a.min(b), a.max(b));
+        let span: [[usize; 2]; 3] = std::array::from_fn(|x| {
+            let top = (lv.dims[x] - 1) as f32;
+            let v0 = (qa[x] - NEED_MARGIN).clamp(0.0, top).floor() as usize;
+            let v1 = (qb[x] + NEED_MARGIN).clamp(0.0, top).floor() as usize;
+            [v0 / POOL_BRICK, v1 / POOL_BRICK]
+        });
+        let need = lv.need.as_mut().expect("set above");
+        for z in span[2][0]..=span[2][1] {
+            for y in span[1][0]..=span[1][1] {
+                for x in span[0][0]..=span[0][1] {
+                    need[x + lv.nb[0] * (y + lv.nb[1] * z)] = true;
+                }
+            }
+        }
+    }
+    out
+}
+
 /// What is known of a pool before reading any brick ([`estimate`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PoolEstimate {
@@ -249,25 +519,10 @@ impl PoolEstimate {
 /// What a pool of `channels` on `ctx` needs, from what is known without reading bricks
 /// (stored macrocells): see [`PoolEstimate`]. Checks the page table against the device.
 pub fn estimate(ctx: &GpuContext, channels: &[PoolChannel<'_>]) -> Result<PoolEstimate> {
-    let what = "GPU brick pool";
-    let dims = common_dims(what, channels)?;
-    let nb = pool_bricks(dims);
-    let per = (nb[0] * nb[1] * nb[2]) as u64;
-    let pages = per.saturating_mul(channels.len().max(1) as u64);
-    ctx.check_storage_size("GPU brick pool page table", pages.saturating_mul(8))?;
-    let (mut slots, mut exact) = (0u64, true);
-    for c in channels {
-        slots += match c.constant_hint(dims) {
-            Some(h) => h.iter().filter(|v| v.is_none()).count() as u64,
-            None => {
-                exact = false;
-                per
-            }
-        };
-    }
+    let plan = Plan::new(ctx, "GPU brick pool", channels)?;
     Ok(PoolEstimate {
-        slots,
-        exact,
+        slots: plan.todo.len() as u64,
+        exact: plan.known,
         capacity: capacity_slots(ctx),
     })
 }
@@ -291,70 +546,50 @@ fn pool_full(ctx: &GpuContext, slots: u64) -> Error {
 }
 
 /// Cuts `channels` into pool bricks and uploads the non-constant ones with the page table.
-/// Bricks are read through each field (bricked levels through their cache) a batch at a
-/// time. Fails with [`Error::LimitExceeded`] when the non-constant bricks exceed
+/// Channels with per-brick levels of detail (all alike) are held level by level: each
+/// level's bricks that some region at that level samples. Bricks are read through each
+/// field (bricked levels through their cache) a batch at a time. Fails with
+/// [`Error::LimitExceeded`] when the non-constant bricks exceed
 /// [`GpuContext::pool_capacity_bytes`], or with the field's read error.
 pub fn upload(ctx: &GpuContext, label: &str, channels: &[PoolChannel<'_>]) -> Result<DevicePool> {
     let dims = common_dims(label, channels)?;
-    let nb = pool_bricks(dims);
-    let per = nb[0] * nb[1] * nb[2];
-    let n_pages = per * channels.len().max(1);
-    ctx.check_storage_size("GPU brick pool page table", n_pages as u64 * 8)?;
-    let mut pages = vec![[CONSTANT, 0u32]; n_pages];
-    let mut todo: Vec<(usize, usize)> = Vec::new();
-    let mut skipped = 0usize;
-    let mut known = true;
-    for (c, ch) in channels.iter().enumerate() {
-        match ch.constant_hint(dims) {
-            Some(h) => {
-                for (i, v) in h.into_iter().enumerate() {
-                    match v {
-                        Some(v) => {
-                            pages[c * per + i] = [CONSTANT, v.to_bits()];
-                            skipped += usize::from(!matches!(ch, PoolChannel::Zero));
-                        }
-                        None => todo.push((c, i)),
-                    }
-                }
-            }
-            None => {
-                known = false;
-                todo.extend((0..per).map(|i| (c, i)));
-            }
-        }
-    }
+    let mut plan = Plan::new(ctx, label, channels)?;
     let cap = capacity_slots(ctx);
-    if known && todo.len() as u64 > cap {
+    if plan.known && plan.todo.len() as u64 > cap {
         // Known without reading a brick.
-        return Err(pool_full(ctx, todo.len() as u64));
+        return Err(pool_full(ctx, plan.todo.len() as u64));
     }
+    let todo = std::mem::take(&mut plan.todo);
     // The buffer is sized for every brick not known constant (bounded by the capacity):
     // bricks found constant on reading leave slots unused at the end.
     let alloc = (todo.len() as u64).min(cap).max(1);
     let pool = ctx.storage_buffer_zeroed(&format!("{label} pool"), alloc * SLOT_BYTES)?;
     let mut slot = 0u64;
-    let mut constant = per * channels.len() - todo.len();
+    let total = plan.per * channels.len();
+    let mut constant = total - todo.len() - plan.unsampled;
     for (b, batch) in todo.chunks(BATCH).enumerate() {
         let blocks: Vec<Result<Vec<f32>>> = batch
             .par_iter()
-            .map(|&(c, i)| {
+            .map(|&(c, l, i)| {
+                let nb = plan.levels[l].nb;
                 let lo = [
                     (i % nb[0]) * POOL_BRICK,
                     ((i / nb[0]) % nb[1]) * POOL_BRICK,
                     (i / (nb[0] * nb[1])) * POOL_BRICK,
                 ];
                 let mut out = vec![0.0f32; SLOT_VALUES];
-                channels[c].read_block(lo, &mut out)?;
+                channels[c].read_block(l, lo, &mut out)?;
                 Ok(out)
             })
             .collect();
         let first = slot;
         let mut staging: Vec<f32> = Vec::new();
-        for (&(c, i), block) in batch.iter().zip(blocks) {
+        for (&(c, l, i), block) in batch.iter().zip(blocks) {
             let block = block?;
+            let page = plan.page(c, l, i);
             let bits = block[0].to_bits();
             if block.iter().all(|v| v.to_bits() == bits) {
-                pages[c * per + i] = [CONSTANT, bits];
+                plan.pages[page] = [CONSTANT, bits];
                 constant += 1;
                 continue;
             }
@@ -363,7 +598,7 @@ pub fn upload(ctx: &GpuContext, label: &str, channels: &[PoolChannel<'_>]) -> Re
                 let unread = todo.len() - (b * BATCH).min(todo.len());
                 return Err(pool_full(ctx, slot + unread as u64));
             }
-            pages[c * per + i] = [slot as u32, 0];
+            plan.pages[page] = [slot as u32, 0];
             staging.extend_from_slice(&block);
             slot += 1;
         }
@@ -382,13 +617,15 @@ pub fn upload(ctx: &GpuContext, label: &str, channels: &[PoolChannel<'_>]) -> Re
     } else {
         (pool, alloc)
     };
-    let pages_buf = ctx.storage_buffer(&format!("{label} page table"), &pages)?;
+    let pages_buf = ctx.storage_buffer(&format!("{label} page table"), &plan.pages)?;
     let stats = PoolStats {
         channels: channels.len(),
-        bricks_per_channel: per,
+        bricks_per_channel: plan.per,
+        levels: plan.levels.len(),
         resident: slot as usize,
         constant,
-        skipped_reads: skipped,
+        skipped_reads: plan.skipped,
+        unsampled: plan.unsampled,
         pool_bytes: alloc * SLOT_BYTES,
         dense_bytes: channels
             .iter()

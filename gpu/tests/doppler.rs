@@ -888,3 +888,107 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {{
     eprintln!("f64 prelude: worst relative error exp {we:.2e}, expm1 {wm:.2e}");
     assert!(we <= 1e-15 && wm <= 1e-15, "exp {we:e}, expm1 {wm:e}");
 }
+
+/// The 64^3 galaxy's hydrogen, black body and velocity as `.bsv` files (bricks of 8, so 512
+/// regions), in a scene whose every field takes a level per region in stripes.
+fn per_brick_galaxy(dir: &std::path::Path) -> DopplerScene {
+    use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource};
+    use blueshift_volume::{AnyGrid, BrickCache, Field, Grid, VectorField};
+    let vol = synth::galaxy(64, 2).unwrap();
+    let scalar = |name: &str| match &vol.channel(name).unwrap().grid {
+        AnyGrid::F32(g) => g.clone(),
+        _ => panic!("f32"),
+    };
+    let (hi, temp) = (scalar("hi_density"), scalar("temperature_k"));
+    let AnyGrid::Vec3(vel) = &vol.channel("velocity_m_per_s").unwrap().grid else {
+        panic!("vector")
+    };
+    let g = *hi.geometry();
+    let comp = |a: usize| Grid::from_vec(g, vel.data().iter().map(|v| v[a]).collect()).unwrap();
+    let cache = BrickCache::new(1 << 26);
+    let brick = |name: &str, grid: &Grid<f32>| -> Field {
+        let p = dir.join(format!("{name}.bsv"));
+        ooc::convert(
+            &mut GridSource(grid),
+            &p,
+            name,
+            BrickLayout { brick: 8, apron: 1 },
+            &mut |_, _| {},
+        )
+        .unwrap();
+        BrickedFile::open_with_cache(&p, cache.clone())
+            .unwrap()
+            .field(0)
+            .unwrap()
+            .into()
+    };
+    let lines = blueshift_spectrum::Catalogue::HydrogenBalmer.lines();
+    let density = brick("hi", &hi);
+    let mut s = DopplerScene::new(g).unwrap();
+    s.add_species(blueshift_doppler::Species {
+        name: "H".into(),
+        density: density.clone(),
+        emission_lines: lines.clone(),
+        absorption_lines: lines,
+    })
+    .unwrap();
+    s.set_blackbody(density, brick("t", &temp)).unwrap();
+    s.set_velocity(VectorField::Components(Box::new([
+        brick("vx", &comp(0)),
+        brick("vy", &comp(1)),
+        brick("vz", &comp(2)),
+    ])))
+    .unwrap();
+    s.factors.blackbody = 1e-3;
+    s.factors.velocity = 20.0;
+    // Regions of 8 voxels of a grid whose world box is its own: stripes by region index.
+    let (lo, hi) = g.world_bounds();
+    let edge = (hi - lo) / 63.0 * 8.0;
+    s.per_brick(move |a, _| {
+        let r = ((a - lo) / edge + 0.5).floor();
+        (r.x as usize + 2 * r.z as usize) % 3
+    })
+    .unwrap()
+}
+
+#[test]
+fn per_brick_levels_of_detail_match_the_cpu() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let scene = per_brick_galaxy(dir.path());
+    let map = scene.species()[0]
+        .density
+        .as_bricked()
+        .unwrap()
+        .level_map()
+        .unwrap();
+    assert!(
+        map.histogram().iter().all(|&n| n > 0),
+        "{:?}",
+        map.histogram()
+    );
+    let mut st = DopplerSettings::default_for(&scene, 20, 20);
+    assert!(check_supported(&scene, &st).is_ok());
+    each_precision(ctx, || {
+        for absorption in [0.0, 0.5] {
+            let mut s = scene.clone();
+            s.factors.absorption = absorption;
+            let cpu = render_doppler(&s, &st, &|| {}).unwrap();
+            let gpu = gpu_render(ctx, &s, &st).unwrap();
+            compare(
+                &format!("per-brick galaxy, absorption {absorption}"),
+                &cpu,
+                &gpu,
+            );
+        }
+    });
+    // And banded, in f32.
+    st.integrator = "banded:16".parse().unwrap();
+    let cpu = render_doppler(&scene, &st, &|| {}).unwrap();
+    PRECISION.set(DopplerPrecision::F32);
+    compare(
+        "per-brick galaxy, banded",
+        &cpu,
+        &gpu_render(ctx, &scene, &st).unwrap(),
+    );
+}

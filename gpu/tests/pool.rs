@@ -300,3 +300,172 @@ fn lod_auto_uploads_the_finest_level_whose_bricks_fit() {
     let err = t.upload_fitting(s).map(|_| ()).unwrap_err();
     assert!(is_pool_full(&err), "{err}");
 }
+
+/// A level per region in stripes: level `(rx + 2 rz) % 3` for the region whose box starts
+/// at `lo` (regions of `edge` voxels of a unit-spacing grid).
+fn striped(edge: f32) -> impl Fn(Vec3, Vec3) -> usize {
+    move |lo, _| ((lo.x / edge) as usize + 2 * (lo.z / edge) as usize) % 3
+}
+
+#[test]
+fn per_brick_levels_sample_and_render_as_the_cpu_does() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [96, 80, 64];
+    let (a, b) = (smooth(dims), boxed(dims, [20, 10, 5], [70, 60, 50]));
+    let (fa, fb) = (
+        bricked(dir.path(), "a", &a, 1 << 24),
+        bricked(dir.path(), "b", &b, 1 << 24),
+    );
+    assert!(fa.levels() >= 3, "a pyramid of {} levels", fa.levels());
+    let region = |f: &BrickedFile| -> Field {
+        f.field(0)
+            .unwrap()
+            .per_region(striped(16.0))
+            .unwrap()
+            .into()
+    };
+    let (ra, rb) = (region(&fa), region(&fb));
+    let hist = ra.as_bricked().unwrap().level_map().unwrap().histogram();
+    assert!(hist.len() == 3 && hist.iter().all(|&n| n > 0), "{hist:?}");
+    let s = scene_of(vec![ra.clone(), rb.clone()]);
+    assert!(
+        blueshift_gpu::tracking::supports(&s, &RenderSettings::default_for(&s, 8, 8, false))
+            .is_ok()
+    );
+    let t = GpuTracker::new(ctx).unwrap();
+    let gs = t.upload(s.clone()).unwrap();
+    let st = gs.pool_stats();
+    assert_eq!(st.levels, 3, "{st}");
+
+    // Random points (inside, outside, on region seams) and NaN coordinates: each sample is
+    // the level its region takes, as the CPU's per-region sampler computes it.
+    let mut pts = Vec::new();
+    let mut rng = Pcg(0x10d);
+    for _ in 0..6000 {
+        pts.push(Vec3::new(
+            rng.f() * 104.0 - 4.0,
+            rng.f() * 88.0 - 4.0,
+            rng.f() * 72.0 - 4.0,
+        ));
+    }
+    for &x in &[0.0, 15.5, 15.999, 16.0, 16.5, 31.75, 32.0, 47.9, 48.0, 95.0] {
+        for &z in &[0.25, 15.9, 16.0, 32.5, 63.0] {
+            pts.push(Vec3::new(x, 40.5, z));
+        }
+    }
+    pts.push(Vec3::new(f32::NAN, 10.0, 10.0));
+    pts.push(Vec3::new(40.0, f32::NAN, 33.0));
+    let probes: Vec<(usize, Vec3)> = pts.iter().flat_map(|&p| [(0usize, p), (1, p)]).collect();
+    let got = sample_probe(&gs, &probes).unwrap();
+    let mut worst = 0.0f32;
+    let mut coarse = 0;
+    for (&(c, p), g) in probes.iter().zip(&got) {
+        let f = [&ra, &rb][c];
+        let want = f.sample_scalar_index(p);
+        // The level's own sample, from the level loaded whole (independent of the
+        // per-region sampler): the region's level at the point's clamped voxel.
+        let q = p.clamp(Vec3::ZERO, Vec3::new(95.0, 79.0, 63.0));
+        let q = if p.is_nan() {
+            Vec3::new(
+                if p.x.is_nan() { 0.0 } else { q.x },
+                if p.y.is_nan() { 0.0 } else { q.y },
+                if p.z.is_nan() { 0.0 } else { q.z },
+            )
+        } else {
+            q
+        };
+        let level = striped(16.0)(
+            Vec3::new(
+                (q.x as usize / 16 * 16) as f32,
+                0.0,
+                (q.z as usize / 16 * 16) as f32,
+            ),
+            Vec3::ZERO,
+        );
+        coarse += usize::from(level > 0);
+        let d = (g - want).abs();
+        worst = worst.max(d);
+        // The device may contract the world transform and the lerps into fused
+        // multiply-adds.
+        assert!(
+            d <= 1e-5,
+            "channel {c} at {p} (level {level}): gpu {g} cpu {want}"
+        );
+    }
+    assert!(coarse > 1000, "coarse regions sampled: {coarse}");
+    eprintln!("per-brick pool samples: max |gpu - cpu| = {worst:e}");
+
+    // The levels themselves, loaded whole, at a few points of coarse regions: the CPU's
+    // per-region samples are those levels' trilinear samples.
+    let lv: Vec<Grid<f32>> = (0..3)
+        .map(|l| match fa.load_level(l, &Default::default()).unwrap() {
+            AnyGrid::F32(g) => g,
+            _ => panic!("f32"),
+        })
+        .collect();
+    for p in [
+        Vec3::new(20.0, 30.0, 3.0),
+        Vec3::new(40.3, 12.7, 20.1),
+        Vec3::new(70.0, 70.0, 40.0),
+    ] {
+        let l = striped(16.0)(
+            Vec3::new(
+                (p.x as usize / 16 * 16) as f32,
+                0.0,
+                (p.z as usize / 16 * 16) as f32,
+            ),
+            Vec3::ZERO,
+        );
+        let g = lv[l].geometry();
+        let want = lv[l].sample_trilinear_index(g.world_to_index(p));
+        let cpu = ra.sample_scalar_index(p);
+        assert!(
+            (want - cpu).abs() <= 1e-6,
+            "level {l} at {p}: {want} vs {cpu}"
+        );
+    }
+
+    // The marcher's image through the per-brick pool against the CPU's.
+    let mut set = RenderSettings::default_for(&s, 48, 40, false);
+    set.spp = 1;
+    let integ = Integrator::Marcher(RayMarcher::default());
+    let gpu = t.render(&gs, &integ, &set).unwrap();
+    let cpu = render(&s, &integ, &set).unwrap();
+    let d = max_diff(&cpu, &gpu);
+    assert!(d <= 1e-4, "max |gpu - cpu| = {d}");
+    assert!(
+        cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
+        "a trivial image"
+    );
+}
+
+#[test]
+fn a_per_brick_pool_reads_only_the_bricks_its_regions_sample() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let f = bricked(dir.path(), "s", &smooth([128; 3]), 1 << 26);
+    // One region (file brick (0, 0, 0), voxels 0..16) at the finest level, every other at
+    // level 2 (32^3: one pool brick); level 1 is sampled nowhere.
+    let field: Field = f
+        .field(0)
+        .unwrap()
+        .per_region(|lo, _| if lo.max_element() < 16.0 { 0 } else { 2 })
+        .unwrap()
+        .into();
+    let s = scene_of(vec![field]);
+    f.cache().reset_stats();
+    let t = GpuTracker::new(ctx).unwrap();
+    let gs = t.upload(s).unwrap();
+    let st = gs.pool_stats();
+    // Level 0 needs the pool brick holding voxels 0..=32 (the region, its trilinear
+    // neighbours and the margin): file bricks 0..=2 per axis, 27 of 512. Level 2: its
+    // 2^3 file bricks. Level 1: none.
+    let reads = f.cache().stats().reads;
+    assert_eq!(reads.first().copied().unwrap_or(0), 27, "{reads:?}");
+    assert_eq!(reads.get(1).copied().unwrap_or(0), 0, "{reads:?}");
+    assert_eq!(reads.get(2).copied().unwrap_or(0), 8, "{reads:?}");
+    // Pool bricks: level 0 4^3, level 1 2^3, level 2 1; two held, the rest never read.
+    assert_eq!((st.levels, st.bricks_per_channel), (3, 64 + 8 + 1), "{st}");
+    assert_eq!((st.resident, st.unsampled), (2, 63 + 8), "{st}");
+}

@@ -621,6 +621,34 @@ impl LevelMap {
         self.dims
     }
 
+    /// Edge of a region in voxels of the base level (the source's brick).
+    #[must_use]
+    pub fn edge(&self) -> usize {
+        self.edge
+    }
+
+    /// The source at every level from the base (index 0) to the coarsest any region
+    /// samples, each one level everywhere.
+    #[must_use]
+    pub fn fields(&self) -> &[BrickedField] {
+        &self.fields
+    }
+
+    /// Whether `other` samples the same level at every point: the same regions, levels and
+    /// level geometries (fields of one pyramid cut alike, perhaps different channels).
+    #[must_use]
+    pub fn same_regions(&self, other: &LevelMap) -> bool {
+        self.dims == other.dims
+            && self.edge == other.edge
+            && self.levels == other.levels
+            && self.fields.len() == other.fields.len()
+            && self
+                .fields
+                .iter()
+                .zip(&other.fields)
+                .all(|(a, b)| a.geometry == b.geometry)
+    }
+
     /// Regions sampled at each level (index = level offset from the base).
     #[must_use]
     pub fn histogram(&self) -> Vec<usize> {
