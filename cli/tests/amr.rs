@@ -1,9 +1,12 @@
 //! AMR output from the command line: `info` on Enzo and Athena++ files, `convert` to the
 //! uniform grid of a level (checked against yt's covering grid of the real snapshot), and
-//! a Doppler render of the AMR scene file.
+//! a Doppler render of the AMR scene file, on the CPU and through the GPU's brick pool (each
+//! region at its own refinement level).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+mod common;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -137,4 +140,41 @@ fn doppler_renders_the_amr_scene() {
     let img = image::open(&png).unwrap().to_rgb8();
     assert_eq!(img.dimensions(), (32, 32));
     assert!(img.pixels().any(|p| p.0.iter().any(|&c| c > 0)));
+}
+
+/// The AMR scene on the GPU: the pool holds each refinement level's sampled bricks (the
+/// regions' levels of the hierarchy) and renders the CPU's image, within the f32 tolerance
+/// of tests/doppler_device.rs.
+#[test]
+fn the_amr_scene_renders_on_the_gpu_as_on_the_cpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |device: &str| {
+        let exr = dir.path().join(format!("{device}.exr"));
+        let r = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+            .args(["doppler", "--scene"])
+            .arg(root().join("scenes/enzo-moving7-amr.json"))
+            .args(["--width", "64", "--height", "64", "--device", device, "--out"])
+            .arg(&exr)
+            .env("BLUESHIFT_GPU", "software")
+            .output()
+            .unwrap();
+        (r, exr)
+    };
+    let (c, cpu) = run("cpu");
+    ok(&c);
+    let (g, gpu) = run("gpu");
+    if !common::gpu_ok("doppler", &g) {
+        return;
+    }
+    let log = String::from_utf8_lossy(&g.stderr);
+    assert!(log.contains("levels per brick"), "{log}");
+    let (a, b) = (common::read_exr(&cpu), common::read_exr(&gpu));
+    let max = a.pixels().flat_map(|p| p.0[..3].to_vec()).fold(0.0f32, f32::max);
+    assert!(max > 0.0, "a black image");
+    for (p, q) in a.pixels().zip(b.pixels()) {
+        for k in 0..3 {
+            let tol = 2e-3 * p.0[k].abs() + 1e-5 * max;
+            assert!((p.0[k] - q.0[k]).abs() <= tol, "{:?} vs {:?}", p.0, q.0);
+        }
+    }
 }

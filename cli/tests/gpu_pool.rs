@@ -2,7 +2,7 @@
 //! `render`) as on the CPU; a level whose non-constant bricks exceed `--gpu-pool-mb` is
 //! refused on `gpu` with one line and no output, runs on the CPU under `auto`, and under
 //! `--lod auto` renders the finest coarser level that fits (the same bytes as asking for
-//! that level).
+//! that level); per-brick levels of detail (`--lod brick`) render on the GPU as on the CPU.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -125,9 +125,19 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
         std::fs::read(d.join("auto1.exr")).unwrap() == std::fs::read(d.join("one.exr")).unwrap(),
         "the coarser level's image"
     );
-    // Per-brick levels render on the CPU (and the scene's fields are all bricked).
+    // Per-brick levels (every field bricked alike): the GPU pool holds each level's
+    // sampled bricks and renders the CPU's image.
     let b = doppler(d, "brick.exr", &["--lod", "brick"]);
     assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let gb = doppler(
+        d,
+        "gbrick.exr",
+        &["--lod", "brick", "--device", "gpu"],
+    );
+    assert!(gb.status.success(), "{}", String::from_utf8_lossy(&gb.stderr));
+    let log = String::from_utf8_lossy(&gb.stderr);
+    assert!(log.contains("2 levels per brick"), "{log}");
+    close(&d.join("brick.exr"), &d.join("gbrick.exr"));
     // A zero cap is the user's error.
     let z = doppler(d, "z.exr", &["--device", "gpu", "--gpu-pool-mb", "0"]);
     assert!(!z.status.success());
@@ -207,12 +217,43 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
         log.contains("at level 1 (level 0 does not fit the pool)"),
         "{log}"
     );
-    // Per-brick levels are the CPU's: refused on gpu, rendered on the CPU.
-    let b = render("brick.exr", &["--device", "gpu", "--lod", "brick"]);
-    assert!(!b.status.success());
-    assert!(String::from_utf8_lossy(&b.stderr).contains("CPU-only"));
-    let b = render("brick.exr", &["--lod", "brick"]);
+    // Per-brick levels at 16x16 (bricks near the eye at level 0, far ones at level 1): the
+    // pool holds each level's sampled bricks and the GPU renders the CPU's image.
+    let small = |out: &str, extra: &[&str]| {
+        let mut a = vec![
+            "render",
+            "--volume",
+            "t.bsv",
+            "--tf",
+            "builtin:viridis",
+            "--method",
+            "marcher",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--lod",
+            "brick",
+            "--out",
+            out,
+        ];
+        a.extend_from_slice(extra);
+        blueshift(&a, d)
+    };
+    let b = small("brick.exr", &[]);
     assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let gb = small("gbrick.exr", &["--device", "gpu"]);
+    assert!(gb.status.success(), "{}", String::from_utf8_lossy(&gb.stderr));
+    let log = String::from_utf8_lossy(&gb.stderr);
+    assert!(log.contains("2 levels per brick"), "{log}");
+    let (a, b) = (read_exr(&d.join("brick.exr")), read_exr(&d.join("gbrick.exr")));
+    let diff = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max);
+    assert!(diff <= 1e-4, "per-brick: max |gpu - cpu| = {diff}");
     let one = render("one.exr", &["--device", "gpu", "--lod", "1"]);
     assert!(
         one.status.success(),
