@@ -153,7 +153,9 @@ fn the_amr_scene_renders_on_the_gpu_as_on_the_cpu() {
         let r = Command::new(env!("CARGO_BIN_EXE_blueshift"))
             .args(["doppler", "--scene"])
             .arg(root().join("scenes/enzo-moving7-amr.json"))
-            .args(["--width", "64", "--height", "64", "--device", device, "--out"])
+            .args([
+                "--width", "64", "--height", "64", "--device", device, "--out",
+            ])
             .arg(&exr)
             .env("BLUESHIFT_GPU", "software")
             .output()
@@ -169,7 +171,10 @@ fn the_amr_scene_renders_on_the_gpu_as_on_the_cpu() {
     let log = String::from_utf8_lossy(&g.stderr);
     assert!(log.contains("levels per brick"), "{log}");
     let (a, b) = (common::read_exr(&cpu), common::read_exr(&gpu));
-    let max = a.pixels().flat_map(|p| p.0[..3].to_vec()).fold(0.0f32, f32::max);
+    let max = a
+        .pixels()
+        .flat_map(|p| p.0[..3].to_vec())
+        .fold(0.0f32, f32::max);
     assert!(max > 0.0, "a black image");
     for (p, q) in a.pixels().zip(b.pixels()) {
         for k in 0..3 {

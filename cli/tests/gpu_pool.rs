@@ -2,7 +2,8 @@
 //! `render`) as on the CPU; a level whose non-constant bricks exceed `--gpu-pool-mb` is
 //! refused on `gpu` with one line and no output, runs on the CPU under `auto`, and under
 //! `--lod auto` renders the finest coarser level that fits (the same bytes as asking for
-//! that level); per-brick levels of detail (`--lod brick`) render on the GPU as on the CPU.
+//! that level); per-brick levels of detail (`--lod brick`) and `--progressive levels|bricks`
+//! render on the GPU as on the CPU.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -129,12 +130,12 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
     // sampled bricks and renders the CPU's image.
     let b = doppler(d, "brick.exr", &["--lod", "brick"]);
     assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
-    let gb = doppler(
-        d,
-        "gbrick.exr",
-        &["--lod", "brick", "--device", "gpu"],
+    let gb = doppler(d, "gbrick.exr", &["--lod", "brick", "--device", "gpu"]);
+    assert!(
+        gb.status.success(),
+        "{}",
+        String::from_utf8_lossy(&gb.stderr)
     );
-    assert!(gb.status.success(), "{}", String::from_utf8_lossy(&gb.stderr));
     let log = String::from_utf8_lossy(&gb.stderr);
     assert!(log.contains("2 levels per brick"), "{log}");
     close(&d.join("brick.exr"), &d.join("gbrick.exr"));
@@ -243,10 +244,17 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
     let b = small("brick.exr", &[]);
     assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
     let gb = small("gbrick.exr", &["--device", "gpu"]);
-    assert!(gb.status.success(), "{}", String::from_utf8_lossy(&gb.stderr));
+    assert!(
+        gb.status.success(),
+        "{}",
+        String::from_utf8_lossy(&gb.stderr)
+    );
     let log = String::from_utf8_lossy(&gb.stderr);
     assert!(log.contains("2 levels per brick"), "{log}");
-    let (a, b) = (read_exr(&d.join("brick.exr")), read_exr(&d.join("gbrick.exr")));
+    let (a, b) = (
+        read_exr(&d.join("brick.exr")),
+        read_exr(&d.join("gbrick.exr")),
+    );
     let diff = a
         .as_raw()
         .iter()
@@ -254,6 +262,27 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f32::max);
     assert!(diff <= 1e-4, "per-brick: max |gpu - cpu| = {diff}");
+    // Progressive on the GPU, by levels and brick by brick: every pass a view of one device
+    // pool, the coarsest level first, and the final image the CPU's.
+    for how in ["levels", "bricks"] {
+        let out = format!("prog-{how}.exr");
+        let p = render(&out, &["--device", "gpu", "--progressive", how]);
+        assert!(p.status.success(), "{}", String::from_utf8_lossy(&p.stderr));
+        let log = String::from_utf8_lossy(&p.stderr);
+        assert!(
+            log.contains("progressive: pass 1, level 3 (5x5x5)"),
+            "{log}"
+        );
+        assert!(log.contains("GPU brick pool"), "{log}");
+        let (a, b) = (read_exr(&d.join("cpu.exr")), read_exr(&d.join(&out)));
+        let diff = a
+            .as_raw()
+            .iter()
+            .zip(b.as_raw())
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        assert!(diff <= 1e-4, "progressive {how}: max |gpu - cpu| = {diff}");
+    }
     let one = render("one.exr", &["--device", "gpu", "--lod", "1"]);
     assert!(
         one.status.success(),

@@ -203,6 +203,11 @@ pub struct PoolStats {
     /// Bricks of a level that no sample reads (per-brick levels of detail: the level's
     /// bricks outside the regions at that level), never read.
     pub unsampled: usize,
+    /// Of the resident bricks, those already on the device before the last update
+    /// ([`DevicePool::update`]); the rest were uploaded by it.
+    pub kept: usize,
+    /// Bricks evicted by the last update to make room.
+    pub evicted: usize,
     /// Bytes of the pool buffer.
     pub pool_bytes: u64,
     /// Bytes the channels would take as dense f32 grids (what the backends uploaded before).
@@ -222,6 +227,13 @@ impl std::fmt::Display for PoolStats {
             self.constant,
             self.skipped_reads,
         )?;
+        if self.kept > 0 || self.evicted > 0 {
+            write!(
+                f,
+                "; {} kept on the device, {} evicted",
+                self.kept, self.evicted
+            )?;
+        }
         if self.levels > 1 {
             write!(
                 f,
@@ -238,7 +250,12 @@ impl std::fmt::Display for PoolStats {
     }
 }
 
-/// A pool and its page table on the device.
+/// A pool and its page table on the device: a cache of bricks. [`upload`] fills it for one
+/// view of the channels; [`DevicePool::update`] re-plans it for another view of the same
+/// channels (another level of detail, other regions' levels), keeping the bricks already on
+/// the device, uploading the missing ones into free slots, growing the pool up to its
+/// capacity and then evicting the bricks the new view does not sample, least recently used
+/// first.
 #[derive(Debug)]
 pub struct DevicePool {
     /// The slots (f32, [`SLOT_VALUES`] each).
@@ -248,6 +265,36 @@ pub struct DevicePool {
     pub pages: wgpu::Buffer,
     /// What it holds.
     pub stats: PoolStats,
+    cache: SlotCache,
+}
+
+/// A brick's identity across views: its channel, source (a bricked level's source and
+/// absolute level; 0 for data in memory) and pool brick.
+#[derive(Clone, Copy, Debug, Hash, PartialEq, Eq)]
+struct BrickKey {
+    channel: usize,
+    source: u64,
+    level: usize,
+    brick: usize,
+}
+
+/// Which brick each slot holds.
+#[derive(Debug, Default)]
+struct SlotCache {
+    slots: std::collections::HashMap<BrickKey, u32>,
+    owner: Vec<Option<BrickKey>>,
+    /// The update that last used each slot.
+    used: Vec<u64>,
+    /// Bricks found constant on reading (no slot; not read again).
+    constants: std::collections::HashMap<BrickKey, u32>,
+    /// Slots the pool buffer has.
+    alloc: u64,
+    /// Slots handed out so far (0..next).
+    next: u64,
+    tick: u64,
+    /// Whether the page table on the device matches the slots (false after a failed
+    /// update: the pool must be uploaded again).
+    valid: bool,
 }
 
 /// The grid size of the channels (all must agree; zero channels take any).
@@ -552,92 +599,224 @@ fn pool_full(ctx: &GpuContext, slots: u64) -> Error {
 /// [`Error::LimitExceeded`] when the non-constant bricks exceed
 /// [`GpuContext::pool_capacity_bytes`], or with the field's read error.
 pub fn upload(ctx: &GpuContext, label: &str, channels: &[PoolChannel<'_>]) -> Result<DevicePool> {
-    let dims = common_dims(label, channels)?;
-    let mut plan = Plan::new(ctx, label, channels)?;
-    let cap = capacity_slots(ctx);
-    if plan.known && plan.todo.len() as u64 > cap {
-        // Known without reading a brick.
-        return Err(pool_full(ctx, plan.todo.len() as u64));
+    let mut pool = DevicePool {
+        pool: ctx.storage_buffer_zeroed(&format!("{label} pool"), SLOT_BYTES)?,
+        pages: ctx.storage_buffer_zeroed(&format!("{label} page table"), 8)?,
+        stats: PoolStats::default(),
+        cache: SlotCache::default(),
+    };
+    pool.update(ctx, label, channels)?;
+    Ok(pool)
+}
+
+impl DevicePool {
+    /// Whether the page table matches the slots: false after a failed
+    /// [`DevicePool::update`] (the pool must then be uploaded again).
+    #[must_use]
+    pub fn is_valid(&self) -> bool {
+        self.cache.valid
     }
-    let todo = std::mem::take(&mut plan.todo);
-    // The buffer is sized for every brick not known constant (bounded by the capacity):
-    // bricks found constant on reading leave slots unused at the end.
-    let alloc = (todo.len() as u64).min(cap).max(1);
-    let pool = ctx.storage_buffer_zeroed(&format!("{label} pool"), alloc * SLOT_BYTES)?;
-    let mut slot = 0u64;
-    let total = plan.per * channels.len();
-    let mut constant = total - todo.len() - plan.unsampled;
-    for (b, batch) in todo.chunks(BATCH).enumerate() {
-        let blocks: Vec<Result<Vec<f32>>> = batch
-            .par_iter()
-            .map(|&(c, l, i)| {
-                let nb = plan.levels[l].nb;
-                let lo = [
-                    (i % nb[0]) * POOL_BRICK,
-                    ((i / nb[0]) % nb[1]) * POOL_BRICK,
-                    (i / (nb[0] * nb[1])) * POOL_BRICK,
-                ];
-                let mut out = vec![0.0f32; SLOT_VALUES];
-                channels[c].read_block(l, lo, &mut out)?;
-                Ok(out)
-            })
-            .collect();
-        let first = slot;
-        let mut staging: Vec<f32> = Vec::new();
-        for (&(c, l, i), block) in batch.iter().zip(blocks) {
-            let block = block?;
+
+    /// Re-plans the pool for `channels`, another view of the channels it holds (the same
+    /// sources, perhaps another level or other per-region levels): bricks already on the
+    /// device are kept, missing ones read (a batch at a time, in parallel) and uploaded into
+    /// free slots; the pool grows up to [`GpuContext::pool_capacity_bytes`], then evicts
+    /// the bricks this view does not sample, least recently used first. Fails with the
+    /// pool's [`Error::LimitExceeded`] when this view's own bricks exceed the capacity, or
+    /// with a read error; after a failure [`DevicePool::is_valid`] is false.
+    ///
+    /// # Errors
+    /// As above; channels of different sizes; page tables beyond the device's limits.
+    pub fn update(
+        &mut self,
+        ctx: &GpuContext,
+        label: &str,
+        channels: &[PoolChannel<'_>],
+    ) -> Result<()> {
+        self.cache.valid = false;
+        let dims = common_dims(label, channels)?;
+        let mut plan = Plan::new(ctx, label, channels)?;
+        let cap = capacity_slots(ctx);
+        let key = |c: usize, l: usize, i: usize| {
+            let b = channels[c].bricked_at(l);
+            BrickKey {
+                channel: c,
+                source: b.map_or(0, |b| b.source().uid()),
+                level: b.map_or(l, BrickedField::level),
+                brick: i,
+            }
+        };
+        let cache = &mut self.cache;
+        let first = cache.alloc == 0;
+        cache.tick += 1;
+        let tick = cache.tick;
+        let todo = std::mem::take(&mut plan.todo);
+        let mut missing: Vec<(usize, usize, usize, BrickKey)> = Vec::new();
+        let mut kept = 0usize;
+        for &(c, l, i) in &todo {
+            let k = key(c, l, i);
             let page = plan.page(c, l, i);
-            let bits = block[0].to_bits();
-            if block.iter().all(|v| v.to_bits() == bits) {
+            if let Some(&s) = cache.slots.get(&k) {
+                plan.pages[page] = [s, 0];
+                cache.used[s as usize] = tick;
+                kept += 1;
+            } else if let Some(&bits) = cache.constants.get(&k) {
                 plan.pages[page] = [CONSTANT, bits];
-                constant += 1;
-                continue;
+            } else {
+                missing.push((c, l, i, k));
             }
-            if slot >= cap {
-                // At least this brick, and at most every brick not read yet, more.
-                let unread = todo.len() - (b * BATCH).min(todo.len());
-                return Err(pool_full(ctx, slot + unread as u64));
-            }
-            plan.pages[page] = [slot as u32, 0];
-            staging.extend_from_slice(&block);
-            slot += 1;
         }
-        if !staging.is_empty() {
+        let needed = (kept + missing.len()) as u64;
+        if plan.known && needed > cap {
+            // Known without reading a brick.
+            return Err(pool_full(ctx, needed));
+        }
+        if first {
+            // Sized for every brick not known constant (bounded by the capacity): bricks
+            // found constant on reading leave slots unused at the end.
+            let alloc = needed.min(cap).max(1);
+            self.pool = ctx.storage_buffer_zeroed(&format!("{label} pool"), alloc * SLOT_BYTES)?;
+            cache.alloc = alloc;
+            cache.owner = vec![None; alloc as usize];
+            cache.used = vec![0; alloc as usize];
+        }
+        // Slots this view does not sample, least recently used first.
+        let mut evictable: std::collections::VecDeque<u32> = {
+            let mut v: Vec<u32> = (0..cache.next as u32)
+                .filter(|&s| cache.owner[s as usize].is_some() && cache.used[s as usize] < tick)
+                .collect();
+            v.sort_by_key(|&s| (cache.used[s as usize], s));
+            v.into()
+        };
+        let mut loaded = 0usize;
+        let mut evicted = 0usize;
+        for (b, batch) in missing.chunks(BATCH).enumerate() {
+            let blocks: Vec<Result<Vec<f32>>> = batch
+                .par_iter()
+                .map(|&(c, l, i, _)| {
+                    let nb = plan.levels[l].nb;
+                    let lo = [
+                        (i % nb[0]) * POOL_BRICK,
+                        ((i / nb[0]) % nb[1]) * POOL_BRICK,
+                        (i / (nb[0] * nb[1])) * POOL_BRICK,
+                    ];
+                    let mut out = vec![0.0f32; SLOT_VALUES];
+                    channels[c].read_block(l, lo, &mut out)?;
+                    Ok(out)
+                })
+                .collect();
+            // Runs of consecutive slots are written together.
+            let mut run: Option<(u64, Vec<f32>)> = None;
+            for (&(c, l, i, k), block) in batch.iter().zip(blocks) {
+                let block = block?;
+                let page = plan.page(c, l, i);
+                let bits = block[0].to_bits();
+                if block.iter().all(|v| v.to_bits() == bits) {
+                    plan.pages[page] = [CONSTANT, bits];
+                    cache.constants.insert(k, bits);
+                    continue;
+                }
+                let slot = if cache.next < cache.alloc {
+                    cache.next += 1;
+                    cache.next - 1
+                } else if cache.alloc < cap {
+                    // Grow: room for every brick not read yet, at least doubling.
+                    let unread = (missing.len() - (b * BATCH).min(missing.len())) as u64;
+                    let alloc = (cache.alloc * 2).max(cache.next + unread).min(cap);
+                    let grown =
+                        ctx.storage_buffer_zeroed(&format!("{label} pool"), alloc * SLOT_BYTES)?;
+                    if let Some((at, data)) = run.take() {
+                        ctx.queue().write_buffer(
+                            &self.pool,
+                            at * SLOT_BYTES,
+                            bytemuck::cast_slice(&data),
+                        );
+                    }
+                    ctx.copy_buffer(&self.pool, &grown, cache.next * SLOT_BYTES)?;
+                    self.pool = grown;
+                    cache.alloc = alloc;
+                    cache.owner.resize(alloc as usize, None);
+                    cache.used.resize(alloc as usize, 0);
+                    cache.next += 1;
+                    cache.next - 1
+                } else if let Some(s) = evictable.pop_front() {
+                    if let Some(old) = cache.owner[s as usize].take() {
+                        cache.slots.remove(&old);
+                    }
+                    evicted += 1;
+                    u64::from(s)
+                } else {
+                    // This view's bricks: the kept ones, those placed, and every one not
+                    // read yet.
+                    let unread = missing.len() - (b * BATCH).min(missing.len());
+                    return Err(pool_full(ctx, (kept + loaded + unread) as u64));
+                };
+                cache.owner[slot as usize] = Some(k);
+                cache.used[slot as usize] = tick;
+                cache.slots.insert(k, slot as u32);
+                plan.pages[page] = [slot as u32, 0];
+                loaded += 1;
+                match &mut run {
+                    Some((at, data)) if *at + (data.len() / SLOT_VALUES) as u64 == slot => {
+                        data.extend_from_slice(&block);
+                    }
+                    _ => {
+                        if let Some((at, data)) = run.replace((slot, block)) {
+                            ctx.queue().write_buffer(
+                                &self.pool,
+                                at * SLOT_BYTES,
+                                bytemuck::cast_slice(&data),
+                            );
+                        }
+                    }
+                }
+            }
+            if let Some((at, data)) = run.take() {
+                ctx.queue()
+                    .write_buffer(&self.pool, at * SLOT_BYTES, bytemuck::cast_slice(&data));
+            }
+        }
+        // A first upload whose bricks were partly constant on reading left slots unused at
+        // the end: when that is a quarter of the pool or more, move the pool into a buffer
+        // of its own size.
+        if first && cache.next.max(1) * 4 <= cache.alloc * 3 {
+            let used = cache.next.max(1);
+            let fit = ctx.storage_buffer_zeroed(&format!("{label} pool"), used * SLOT_BYTES)?;
+            ctx.copy_buffer(&self.pool, &fit, used * SLOT_BYTES)?;
+            self.pool = fit;
+            cache.alloc = used;
+            cache.owner.truncate(used as usize);
+            cache.used.truncate(used as usize);
+        }
+        let bytes = plan.pages.len() as u64 * 8;
+        if self.pages.size() == bytes.max(4).div_ceil(4) * 4 && !first {
             ctx.queue()
-                .write_buffer(&pool, first * SLOT_BYTES, bytemuck::cast_slice(&staging));
+                .write_buffer(&self.pages, 0, bytemuck::cast_slice(&plan.pages));
+        } else {
+            self.pages = ctx.storage_buffer(&format!("{label} page table"), &plan.pages)?;
         }
+        let resident = kept + loaded;
+        let total = plan.per * channels.len();
+        self.stats = PoolStats {
+            channels: channels.len(),
+            bricks_per_channel: plan.per,
+            levels: plan.levels.len(),
+            resident,
+            constant: total - resident - plan.unsampled,
+            skipped_reads: plan.skipped,
+            unsampled: plan.unsampled,
+            kept,
+            evicted,
+            pool_bytes: cache.alloc * SLOT_BYTES,
+            dense_bytes: channels
+                .iter()
+                .filter(|c| !matches!(c, PoolChannel::Zero))
+                .count() as u64
+                * dims.iter().product::<usize>() as u64
+                * 4,
+            capacity_bytes: ctx.pool_capacity_bytes(),
+        };
+        cache.valid = true;
+        Ok(())
     }
-    // Bricks found constant on reading left slots unused at the end: when that is a
-    // quarter of the pool or more, move the pool into a buffer of its own size.
-    let (pool, alloc) = if slot.max(1) * 4 <= alloc * 3 {
-        let used = slot.max(1) * SLOT_BYTES;
-        let fit = ctx.storage_buffer_zeroed(&format!("{label} pool"), used)?;
-        ctx.copy_buffer(&pool, &fit, used)?;
-        (fit, slot.max(1))
-    } else {
-        (pool, alloc)
-    };
-    let pages_buf = ctx.storage_buffer(&format!("{label} page table"), &plan.pages)?;
-    let stats = PoolStats {
-        channels: channels.len(),
-        bricks_per_channel: plan.per,
-        levels: plan.levels.len(),
-        resident: slot as usize,
-        constant,
-        skipped_reads: plan.skipped,
-        unsampled: plan.unsampled,
-        pool_bytes: alloc * SLOT_BYTES,
-        dense_bytes: channels
-            .iter()
-            .filter(|c| !matches!(c, PoolChannel::Zero))
-            .count() as u64
-            * dims.iter().product::<usize>() as u64
-            * 4,
-        capacity_bytes: ctx.pool_capacity_bytes(),
-    };
-    Ok(DevicePool {
-        pool,
-        pages: pages_buf,
-        stats,
-    })
 }

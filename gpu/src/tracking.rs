@@ -487,6 +487,11 @@ impl<'c> GpuTracker<'c> {
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
         let cpu = &scene.scene;
         supports(cpu, settings)?;
+        if !scene.pool.is_valid() {
+            return Err(Error::InvalidInput(
+                "the scene's brick pool failed to update: set a view or upload it again".into(),
+            ));
+        }
         let integrator = integrator
             .prepared(cpu)
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
@@ -794,6 +799,70 @@ impl<'c> GpuScene<'c> {
         };
         gs.build_majorants(None)?;
         Ok(gs)
+    }
+
+    /// Samples another view of this scene's channels from now on: `view` has the scene's
+    /// channels from the same `.bsv` sources, at another level of detail
+    /// (`Scene::at_level`) or with per-region levels (`Scene::resident_view`, `--lod
+    /// brick`). The device pool keeps the bricks it holds and uploads only the missing ones
+    /// ([`crate::pool::DevicePool::update`]: a device brick cache, evicting the least
+    /// recently used bricks when full); the macrocell ranges and majorants are rebuilt. The
+    /// transfer functions, background and light stay this scene's.
+    ///
+    /// # Errors
+    /// A view of other channels, [`Error::Unsupported`] for channels whose regions differ,
+    /// the pool's [`Error::LimitExceeded`] when the view's bricks exceed it, a read error.
+    /// After an error the scene renders nothing until a view is set successfully.
+    pub fn set_view(&mut self, view: Scene) -> Result<()> {
+        let n = self.scene.channel_count();
+        let uid =
+            |c: &blueshift_tracking::SceneChannel| c.grid().as_bricked().map(|b| b.source().uid());
+        let same = view.channel_count() == n
+            && self
+                .scene
+                .channels()
+                .iter()
+                .zip(view.channels())
+                .all(|(a, b)| uid(a).is_some() && uid(a) == uid(b));
+        if !same {
+            return Err(Error::InvalidInput(
+                "a view of a GPU scene must have the scene's own .bsv channels".into(),
+            ));
+        }
+        crate::pool::per_brick_unsupported(view.channels().iter().map(|c| c.grid()))
+            .map_err(|u| Error::Unsupported(u.0))?;
+        let ctx = self.tracker.ctx;
+        let layout = *view.layout();
+        check_volume_fits(ctx, n, view.geometry().dims, layout.k)?;
+        let channels: Vec<PoolChannel<'_>> = view
+            .channels()
+            .iter()
+            .map(|c| PoolChannel::Scalar(c.grid()))
+            .collect();
+        self.pool.update(ctx, "tracking volume", &channels)?;
+        drop(channels);
+        let n_cells = layout.len() as u64;
+        let mut ranges: Vec<f32> = Vec::with_capacity(2 * n * n_cells as usize);
+        for ch in view.channels() {
+            ranges.extend_from_slice(ch.macrocells().mins());
+            ranges.extend_from_slice(ch.macrocells().maxs());
+        }
+        self.cell_ranges = ctx.storage_buffer("tracking macrocell ranges", &ranges)?;
+        self.majorants =
+            ctx.storage_buffer_zeroed("tracking majorants", (n as u64 + 1) * n_cells * 4)?;
+        self.n_cells = n_cells as u32;
+        let mut view = view;
+        for i in 0..n {
+            let tf = self.scene.channels()[i].transfer_function();
+            if view.channels()[i].transfer_function() != tf {
+                view.set_transfer_function(i, tf.clone())
+                    .map_err(|e| Error::InvalidInput(e.to_string()))?;
+            }
+        }
+        view.background = self.scene.background;
+        view.light = self.scene.light;
+        self.scene = view;
+        self.build_majorants(None)
     }
 
     /// What the device brick pool holds.
@@ -1113,6 +1182,11 @@ fn probe_pipeline(tracker: &GpuTracker<'_>, entry: &str) -> Result<wgpu::Compute
 #[derive(Debug)]
 pub struct GpuTrackingSession<'c> {
     scene: GpuScene<'c>,
+    /// The scene the session renders (the uploaded view may be a coarser one:
+    /// [`GpuTrackingSession::new_progressive`]).
+    full: Scene,
+    /// Whether the uploaded view is `full`.
+    at_full: bool,
     integrator: Integrator,
     settings: RenderSettings,
 }
@@ -1138,12 +1212,41 @@ impl<'c> GpuTrackingSession<'c> {
             .prepared(&scene)
             .map_err(|e| Error::InvalidInput(e.to_string()))?;
         let tracker = GpuTracker::new(ctx)?;
+        let full = scene.clone();
         let scene = tracker.upload(scene)?;
         Ok(Self {
             scene,
+            full,
+            at_full: true,
             integrator,
             settings,
         })
+    }
+
+    /// [`GpuTrackingSession::new`] for a progressive render
+    /// ([`GpuTrackingSession::render_lod`], [`GpuTrackingSession::render_bricks`]): only the
+    /// coarsest level of a bricked scene is uploaded now, so the first pass does not wait
+    /// for the scene's own level. [`GpuTrackingSession::render`] refuses until a
+    /// progressive render (or [`Session::run`]) has put the scene's own level on the device.
+    ///
+    /// # Errors
+    /// As [`GpuTrackingSession::new`].
+    pub fn new_progressive(
+        ctx: &'c GpuContext,
+        scene: Scene,
+        integrator: Integrator,
+        settings: RenderSettings,
+    ) -> Result<Self> {
+        let view = match scene.lod() {
+            Some((level, count)) if count > level + 1 => scene
+                .at_level(count - 1)
+                .map_err(|e| Error::InvalidInput(e.to_string()))?,
+            _ => return Self::new(ctx, scene, integrator, settings),
+        };
+        let mut s = Self::new(ctx, view, integrator, settings)?;
+        s.full = scene;
+        s.at_full = false;
+        Ok(s)
     }
 
     /// The uploaded scene.
@@ -1207,14 +1310,23 @@ impl<'c> GpuTrackingSession<'c> {
     /// # Errors
     /// As [`GpuScene::set_transfer_function`].
     pub fn set_transfer_function(&mut self, channel: usize, tf: TransferFunction) -> Result<()> {
-        self.scene.set_transfer_function(channel, tf)
+        self.scene.set_transfer_function(channel, tf.clone())?;
+        self.full
+            .set_transfer_function(channel, tf)
+            .map_err(|e| Error::InvalidInput(e.to_string()))
     }
 
     /// Renders under `observer`.
     ///
     /// # Errors
-    /// As [`GpuTracker::render_observed`].
+    /// As [`GpuTracker::render_observed`]; [`Error::InvalidInput`] while a session made by
+    /// [`GpuTrackingSession::new_progressive`] holds only a coarser level.
     pub fn render(&self, observer: &dyn Observer<Progressive>) -> Result<TrackingOutput> {
+        if !self.at_full {
+            return Err(Error::InvalidInput(
+                "the session holds a coarser level: render it progressively first".into(),
+            ));
+        }
         let image = self.scene.tracker.render_observed(
             &self.scene,
             &self.integrator,
@@ -1228,12 +1340,167 @@ impl<'c> GpuTrackingSession<'c> {
     }
 }
 
+impl GpuTrackingSession<'_> {
+    /// One quick pass (one sample per pixel) of the scene's current view, as step `step` at
+    /// `level` (the CPU's preview).
+    fn quick(&self, observer: &dyn Observer<Progressive>, step: u32, level: usize) -> Result<()> {
+        observer.level(step, level);
+        let preview = RenderSettings {
+            spp: 1,
+            noise_target: None,
+            heatmaps: false,
+            timed_frames: None,
+            warmup: 0,
+            ..self.settings.clone()
+        };
+        let image = self.scene.tracker.render_observed(
+            &self.scene,
+            &self.integrator,
+            &preview,
+            &ProgressOnly(observer),
+        )?;
+        observer.pass(step, &image, None);
+        Ok(())
+    }
+
+    /// Progressive levels of detail on the GPU, as `TrackingSession::render_lod`: a quick
+    /// pass at every level from the coarsest down to the one above the scene's own, then
+    /// the full render. Each level is a view of the same pool
+    /// ([`GpuScene::set_view`]): the bricks of the levels rendered stay on the device while
+    /// the pool has room, and the next level's bricks along every 16th pixel's ray load on
+    /// the cache's I/O thread while a level renders. A scene in memory is just rendered.
+    ///
+    /// # Errors
+    /// As [`GpuTrackingSession::render`] and [`GpuScene::set_view`].
+    pub fn render_lod(&mut self, observer: &dyn Observer<Progressive>) -> Result<TrackingOutput> {
+        let full = self.full.clone();
+        let Some((level, count)) = full.lod() else {
+            return self.render(observer);
+        };
+        let bad = |e: blueshift_tracking::Error| Error::InvalidInput(e.to_string());
+        let st = &self.settings;
+        let rays = st.camera.sparse_rays(st.width, st.height, 16);
+        let mut step = 0;
+        let out: Result<()> = (|| {
+            for l in (level + 1..count).rev() {
+                step += 1;
+                let view = full.at_level(l).map_err(bad)?;
+                let next = full.at_level(l - 1).map_err(bad)?;
+                let fields: Vec<&blueshift_volume::BrickedField> = next
+                    .channels()
+                    .iter()
+                    .filter_map(|c| c.grid().as_bricked())
+                    .collect();
+                blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+                self.scene.set_view(view)?;
+                self.quick(observer, step, l)?;
+            }
+            Ok(())
+        })();
+        // The full scene again, whatever happened.
+        let back = self.scene.set_view(full);
+        out?;
+        back?;
+        self.at_full = true;
+        observer.level(step + 1, level);
+        self.render(observer)
+    }
+
+    /// Progressive refinement brick by brick on the GPU (HDR VolVis 6.3), as
+    /// `TrackingSession::render_bricks`: a quick pass at the coarsest level, then quick
+    /// passes of `Scene::resident_view` (each region at the finest level its cache holds
+    /// now) while the scene's level loads along every 16th pixel's ray, then the full
+    /// render. Each pass is a view of one device pool ([`GpuScene::set_view`]): only the
+    /// bricks that arrived since the last pass are uploaded. `on_step(step, at_level,
+    /// regions)` hears, before each quick pass after the first, how many regions sample the
+    /// scene's own level. A scene in memory is just rendered.
+    ///
+    /// # Errors
+    /// As [`GpuTrackingSession::render`] and [`GpuScene::set_view`].
+    pub fn render_bricks(
+        &mut self,
+        observer: &dyn Observer<Progressive>,
+        on_step: &mut dyn FnMut(u32, usize, usize),
+    ) -> Result<TrackingOutput> {
+        let full = self.full.clone();
+        let Some((level, count)) = full.lod() else {
+            return self.render(observer);
+        };
+        let bad = |e: blueshift_tracking::Error| Error::InvalidInput(e.to_string());
+        let st = &self.settings;
+        let rays = st.camera.sparse_rays(st.width, st.height, 16);
+        let fields: Vec<&blueshift_volume::BrickedField> = full
+            .channels()
+            .iter()
+            .filter_map(|c| c.grid().as_bricked())
+            .collect();
+        blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+        let mut step = 0;
+        let out: Result<()> = if count > level + 1 {
+            step = 1;
+            (|| {
+                self.scene
+                    .set_view(full.at_level(count - 1).map_err(bad)?)?;
+                self.quick(observer, step, count - 1)?;
+                step = blueshift_volume::refine_while_loading(
+                    &fields,
+                    &rays,
+                    2,
+                    || full.resident_view().map_err(bad),
+                    |step, view: Scene, at_level, regions| {
+                        on_step(step, at_level, regions);
+                        let coarsest = view
+                            .channels()
+                            .iter()
+                            .filter_map(|c| c.grid().as_bricked())
+                            .map(blueshift_volume::BrickedField::coarsest_sampled_level)
+                            .max()
+                            .unwrap_or(level);
+                        self.scene.set_view(view)?;
+                        self.quick(observer, step, coarsest)
+                    },
+                    || observer.cancelled(),
+                )?;
+                Ok(())
+            })()
+        } else {
+            Ok(())
+        };
+        let back = if step > 0 || !self.at_full {
+            self.scene.set_view(full.clone())
+        } else {
+            Ok(())
+        };
+        out?;
+        back?;
+        self.at_full = true;
+        observer.level(step + 1, level);
+        self.render(observer)
+    }
+}
+
+/// Forwards progress and cancellation only (quick passes report their pass themselves).
+struct ProgressOnly<'a>(&'a dyn Observer<Progressive>);
+
+impl Observer<Progressive> for ProgressOnly<'_> {
+    fn progress(&self, p: Progress) {
+        self.0.progress(p);
+    }
+    fn cancelled(&self) -> bool {
+        self.0.cancelled()
+    }
+}
+
 impl Session for GpuTrackingSession<'_> {
     type Image = Progressive;
     type Output = TrackingOutput;
     type Error = Error;
 
     fn run(&mut self, observer: &dyn Observer<Progressive>) -> Result<TrackingOutput> {
+        if !self.at_full {
+            self.scene.set_view(self.full.clone())?;
+            self.at_full = true;
+        }
         self.render(observer)
     }
 

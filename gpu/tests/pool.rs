@@ -10,7 +10,7 @@
 
 use blueshift_gpu::context::test_context;
 use blueshift_gpu::pool::{POOL_BRICK, is_pool_full};
-use blueshift_gpu::tracking::{GpuTracker, sample_probe};
+use blueshift_gpu::tracking::{GpuTracker, GpuTrackingSession, sample_probe};
 use blueshift_gpu::{DeviceChoice, GpuContext, GpuOptions};
 use blueshift_tfedit::{ColorKnot, OpacityKnot, TransferFunction};
 use blueshift_tracking::{Integrator, RayMarcher, RenderSettings, Scene, render};
@@ -468,4 +468,109 @@ fn a_per_brick_pool_reads_only_the_bricks_its_regions_sample() {
     // Pool bricks: level 0 4^3, level 1 2^3, level 2 1; two held, the rest never read.
     assert_eq!((st.levels, st.bricks_per_channel), (3, 64 + 8 + 1), "{st}");
     assert_eq!((st.resident, st.unsampled), (2, 63 + 8), "{st}");
+}
+
+#[test]
+fn a_pool_keeps_its_bricks_across_views_and_evicts_the_least_recently_used() {
+    let Some(ctx) = own_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let f = bricked(dir.path(), "s", &smooth([96; 3]), 1 << 24);
+    let s = scene_of(vec![Field::from(f.field(0).unwrap())]);
+    let at = |l: usize| s.at_level(l).unwrap();
+    let t = GpuTracker::new(&ctx).unwrap();
+    let integ = Integrator::Marcher(RayMarcher::default());
+    let mut set = RenderSettings::default_for(&s, 24, 24, false);
+    set.spp = 1;
+    // Each view renders the image of a pool uploaded for it alone.
+    let fresh = |view: Scene| {
+        let g = t.upload(view).unwrap();
+        t.render(&g, &integ, &set).unwrap()
+    };
+    // Level 0 has 27 pool bricks, level 1 8, level 2 1. Room for 28: level 0; level 1
+    // (one free slot after growing to the cap, then the 7 least recently used level-0
+    // bricks evicted); level 2 (one more level-0 brick evicted, the oldest); level 0 again
+    // (19 kept, 8 uploaded into level 1's slots, older than level 2's); level 0 once more
+    // (all kept).
+    ctx.set_pool_limit(Some(28 * blueshift_gpu::pool::SLOT_BYTES));
+    let mut gs = t.upload(at(0)).unwrap();
+    let st = gs.pool_stats();
+    assert_eq!((st.resident, st.kept, st.evicted), (27, 0, 0), "{st}");
+    for (level, want) in [
+        (1, (8, 0, 7)),
+        (2, (1, 0, 1)),
+        (0, (27, 19, 8)),
+        (0, (27, 27, 0)),
+    ] {
+        gs.set_view(at(level)).unwrap();
+        let st = gs.pool_stats();
+        assert_eq!(
+            (st.resident, st.kept, st.evicted),
+            want,
+            "level {level}: {st}"
+        );
+        assert!(
+            st.pool_bytes <= 28 * blueshift_gpu::pool::SLOT_BYTES,
+            "{st}"
+        );
+        let got = t.render(&gs, &integ, &set).unwrap();
+        assert_eq!(got.as_raw(), fresh(at(level)).as_raw(), "level {level}");
+    }
+    // A view larger than the pool is the pool's error, and the scene renders nothing until
+    // a view fits again.
+    ctx.set_pool_limit(Some(20 * blueshift_gpu::pool::SLOT_BYTES));
+    let mut gs = t.upload(at(1)).unwrap();
+    let err = gs.set_view(at(0)).unwrap_err();
+    assert!(is_pool_full(&err), "{err}");
+    assert!(t.render(&gs, &integ, &set).is_err());
+    gs.set_view(at(2)).unwrap();
+    assert_eq!(
+        t.render(&gs, &integ, &set).unwrap().as_raw(),
+        fresh(at(2)).as_raw()
+    );
+    // Another scene's channels are not a view.
+    let other = scene_of(vec![dense(&smooth([96; 3]))]);
+    assert!(gs.set_view(other).is_err());
+}
+
+/// The levels an observer hears, in order.
+#[derive(Default)]
+struct Levels(std::sync::Mutex<Vec<usize>>);
+
+impl blueshift_camera::Observer<blueshift_tracking::Progressive> for Levels {
+    fn level(&self, _step: u32, level: usize) {
+        self.0.lock().unwrap().push(level);
+    }
+}
+
+#[test]
+fn progressive_levels_and_bricks_on_the_gpu_end_with_the_full_render() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let f = bricked(dir.path(), "s", &smooth([96; 3]), 1 << 24);
+    let s = scene_of(vec![Field::from(f.field(0).unwrap())]);
+    let (first, count) = s.lod().unwrap();
+    assert!(first == 0 && count >= 3, "{count} levels");
+    let integ = Integrator::Marcher(RayMarcher::default());
+    let mut set = RenderSettings::default_for(&s, 24, 24, false);
+    set.spp = 2;
+    let t = GpuTracker::new(ctx).unwrap();
+    let plain = t
+        .render(&t.upload(s.clone()).unwrap(), &integ, &set)
+        .unwrap();
+    let mut sess = GpuTrackingSession::new(ctx, s.clone(), integ.clone(), set.clone()).unwrap();
+    // Levels: one quick pass per coarser level, coarsest first, then the scene's.
+    let heard = Levels::default();
+    let out = sess.render_lod(&heard).unwrap();
+    assert_eq!(out.image.mean_image().as_raw(), plain.as_raw());
+    let want: Vec<usize> = (0..count).rev().collect();
+    assert_eq!(*heard.0.lock().unwrap(), want);
+    // Bricks: the coarsest level first, the scene's level last, in the same pool.
+    f.clear_cache();
+    let heard = Levels::default();
+    let out = sess.render_bricks(&heard, &mut |_, _, _| {}).unwrap();
+    assert_eq!(out.image.mean_image().as_raw(), plain.as_raw());
+    let got = heard.0.lock().unwrap().clone();
+    assert_eq!(got.first(), Some(&(count - 1)), "{got:?}");
+    assert_eq!(got.last(), Some(&0), "{got:?}");
+    assert_eq!(sess.scene().scene().geometry().dims, [96; 3]);
 }

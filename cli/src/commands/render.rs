@@ -607,9 +607,6 @@ fn run_inner(args: &Args) -> Result<()> {
         if per_brick {
             bail!("--lod brick: --progressive renders whole levels");
         }
-        if args.device == blueshift_gpu::DeviceChoice::Gpu {
-            bail!("--progressive renders on the CPU (not --device gpu)");
-        }
     }
     // Distributed: each rank reads only the bricks its piece samples (no whole-view prefetch).
     if level.is_some() && args.distributed.is_none() {
@@ -624,11 +621,7 @@ fn run_inner(args: &Args) -> Result<()> {
     let method = integrator.method().name();
     let n = scene.channels().len();
     let (width, height) = (settings.width, settings.height);
-    let device = if args.progressive.is_some() {
-        blueshift_gpu::DeviceChoice::Cpu
-    } else {
-        args.device
-    };
+    let device = args.device;
     let supported = blueshift_gpu::tracking::supports(&scene, &settings);
     // gpu hands the scene to the device; auto keeps it for the CPU in case the adapter
     // cannot run this render.
@@ -686,6 +679,32 @@ fn run_inner(args: &Args) -> Result<()> {
                 }
                 .ok_or_else(|| blueshift_gpu::Error::InvalidInput("no scene".into()))?;
                 set_gpu_pool(ctx, args.gpu_pool_mb)?;
+                if args.progressive.is_some() {
+                    // Every pass a view of one device pool: only the bricks a pass adds
+                    // are uploaded.
+                    let observer = Steps::new(&show, &scene);
+                    let mut session = blueshift_gpu::tracking::GpuTrackingSession::new_progressive(
+                        ctx,
+                        scene,
+                        integrator.clone(),
+                        settings.clone(),
+                    )?;
+                    let out = if by_bricks {
+                        let mut on_step = |_, at: usize, regions: usize| {
+                            *observer
+                                .note
+                                .lock()
+                                .unwrap_or_else(std::sync::PoisonError::into_inner) =
+                                format!(", {at} of {regions} bricks at the final level");
+                        };
+                        session.render_bricks(&observer, &mut on_step)?
+                    } else {
+                        session.render_lod(&observer)?
+                    };
+                    drop(observer);
+                    report_pool(&session.scene().pool_stats(), true, level, level);
+                    return Ok(out);
+                }
                 let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx)?;
                 let (gs, got) = if lod == blueshift_volume::Lod::Auto {
                     tracker.upload_fitting(scene)?
