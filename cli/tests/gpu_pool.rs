@@ -139,6 +139,20 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
     let log = String::from_utf8_lossy(&gb.stderr);
     assert!(log.contains("2 levels per brick"), "{log}");
     close(&d.join("brick.exr"), &d.join("gbrick.exr"));
+    // Progressive on the GPU, by levels and brick by brick, through one device pool: the
+    // coarsest level first, the exact image last (the CPU's).
+    for how in ["levels", "bricks"] {
+        let out = format!("prog-{how}.exr");
+        let p = doppler(d, &out, &["--device", "gpu", "--progressive", how]);
+        assert!(p.status.success(), "{}", String::from_utf8_lossy(&p.stderr));
+        let log = String::from_utf8_lossy(&p.stderr);
+        assert!(
+            log.contains("progressive: pass 1, level 3 (5x5x5)"),
+            "{log}"
+        );
+        assert!(log.contains("on the gpu"), "{log}");
+        close(&d.join("cpu.exr"), &d.join(&out));
+    }
     // A zero cap is the user's error.
     let z = doppler(d, "z.exr", &["--device", "gpu", "--gpu-pool-mb", "0"]);
     assert!(!z.status.success());

@@ -119,7 +119,8 @@ pub use profile::{Broadening, Profiles};
 pub use pwl::PwlTables;
 pub use render::{
     BandShift, DopplerImage, DopplerSettings, PieceStats, SpectralIntegrator, TraceStep,
-    pixel_spectrum, render_doppler, render_doppler_bricks, render_doppler_lod, trace_ray,
+    pixel_spectrum, render_doppler, render_doppler_bricks, render_doppler_bricks_with,
+    render_doppler_lod, render_doppler_lod_with, trace_ray,
 };
 pub use scene_file::{
     BlackbodySpec, CubeUnitsSpec, FactorSpec, FieldSpec, MemoryVolumes, SceneFile, SpeciesSpec,

@@ -679,6 +679,26 @@ pub fn render_doppler_lod(
     target: usize,
     observer: &dyn Observer<DopplerImage>,
 ) -> Result<DopplerImage> {
+    render_doppler_lod_with(scene, settings, target, observer, &mut |s| {
+        let ctx = Context::new(s, settings)?;
+        let img = render_rows(&ctx, &RowsOnly(observer))?;
+        s.check_io()?;
+        Ok(img)
+    })
+}
+
+/// [`render_doppler_lod`] with each level's image made by `image` (a GPU renders them
+/// through one device pool): the same passes, prefetches and observer calls.
+///
+/// # Errors
+/// As [`render_doppler_lod`], and `image`'s.
+pub fn render_doppler_lod_with<E: From<Error>>(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    target: usize,
+    observer: &dyn Observer<DopplerImage>,
+    image: &mut dyn FnMut(&DopplerScene) -> std::result::Result<DopplerImage, E>,
+) -> std::result::Result<DopplerImage, E> {
     let coarsest = coarsest_level(scene, target)?;
     let rays = settings
         .camera
@@ -704,13 +724,11 @@ pub fn render_doppler_lod(
         if level > target {
             prefetch(level - 1)?;
         }
-        let ctx = Context::new(&s, settings)?;
-        let img = render_rows(&ctx, &RowsOnly(observer))?;
-        s.check_io()?;
+        let img = image(&s)?;
         observer.pass(pass, &img, None);
         last = Some(img);
     }
-    last.ok_or_else(|| Error::parameter("no level rendered"))
+    Ok(last.ok_or_else(|| Error::parameter("no level rendered"))?)
 }
 
 /// Progressive refinement brick by brick while the bricks load (HDR VolVis section 6.3): the
@@ -734,6 +752,28 @@ pub fn render_doppler_bricks(
     observer: &dyn Observer<DopplerImage>,
     on_step: &mut dyn FnMut(u32, usize, usize),
 ) -> Result<DopplerImage> {
+    render_doppler_bricks_with(scene, settings, target, observer, on_step, &mut |s| {
+        let ctx = Context::new(s, settings)?;
+        let img = render_rows(&ctx, &RowsOnly(observer))?;
+        s.check_io()?;
+        Ok(img)
+    })
+}
+
+/// [`render_doppler_bricks`] with each image made by `image` (a GPU renders them through
+/// one device pool, uploading only the bricks each view adds): the same passes, views and
+/// observer calls.
+///
+/// # Errors
+/// As [`render_doppler_bricks`], and `image`'s.
+pub fn render_doppler_bricks_with<E: From<Error>>(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    target: usize,
+    observer: &dyn Observer<DopplerImage>,
+    on_step: &mut dyn FnMut(u32, usize, usize),
+    image: &mut dyn FnMut(&DopplerScene) -> std::result::Result<DopplerImage, E>,
+) -> std::result::Result<DopplerImage, E> {
     let coarsest = coarsest_level(scene, target)?;
     let rays = settings
         .camera
@@ -745,23 +785,23 @@ pub fn render_doppler_bricks(
         .filter_map(blueshift_volume::Field::as_bricked)
         .collect();
     blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
-    let image = |s: &DopplerScene, pass: u32, level: usize| -> Result<DopplerImage> {
-        observer.level(pass, level);
-        let ctx = Context::new(s, settings)?;
-        let img = render_rows(&ctx, &RowsOnly(observer))?;
-        s.check_io()?;
-        observer.pass(pass, &img, None);
-        Ok(img)
-    };
+    let image = std::cell::RefCell::new(image);
+    let render =
+        |s: &DopplerScene, pass: u32, level: usize| -> std::result::Result<DopplerImage, E> {
+            observer.level(pass, level);
+            let img = (image.borrow_mut())(s)?;
+            observer.pass(pass, &img, None);
+            Ok(img)
+        };
     let mut step = 0;
     if coarsest > target {
         step = 1;
-        image(&scene.at_level(coarsest)?, step, coarsest)?;
+        render(&scene.at_level(coarsest)?, step, coarsest)?;
         step = blueshift_volume::refine_while_loading(
             &fields,
             &rays,
             2,
-            || goal.resident_view(),
+            || goal.resident_view().map_err(E::from),
             |step, view: DopplerScene, at_level, regions| {
                 on_step(step, at_level, regions);
                 let level = view
@@ -771,12 +811,12 @@ pub fn render_doppler_bricks(
                     .map(blueshift_volume::BrickedField::coarsest_sampled_level)
                     .max()
                     .unwrap_or(target);
-                image(&view, step, level).map(|_| ())
+                render(&view, step, level).map(|_| ())
             },
             || observer.cancelled(),
         )?;
     }
-    image(&goal, step + 1, target)
+    render(&goal, step + 1, target)
 }
 
 /// Forwards row progress and cancellation, not the single pass's end (the caller numbers

@@ -662,7 +662,50 @@ pub fn render_doppler_gpu_pooled(
     precision: DopplerPrecision,
 ) -> Result<(DopplerImage, crate::pool::PoolStats)> {
     let prep = Prepared::new(scene, settings).map_err(doppler_err)?;
-    render_prepared(ctx, scene, settings, &prep, precision)
+    render_prepared(ctx, scene, settings, &prep, precision, &mut None)
+}
+
+/// Progressive levels of detail on the GPU for a scene whose fields are all bricked alike
+/// (given at level 0), as `blueshift_doppler::render_doppler_lod` (`bricks` false) or
+/// `render_doppler_bricks` (`bricks` true) run them on the CPU, the same passes and
+/// observer calls: every image is rendered on the device from one brick pool, a view of
+/// it per pass ([`crate::pool::DevicePool::update`]), so a pass uploads only the bricks it
+/// adds and the bricks of earlier passes stay while the pool has room. Returns the last
+/// image (at `target`) and what the pool held for it.
+///
+/// # Errors
+/// As the CPU's progressive renders and [`render_doppler_gpu_pooled`] (a view whose bricks
+/// exceed the pool is the pool's [`Error::LimitExceeded`]).
+#[allow(clippy::too_many_arguments)]
+pub fn render_doppler_gpu_progressive(
+    ctx: &GpuContext,
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    target: usize,
+    bricks: bool,
+    observer: &dyn Observer<DopplerImage>,
+    on_step: &mut dyn FnMut(u32, usize, usize),
+    precision: DopplerPrecision,
+) -> Result<(DopplerImage, crate::pool::PoolStats)> {
+    let mut held: Option<DevicePool> = None;
+    let mut stats = crate::pool::PoolStats::default();
+    let mut image = |s: &DopplerScene| -> Result<DopplerImage> {
+        if observer.cancelled() {
+            return Err(Error::Cancelled);
+        }
+        let prep = Prepared::new(s, settings).map_err(doppler_err)?;
+        let (img, st) = render_prepared(ctx, s, settings, &prep, precision, &mut held)?;
+        stats = st;
+        Ok(img)
+    };
+    let img = if bricks {
+        blueshift_doppler::render_doppler_bricks_with(
+            scene, settings, target, observer, on_step, &mut image,
+        )?
+    } else {
+        blueshift_doppler::render_doppler_lod_with(scene, settings, target, observer, &mut image)?
+    };
+    Ok((img, stats))
 }
 
 /// [`render_doppler_gpu_with`] over tables prepared for `scene` and `settings`.
@@ -672,6 +715,7 @@ fn render_prepared(
     settings: &DopplerSettings,
     prep: &Prepared,
     precision: DopplerPrecision,
+    held: &mut Option<DevicePool>,
 ) -> Result<(DopplerImage, crate::pool::PoolStats)> {
     supports(scene, settings)?;
     let entry = match (settings.integrator, prep.absorbing()) {
@@ -706,7 +750,15 @@ fn render_prepared(
         channels.extend([d, t, rho_t].map(PoolChannel::Scalar));
     }
     debug_assert_eq!(channels.len(), 3 + n_channels);
-    let pool = crate::pool::upload(ctx, "doppler volume", &channels)?;
+    // A pool held from an earlier view of the same fields (a progressive render) keeps
+    // its bricks and uploads only the missing ones.
+    let pool: &DevicePool = match held {
+        Some(p) => {
+            p.update(ctx, "doppler volume", &channels)?;
+            p
+        }
+        None => held.insert(crate::pool::upload(ctx, "doppler volume", &channels)?),
+    };
     drop(channels);
     let (a, b) = settings.range_nm;
     let n_bands = match settings.integrator {
@@ -872,7 +924,7 @@ fn render_prepared(
     if pwl_absorbs {
         let bufs = Bufs {
             rays: &rays,
-            pool: &pool,
+            pool,
             tables: &tables,
             lines: &lines_fw,
             double,
@@ -1280,6 +1332,7 @@ impl<'c> GpuDopplerSession<'c> {
             self.cpu.settings(),
             self.cpu.prepared(),
             self.precision,
+            &mut None,
         )?
         .0;
         single_pass_done(observer, u64::from(img.height), &img);

@@ -58,13 +58,24 @@ pub enum Error {
 }
 
 impl From<blueshift_volume::Error> for Error {
-    /// A bricked (`.bsv`) level the GPU backends could not load whole: they upload dense
-    /// grids, so an out-of-core level that does not fit is rendered on the CPU instead.
+    /// A brick of an out-of-core (`.bsv`) field the GPU's brick pool could not read: the
+    /// job is unsupported here, so `--device auto` renders it on the CPU, which reports
+    /// the read error itself.
     fn from(e: blueshift_volume::Error) -> Self {
         Error::Unsupported(format!(
-            "loading an out-of-core level for the GPU: {e} (the CPU renders bricked volumes \
-             through its cache)"
+            "reading an out-of-core brick for the GPU's brick pool: {e}"
         ))
+    }
+}
+
+impl From<blueshift_doppler::Error> for Error {
+    /// The Doppler crate's errors in a GPU render: cancellation stays cancellation; the
+    /// rest are the CPU's messages for bad input.
+    fn from(e: blueshift_doppler::Error) -> Self {
+        match e {
+            blueshift_doppler::Error::Cancelled => Error::Cancelled,
+            other => Error::InvalidInput(other.to_string()),
+        }
     }
 }
 

@@ -892,6 +892,20 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {{
 /// The 64^3 galaxy's hydrogen, black body and velocity as `.bsv` files (bricks of 8, so 512
 /// regions), in a scene whose every field takes a level per region in stripes.
 fn per_brick_galaxy(dir: &std::path::Path) -> DopplerScene {
+    let s = bricked_galaxy(dir);
+    let g = *s.geometry();
+    // Regions of 8 voxels of a grid whose world box is its own: stripes by region index.
+    let (lo, hi) = g.world_bounds();
+    let edge = (hi - lo) / 63.0 * 8.0;
+    s.per_brick(move |a, _| {
+        let r = ((a - lo) / edge + 0.5).floor();
+        (r.x as usize + 2 * r.z as usize) % 3
+    })
+    .unwrap()
+}
+
+/// The 64^3 galaxy's hydrogen, black body and velocity as `.bsv` files (bricks of 8).
+fn bricked_galaxy(dir: &std::path::Path) -> DopplerScene {
     use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource};
     use blueshift_volume::{AnyGrid, BrickCache, Field, Grid, VectorField};
     let vol = synth::galaxy(64, 2).unwrap();
@@ -941,14 +955,7 @@ fn per_brick_galaxy(dir: &std::path::Path) -> DopplerScene {
     .unwrap();
     s.factors.blackbody = 1e-3;
     s.factors.velocity = 20.0;
-    // Regions of 8 voxels of a grid whose world box is its own: stripes by region index.
-    let (lo, hi) = g.world_bounds();
-    let edge = (hi - lo) / 63.0 * 8.0;
-    s.per_brick(move |a, _| {
-        let r = ((a - lo) / edge + 0.5).floor();
-        (r.x as usize + 2 * r.z as usize) % 3
-    })
-    .unwrap()
+    s
 }
 
 #[test]
@@ -991,4 +998,49 @@ fn per_brick_levels_of_detail_match_the_cpu() {
         &cpu,
         &gpu_render(ctx, &scene, &st).unwrap(),
     );
+}
+
+/// The levels an observer hears, in order.
+#[derive(Default)]
+struct Levels(std::sync::Mutex<Vec<usize>>);
+
+impl blueshift_camera::Observer<DopplerImage> for Levels {
+    fn level(&self, _step: u32, level: usize) {
+        self.0.lock().unwrap().push(level);
+    }
+}
+
+#[test]
+fn progressive_renders_through_one_pool_end_with_the_target_level() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let scene = bricked_galaxy(dir.path());
+    let count = scene.levels().unwrap().len();
+    let st = DopplerSettings::default_for(&scene, 20, 20);
+    PRECISION.set(DopplerPrecision::F32);
+    for target in [0, 1] {
+        let want = gpu_render(ctx, &scene.at_level(target).unwrap(), &st).unwrap();
+        for bricks in [false, true] {
+            let heard = Levels::default();
+            let (img, stats) = blueshift_gpu::doppler::render_doppler_gpu_progressive(
+                ctx,
+                &scene,
+                &st,
+                target,
+                bricks,
+                &heard,
+                &mut |_, _, _| {},
+                DopplerPrecision::F32,
+            )
+            .unwrap();
+            assert_eq!(img.xyz, want.xyz, "target {target}, bricks {bricks}");
+            let got = heard.0.lock().unwrap().clone();
+            assert_eq!(got.first(), Some(&(count - 1)), "{got:?}");
+            assert_eq!(got.last(), Some(&target), "{got:?}");
+            if !bricks {
+                assert_eq!(got, (target..count).rev().collect::<Vec<_>>());
+            }
+            assert!(stats.resident > 0, "{stats}");
+        }
+    }
 }

@@ -530,12 +530,17 @@ fn render(session: &DopplerSession) -> Result<DopplerImage> {
 }
 
 /// `--progressive`: every level from the coarsest to `target`, one stderr line per pass.
-fn render_progressive(
+/// `run(observer, on_step, bricks)` renders the passes (the CPU's loops, or the GPU's
+/// through one device pool).
+fn render_progressive<E>(
     scene0: &DopplerScene,
-    st: &DopplerSettings,
-    target: usize,
     mode: Option<&str>,
-) -> Result<DopplerImage> {
+    run: impl FnOnce(
+        &dyn blueshift_camera::Observer<DopplerImage>,
+        &mut dyn FnMut(u32, usize, usize),
+        bool,
+    ) -> std::result::Result<DopplerImage, E>,
+) -> std::result::Result<DopplerImage, E> {
     struct Passes {
         start: Instant,
         level: std::sync::Mutex<(usize, Instant)>,
@@ -581,24 +586,13 @@ fn render_progressive(
         dims,
         note: std::sync::Mutex::new(String::new()),
     };
-    if mode == Some("bricks") {
-        let mut on_step = |_, at: usize, regions: usize| {
-            *obs.note
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner) =
-                format!(", {at} of {regions} bricks at the final level");
-        };
-        return Ok(blueshift_doppler::render_doppler_bricks(
-            scene0,
-            st,
-            target,
-            &obs,
-            &mut on_step,
-        )?);
-    }
-    Ok(blueshift_doppler::render_doppler_lod(
-        scene0, st, target, &obs,
-    )?)
+    let mut on_step = |_, at: usize, regions: usize| {
+        *obs.note
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) =
+            format!(", {at} of {regions} bricks at the final level");
+    };
+    run(&obs, &mut on_step, mode == Some("bricks"))
 }
 
 /// The one wording of a device failure: `--device gpu: <why>; use --device cpu or auto` for
@@ -817,8 +811,8 @@ fn run_frame(args: Args) -> Result<()> {
         if level0.is_none() {
             bail!("--progressive: levels of detail need every field of the scene in .bsv files");
         }
-        if args.cube.cube.is_some() || args.device == blueshift_gpu::DeviceChoice::Gpu {
-            bail!("--progressive renders images on the CPU (not cubes, not --device gpu)");
+        if args.cube.cube.is_some() {
+            bail!("--progressive renders images (not cubes)");
         }
     }
     super::doppler_cube::apply_view(&args.cube, &scene, &mut st)?;
@@ -871,11 +865,7 @@ fn run_frame(args: Args) -> Result<()> {
     }
     let start = Instant::now();
     let mut on = "cpu";
-    let device = if args.progressive.is_some() {
-        blueshift_gpu::DeviceChoice::Cpu
-    } else {
-        args.device
-    };
+    let device = args.device;
     let distributed = if let Some(mode) = crate::dist::mode(args.distributed.as_deref())? {
         if args.progressive.is_some() {
             bail!("--distributed: not with --progressive");
@@ -909,6 +899,23 @@ fn run_frame(args: Args) -> Result<()> {
                         .iter()
                         .any(|s| s.density.as_bricked().is_some());
                 let auto = args.lod.as_deref().map(str::trim) == Some("auto");
+                if let (Some((s0, target)), Some(mode)) = (&level0, args.progressive.as_deref()) {
+                    // Every pass a view of one device pool.
+                    return render_progressive(s0, Some(mode), |obs, on_step, bricks| {
+                        let (img, stats) = blueshift_gpu::doppler::render_doppler_gpu_progressive(
+                            ctx,
+                            s0,
+                            st,
+                            *target,
+                            bricks,
+                            obs,
+                            on_step,
+                            args.gpu_precision,
+                        )?;
+                        super::render::report_pool(&stats, true, asked, asked);
+                        Ok(img)
+                    });
+                }
                 let mut level = asked;
                 let mut coarser: Option<(DopplerScene, DopplerSettings)> = None;
                 loop {
@@ -944,7 +951,13 @@ fn run_frame(args: Args) -> Result<()> {
             },
             || match &level0 {
                 Some((s0, target)) if args.progressive.is_some() => {
-                    render_progressive(s0, st, *target, args.progressive.as_deref())
+                    render_progressive(s0, args.progressive.as_deref(), |obs, on_step, bricks| {
+                        Ok(if bricks {
+                            blueshift_doppler::render_doppler_bricks(s0, st, *target, obs, on_step)?
+                        } else {
+                            blueshift_doppler::render_doppler_lod(s0, st, *target, obs)?
+                        })
+                    })
                 }
                 _ => render(&session),
             },
