@@ -276,6 +276,34 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f32::max);
     assert!(diff <= 1e-4, "per-brick: max |gpu - cpu| = {diff}");
+    // At 24x24 the per-brick view holds 8 level-0 bricks and one of level 1: a 1 MiB pool
+    // (7 slots) takes every brick one level coarser, and stderr says so.
+    let mut a = vec![
+        "render",
+        "--volume",
+        "t.bsv",
+        "--tf",
+        "builtin:viridis",
+        "--method",
+        "marcher",
+        "--width",
+        "24",
+        "--height",
+        "24",
+        "--lod",
+        "brick",
+        "--out",
+        "fit.exr",
+    ];
+    a.extend(["--device", "gpu", "--gpu-pool-mb", "1"]);
+    let fit = blueshift(&a, d);
+    assert!(
+        fit.status.success(),
+        "{}",
+        String::from_utf8_lossy(&fit.stderr)
+    );
+    let log = String::from_utf8_lossy(&fit.stderr);
+    assert!(log.contains("every brick 1 level(s) coarser"), "{log}");
     // Progressive on the GPU, by levels and brick by brick: every pass a view of one device
     // pool, the coarsest level first, and the final image the CPU's.
     for how in ["levels", "bricks"] {

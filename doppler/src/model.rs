@@ -299,6 +299,24 @@ impl DopplerScene {
         Ok((view, at, regions))
     }
 
+    /// The same scene with every field's per-region levels of detail (`--lod brick`) `k`
+    /// levels coarser, clamped to the coarsest
+    /// ([`blueshift_volume::BrickedField::coarser_regions`]): what a GPU pool too small for
+    /// the per-brick view falls back on. The second value says whether any region is coarser
+    /// than with `k - 1`.
+    ///
+    /// # Errors
+    /// A field in memory (every field must be bricked alike, [`DopplerScene::levels`]).
+    pub fn coarser_regions(&self, k: usize) -> Result<(DopplerScene, bool)> {
+        let moved = std::cell::Cell::new(false);
+        let s = self.map_bricked(|b| {
+            let (f, m) = b.coarser_regions(k)?;
+            moved.set(moved.get() | m);
+            Ok(f)
+        })?;
+        Ok((s, moved.get()))
+    }
+
     /// This scene with every bricked field replaced by `f` of it (every field bricked alike).
     fn map_bricked(
         &self,

@@ -580,7 +580,8 @@ pub fn is_pool_full(err: &Error) -> bool {
     matches!(err, Error::LimitExceeded { limit, .. } if *limit == POOL_LIMIT)
 }
 
-fn pool_full(ctx: &GpuContext, slots: u64) -> Error {
+/// The pool's [`Error::LimitExceeded`] for `slots` non-constant bricks.
+pub(crate) fn pool_full(ctx: &GpuContext, slots: u64) -> Error {
     Error::LimitExceeded {
         what: format!(
             "GPU brick pool ({slots} non-constant bricks of {POOL_BRICK}^3 at this level of \

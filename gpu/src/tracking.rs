@@ -443,6 +443,60 @@ impl<'c> GpuTracker<'c> {
         }
     }
 
+    /// [`GpuTracker::upload`] of a scene with per-brick levels of detail (`--lod brick`):
+    /// when its pool does not fit the device, every region is moved one level coarser
+    /// ([`Scene::coarser_regions`]) until it fits (views known to overflow from stored
+    /// macrocells are skipped without reading a brick). Returns the uploaded scene and how
+    /// many levels coarser than asked its regions are (0: as asked). A scene without
+    /// per-region levels is uploaded as it is.
+    ///
+    /// # Errors
+    /// The pool's [`Error::LimitExceeded`] of the view asked when even every region at the
+    /// coarsest level does not fit; as [`GpuTracker::upload`].
+    pub fn upload_fitting_regions(&self, scene: Scene) -> Result<(GpuScene<'c>, usize)> {
+        let per_region = scene.channels().iter().any(|c| {
+            c.grid()
+                .as_bricked()
+                .is_some_and(|b| b.level_map().is_some())
+        });
+        if !per_region {
+            return Ok((self.upload(scene)?, 0));
+        }
+        let mut first_err = None;
+        for k in 0..=usize::from(u8::MAX) {
+            let (s, moved) = if k == 0 {
+                (scene.clone(), true)
+            } else {
+                scene
+                    .coarser_regions(k)
+                    .map_err(|e| Error::InvalidInput(e.to_string()))?
+            };
+            if !moved {
+                break;
+            }
+            let channels: Vec<PoolChannel<'_>> = s
+                .channels()
+                .iter()
+                .map(|c| PoolChannel::Scalar(c.grid()))
+                .collect();
+            let est = crate::pool::estimate(self.ctx, &channels)?;
+            drop(channels);
+            let attempt = if est.surely_full() {
+                Err(crate::pool::pool_full(self.ctx, est.slots))
+            } else {
+                self.upload(s)
+            };
+            match attempt {
+                Ok(gs) => return Ok((gs, k)),
+                Err(e) if crate::pool::is_pool_full(&e) => {
+                    first_err.get_or_insert(e);
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        Err(first_err.unwrap_or_else(|| Error::InvalidInput("no per-brick view fits".into())))
+    }
+
     /// Renders `settings.spp` passes (or fewer once `settings.noise_target` is met),
     /// calling `progress(samples, noise)` after each dispatch, and returns the per-pixel
     /// mean and variance. [`GpuTrackingSession`] runs the same loop under an observer.

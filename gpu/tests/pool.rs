@@ -574,3 +574,47 @@ fn progressive_levels_and_bricks_on_the_gpu_end_with_the_full_render() {
     assert_eq!(got.last(), Some(&0), "{got:?}");
     assert_eq!(sess.scene().scene().geometry().dims, [96; 3]);
 }
+
+#[test]
+fn a_per_brick_view_too_large_for_the_pool_moves_every_region_coarser_until_it_fits() {
+    let Some(ctx) = own_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let f = bricked(dir.path(), "s", &smooth([128; 3]), 1 << 26);
+    // One region at level 0, every other at level 2: two non-constant pool bricks.
+    let field: Field = f
+        .field(0)
+        .unwrap()
+        .per_region(|lo, _| if lo.max_element() < 16.0 { 0 } else { 2 })
+        .unwrap()
+        .into();
+    let s = scene_of(vec![field]);
+    let t = GpuTracker::new(&ctx).unwrap();
+    let slot = blueshift_gpu::pool::SLOT_BYTES;
+    ctx.set_pool_limit(Some(2 * slot));
+    let (gs, k) = t.upload_fitting_regions(s.clone()).unwrap();
+    assert_eq!((k, gs.pool_stats().resident), (0, 2));
+    // One slot: the regions move coarser together until the view holds one brick.
+    ctx.set_pool_limit(Some(slot));
+    let (gs, k) = t.upload_fitting_regions(s.clone()).unwrap();
+    assert!(
+        k >= 1 && gs.pool_stats().resident == 1,
+        "k {k}: {}",
+        gs.pool_stats()
+    );
+    let (view, moved) = s.coarser_regions(k).unwrap();
+    assert!(moved);
+    // The view uploaded is the coarser one: the device samples it as the CPU does.
+    let pts: Vec<(usize, Vec3)> = [[3.0, 4.0, 5.0], [70.5, 20.25, 100.0], [127.0, 0.0, 64.0]]
+        .iter()
+        .map(|&p| (0, Vec3::from(p)))
+        .collect();
+    let got = sample_probe(&gs, &pts).unwrap();
+    for ((_, p), g) in pts.iter().zip(got) {
+        let want = view.channels()[0].grid().sample_scalar_index(*p);
+        assert!((g - want).abs() <= 1e-5, "{p}: {g} vs {want}");
+    }
+    // Below one slot nothing fits: the pool's error.
+    ctx.set_pool_limit(Some(1024));
+    let err = t.upload_fitting_regions(s).map(|_| ()).unwrap_err();
+    assert!(is_pool_full(&err), "{err}");
+}

@@ -308,6 +308,24 @@ impl Scene {
         Ok((s, at_base, regions))
     }
 
+    /// The same scene with every bricked channel's per-region levels of detail (`--lod
+    /// brick`) `k` levels coarser, clamped to the coarsest
+    /// ([`blueshift_volume::BrickedField::coarser_regions`]): what a GPU pool too small for
+    /// the per-brick view falls back on. The second value says whether any region is coarser
+    /// than with `k - 1`.
+    ///
+    /// # Errors
+    /// A channel in memory; as [`Scene::new`].
+    pub fn coarser_regions(&self, k: usize) -> Result<(Scene, bool)> {
+        let mut moved = false;
+        let s = self.with_bricked(|b| {
+            let (f, m) = b.coarser_regions(k)?;
+            moved |= m;
+            Ok(Field::from(f))
+        })?;
+        Ok((s, moved))
+    }
+
     /// The first brick read that failed while rendering (out-of-core channels), as an
     /// error; renders call this after every pass.
     pub fn check_io(&self) -> Result<()> {

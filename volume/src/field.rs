@@ -781,6 +781,38 @@ impl BrickedField {
         .with_levels(levels)
     }
 
+    /// This field with every region's level of detail `k` levels coarser, clamped to the
+    /// coarsest (a per-region view that holds fewer bricks: what a bounded device pool
+    /// falls back on); a field without per-region levels is returned as it is. The second
+    /// value says whether any region is coarser than with `k - 1` (false for `k` 0 and once
+    /// every region is at the coarsest: a caller stepping `k` up stops there).
+    ///
+    /// # Errors
+    /// As [`BrickedField::per_region`].
+    pub fn coarser_regions(&self, k: usize) -> Result<(Self, bool)> {
+        let Some(m) = &self.regions else {
+            return Ok((self.clone(), false));
+        };
+        let last = self.levels() - 1;
+        let mut moved = false;
+        let levels: Vec<u8> = m
+            .levels
+            .iter()
+            .map(|&l| {
+                let from = self.level + usize::from(l);
+                let to = (from + k).min(last);
+                // Coarser than with k - 1.
+                moved |= k > 0 && from + k - 1 < last;
+                u8::try_from(to).unwrap_or(u8::MAX)
+            })
+            .collect();
+        let plain = BrickedField {
+            regions: None,
+            ..self.clone()
+        };
+        Ok((plain.with_levels(levels)?, moved))
+    }
+
     /// [`BrickedField::per_region`] by what the cache holds now (HDR VolVis 6.3's
     /// progressive refinement while bricks load): each region (one brick of this level)
     /// takes the finest level, from this one to the coarsest, whose brick holding the

@@ -918,6 +918,8 @@ fn run_frame(args: Args) -> Result<()> {
                 }
                 let mut level = asked;
                 let mut coarser: Option<(DopplerScene, DopplerSettings)> = None;
+                let per_brick = args.lod.as_deref().map(str::trim) == Some("brick");
+                let mut regions_coarser = 0;
                 loop {
                     let (s, t) = coarser.as_ref().map_or((scene, st), |(s, t)| (s, t));
                     match blueshift_gpu::doppler::render_doppler_gpu_pooled(
@@ -928,7 +930,26 @@ fn run_frame(args: Args) -> Result<()> {
                     ) {
                         Ok((img, stats)) => {
                             super::render::report_pool(&stats, bricked, asked, level);
+                            if regions_coarser > 0 {
+                                eprintln!(
+                                    "--lod brick: every brick {regions_coarser} level(s) coarser \
+                                     than the rule asks, to fit the GPU brick pool"
+                                );
+                            }
                             return Ok(img);
+                        }
+                        // --lod brick: a pool too small for the per-brick view renders every
+                        // region one level coarser, until it fits.
+                        Err(e) if per_brick && blueshift_gpu::pool::is_pool_full(&e) => {
+                            let bad = |e: String| blueshift_gpu::Error::InvalidInput(e);
+                            let (s, moved) = scene
+                                .coarser_regions(regions_coarser + 1)
+                                .map_err(|e| bad(e.to_string()))?;
+                            if !moved {
+                                return Err(e);
+                            }
+                            regions_coarser += 1;
+                            coarser = Some((s, st.clone()));
                         }
                         // --lod auto: the finest coarser level whose bricks fit the pool.
                         Err(e) if auto && blueshift_gpu::pool::is_pool_full(&e) => {

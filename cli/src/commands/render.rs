@@ -708,6 +708,16 @@ fn run_inner(args: &Args) -> Result<()> {
                 let tracker = blueshift_gpu::tracking::GpuTracker::new(ctx)?;
                 let (gs, got) = if lod == blueshift_volume::Lod::Auto {
                     tracker.upload_fitting(scene)?
+                } else if lod == blueshift_volume::Lod::Brick {
+                    // A pool too small for the per-brick view: every region coarser.
+                    let (gs, k) = tracker.upload_fitting_regions(scene)?;
+                    if k > 0 {
+                        eprintln!(
+                            "--lod brick: every brick {k} level(s) coarser than the rule asks, \
+                             to fit the GPU brick pool"
+                        );
+                    }
+                    (gs, level)
                 } else {
                     (tracker.upload(scene)?, level)
                 };
