@@ -139,6 +139,31 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
     let log = String::from_utf8_lossy(&gb.stderr);
     assert!(log.contains("2 levels per brick"), "{log}");
     close(&d.join("brick.exr"), &d.join("gbrick.exr"));
+    // At 24x24 every region takes level 0 (20 non-constant bricks): a 1 MiB pool (7 slots)
+    // takes every region one level coarser, and stderr says so.
+    let fit = doppler(
+        d,
+        "fit.exr",
+        &[
+            "--lod",
+            "brick",
+            "--width",
+            "24",
+            "--height",
+            "24",
+            "--device",
+            "gpu",
+            "--gpu-pool-mb",
+            "1",
+        ],
+    );
+    assert!(
+        fit.status.success(),
+        "{}",
+        String::from_utf8_lossy(&fit.stderr)
+    );
+    let log = String::from_utf8_lossy(&fit.stderr);
+    assert!(log.contains("every brick 1 level(s) coarser"), "{log}");
     // Progressive on the GPU, by levels and brick by brick, through one device pool: the
     // coarsest level first, the exact image last (the CPU's).
     for how in ["levels", "bricks"] {
