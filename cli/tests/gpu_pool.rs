@@ -55,20 +55,20 @@ fn doppler(dir: &Path, out: &str, extra: &[&str]) -> Output {
     blueshift(&a, dir)
 }
 
-fn close(a: &Path, b: &Path) {
+/// The stderr of a run that succeeded.
+fn ok(o: &Output) -> String {
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// The largest difference of two EXR images' samples.
+fn max_diff(a: &Path, b: &Path) -> f32 {
     let (a, b) = (read_exr(a), read_exr(b));
-    let max = a
-        .pixels()
-        .flat_map(|p| p.0[..3].to_vec())
-        .fold(0.0f32, f32::max);
-    assert!(max > 0.0, "a black image");
-    for (p, q) in a.pixels().zip(b.pixels()) {
-        for k in 0..3 {
-            // The f32 tolerance of tests/doppler_device.rs.
-            let tol = 2e-3 * p.0[k].abs() + 1e-5 * max;
-            assert!((p.0[k] - q.0[k]).abs() <= tol, "{:?} vs {:?}", p.0, q.0);
-        }
-    }
+    a.as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 #[test]
@@ -82,7 +82,7 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
     if !gpu_ok("doppler", &g) {
         return;
     }
-    close(&d.join("cpu.exr"), &d.join("gpu.exr"));
+    common::close_doppler(&d.join("cpu.exr"), &d.join("gpu.exr"));
     let log = String::from_utf8_lossy(&g.stderr);
     // Of the 32 bricks the shell's corners are constant (outside the shell: no slot).
     assert!(log.contains(" of 32 bricks resident"), "{log}");
@@ -128,20 +128,17 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
     );
     // Per-brick levels (every field bricked alike): the GPU pool holds each level's
     // sampled bricks and renders the CPU's image.
-    let b = doppler(d, "brick.exr", &["--lod", "brick"]);
-    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
-    let gb = doppler(d, "gbrick.exr", &["--lod", "brick", "--device", "gpu"]);
-    assert!(
-        gb.status.success(),
-        "{}",
-        String::from_utf8_lossy(&gb.stderr)
-    );
-    let log = String::from_utf8_lossy(&gb.stderr);
+    ok(&doppler(d, "brick.exr", &["--lod", "brick"]));
+    let log = ok(&doppler(
+        d,
+        "gbrick.exr",
+        &["--lod", "brick", "--device", "gpu"],
+    ));
     assert!(log.contains("2 levels per brick"), "{log}");
-    close(&d.join("brick.exr"), &d.join("gbrick.exr"));
+    common::close_doppler(&d.join("brick.exr"), &d.join("gbrick.exr"));
     // At 24x24 every region takes level 0 (20 non-constant bricks): a 1 MiB pool (7 slots)
     // takes every region one level coarser, and stderr says so.
-    let fit = doppler(
+    let log = ok(&doppler(
         d,
         "fit.exr",
         &[
@@ -156,27 +153,23 @@ fn doppler_bricked_scene_on_the_gpu_pool_cap_and_lod_auto() {
             "--gpu-pool-mb",
             "1",
         ],
-    );
-    assert!(
-        fit.status.success(),
-        "{}",
-        String::from_utf8_lossy(&fit.stderr)
-    );
-    let log = String::from_utf8_lossy(&fit.stderr);
+    ));
     assert!(log.contains("every brick 1 level(s) coarser"), "{log}");
     // Progressive on the GPU, by levels and brick by brick, through one device pool: the
     // coarsest level first, the exact image last (the CPU's).
     for how in ["levels", "bricks"] {
         let out = format!("prog-{how}.exr");
-        let p = doppler(d, &out, &["--device", "gpu", "--progressive", how]);
-        assert!(p.status.success(), "{}", String::from_utf8_lossy(&p.stderr));
-        let log = String::from_utf8_lossy(&p.stderr);
+        let log = ok(&doppler(
+            d,
+            &out,
+            &["--device", "gpu", "--progressive", how],
+        ));
         assert!(
             log.contains("progressive: pass 1, level 3 (5x5x5)"),
             "{log}"
         );
         assert!(log.contains("on the gpu"), "{log}");
-        close(&d.join("cpu.exr"), &d.join(&out));
+        common::close_doppler(&d.join("cpu.exr"), &d.join(&out));
     }
     // A zero cap is the user's error.
     let z = doppler(d, "z.exr", &["--device", "gpu", "--gpu-pool-mb", "0"]);
@@ -202,7 +195,8 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
         d,
     );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let render = |out: &str, extra: &[&str]| {
+    // `size` x `size` pixels.
+    let render_at = |out: &str, size: &str, extra: &[&str]| {
         let mut a = vec![
             "render",
             "--volume",
@@ -212,29 +206,23 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
             "--method",
             "marcher",
             "--width",
-            "64",
+            size,
             "--height",
-            "64",
+            size,
             "--out",
             out,
         ];
         a.extend_from_slice(extra);
         blueshift(&a, d)
     };
-    let c = render("cpu.exr", &[]);
-    assert!(c.status.success(), "{}", String::from_utf8_lossy(&c.stderr));
+    let render = |out: &str, extra: &[&str]| render_at(out, "64", extra);
+    ok(&render("cpu.exr", &[]));
     let g = render("gpu.exr", &["--device", "gpu"]);
     if !gpu_ok("render", &g) {
         return;
     }
-    let (a, b) = (read_exr(&d.join("cpu.exr")), read_exr(&d.join("gpu.exr")));
-    let diff = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max);
     // The marcher's f32 tolerance over some 100 steps (gpu/tests/pool.rs).
+    let diff = max_diff(&d.join("cpu.exr"), &d.join("gpu.exr"));
     assert!(diff <= 1e-4, "max |gpu - cpu| = {diff}");
     let log = String::from_utf8_lossy(&g.stderr);
     assert!(
@@ -247,107 +235,44 @@ fn render_bricked_volume_on_the_gpu_pool_cap_and_lod_auto() {
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(err.contains("brick pool"), "{err}");
     assert!(!d.join("never.exr").exists());
-    let l = render(
+    let log = ok(&render(
         "auto1.exr",
         &["--device", "gpu", "--gpu-pool-mb", "1", "--lod", "auto"],
-    );
-    assert!(l.status.success(), "{}", String::from_utf8_lossy(&l.stderr));
-    let log = String::from_utf8_lossy(&l.stderr);
+    ));
     assert!(
         log.contains("at level 1 (level 0 does not fit the pool)"),
         "{log}"
     );
     // Per-brick levels at 16x16 (bricks near the eye at level 0, far ones at level 1): the
     // pool holds each level's sampled bricks and the GPU renders the CPU's image.
-    let small = |out: &str, extra: &[&str]| {
-        let mut a = vec![
-            "render",
-            "--volume",
-            "t.bsv",
-            "--tf",
-            "builtin:viridis",
-            "--method",
-            "marcher",
-            "--width",
-            "16",
-            "--height",
-            "16",
-            "--lod",
-            "brick",
-            "--out",
-            out,
-        ];
-        a.extend_from_slice(extra);
-        blueshift(&a, d)
-    };
-    let b = small("brick.exr", &[]);
-    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
-    let gb = small("gbrick.exr", &["--device", "gpu"]);
-    assert!(
-        gb.status.success(),
-        "{}",
-        String::from_utf8_lossy(&gb.stderr)
-    );
-    let log = String::from_utf8_lossy(&gb.stderr);
+    ok(&render_at("brick.exr", "16", &["--lod", "brick"]));
+    let log = ok(&render_at(
+        "gbrick.exr",
+        "16",
+        &["--lod", "brick", "--device", "gpu"],
+    ));
     assert!(log.contains("2 levels per brick"), "{log}");
-    let (a, b) = (
-        read_exr(&d.join("brick.exr")),
-        read_exr(&d.join("gbrick.exr")),
-    );
-    let diff = a
-        .as_raw()
-        .iter()
-        .zip(b.as_raw())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f32::max);
+    let diff = max_diff(&d.join("brick.exr"), &d.join("gbrick.exr"));
     assert!(diff <= 1e-4, "per-brick: max |gpu - cpu| = {diff}");
     // At 24x24 the per-brick view holds 8 level-0 bricks and one of level 1: a 1 MiB pool
     // (7 slots) takes every brick one level coarser, and stderr says so.
-    let mut a = vec![
-        "render",
-        "--volume",
-        "t.bsv",
-        "--tf",
-        "builtin:viridis",
-        "--method",
-        "marcher",
-        "--width",
-        "24",
-        "--height",
-        "24",
-        "--lod",
-        "brick",
-        "--out",
+    let log = ok(&render_at(
         "fit.exr",
-    ];
-    a.extend(["--device", "gpu", "--gpu-pool-mb", "1"]);
-    let fit = blueshift(&a, d);
-    assert!(
-        fit.status.success(),
-        "{}",
-        String::from_utf8_lossy(&fit.stderr)
-    );
-    let log = String::from_utf8_lossy(&fit.stderr);
+        "24",
+        &["--lod", "brick", "--device", "gpu", "--gpu-pool-mb", "1"],
+    ));
     assert!(log.contains("every brick 1 level(s) coarser"), "{log}");
     // Progressive on the GPU, by levels and brick by brick: every pass a view of one device
     // pool, the coarsest level first, and the final image the CPU's.
     for how in ["levels", "bricks"] {
         let out = format!("prog-{how}.exr");
-        let p = render(&out, &["--device", "gpu", "--progressive", how]);
-        assert!(p.status.success(), "{}", String::from_utf8_lossy(&p.stderr));
-        let log = String::from_utf8_lossy(&p.stderr);
+        let log = ok(&render(&out, &["--device", "gpu", "--progressive", how]));
         assert!(
             log.contains("progressive: pass 1, level 3 (5x5x5)"),
             "{log}"
         );
         assert!(log.contains("GPU brick pool"), "{log}");
-        let (a, b) = (read_exr(&d.join("cpu.exr")), read_exr(&d.join(&out)));
-        let diff = a
-            .as_raw()
-            .iter()
-            .zip(b.as_raw())
-            .map(|(x, y)| (x - y).abs())
-            .fold(0.0, f32::max);
+        let diff = max_diff(&d.join("cpu.exr"), &d.join(&out));
         assert!(diff <= 1e-4, "progressive {how}: max |gpu - cpu| = {diff}");
     }
     let one = render("one.exr", &["--device", "gpu", "--lod", "1"]);

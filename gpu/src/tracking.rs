@@ -420,13 +420,7 @@ impl<'c> GpuTracker<'c> {
                     .at_level(level)
                     .map_err(|e| Error::InvalidInput(e.to_string()))?
             };
-            let channels: Vec<PoolChannel<'_>> = s
-                .channels()
-                .iter()
-                .map(|c| PoolChannel::Scalar(c.grid()))
-                .collect();
-            let est = crate::pool::estimate(self.ctx, &channels)?;
-            drop(channels);
+            let est = scene_estimate(self.ctx, &s)?;
             if est.surely_full() {
                 continue;
             }
@@ -474,13 +468,7 @@ impl<'c> GpuTracker<'c> {
             if !moved {
                 break;
             }
-            let channels: Vec<PoolChannel<'_>> = s
-                .channels()
-                .iter()
-                .map(|c| PoolChannel::Scalar(c.grid()))
-                .collect();
-            let est = crate::pool::estimate(self.ctx, &channels)?;
-            drop(channels);
+            let est = scene_estimate(self.ctx, &s)?;
             let attempt = if est.surely_full() {
                 Err(crate::pool::pool_full(self.ctx, est.slots))
             } else {
@@ -678,6 +666,16 @@ impl<'c> GpuTracker<'c> {
             .render_progressive(scene, integrator, settings, |_, _| {})?
             .mean_image())
     }
+}
+
+/// What `scene`'s pool needs, known without reading a brick ([`crate::pool::estimate`]).
+fn scene_estimate(ctx: &GpuContext, scene: &Scene) -> Result<crate::pool::PoolEstimate> {
+    let channels: Vec<PoolChannel<'_>> = scene
+        .channels()
+        .iter()
+        .map(|c| PoolChannel::Scalar(c.grid()))
+        .collect();
+    crate::pool::estimate(ctx, &channels)
 }
 
 /// `Ok` when the GPU tracker covers `scene` + `settings`, else why not: gradient shading,
@@ -1503,13 +1501,7 @@ impl GpuTrackingSession<'_> {
                     || full.resident_view().map_err(bad),
                     |step, view: Scene, at_level, regions| {
                         on_step(step, at_level, regions);
-                        let coarsest = view
-                            .channels()
-                            .iter()
-                            .filter_map(|c| c.grid().as_bricked())
-                            .map(blueshift_volume::BrickedField::coarsest_sampled_level)
-                            .max()
-                            .unwrap_or(level);
+                        let coarsest = view.coarsest_sampled_level().unwrap_or(level);
                         self.scene.set_view(view)?;
                         self.quick(observer, step, coarsest)
                     },

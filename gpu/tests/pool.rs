@@ -440,20 +440,25 @@ fn per_brick_levels_sample_and_render_as_the_cpu_does() {
     );
 }
 
-#[test]
-fn a_per_brick_pool_reads_only_the_bricks_its_regions_sample() {
-    let Some(ctx) = test_context() else { return };
-    let dir = tempfile::tempdir().unwrap();
-    let f = bricked(dir.path(), "s", &smooth([128; 3]), 1 << 26);
-    // One region (file brick (0, 0, 0), voxels 0..16) at the finest level, every other at
-    // level 2 (32^3: one pool brick); level 1 is sampled nowhere.
+/// A smooth 128^3 `.bsv` (bricks of 16) and a scene of it with one region (file brick
+/// (0, 0, 0), voxels 0..16) at the finest level and every other at level 2 (32^3: one pool
+/// brick); level 1 is sampled nowhere.
+fn one_fine_region(dir: &std::path::Path) -> (BrickedFile, Scene) {
+    let f = bricked(dir, "s", &smooth([128; 3]), 1 << 26);
     let field: Field = f
         .field(0)
         .unwrap()
         .per_region(|lo, _| if lo.max_element() < 16.0 { 0 } else { 2 })
         .unwrap()
         .into();
-    let s = scene_of(vec![field]);
+    (f, scene_of(vec![field]))
+}
+
+#[test]
+fn a_per_brick_pool_reads_only_the_bricks_its_regions_sample() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (f, s) = one_fine_region(dir.path());
     f.cache().reset_stats();
     let t = GpuTracker::new(ctx).unwrap();
     let gs = t.upload(s).unwrap();
@@ -579,15 +584,8 @@ fn progressive_levels_and_bricks_on_the_gpu_end_with_the_full_render() {
 fn a_per_brick_view_too_large_for_the_pool_moves_every_region_coarser_until_it_fits() {
     let Some(ctx) = own_context() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let f = bricked(dir.path(), "s", &smooth([128; 3]), 1 << 26);
-    // One region at level 0, every other at level 2: two non-constant pool bricks.
-    let field: Field = f
-        .field(0)
-        .unwrap()
-        .per_region(|lo, _| if lo.max_element() < 16.0 { 0 } else { 2 })
-        .unwrap()
-        .into();
-    let s = scene_of(vec![field]);
+    // Two non-constant pool bricks.
+    let (_f, s) = one_fine_region(dir.path());
     let t = GpuTracker::new(&ctx).unwrap();
     let slot = blueshift_gpu::pool::SLOT_BYTES;
     ctx.set_pool_limit(Some(2 * slot));

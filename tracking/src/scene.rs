@@ -308,6 +308,17 @@ impl Scene {
         Ok((s, at_base, regions))
     }
 
+    /// The coarsest level any channel's samples read (per-region levels included), or
+    /// `None` when no channel is bricked.
+    #[must_use]
+    pub fn coarsest_sampled_level(&self) -> Option<usize> {
+        self.channels
+            .iter()
+            .filter_map(|c| c.grid.as_bricked())
+            .map(blueshift_volume::BrickedField::coarsest_sampled_level)
+            .max()
+    }
+
     /// The same scene with every bricked channel's per-region levels of detail (`--lod
     /// brick`) `k` levels coarser, clamped to the coarsest
     /// ([`blueshift_volume::BrickedField::coarser_regions`]): what a GPU pool too small for

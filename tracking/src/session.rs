@@ -239,13 +239,7 @@ impl TrackingSession {
                 || self.scene.resident_view(),
                 |step, view: Scene, at_level, regions| {
                     on_step(step, at_level, regions);
-                    let coarsest = view
-                        .channels()
-                        .iter()
-                        .filter_map(|c| c.grid().as_bricked())
-                        .map(blueshift_volume::BrickedField::coarsest_sampled_level)
-                        .max()
-                        .unwrap_or(level);
+                    let coarsest = view.coarsest_sampled_level().unwrap_or(level);
                     quick(&view, step, coarsest)
                 },
                 || observer.cancelled(),

@@ -27,6 +27,23 @@ pub fn read_exr(p: &Path) -> image::Rgba32FImage {
     image::open(p).unwrap().to_rgba32f()
 }
 
+/// Asserts that two Doppler EXR images agree within the f32 GPU tolerance of
+/// tests/doppler_device.rs: per sample `2e-3 |a| + 1e-5 max(a)`, over RGB.
+pub fn close_doppler(a: &Path, b: &Path) {
+    let (a, b) = (read_exr(a), read_exr(b));
+    let max = a
+        .pixels()
+        .flat_map(|p| p.0[..3].to_vec())
+        .fold(0.0f32, f32::max);
+    assert!(max > 0.0, "a black image");
+    for (p, q) in a.pixels().zip(b.pixels()) {
+        for k in 0..3 {
+            let tol = 2e-3 * p.0[k].abs() + 1e-5 * max;
+            assert!((p.0[k] - q.0[k]).abs() <= tol, "{:?} vs {:?}", p.0, q.0);
+        }
+    }
+}
+
 /// Runs `cmd` (stdin closed), killing it after `limit_s` seconds so a test never hangs:
 /// the output, and whether it finished in time.
 #[allow(dead_code)]
