@@ -241,7 +241,8 @@ impl DopplerScene {
     }
 
     /// Every field of the scene, scalar ones first, then the velocity's components.
-    pub(crate) fn fields(&self) -> Vec<&Field> {
+    #[must_use]
+    pub fn fields(&self) -> Vec<&Field> {
         let mut v: Vec<&Field> = self.species.iter().map(|s| &s.density).collect();
         if let Some((d, t)) = &self.blackbody {
             v.extend([d, t]);
@@ -297,6 +298,31 @@ impl DopplerScene {
         })?;
         let (at, regions) = counts.get();
         Ok((view, at, regions))
+    }
+
+    /// The same scene with every field sampling one level per region, the coarsest any
+    /// field samples there ([`blueshift_volume::shared_region_levels`]): a view one GPU
+    /// pool lookup serves (per-field resident views differ while bricks load).
+    ///
+    /// # Errors
+    /// A field in memory (every field must be bricked alike, [`DopplerScene::levels`]).
+    pub fn shared_regions(&self) -> Result<DopplerScene> {
+        let fields: Vec<&blueshift_volume::BrickedField> = self
+            .fields()
+            .into_iter()
+            .filter_map(Field::as_bricked)
+            .collect();
+        let shared = blueshift_volume::shared_region_levels(&fields)?;
+        // map_bricked visits the fields in `fields()` order.
+        let next = std::cell::Cell::new(0usize);
+        self.map_bricked(|_| {
+            let i = next.get();
+            next.set(i + 1);
+            shared
+                .get(i)
+                .cloned()
+                .ok_or_else(|| Error::parameter("a field in memory"))
+        })
     }
 
     /// The same scene with every field's per-region levels of detail (`--lod brick`) `k`

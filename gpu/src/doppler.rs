@@ -574,13 +574,7 @@ pub fn supports(
             "a moving observer (aberration and its Doppler factor are CPU-only)".into(),
         ));
     }
-    crate::pool::per_brick_unsupported(
-        scene
-            .species()
-            .iter()
-            .map(|s| &s.density)
-            .chain(scene.blackbody().into_iter().flat_map(|(d, t)| [d, t])),
-    )?;
+    crate::pool::per_brick_unsupported(scene.fields().into_iter())?;
     if scene.species().len() > MAX_SPECIES {
         return Err(Unsupported(format!(
             "{} species (at most {MAX_SPECIES} on the GPU)",
@@ -693,6 +687,9 @@ pub fn render_doppler_gpu_progressive(
         if observer.cancelled() {
             return Err(Error::Cancelled);
         }
+        // One level per region for every field (per-field resident views differ while
+        // bricks load): what one pool lookup serves.
+        let s = &s.shared_regions().map_err(doppler_err)?;
         let prep = Prepared::new(s, settings).map_err(doppler_err)?;
         let (img, st) = render_prepared(ctx, s, settings, &prep, precision, &mut held)?;
         stats = st;

@@ -481,7 +481,7 @@ fn shared_level_map<'a>(what: &str, channels: &[PoolChannel<'a>]) -> Result<Opti
         }
     }
     match first {
-        Some(_) if plain => Err(Error::InvalidInput(format!(
+        Some(_) if plain => Err(Error::Unsupported(format!(
             "{what}: channels with different per-brick levels of detail (--lod brick)"
         ))),
         f => Ok(f),
@@ -527,8 +527,18 @@ fn level_pages(m: &LevelMap) -> Vec<LevelPages> {
         let (qa, qb) = (a.min(b), a.max(b));
         let span: [[usize; 2]; 3] = std::array::from_fn(|x| {
             let top = (lv.dims[x] - 1) as f32;
-            let v0 = (qa[x] - NEED_MARGIN).clamp(0.0, top).floor() as usize;
-            let v1 = (qb[x] + NEED_MARGIN).clamp(0.0, top).floor() as usize;
+            // Boundary regions also take the samples outside the grid (and NaN, region
+            // 0), which clamp to the level's first or last voxel wherever its grid ends.
+            let v0 = if reg[x] == 0 {
+                0
+            } else {
+                (qa[x] - NEED_MARGIN).clamp(0.0, top).floor() as usize
+            };
+            let v1 = if reg[x] + 1 == r[x] {
+                lv.dims[x] - 1
+            } else {
+                (qb[x] + NEED_MARGIN).clamp(0.0, top).floor() as usize
+            };
             [v0 / POOL_BRICK, v1 / POOL_BRICK]
         });
         let need = lv.need.as_mut().expect("set above");
@@ -618,6 +628,12 @@ impl DevicePool {
         self.cache.valid
     }
 
+    /// Marks the pool unusable until the next successful [`DevicePool::update`] (a caller
+    /// whose own tables failed to follow the pool).
+    pub fn invalidate(&mut self) {
+        self.cache.valid = false;
+    }
+
     /// Re-plans the pool for `channels`, another view of the channels it holds (the same
     /// sources, perhaps another level or other per-region levels): bricks already on the
     /// device are kept, missing ones read (a batch at a time, in parallel) and uploaded into
@@ -634,6 +650,15 @@ impl DevicePool {
         label: &str,
         channels: &[PoolChannel<'_>],
     ) -> Result<()> {
+        if !self.cache.valid && self.cache.alloc > 0 {
+            // A failed update may have recorded slots it never wrote: forget every slot
+            // (the buffer stays, its contents are rewritten as bricks are placed).
+            let c = &mut self.cache;
+            c.slots.clear();
+            c.constants.clear();
+            c.owner.iter_mut().for_each(|o| *o = None);
+            c.next = 0;
+        }
         self.cache.valid = false;
         let dims = common_dims(label, channels)?;
         let mut plan = Plan::new(ctx, label, channels)?;

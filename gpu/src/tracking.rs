@@ -886,23 +886,17 @@ impl<'c> GpuScene<'c> {
         let ctx = self.tracker.ctx;
         let layout = *view.layout();
         check_volume_fits(ctx, n, view.geometry().dims, layout.k)?;
-        let channels: Vec<PoolChannel<'_>> = view
-            .channels()
-            .iter()
-            .map(|c| PoolChannel::Scalar(c.grid()))
-            .collect();
-        self.pool.update(ctx, "tracking volume", &channels)?;
-        drop(channels);
+        // Everything that can fail before the pool changes; after it, only the majorant
+        // build (a failure there leaves the pool invalid: the scene renders nothing).
         let n_cells = layout.len() as u64;
         let mut ranges: Vec<f32> = Vec::with_capacity(2 * n * n_cells as usize);
         for ch in view.channels() {
             ranges.extend_from_slice(ch.macrocells().mins());
             ranges.extend_from_slice(ch.macrocells().maxs());
         }
-        self.cell_ranges = ctx.storage_buffer("tracking macrocell ranges", &ranges)?;
-        self.majorants =
+        let cell_ranges = ctx.storage_buffer("tracking macrocell ranges", &ranges)?;
+        let majorants =
             ctx.storage_buffer_zeroed("tracking majorants", (n as u64 + 1) * n_cells * 4)?;
-        self.n_cells = n_cells as u32;
         let mut view = view;
         for i in 0..n {
             let tf = self.scene.channels()[i].transfer_function();
@@ -913,8 +907,22 @@ impl<'c> GpuScene<'c> {
         }
         view.background = self.scene.background;
         view.light = self.scene.light;
+        let channels: Vec<PoolChannel<'_>> = view
+            .channels()
+            .iter()
+            .map(|c| PoolChannel::Scalar(c.grid()))
+            .collect();
+        self.pool.update(ctx, "tracking volume", &channels)?;
+        drop(channels);
+        self.cell_ranges = cell_ranges;
+        self.majorants = majorants;
+        self.n_cells = n_cells as u32;
         self.scene = view;
-        self.build_majorants(None)
+        if let Err(e) = self.build_majorants(None) {
+            self.pool.invalidate();
+            return Err(e);
+        }
+        Ok(())
     }
 
     /// What the device brick pool holds.
@@ -1432,6 +1440,8 @@ impl GpuTrackingSession<'_> {
         let bad = |e: blueshift_tracking::Error| Error::InvalidInput(e.to_string());
         let st = &self.settings;
         let rays = st.camera.sparse_rays(st.width, st.height, 16);
+        // The passes load coarser views: the full scene is not on the device until the end.
+        self.at_full = self.at_full && count <= level + 1;
         let mut step = 0;
         let out: Result<()> = (|| {
             for l in (level + 1..count).rev() {
@@ -1449,10 +1459,10 @@ impl GpuTrackingSession<'_> {
             }
             Ok(())
         })();
-        // The full scene again, whatever happened.
-        let back = self.scene.set_view(full);
+        // The full scene after the passes (after an error or a cancel it is put back only
+        // when needed: `Session::run`).
         out?;
-        back?;
+        self.scene.set_view(full)?;
         self.at_full = true;
         observer.level(step + 1, level);
         self.render(observer)
@@ -1487,6 +1497,8 @@ impl GpuTrackingSession<'_> {
             .filter_map(|c| c.grid().as_bricked())
             .collect();
         blueshift_volume::BrickedField::prefetch_along(&fields, &rays);
+        // The passes load coarser views: the full scene is not on the device until the end.
+        self.at_full = self.at_full && count <= level + 1;
         let mut step = 0;
         let out: Result<()> = if count > level + 1 {
             step = 1;
@@ -1498,7 +1510,11 @@ impl GpuTrackingSession<'_> {
                     &fields,
                     &rays,
                     2,
-                    || full.resident_view().map_err(bad),
+                    // One level per region for every channel: what one pool lookup serves.
+                    || {
+                        let (v, at, n) = full.resident_view().map_err(bad)?;
+                        Ok((v.shared_regions().map_err(bad)?, at, n))
+                    },
                     |step, view: Scene, at_level, regions| {
                         on_step(step, at_level, regions);
                         let coarsest = view.coarsest_sampled_level().unwrap_or(level);
@@ -1512,13 +1528,10 @@ impl GpuTrackingSession<'_> {
         } else {
             Ok(())
         };
-        let back = if step > 0 || !self.at_full {
-            self.scene.set_view(full.clone())
-        } else {
-            Ok(())
-        };
         out?;
-        back?;
+        if step > 0 || !self.at_full {
+            self.scene.set_view(full.clone())?;
+        }
         self.at_full = true;
         observer.level(step + 1, level);
         self.render(observer)

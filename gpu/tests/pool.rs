@@ -616,3 +616,59 @@ fn a_per_brick_view_too_large_for_the_pool_moves_every_region_coarser_until_it_f
     let err = t.upload_fitting_regions(s).map(|_| ()).unwrap_err();
     assert!(is_pool_full(&err), "{err}");
 }
+
+#[test]
+fn channels_with_different_regions_share_the_coarsest_level_per_region() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [96, 80, 64];
+    let (a, b) = (smooth(dims), boxed(dims, [20, 10, 5], [70, 60, 50]));
+    let (fa, fb) = (
+        bricked(dir.path(), "a", &a, 1 << 24),
+        bricked(dir.path(), "b", &b, 1 << 24),
+    );
+    // Two channels whose regions take different levels (as two files' resident views do
+    // while their bricks load): one lookup cannot serve both, so the GPU refuses them.
+    let ra: Field = fa
+        .field(0)
+        .unwrap()
+        .per_region(striped(16.0))
+        .unwrap()
+        .into();
+    let rb: Field = fb
+        .field(0)
+        .unwrap()
+        .per_region(|lo, _| usize::from(lo.y >= 48.0))
+        .unwrap()
+        .into();
+    let s = scene_of(vec![ra.clone(), rb.clone()]);
+    let set = RenderSettings::default_for(&s, 8, 8, false);
+    assert!(blueshift_gpu::tracking::supports(&s, &set).is_err());
+    // Shared: each region at the coarser of the two levels, in both channels.
+    let shared = s.shared_regions().unwrap();
+    assert!(blueshift_gpu::tracking::supports(&shared, &set).is_ok());
+    let la = ra.as_bricked().unwrap().region_levels();
+    let lb = rb.as_bricked().unwrap().region_levels();
+    for c in shared.channels() {
+        let got = c.grid().as_bricked().unwrap().region_levels();
+        let want: Vec<u8> = la.iter().zip(&lb).map(|(x, y)| *x.max(y)).collect();
+        assert_eq!(got, want);
+    }
+    let t = GpuTracker::new(ctx).unwrap();
+    let gs = t.upload(shared.clone()).unwrap();
+    let mut rng = Pcg(0x5a7e);
+    let probes: Vec<(usize, Vec3)> = (0..2000)
+        .map(|i| {
+            let p = Vec3::new(rng.f() * 96.0, rng.f() * 80.0, rng.f() * 64.0);
+            (i % 2, p)
+        })
+        .collect();
+    let got = sample_probe(&gs, &probes).unwrap();
+    for ((c, p), g) in probes.iter().zip(got) {
+        let want = shared.channels()[*c].grid().sample_scalar_index(*p);
+        assert!(
+            (g - want).abs() <= 1e-5,
+            "channel {c} at {p}: {g} vs {want}"
+        );
+    }
+}

@@ -308,6 +308,27 @@ impl Scene {
         Ok((s, at_base, regions))
     }
 
+    /// The same scene with every channel sampling one level per region, the coarsest any
+    /// channel samples there ([`blueshift_volume::shared_region_levels`]): a view one GPU
+    /// pool lookup serves (per-channel resident views differ while bricks load).
+    ///
+    /// # Errors
+    /// A channel in memory; as [`Scene::new`].
+    pub fn shared_regions(&self) -> Result<Scene> {
+        let fields: Vec<&blueshift_volume::BrickedField> = self
+            .channels
+            .iter()
+            .filter_map(|c| c.grid.as_bricked())
+            .collect();
+        let mut shared = blueshift_volume::shared_region_levels(&fields)?.into_iter();
+        self.with_bricked(|_| {
+            shared
+                .next()
+                .map(Field::from)
+                .ok_or_else(|| Error::scene("a channel in memory"))
+        })
+    }
+
     /// The coarsest level any channel's samples read (per-region levels included), or
     /// `None` when no channel is bricked.
     #[must_use]

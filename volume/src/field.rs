@@ -781,6 +781,45 @@ impl BrickedField {
         .with_levels(levels)
     }
 
+    /// This field with the absolute level `levels[i]` in region `i` (one brick of this
+    /// level each, x fastest; clamped to this level and the coarsest, and never finer than
+    /// an adaptive source's own data).
+    ///
+    /// # Errors
+    /// A list of the wrong length.
+    pub fn with_region_levels(&self, levels: &[u8]) -> Result<Self> {
+        let n = self.bricks.iter().product::<usize>();
+        if levels.len() != n {
+            return Err(Error::parameter(format!(
+                "{} region levels for {n} regions",
+                levels.len()
+            )));
+        }
+        let native = self.source.region_levels(self.level);
+        let levels = levels
+            .iter()
+            .enumerate()
+            .map(|(i, &l)| native.as_ref().map_or(l, |n| l.max(n[i])))
+            .collect();
+        BrickedField {
+            regions: None,
+            ..self.clone()
+        }
+        .with_levels(levels)
+    }
+
+    /// The absolute level each region of this field samples (one brick of this level
+    /// each, x fastest).
+    #[must_use]
+    pub fn region_levels(&self) -> Vec<u8> {
+        let n = self.bricks.iter().product::<usize>();
+        let base = u8::try_from(self.level).unwrap_or(u8::MAX);
+        match &self.regions {
+            Some(m) => m.levels.iter().map(|&l| base.saturating_add(l)).collect(),
+            None => vec![base; n],
+        }
+    }
+
     /// This field with every region's level of detail `k` levels coarser, clamped to the
     /// coarsest (a per-region view that holds fewer bricks: what a bounded device pool
     /// falls back on); a field without per-region levels is returned as it is. The second
@@ -1371,6 +1410,29 @@ pub fn refine_while_loading<V, E>(
         pass(step, v, at_level, regions)?;
     }
     Ok(step)
+}
+
+/// One level per region for several fields cut into the same regions: the coarsest any of
+/// them samples there ([`BrickedField::region_levels`]), applied to each
+/// ([`BrickedField::with_region_levels`]), so every field samples the same level at every
+/// point (what one GPU pool lookup serves). Fields whose regions differ in number are
+/// returned as they are.
+///
+/// # Errors
+/// As [`BrickedField::with_region_levels`].
+pub fn shared_region_levels(fields: &[&BrickedField]) -> Result<Vec<BrickedField>> {
+    let all: Vec<Vec<u8>> = fields.iter().map(|f| f.region_levels()).collect();
+    let same_cut = fields.windows(2).all(|w| w[0].bricks == w[1].bricks);
+    if !same_cut || all.windows(2).all(|w| w[0] == w[1]) {
+        return Ok(fields.iter().map(|f| (*f).clone()).collect());
+    }
+    let shared: Vec<u8> = (0..all[0].len())
+        .map(|i| all.iter().map(|l| l[i]).max().unwrap_or(0))
+        .collect();
+    fields
+        .iter()
+        .map(|f| f.with_region_levels(&shared))
+        .collect()
 }
 
 /// The level of detail for a view (HDR VolVis section 6.3): the coarsest level whose voxel

@@ -67,7 +67,7 @@ pub use cache::{BrickCache, BrickSource, CacheStats};
 pub use error::{Error, Limits, Result};
 pub use field::{
     BrickedField, Field, LevelMap, Lod, MAX_REFINE_STEPS, VectorField, lod_level,
-    refine_while_loading,
+    refine_while_loading, shared_region_levels,
 };
 pub use grid::{AnyGrid, Geometry, Grid, Interpolant, ScalarType, Voxel};
 pub use io::{DiskType, RawSpec, ReadOptions, read, read_with};

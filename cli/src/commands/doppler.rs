@@ -920,6 +920,7 @@ fn run_frame(args: Args) -> Result<()> {
                 let mut coarser: Option<(DopplerScene, DopplerSettings)> = None;
                 let per_brick = args.lod.as_deref().map(str::trim) == Some("brick");
                 let mut regions_coarser = 0;
+                let mut first_full: Option<blueshift_gpu::Error> = None;
                 loop {
                     let (s, t) = coarser.as_ref().map_or((scene, st), |(s, t)| (s, t));
                     match blueshift_gpu::doppler::render_doppler_gpu_pooled(
@@ -945,8 +946,12 @@ fn run_frame(args: Args) -> Result<()> {
                             let (s, moved) = scene
                                 .coarser_regions(regions_coarser + 1)
                                 .map_err(|e| bad(e.to_string()))?;
+                            // The view asked for says by how much it overflows.
+                            first_full.get_or_insert(e);
                             if !moved {
-                                return Err(e);
+                                return Err(first_full.take().unwrap_or_else(|| {
+                                    bad("no per-brick view fits the pool".into())
+                                }));
                             }
                             regions_coarser += 1;
                             coarser = Some((s, st.clone()));
