@@ -650,9 +650,14 @@ impl DevicePool {
         label: &str,
         channels: &[PoolChannel<'_>],
     ) -> Result<()> {
-        if !self.cache.valid && self.cache.alloc > 0 {
-            // A failed update may have recorded slots it never wrote: forget every slot
-            // (the buffer stays, its contents are rewritten as bricks are placed).
+        // Data in memory has no source identity to key its bricks by: never reused.
+        let keyed = channels
+            .iter()
+            .all(|c| matches!(c, PoolChannel::Zero) || c.bricked().is_some());
+        if (!self.cache.valid || !keyed) && self.cache.alloc > 0 {
+            // A failed update may have recorded slots it never wrote, and in-memory data
+            // cannot be matched: forget every slot (the buffer stays, its contents are
+            // rewritten as bricks are placed).
             let c = &mut self.cache;
             c.slots.clear();
             c.constants.clear();

@@ -1297,6 +1297,11 @@ impl<'c> GpuTrackingSession<'c> {
         integrator: Integrator,
         settings: RenderSettings,
     ) -> Result<Self> {
+        // A scene whose own level surely overflows the pool would fail after every pass.
+        let est = scene_estimate(ctx, &scene)?;
+        if est.surely_full() {
+            return Err(crate::pool::pool_full(ctx, est.slots));
+        }
         let view = match scene.lod() {
             Some((level, count)) if count > level + 1 => scene
                 .at_level(count - 1)
