@@ -1274,11 +1274,16 @@ fn absorb_rays(
 /// A Doppler render session on a GPU: the CPU's [`DopplerSession`] (scene, settings and
 /// their [`Prepared`] tables, shared with the CPU integrators) rendered by the GPU kernels
 /// in the working precision `precision`; picks, traces and cubes run on the CPU session.
+///
+/// The device brick pool is kept across renders (a device brick cache,
+/// [`crate::pool::DevicePool::update`]): a render after a camera or factor edit uploads no
+/// brick of a `.bsv` field again; fields in memory are uploaded per render.
 #[derive(Debug)]
 pub struct GpuDopplerSession<'c> {
     ctx: &'c GpuContext,
     cpu: DopplerSession,
     precision: DopplerPrecision,
+    pool: std::sync::Mutex<Option<DevicePool>>,
 }
 
 impl<'c> GpuDopplerSession<'c> {
@@ -1301,7 +1306,18 @@ impl<'c> GpuDopplerSession<'c> {
             ctx,
             cpu,
             precision,
+            pool: std::sync::Mutex::new(None),
         })
+    }
+
+    /// What the device brick pool held for the last render (`None` before the first).
+    #[must_use]
+    pub fn pool_stats(&self) -> Option<crate::pool::PoolStats> {
+        self.pool
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .as_ref()
+            .map(|p| p.stats)
     }
 
     /// The CPU session (scene, settings, prepared tables; picks and traces).
@@ -1329,7 +1345,10 @@ impl<'c> GpuDopplerSession<'c> {
             self.cpu.settings(),
             self.cpu.prepared(),
             self.precision,
-            &mut None,
+            &mut self
+                .pool
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner),
         )?
         .0;
         single_pass_done(observer, u64::from(img.height), &img);

@@ -1044,3 +1044,33 @@ fn progressive_renders_through_one_pool_end_with_the_target_level() {
         }
     }
 }
+
+#[test]
+fn a_session_keeps_its_pool_across_renders() {
+    let Some(ctx) = test_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let scene = bricked_galaxy(dir.path());
+    let st = DopplerSettings::default_for(&scene, 16, 16);
+    let mut sess = blueshift_gpu::doppler::GpuDopplerSession::new(
+        ctx,
+        scene.clone(),
+        st.clone(),
+        DopplerPrecision::F32,
+    )
+    .unwrap();
+    let first = sess.render(&blueshift_camera::Silent).unwrap();
+    let st1 = sess.pool_stats().unwrap();
+    assert_eq!(st1.kept, 0, "{st1}");
+    // Another camera: the same bricks, none uploaded again; the image a fresh render's.
+    let mut cam = st.camera;
+    cam.eye += (cam.eye - cam.target) * 0.3;
+    sess.cpu_mut().set_camera(cam).unwrap();
+    let second = sess.render(&blueshift_camera::Silent).unwrap();
+    let st2 = sess.pool_stats().unwrap();
+    assert_eq!((st2.kept, st2.resident), (st1.resident, st1.resident), "{st2}");
+    let mut moved = st.clone();
+    moved.camera = cam;
+    PRECISION.set(DopplerPrecision::F32);
+    assert_eq!(second.xyz, gpu_render(ctx, &scene, &moved).unwrap().xyz);
+    assert_ne!(first.xyz, second.xyz);
+}
