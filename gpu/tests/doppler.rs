@@ -1067,7 +1067,11 @@ fn a_session_keeps_its_pool_across_renders() {
     sess.cpu_mut().set_camera(cam).unwrap();
     let second = sess.render(&blueshift_camera::Silent).unwrap();
     let st2 = sess.pool_stats().unwrap();
-    assert_eq!((st2.kept, st2.resident), (st1.resident, st1.resident), "{st2}");
+    assert_eq!(
+        (st2.kept, st2.resident),
+        (st1.resident, st1.resident),
+        "{st2}"
+    );
     let mut moved = st.clone();
     moved.camera = cam;
     PRECISION.set(DopplerPrecision::F32);
