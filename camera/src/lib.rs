@@ -30,5 +30,6 @@ pub mod session;
 pub use camera::{Camera, ClipBox, DEFAULT_FOV_Y_DEG, Projection, Ray, View, up_for};
 pub use error::{Error, Result};
 pub use session::{
-    CancelToken, DeviceKind, Observer, OnProgress, Progress, Session, Silent, single_pass_done,
+    CancelToken, DeviceKind, Observer, OnProgress, Progress, ProgressOnly, Session, Silent,
+    single_pass_done,
 };

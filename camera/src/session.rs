@@ -55,6 +55,26 @@ pub struct Silent;
 
 impl<I: ?Sized> Observer<I> for Silent {}
 
+/// Forwards progress and cancellation to another observer, not its passes or levels: the
+/// quick passes of a progressive render report their pass themselves, numbered by the
+/// caller.
+pub struct ProgressOnly<'a, I: ?Sized>(pub &'a dyn Observer<I>);
+
+impl<I: ?Sized> std::fmt::Debug for ProgressOnly<'_, I> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("ProgressOnly")
+    }
+}
+
+impl<I: ?Sized> Observer<I> for ProgressOnly<'_, I> {
+    fn progress(&self, p: Progress) {
+        self.0.progress(p);
+    }
+    fn cancelled(&self) -> bool {
+        self.0.cancelled()
+    }
+}
+
 /// An observer that forwards progress to a closure and, optionally, polls a cancel token.
 pub struct OnProgress<F> {
     f: F,

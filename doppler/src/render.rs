@@ -1,6 +1,6 @@
 //! Settings, ray sampling and the image loop shared by both integrators.
 
-use blueshift_camera::{Observer, Progress};
+use blueshift_camera::{Observer, Progress, ProgressOnly};
 use blueshift_spectrum::{DopplerModel, PiecewiseLinear, WavelengthShift, Xyz};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -680,10 +680,7 @@ pub fn render_doppler_lod(
     observer: &dyn Observer<DopplerImage>,
 ) -> Result<DopplerImage> {
     render_doppler_lod_with(scene, settings, target, observer, &mut |s| {
-        let ctx = Context::new(s, settings)?;
-        let img = render_rows(&ctx, &RowsOnly(observer))?;
-        s.check_io()?;
-        Ok(img)
+        cpu_pass(s, settings, observer)
     })
 }
 
@@ -753,11 +750,21 @@ pub fn render_doppler_bricks(
     on_step: &mut dyn FnMut(u32, usize, usize),
 ) -> Result<DopplerImage> {
     render_doppler_bricks_with(scene, settings, target, observer, on_step, &mut |s| {
-        let ctx = Context::new(s, settings)?;
-        let img = render_rows(&ctx, &RowsOnly(observer))?;
-        s.check_io()?;
-        Ok(img)
+        cpu_pass(s, settings, observer)
     })
+}
+
+/// One pass of a progressive render on the CPU: `scene`'s image, with row progress and
+/// cancellation forwarded to `observer`, and any brick that failed to read as an error.
+fn cpu_pass(
+    scene: &DopplerScene,
+    settings: &DopplerSettings,
+    observer: &dyn Observer<DopplerImage>,
+) -> Result<DopplerImage> {
+    let ctx = Context::new(scene, settings)?;
+    let img = render_rows(&ctx, &ProgressOnly(observer))?;
+    scene.check_io()?;
+    Ok(img)
 }
 
 /// [`render_doppler_bricks`] with each image made by `image` (a GPU renders them through
@@ -817,19 +824,6 @@ pub fn render_doppler_bricks_with<E: From<Error>>(
         )?;
     }
     render(&goal, step + 1, target)
-}
-
-/// Forwards row progress and cancellation, not the single pass's end (the caller numbers
-/// passes itself).
-struct RowsOnly<'a>(&'a dyn Observer<DopplerImage>);
-
-impl Observer<DopplerImage> for RowsOnly<'_> {
-    fn progress(&self, p: Progress) {
-        self.0.progress(p);
-    }
-    fn cancelled(&self) -> bool {
-        self.0.cancelled()
-    }
 }
 
 /// Calls a plain closure once per finished row.

@@ -43,7 +43,7 @@
 //! f32 bit arithmetic; `Precision::U8` rounds half away from zero to multiples of 1/255 like
 //! the CPU.
 
-use blueshift_camera::{DeviceKind, Observer, Progress, Session, Silent};
+use blueshift_camera::{DeviceKind, Observer, Progress, ProgressOnly, Session, Silent};
 use blueshift_tfedit::{DataAxis, TransferFunction};
 use blueshift_tracking::{
     Blend, DdaMode, Integrator, Precision, Progressive, Projection, RenderSettings, Scene,
@@ -1540,18 +1540,6 @@ impl GpuTrackingSession<'_> {
         self.at_full = true;
         observer.level(step + 1, level);
         self.render(observer)
-    }
-}
-
-/// Forwards progress and cancellation only (quick passes report their pass themselves).
-struct ProgressOnly<'a>(&'a dyn Observer<Progressive>);
-
-impl Observer<Progressive> for ProgressOnly<'_> {
-    fn progress(&self, p: Progress) {
-        self.0.progress(p);
-    }
-    fn cancelled(&self) -> bool {
-        self.0.cancelled()
     }
 }
 

@@ -113,6 +113,27 @@ fn max_diff(a: &image::Rgba32FImage, b: &image::Rgba32FImage) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// The largest difference between the marcher's 1-spp image of `s` through the device
+/// pool `gs` and the CPU's, at `w` x `h`; the CPU's image must not be trivial.
+fn marcher_gpu_cpu_diff(
+    t: &GpuTracker<'_>,
+    gs: &blueshift_gpu::tracking::GpuScene<'_>,
+    s: &Scene,
+    w: u32,
+    h: u32,
+) -> f32 {
+    let mut set = RenderSettings::default_for(s, w, h, false);
+    set.spp = 1;
+    let integ = Integrator::Marcher(RayMarcher::default());
+    let gpu = t.render(gs, &integ, &set).unwrap();
+    let cpu = render(s, &integ, &set).unwrap();
+    assert!(
+        cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
+        "a trivial image"
+    );
+    max_diff(&cpu, &gpu)
+}
+
 fn scene_of(chs: Vec<Field>) -> Scene {
     let triples = chs
         .into_iter()
@@ -257,17 +278,8 @@ fn a_volume_over_the_pool_cap_renders_when_its_bricks_fit_and_is_refused_when_no
     let st = gs.pool_stats();
     assert_eq!(st.resident, 1, "{st}");
     assert!(st.dense_bytes > st.capacity_bytes, "{st}");
-    let mut set = RenderSettings::default_for(&s, 32, 32, false);
-    set.spp = 1;
-    let integ = Integrator::Marcher(RayMarcher::default());
-    let gpu = t.render(&gs, &integ, &set).unwrap();
-    let cpu = render(&s, &integ, &set).unwrap();
-    let d = max_diff(&cpu, &gpu);
+    let d = marcher_gpu_cpu_diff(&t, &gs, &s, 32, 32);
     assert!(d <= 2e-5, "max |gpu - cpu| = {d}");
-    assert!(
-        cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
-        "a trivial image"
-    );
 
     // 27 non-constant bricks do not fit 7 slots: the pool's limit, which auto falls back on.
     let full = scene_of(vec![dense(&smooth(dims))]);
@@ -427,17 +439,8 @@ fn per_brick_levels_sample_and_render_as_the_cpu_does() {
     }
 
     // The marcher's image through the per-brick pool against the CPU's.
-    let mut set = RenderSettings::default_for(&s, 48, 40, false);
-    set.spp = 1;
-    let integ = Integrator::Marcher(RayMarcher::default());
-    let gpu = t.render(&gs, &integ, &set).unwrap();
-    let cpu = render(&s, &integ, &set).unwrap();
-    let d = max_diff(&cpu, &gpu);
+    let d = marcher_gpu_cpu_diff(&t, &gs, &s, 48, 40);
     assert!(d <= 1e-4, "max |gpu - cpu| = {d}");
-    assert!(
-        cpu.as_raw().chunks(4).any(|p| p[3] > 0.3),
-        "a trivial image"
-    );
 }
 
 /// A smooth 128^3 `.bsv` (bricks of 16) and a scene of it with one region (file brick

@@ -1,6 +1,6 @@
 //! [`TrackingSession`]: a Woodcock / MDWT / marcher render built once, run many times.
 
-use blueshift_camera::{Camera, DeviceKind, Observer, Session};
+use blueshift_camera::{Camera, DeviceKind, Observer, ProgressOnly, Session};
 use blueshift_tfedit::TransferFunction;
 
 use crate::Result;
@@ -247,18 +247,6 @@ impl TrackingSession {
         }
         observer.level(step + 1, level);
         self.render(observer)
-    }
-}
-
-/// Forwards progress and cancellation only (preview steps report their pass themselves).
-struct ProgressOnly<'a>(&'a dyn Observer<Progressive>);
-
-impl Observer<Progressive> for ProgressOnly<'_> {
-    fn progress(&self, p: blueshift_camera::Progress) {
-        self.0.progress(p);
-    }
-    fn cancelled(&self) -> bool {
-        self.0.cancelled()
     }
 }
 
