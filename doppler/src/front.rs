@@ -11,46 +11,52 @@
 //! `r_k . W(P_k) + integral e_k(lambda) cmf(lambda) (1 - exp(-P_k(lambda))) d lambda`,
 //!
 //! where `W_i(P) = integral hat_i cmf (1 - exp(-P))` holds, per black-body grid point, the
-//! part of its hat function's XYZ that the depth `P` takes away. `P_{k} = P_{k-1} + D_k` with
-//! `D_k = (a_{k-1} + a_k) / 2`, non-zero only inside the two segments' line windows, so
-//! each segment updates `W` there only (`Delta W_i = integral hat_i cmf (exp(-P_{k-1}) -
-//! exp(-P_k))` over `D_k`'s support) and the black body costs one dot product of
-//! `blackbody_samples` terms. `P` is a flat sorted array of pieces; adding `D_k` is one pass.
+//! part of its hat function's XYZ that the depth `P` takes away. The march keeps `W` for
+//! `A_{k-1} = a_0 + ... + a_{k-1}`, the depth in front. Segment `k` sweeps its own line
+//! windows once (the supports of `a_k` and `e_k`): there it adds `integral hat_i cmf
+//! (exp(-A_{k-1}) - exp(-A_k))` to `W`, and takes its own light's absorbed part, `r_k .
+//! W(A_{k-1})` (one dot product of `blackbody_samples` terms) plus `r_k . integral hat cmf
+//! (exp(-A_{k-1}) - exp(-P_k))` and the lines' part, from the same sub-intervals. (An
+//! earlier form stepped `P_{k-1}` to `P_k` by `(a_{k-1} + a_k) / 2`, whose two shifted
+//! windows cut each line into three sub-intervals and were swept twice.) `A` is a flat
+//! sorted array of pieces; adding `a_k` is one pass.
 //!
 //! Every integral is exact in closed form: on each sub-interval (cut at the breakpoints of
-//! `P`, `D_k`, `e_k`, the CMF table and the black-body grid) the hats, the CMFs and `e_k` are
-//! linear, so their products are quadratics, and `P` is linear, so `exp(-P)` is an
-//! exponential of the wavelength: `integral x^n exp(-(p + s x)) dx` (n = 0, 1, 2) by the
+//! `A`, `a_k`, `e_k`, the CMF table and the black-body grid) the hats, the CMFs and `e_k` are
+//! linear, so their products are quadratics, and each depth is linear, so its transmittance
+//! is an exponential of the wavelength: `integral x^n exp(-(p + s x)) dx` (n = 0, 1, 2) by the
 //! recurrence of [`exp_moments`], taken from the end where the depth is smaller so nothing
 //! overflows.
 //!
 //! Error bound (`tol = merge_tolerance`), a budget for the whole ray in four shares:
-//! - merges of `P` (the `k`-th with `tol/8 * 6 / (pi k)^2`; the series sums to `tol/8`).
-//!   `W` is not recomputed after a merge (that would be a pass over all of `P`): the updates
-//!   after it are exact differences, so `W` keeps what the merges moved, at most `tol/8` of
-//!   each hat's XYZ more;
+//! - merges of `A` (the `k`-th with `tol/32 * 6 / (pi k)^2`; the series sums to `tol/32`).
+//!   `W` is not recomputed after a merge (that would be a pass over all of `A`): the updates
+//!   after it are exact differences, so `W` keeps what the merges moved, at most `tol/32`
+//!   of each hat's XYZ more. (Merges mostly keep `A` short; on the He-rich scene a larger
+//!   share bought little time for much of the measured error, so it went to the next one);
 //! - leaving out the weakest absorption: single lines of single segments, smallest peak
-//!   depth first, at most `tol/4` in total (they are known before the march, see
+//!   depth first, at most `11 tol/32` in total (they are known before the march, see
 //!   `choose_omissions`);
-//! - within one segment's sweep, `P` is read as chords across several of its pieces
-//!   (`chord_over`), each within `eps = ln(1 + tol/4)` of `P` on the chord's span, with the
-//!   slope that keeps `P`'s integral where the allowed slopes include it (so the error is
-//!   mostly of second order). Segment `k` moves `W` by `integral hat cmf exp(-P_{k-1}) (1 -
-//!   exp(-D_k))`, here off by a factor of at most `e^eps - 1 = tol/4`, and these weights
-//!   summed over the segments telescope to at most `1 - exp(-P)`: the chords move `W` by at
-//!   most `tol/4` of each hat's XYZ in all, and each line's absorbed part by at most `tol/4`
-//!   of its light. (Most of `P`'s breakpoints inside a line window are the edges of earlier
-//!   segments' sweeps of the same lines, which the chords step over: on the He-rich Fig. 13
-//!   scene they cut the sub-intervals 2.5-fold);
+//! - within one segment's sweep, `A` is read as chords across several of its pieces
+//!   (`chord_over`), each within `eps = ln(1 + tol/4)` of `A` on the chord's span, with the
+//!   slope that keeps `A`'s integral where the allowed slopes include it (so the error is
+//!   mostly of second order). Segment `k` moves `W` by `integral hat cmf exp(-A_{k-1}) (1 -
+//!   exp(-a_k))`, here off by a factor of at most `e^eps - 1 = tol/4`, and these weights
+//!   summed over the segments telescope to at most `1 - exp(-A)`: the chords move `W` by at
+//!   most `tol/4` of each hat's XYZ in all. The part behind its own half depth, used once for
+//!   the segment's own light, and each line's absorbed part are off by the same factor, at
+//!   most `tol/4` of that light. (Most of `A`'s breakpoints inside a line window are the
+//!   edges of earlier segments' sweeps of the same lines, which the chords step over: on the
+//!   He-rich Fig. 13 scene they cut the sub-intervals 2.5-fold);
 //! - for the faintest segments' line light (faintest first, at most `3 tol/8` of each XYZ
 //!   channel's unattenuated total), each line attenuated by the transmittance at its middle
 //!   instead of exactly: off by at most the line's own light.
 //!
-//! So `P` is within `3 tol/8` of the exact depth everywhere and each transmittance within
-//! `3 tol/8`, the chords add `tol/4`: the black body's absorbed part is within `5 tol/8` of
-//! its unattenuated XYZ, the lines' within `5 tol/8 + 3 tol/8`, and every XYZ channel within
-//! `tol` x the same channel of the unattenuated emission. `tol = 0` leaves out and merges
-//! nothing and reads `P` exactly. Only the piece-budget fallback (counted) can break the
+//! So `A` (and `P`) is within `tol/32 + 11 tol/32 = 3 tol/8` of the exact depth everywhere
+//! and each transmittance within `3 tol/8`, the chords add `tol/4`: the black body's
+//! absorbed part is within `5 tol/8` of its unattenuated XYZ, the lines' within `5 tol/8 + 3
+//! tol/8`, and every XYZ channel within `tol` x the same channel of the unattenuated emission. `tol = 0` leaves out and merges
+//! nothing and reads `A` exactly. Only the piece-budget fallback (counted) can break the
 //! bound.
 
 use blueshift_spectrum::{Piece, Xyz, merge_pieces};
@@ -477,9 +483,12 @@ struct Sweep<'a> {
 }
 
 impl Sweep<'_> {
-    /// Over the supports of `d` and `e`: adds `integral hat_i cmf (exp(-p) - exp(-(p + d)))`
-    /// to `W_i` and returns `integral e cmf (1 - exp(-(p + d)))` (XYZ).
-    fn run(&mut self, p: &[Piece], d: &[Piece], e: &[Piece]) -> [f64; 3] {
+    /// Over the supports of `d` (a segment's whole optical depth) and `e` (its line light):
+    /// adds `integral hat_i cmf (exp(-p) - exp(-(p + d)))` to `W_i` and returns the light
+    /// that the depth `p + d/2` (in front plus half its own) takes: `integral e cmf (1 -
+    /// exp(-(p + d/2)))` plus, given the segment's black-body row `row`, `sum_i row_i
+    /// integral hat_i cmf (exp(-p) - exp(-(p + d/2)))` (XYZ).
+    fn run(&mut self, p: &[Piece], d: &[Piece], e: &[Piece], row: Option<&[f64]>) -> [f64; 3] {
         let t = self.t;
         let c_lo = t.cmf_lo;
         let c_step = t.cmf_step;
@@ -491,7 +500,7 @@ impl Sweep<'_> {
         let inv_cstep = 1.0 / c_step;
         let mut taken = [0.0f64; 3];
         let (mut pc, mut dc, mut ec) = (Cursor::new(p), Cursor::new(d), Cursor::new(e));
-        let (mut before, mut after) = (Carry::NONE, Carry::NONE);
+        let (mut before, mut half, mut after) = (Carry::NONE, Carry::NONE, Carry::NONE);
         let start = |d: &[Piece], e: &[Piece]| {
             d.first()
                 .map_or(f64::INFINITY, |q| q.start_nm)
@@ -562,41 +571,63 @@ impl Sweep<'_> {
             let (eu, ew) = ends(ep);
             let has_d = du > 0.0 || dw > 0.0;
             let has_e = (eu > 0.0 || ew > 0.0) && (has_d || pu > 0.0 || pw > 0.0);
-            if has_d || has_e {
-                let inv_h = 1.0 / h;
+            let bb = row.filter(|_| has_d).zip(cell);
+            if !(has_d || has_e) {
+                u = w;
+                continue;
+            }
+            let inv_h = 1.0 / h;
+            let j_before = depth_moments(pu, pw, before.trans(u, pu), before.trans(w, pw), h);
+            // Behind half the segment's own depth (its light), and behind all of it (W).
+            let j_half = if has_d && (has_e || bb.is_some()) {
+                let (hu, hw) = (pu + 0.5 * du, pw + 0.5 * dw);
+                depth_moments(hu, hw, half.trans(u, hu), half.trans(w, hw), h)
+            } else {
+                j_before
+            };
+            let cu = if c_prev.0 == u { c_prev.1 } else { t.cmf_at(u) };
+            let cw = t.cmf_at(w);
+            c_prev = (w, cw);
+            let dc = [
+                (cw[0] - cu[0]) * inv_h,
+                (cw[1] - cu[1]) * inv_h,
+                (cw[2] - cu[2]) * inv_h,
+            ];
+            if has_e {
+                let de = (ew - eu) * inv_h;
+                for c in 0..3 {
+                    let full =
+                        h * (2.0 * eu * cu[c] + eu * cw[c] + ew * cu[c] + 2.0 * ew * cw[c]) / 6.0;
+                    taken[c] += full - quad_dot(eu, de, cu[c], dc[c], &j_half);
+                }
+            }
+            if let (true, Some(i)) = (has_d, cell) {
                 let (au, aw) = (pu + du, pw + dw);
                 let j_after = depth_moments(au, aw, after.trans(u, au), after.trans(w, aw), h);
-                let cu = if c_prev.0 == u { c_prev.1 } else { t.cmf_at(u) };
-                let cw = t.cmf_at(w);
-                c_prev = (w, cw);
-                let dc = [
-                    (cw[0] - cu[0]) * inv_h,
-                    (cw[1] - cu[1]) * inv_h,
-                    (cw[2] - cu[2]) * inv_h,
+                let dj = [
+                    j_before[0] - j_after[0],
+                    j_before[1] - j_after[1],
+                    j_before[2] - j_after[2],
                 ];
-                if has_e {
-                    let de = (ew - eu) * inv_h;
-                    for c in 0..3 {
-                        let full = h
-                            * (2.0 * eu * cu[c] + eu * cw[c] + ew * cu[c] + 2.0 * ew * cw[c])
-                            / 6.0;
-                        taken[c] += full - quad_dot(eu, de, cu[c], dc[c], &j_after);
-                    }
+                let hu = (u - (g0 + i as f64 * gstep)) * inv_gstep;
+                for c in 0..3 {
+                    let up = quad_dot(hu, inv_gstep, cu[c], dc[c], &dj);
+                    let all = cu[c] * dj[0] + dc[c] * dj[1];
+                    self.w[i + 1][c] += up;
+                    self.w[i][c] += all - up;
                 }
-                if let (true, Some(i)) = (has_d, cell) {
-                    let j_before =
-                        depth_moments(pu, pw, before.trans(u, pu), before.trans(w, pw), h);
-                    let dj = [
-                        j_before[0] - j_after[0],
-                        j_before[1] - j_after[1],
-                        j_before[2] - j_after[2],
+                if let Some((r, _)) = bb {
+                    // This segment's own black body behind half its depth.
+                    let dh = [
+                        j_before[0] - j_half[0],
+                        j_before[1] - j_half[1],
+                        j_before[2] - j_half[2],
                     ];
-                    let hu = (u - (g0 + i as f64 * gstep)) * inv_gstep;
+                    let (r0, r1) = (r[i], r[i + 1]);
                     for c in 0..3 {
-                        let up = quad_dot(hu, inv_gstep, cu[c], dc[c], &dj);
-                        let all = cu[c] * dj[0] + dc[c] * dj[1];
-                        self.w[i + 1][c] += up;
-                        self.w[i][c] += all - up;
+                        let up = quad_dot(hu, inv_gstep, cu[c], dc[c], &dh);
+                        let all = cu[c] * dh[0] + dc[c] * dh[1];
+                        taken[c] += r1 * up + r0 * (all - up);
                     }
                 }
             }
@@ -724,7 +755,6 @@ struct Scratch {
     w: Vec<[f64; 3]>,
     p: Vec<Piece>,
     p_next: Vec<Piece>,
-    d: Vec<Piece>,
     e: Vec<Piece>,
 }
 
@@ -826,7 +856,6 @@ fn march(
         w,
         p,
         p_next,
-        d,
         e,
     } = sc;
     // Gather every segment (from the eye), the unattenuated XYZ per segment and in total.
@@ -893,12 +922,12 @@ fn march(
     }
     let total = total.to_array();
     if tol > 0.0 {
-        choose_omissions(segs, abs_all, abs_omit, 0.25 * tol, 0.375 * tol, total);
+        choose_omissions(segs, abs_all, abs_omit, 0.34375 * tol, 0.375 * tol, total);
     } else {
         abs_omit.clear();
         abs_omit.resize(abs_all.len(), false);
     }
-    // Each segment's half depth, without the left-out lines.
+    // Each segment's depth, without the left-out lines.
     for seg in segs.iter_mut() {
         lines.clear();
         lines.extend(
@@ -908,11 +937,11 @@ fn march(
                 .map(|i| abs_all[i]),
         );
         let start = own_all.len();
-        sum_trapezoids(lines, 0.5, own_all, cuts);
+        sum_trapezoids(lines, 1.0, own_all, cuts);
         seg.own = start..own_all.len();
     }
 
-    // March from the eye. Error budget (module docs): merges tol/8, omitted depth tol/4,
+    // March from the eye. Error budget (module docs): merges tol/32, omitted depth 11 tol/32,
     // chords tol/4, omitted line corrections 3 tol/8 of each channel of the unattenuated
     // emission.
     w.clear();
@@ -927,10 +956,9 @@ fn march(
     if !front.is_empty() {
         // W_i = integral hat_i cmf (1 - exp(-front)): the depth in front, taken in one step
         // from nothing (no emission of its own here).
-        sweep.run(p, front, &[]);
+        sweep.run(p, front, &[], None);
         p.extend_from_slice(front);
     }
-    let mut prev_own = 0..0;
     let mut taken = [0.0f64; 3];
     let mut merges = 0u32;
     let mut merge_at = 64usize;
@@ -949,10 +977,9 @@ fn march(
             }
             std::mem::swap(f_near, f_far);
         }
-        let own = seg.own.clone();
-        // D = (a_prev + a_this) / 2.
-        add_sorted(&own_all[prev_own.clone()], &own_all[own.clone()], d);
-        prev_own = own;
+        // P holds the depth of the segments in front; this one's light crosses half of
+        // its own depth `d` as well.
+        let d = &own_all[seg.own.clone()];
         let lit = !(p.is_empty() && d.is_empty());
         e.clear();
         if lit && !seg.emit.is_empty() {
@@ -967,7 +994,7 @@ fn march(
                 {
                     let mid = 0.5 * (lo + hi);
                     let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
-                        + dc.at(mid).map_or(0.0, |q| q.at(mid));
+                        + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid));
                     if depth > 0.0 {
                         let f = -(-depth).exp_m1();
                         for c in 0..3 {
@@ -981,19 +1008,23 @@ fn march(
                 sum_trapezoids(lines, 1.0, e, cuts);
             }
         }
-        if !d.is_empty() || !e.is_empty() {
-            let x = sweep.run(p, d, e);
-            for c in 0..3 {
-                taken[c] += x[c];
-            }
-        }
-        if seg.has_bb && lit {
+        // The black body behind P (W before this segment's sweep), and behind half its own
+        // depth in the sweep.
+        let row = (seg.has_bb && lit).then(|| {
             let at = if keep_rows { m * k } else { 0 };
-            let row = &rows[at..at + k];
+            &rows[at..at + k]
+        });
+        if let Some(row) = row {
             for (r, wi) in row.iter().zip(&sweep.w) {
                 for c in 0..3 {
                     taken[c] += r * wi[c];
                 }
+            }
+        }
+        if !d.is_empty() || !e.is_empty() {
+            let x = sweep.run(p, d, e, row);
+            for c in 0..3 {
+                taken[c] += x[c];
             }
         }
         if !d.is_empty() {
@@ -1005,7 +1036,7 @@ fn march(
         if p.len() > merge_at {
             merges += 1;
             let share = 6.0 / (std::f64::consts::PI.powi(2) * f64::from(merges).powi(2));
-            merge_pieces(p, 0.125 * tol * share, p_next).map_err(spectrum_err)?;
+            merge_pieces(p, 0.03125 * tol * share, p_next).map_err(spectrum_err)?;
             std::mem::swap(p, p_next);
             merge_at = (2 * p.len()).max(64);
         }

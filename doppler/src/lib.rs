@@ -50,14 +50,16 @@
 //!   only inside the shifted absorption lines). Each segment's emission adds its closed-form
 //!   XYZ minus what `P` takes from it: for the black body, one dot product of its grid
 //!   coefficients with per-grid-point absorbed fractions `W_i = integral hat_i cmf (1 -
-//!   exp(-P))`, updated only inside the segment's line windows; for its lines, the exact
-//!   integral over their windows. Each sub-interval integral is exact (the CMFs, hats and
-//!   lines linear, `exp(-P)` an exponential of the wavelength), so the cost per segment
-//!   follows its lines, not the whole of `P` (module `front`). `merge_tolerance` `tol` is an
-//!   error budget for the whole ray: `P` is merged (the k-th merge gets `tol/8 6 / (pi k)^2`),
-//!   the weakest absorption lines (per line and segment) are left out (`tol/4` in total), and the faintest
+//!   exp(-P))`, kept for the depth in front and updated only inside the segment's own line
+//!   windows, which each segment sweeps once; for its lines, the exact integral over their
+//!   windows. Each sub-interval integral is exact (the CMFs, hats and lines linear, `exp(-P)`
+//!   an exponential of the wavelength), so the cost per segment follows its lines, not the
+//!   whole of `P` (module `front`). `merge_tolerance` `tol` is an error budget for the whole
+//!   ray: the depth in front is merged (the k-th merge gets `tol/32 6 / (pi k)^2`), the
+//!   weakest absorption lines (per line and segment) are left out (`11 tol/32` in total), the
+//!   depth is read as chords within `ln(1 + tol/4)` inside a sweep, and the faintest
 //!   segments' line light is attenuated by the transmittance at each line's middle instead of
-//!   exactly (`tol/2` of each channel's unattenuated total); so each XYZ channel is within
+//!   exactly (`3 tol/8` of each channel's unattenuated total); so each XYZ channel is within
 //!   `tol` x the unattenuated emission's. [`PieceStats`] counts `P`'s pieces.
 //! - Spectrum path (picked pixels, traces), back to front: the spectrum is kept, attenuated
 //!   exactly at sub-piece ends (`max_depth_step`), and merged with `tol / segments` of its

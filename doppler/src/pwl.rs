@@ -53,20 +53,44 @@ impl PwlTables {
             return cmf.trapezoid_xyz(lo, hi, h0, h1).to_array();
         }
         let slope = (h1 - h0) / (hi - lo);
-        let inv_cstep = 1.0 / t.cmf_step;
+        let step = t.cmf_step;
+        let inv_cstep = 1.0 / step;
+        let last = t.cmf.len() - 2;
+        // The CMF cell holding `a` (a node rounding puts a hair on either side gives the
+        // same values), then cell by cell to `b`, the CMFs at inner nodes straight from the
+        // table.
+        let mut j = (((a - t.cmf_lo) * inv_cstep).max(0.0) as usize).min(last);
+        let node = |j: usize| t.cmf_lo + j as f64 * step;
+        let cmf_in = |j: usize, x: f64| {
+            let (c0, c1) = (t.cmf[j], t.cmf[j + 1]);
+            let f = (x - node(j)) * inv_cstep;
+            [
+                c0[0] + (c1[0] - c0[0]) * f,
+                c0[1] + (c1[1] - c0[1]) * f,
+                c0[2] + (c1[2] - c0[2]) * f,
+            ]
+        };
         let mut out = [0.0; 3];
         let mut u = a;
-        let mut cu = t.cmf_at(u);
+        let mut cu = cmf_in(j, u);
         let mut fu = h0 + slope * (u - lo);
-        while u < b {
-            let w = cell_of(t.cmf_lo, t.cmf_step, inv_cstep, u).1.min(b);
-            let cw = t.cmf_at(w);
+        loop {
+            let next = node(j + 1);
+            let (w, cw) = if next < b && j < last {
+                (next, t.cmf[j + 1])
+            } else {
+                (b, cmf_in(j, b))
+            };
             let fw = if w >= hi { h1 } else { h0 + slope * (w - lo) };
             let h6 = (w - u) / 6.0;
             for c in 0..3 {
                 out[c] += h6 * (2.0 * fu * cu[c] + fu * cw[c] + fw * cu[c] + 2.0 * fw * cw[c]);
             }
+            if w >= b {
+                break;
+            }
             (u, cu, fu) = (w, cw, fw);
+            j += 1;
         }
         out
     }
@@ -142,7 +166,10 @@ pub(crate) fn line_trapezoid(
 #[inline]
 pub(crate) fn cell_of(origin: f64, step: f64, inv_step: f64, u: f64) -> (usize, f64) {
     // One correction each way suffices: the quotient is off by at most one cell.
-    let mut k = ((u - origin) * inv_step).floor().max(0.0);
+    // `floor` without a libm call (the default target has no SSE4.1 rounding): for q > 0
+    // truncation is the floor, and every q <= 0 (or NaN) clamps to cell 0 either way.
+    let q = (u - origin) * inv_step;
+    let mut k = if q > 0.0 { (q as u64) as f64 } else { 0.0 };
     let mut next = origin + (k + 1.0) * step;
     if next <= u {
         k += 1.0;
