@@ -65,6 +65,13 @@ use super::pwl::{PwlTables, bb_row, segment_lines, spectrum_err};
 use super::render::{Context, RayOut, RaySamples};
 use crate::Result;
 
+/// The error budget's shares of `tol` (module docs): merges of `A`, left-out absorption
+/// lines, chords, and line light attenuated at each line's middle.
+const MERGE_SHARE: f64 = 1.0 / 32.0;
+const DEPTH_SHARE: f64 = 25.0 / 32.0;
+const CHORD_SHARE: f64 = 3.0 / 32.0;
+const LIGHT_SHARE: f64 = 3.0 / 32.0;
+
 /// A line trapezoid `(lo, hi, h_lo, h_hi)` as [`segment_lines`] gives it.
 type Trap = (f64, f64, f64, f64);
 
@@ -756,6 +763,7 @@ struct Scratch {
     p: Vec<Piece>,
     p_next: Vec<Piece>,
     e: Vec<Piece>,
+    o: OmittedDepth,
 }
 
 thread_local! {
@@ -857,6 +865,7 @@ fn march(
         p,
         p_next,
         e,
+        o,
     } = sc;
     // Gather every segment (from the eye), the unattenuated XYZ per segment and in total.
     segs.clear();
@@ -922,7 +931,14 @@ fn march(
     }
     let total = total.to_array();
     if tol > 0.0 {
-        choose_omissions(segs, abs_all, abs_omit, 0.34375 * tol, 0.375 * tol, total);
+        choose_omissions(
+            segs,
+            abs_all,
+            abs_omit,
+            DEPTH_SHARE * tol,
+            LIGHT_SHARE * tol,
+            total,
+        );
     } else {
         abs_omit.clear();
         abs_omit.resize(abs_all.len(), false);
@@ -949,10 +965,11 @@ fn march(
     let mut sweep = Sweep {
         t,
         // The chords' budget, less what the depth in front already took (distributed).
-        eps: ((0.25 * tol).ln_1p() - ctx.front_eps).max(0.0),
+        eps: ((CHORD_SHARE * tol).ln_1p() - ctx.front_eps).max(0.0),
         w: std::mem::take(w),
     };
     p.clear();
+    o.reset(st.range_nm, st.line_width_nm);
     if !front.is_empty() {
         // W_i = integral hat_i cmf (1 - exp(-front)): the depth in front, taken in one step
         // from nothing (no emission of its own here).
@@ -982,8 +999,8 @@ fn march(
         let d = &own_all[seg.own.clone()];
         let lit = !(p.is_empty() && d.is_empty());
         e.clear();
-        if lit && !seg.emit.is_empty() {
-            if seg.omit_light {
+        if !seg.emit.is_empty() {
+            if seg.omit_light && (lit || !o.is_empty()) {
                 // Each line attenuated by the transmittance at its middle: off by at most the
                 // line's own light, as the budget assumes, and dark behind a thick medium.
                 // (The lines are sorted by their middles, so the cursors only advance.)
@@ -994,7 +1011,8 @@ fn march(
                 {
                     let mid = 0.5 * (lo + hi);
                     let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
-                        + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid));
+                        + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid))
+                        + o.at(mid);
                     if depth > 0.0 {
                         let f = -(-depth).exp_m1();
                         for c in 0..3 {
@@ -1002,15 +1020,45 @@ fn march(
                         }
                     }
                 }
-            } else {
-                lines.clear();
-                lines.extend_from_slice(&emit_all[seg.emit.clone()]);
-                sum_trapezoids(lines, 1.0, e, cuts);
+            } else if !seg.omit_light {
+                if lit {
+                    lines.clear();
+                    lines.extend_from_slice(&emit_all[seg.emit.clone()]);
+                    sum_trapezoids(lines, 1.0, e, cuts);
+                }
+                if !o.is_empty() {
+                    // The left-out lines in front, at each line's middle (first order).
+                    let (mut pc, mut dc) = (Cursor::new(p), Cursor::new(d));
+                    for (&(lo, hi, _, _), x) in emit_all[seg.emit.clone()]
+                        .iter()
+                        .zip(&emit_xyz[seg.emit.clone()])
+                    {
+                        let mid = 0.5 * (lo + hi);
+                        let om = o.at(mid);
+                        if om > 0.0 {
+                            let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
+                                + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid));
+                            let absorbed = if om < 1e-2 {
+                                om * (1.0 - om * (0.5 - om / 6.0))
+                            } else {
+                                -(-om).exp_m1()
+                            };
+                            let f = if depth > 0.0 {
+                                (-depth).exp() * absorbed
+                            } else {
+                                absorbed
+                            };
+                            for c in 0..3 {
+                                taken[c] += f * x[c];
+                            }
+                        }
+                    }
+                }
             }
         }
         // The black body behind P (W before this segment's sweep), and behind half its own
         // depth in the sweep.
-        let row = (seg.has_bb && lit).then(|| {
+        let row = (seg.has_bb && (lit || !o.is_empty())).then(|| {
             let at = if keep_rows { m * k } else { 0 };
             &rows[at..at + k]
         });
@@ -1031,12 +1079,21 @@ fn march(
             add_sorted(p, d, p_next);
             std::mem::swap(p, p_next);
         }
+        // This segment's left-out lines, to first order: into the depth that later lines'
+        // light reads, and into W for the black bodies behind (and half for its own).
+        for i in seg.abs.clone().filter(|&i| abs_omit[i]) {
+            o.add(abs_all[i]);
+            let x = omitted_into_w(&mut sweep.w, t, p, abs_all[i], row);
+            for c in 0..3 {
+                taken[c] += x[c];
+            }
+        }
         // W is not recomputed after a merge (a pass over all of P): it keeps what the merge
         // moved, at most the merge's tolerance (module docs).
         if p.len() > merge_at {
             merges += 1;
             let share = 6.0 / (std::f64::consts::PI.powi(2) * f64::from(merges).powi(2));
-            merge_pieces(p, 0.03125 * tol * share, p_next).map_err(spectrum_err)?;
+            merge_pieces(p, MERGE_SHARE * tol * share, p_next).map_err(spectrum_err)?;
             std::mem::swap(p, p_next);
             merge_at = (2 * p.len()).max(64);
         }
@@ -1306,6 +1363,125 @@ mod tests {
                     "({pu}, {pw}, {h}) n={nn}: {jn} vs {q}"
                 );
             }
+        }
+    }
+}
+
+/// A left-out line's absorption of the black body light behind it (depth `p` in front), to
+/// first order at the line's middle: added to `W` for the segments behind; returns the half
+/// its own black body `row` loses (XYZ).
+fn omitted_into_w(
+    w: &mut [[f64; 3]],
+    t: &PwlTables,
+    p: &[Piece],
+    (lo, hi, h0, h1): Trap,
+    row: Option<&[f64]>,
+) -> [f64; 3] {
+    let k = t.lambdas.len();
+    let (g0, g1) = (t.lambdas[0], t.lambdas[k - 1]);
+    let mid = 0.5 * (lo + hi);
+    let mut taken = [0.0; 3];
+    if !(mid > g0 && mid < g1) {
+        return taken;
+    }
+    let n = count_ending_by(p, mid);
+    let depth = p
+        .get(n)
+        .filter(|q| q.start_nm <= mid)
+        .map_or(0.0, |q| value_at(q, mid));
+    let area = 0.5 * (h0 + h1) * (hi - lo);
+    let f = (-depth).exp() * area;
+    let x = (mid - g0) / (g1 - g0) * (k - 1) as f64;
+    let i = (x as usize).min(k - 2);
+    let fr = x - i as f64;
+    let c = t.cmf_at(mid);
+    for ch in 0..3 {
+        let v = f * c[ch];
+        w[i][ch] += v * (1.0 - fr);
+        w[i + 1][ch] += v * fr;
+        if let Some(r) = row {
+            taken[ch] += 0.5 * v * ((1.0 - fr) * r[i] + fr * r[i + 1]);
+        }
+    }
+    taken
+}
+
+/// The depth of the lines left out in front (`choose_omissions`), binned finely on the
+/// wavelength range: read at emission lines' middles to attenuate their light to first order.
+#[derive(Default)]
+struct OmittedDepth {
+    lo: f64,
+    inv_bin: f64,
+    bin: f64,
+    bins: Vec<f64>,
+    /// The bins written since the last reset (`touched.0..touched.1`).
+    touched: (usize, usize),
+}
+
+impl OmittedDepth {
+    /// Most bins (512 KiB).
+    const MAX_BINS: usize = 1 << 16;
+
+    fn reset(&mut self, (a, b): (f64, f64), line_width: f64) {
+        let (t0, t1) = self.touched;
+        if t0 < t1 {
+            self.bins[t0..t1].fill(0.0);
+        }
+        self.touched = (usize::MAX, 0);
+        let span = (b - a).max(f64::MIN_POSITIVE);
+        let want = (span / (0.5 * line_width).max(1e-3)).ceil();
+        let n = if want.is_finite() {
+            (want as usize).clamp(16, Self::MAX_BINS)
+        } else {
+            Self::MAX_BINS
+        };
+        if self.bins.len() != n || self.lo != a || self.bin != span / n as f64 {
+            self.bins.clear();
+            self.bins.resize(n, 0.0);
+        }
+        self.lo = a;
+        self.bin = span / n as f64;
+        self.inv_bin = 1.0 / self.bin;
+    }
+
+    fn is_empty(&self) -> bool {
+        self.touched.0 >= self.touched.1
+    }
+
+    /// Adds a line trapezoid's depth: each bin gets its mean over the bin.
+    fn add(&mut self, (lo, hi, h0, h1): Trap) {
+        let n = self.bins.len();
+        if n == 0 || !(hi > lo) {
+            return;
+        }
+        let first = ((lo - self.lo) * self.inv_bin).max(0.0);
+        let last = ((hi - self.lo) * self.inv_bin).max(0.0);
+        if !(first < n as f64) {
+            return;
+        }
+        let (first, last) = (first as usize, (last as usize).min(n - 1));
+        let slope = (h1 - h0) / (hi - lo);
+        for b in first..=last {
+            let b0 = self.lo + b as f64 * self.bin;
+            let (x0, x1) = (lo.max(b0), hi.min(b0 + self.bin));
+            if x1 > x0 {
+                let mid = 0.5 * (x0 + x1);
+                self.bins[b] += (x1 - x0) * (h0 + slope * (mid - lo)) * self.inv_bin;
+            }
+        }
+        self.touched = (self.touched.0.min(first), self.touched.1.max(last + 1));
+    }
+
+    /// The binned depth at `x` (0 outside the range).
+    fn at(&self, x: f64) -> f64 {
+        if self.is_empty() {
+            return 0.0;
+        }
+        let u = (x - self.lo) * self.inv_bin;
+        if u >= 0.0 && u < self.bins.len() as f64 {
+            self.bins[u as usize]
+        } else {
+            0.0
         }
     }
 }
