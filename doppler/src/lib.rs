@@ -56,11 +56,12 @@
 //!   an exponential of the wavelength), so the cost per segment follows its lines, not the
 //!   whole of `P` (module `front`). `merge_tolerance` `tol` is an error budget for the whole
 //!   ray: the depth in front is merged (the k-th merge gets `tol/32 6 / (pi k)^2`), the
-//!   weakest absorption lines (per line and segment) are left out (`11 tol/32` in total), the
-//!   depth is read as chords within `ln(1 + tol/4)` inside a sweep, and the faintest
-//!   segments' line light is attenuated by the transmittance at each line's middle instead of
-//!   exactly (`3 tol/8` of each channel's unattenuated total); so each XYZ channel is within
-//!   `tol` x the unattenuated emission's. [`PieceStats`] counts `P`'s pieces.
+//!   weakest absorption lines (per line and segment) are left out of the sweeps (`25 tol/32`
+//!   in total) and act to first order at their middles instead, the depth is read as chords
+//!   within `ln(1 + 3 tol/32)` inside a sweep, and the faintest segments' line light is
+//!   attenuated by the transmittance at each line's middle instead of exactly (`3 tol/32` of
+//!   each channel's unattenuated total); so each XYZ channel is within `tol` x the
+//!   unattenuated emission's (a loose bound: see module `front`). [`PieceStats`] counts `P`'s pieces.
 //! - Spectrum path (picked pixels, traces), back to front: the spectrum is kept, attenuated
 //!   exactly at sub-piece ends (`max_depth_step`), and merged with `tol / segments` of its
 //!   maximum per merge, so merges add at most `merge_tolerance` of the maximum in total.

@@ -29,6 +29,11 @@ pub struct Prepared {
     pub(crate) banded: Option<BandTables>,
     pub(crate) profiles: Profiles,
     pub(crate) absorbing: bool,
+    /// Every species' emission lines, then absorption lines, as `(species, line)` sorted by
+    /// rest wavelength: without broadening a segment's lines come out in this order sorted
+    /// by their middles and starts (one shift for all species), so no sort is needed.
+    pub(crate) emission_order: Vec<(u32, u32)>,
+    pub(crate) absorption_order: Vec<(u32, u32)>,
 }
 
 /// Which lines of a scene's species [`Prepared::line_entries`] lists.
@@ -115,12 +120,29 @@ impl Prepared {
             ));
         }
         let profiles = Profiles::new(scene, &settings.broadening)?;
+        let order = |emission: bool| {
+            let mut v: Vec<(f64, u32, u32)> = Vec::new();
+            for (m, sp) in scene.species.iter().enumerate() {
+                let list = if emission {
+                    &sp.emission_lines
+                } else {
+                    &sp.absorption_lines
+                };
+                for (i, l) in list.iter().enumerate() {
+                    v.push((l.centre_nm, m as u32, i as u32));
+                }
+            }
+            v.sort_by(|a, b| a.0.total_cmp(&b.0));
+            v.into_iter().map(|(_, m, i)| (m, i)).collect()
+        };
         Ok(Self {
             step,
             pwl,
             banded,
             profiles,
             absorbing: scene.absorbs(),
+            emission_order: order(true),
+            absorption_order: order(false),
         })
     }
 
