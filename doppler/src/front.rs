@@ -1462,12 +1462,12 @@ impl OmittedDepth {
     /// Adds a line trapezoid's depth: each bin gets its mean over the bin.
     fn add(&mut self, (lo, hi, h0, h1): Trap) {
         let n = self.bins.len();
-        if n == 0 || !(hi > lo) {
+        if n == 0 || hi.is_nan() || lo.is_nan() || hi <= lo {
             return;
         }
         let first = ((lo - self.lo) * self.inv_bin).max(0.0);
         let last = ((hi - self.lo) * self.inv_bin).max(0.0);
-        if !(first < n as f64) {
+        if first >= n as f64 {
             return;
         }
         let (first, last) = (first as usize, (last as usize).min(n - 1));
