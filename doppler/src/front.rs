@@ -1008,6 +1008,11 @@ fn march(
         // P holds the depth of the segments in front; this one's light crosses half of
         // its own depth `d` as well.
         let d = &own_all[seg.own.clone()];
+        // Half of this segment's left-out depth lies in front of its own light; the other
+        // half is added after it, for the segments behind.
+        for i in seg.abs.clone().filter(|&i| abs_omit[i]) {
+            o.add(abs_all[i], 0.5);
+        }
         let lit = !(p.is_empty() && d.is_empty());
         e.clear();
         if !seg.emit.is_empty() {
@@ -1049,7 +1054,7 @@ fn march(
                         if om > 0.0 {
                             let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
                                 + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid));
-                            let absorbed = if om < 1e-2 {
+                            let absorbed = if om < 1e-3 {
                                 om * (1.0 - om * (0.5 - om / 6.0))
                             } else {
                                 -(-om).exp_m1()
@@ -1093,7 +1098,7 @@ fn march(
         // This segment's left-out lines, to first order: into the depth that later lines'
         // light reads, and into W for the black bodies behind (and half for its own).
         for i in seg.abs.clone().filter(|&i| abs_omit[i]) {
-            o.add(abs_all[i]);
+            o.add(abs_all[i], 0.5);
             let x = omitted_into_w(&mut sweep.w, t, p, abs_all[i], row);
             for c in 0..3 {
                 taken[c] += x[c];
@@ -1459,8 +1464,8 @@ impl OmittedDepth {
         self.touched.0 >= self.touched.1
     }
 
-    /// Adds a line trapezoid's depth: each bin gets its mean over the bin.
-    fn add(&mut self, (lo, hi, h0, h1): Trap) {
+    /// Adds a line trapezoid's depth times `scale`: each bin gets its mean over the bin.
+    fn add(&mut self, (lo, hi, h0, h1): Trap, scale: f64) {
         let n = self.bins.len();
         if n == 0 || hi.is_nan() || lo.is_nan() || hi <= lo {
             return;
@@ -1472,12 +1477,13 @@ impl OmittedDepth {
         }
         let (first, last) = (first as usize, (last as usize).min(n - 1));
         let slope = (h1 - h0) / (hi - lo);
+        let k = scale * self.inv_bin;
         for b in first..=last {
             let b0 = self.lo + b as f64 * self.bin;
             let (x0, x1) = (lo.max(b0), hi.min(b0 + self.bin));
             if x1 > x0 {
                 let mid = 0.5 * (x0 + x1);
-                self.bins[b] += (x1 - x0) * (h0 + slope * (mid - lo)) * self.inv_bin;
+                self.bins[b] += (x1 - x0) * (h0 + slope * (mid - lo)) * k;
             }
         }
         self.touched = (self.touched.0.min(first), self.touched.1.max(last + 1));
