@@ -773,6 +773,7 @@ struct Scratch {
     p_next: Vec<Piece>,
     e: Vec<Piece>,
     o: OmittedDepth,
+    own_left: Vec<Trap>,
 }
 
 thread_local! {
@@ -875,6 +876,7 @@ fn march(
         p_next,
         e,
         o,
+        own_left,
     } = sc;
     // Gather every segment (from the eye), the unattenuated XYZ per segment and in total.
     segs.clear();
@@ -1008,15 +1010,19 @@ fn march(
         // P holds the depth of the segments in front; this one's light crosses half of
         // its own depth `d` as well.
         let d = &own_all[seg.own.clone()];
-        // Half of this segment's left-out depth lies in front of its own light; the other
-        // half is added after it, for the segments behind.
-        for i in seg.abs.clone().filter(|&i| abs_omit[i]) {
-            o.add(abs_all[i], 0.5);
+        // Half of this segment's left-out depth lies in front of its own light (read from
+        // its lines, sorted by start); all of it is binned after, for the segments behind.
+        own_left.clear();
+        own_left.extend(seg.abs.clone().filter(|&i| abs_omit[i]).map(|i| abs_all[i]));
+        if !own_left.is_sorted_by(|a, b| a.0 <= b.0) {
+            own_left.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         }
+        let mut own_at = LeftOutAt::new(own_left);
+        let left_out = !o.is_empty() || !own_left.is_empty();
         let lit = !(p.is_empty() && d.is_empty());
         e.clear();
         if !seg.emit.is_empty() {
-            if seg.omit_light && (lit || !o.is_empty()) {
+            if seg.omit_light && (lit || left_out) {
                 // Each line attenuated by the transmittance at its middle: off by at most the
                 // line's own light, as the budget assumes, and dark behind a thick medium.
                 // (The lines are sorted by their middles, so the cursors only advance.)
@@ -1028,7 +1034,8 @@ fn march(
                     let mid = 0.5 * (lo + hi);
                     let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
                         + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid))
-                        + o.at(mid);
+                        + o.at(mid)
+                        + 0.5 * own_at.at(mid);
                     if depth > 0.0 {
                         let f = -(-depth).exp_m1();
                         for c in 0..3 {
@@ -1042,7 +1049,7 @@ fn march(
                     lines.extend_from_slice(&emit_all[seg.emit.clone()]);
                     sum_trapezoids(lines, 1.0, e, cuts);
                 }
-                if !o.is_empty() {
+                if left_out {
                     // The left-out lines in front, at each line's middle (first order).
                     let (mut pc, mut dc) = (Cursor::new(p), Cursor::new(d));
                     for (&(lo, hi, _, _), x) in emit_all[seg.emit.clone()]
@@ -1050,7 +1057,7 @@ fn march(
                         .zip(&emit_xyz[seg.emit.clone()])
                     {
                         let mid = 0.5 * (lo + hi);
-                        let om = o.at(mid);
+                        let om = o.at(mid) + 0.5 * own_at.at(mid);
                         if om > 0.0 {
                             let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
                                 + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid));
@@ -1098,7 +1105,7 @@ fn march(
         // This segment's left-out lines, to first order: into the depth that later lines'
         // light reads, and into W for the black bodies behind (and half for its own).
         for i in seg.abs.clone().filter(|&i| abs_omit[i]) {
-            o.add(abs_all[i], 0.5);
+            o.add(abs_all[i]);
             let x = omitted_into_w(&mut sweep.w, t, p, abs_all[i], row);
             for c in 0..3 {
                 taken[c] += x[c];
@@ -1422,6 +1429,47 @@ fn omitted_into_w(
     taken
 }
 
+/// The summed depth of line trapezoids sorted by start, read at increasing points.
+struct LeftOutAt<'a> {
+    traps: &'a [Trap],
+    /// The widest trapezoid's width.
+    widest: f64,
+    /// Every trapezoid before this one ends before the points still to come.
+    start: usize,
+}
+
+impl<'a> LeftOutAt<'a> {
+    fn new(traps: &'a [Trap]) -> Self {
+        let widest = traps.iter().map(|t| t.1 - t.0).fold(0.0, f64::max);
+        Self {
+            traps,
+            widest,
+            start: 0,
+        }
+    }
+
+    /// The depth at `x` (points asked in increasing order).
+    fn at(&mut self, x: f64) -> f64 {
+        while self
+            .traps
+            .get(self.start)
+            .is_some_and(|t| t.0 + self.widest < x)
+        {
+            self.start += 1;
+        }
+        let mut sum = 0.0;
+        for &(lo, hi, h0, h1) in &self.traps[self.start..] {
+            if lo > x {
+                break;
+            }
+            if x < hi {
+                sum += h0 + (h1 - h0) * ((x - lo) / (hi - lo));
+            }
+        }
+        sum
+    }
+}
+
 /// The depth of the lines left out in front (`choose_omissions`), binned finely on the
 /// wavelength range: read at emission lines' middles to attenuate their light to first order.
 #[derive(Default)]
@@ -1445,6 +1493,8 @@ impl OmittedDepth {
         }
         self.touched = (usize::MAX, 0);
         let span = (b - a).max(f64::MIN_POSITIVE);
+        // Bins of half the narrowest line's width (a quarter measured a larger error on
+        // the He-rich scene, a whole width a much larger one).
         let want = (span / (0.5 * line_width).max(1e-3)).ceil();
         let n = if want.is_finite() {
             (want as usize).clamp(16, Self::MAX_BINS)
@@ -1464,8 +1514,8 @@ impl OmittedDepth {
         self.touched.0 >= self.touched.1
     }
 
-    /// Adds a line trapezoid's depth times `scale`: each bin gets its mean over the bin.
-    fn add(&mut self, (lo, hi, h0, h1): Trap, scale: f64) {
+    /// Adds a line trapezoid's depth: each bin gets its mean over the bin.
+    fn add(&mut self, (lo, hi, h0, h1): Trap) {
         let n = self.bins.len();
         if n == 0 || hi.is_nan() || lo.is_nan() || hi <= lo {
             return;
@@ -1477,7 +1527,7 @@ impl OmittedDepth {
         }
         let (first, last) = (first as usize, (last as usize).min(n - 1));
         let slope = (h1 - h0) / (hi - lo);
-        let k = scale * self.inv_bin;
+        let k = self.inv_bin;
         for b in first..=last {
             let b0 = self.lo + b as f64 * self.bin;
             let (x0, x1) = (lo.max(b0), hi.min(b0 + self.bin));
