@@ -383,7 +383,9 @@ fn he_rich(c: &mut Criterion) {
     let (tb, img) = timed(&s, &b4);
     let eb = xyz_error(&img, &r);
     let mut pick = None;
-    for tol in [1e-3, 1e-2, 5e-2, 1e-1, 2e-1, 3e-1, 4e-1, 5e-1, 6e-1, 7e-1, 8e-1, 1.0] {
+    for tol in [
+        1e-3, 1e-2, 5e-2, 1e-1, 2e-1, 3e-1, 4e-1, 5e-1, 6e-1, 7e-1, 8e-1, 1.0,
+    ] {
         let mut p = st.clone();
         p.merge_tolerance = tol;
         let (t, img) = timed(&s, &p);
