@@ -107,6 +107,12 @@ fn table1() {
     std::fs::write(out_dir().join("doppler_table1.csv"), csv).expect("write");
 }
 
+/// The merge tolerances timed against banded:4000 (Fig. 13's trade and the He-rich group):
+/// the error bound is loose, so tolerances up to 1 still measure below banded:4000's error.
+const TOLERANCES: [f64; 12] = [
+    1e-3, 1e-2, 5e-2, 1e-1, 2e-1, 3e-1, 4e-1, 5e-1, 6e-1, 7e-1, 8e-1, 1.0,
+];
+
 fn fig13() {
     let galaxy = synth::galaxy(64, 1).expect("galaxy");
     let size = 32;
@@ -147,7 +153,7 @@ fn fig13() {
         let mut banded_4000 = None;
         if absorption > 0.0 {
             // The merge tolerance trade (the default is 1e-4).
-            for tol in [1e-3, 1e-2, 5e-2, 1e-1, 2e-1] {
+            for tol in TOLERANCES {
                 let mut p = st.clone();
                 p.merge_tolerance = tol;
                 let (t, img) = timed(&s, &p);
@@ -383,9 +389,7 @@ fn he_rich(c: &mut Criterion) {
     let (tb, img) = timed(&s, &b4);
     let eb = xyz_error(&img, &r);
     let mut pick = None;
-    for tol in [
-        1e-3, 1e-2, 5e-2, 1e-1, 2e-1, 3e-1, 4e-1, 5e-1, 6e-1, 7e-1, 8e-1, 1.0,
-    ] {
+    for tol in TOLERANCES {
         let mut p = st.clone();
         p.merge_tolerance = tol;
         let (t, img) = timed(&s, &p);

@@ -76,7 +76,7 @@ use crate::Result;
 /// lines, chords, and line light attenuated at each line's middle.
 const MERGE_SHARE: f64 = 1.0 / 32.0;
 const DEPTH_SHARE: f64 = 25.0 / 32.0;
-const CHORD_SHARE: f64 = 3.0 / 32.0;
+pub(crate) const CHORD_SHARE: f64 = 3.0 / 32.0;
 const LIGHT_SHARE: f64 = 3.0 / 32.0;
 
 /// A line trapezoid `(lo, hi, h_lo, h_hi)` as [`segment_lines`] gives it.
@@ -738,7 +738,7 @@ fn choose_omissions(
 struct Segment {
     /// Its absorption line trapezoids (full depth) in `abs_all` (a range).
     abs: std::ops::Range<usize>,
-    /// Its half absorption `a_k / 2` without the left-out lines, in `own_all` (a range).
+    /// Its absorption `a_k` without the left-out lines, in `own_all` (a range).
     own: std::ops::Range<usize>,
     /// Its emission line trapezoids in `emit` (a range) and their XYZ.
     emit: std::ops::Range<usize>,
@@ -1081,7 +1081,7 @@ fn march(
         }
         // The black body behind P (W before this segment's sweep), and behind half its own
         // depth in the sweep.
-        let row = (seg.has_bb && (lit || !o.is_empty())).then(|| {
+        let row = (seg.has_bb && (lit || left_out)).then(|| {
             let at = if keep_rows { m * k } else { 0 };
             &rows[at..at + k]
         });
@@ -1392,7 +1392,9 @@ mod tests {
 
 /// A left-out line's absorption of the black body light behind it (depth `p` in front), to
 /// first order at the line's middle: added to `W` for the segments behind; returns the half
-/// its own black body `row` loses (XYZ).
+/// its own black body `row` loses (XYZ; weighted behind the same `p`, which already holds
+/// the segment's kept depth, so a little less than behind half of it: within the bound).
+/// Lines outside the black-body grid or the CMF table take nothing.
 fn omitted_into_w(
     w: &mut [[f64; 3]],
     t: &PwlTables,
@@ -1404,7 +1406,8 @@ fn omitted_into_w(
     let (g0, g1) = (t.lambdas[0], t.lambdas[k - 1]);
     let mid = 0.5 * (lo + hi);
     let mut taken = [0.0; 3];
-    if !(mid > g0 && mid < g1) {
+    let c_hi = t.cmf_lo + t.cmf_step * (t.cmf.len() - 1) as f64;
+    if !(mid > g0 && mid < g1 && mid >= t.cmf_lo && mid <= c_hi) {
         return taken;
     }
     let n = count_ending_by(p, mid);
@@ -1448,7 +1451,9 @@ impl<'a> LeftOutAt<'a> {
         }
     }
 
-    /// The depth at `x` (points asked in increasing order).
+    /// The depth at `x` (points asked in increasing order). Each call scans the lines
+    /// starting within the widest one's width before `x`: a few for narrow lines, at most all
+    /// of one segment's left-out lines.
     fn at(&mut self, x: f64) -> f64 {
         while self
             .traps
@@ -1483,8 +1488,8 @@ struct OmittedDepth {
 }
 
 impl OmittedDepth {
-    /// Most bins (512 KiB).
-    const MAX_BINS: usize = 1 << 16;
+    /// Most bins (32 KiB): a line covers at most `4096 x` its share of the range in bins.
+    const MAX_BINS: usize = 1 << 12;
 
     fn reset(&mut self, (a, b): (f64, f64), line_width: f64) {
         let (t0, t1) = self.touched;

@@ -67,14 +67,14 @@ pub fn render_doppler_part_observed(
     render_part(scene, settings, clip, front, 0.0, observer)
 }
 
-/// The share of the piecewise-linear sweep's chord budget (`ln(1 + tol/4)` of optical
+/// The share of the piecewise-linear sweep's chord budget (`ln(1 + 3 tol/32)` of optical
 /// depth, `front` module docs) that a distributed render spends on the depth in front
 /// before it is sent ([`optical_depth_part_chorded`]): half. The sweeps behind take the
 /// other half ([`render_doppler_part_chorded`]), so the image keeps the single process's
 /// error bound. 0 when `merge_tolerance` is 0 (exact).
 #[must_use]
 pub fn front_chord_budget(settings: &DopplerSettings) -> f64 {
-    0.5 * (0.25 * settings.merge_tolerance.max(0.0)).ln_1p()
+    0.5 * (crate::front::CHORD_SHARE * settings.merge_tolerance.max(0.0)).ln_1p()
 }
 
 /// [`render_doppler_part`] behind a depth in front that strays from the exact one by at

@@ -392,7 +392,9 @@ pub(crate) fn segment_lines(
         }
         for &(m, i) in order {
             let (m, i) = (m as usize, i as usize);
-            let (ra, rb) = rho[m];
+            let Some(&(ra, rb)) = rho.get(m).filter(|_| m < nsp) else {
+                continue;
+            };
             if ra <= 0.0 && rb <= 0.0 {
                 continue;
             }

@@ -91,7 +91,8 @@
 //! hardware compiler may fuse the f32 sampling's multiply-adds (WGSL allows it), which moves
 //! a sample by an ulp: there the bound is f32's, 1e-5. With a merge tolerance the absorbing
 //! kernel differs from the CPU by the algorithms' own tolerance (the device merges where the
-//! CPU also leaves out its weakest lines; measured 2.1e-6 of the pixel).
+//! CPU also leaves out its weakest lines and applies them to first order, with other shares
+//! of the budget: both stay within `merge_tolerance` of the unattenuated emission).
 //!
 //! **f32** (no `SHADER_F64` needed, and faster on GPUs with slow f64; the figures are in
 //! the benchmark section of `gpu/README.md`): the parity tests state the tolerance against
