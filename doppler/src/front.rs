@@ -611,9 +611,9 @@ impl Sweep<'_> {
             ];
             if has_e {
                 let de = (ew - eu) * inv_h;
+                let h6 = h * (1.0 / 6.0);
                 for c in 0..3 {
-                    let full =
-                        h * (2.0 * eu * cu[c] + eu * cw[c] + ew * cu[c] + 2.0 * ew * cw[c]) / 6.0;
+                    let full = h6 * (eu * (2.0 * cu[c] + cw[c]) + ew * (cu[c] + 2.0 * cw[c]));
                     taken[c] += full - quad_dot(eu, de, cu[c], dc[c], &j_half);
                 }
             }
@@ -1104,9 +1104,18 @@ fn march(
         }
         // This segment's left-out lines, to first order: into the depth that later lines'
         // light reads, and into W for the black bodies behind (and half for its own).
+        // (Their middles mostly increase, so one cursor serves; it restarts where not.)
+        let (mut pc, mut last_mid) = (Cursor::new(p), f64::NEG_INFINITY);
         for i in seg.abs.clone().filter(|&i| abs_omit[i]) {
-            o.add(abs_all[i]);
-            let x = omitted_into_w(&mut sweep.w, t, p, abs_all[i], row);
+            let tr = abs_all[i];
+            o.add(tr);
+            let mid = 0.5 * (tr.0 + tr.1);
+            if mid < last_mid {
+                pc = Cursor::new(p);
+            }
+            last_mid = mid;
+            let depth = pc.at(mid).map_or(0.0, |q| value_at(&q, mid));
+            let x = omitted_into_w(&mut sweep.w, t, depth, tr, row);
             for c in 0..3 {
                 taken[c] += x[c];
             }
@@ -1390,15 +1399,15 @@ mod tests {
     }
 }
 
-/// A left-out line's absorption of the black body light behind it (depth `p` in front), to
+/// A left-out line's absorption of the black body light behind it (`depth` in front), to
 /// first order at the line's middle: added to `W` for the segments behind; returns the half
-/// its own black body `row` loses (XYZ; weighted behind the same `p`, which already holds
+/// its own black body `row` loses (XYZ; weighted behind the same depth, which already holds
 /// the segment's kept depth, so a little less than behind half of it: within the bound).
 /// Lines outside the black-body grid or the CMF table take nothing.
 fn omitted_into_w(
     w: &mut [[f64; 3]],
     t: &PwlTables,
-    p: &[Piece],
+    depth: f64,
     (lo, hi, h0, h1): Trap,
     row: Option<&[f64]>,
 ) -> [f64; 3] {
@@ -1410,13 +1419,12 @@ fn omitted_into_w(
     if !(mid > g0 && mid < g1 && mid >= t.cmf_lo && mid <= c_hi) {
         return taken;
     }
-    let n = count_ending_by(p, mid);
-    let depth = p
-        .get(n)
-        .filter(|q| q.start_nm <= mid)
-        .map_or(0.0, |q| value_at(q, mid));
     let area = 0.5 * (h0 + h1) * (hi - lo);
-    let f = (-depth).exp() * area;
+    let f = if depth > 0.0 {
+        (-depth).exp() * area
+    } else {
+        area
+    };
     let x = (mid - g0) / (g1 - g0) * (k - 1) as f64;
     let i = (x as usize).min(k - 2);
     let fr = x - i as f64;

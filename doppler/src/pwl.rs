@@ -20,13 +20,15 @@ pub struct PwlTables {
     pub cmf_step: f64,
     /// The CMF samples (x-bar, y-bar, z-bar), from `cmf_lo` every `cmf_step`.
     pub cmf: Vec<[f64; 3]>,
+    /// `1 / cmf_step`.
+    cmf_inv_step: f64,
 }
 
 impl PwlTables {
     /// The piecewise-linear CMFs at `x` (inside the table's range).
     #[inline]
     pub(crate) fn cmf_at(&self, x: f64) -> [f64; 3] {
-        let u = ((x - self.cmf_lo) / self.cmf_step).max(0.0);
+        let u = ((x - self.cmf_lo) * self.cmf_inv_step).max(0.0);
         let i = (u as usize).min(self.cmf.len() - 2);
         let f = u - i as f64;
         let (a, b) = (self.cmf[i], self.cmf[i + 1]);
@@ -54,7 +56,7 @@ impl PwlTables {
         }
         let slope = (h1 - h0) / (hi - lo);
         let step = t.cmf_step;
-        let inv_cstep = 1.0 / step;
+        let inv_cstep = t.cmf_inv_step;
         let last = t.cmf.len() - 2;
         // The CMF cell holding `a` (a node rounding puts a hair on either side gives the
         // same values), then cell by cell to `b`, the CMFs at inner nodes straight from the
@@ -82,9 +84,9 @@ impl PwlTables {
                 (b, cmf_in(j, b))
             };
             let fw = if w >= hi { h1 } else { h0 + slope * (w - lo) };
-            let h6 = (w - u) / 6.0;
+            let h6 = (w - u) * (1.0 / 6.0);
             for c in 0..3 {
-                out[c] += h6 * (2.0 * fu * cu[c] + fu * cw[c] + fw * cu[c] + 2.0 * fw * cw[c]);
+                out[c] += h6 * (fu * (2.0 * cu[c] + cw[c]) + fw * (cu[c] + 2.0 * cw[c]));
             }
             if w >= b {
                 break;
@@ -125,6 +127,7 @@ impl PwlTables {
             cmf_lo: c_lo,
             cmf_step,
             cmf: table,
+            cmf_inv_step: 1.0 / cmf_step,
         }
     }
 }
