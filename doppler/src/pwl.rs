@@ -386,10 +386,10 @@ pub(crate) fn segment_lines(
         &ctx.absorption_order
     };
     if !ctx.profiles.active
-        && nsp <= 64
+        && nsp <= 16
         && order.len() == scene.species.iter().map(|sp| list(sp).len()).sum::<usize>()
     {
-        let mut rho = [(0.0f64, 0.0f64); 64];
+        let mut rho = [(0.0f64, 0.0f64); 16];
         for (m, r) in rho.iter_mut().enumerate().take(nsp) {
             *r = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
         }
