@@ -740,6 +740,8 @@ struct Segment {
     abs: std::ops::Range<usize>,
     /// Its absorption `a_k` without the left-out lines, in `own_all` (a range).
     own: std::ops::Range<usize>,
+    /// Half the depth of its left-out lines, in `own_all` (a range).
+    left_half: std::ops::Range<usize>,
     /// Its emission line trapezoids in `emit` (a range) and their XYZ.
     emit: std::ops::Range<usize>,
     line_xyz: [f64; 3],
@@ -773,7 +775,6 @@ struct Scratch {
     p_next: Vec<Piece>,
     e: Vec<Piece>,
     o: OmittedDepth,
-    own_left: Vec<Trap>,
 }
 
 thread_local! {
@@ -876,7 +877,6 @@ fn march(
         p_next,
         e,
         o,
-        own_left,
     } = sc;
     // Gather every segment (from the eye), the unattenuated XYZ per segment and in total.
     segs.clear();
@@ -930,6 +930,7 @@ fn march(
         segs.push(Segment {
             abs: abs_start..abs_all.len(),
             own: 0..0,
+            left_half: 0..0,
             emit: emit_start..emit_all.len(),
             line_xyz: seg_xyz,
             has_bb,
@@ -968,6 +969,12 @@ fn march(
         let start = own_all.len();
         sum_trapezoids(lines, 1.0, own_all, cuts);
         seg.own = start..own_all.len();
+        // Half its left-out depth, which lies in front of its own light.
+        lines.clear();
+        lines.extend(seg.abs.clone().filter(|&i| abs_omit[i]).map(|i| abs_all[i]));
+        let start = own_all.len();
+        sum_trapezoids(lines, 0.5, own_all, cuts);
+        seg.left_half = start..own_all.len();
     }
 
     // March from the eye. Error budget (module docs): merges tol/32, left-out depth 25 tol/32,
@@ -1010,71 +1017,52 @@ fn march(
         // P holds the depth of the segments in front; this one's light crosses half of
         // its own depth `d` as well.
         let d = &own_all[seg.own.clone()];
-        // Half of this segment's left-out depth lies in front of its own light (read from
-        // its lines, sorted by start); all of it is binned after, for the segments behind.
-        own_left.clear();
-        own_left.extend(seg.abs.clone().filter(|&i| abs_omit[i]).map(|i| abs_all[i]));
-        if !own_left.is_sorted_by(|a, b| a.0 <= b.0) {
-            own_left.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        }
-        let mut own_at = LeftOutAt::new(own_left);
-        let left_out = !o.is_empty() || !own_left.is_empty();
+        // Half of this segment's left-out depth lies in front of its own light; all of it
+        // is binned after, for the segments behind.
+        let left_half = &own_all[seg.left_half.clone()];
+        let left_out = !o.is_empty() || !left_half.is_empty();
         let lit = !(p.is_empty() && d.is_empty());
         e.clear();
-        if !seg.emit.is_empty() {
-            if seg.omit_light && (lit || left_out) {
-                // Each line attenuated by the transmittance at its middle: off by at most the
-                // line's own light, as the budget assumes, and dark behind a thick medium.
-                // (The lines are sorted by their middles, so the cursors only advance.)
-                let (mut pc, mut dc) = (Cursor::new(p), Cursor::new(d));
-                for (&(lo, hi, _, _), x) in emit_all[seg.emit.clone()]
-                    .iter()
-                    .zip(&emit_xyz[seg.emit.clone()])
-                {
-                    let mid = 0.5 * (lo + hi);
-                    let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
-                        + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid))
-                        + o.at(mid)
-                        + 0.5 * own_at.at(mid);
+        if !seg.omit_light && lit && !seg.emit.is_empty() {
+            lines.clear();
+            lines.extend_from_slice(&emit_all[seg.emit.clone()]);
+            sum_trapezoids(lines, 1.0, e, cuts);
+        }
+        // Light read at each line's middle (the lines are sorted by their middles, so the
+        // cursors only advance): the faintest segments' lines attenuated by the whole depth
+        // there (off by at most the line's own light, as the budget assumes, and dark behind
+        // a thick medium); the others' swept exactly above, and here only the left-out lines
+        // in front taken to first order.
+        if !seg.emit.is_empty() && (left_out || (seg.omit_light && lit)) {
+            let (mut pc, mut dc, mut hc) = (Cursor::new(p), Cursor::new(d), Cursor::new(left_half));
+            for (&(lo, hi, _, _), x) in emit_all[seg.emit.clone()]
+                .iter()
+                .zip(&emit_xyz[seg.emit.clone()])
+            {
+                let mid = 0.5 * (lo + hi);
+                let om = o.at(mid) + hc.at(mid).map_or(0.0, |q| q.at(mid));
+                if !seg.omit_light && om <= 0.0 {
+                    continue;
+                }
+                let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
+                    + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid));
+                let f = if seg.omit_light {
+                    -(-(depth + om)).exp_m1()
+                } else {
+                    let absorbed = if om < 1e-3 {
+                        om * (1.0 - om * (0.5 - om / 6.0))
+                    } else {
+                        -(-om).exp_m1()
+                    };
                     if depth > 0.0 {
-                        let f = -(-depth).exp_m1();
-                        for c in 0..3 {
-                            taken[c] += f * x[c];
-                        }
+                        (-depth).exp() * absorbed
+                    } else {
+                        absorbed
                     }
-                }
-            } else if !seg.omit_light {
-                if lit {
-                    lines.clear();
-                    lines.extend_from_slice(&emit_all[seg.emit.clone()]);
-                    sum_trapezoids(lines, 1.0, e, cuts);
-                }
-                if left_out {
-                    // The left-out lines in front, at each line's middle (first order).
-                    let (mut pc, mut dc) = (Cursor::new(p), Cursor::new(d));
-                    for (&(lo, hi, _, _), x) in emit_all[seg.emit.clone()]
-                        .iter()
-                        .zip(&emit_xyz[seg.emit.clone()])
-                    {
-                        let mid = 0.5 * (lo + hi);
-                        let om = o.at(mid) + 0.5 * own_at.at(mid);
-                        if om > 0.0 {
-                            let depth = pc.at(mid).map_or(0.0, |q| q.at(mid))
-                                + 0.5 * dc.at(mid).map_or(0.0, |q| q.at(mid));
-                            let absorbed = if om < 1e-3 {
-                                om * (1.0 - om * (0.5 - om / 6.0))
-                            } else {
-                                -(-om).exp_m1()
-                            };
-                            let f = if depth > 0.0 {
-                                (-depth).exp() * absorbed
-                            } else {
-                                absorbed
-                            };
-                            for c in 0..3 {
-                                taken[c] += f * x[c];
-                            }
-                        }
+                };
+                if f > 0.0 {
+                    for c in 0..3 {
+                        taken[c] += f * x[c];
                     }
                 }
             }
@@ -1438,49 +1426,6 @@ fn omitted_into_w(
         }
     }
     taken
-}
-
-/// The summed depth of line trapezoids sorted by start, read at increasing points.
-struct LeftOutAt<'a> {
-    traps: &'a [Trap],
-    /// The widest trapezoid's width.
-    widest: f64,
-    /// Every trapezoid before this one ends before the points still to come.
-    start: usize,
-}
-
-impl<'a> LeftOutAt<'a> {
-    fn new(traps: &'a [Trap]) -> Self {
-        let widest = traps.iter().map(|t| t.1 - t.0).fold(0.0, f64::max);
-        Self {
-            traps,
-            widest,
-            start: 0,
-        }
-    }
-
-    /// The depth at `x` (points asked in increasing order). Each call scans the lines
-    /// starting within the widest one's width before `x`: a few for narrow lines, at most all
-    /// of one segment's left-out lines.
-    fn at(&mut self, x: f64) -> f64 {
-        while self
-            .traps
-            .get(self.start)
-            .is_some_and(|t| t.0 + self.widest < x)
-        {
-            self.start += 1;
-        }
-        let mut sum = 0.0;
-        for &(lo, hi, h0, h1) in &self.traps[self.start..] {
-            if lo > x {
-                break;
-            }
-            if x < hi {
-                sum += h0 + (h1 - h0) * ((x - lo) / (hi - lo));
-            }
-        }
-        sum
-    }
 }
 
 /// The depth of the lines left out in front (`choose_omissions`), binned finely on the

@@ -149,6 +149,17 @@ fn dense(g: &Grid<f32>) -> Field {
 
 /// `g` as a `.bsv` file (bricks of 16, so pool bricks span several file bricks) opened
 /// through a cache of `budget` bytes.
+/// Two channels on a 96 x 80 x 64 grid in `.bsv` files of several levels: a smooth field
+/// (`a`) and a box (`b`).
+fn two_channels(dir: &std::path::Path) -> (BrickedFile, BrickedFile) {
+    let dims = [96, 80, 64];
+    let (a, b) = (smooth(dims), boxed(dims, [20, 10, 5], [70, 60, 50]));
+    (
+        bricked(dir, "a", &a, 1 << 24),
+        bricked(dir, "b", &b, 1 << 24),
+    )
+}
+
 fn bricked(dir: &std::path::Path, name: &str, g: &Grid<f32>, budget: usize) -> BrickedFile {
     let p = dir.join(format!("{name}.bsv"));
     ooc::convert(
@@ -323,12 +334,7 @@ fn striped(edge: f32) -> impl Fn(Vec3, Vec3) -> usize {
 fn per_brick_levels_sample_and_render_as_the_cpu_does() {
     let Some(ctx) = test_context() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let dims = [96, 80, 64];
-    let (a, b) = (smooth(dims), boxed(dims, [20, 10, 5], [70, 60, 50]));
-    let (fa, fb) = (
-        bricked(dir.path(), "a", &a, 1 << 24),
-        bricked(dir.path(), "b", &b, 1 << 24),
-    );
+    let (fa, fb) = two_channels(dir.path());
     assert!(fa.levels() >= 3, "a pyramid of {} levels", fa.levels());
     let region = |f: &BrickedFile| -> Field {
         f.field(0)
@@ -624,12 +630,7 @@ fn a_per_brick_view_too_large_for_the_pool_moves_every_region_coarser_until_it_f
 fn channels_with_different_regions_share_the_coarsest_level_per_region() {
     let Some(ctx) = test_context() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let dims = [96, 80, 64];
-    let (a, b) = (smooth(dims), boxed(dims, [20, 10, 5], [70, 60, 50]));
-    let (fa, fb) = (
-        bricked(dir.path(), "a", &a, 1 << 24),
-        bricked(dir.path(), "b", &b, 1 << 24),
-    );
+    let (fa, fb) = two_channels(dir.path());
     // Two channels whose regions take different levels (as two files' resident views do
     // while their bricks load): one lookup cannot serve both, so the GPU refuses them.
     let ra: Field = fa
