@@ -68,7 +68,7 @@
 
 use blueshift_spectrum::{Piece, Xyz, merge_pieces};
 
-use super::pwl::{PwlTables, bb_row, segment_lines, spectrum_err};
+use super::pwl::{PwlTables, bb_row, segment_lines, segment_lines_both, spectrum_err};
 use super::render::{Context, RayOut, RaySamples};
 use crate::Result;
 
@@ -769,6 +769,7 @@ struct Scratch {
     f_near: Vec<f64>,
     f_far: Vec<f64>,
     lines: Vec<Trap>,
+    abs_lines: Vec<Trap>,
     cuts: Vec<f64>,
     w: Vec<[f64; 3]>,
     p: Vec<Piece>,
@@ -871,6 +872,7 @@ fn march(
         f_near,
         f_far,
         lines,
+        abs_lines,
         cuts,
         w,
         p,
@@ -897,10 +899,9 @@ fn march(
     let mut total_lines = [0.0f64; 3];
     for (m, j) in (0..n - 1).rev().enumerate() {
         let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
-        segment_lines(ctx, s, j, false, 1.0, lines)?;
+        segment_lines_both(ctx, s, j, abs_lines, lines)?;
         let abs_start = abs_all.len();
-        abs_all.extend_from_slice(lines);
-        segment_lines(ctx, s, j, true, 1.0, lines)?;
+        abs_all.extend_from_slice(abs_lines);
         if !lines.is_sorted_by(|a, b| a.0 + a.1 <= b.0 + b.1) {
             lines.sort_unstable_by(|a, b| (a.0 + a.1).total_cmp(&(b.0 + b.1)));
         }

@@ -1123,3 +1123,58 @@ fn long_ray_through_many_lines_matches_the_kept_spectrum() {
     let absorbed = check_tol0(&sc, &st, &[ray]);
     assert_eq!(absorbed, 1);
 }
+
+/// Both kinds of a segment's lines at once (`segment_lines_both`, one swept box per line
+/// where every species absorbs at its emission lines) give the trapezoids of one call per
+/// kind, bit for bit, on paired scenes (different strengths, several species) and unpaired
+/// ones (the fallback), for every segment of oblique rays.
+#[test]
+fn both_kinds_of_lines_at_once_equal_one_kind_at_a_time() {
+    let paired = [
+        Sp {
+            emit: vec![(486.13, 1.0), (500.0, 2.0), (656.28, 2.0)],
+            abs: vec![(486.13, 0.8), (500.0, 0.1), (656.28, 1.5)],
+            rho: 1.0,
+        },
+        Sp {
+            emit: vec![(447.1, 0.4), (587.6, 1.2)],
+            abs: vec![(447.1, 2.0), (587.6, 0.3)],
+            rho: 0.5,
+        },
+    ];
+    let unpaired = [
+        Sp {
+            emit: vec![(486.13, 1.0), (656.28, 2.0)],
+            abs: vec![(486.5, 0.8), (656.28, 1.5)],
+            rho: 1.0,
+        },
+        Sp {
+            emit: vec![],
+            abs: vec![(600.0, 3.0)],
+            rho: 0.5,
+        },
+    ];
+    for (sps, want_paired) in [(&paired[..], true), (&unpaired[..], false)] {
+        let sc = scene([12, 10, 16], sps, Some(5500.0), 3e6);
+        let st = oblique(&sc, 8, 8);
+        let ctx = Context::new(&sc, &st).unwrap();
+        assert_eq!(ctx.paired_lines, want_paired);
+        let (mut a, mut e, mut a1, mut e1) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut segments = 0;
+        for i in 0..64 {
+            let ray = st
+                .camera
+                .ray((i % 8) as f32 + 0.5, (i / 8) as f32 + 0.5, 8, 8);
+            let s = ctx.sample(&ray).unwrap();
+            for j in 0..s.len().saturating_sub(1) {
+                super::pwl::segment_lines_both(&ctx, &s, j, &mut a, &mut e).unwrap();
+                super::pwl::segment_lines(&ctx, &s, j, false, 1.0, &mut a1).unwrap();
+                super::pwl::segment_lines(&ctx, &s, j, true, 1.0, &mut e1).unwrap();
+                assert_eq!(a, a1, "ray {i} segment {j}");
+                assert_eq!(e, e1, "ray {i} segment {j}");
+                segments += usize::from(!a.is_empty() && !e.is_empty());
+            }
+        }
+        assert!(segments > 100, "{segments} segments with lines");
+    }
+}

@@ -34,6 +34,9 @@ pub struct Prepared {
     /// by their middles and starts (one shift for all species), so no sort is needed.
     pub(crate) emission_order: Vec<(u32, u32)>,
     pub(crate) absorption_order: Vec<(u32, u32)>,
+    /// Every species absorbs at exactly its emission lines' rest wavelengths, in the same
+    /// order (so a segment's emission and absorption lines share their swept boxes).
+    pub(crate) paired_lines: bool,
 }
 
 /// Which lines of a scene's species [`Prepared::line_entries`] lists.
@@ -143,6 +146,14 @@ impl Prepared {
             absorbing: scene.absorbs(),
             emission_order: order(true),
             absorption_order: order(false),
+            paired_lines: scene.species.iter().all(|sp| {
+                sp.emission_lines.len() == sp.absorption_lines.len()
+                    && sp
+                        .emission_lines
+                        .iter()
+                        .zip(&sp.absorption_lines)
+                        .all(|(e, a)| e.centre_nm == a.centre_nm)
+            }),
         })
     }
 

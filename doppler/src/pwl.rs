@@ -147,18 +147,47 @@ pub(crate) fn line_trapezoid(
     area_b: f64,
     min_width: f64,
 ) -> (f64, f64, f64, f64) {
-    let (la, lb) = (sa * centre, sb * centre);
-    let sweep = (lb - la).abs();
-    let w = sweep.max(min_width);
-    let m = 0.5 * (la + lb);
-    let (lo, hi) = (m - 0.5 * w, m + 0.5 * w);
-    let mean = 0.5 * (area_a + area_b) / w;
-    let tilt = 0.5 * (area_b - area_a) / w * (sweep / w);
-    let (h_a, h_b) = ((mean - tilt).max(0.0), (mean + tilt).max(0.0));
-    if la <= lb {
-        (lo, hi, h_a, h_b)
-    } else {
-        (lo, hi, h_b, h_a)
+    Sweep::of(centre, sa, sb, min_width).trapezoid(area_a, area_b)
+}
+
+/// A line's swept box ([`line_trapezoid`]) before its areas: shared by a line's emission and
+/// absorption.
+#[derive(Clone, Copy)]
+struct Sweep {
+    lo: f64,
+    hi: f64,
+    w: f64,
+    sweep: f64,
+    rising: bool,
+}
+
+impl Sweep {
+    #[inline]
+    fn of(centre: f64, sa: f64, sb: f64, min_width: f64) -> Self {
+        let (la, lb) = (sa * centre, sb * centre);
+        let sweep = (lb - la).abs();
+        let w = sweep.max(min_width);
+        let m = 0.5 * (la + lb);
+        Self {
+            lo: m - 0.5 * w,
+            hi: m + 0.5 * w,
+            w,
+            sweep,
+            rising: la <= lb,
+        }
+    }
+
+    #[inline]
+    fn trapezoid(self, area_a: f64, area_b: f64) -> (f64, f64, f64, f64) {
+        let w = self.w;
+        let mean = 0.5 * (area_a + area_b) / w;
+        let tilt = 0.5 * (area_b - area_a) / w * (self.sweep / w);
+        let (h_a, h_b) = ((mean - tilt).max(0.0), (mean + tilt).max(0.0));
+        if self.rising {
+            (self.lo, self.hi, h_a, h_b)
+        } else {
+            (self.lo, self.hi, h_b, h_a)
+        }
     }
 }
 
@@ -454,6 +483,65 @@ pub(crate) fn segment_lines(
                     line_trapezoid(l.centre_nm, sa, sb, a0, a1, st.line_width_nm);
                 push(lo, hi, h0, h1)?;
             }
+        }
+    }
+    Ok(())
+}
+
+/// [`segment_lines`] for both kinds at once, `scale` 1: the segment's absorption into `abs`
+/// and its emission into `emit`, the same trapezoids as two calls give. Where every species
+/// emits and absorbs at the same lines (in the same order, without broadening) each line's
+/// swept box is computed once for both.
+pub(crate) fn segment_lines_both(
+    ctx: &Context<'_>,
+    s: &RaySamples,
+    j: usize,
+    abs: &mut Vec<(f64, f64, f64, f64)>,
+    emit: &mut Vec<(f64, f64, f64, f64)>,
+) -> Result<()> {
+    let scene = ctx.scene;
+    let nsp = scene.species.len();
+    if !ctx.paired_lines || ctx.profiles.active || nsp > 16 {
+        segment_lines(ctx, s, j, false, 1.0, abs)?;
+        return segment_lines(ctx, s, j, true, 1.0, emit);
+    }
+    let st = ctx.settings;
+    let f = scene.factors;
+    let (range_lo, range_hi) = st.range_nm;
+    let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
+    let (sa, sb) = (s.shift[j], s.shift[j + 1]);
+    let (ga, gb) = (ctx.value_factor(sa) * sa, ctx.value_factor(sb) * sb);
+    abs.clear();
+    emit.clear();
+    let mut rho = [(0.0f64, 0.0f64); 16];
+    for (m, r) in rho.iter_mut().enumerate().take(nsp) {
+        *r = (s.rho[j * nsp + m], s.rho[(j + 1) * nsp + m]);
+    }
+    let keep = |(lo, hi, h0, h1): (f64, f64, f64, f64)| {
+        !(hi < range_lo || lo > range_hi || (h0 <= 0.0 && h1 <= 0.0))
+    };
+    for &(m, i) in &ctx.emission_order {
+        let (m, i) = (m as usize, i as usize);
+        let Some(&(ra, rb)) = rho.get(m).filter(|_| m < nsp) else {
+            continue;
+        };
+        if ra <= 0.0 && rb <= 0.0 {
+            continue;
+        }
+        let sp = &scene.species[m];
+        let (Some(le), Some(la)) = (sp.emission_lines.get(i), sp.absorption_lines.get(i)) else {
+            continue;
+        };
+        let sweep = Sweep::of(le.centre_nm, sa, sb, st.line_width_nm);
+        let base = dt * la.strength * f.absorption;
+        let t = sweep.trapezoid(base * ra, base * rb);
+        if keep(t) {
+            abs.push(t);
+        }
+        let base = dt * le.strength * f.emission;
+        let t = sweep.trapezoid(base * ra * ga, base * rb * gb);
+        if keep(t) {
+            emit.push(t);
         }
     }
     Ok(())
