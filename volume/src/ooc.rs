@@ -292,8 +292,7 @@ impl SlabSource for RawFileSource {
     }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.geometry.dims;
-        let size = self.disk.size_bytes();
-        let bytes = nx * ny * size;
+        let bytes = nx * ny * self.disk.size_bytes();
         let at = self.offset + (z * bytes) as u64;
         let big = self.endian == Endian::Big;
         if self.disk == DiskType::F32 && big == cfg!(target_endian = "big") {
@@ -304,18 +303,127 @@ impl SlabSource for RawFileSource {
         }
         self.buf.resize(bytes, 0);
         self.file.read_exact_at(&mut self.buf, at)?;
-        match self.disk {
-            DiskType::U8 => {
-                for (o, &b) in out.iter_mut().zip(&self.buf) {
-                    *o = f32::from(b);
-                }
-            }
-            disk => {
-                for (o, c) in out.iter_mut().zip(self.buf.chunks_exact(size)) {
-                    *o = crate::io::component(c, disk, big);
-                }
+        values_from_bytes(&self.buf, self.disk, big, out);
+        Ok(())
+    }
+}
+
+/// Voxel values of `disk` type (big-endian if `big`) from `bytes` into `out`.
+fn values_from_bytes(bytes: &[u8], disk: DiskType, big: bool, out: &mut [f32]) {
+    match disk {
+        DiskType::U8 => {
+            for (o, &b) in out.iter_mut().zip(bytes) {
+                *o = f32::from(b);
             }
         }
+        disk => {
+            for (o, c) in out.iter_mut().zip(bytes.chunks_exact(disk.size_bytes())) {
+                *o = crate::io::component(c, disk, big);
+            }
+        }
+    }
+}
+
+/// The scalar voxels of a gzip-encoded NRRD (attached or detached), decompressed slice by
+/// slice in order as [`convert`] asks for them: a compressed volume converts holding one
+/// slice of it, at the speed of decompression.
+pub struct GzipFileSource {
+    reader: flate2::read::MultiGzDecoder<std::io::BufReader<File>>,
+    disk: DiskType,
+    endian: Endian,
+    geometry: Geometry,
+    /// The next slice the stream holds.
+    next: usize,
+    buf: Vec<u8>,
+    path: std::path::PathBuf,
+}
+
+impl std::fmt::Debug for GzipFileSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GzipFileSource")
+            .field("path", &self.path)
+            .field("geometry", &self.geometry)
+            .field("next", &self.next)
+            .finish_non_exhaustive()
+    }
+}
+
+impl GzipFileSource {
+    /// Opens a gzip-encoded NRRD of scalars without skips; `None` for any other file (read
+    /// those in core, or stream them with [`RawFileSource::probe`]).
+    pub fn probe(path: &Path) -> Result<Option<Self>> {
+        use crate::io::{Format, detect_format};
+        if detect_format(path)? != Format::Nrrd {
+            return Ok(None);
+        }
+        let Some((data, start, layout, geometry)) =
+            crate::io::nrrd::gzip_payload(path, &Limits::no_limits())?
+        else {
+            return Ok(None);
+        };
+        if layout.components != 1 {
+            return Ok(None);
+        }
+        geometry.validate()?;
+        crate::io::check_regular_file(&data)?;
+        let mut file = File::open(&data)?;
+        std::io::Seek::seek(&mut file, std::io::SeekFrom::Start(start))?;
+        Ok(Some(Self {
+            reader: flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file)),
+            disk: layout.disk,
+            endian: layout.endian,
+            geometry,
+            next: 0,
+            buf: Vec::new(),
+            path: data,
+        }))
+    }
+}
+
+impl GzipFileSource {
+    /// Replaces origin and spacing (the dims must stay the same).
+    pub fn set_geometry(&mut self, geometry: Geometry) -> Result<()> {
+        geometry.validate()?;
+        if geometry.dims != self.geometry.dims {
+            return Err(Error::parameter("new geometry must keep the dims"));
+        }
+        self.geometry = geometry;
+        Ok(())
+    }
+}
+
+impl SlabSource for GzipFileSource {
+    fn geometry(&self) -> Geometry {
+        self.geometry
+    }
+    fn scalar_type(&self) -> ScalarType {
+        match self.disk {
+            DiskType::U8 => ScalarType::U8,
+            DiskType::U16 => ScalarType::U16,
+            _ => ScalarType::F32,
+        }
+    }
+    fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
+        if z != self.next {
+            return Err(Error::parameter(format!(
+                "a gzip stream reads its slices in order: slice {z} asked, {} next",
+                self.next
+            )));
+        }
+        let [nx, ny, nz] = self.geometry.dims;
+        self.buf.resize(nx * ny * self.disk.size_bytes(), 0);
+        self.reader.read_exact(&mut self.buf).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                Error::invalid(format!(
+                    "truncated data: the gzip stream ends in slice {z} of {nz}: {}",
+                    self.path.display()
+                ))
+            } else {
+                Error::invalid(format!("{e}: {}", self.path.display()))
+            }
+        })?;
+        self.next += 1;
+        values_from_bytes(&self.buf, self.disk, self.endian == Endian::Big, out);
         Ok(())
     }
 }

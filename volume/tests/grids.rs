@@ -636,6 +636,26 @@ fn in_place_and_copied_sources_give_the_same_bricked_file() {
         p
     };
     let nrrds = [nrrd(0), nrrd(1), nrrd(2), nrrd(3)];
+    // gzip NRRDs, attached and detached (the latter in two gzip members), decompressed as
+    // the converter reads them.
+    let gz = |data: &[u8]| {
+        use std::io::Write;
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        e.write_all(data).unwrap();
+        e.finish().unwrap()
+    };
+    let head = "NRRD0004\ntype: float\ndimension: 3\nsizes: 37 29 23\nencoding: gzip\n\
+                endian: little\n";
+    let attached = dir.path().join("a.nrrd");
+    let mut f = format!("{head}\n").into_bytes();
+    f.extend(gz(&bytes));
+    std::fs::write(&attached, f).unwrap();
+    let detached = dir.path().join("d.nhdr");
+    std::fs::write(&detached, format!("{head}data file: d.raw.gz\n\n")).unwrap();
+    let half = bytes.len() / 3;
+    let mut two = gz(&bytes[..half]);
+    two.extend(gz(&bytes[half..]));
+    std::fs::write(dir.path().join("d.raw.gz"), &two).unwrap();
     for layout in [
         BrickLayout { brick: 8, apron: 1 },
         BrickLayout {
@@ -670,6 +690,13 @@ fn in_place_and_copied_sources_give_the_same_bricked_file() {
             let nrrd = convert(&mut src, "nrrd");
             assert_eq!(first_difference(nrrd), None, "{layout:?} {}", p.display());
         }
+        for p in [&attached, &detached] {
+            assert!(RawFileSource::probe(p).unwrap().is_none());
+            let mut src = ooc::GzipFileSource::probe(p).unwrap().unwrap();
+            src.set_geometry(*g.geometry()).unwrap();
+            let nrrd = convert(&mut src, "gzip");
+            assert_eq!(first_difference(nrrd), None, "{layout:?} {}", p.display());
+        }
     }
 }
 
@@ -702,4 +729,53 @@ fn a_failed_conversion_leaves_no_file() {
     assert!(r.is_err());
     let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
     assert!(left.is_empty(), "{left:?}");
+}
+
+/// A gzip NRRD streamed into a `.bsv`: a stream that ends early is a clean error naming the
+/// slice and leaves no file; slices are refused out of order; other encodings and skips are
+/// not taken (they are read in core).
+#[test]
+fn a_gzip_stream_that_ends_early_is_an_error_and_leaves_no_file() {
+    use ooc::SlabSource;
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [16usize, 12, 10];
+    let bytes: Vec<u8> = (0..dims.iter().product::<usize>())
+        .flat_map(|i| (i as u16).to_be_bytes())
+        .collect();
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    e.write_all(&bytes[..bytes.len() * 7 / 10]).unwrap();
+    let cut = e.finish().unwrap();
+    let head = "NRRD0004\ntype: uint16\ndimension: 3\nsizes: 16 12 10\nencoding: gzip\n\
+                endian: big\n";
+    let p = dir.path().join("cut.nrrd");
+    let mut f = format!("{head}\n").into_bytes();
+    f.extend(&cut);
+    std::fs::write(&p, f).unwrap();
+    let mut src = ooc::GzipFileSource::probe(&p).unwrap().unwrap();
+    assert_eq!(src.scalar_type(), blueshift_volume::ScalarType::U16);
+    let mut slice = vec![0.0f32; 16 * 12];
+    // Big-endian uint16 values as written.
+    src.read_slice(0, &mut slice).unwrap();
+    assert_eq!(slice[..3], [0.0, 1.0, 2.0]);
+    assert!(src.read_slice(5, &mut slice).is_err(), "out of order");
+    let out = dir.path().join("cut.bsv");
+    let mut src = ooc::GzipFileSource::probe(&p).unwrap().unwrap();
+    let err = ooc::convert(
+        &mut src,
+        &out,
+        "d",
+        BrickLayout { brick: 8, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("ends in slice 7 of 10"), "{err}");
+    assert!(!out.exists());
+    // A byte skip is counted before decompression: not streamed.
+    let skip = dir.path().join("skip.nrrd");
+    let mut f = format!("{head}byte skip: 4\n\n").into_bytes();
+    f.extend(&cut);
+    std::fs::write(&skip, f).unwrap();
+    assert!(ooc::GzipFileSource::probe(&skip).unwrap().is_none());
 }

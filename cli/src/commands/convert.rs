@@ -12,15 +12,17 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use blueshift_volume::io::{DiskType, nrrd};
-use blueshift_volume::ooc::{self, BrickLayout, GridSource, RawFileSource, SlabSource};
-use blueshift_volume::{AnyGrid, Geometry};
+use blueshift_volume::ooc::{
+    self, BrickLayout, GridSource, GzipFileSource, RawFileSource, SlabSource,
+};
+use blueshift_volume::{AnyGrid, Geometry, ScalarType};
 use glam::Vec3;
 
 use super::volume_common::{OutFormat, out_format, parse_disk_type, volume_outputs, write_volume};
 use crate::output;
 
 /// Arguments of `blueshift convert`.
-#[derive(Debug, clap::Args)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct Args {
     /// Input volume (.raw with an Open SciVis name, .nrrd, .nhdr, .mhd, .mha, .vtk, .bsv).
     pub input: PathBuf,
@@ -94,13 +96,15 @@ pub fn run(args: Args) -> Result<()> {
     let read = |p: &std::path::Path| args.input_args.read(p);
     let opts = args.input_args.read_options()?;
     if fmt == OutFormat::Bricked {
+        bricked_type(&args)?;
         let layout = BrickLayout {
             brick: args.brick,
             ..BrickLayout::default()
         };
-        // Stream straight from the file when its voxels are stored uncompressed.
-        let streamed = match opts.raw {
-            Some(r) if r.components == 1 => Some(
+        // Stream straight from the file when its voxels are stored uncompressed, or
+        // decompress a gzip NRRD slice by slice.
+        let streamed: Option<Box<dyn SlabSource + Send>> = match opts.raw {
+            Some(r) if r.components == 1 => Some(Box::new(
                 RawFileSource::new(
                     &args.input,
                     r.offset,
@@ -109,20 +113,31 @@ pub fn run(args: Args) -> Result<()> {
                     Geometry::unit(r.dims),
                 )
                 .with_context(ctx)?,
-            ),
+            )),
             Some(_) => None,
-            None => RawFileSource::probe(&args.input).with_context(ctx)?,
+            None => match RawFileSource::probe(&args.input).with_context(ctx)? {
+                Some(s) => Some(Box::new(s)),
+                None => GzipFileSource::probe(&args.input)
+                    .with_context(ctx)?
+                    .map(|s| Box::new(s) as Box<dyn SlabSource + Send>),
+            },
         };
         if args.channel.is_none()
             && !opts.reject_non_finite
             && let Some(mut src) = streamed
         {
-            if let Some(s) = args.spacing {
-                let g = src.geometry();
-                src.set_geometry(Geometry { spacing: s, ..g })
-                    .with_context(ctx)?;
-            }
-            return brick(&mut src, &args, "scalars", layout);
+            return match args.spacing {
+                Some(spacing) => brick(
+                    &mut Spaced {
+                        inner: &mut *src,
+                        spacing,
+                    },
+                    &args,
+                    "scalars",
+                    layout,
+                ),
+                None => brick(&mut *src, &args, "scalars", layout),
+            };
         }
         let mut vol = read(&args.input)?;
         if let Some(s) = args.spacing {
@@ -140,9 +155,8 @@ pub fn run(args: Args) -> Result<()> {
                 .channels()
                 .iter()
                 .find(|c| !c.grid.is_vector())
-                .ok_or_else(|| {
-                    anyhow::anyhow!("{} has no scalar channel to brick", args.input.display())
-                })?,
+                .or_else(|| vol.channels().first())
+                .ok_or_else(|| anyhow::anyhow!("{} has no channel", args.input.display()))?,
         };
         let name = ch.name.clone();
         return match &ch.grid {
@@ -150,9 +164,7 @@ pub fn run(args: Args) -> Result<()> {
             AnyGrid::U16(g) => brick(&mut GridSource(g), &args, &name, layout),
             AnyGrid::F16(g) => brick(&mut GridSource(g), &args, &name, layout),
             AnyGrid::F32(g) => brick(&mut GridSource(g), &args, &name, layout),
-            AnyGrid::Vec3(_) => {
-                anyhow::bail!("channel '{name}' is a vector field; bricked files hold scalars")
-            }
+            AnyGrid::Vec3(g) => brick_vector(g, &args, &name, layout),
         };
     }
     let mut vol = read(&args.input)?;
@@ -244,6 +256,7 @@ fn run_amr(args: &Args, fmt: OutFormat) -> Result<()> {
         args.sampling
     );
     if fmt == OutFormat::Bricked {
+        bricked_type(args)?;
         let layout = BrickLayout {
             brick: args.brick,
             ..BrickLayout::default()
@@ -265,12 +278,141 @@ fn run_amr(args: &Args, fmt: OutFormat) -> Result<()> {
     Ok(())
 }
 
+/// A vector field as three scalar `.bsv` files, `OUT-stem_x.bsv`, `_y`, `_z` (as `synth`
+/// writes velocities, and as Doppler scenes list them): all three or none.
+fn brick_vector(
+    g: &blueshift_volume::Grid<Vec3>,
+    args: &Args,
+    name: &str,
+    layout: BrickLayout,
+) -> Result<()> {
+    let stem = args.output.with_extension("");
+    let paths: Vec<PathBuf> = ["x", "y", "z"]
+        .iter()
+        .map(|a| PathBuf::from(format!("{}_{a}.bsv", stem.display())))
+        .collect();
+    let refs: Vec<&std::path::Path> = paths.iter().map(PathBuf::as_path).collect();
+    output::check_outputs(&refs, &[args.input.as_path()])?;
+    crate::limits::check(
+        format_args!("one component of the vector field '{name}'"),
+        blueshift_volume::budget::grid_bytes(g.geometry().dims, 4, 1),
+    )?;
+    let mut written: Vec<&PathBuf> = Vec::new();
+    for (c, (path, axis)) in paths.iter().zip(["x", "y", "z"]).enumerate() {
+        let component = g.data().iter().map(|v| v[c]).collect();
+        let done = blueshift_volume::Grid::from_vec(*g.geometry(), component)
+            .map_err(anyhow::Error::from)
+            .and_then(|grid| {
+                let one = Args {
+                    output: path.clone(),
+                    ..args.clone()
+                };
+                brick(
+                    &mut GridSource(&grid),
+                    &one,
+                    &format!("{name}_{axis}"),
+                    layout,
+                )
+            });
+        if let Err(e) = done {
+            for p in written {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(e);
+        }
+        written.push(path);
+    }
+    Ok(())
+}
+
+/// `--gzip` does not apply to `.bsv` output, and `--type` only for the types a `.bsv` level
+/// holds: refused rather than ignored. Returns the type to store, if `--type` gives one.
+fn bricked_type(args: &Args) -> Result<Option<ScalarType>> {
+    if args.gzip {
+        anyhow::bail!("--gzip: only NRRD output is compressed; .bsv bricks are stored raw");
+    }
+    Ok(match args.disk_type {
+        None => None,
+        Some(DiskType::U8) => Some(ScalarType::U8),
+        Some(DiskType::U16) => Some(ScalarType::U16),
+        Some(DiskType::F32) => Some(ScalarType::F32),
+        Some(t) => anyhow::bail!(
+            "--type {}: a .bsv file stores uint8, uint16 or float32 voxels",
+            t.scivis_name()
+        ),
+    })
+}
+
+/// A source with `--spacing` in place of its own.
+struct Spaced<'a> {
+    inner: &'a mut (dyn SlabSource + Send),
+    spacing: Vec3,
+}
+
+impl SlabSource for Spaced<'_> {
+    fn geometry(&self) -> Geometry {
+        Geometry {
+            spacing: self.spacing,
+            ..self.inner.geometry()
+        }
+    }
+    fn scalar_type(&self) -> ScalarType {
+        self.inner.scalar_type()
+    }
+    fn read_slice(&mut self, z: usize, out: &mut [f32]) -> blueshift_volume::Result<()> {
+        self.inner.read_slice(z, out)
+    }
+    fn in_place(&self) -> Option<&[f32]> {
+        self.inner.in_place()
+    }
+}
+
+/// A source's slices converted to `ty` as NRRD output converts them (integers round to
+/// nearest and saturate, NaN becomes 0).
+struct AsType<'a> {
+    inner: &'a mut (dyn SlabSource + Send),
+    ty: ScalarType,
+}
+
+impl SlabSource for AsType<'_> {
+    fn geometry(&self) -> Geometry {
+        self.inner.geometry()
+    }
+    fn scalar_type(&self) -> ScalarType {
+        self.ty
+    }
+    fn read_slice(&mut self, z: usize, out: &mut [f32]) -> blueshift_volume::Result<()> {
+        self.inner.read_slice(z, out)?;
+        match self.ty {
+            ScalarType::U8 => out.iter_mut().for_each(|v| *v = f32::from(v.round() as u8)),
+            ScalarType::U16 => out
+                .iter_mut()
+                .for_each(|v| *v = f32::from(v.round() as u16)),
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
 fn brick(
     src: &mut (dyn SlabSource + Send),
     args: &Args,
     name: &str,
     layout: BrickLayout,
 ) -> Result<()> {
+    if let Some(ty) = bricked_type(args)?
+        && ty != src.scalar_type()
+    {
+        return brick(
+            &mut AsType { inner: src, ty },
+            &Args {
+                disk_type: None,
+                ..args.clone()
+            },
+            name,
+            layout,
+        );
+    }
     let pb = progress_bar(src.geometry().dims[2] as u64);
     output::write_via_temp_path(&args.output, |tmp| {
         ooc::convert(src, tmp, name, layout, &mut |done, total| {

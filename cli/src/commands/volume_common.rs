@@ -271,16 +271,26 @@ impl InputArgs {
             }
             _ => None,
         };
+        // Every channel a reader allocates is also checked against --max-memory (a gzip
+        // NRRD or a whole .bsv level read in core).
+        let mut limits = blueshift_volume::Limits::default();
+        limits.max_alloc_bytes = limits.max_alloc_bytes.min(crate::limits::budget().bytes());
         Ok(blueshift_volume::ReadOptions {
             raw,
             reject_non_finite: self.reject_non_finite,
-            ..Default::default()
+            limits,
         })
     }
 
     /// Reads `path` with these options; errors end with the path.
     pub fn read(&self, path: &Path) -> Result<Volume> {
-        blueshift_volume::read_with(path, &self.read_options()?).map_err(|e| with_path(&e, path))
+        blueshift_volume::read_with(path, &self.read_options()?).map_err(|e| match e {
+            blueshift_volume::Error::Limits(_) => anyhow::anyhow!(
+                "{} (--max-memory; a .bsv file renders within --cache-mb)",
+                with_path(&e, path)
+            ),
+            e => with_path(&e, path),
+        })
     }
 }
 

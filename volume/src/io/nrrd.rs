@@ -366,6 +366,24 @@ pub(crate) fn raw_payload(
     Ok(Some((p, start + h.byte_skip as u64, h.layout, h.geometry)))
 }
 
+/// Where a gzip-encoded NRRD's compressed voxels start (the file and the byte offset) with
+/// their layout and geometry; `None` for other encodings and for line or byte skips (whose
+/// bytes are counted before decompression: the in-core reader handles them).
+pub(crate) fn gzip_payload(
+    path: &Path,
+    limits: &crate::Limits,
+) -> Result<Option<(PathBuf, u64, Layout, Geometry)>> {
+    let h = parse_header(path, limits)?;
+    if h.encoding != Encoding::Gzip || h.line_skip != 0 || h.byte_skip != 0 {
+        return Ok(None);
+    }
+    let (p, start) = match &h.data_file {
+        Some(d) => (d.clone(), 0),
+        None => (path.to_path_buf(), h.header_end),
+    };
+    Ok(Some((p, start, h.layout, h.geometry)))
+}
+
 struct Header {
     layout: Layout,
     geometry: Geometry,
