@@ -106,7 +106,8 @@ fn vtk_with_vectors_writes_one_nrrd_per_channel() {
 #[test]
 fn convert_to_bricked_file_samples_like_the_input() {
     let dir = tempfile::tempdir().unwrap();
-    // Streaming path (detached raw NRRD) and in-core path (gzip NRRD) give the same file.
+    // Streamed from a detached raw NRRD and decompressed slice by slice from a gzip NRRD:
+    // the same file.
     let a = dir.path().join("a.bsv");
     let b = dir.path().join("b.bsv");
     run(&[
@@ -189,4 +190,94 @@ fn bad_output_extension_and_bad_input_fail_cleanly_without_output() {
         0,
         "no temporary files left behind"
     );
+}
+
+fn level0(path: &Path) -> Vec<f32> {
+    let f = BrickedFile::open(path, 8).unwrap();
+    let g = f
+        .load_level(0, &blueshift_volume::Limits::default())
+        .unwrap();
+    let n = g.geometry().voxel_count();
+    (0..n).map(|i| g.scalar_at(i)).collect()
+}
+
+/// `.bsv` output: a vector field becomes three files of its components; `--type uint8`
+/// stores what NRRD output with `--type uint8` stores; `--gzip` and types a `.bsv` cannot
+/// hold are refused with one line and no file; a whole-volume read over `--max-memory` is
+/// refused naming the setting.
+#[test]
+fn bricked_output_takes_vectors_and_types_and_refuses_what_it_cannot_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("car.bsv");
+    run(&[
+        "convert".as_ref(),
+        data("valid/carotid_crop_binary.vtk").as_os_str(),
+        out.as_os_str(),
+        "--channel".as_ref(),
+        "vectors".as_ref(),
+        "--brick".as_ref(),
+        "4".as_ref(),
+    ]);
+    let vec_ref: Vec<f32> = std::fs::read(data("valid/carotid_crop_vectors_8x8x6x3_float32.raw"))
+        .unwrap()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    assert!(
+        !out.exists(),
+        "a vector field writes one file per component"
+    );
+    for (c, axis) in ["x", "y", "z"].iter().enumerate() {
+        let got = level0(&dir.path().join(format!("car_{axis}.bsv")));
+        let want: Vec<f32> = vec_ref.iter().skip(c).step_by(3).copied().collect();
+        assert_eq!(got, want, "component {axis}");
+    }
+    // uint8: rounded and saturated as NRRD output rounds them.
+    let input = data("valid/headsq_crop.nhdr");
+    let (u8_bsv, u8_nrrd) = (dir.path().join("u8.bsv"), dir.path().join("u8.nrrd"));
+    for out in [&u8_bsv, &u8_nrrd] {
+        run(&[
+            "convert".as_ref(),
+            input.as_os_str(),
+            out.as_os_str(),
+            "--type".as_ref(),
+            "uint8".as_ref(),
+            "--brick".as_ref(),
+            "4".as_ref(),
+        ]);
+    }
+    let want = read(&u8_nrrd).unwrap().channels()[0].grid.to_f32_vec();
+    // The input runs from 98 to 3517: most values saturate.
+    assert!(want.iter().any(|&v| v == 255.0) && want.iter().any(|&v| v < 255.0));
+    assert_eq!(level0(&u8_bsv), want);
+    let stored = BrickedFile::open(&u8_bsv, 8)
+        .unwrap()
+        .load_level(0, &blueshift_volume::Limits::default())
+        .unwrap();
+    assert!(matches!(stored, AnyGrid::U8(_)), "stored as uint8");
+    let refused = |extra: &[&str], needle: &str| {
+        let out = dir.path().join("no.bsv");
+        let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+            .args(["convert".as_ref(), input.as_os_str(), out.as_os_str()])
+            .args(extra)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{extra:?}: {err}");
+        assert!(
+            err.contains(needle) && err.trim().lines().count() == 1,
+            "{err}"
+        );
+        assert!(!out.exists());
+    };
+    refused(&["--gzip"], "--gzip");
+    refused(&["--type", "int16"], "--type int16");
+    let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(["--max-memory", "1K", "info"])
+        .arg(&u8_bsv)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--max-memory"), "{err}");
 }

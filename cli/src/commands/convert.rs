@@ -6,7 +6,10 @@
 //! (bricked file with all levels of detail). NRRD and raw output keep the voxel type (e.g.
 //! int16 CT stays int16) and the spacing unless `--type` or `--spacing` say otherwise. A
 //! multi-channel input (a VTK file with SCALARS and VECTORS) writes its first channel to OUT
-//! and every further channel to `OUT-stem_<channel>.ext`; `--channel` picks one.
+//! and every further channel to `OUT-stem_<channel>.ext`; `--channel` picks one. `.bsv`
+//! output takes one channel (the first scalar one, or `--channel`); a vector field becomes
+//! three files `OUT-stem_x.bsv`, `_y`, `_z`. Raw, uncompressed NRRD / MetaImage and gzip
+//! NRRD input streams slice by slice; other input is read in core (within `--max-memory`).
 
 use std::path::PathBuf;
 
@@ -31,11 +34,12 @@ pub struct Args {
     /// Convert only this channel.
     #[arg(long)]
     pub channel: Option<String>,
-    /// gzip the NRRD data.
+    /// gzip the NRRD data (NRRD output only).
     #[arg(long)]
     pub gzip: bool,
-    /// Voxel type to write (uint8, int8, uint16, int16, uint32, int32, float32, float64);
-    /// integers round to nearest and saturate. Default: keep the input's type.
+    /// Voxel type to write (uint8, int8, uint16, int16, uint32, int32, float32, float64;
+    /// .bsv: uint8, uint16, float32); integers round to nearest and saturate. Default: keep
+    /// the input's type.
     #[arg(long = "type", value_parser = parse_disk_type)]
     pub disk_type: Option<DiskType>,
     /// Override the spacing, as "sx,sy,sz".
