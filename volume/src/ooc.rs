@@ -3,12 +3,12 @@
 //! error, never a crash) through the shared bounded [`BrickCache`], and sampled through the
 //! same [`Sampler`] interface as an in-core [`Grid`] (or as a [`crate::Field`]).
 //!
-//! # File layout (`.bsv`, little-endian, version 3)
+//! # File layout (`.bsv`, little-endian, version 4; version 3 files are read too)
 //!
 //! | bytes | content |
 //! |---|---|
 //! | 0..8 | magic `BSBRICK1` |
-//! | 8..12 | u32 version (3) |
+//! | 8..12 | u32 version (4) |
 //! | 12..16 | u32 brick edge `B` (even, default 64) |
 //! | 16..20 | u32 apron `A` (default 1) |
 //! | 20..24 | u32 number of levels |
@@ -24,6 +24,8 @@
 //! | 364..372 | f32 x 2 range of the finite level-0 values (NaN, NaN if none) |
 //! | 372..380 | u64 file length |
 //! | 380..384 | f32 smallest positive finite level-0 value (NaN if none) |
+//! | 384..392 | u64 checksum of every other header byte (version 4) |
+//! | 392.. | u64 checksum of each level's macrocell section (version 4; zeros after) |
 //! | 4096.. | level 0 bricks, then level 1, ...; then the macrocells; then the checksums |
 //!
 //! Level `l` has the geometry of [`crate::Geometry::downsampled`] applied `l` times and
@@ -61,7 +63,13 @@ use crate::{AnyGrid, Error, Limits, Result};
 /// First bytes of a bricked file.
 pub const MAGIC: &[u8] = b"BSBRICK1";
 const HEADER_BYTES: u64 = 4096;
-const VERSION: u32 = 3;
+const VERSION: u32 = 4;
+/// The oldest version read (version 3 has no header and macrocell checksums).
+const OLDEST_VERSION: u32 = 3;
+/// Where version 4 keeps the checksum of the rest of the header, and from where the
+/// checksum of each level's macrocell section (one u64 per level).
+const HEADER_SUM_AT: usize = 384;
+const MACRO_SUMS_AT: usize = 392;
 
 /// Something that can be sampled like a scalar grid: in-core [`Grid`]s and levels of a
 /// [`BrickedFile`].
@@ -1415,14 +1423,58 @@ pub fn convert_many(
         }
         w.file
             .write_all_at(&u64_bytes(&w.checksums), plan.checksum_offset)?;
-        w.file
-            .write_all_at(&header(plan, &layout, g0, name.as_bytes(), st), 0)?;
+        let macro_sums = macrocell_checksums(w.file, plan)?;
+        w.file.write_all_at(
+            &header(plan, &layout, g0, name.as_bytes(), st, &macro_sums),
+            0,
+        )?;
     }
     drop(writers);
     for (tmp, (out, _)) in tmps.into_iter().zip(outs) {
         tmp.persist(out).map_err(|e| Error::Io(e.error))?;
     }
     Ok(())
+}
+
+/// The bytes of level `level`'s macrocell section (mins then maxs).
+fn macrocell_bytes(plan: &Plan, level: usize) -> u64 {
+    let c = macro_dims(&plan.geoms[level], plan.k);
+    (c[0] * c[1] * c[2]) as u64 * 8
+}
+
+/// The checksum of each level's macrocell section as written (read back a MiB at a time;
+/// none without macrocells).
+fn macrocell_checksums(file: &File, plan: &Plan) -> Result<Vec<u64>> {
+    if plan.k == 0 {
+        return Ok(Vec::new());
+    }
+    let mut buf = vec![0u8; 1 << 20];
+    (0..plan.geoms.len())
+        .map(|l| {
+            let (start, len) = (plan.macro_offsets[l], macrocell_bytes(plan, l));
+            let mut h = CHECKSUM_START;
+            let mut done = 0u64;
+            loop {
+                let n =
+                    usize::try_from((len - done).min(buf.len() as u64)).map_err(|_| overflow())?;
+                file.read_exact_at(&mut buf[..n], start + done)?;
+                done += n as u64;
+                if done == len {
+                    let whole = n / 32 * 32;
+                    checksum_chunks(&mut h, &buf[..whole]);
+                    return Ok(checksum_finish(h, &buf[whole..n], len as usize));
+                }
+                checksum_chunks(&mut h, &buf[..n]);
+            }
+        })
+        .collect()
+}
+
+/// The checksum version 4 keeps at [`HEADER_SUM_AT`]: of every other header byte.
+fn header_checksum(h: &[u8]) -> u64 {
+    let mut rest = h[..HEADER_SUM_AT].to_vec();
+    rest.extend_from_slice(&h[HEADER_SUM_AT + 8..]);
+    checksum(&rest)
 }
 
 fn u64_bytes(v: &[u64]) -> Vec<u8> {
@@ -1435,6 +1487,7 @@ fn header(
     g0: Geometry,
     name: &[u8],
     stats: &ValueStats,
+    macro_sums: &[u64],
 ) -> Vec<u8> {
     let mut h = vec![0u8; HEADER_BYTES as usize];
     let mut put = |at: usize, b: &[u8]| h[at..at + b.len()].copy_from_slice(b);
@@ -1474,6 +1527,11 @@ fn header(
         380,
         &or_nan(stats.pos_lo, stats.pos_lo.is_finite()).to_le_bytes(),
     );
+    for (l, sum) in macro_sums.iter().enumerate() {
+        put(MACRO_SUMS_AT + 8 * l, &sum.to_le_bytes());
+    }
+    let sum = header_checksum(&h);
+    h[HEADER_SUM_AT..HEADER_SUM_AT + 8].copy_from_slice(&sum.to_le_bytes());
     h
 }
 
@@ -1489,6 +1547,9 @@ pub struct FileBricks {
     non_finite: u64,
     range: Option<(f32, f32)>,
     positive_min: Option<f32>,
+    /// Each level's macrocell checksum (version 4; none in version 3 files).
+    macro_sums: Option<Vec<u64>>,
+    path: std::path::PathBuf,
 }
 
 impl BrickSource for FileBricks {
@@ -1551,6 +1612,16 @@ impl BrickSource for FileBricks {
             bytemuck::cast_slice_mut(&mut buf),
             self.plan.macro_offsets[level],
         )?;
+        if let Some(sums) = &self.macro_sums
+            && sums.get(level) != Some(&checksum(bytemuck::cast_slice(&buf)))
+        {
+            return Err(Error::invalid(format!(
+                "bricked file '{}': the macrocells of level {level} are corrupt (checksum \
+                 mismatch): {}",
+                self.name,
+                self.path.display()
+            )));
+        }
         if cfg!(target_endian = "big") {
             for v in &mut buf {
                 *v = f32::from_le_bytes(v.to_ne_bytes());
@@ -1593,10 +1664,11 @@ impl FileBricks {
             )));
         }
         let u32_at = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]);
-        if u32_at(8) != VERSION {
+        let version = u32_at(8);
+        if !(OLDEST_VERSION..=VERSION).contains(&version) {
             return Err(Error::unsupported(format!(
-                "bricked file version {} (this build reads version {VERSION}; convert the \
-                 source again): {}",
+                "bricked file version {} (this build reads versions {OLDEST_VERSION} to \
+                 {VERSION}; convert the source again): {}",
                 u32_at(8),
                 path.display()
             )));
@@ -1608,6 +1680,12 @@ impl FileBricks {
             )));
         }
         let u64_at = |o: usize| u64::from_le_bytes(h[o..o + 8].try_into().expect("8 bytes"));
+        if version >= 4 && u64_at(HEADER_SUM_AT) != header_checksum(&h) {
+            return Err(Error::invalid(format!(
+                "bricked file header is corrupt (checksum mismatch): {}",
+                path.display()
+            )));
+        }
         let f32_at = |o: usize| f32::from_le_bytes(h[o..o + 4].try_into().expect("4 bytes"));
         let layout = BrickLayout {
             brick: u32_at(12) as usize,
@@ -1671,6 +1749,9 @@ impl FileBricks {
             .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
             .collect();
         let (lo, hi) = (f32_at(364), f32_at(368));
+        let levels = plan.geoms.len();
+        let macro_sums = (version >= 4 && plan.k != 0)
+            .then(|| (0..levels).map(|l| u64_at(MACRO_SUMS_AT + 8 * l)).collect());
         Ok(FileBricks {
             uid: next_uid(),
             file,
@@ -1681,6 +1762,8 @@ impl FileBricks {
             non_finite: u64_at(356),
             range: (lo <= hi).then_some((lo, hi)),
             positive_min: Some(f32_at(380)).filter(|v| *v > 0.0 && v.is_finite()),
+            macro_sums,
+            path: path.to_path_buf(),
         })
     }
 }

@@ -1,6 +1,8 @@
 //! Sampling, macrocells, levels of detail and out-of-core access, checked against analytic
 //! truths (linear fields, convexity of trilinear interpolation, box-filter means).
 
+use std::path::Path;
+
 use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource, RawFileSource, Sampler};
 use blueshift_volume::{AnyGrid, DiskType, Geometry, Grid, Macrocells, lod};
 use glam::Vec3;
@@ -581,6 +583,56 @@ fn stored_macrocells_and_value_statistics_match_a_direct_pass() {
             }
         }
         assert_eq!(stored, Macrocells::build(lv, 4).unwrap(), "level {l}");
+    }
+}
+
+/// Version 4 checksums the header and each level's macrocells: a changed value range (which
+/// transfer functions map over) is refused at open, changed macrocells (majorants) when
+/// that level's are read; the other levels still read. Version 3 files (no such checksums,
+/// the fuzz corpus) still open and sample.
+#[test]
+fn corrupt_headers_and_macrocells_are_refused_and_version_3_still_reads() {
+    let g = noisy_grid([21, 18, 19], 3);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v.bsv");
+    let layout = BrickLayout { brick: 8, apron: 1 };
+    ooc::convert(&mut GridSource(&g), &path, "d", layout, &mut |_, _| {}).unwrap();
+    let good = std::fs::read(&path).unwrap();
+    let u64_at = |o: usize| u64::from_le_bytes(good[o..o + 8].try_into().unwrap()) as usize;
+    let write = |b: &[u8]| {
+        let p = dir.path().join("bad.bsv");
+        std::fs::write(&p, b).unwrap();
+        p
+    };
+    // The header's finite range, set to [-1, 1].
+    let mut b = good.clone();
+    b[364..372].copy_from_slice(&[0, 0, 0x80, 0xbf, 0, 0, 0x80, 0x3f]);
+    let err = BrickedFile::open(&write(&b), 2).unwrap_err().to_string();
+    assert!(err.contains("header is corrupt"), "{err}");
+    // The last level's macrocells end where the checksum table starts.
+    let f = BrickedFile::open(&path, 2).unwrap();
+    let last = f.levels() - 1;
+    let mut b = good.clone();
+    let at = u64_at(348) - 4;
+    b[at..at + 4].copy_from_slice(&0.0f32.to_le_bytes());
+    let bad = BrickedFile::open(&write(&b), 2).unwrap();
+    let err = bad
+        .source()
+        .stored_macrocells(last, 4)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains(&format!("macrocells of level {last} are corrupt")),
+        "{err}"
+    );
+    assert!(bad.source().stored_macrocells(0, 4).unwrap().is_some());
+    // The same bytes at version 3 read without the checks (as files written before).
+    let old = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/bsv/ramp_f32.bsv");
+    let old_bytes = std::fs::read(&old).unwrap();
+    assert_eq!(old_bytes[8..12], 3u32.to_le_bytes());
+    let f = BrickedFile::open(&old, 2).unwrap();
+    for l in 0..f.levels() {
+        f.level(l).unwrap().sample_index(Vec3::splat(0.5)).unwrap();
     }
 }
 
