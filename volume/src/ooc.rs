@@ -1579,8 +1579,10 @@ impl BrickSource for FileBricks {
         let want = self.checksums[self.plan.first_brick[level] + idx as usize];
         let bad = || {
             Error::invalid(format!(
-                "bricked file '{}': brick {idx} of level {level} is corrupt (checksum mismatch)",
-                self.name
+                "bricked file '{}': brick {idx} of level {level} is corrupt (checksum \
+                 mismatch): {}",
+                self.name,
+                self.path.display()
             ))
         };
         if t == ScalarType::F32 && cfg!(target_endian = "little") {
@@ -1630,7 +1632,13 @@ impl BrickSource for FileBricks {
         let max = buf.split_off(cells);
         Macrocells::from_parts(g, k, buf, max)
             .map(Some)
-            .map_err(|e| Error::invalid(format!("bricked file '{}': {e}", self.name)))
+            .map_err(|e| {
+                Error::invalid(format!(
+                    "bricked file '{}': {e}: {}",
+                    self.name,
+                    self.path.display()
+                ))
+            })
     }
     fn finite_range(&self) -> Option<(f32, f32)> {
         self.range

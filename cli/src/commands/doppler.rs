@@ -179,7 +179,8 @@ pub struct Args {
     #[arg(long, value_name = "SCHEDULE", default_value = "auto")]
     pub compositing: String,
     /// Out-of-core (.bsv) fields of --scene: budget of the brick cache they share, MiB
-    /// [default: a quarter of physical memory]. The image does not depend on it.
+    /// [default: a quarter of physical memory, at most half of --max-memory]; more than
+    /// --max-memory is refused. The image does not depend on it.
     #[arg(long, value_name = "MIB")]
     pub cache_mb: Option<u64>,
     /// Level of detail of .bsv and AMR fields: exact (the finest: the in-core image; the
@@ -221,7 +222,7 @@ fn parse_xy(s: &str) -> std::result::Result<(u32, u32), String> {
 }
 
 pub(crate) fn build(args: &Args) -> Result<(DopplerScene, DopplerSettings)> {
-    let (scene, st, _) = build_levels(args)?;
+    let (scene, st, _, _) = build_levels(args)?;
     Ok((scene, st))
 }
 
@@ -230,8 +231,17 @@ type Level0 = (DopplerScene, usize);
 
 /// [`build`], also giving the level-0 scene and the level the scene was moved to when its
 /// fields are bricked and a level was picked (or `--progressive` asked).
-fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Level0>)> {
+/// Also gives the brick cache a scene file's `.bsv` fields sample through.
+fn build_levels(
+    args: &Args,
+) -> Result<(
+    DopplerScene,
+    DopplerSettings,
+    Option<Level0>,
+    Option<std::sync::Arc<blueshift_volume::BrickCache>>,
+)> {
     let mut level0 = None;
+    let mut bricks = None;
     let mut scene = if let Some(path) = &args.scene {
         let file = SceneFile::read(path)?;
         let tokens: Option<Vec<&str>> = args
@@ -239,6 +249,7 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
             .as_deref()
             .map(|sp| sp.split(',').filter(|t| !t.trim().is_empty()).collect());
         let cache = super::render::brick_cache(args.cache_mb)?;
+        bricks = Some(cache.clone());
         let load = || {
             Ok(file.load_within(
                 tokens.as_deref(),
@@ -393,7 +404,7 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
     st.piece_budget = args.piece_budget;
     st.step = args.step;
     st.line_width_nm = args.line_width;
-    Ok((scene, st, level0))
+    Ok((scene, st, level0, bricks))
 }
 
 /// `st` with the camera the flags give for `scene` (another level of detail: the default
@@ -800,7 +811,7 @@ fn run_frame(args: Args) -> Result<()> {
             crate::output::check_outputs(&outs, &inputs)?;
         }
     }
-    let (scene, mut st, level0) = build_levels(&args)?;
+    let (scene, mut st, level0, bricks) = build_levels(&args)?;
     if let Some(mode) = args.progressive.as_deref()
         && mode != "levels"
         && mode != "bricks"
@@ -849,6 +860,7 @@ fn run_frame(args: Args) -> Result<()> {
         }
     }
     // One session: the image, the picks and the trace share its prepared tables.
+    let absorbs = scene.absorbs();
     let mut session = DopplerSession::new(scene, st)?;
     // One render: nothing to keep for a factor edit.
     session.set_keep_samples(false);
@@ -998,6 +1010,15 @@ fn run_frame(args: Args) -> Result<()> {
     }
     let img = ran.value;
     let secs = start.elapsed().as_secs_f64();
+    // The out-of-core reads, as `render` reports them (nothing for in-core scenes); a
+    // per-brick level of detail mixes levels (the reads say which).
+    if let Some(cache) = &bricks {
+        let level = match &level0 {
+            Some((_, l)) => Some(*l),
+            None => (args.lod.as_deref() != Some("brick")).then_some(0),
+        };
+        super::render::report_cache(cache, level);
+    }
     // The EXR and its PNG are one set: both staged, then renamed (the PNG first).
     let png = args.out.with_extension("png");
     let disp = disp.with_stops(stops, &img);
@@ -1017,8 +1038,12 @@ fn run_frame(args: Args) -> Result<()> {
             img.width,
             img.height,
             secs,
-            if img.pieces.max == 0 {
+            if img.pieces.max == 0 && !absorbs {
                 "emission only: the rays sum XYZ and keep no spectrum pieces".to_owned()
+            } else if img.pieces.max == 0 {
+                "no optical-depth pieces kept (the banded integrator, or every absorption line \
+                 within the tolerance's first-order share)"
+                    .to_owned()
             } else {
                 format!(
                     "pieces per ray mean {:.1} max {}, budget fallbacks {}",

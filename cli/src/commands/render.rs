@@ -173,7 +173,8 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// Out-of-core (.bsv) channels: budget of the brick cache they share, MiB [default: a
-    /// quarter of physical memory]. The image does not depend on it.
+    /// quarter of physical memory, at most half of --max-memory]; more than --max-memory is
+    /// refused. The image does not depend on it.
     #[arg(long, value_name = "MIB")]
     pub cache_mb: Option<u64>,
     /// Level of detail of .bsv and AMR channels: exact (the finest level: the in-core image;
@@ -510,11 +511,18 @@ fn check_image_memory(width: u32, height: u32, heat: bool) -> Result<()> {
 pub(crate) fn brick_cache(
     cache_mb: Option<u64>,
 ) -> Result<std::sync::Arc<blueshift_volume::BrickCache>> {
+    // Within the memory budget (--max-memory, default 3/4 of physical memory).
+    let budget = crate::limits::budget().bytes();
     let bytes = match cache_mb {
-        None => blueshift_volume::cache::default_budget(),
+        None => (blueshift_volume::cache::default_budget() as u64).min(budget / 2),
         Some(0) => bail!("--cache-mb: must be at least 1"),
-        Some(mb) => usize::try_from(mb.saturating_mul(1 << 20)).unwrap_or(usize::MAX),
+        Some(mb) if mb.saturating_mul(1 << 20) > budget => bail!(
+            "--cache-mb {mb}: more than the memory budget of {} MiB (--max-memory)",
+            budget >> 20
+        ),
+        Some(mb) => mb << 20,
     };
+    let bytes = usize::try_from(bytes).unwrap_or(usize::MAX);
     Ok(blueshift_volume::BrickCache::new(bytes))
 }
 
