@@ -231,15 +231,11 @@ type Level0 = (DopplerScene, usize);
 
 /// [`build`], also giving the level-0 scene and the level the scene was moved to when its
 /// fields are bricked and a level was picked (or `--progressive` asked).
+/// The brick cache of a scene file's `.bsv` fields.
+type Bricks = Option<std::sync::Arc<blueshift_volume::BrickCache>>;
+
 /// Also gives the brick cache a scene file's `.bsv` fields sample through.
-fn build_levels(
-    args: &Args,
-) -> Result<(
-    DopplerScene,
-    DopplerSettings,
-    Option<Level0>,
-    Option<std::sync::Arc<blueshift_volume::BrickCache>>,
-)> {
+fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Level0>, Bricks)> {
     let mut level0 = None;
     let mut bricks = None;
     let mut scene = if let Some(path) = &args.scene {
