@@ -588,8 +588,8 @@ fn stored_macrocells_and_value_statistics_match_a_direct_pass() {
 
 /// Version 4 checksums the header and each level's macrocells: a changed value range (which
 /// transfer functions map over) is refused at open, changed macrocells (majorants) when
-/// that level's are read; the other levels still read. Version 3 files (no such checksums,
-/// the fuzz corpus) still open and sample.
+/// that level's are read; the other levels still read. Version 3 files (no such checksums)
+/// still open and sample.
 #[test]
 fn corrupt_headers_and_macrocells_are_refused_and_version_3_still_reads() {
     let g = noisy_grid([21, 18, 19], 3);
@@ -626,11 +626,15 @@ fn corrupt_headers_and_macrocells_are_refused_and_version_3_still_reads() {
         "{err}"
     );
     assert!(bad.source().stored_macrocells(0, 4).unwrap().is_some());
-    // The same bytes at version 3 read without the checks (as files written before).
-    let old = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz/corpus/bsv/ramp_f32.bsv");
-    let old_bytes = std::fs::read(&old).unwrap();
-    assert_eq!(old_bytes[8..12], 3u32.to_le_bytes());
+    // Version 3 (as written before: no checksums, zeros from byte 384) reads without the
+    // checks, the range included.
+    let mut b = good.clone();
+    b[8..12].copy_from_slice(&3u32.to_le_bytes());
+    b[384..4096].fill(0);
+    b[364..372].copy_from_slice(&[0, 0, 0x80, 0xbf, 0, 0, 0x80, 0x3f]);
+    let old = write(&b);
     let f = BrickedFile::open(&old, 2).unwrap();
+    assert_eq!(f.source().finite_range(), Some((-1.0, 1.0)));
     for l in 0..f.levels() {
         f.level(l).unwrap().sample_index(Vec3::splat(0.5)).unwrap();
     }
