@@ -1,8 +1,6 @@
 //! Sampling, macrocells, levels of detail and out-of-core access, checked against analytic
 //! truths (linear fields, convexity of trilinear interpolation, box-filter means).
 
-use std::path::Path;
-
 use blueshift_volume::ooc::{self, BrickLayout, BrickedFile, GridSource, RawFileSource, Sampler};
 use blueshift_volume::{AnyGrid, DiskType, Geometry, Grid, Macrocells, lod};
 use glam::Vec3;
