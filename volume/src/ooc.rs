@@ -247,12 +247,7 @@ impl RawFileSource {
 
     /// Replaces origin and spacing (the dims must stay the same).
     pub fn set_geometry(&mut self, geometry: Geometry) -> Result<()> {
-        geometry.validate()?;
-        if geometry.dims != self.geometry.dims {
-            return Err(Error::parameter("new geometry must keep the dims"));
-        }
-        self.geometry = geometry;
-        Ok(())
+        replace_geometry(&mut self.geometry, geometry)
     }
 
     /// Opens any file whose voxels can be streamed without decompression: an Open SciVis raw
@@ -292,11 +287,7 @@ impl SlabSource for RawFileSource {
         self.geometry
     }
     fn scalar_type(&self) -> ScalarType {
-        match self.disk {
-            DiskType::U8 => ScalarType::U8,
-            DiskType::U16 => ScalarType::U16,
-            _ => ScalarType::F32,
-        }
+        level0_type(self.disk)
     }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.geometry.dims;
@@ -314,6 +305,25 @@ impl SlabSource for RawFileSource {
         values_from_bytes(&self.buf, self.disk, big, out);
         Ok(())
     }
+}
+
+/// The type a `.bsv` level 0 keeps for voxels stored as `disk`.
+fn level0_type(disk: DiskType) -> ScalarType {
+    match disk {
+        DiskType::U8 => ScalarType::U8,
+        DiskType::U16 => ScalarType::U16,
+        _ => ScalarType::F32,
+    }
+}
+
+/// Sets `current` to `new` if `new` is valid and keeps the dims.
+fn replace_geometry(current: &mut Geometry, new: Geometry) -> Result<()> {
+    new.validate()?;
+    if new.dims != current.dims {
+        return Err(Error::parameter("new geometry must keep the dims"));
+    }
+    *current = new;
+    Ok(())
 }
 
 /// Voxel values of `disk` type (big-endian if `big`) from `bytes` into `out`.
@@ -391,12 +401,7 @@ impl GzipFileSource {
 impl GzipFileSource {
     /// Replaces origin and spacing (the dims must stay the same).
     pub fn set_geometry(&mut self, geometry: Geometry) -> Result<()> {
-        geometry.validate()?;
-        if geometry.dims != self.geometry.dims {
-            return Err(Error::parameter("new geometry must keep the dims"));
-        }
-        self.geometry = geometry;
-        Ok(())
+        replace_geometry(&mut self.geometry, geometry)
     }
 }
 
@@ -405,11 +410,7 @@ impl SlabSource for GzipFileSource {
         self.geometry
     }
     fn scalar_type(&self) -> ScalarType {
-        match self.disk {
-            DiskType::U8 => ScalarType::U8,
-            DiskType::U16 => ScalarType::U16,
-            _ => ScalarType::F32,
-        }
+        level0_type(self.disk)
     }
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         if z != self.next {
