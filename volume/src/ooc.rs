@@ -788,8 +788,8 @@ struct Writer<'a> {
     checksums: Vec<u64>,
     /// Which output this is.
     id: usize,
-    /// Brick rows on their way to the writer thread: `(output, file offset, bytes)`.
-    sink: Option<SyncSender<(usize, u64, Vec<u8>)>>,
+    /// Brick rows and macrocell sections on their way to the writer thread.
+    sink: Option<SyncSender<Block>>,
     /// Buffers the writer thread is done with.
     pool: &'a Mutex<Vec<Vec<u8>>>,
 }
@@ -932,8 +932,7 @@ impl<'a> Writer<'a> {
                 let first = ((by + nb[1] * bz) * nb[0]) as u64;
                 let at = lw.offset + first * brick_bytes as u64;
                 let sink = sink.ok_or_else(writer_gone)?;
-                let mut buf = lock(pool).pop().unwrap_or_default();
-                buf.resize(nb[0] * brick_bytes, 0);
+                let mut buf = take_exact(pool, nb[0] * brick_bytes);
                 // Plane by plane, row by row, every brick of the row in turn: the source is
                 // read in order (a brick at a time, its short runs missed the cache), and
                 // each plane is checksummed while it is in the cache.
@@ -962,7 +961,13 @@ impl<'a> Writer<'a> {
                     .zip(buf.chunks_exact(brick_bytes))
                     .map(|(sum, out)| checksum_finish(sum, &out[summed..], out.len()))
                     .collect();
-                sink.send((id, at, buf)).map_err(|_| writer_gone())?;
+                sink.send(Block {
+                    output: id,
+                    at,
+                    bytes: buf,
+                    recycle: true,
+                })
+                .map_err(|_| writer_gone())?;
                 Ok(sums)
             })
             .collect();
@@ -1002,10 +1007,19 @@ impl<'a> Writer<'a> {
             mins.extend(a);
             maxs.extend(b);
         }
+        // Through the writer thread: a write from here would wait on the file's inode lock
+        // while the writer holds it (spinning, on Linux), taking a core from the bricks.
         let at = (cz0 * layer * 4) as u64;
-        self.file.write_all_at(&f32_bytes(&mins), off + at)?;
-        self.file
-            .write_all_at(&f32_bytes(&maxs), off + (cells * 4) as u64 + at)?;
+        let sink = self.sink.as_ref().ok_or_else(writer_gone)?;
+        for (vals, at) in [(mins, off + at), (maxs, off + (cells * 4) as u64 + at)] {
+            sink.send(Block {
+                output: self.id,
+                at,
+                bytes: f32_bytes(&vals),
+                recycle: false,
+            })
+            .map_err(|_| writer_gone())?;
+        }
         Ok(())
     }
 }
@@ -1031,6 +1045,25 @@ fn reserve(file: &File, len: u64) -> Result<()> {
     }
     file.set_len(len)?;
     Ok(())
+}
+
+/// Bytes for the writer thread to write at `at` in output `output`; brick rows (`recycle`)
+/// come back to the buffer pool afterwards.
+struct Block {
+    output: usize,
+    at: u64,
+    bytes: Vec<u8>,
+    recycle: bool,
+}
+
+/// A pooled buffer of exactly `len` bytes, or a new one: each level's brick rows have their
+/// own length, and growing a buffer of another level's would copy and zero it.
+fn take_exact(pool: &Mutex<Vec<Vec<u8>>>, len: usize) -> Vec<u8> {
+    let mut p = lock(pool);
+    match p.iter().rposition(|b| b.len() == len) {
+        Some(i) => p.swap_remove(i),
+        None => vec![0; len],
+    }
 }
 
 fn writer_gone() -> Error {
@@ -1374,7 +1407,7 @@ pub fn convert_many(
         });
         // One thread writes, in slab order: buffered writes to one file serialise on its
         // inode lock anyway, and the bricks are computed meanwhile.
-        let (sink, rows) = std::sync::mpsc::sync_channel::<(usize, u64, Vec<u8>)>(4);
+        let (sink, rows) = std::sync::mpsc::sync_channel::<Block>(4);
         for w in &mut writers {
             w.sink = Some(sink.clone());
         }
@@ -1382,9 +1415,11 @@ pub fn convert_many(
         let pool = &pool;
         let files: Vec<&File> = tmps.iter().map(tempfile::NamedTempFile::as_file).collect();
         let writer = scope.spawn(move || -> Result<()> {
-            for (id, at, buf) in rows {
-                files[id].write_all_at(&buf, at)?;
-                lock(pool).push(buf);
+            for b in rows {
+                files[b.output].write_all_at(&b.bytes, b.at)?;
+                if b.recycle {
+                    lock(pool).push(b.bytes);
+                }
             }
             Ok(())
         });
