@@ -7,12 +7,13 @@ Needs the `blueshift` binary (cargo build --release -p blueshift-cli) and PyPI
 3840x2160 image (`exp(6 sin(x/400) cos(y/300))` per pixel with small per-channel
 modulations): a Radiance file with `cv2.imwrite` (`--formats hdr`, the default), or a
 half-float OpenEXR file with OpenEXR's own writer in PIZ, ZIP (16 lines), ZIPS (1 line) or
-no compression (`exr-piz`, `exr-zip`, `exr-zips`, `exr-none`). Then runs both interleaved,
+no compression (`exr-piz`, `exr-zip`, `exr-zips`, `exr-none`), or a float32 one (the same
+names ending in `32`: `exr-zip32`, ...). Then runs both interleaved,
 `--rounds` times each, 2 threads for both, and prints the medians and their ratio. OpenCV
 runs on the same pixels (as float32, BGR). Usage:
 
     python3 tonemap/peers/process_vs_opencv.py [--blueshift target/release/blueshift]
-        [--rounds 9] [--ops drago,reinhard] [--formats hdr,exr-piz,exr-zip,exr-zips,exr-none]
+        [--rounds 9] [--ops drago,reinhard] [--formats hdr,exr-piz,exr-zip,exr-zips,exr-none,exr-zip32,exr-piz32]
 """
 import argparse, os, statistics, subprocess, tempfile, time
 
@@ -48,14 +49,17 @@ def main():
             if fmt.startswith("exr-"):
                 import OpenEXR
 
-                comp = {"piz": "PIZ", "zip": "ZIP", "zips": "ZIPS", "none": "NO"}[fmt[4:]]
+                f32 = fmt.endswith("32")
+                kind = fmt[4:-2] if f32 else fmt[4:]
+                comp = {"piz": "PIZ", "zip": "ZIP", "zips": "ZIPS", "none": "NO"}[kind]
                 p = os.path.join(d, f"big_{fmt}.exr")
                 header = {
                     "compression": getattr(OpenEXR, comp + "_COMPRESSION"),
                     "type": OpenEXR.scanlineimage,
                 }
-                half = {n: img[:, :, i].astype(np.float16) for i, n in enumerate("RGB")}
-                with OpenEXR.File(header, half) as f:
+                ty = np.float32 if f32 else np.float16
+                planes = {n: img[:, :, i].astype(ty).copy() for i, n in enumerate("RGB")}
+                with OpenEXR.File(header, planes) as f:
                     f.write(p)
                 paths[fmt] = p
         # OpenCV's image: what cv2.imread gives for the Radiance file (BGR, float32), or the
@@ -68,7 +72,13 @@ def main():
         }
         env = dict(os.environ, RAYON_NUM_THREADS="2")
         for fmt in a.formats.split(","):
-            src, pixels = paths[fmt], (im if fmt == "hdr" else im_half)
+            if fmt == "hdr":
+                pixels = im
+            elif fmt.endswith("32"):
+                pixels = img[:, :, ::-1].copy()
+            else:
+                pixels = im_half
+            src = paths[fmt]
             for op in a.ops.split(","):
                 ours, theirs = [], []
                 for _ in range(a.rounds):
