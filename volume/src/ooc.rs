@@ -932,7 +932,8 @@ impl<'a> Writer<'a> {
                 let first = ((by + nb[1] * bz) * nb[0]) as u64;
                 let at = lw.offset + first * brick_bytes as u64;
                 let sink = sink.ok_or_else(writer_gone)?;
-                let mut buf = take_exact(pool, nb[0] * brick_bytes);
+                let mut bufs: Vec<Vec<u8>> =
+                    (0..nb[0]).map(|_| take_exact(pool, brick_bytes)).collect();
                 // Plane by plane, row by row, every brick of the row in turn: the source is
                 // read in order (a brick at a time, its short runs missed the cache), and
                 // each plane is checksummed while it is in the cache.
@@ -945,29 +946,33 @@ impl<'a> Writer<'a> {
                         let y = ((by * b + ly) as i64 - a as i64).clamp(0, ny as i64 - 1) as usize;
                         let row = &sl[y * nx..(y + 1) * nx];
                         let at = (lz * s + ly) * s * ts;
-                        for (bx, out) in buf.chunks_exact_mut(brick_bytes).enumerate() {
+                        for (bx, out) in bufs.iter_mut().enumerate() {
                             let x0 = (bx * b) as i64 - a as i64;
                             encode_run(row, x0, lw.ty, &mut out[at..at + s * ts]);
                         }
                     }
                     let upto = (lz + 1) * plane / 32 * 32;
-                    for (sum, out) in sums.iter_mut().zip(buf.chunks_exact(brick_bytes)) {
+                    for (sum, out) in sums.iter_mut().zip(&bufs) {
                         checksum_chunks(sum, &out[summed..upto]);
                     }
                     summed = upto;
                 }
                 let sums: Vec<u64> = sums
                     .into_iter()
-                    .zip(buf.chunks_exact(brick_bytes))
+                    .zip(&bufs)
                     .map(|(sum, out)| checksum_finish(sum, &out[summed..], out.len()))
                     .collect();
-                sink.send(Block {
-                    output: id,
-                    at,
-                    bytes: buf,
-                    recycle: true,
-                })
-                .map_err(|_| writer_gone())?;
+                // Brick by brick (adjacent in the file): the writer's queue then holds a few
+                // bricks rather than a few rows of them (37 MB a row of 64^3 bricks across 2048^2 slices).
+                for (bx, buf) in bufs.into_iter().enumerate() {
+                    sink.send(Block {
+                        output: id,
+                        at: at + (bx * brick_bytes) as u64,
+                        bytes: buf,
+                        recycle: true,
+                    })
+                    .map_err(|_| writer_gone())?;
+                }
                 Ok(sums)
             })
             .collect();
@@ -1232,7 +1237,8 @@ impl Lanes {
 /// handed to a writer thread as soon as its brick slab is complete, with the macrocells of
 /// every level. Memory stays at about `dims.x * dims.y * (B + 2A) * 4 / 3` f32 values (the
 /// slab windows of all levels; `dims.x * dims.y * (B + 2A) / 3` when the source is read
-/// in place, [`SlabSource::in_place`]) plus a few rows of bricks in flight. The file is written under a temporary name beside `out`
+/// in place, [`SlabSource::in_place`]) plus two rows of bricks being filled and a few
+/// bricks queued for the writer. The file is written under a temporary name beside `out`
 /// and renamed over it only when complete, so an interrupted conversion leaves no half file.
 /// `progress(done, total)` reports level-0 slices.
 pub fn convert(
@@ -1407,7 +1413,7 @@ pub fn convert_many(
         });
         // One thread writes, in slab order: buffered writes to one file serialise on its
         // inode lock anyway, and the bricks are computed meanwhile.
-        let (sink, rows) = std::sync::mpsc::sync_channel::<Block>(4);
+        let (sink, rows) = std::sync::mpsc::sync_channel::<Block>(8);
         for w in &mut writers {
             w.sink = Some(sink.clone());
         }
