@@ -788,7 +788,7 @@ struct Writer<'a> {
     checksums: Vec<u64>,
     /// Which output this is.
     id: usize,
-    /// Brick rows and macrocell sections on their way to the writer thread.
+    /// Bricks and macrocell sections on their way to the writer thread.
     sink: Option<SyncSender<Block>>,
     /// Buffers the writer thread is done with.
     pool: &'a Mutex<Vec<Vec<u8>>>,
@@ -963,7 +963,8 @@ impl<'a> Writer<'a> {
                     .map(|(sum, out)| checksum_finish(sum, &out[summed..], out.len()))
                     .collect();
                 // Brick by brick (adjacent in the file): the writer's queue then holds a few
-                // bricks rather than a few rows of them (37 MB a row of 64^3 bricks across 2048^2 slices).
+                // bricks rather than a few rows of them (a row of 64^3 bricks across 2048^2
+                // slices is 37 MB).
                 for (bx, buf) in bufs.into_iter().enumerate() {
                     sink.send(Block {
                         output: id,
@@ -1052,8 +1053,8 @@ fn reserve(file: &File, len: u64) -> Result<()> {
     Ok(())
 }
 
-/// Bytes for the writer thread to write at `at` in output `output`; brick rows (`recycle`)
-/// come back to the buffer pool afterwards.
+/// Bytes for the writer thread to write at `at` in output `output`; bricks (`recycle`) come
+/// back to the buffer pool afterwards.
 struct Block {
     output: usize,
     at: u64,
@@ -1061,8 +1062,9 @@ struct Block {
     recycle: bool,
 }
 
-/// A pooled buffer of exactly `len` bytes, or a new one: each level's brick rows have their
-/// own length, and growing a buffer of another level's would copy and zero it.
+/// A pooled buffer of exactly `len` bytes, or a new one: a level-0 brick of uint8 or uint16
+/// is shorter than the f32 bricks of the coarser levels, and growing a buffer of the other
+/// length would copy and zero it.
 fn take_exact(pool: &Mutex<Vec<Vec<u8>>>, len: usize) -> Vec<u8> {
     let mut p = lock(pool);
     match p.iter().rposition(|b| b.len() == len) {
