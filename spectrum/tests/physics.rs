@@ -187,6 +187,22 @@ fn planck_matches_a_textbook_value_and_the_rayleigh_jeans_limit() {
 }
 
 #[test]
+fn planck_is_smooth_where_its_denominator_changes_form() {
+    // Around c2 / (lambda T) = 0.5 the denominator switches from exp_m1 to exp - 1: Planck's
+    // law written out with exp_m1 (the independent form) agrees within 4e-15 on both sides.
+    let c2 = PLANCK_J_S * SPEED_OF_LIGHT_M_PER_S / BOLTZMANN_J_PER_K;
+    let c1l = 2.0 * PLANCK_J_S * SPEED_OF_LIGHT_M_PER_S.powi(2);
+    for i in 0..=400 {
+        let x = 0.3 + 0.4 * f64::from(i) / 400.0;
+        let lambda_nm = 600.0;
+        let t = c2 / (lambda_nm * 1e-9 * x);
+        let want = c1l / (lambda_nm * 1e-9f64).powi(5) / x.exp_m1() * 1e-9;
+        let got = planck(lambda_nm, t).unwrap();
+        assert!(rel(got, want) < 4e-15, "x {x}: {got} vs {want}");
+    }
+}
+
+#[test]
 fn blackbody_peak_obeys_wien_displacement() {
     for t in [1000.0, 3000.0, 5800.0, 10_000.0, 40_000.0] {
         let bb = Blackbody::new(t).unwrap();
