@@ -79,7 +79,7 @@ pub const TARGETS: &[Target] = &[
     Target {
         name: "exr",
         run: exr,
-        seeds: &["tonemap/tests/data/desk_crop_64x64.exr"],
+        seeds: &["tonemap/tests/data/desk_crop_64x64.exr", "fuzz/corpus/exr"],
     },
     Target {
         name: "radiance",

@@ -172,11 +172,15 @@ fn exr_error(e: exr::error::Error, path: &Path) -> Error {
 pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     use exr::prelude::{FlatSamples, ReadChannels, ReadLayers, read};
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(e, path))?;
+    let file_len = std::fs::metadata(path)
+        .map_err(|e| Error::io("cannot read", path, e))?
+        .len();
     for header in meta.headers.iter() {
         let size = header.layer_size;
         // Every channel is decoded as f32 (at most) before R, G, B are picked.
         let samples = 4 * header.channels.list.len() as u64;
         limits.check_decode(size.width() as u64, size.height() as u64, samples)?;
+        exr_fits_in_file(header, file_len, path)?;
     }
     if let Some(img) = read_exr_blocks(path)? {
         return Ok(img);
@@ -256,6 +260,63 @@ pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     }
     Rgb32FImage::from_raw(w as u32, h as u32, data)
         .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))
+}
+
+/// Refuses an OpenEXR header whose image a file of `file_len` bytes cannot hold, before the
+/// image is allocated: every block takes at least 16 bytes (its offset in the table, its
+/// position and its size), and a block's samples cannot be more than its compression's
+/// largest ratio times its bytes (1 uncompressed; 128 for RLE, whose longest run is 127
+/// bytes from 2; 4096 for ZIP, PIZ, PXR24 and B44, above deflate's 1032:1 and PIZ's
+/// run-length Huffman codes of 255 values). DWA and HTJ2K, whose constant blocks shrink
+/// further, are bounded by their block count only.
+fn exr_fits_in_file(header: &exr::meta::header::Header, file_len: u64, path: &Path) -> Result<()> {
+    use exr::compression::Compression as C;
+    let blocks = header.chunk_count as u64;
+    let least = blocks.saturating_mul(16);
+    if least > file_len {
+        return Err(Error::invalid(
+            "OpenEXR",
+            format!(
+                "the header's {blocks} blocks need at least {least} bytes, the file holds \
+                 {file_len} (truncated file or damaged header)"
+            ),
+            path,
+        ));
+    }
+    let ratio: u64 = match header.compression {
+        _ if header.deep => return Ok(()),
+        C::Uncompressed => 1,
+        C::RLE => 128,
+        C::ZIP1 | C::ZIP16 | C::PIZ | C::PXR24 | C::B44 | C::B44A => 4096,
+        _ => return Ok(()),
+    };
+    let (w, h) = (
+        header.layer_size.width() as u64,
+        header.layer_size.height() as u64,
+    );
+    let bytes = header
+        .channels
+        .list
+        .iter()
+        .map(|c| {
+            let (sx, sy) = (c.sampling.0.max(1) as u64, c.sampling.1.max(1) as u64);
+            (w / sx)
+                .saturating_mul(h / sy)
+                .saturating_mul(c.sample_type.bytes_per_sample() as u64)
+        })
+        .fold(0u64, u64::saturating_add);
+    if bytes > ratio.saturating_mul(file_len) {
+        return Err(Error::invalid(
+            "OpenEXR",
+            format!(
+                "the header's {w}x{h} pixels are {bytes} bytes of samples, more than a file of \
+                 {file_len} bytes holds with {} compression (truncated file or damaged header)",
+                header.compression
+            ),
+            path,
+        ));
+    }
+    Ok(())
 }
 
 /// The common OpenEXR layouts read block by block: one part of scan lines or of tiles (the

@@ -565,3 +565,45 @@ fn parallel_png_compression_round_trips_through_independent_decoders() {
         assert_eq!(again, png_bytes, "{what}");
     }
 }
+
+/// A header that claims more image than its file can hold is refused before the image is
+/// allocated (a fuzzer's 8.5 KB PIZ file claimed 40 x 2,097,175 pixels, a 1 GB image): by
+/// its block count (16 bytes at least per block) or by its compression's largest ratio.
+#[test]
+fn exr_headers_claiming_more_than_the_file_holds_are_refused_up_front() {
+    let desk = std::fs::read(crop("desk_crop_64x64.exr")).unwrap();
+    // The data window, box2i (xmin, ymin, xmax, ymax), after its name, type and size.
+    let key = b"dataWindow\0box2i\0\x10\0\0\0";
+    let at = desk
+        .windows(key.len())
+        .position(|w| w == key)
+        .expect("the crop has a data window")
+        + key.len();
+    let forged = |xmax: i32, ymax: i32| {
+        let mut b = desk.clone();
+        b[at + 8..at + 12].copy_from_slice(&xmax.to_le_bytes());
+        b[at + 12..at + 16].copy_from_slice(&ymax.to_le_bytes());
+        b
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let limits = Limits::default();
+    // 2,000,001 rows of 64 x 64 tiles are 31,251 blocks, at least 500 KB; the file holds
+    // 49,570 bytes.
+    let tall = dir.path().join("tall.exr");
+    std::fs::write(&tall, forged(63, 2_000_000)).unwrap();
+    let e = read_exr(&tall, &limits).unwrap_err().to_string();
+    assert!(
+        e.contains("31251 blocks need at least 500016 bytes, the file holds 49570"),
+        "{e}"
+    );
+    // 1,563 blocks fit, but 100,001 x 64 float RGB pixels are 76.8 MB of samples: more than
+    // RLE (at most 128:1) gets from 49,570 bytes.
+    let wide = dir.path().join("wide.exr");
+    std::fs::write(&wide, forged(100_000, 63)).unwrap();
+    let e = read_exr(&wide, &limits).unwrap_err().to_string();
+    assert!(e.contains("76800768 bytes of samples"), "{e}");
+    // The crop itself, whose samples are 49,152 bytes, still reads.
+    let ok = dir.path().join("ok.exr");
+    std::fs::write(&ok, forged(63, 63)).unwrap();
+    assert_eq!(read_exr(&ok, &limits).unwrap().dimensions(), (64, 64));
+}
