@@ -651,14 +651,25 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
     let read_to = usize::try_from(cursor.position())
         .ok()
         .and_then(|p| p.checked_add(start));
-    if let Some(img) = data_at
-        .filter(|&at| Some(at) == read_to)
-        .and_then(|at| decode_rle_rows(&bytes[at..], w, h))
-    {
+    let data_at = data_at.filter(|&at| Some(at) == read_to);
+    if let Some(img) = data_at.and_then(|at| decode_rle_rows(&bytes[at..], w, h)) {
         return Ok(img);
     }
     // Other scanline encodings (flat, the old run-length one) and damaged data: the image
-    // crate's decoder, with its messages.
+    // crate's decoder, with its messages, once the data is known to hold every scan line
+    // (the decoder allocates the whole image first, so a header that lies about the size
+    // of a short file would cost that memory before the error).
+    if let Some(at) = data_at
+        && !radiance_scanlines_fit(&bytes[at..], w as usize, h as usize)
+    {
+        return Err(Error::invalid(
+            "Radiance HDR",
+            format!(
+                "the data does not hold the header's {w}x{h} pixels (truncated or corrupt data?)"
+            ),
+            path,
+        ));
+    }
     let decoder = image::codecs::hdr::HdrDecoder::new(std::io::Cursor::new(&bytes[start..]))
         .map_err(|e| Error::invalid("Radiance HDR", e.to_string(), path))?;
     let img = image::DynamicImage::from_decoder(decoder).map_err(|e| {
@@ -669,6 +680,68 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
         )
     })?;
     Ok(img.into_rgb32f())
+}
+
+/// Whether `data` holds `h` scan lines of `w` pixels as the image crate's decoder reads
+/// them, without storing any: per scan line, the per-component run-length encoding (a
+/// `2 2 <128 _` marker) or flat pixels with the old encoding's repeat markers (`1 1 1 n`, a
+/// run of the previous pixel, `n` times 256 to the number of markers just before it). A
+/// line that the decoder would refuse (a run past the line's end, a line that starts with a
+/// repeat) is `false` too.
+fn radiance_scanlines_fit(data: &[u8], w: usize, h: usize) -> bool {
+    let mut pos = 0usize;
+    for _ in 0..h {
+        let Some(&[a, b, c, _]) = data.get(pos..pos + 4) else {
+            return false;
+        };
+        pos += 4;
+        if a == 2 && b == 2 && c < 128 {
+            for _ in 0..4 {
+                let mut x = 0usize;
+                while x < w {
+                    let Some(&rl) = data.get(pos) else {
+                        return false;
+                    };
+                    let (n, bytes) = if rl <= 128 {
+                        (usize::from(rl), usize::from(rl))
+                    } else {
+                        (usize::from(rl - 128), 1)
+                    };
+                    if x + n > w {
+                        return false;
+                    }
+                    pos += 1 + bytes;
+                    x += n;
+                }
+            }
+            if pos > data.len() {
+                return false;
+            }
+        } else {
+            if [a, b, c] == [1, 1, 1] {
+                return false;
+            }
+            let (mut x, mut mult) = (1usize, 1usize);
+            while x < w {
+                let Some(&[a, b, c, e]) = data.get(pos..pos + 4) else {
+                    return false;
+                };
+                pos += 4;
+                if [a, b, c] == [1, 1, 1] {
+                    let run = usize::from(e).saturating_mul(mult);
+                    mult = mult.saturating_mul(256);
+                    if x.saturating_add(run) > w {
+                        return false;
+                    }
+                    x += run;
+                } else {
+                    mult = 1;
+                    x += 1;
+                }
+            }
+        }
+    }
+    true
 }
 
 /// Where a Radiance file's pixel data starts: past its first line (the `#?` signature), the
@@ -716,7 +789,9 @@ fn decode_rle_rows(data: &[u8], w: u32, h: u32) -> Option<Rgb32FImage> {
         }
         (pos <= data.len()).then_some(pos)
     };
-    let mut starts = Vec::with_capacity(hu);
+    // Every scan line takes 12 bytes at least (its marker and a run per component): a
+    // header's height is not trusted for the allocation.
+    let mut starts = Vec::with_capacity(hu.min(data.len() / 12 + 1));
     let mut pos = 0usize;
     for _ in 0..hu {
         let m = data.get(pos..pos + 4)?;

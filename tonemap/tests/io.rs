@@ -607,3 +607,52 @@ fn exr_headers_claiming_more_than_the_file_holds_are_refused_up_front() {
     std::fs::write(&ok, forged(63, 63)).unwrap();
     assert_eq!(read_exr(&ok, &limits).unwrap().dimensions(), (64, 64));
 }
+
+/// Radiance files in the old encoding (flat pixels with `1 1 1 n` repeat markers) read
+/// through the image crate's decoder; a header that claims more scan lines or wider ones
+/// than the data holds is refused before that decoder allocates the image.
+#[test]
+fn old_encoding_radiance_reads_and_a_lying_header_is_refused_up_front() {
+    let head = |w: u32, h: u32| format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n");
+    // Per line: a literal pixel, a repeat of it 3 times, another literal: 5 pixels.
+    // RGBE (128, 64, 32, 129) is (1, 0.5, 0.25); (96, 96, 96, 130) is (1.5, 1.5, 1.5).
+    let line = [128u8, 64, 32, 129, 1, 1, 1, 3, 96, 96, 96, 130];
+    let mut good = head(5, 2).into_bytes();
+    good.extend_from_slice(&line);
+    good.extend_from_slice(&line);
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("old.hdr");
+    std::fs::write(&p, &good).unwrap();
+    let img = read_radiance(&p, &Limits::default()).unwrap();
+    assert_eq!(img.dimensions(), (5, 2));
+    for y in 0..2 {
+        for x in 0..4 {
+            assert_eq!(img.get_pixel(x, y).0, [1.0, 0.5, 0.25], "({x}, {y})");
+        }
+        assert_eq!(img.get_pixel(4, y).0, [1.5, 1.5, 1.5]);
+    }
+    // The same two lines under headers that claim 10,000 lines, or lines of 10,000 pixels
+    // (a 120 MB image), or a run past the line's end.
+    for (name, w, h) in [("tall", 5, 10_000), ("wide", 10_000, 1_000)] {
+        let mut b = head(w, h).into_bytes();
+        b.extend_from_slice(&line);
+        b.extend_from_slice(&line);
+        let p = dir.path().join(format!("{name}.hdr"));
+        std::fs::write(&p, &b).unwrap();
+        let e = read_radiance(&p, &Limits::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(&format!(
+                "the data does not hold the header's {w}x{h} pixels"
+            )),
+            "{name}: {e}"
+        );
+    }
+    let mut b = head(3, 2).into_bytes();
+    b.extend_from_slice(&line);
+    b.extend_from_slice(&line);
+    let p = dir.path().join("overrun.hdr");
+    std::fs::write(&p, &b).unwrap();
+    assert!(read_radiance(&p, &Limits::default()).is_err());
+}
