@@ -728,8 +728,13 @@ fn radiance_scanlines_fit(data: &[u8], w: usize, h: usize) -> bool {
                 };
                 pos += 4;
                 if [a, b, c] == [1, 1, 1] {
-                    let run = usize::from(e).saturating_mul(mult);
-                    mult = mult.saturating_mul(256);
+                    // Eight markers in a row would overflow the decoder's multiplier (256^8);
+                    // four already count past any width the limits allow.
+                    if mult > 1 << 48 {
+                        return false;
+                    }
+                    let run = usize::from(e) * mult;
+                    mult *= 256;
                     if x.saturating_add(run) > w {
                         return false;
                     }

@@ -656,3 +656,28 @@ fn old_encoding_radiance_reads_and_a_lying_header_is_refused_up_front() {
     std::fs::write(&p, &b).unwrap();
     assert!(read_radiance(&p, &Limits::default()).is_err());
 }
+
+/// Consecutive repeat markers multiply (the n-th by 256^(n-1)): eight in a row would
+/// overflow the image crate's multiplier, so such data is refused before it is decoded, and
+/// seven zero-length ones (which repeat nothing) still read.
+#[test]
+fn radiance_repeat_marker_chains_are_bounded() {
+    let head = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X 2\n".to_vec();
+    let dir = tempfile::tempdir().unwrap();
+    for (markers, ok) in [(7, true), (8, false), (40, false)] {
+        let mut b = head.clone();
+        b.extend_from_slice(&[128, 128, 128, 129]);
+        for _ in 0..markers {
+            b.extend_from_slice(&[1, 1, 1, 0]);
+        }
+        b.extend_from_slice(&[64, 64, 64, 129]);
+        let p = dir.path().join(format!("chain{markers}.hdr"));
+        std::fs::write(&p, &b).unwrap();
+        let r = read_radiance(&p, &Limits::default());
+        assert_eq!(r.is_ok(), ok, "{markers} markers: {r:?}");
+        if let Ok(img) = r {
+            assert_eq!(img.get_pixel(0, 0).0, [1.0; 3]);
+            assert_eq!(img.get_pixel(1, 0).0, [0.5; 3]);
+        }
+    }
+}
