@@ -283,8 +283,10 @@ fn exr_fits_in_file(header: &exr::meta::header::Header, file_len: u64, path: &Pa
             path,
         ));
     }
+    if header.deep {
+        return Ok(());
+    }
     let ratio: u64 = match header.compression {
-        _ if header.deep => return Ok(()),
         C::Uncompressed => 1,
         C::RLE => 128,
         C::ZIP1 | C::ZIP16 | C::PIZ | C::PXR24 | C::B44 | C::B44A => 4096,
@@ -697,25 +699,10 @@ fn radiance_scanlines_fit(data: &[u8], w: usize, h: usize) -> bool {
         pos += 4;
         if a == 2 && b == 2 && c < 128 {
             for _ in 0..4 {
-                let mut x = 0usize;
-                while x < w {
-                    let Some(&rl) = data.get(pos) else {
-                        return false;
-                    };
-                    let (n, bytes) = if rl <= 128 {
-                        (usize::from(rl), usize::from(rl))
-                    } else {
-                        (usize::from(rl - 128), 1)
-                    };
-                    if x + n > w {
-                        return false;
-                    }
-                    pos += 1 + bytes;
-                    x += n;
+                match skip_rle_component(data, pos, w) {
+                    Some(end) => pos = end,
+                    None => return false,
                 }
-            }
-            if pos > data.len() {
-                return false;
             }
         } else {
             if [a, b, c] == [1, 1, 1] {
@@ -749,6 +736,24 @@ fn radiance_scanlines_fit(data: &[u8], w: usize, h: usize) -> bool {
     true
 }
 
+/// Where one component of a run-length-encoded scan line of `w` pixels that starts at `pos`
+/// ends, checked exactly as the image crate reads it (`None`: a run past the line's end, or
+/// the data ends first).
+fn skip_rle_component(data: &[u8], mut pos: usize, w: usize) -> Option<usize> {
+    let mut x = 0usize;
+    while x < w {
+        let rl = usize::from(*data.get(pos)?);
+        pos += 1;
+        let n = if rl <= 128 { rl } else { rl - 128 };
+        if x + n > w {
+            return None;
+        }
+        pos += if rl <= 128 { rl } else { 1 };
+        x += n;
+    }
+    (pos <= data.len()).then_some(pos)
+}
+
 /// Where a Radiance file's pixel data starts: past its first line (the `#?` signature), the
 /// header lines up to the first empty one, and the resolution line.
 fn radiance_data_start(bytes: &[u8], start: usize) -> Option<usize> {
@@ -778,22 +783,6 @@ fn decode_rle_rows(data: &[u8], w: u32, h: u32) -> Option<Rgb32FImage> {
     if wu == 0 || hu == 0 {
         return None;
     }
-    // Where each component of a scanline at `pos` ends (after its 4-byte marker), checked
-    // exactly as the image crate reads it.
-    let skip = |mut pos: usize| -> Option<usize> {
-        let mut x = 0usize;
-        while x < wu {
-            let rl = usize::from(*data.get(pos)?);
-            pos += 1;
-            let n = if rl <= 128 { rl } else { rl - 128 };
-            if x + n > wu {
-                return None;
-            }
-            pos += if rl <= 128 { rl } else { 1 };
-            x += n;
-        }
-        (pos <= data.len()).then_some(pos)
-    };
     // Every scan line takes 12 bytes at least (its marker and a run per component): a
     // header's height is not trusted for the allocation.
     let mut starts = Vec::with_capacity(hu.min(data.len() / 12 + 1));
@@ -806,7 +795,7 @@ fn decode_rle_rows(data: &[u8], w: u32, h: u32) -> Option<Rgb32FImage> {
         starts.push(pos + 4);
         pos += 4;
         for _ in 0..4 {
-            pos = skip(pos)?;
+            pos = skip_rle_component(data, pos, wu)?;
         }
     }
     let n = wu.checked_mul(hu)?.checked_mul(3)?;

@@ -171,7 +171,8 @@ fn conversion(c: &mut Criterion) {
         });
         // `cp` as it was before `copy_file_range` (and as `cat IN > OUT` still is): the bytes
         // pass through user memory, read in 1 MiB blocks into one buffer and written to a
-        // fresh file. A conversion cannot avoid that pass; `cp` now does.
+        // fresh file (a loop of its own: `std::io::copy` between files is `copy_file_range`
+        // too). A conversion cannot avoid that pass; `cp` now does.
         let through = dir.path().join("through.raw");
         group.bench_function("read_write_1mib", |b| {
             let mut buf = vec![0u8; 1 << 20];
