@@ -248,6 +248,20 @@ fn bench(c: &mut Criterion) {
     g.bench_function("exr_read_drago_png", |b| b.iter(|| whole(&exr_path)));
     g.bench_function("exr_zip_read_drago_png", |b| b.iter(|| whole(&zip_path)));
     g.bench_function("rgbe_read_drago_png", |b| b.iter(|| whole(&hdr_path)));
+    // The CLI's path since 2026-12-06 night: the file as an `HdrSource` (a Radiance file
+    // kept as its bytes), the statistics from one pass over its rows, then the codes of each
+    // part of the PNG stream made and compressed together (into a file: the PNG is not
+    // held whole).
+    let png = dir.path().join("out.png");
+    let rows = |path: &std::path::Path| {
+        let src = io::read_hdr_source_with(path, &io::Limits::default()).expect("read");
+        let t = drago.apply_rows(&src).expect("drago").expect("global");
+        t.write_png(&png).expect("png");
+        t.stats
+    };
+    g.bench_function("exr_rows_drago_png", |b| b.iter(|| rows(&exr_path)));
+    g.bench_function("exr_zip_rows_drago_png", |b| b.iter(|| rows(&zip_path)));
+    g.bench_function("rgbe_rows_drago_png", |b| b.iter(|| rows(&hdr_path)));
     g.finish();
 }
 

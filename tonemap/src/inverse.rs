@@ -13,7 +13,7 @@ use crate::plane::{Plane, luminance};
 /// curve, so each curve's loop is compiled on its own and vectorises).
 trait CurveOutput {
     type Out;
-    fn run<F: Fn(f32) -> f32 + Sync>(self, curve: F) -> Self::Out;
+    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> Self::Out;
 }
 
 /// The floating-point display image ([`crate::plane::recolour_with`]).
@@ -21,7 +21,7 @@ struct ToImage<'a>(&'a Rgb32FImage, &'a Plane, f32);
 
 impl CurveOutput for ToImage<'_> {
     type Out = Rgb32FImage;
-    fn run<F: Fn(f32) -> f32 + Sync>(self, curve: F) -> Rgb32FImage {
+    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> Rgb32FImage {
         crate::plane::recolour_with(self.0, self.1, self.2, curve)
     }
 }
@@ -31,8 +31,19 @@ struct ToSrgb8<'a>(&'a Rgb32FImage, &'a Plane, f32);
 
 impl CurveOutput for ToSrgb8<'_> {
     type Out = Vec<u8>;
-    fn run<F: Fn(f32) -> f32 + Sync>(self, curve: F) -> Vec<u8> {
+    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> Vec<u8> {
         crate::plane::recolour_with_srgb8(self.0, self.1, self.2, curve)
+    }
+}
+
+/// The second pass over the rows of a source: each row's codes
+/// ([`crate::rows::recolour_codes`]).
+struct RowCodesOut(f32);
+
+impl CurveOutput for RowCodesOut {
+    type Out = crate::rows::RowCodes;
+    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> crate::rows::RowCodes {
+        crate::rows::recolour_codes(self.0, curve)
     }
 }
 
@@ -287,6 +298,15 @@ impl GlobalCurve {
             return out;
         }
         self.luminance_curve(ToSrgb8(img, lum, self.saturation()))
+    }
+
+    /// How the second pass over a source's rows makes each row's codes (those of
+    /// [`GlobalCurve::apply_clean_srgb8`]).
+    pub(crate) fn row_codes(&self) -> crate::rows::RowCodes {
+        if let GlobalCurve::Linear { scale } = *self {
+            return crate::rows::scale_codes(scale as f32);
+        }
+        self.luminance_curve(RowCodesOut(self.saturation()))
     }
 
     /// Runs `out` with the luminance curve of Drago or Reinhard. One fused row-parallel

@@ -638,7 +638,143 @@ fn samples_to_f32(ty: exr::meta::attribute::SampleType, src: &[u8], out: &mut [f
 /// # Errors
 /// As [`read_hdr_image_with`].
 pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io("cannot read", path, e))?;
+    Ok(read_radiance_source(path, limits)?.into_image())
+}
+
+/// An HDR image as compact as its file allows, decoded one row at a time: a Radiance file
+/// whose scan lines are run-length encoded (what current writers produce) keeps its own
+/// bytes (about a sixth of the `f32` image for typical files), every other file is the
+/// decoded image. A global tone-mapping curve runs over it in two passes of rows (the
+/// statistics, then the display codes) without the `f32` image or its luminance plane:
+/// [`crate::Operator::apply_rows_srgb8`].
+#[derive(Debug)]
+pub struct HdrSource {
+    width: u32,
+    height: u32,
+    inner: Source,
+}
+
+#[derive(Debug)]
+enum Source {
+    /// The file's bytes from the first scan line on, and where each scan line's data starts.
+    Rgbe {
+        data: Vec<u8>,
+        starts: Vec<usize>,
+    },
+    Image(Rgb32FImage),
+}
+
+impl HdrSource {
+    /// Wraps an image already decoded.
+    #[must_use]
+    pub fn from_image(img: Rgb32FImage) -> Self {
+        Self {
+            width: img.width(),
+            height: img.height(),
+            inner: Source::Image(img),
+        }
+    }
+
+    /// Width and height in pixels.
+    #[must_use]
+    pub fn dimensions(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    /// Whether the pixels are held as the file's compact encoding (not as `f32`).
+    #[must_use]
+    pub fn is_compact(&self) -> bool {
+        matches!(self.inner, Source::Rgbe { .. })
+    }
+
+    /// Row `y` as RGB `f32` into `out` (`3 * width` values); `scratch` is a buffer the
+    /// caller keeps between calls (one per thread). The values are those of
+    /// [`HdrSource::into_image`], bit for bit.
+    ///
+    /// # Panics
+    /// If `y` is not a row of the image or `out` is not one row long.
+    pub fn decode_row(&self, y: usize, scratch: &mut Vec<u8>, out: &mut [f32]) {
+        let row = 3 * self.width as usize;
+        assert_eq!(out.len(), row, "one row of RGB values");
+        match &self.inner {
+            Source::Rgbe { data, starts } => {
+                scratch.resize(4 * self.width as usize, 0);
+                decode_rgbe_row(data, starts[y], scratch, out);
+            }
+            Source::Image(img) => out.copy_from_slice(&img.as_raw()[y * row..(y + 1) * row]),
+        }
+    }
+
+    /// The decoded image (rows in parallel for a compact source).
+    #[must_use]
+    pub fn into_image(self) -> Rgb32FImage {
+        use rayon::prelude::*;
+        match self.inner {
+            Source::Image(img) => img,
+            Source::Rgbe { data, starts } => {
+                let (w, h) = (self.width as usize, self.height as usize);
+                let mut out = vec![0.0f32; 3 * w * h];
+                out.par_chunks_mut(3 * w)
+                    .zip(starts.par_iter())
+                    .for_each_init(
+                        || vec![0u8; 4 * w],
+                        |planes, (row, &at)| decode_rgbe_row(&data, at, planes, row),
+                    );
+                Rgb32FImage::from_raw(self.width, self.height, out)
+                    .expect("buffer size matches dimensions")
+            }
+        }
+    }
+}
+
+/// Reads an HDR image as an [`HdrSource`]: compact for run-length encoded Radiance files,
+/// decoded otherwise (as [`read_hdr_image_with`]).
+///
+/// # Errors
+/// As [`read_hdr_image_with`].
+pub fn read_hdr_source_with(path: impl AsRef<Path>, limits: &Limits) -> Result<HdrSource> {
+    let path = path.as_ref();
+    match detect_format(path)? {
+        HdrFormat::Radiance => read_radiance_source(path, limits),
+        _ => read_hdr_image_with(path, limits).map(HdrSource::from_image),
+    }
+}
+
+/// The whole file, as `std::fs::read` gives it. Large files on Unix are read in pieces by
+/// the pool's threads at once (positioned reads into their own parts of the buffer): the
+/// kernel's copy into fresh pages was a tenth of a serial `tonemap` run of an 8-megapixel
+/// Radiance file. A file that changes length while read is an error.
+fn read_whole_file(path: &Path) -> std::io::Result<Vec<u8>> {
+    #[cfg(unix)]
+    {
+        use rayon::prelude::*;
+        use std::os::unix::fs::FileExt;
+        const PIECE: usize = 4 << 20;
+        let file = File::open(path)?;
+        let len = usize::try_from(file.metadata()?.len()).unwrap_or(usize::MAX);
+        if len >= 2 * PIECE && file.metadata()?.is_file() {
+            // Refused as `std::fs::read` refuses it when the memory is not there; then
+            // zeroed pages from the system (no pass of zeroes before the reads).
+            Vec::<u8>::new()
+                .try_reserve_exact(len)
+                .map_err(|e| std::io::Error::new(std::io::ErrorKind::OutOfMemory, e))?;
+            let mut buf = vec![0u8; len];
+            buf.par_chunks_mut(PIECE)
+                .enumerate()
+                .try_for_each(|(i, piece)| file.read_exact_at(piece, (i * PIECE) as u64))?;
+            // Nothing past the length read at the start.
+            let mut more = [0u8; 1];
+            if file.read_at(&mut more, len as u64)? != 0 {
+                return Err(std::io::Error::other("the file grew while it was read"));
+            }
+            return Ok(buf);
+        }
+    }
+    std::fs::read(path)
+}
+
+fn read_radiance_source(path: &Path, limits: &Limits) -> Result<HdrSource> {
+    let bytes = read_whole_file(path).map_err(|e| Error::io("cannot read", path, e))?;
     let start = find(&bytes[..bytes.len().min(4096)], b"#?")
         .ok_or_else(|| Error::invalid("Radiance HDR", "no #? magic line in the header", path))?;
     let mut cursor = std::io::Cursor::new(&bytes[start..]);
@@ -654,8 +790,20 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
         .ok()
         .and_then(|p| p.checked_add(start));
     let data_at = data_at.filter(|&at| Some(at) == read_to);
-    if let Some(img) = data_at.and_then(|at| decode_rle_rows(&bytes[at..], w, h)) {
-        return Ok(img);
+    if let Some(at) = data_at
+        && let Some(mut starts) = rle_row_starts(&bytes[at..], w, h)
+    {
+        for s in &mut starts {
+            *s += at;
+        }
+        return Ok(HdrSource {
+            width: w,
+            height: h,
+            inner: Source::Rgbe {
+                data: bytes,
+                starts,
+            },
+        });
     }
     // Other scanline encodings (flat, the old run-length one) and damaged data: the image
     // crate's decoder, with its messages, once the data is known to hold every scan line
@@ -681,7 +829,7 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
             path,
         )
     })?;
-    Ok(img.into_rgb32f())
+    Ok(HdrSource::from_image(img.into_rgb32f()))
 }
 
 /// Whether `data` holds `h` scan lines of `w` pixels as the image crate's decoder reads
@@ -772,13 +920,11 @@ fn radiance_data_start(bytes: &[u8], start: usize) -> Option<usize> {
     next_line(at + 1)
 }
 
-/// Decodes Radiance pixel data whose every scanline uses the per-component run-length
-/// encoding (what current writers produce), rows in parallel, into the image crate's
-/// values bit for bit (its `to_hdr`: `c * 2^(e - 136)`, `e = 0` black). A first pass finds
-/// each scanline's start (the run headers only); `None` when a scanline is encoded another
-/// way or the data does not add up (the caller then uses the image crate's decoder).
-fn decode_rle_rows(data: &[u8], w: u32, h: u32) -> Option<Rgb32FImage> {
-    use rayon::prelude::*;
+/// Where each scan line's run-length data starts (after its marker) in Radiance pixel data whose every
+/// scanline uses the per-component run-length encoding (the run headers only); `None` when
+/// a scanline is encoded another way or the data does not add up (the caller then uses the
+/// image crate's decoder). [`decode_rgbe_row`] gives the image crate's values bit for bit.
+fn rle_row_starts(data: &[u8], w: u32, h: u32) -> Option<Vec<usize>> {
     let (wu, hu) = (w as usize, h as usize);
     if wu == 0 || hu == 0 {
         return None;
@@ -798,46 +944,44 @@ fn decode_rle_rows(data: &[u8], w: u32, h: u32) -> Option<Rgb32FImage> {
             pos = skip_rle_component(data, pos, wu)?;
         }
     }
-    let n = wu.checked_mul(hu)?.checked_mul(3)?;
-    let mut out = vec![0.0f32; n];
-    out.par_chunks_mut(wu * 3)
-        .zip(starts.par_iter())
-        .for_each_init(
-            || vec![0u8; 4 * wu],
-            |planes, (row, &at)| {
-                // The four components one after the other (bounds were checked above).
-                let mut pos = at;
-                for plane in planes.chunks_exact_mut(wu) {
-                    let mut x = 0usize;
-                    while x < wu {
-                        let rl = usize::from(data[pos]);
-                        pos += 1;
-                        if rl <= 128 {
-                            plane[x..x + rl].copy_from_slice(&data[pos..pos + rl]);
-                            pos += rl;
-                            x += rl;
-                        } else {
-                            let n = rl - 128;
-                            plane[x..x + n].fill(data[pos]);
-                            pos += 1;
-                            x += n;
-                        }
-                    }
-                }
-                let (rgb, e) = planes.split_at(3 * wu);
-                for (i, (px, &e)) in row.chunks_exact_mut(3).zip(e).enumerate() {
-                    let scale = f32::from_bits(if e > 1 {
-                        u32::from(e - 1) << 23
-                    } else {
-                        u32::from(e) << 22
-                    }) * 0.003_906_25;
-                    px[0] = scale * f32::from(rgb[i]);
-                    px[1] = scale * f32::from(rgb[wu + i]);
-                    px[2] = scale * f32::from(rgb[2 * wu + i]);
-                }
-            },
-        );
-    Rgb32FImage::from_raw(w, h, out)
+    Some(starts)
+}
+
+/// One run-length encoded scan line starting at `at` (checked by [`rle_row_starts`]) into
+/// `row` (RGB), as the image crate's `to_hdr` gives it: `c * 2^(e - 136)`, `e = 0` black.
+/// `planes` holds the four components of one line.
+fn decode_rgbe_row(data: &[u8], at: usize, planes: &mut [u8], row: &mut [f32]) {
+    let wu = planes.len() / 4;
+    // The four components one after the other.
+    let mut pos = at;
+    for plane in planes.chunks_exact_mut(wu) {
+        let mut x = 0usize;
+        while x < wu {
+            let rl = usize::from(data[pos]);
+            pos += 1;
+            if rl <= 128 {
+                plane[x..x + rl].copy_from_slice(&data[pos..pos + rl]);
+                pos += rl;
+                x += rl;
+            } else {
+                let n = rl - 128;
+                plane[x..x + n].fill(data[pos]);
+                pos += 1;
+                x += n;
+            }
+        }
+    }
+    let (rgb, e) = planes.split_at(3 * wu);
+    for (i, (px, &e)) in row.chunks_exact_mut(3).zip(e).enumerate() {
+        let scale = f32::from_bits(if e > 1 {
+            u32::from(e - 1) << 23
+        } else {
+            u32::from(e) << 22
+        }) * 0.003_906_25;
+        px[0] = scale * f32::from(rgb[i]);
+        px[1] = scale * f32::from(rgb[wu + i]);
+        px[2] = scale * f32::from(rgb[2 * wu + i]);
+    }
 }
 
 /// Reads a PFM file (`PF` colour or `Pf` grey, either byte order, bottom row first).
@@ -1341,17 +1485,63 @@ pub fn encode_png<W: Write>(
             data.len()
         )));
     }
+    let row_bytes = (u64::from(width) * channels * bytes) as usize;
+    // The pixel data compressed in parallel ([`crate::zlib`]).
+    let parts = crate::zlib::png_zlib_parts(data, row_bytes, height as usize);
+    write_png_parts(w, width, height, color, depth, &parts)
+}
+
+/// A PNG of the zlib stream `parts` ([`crate::zlib`]), one IDAT chunk each.
+fn write_png_parts<W: Write>(
+    w: W,
+    width: u32,
+    height: u32,
+    color: png::ColorType,
+    depth: png::BitDepth,
+    parts: &[Vec<u8>],
+) -> Result<()> {
     let mut enc = png_encoder(w, width, height);
     enc.set_color(color);
     enc.set_depth(depth);
     let err = |e: png::EncodingError| Error::invalid("PNG", e.to_string(), Path::new("<png>"));
     let mut wr = enc.write_header().map_err(err)?;
-    // The pixel data compressed in parallel ([`crate::zlib`]), as IDAT chunks.
-    let row_bytes = (u64::from(width) * channels * bytes) as usize;
-    for part in crate::zlib::png_zlib_parts(data, row_bytes, height as usize) {
-        wr.write_chunk(png::chunk::IDAT, &part).map_err(err)?;
+    for part in parts {
+        wr.write_chunk(png::chunk::IDAT, part).map_err(err)?;
     }
     wr.finish().map_err(err)
+}
+
+/// Writes an 8-bit RGB PNG whose rows (`3 * width` sRGB codes each) `rows` makes while the
+/// file's stream is compressed ([`crate::zlib::png_zlib_parts_of`]): the same bytes as
+/// [`write_rgb8_png`] of the image of those rows, without the image.
+///
+/// # Errors
+/// [`Error::EmptyImage`], [`Error::Io`]; the encoder's errors as [`Error::Invalid`].
+pub fn write_rgb8_png_rows(
+    path: impl AsRef<Path>,
+    width: u32,
+    height: u32,
+    rows: &impl crate::zlib::PngRows,
+) -> Result<()> {
+    let path = path.as_ref();
+    if width == 0 || height == 0 {
+        return Err(Error::EmptyImage);
+    }
+    let parts = crate::zlib::png_zlib_parts_of(rows, 3 * width as usize, height as usize);
+    write_atomic(path, |wr| {
+        write_png_parts(
+            wr,
+            width,
+            height,
+            png::ColorType::Rgb,
+            png::BitDepth::Eight,
+            &parts,
+        )
+        .map_err(|e| match e {
+            Error::Invalid { message, .. } => Error::invalid("PNG", message, path),
+            e => e,
+        })
+    })
 }
 
 /// Encodes a display-linear image as an sRGB PNG of 8 or 16 bits per channel (values
@@ -1877,9 +2067,25 @@ mod tests {
         drop(image::codecs::hdr::HdrDecoder::new(&mut cursor).unwrap());
         let at = radiance_data_start(&file, start).unwrap();
         assert_eq!(at, start + cursor.position() as usize);
-        let ours = decode_rle_rows(&file[at..], w, h).expect("run-length rows");
+        let starts = rle_row_starts(&file[at..], w, h).expect("run-length rows");
+        let source = HdrSource {
+            width: w,
+            height: h,
+            inner: Source::Rgbe {
+                data: file[at..].to_vec(),
+                starts,
+            },
+        };
+        // Row by row (the tone-mapping passes) and whole (the image readers).
+        let mut by_rows = vec![0.0f32; (3 * w * h) as usize];
+        let mut scratch = Vec::new();
+        for (y, row) in by_rows.chunks_exact_mut(3 * w as usize).enumerate() {
+            source.decode_row(y, &mut scratch, row);
+        }
+        let ours = source.into_image();
         let d = image::codecs::hdr::HdrDecoder::new(std::io::Cursor::new(&file[start..])).unwrap();
         let theirs = image::DynamicImage::from_decoder(d).unwrap().into_rgb32f();
         assert_eq!(ours.as_raw(), theirs.as_raw());
+        assert_eq!(&by_rows, theirs.as_raw());
     }
 }

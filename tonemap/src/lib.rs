@@ -62,6 +62,7 @@ mod piz;
 pub mod plane;
 pub mod poisson;
 pub mod pseudocolour;
+mod rows;
 pub mod sanitize;
 pub mod session;
 pub mod zlib;
@@ -71,11 +72,12 @@ pub use inverse::GlobalCurve;
 pub use ops::linear::{LINEAR_WHITE_PERCENTILE, default_linear_white};
 pub use ops::{
     DragoParams, DurandParams, ExposureSeries, FattalParams, LinearParams, Operator,
-    ReinhardLocalParams, ReinhardParams, Roi, exposure_series,
+    ReinhardLocalParams, ReinhardParams, Roi, RowsToneMap, exposure_series,
 };
 pub use plane::{LUMINANCE_WEIGHTS, Plane, luminance};
 pub use pseudocolour::{Palette, PseudocolourParams, pseudocolour};
 pub use sanitize::{
-    CleanImage, DynamicRange, SanitizeReport, dynamic_range, sanitize, sanitize_in_place,
+    CleanImage, CleanStats, DynamicRange, SanitizeReport, dynamic_range, sanitize,
+    sanitize_in_place,
 };
 pub use session::TonemapSession;

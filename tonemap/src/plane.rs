@@ -260,7 +260,7 @@ pub fn recolour_with(
 
 /// A global curve as a `lum_out` of [`recolour_row`]: the curve over a whole row first, a
 /// loop without branches, which vectorises when the curve does (the `fastmath` curves).
-fn curve_rows(curve: impl Fn(f32) -> f32) -> impl Fn(usize, &[f32], &mut [f32]) {
+pub(crate) fn curve_rows(curve: impl Fn(f32) -> f32) -> impl Fn(usize, &[f32], &mut [f32]) {
     move |_, lin, out| {
         for (o, &l) in out.iter_mut().zip(lin) {
             *o = curve(l);
@@ -396,6 +396,20 @@ fn recolour_row(
     let row0 = y * wu;
     let srow = &src[row0 * 3..(row0 + wu) * 3];
     let lrow = &lum_in.data[row0..row0 + wu];
+    recolour_row_of(srow, lrow, row0, saturation, lum_out, louts, orow);
+}
+
+/// [`recolour_row`] of one row given as its values `srow` and luminances `lrow`, whose first
+/// pixel is pixel `row0` of the image.
+pub(crate) fn recolour_row_of(
+    srow: &[f32],
+    lrow: &[f32],
+    row0: usize,
+    saturation: f32,
+    lum_out: &impl Fn(usize, &[f32], &mut [f32]),
+    louts: &mut [f32],
+    orow: &mut [f32],
+) {
     // Every pixel's output luminance first (`lum_out(first pixel, input row, output row)`),
     // whatever its input.
     lum_out(row0, lrow, louts);
@@ -458,31 +472,44 @@ pub fn log_average(lum: &Plane, circle: Option<(f32, f32, f32)>) -> Option<f64> 
         .enumerate()
         .map_init(
             || vec![0.0f32; w],
-            |logs, (y, row)| {
-                // ln in f32 (the data's precision) over the whole row first (a loop that
-                // vectorises), then summed in f64 in order.
-                for (l, &v) in logs.iter_mut().zip(row) {
-                    *l = crate::fastmath::ln(v);
-                }
-                let mut s = 0.0f64;
-                let mut n = 0u64;
-                for (x, (&v, &l)) in row.iter().zip(logs.iter()).enumerate() {
-                    if let Some((cx, cy, r)) = circle {
-                        let dx = x as f32 + 0.5 - cx;
-                        let dy = y as f32 + 0.5 - cy;
-                        if dx * dx + dy * dy > r * r {
-                            continue;
-                        }
-                    }
-                    if v > 0.0 {
-                        s += f64::from(l);
-                        n += 1;
-                    }
-                }
-                (s, n)
-            },
+            |logs, (y, row)| log_sum_row(row, y, circle, logs),
         )
         .collect();
+    log_average_of_rows(&rows)
+}
+
+/// The sum of the logarithms of row `y`'s positive values inside `circle` and their number
+/// (`logs`: a buffer of one row). In f32 (the data's precision) over the whole row first (a
+/// loop that vectorises), then summed in f64 in order.
+pub(crate) fn log_sum_row(
+    row: &[f32],
+    y: usize,
+    circle: Option<(f32, f32, f32)>,
+    logs: &mut [f32],
+) -> (f64, u64) {
+    for (l, &v) in logs.iter_mut().zip(row) {
+        *l = crate::fastmath::ln(v);
+    }
+    let mut s = 0.0f64;
+    let mut n = 0u64;
+    for (x, (&v, &l)) in row.iter().zip(logs.iter()).enumerate() {
+        if let Some((cx, cy, r)) = circle {
+            let dx = x as f32 + 0.5 - cx;
+            let dy = y as f32 + 0.5 - cy;
+            if dx * dx + dy * dy > r * r {
+                continue;
+            }
+        }
+        if v > 0.0 {
+            s += f64::from(l);
+            n += 1;
+        }
+    }
+    (s, n)
+}
+
+/// [`log_average`] from the rows' [`log_sum_row`] results, summed in row order.
+pub(crate) fn log_average_of_rows(rows: &[(f64, u64)]) -> Option<f64> {
     let (s, n) = rows
         .iter()
         .fold((0.0, 0u64), |(a, b), &(s, n)| (a + s, b + n));

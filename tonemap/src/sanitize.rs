@@ -63,7 +63,7 @@ pub fn sanitize_in_place(img: &mut Rgb32FImage) -> SanitizeReport {
 /// The dirty-input rule on one row: NaN and negatives become 0, +Inf is counted and left
 /// for [`replace_infinities`]. Returns the row's report and largest finite value per
 /// channel.
-fn clean_row(row: &mut [f32]) -> (SanitizeReport, [f32; 3]) {
+pub(crate) fn clean_row(row: &mut [f32]) -> (SanitizeReport, [f32; 3]) {
     // Without branches, over lanes of four pixels (lane `i` holds channel `i % 3`), so the
     // loop vectorises; the counts per lane fit u32 (a lane sees a quarter of a row).
     const L: usize = 12;
@@ -103,7 +103,7 @@ fn clean_row(row: &mut [f32]) -> (SanitizeReport, [f32; 3]) {
 
 /// Sums the per-row reports and takes the maximum of the per-row maxima, in row order
 /// (max is order-independent, so the result does not depend on the thread count).
-fn merge_rows(rows: &[(SanitizeReport, [f32; 3])]) -> (SanitizeReport, [f32; 3]) {
+pub(crate) fn merge_rows(rows: &[(SanitizeReport, [f32; 3])]) -> (SanitizeReport, [f32; 3]) {
     rows.iter().fold(
         (SanitizeReport::default(), [0.0f32; 3]),
         |(a, m), (b, mb)| {
@@ -181,12 +181,7 @@ impl CleanImage {
                 .sum();
             (positive_range(&lum), zeros)
         } else {
-            let (lo, hi, zeros) = rows.iter().fold(
-                (f32::INFINITY, 0.0f32, 0u64),
-                |(lo, hi, z), &(_, (rlo, rhi, rz))| (lo.min(rlo), hi.max(rhi), z + rz),
-            );
-            // As `plane::positive_range` gives it.
-            ((hi > 0.0 && lo.is_finite()).then_some((lo, hi)), zeros)
+            merge_luminance_rows(rows.iter().map(|r| r.1))
         };
         Self {
             image: img,
@@ -197,6 +192,48 @@ impl CleanImage {
         }
     }
 
+    /// Its statistics without the pixels.
+    #[must_use]
+    pub fn stats(&self) -> CleanStats {
+        CleanStats {
+            report: self.report,
+            positive_range: self.positive_range,
+            zero_pixels: self.zero_pixels,
+        }
+    }
+
+    /// The dynamic range (`None` if no pixel has positive luminance).
+    #[must_use]
+    pub fn dynamic_range(&self) -> Option<DynamicRange> {
+        self.stats().dynamic_range()
+    }
+}
+
+/// The smallest positive and largest luminance (as `plane::positive_range` gives them) and
+/// the number of unlit pixels from the rows' [`fill_luminance`] results.
+pub(crate) fn merge_luminance_rows(
+    rows: impl Iterator<Item = (f32, f32, u64)>,
+) -> (Option<(f32, f32)>, u64) {
+    let (lo, hi, zeros) = rows.fold(
+        (f32::INFINITY, 0.0f32, 0u64),
+        |(lo, hi, z), (rlo, rhi, rz)| (lo.min(rlo), hi.max(rhi), z + rz),
+    );
+    ((hi > 0.0 && lo.is_finite()).then_some((lo, hi)), zeros)
+}
+
+/// What [`CleanImage`] knows of an image besides its pixels and luminance (also given by
+/// [`crate::Operator::apply_rows_srgb8`], which keeps neither).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CleanStats {
+    /// What the dirty-input rule changed.
+    pub report: SanitizeReport,
+    /// Smallest positive and largest luminance (`None` if no pixel is lit).
+    pub positive_range: Option<(f32, f32)>,
+    /// Number of pixels of zero luminance.
+    pub zero_pixels: u64,
+}
+
+impl CleanStats {
     /// The dynamic range (`None` if no pixel has positive luminance).
     #[must_use]
     pub fn dynamic_range(&self) -> Option<DynamicRange> {
@@ -214,7 +251,7 @@ impl CleanImage {
 
 /// Fills `out` with the luminance of `rgb_row` and returns its smallest positive value
 /// (infinite if none), its largest value (from 0) and how many are not positive.
-fn fill_luminance(rgb_row: &[f32], out: &mut [f32]) -> (f32, f32, u64) {
+pub(crate) fn fill_luminance(rgb_row: &[f32], out: &mut [f32]) -> (f32, f32, u64) {
     let (mut lo, mut hi, mut zeros) = (f32::INFINITY, 0.0f32, 0u64);
     for (o, px) in out.iter_mut().zip(rgb_row.chunks_exact(3)) {
         let v = crate::plane::luminance([px[0], px[1], px[2]]);

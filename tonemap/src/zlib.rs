@@ -42,15 +42,57 @@ pub fn png_zlib_parts(data: &[u8], row_bytes: usize, height: usize) -> Vec<Vec<u
             .is_some_and(|n| n <= data.len()),
         "rows past the data"
     );
+    png_zlib_parts_of(&SliceRows { data, row_bytes }, row_bytes, height)
+}
+
+/// Rows of unfiltered PNG bytes made on demand, by several threads at once (each with its
+/// own [`PngRows::State`]): the rows are compressed while they are in the cache, and the
+/// image need not be held whole.
+pub trait PngRows: Sync {
+    /// One thread's buffers.
+    type State: Send;
+    /// A new thread's buffers.
+    fn state(&self) -> Self::State;
+    /// Rows `from..to` (`to - from` rows of `row_bytes` bytes each, one after the other).
+    fn rows<'s>(&'s self, state: &'s mut Self::State, from: usize, to: usize) -> &'s [u8];
+}
+
+struct SliceRows<'a> {
+    data: &'a [u8],
+    row_bytes: usize,
+}
+
+impl PngRows for SliceRows<'_> {
+    type State = ();
+    fn state(&self) {}
+    fn rows<'s>(&'s self, (): &'s mut (), from: usize, to: usize) -> &'s [u8] {
+        &self.data[from * self.row_bytes..to * self.row_bytes]
+    }
+}
+
+/// [`png_zlib_parts`] of the rows `rows` makes: each chunk's rows (and the row above it, for
+/// the filter) are asked for once, by the thread that compresses them.
+///
+/// # Panics
+/// If `rows` gives a slice of another length than asked for.
+#[must_use]
+pub fn png_zlib_parts_of(rows: &impl PngRows, row_bytes: usize, height: usize) -> Vec<Vec<u8>> {
     let rows_per_chunk = (CHUNK_BYTES / (row_bytes + 1)).max(1);
     let starts: Vec<usize> = (0..height).step_by(rows_per_chunk).collect();
     let chunks: Vec<(Vec<u8>, u32, usize)> = starts
         .par_iter()
         .map_init(
-            || (Vec::new(), Vec::new()),
-            |(filtered, buf), &y0| {
+            || (rows.state(), Vec::new(), Vec::new()),
+            |(state, filtered, buf), &y0| {
                 let y1 = (y0 + rows_per_chunk).min(height);
-                filter_up(data, row_bytes, y0, y1, filtered);
+                let from = y0.saturating_sub(1);
+                let bytes = rows.rows(state, from, y1);
+                assert_eq!(
+                    bytes.len(),
+                    (y1 - from) * row_bytes,
+                    "rows of the asked size"
+                );
+                filter_up(bytes, row_bytes, y1 - from, y0 > 0, filtered);
                 let mut adler = simd_adler32::Adler32::new();
                 adler.write(filtered);
                 (
@@ -76,19 +118,24 @@ pub fn png_zlib_parts(data: &[u8], row_bytes: usize, height: usize) -> Vec<Vec<u
     parts
 }
 
-/// Rows `y0..y1` Up-filtered into `out`: each row its filter byte, then each byte minus the
-/// byte above (0 above the first row).
-fn filter_up(data: &[u8], row_bytes: usize, y0: usize, y1: usize, out: &mut Vec<u8>) {
+/// The `count` rows of `rows` Up-filtered into `out`: each row its filter byte, then each
+/// byte minus the byte above (0 above the image's first row). If `above`, the first row of
+/// `rows` is only the one above the others (not written).
+fn filter_up(rows: &[u8], row_bytes: usize, count: usize, above: bool, out: &mut Vec<u8>) {
     out.clear();
-    out.reserve((y1 - y0) * (row_bytes + 1));
-    for y in y0..y1 {
-        let row = &data[y * row_bytes..(y + 1) * row_bytes];
+    out.reserve(count * (row_bytes + 1));
+    let row = |i: usize| &rows[i * row_bytes..(i + 1) * row_bytes];
+    for i in usize::from(above)..count {
         out.push(UP);
-        if y == 0 {
-            out.extend_from_slice(row);
+        if i == 0 {
+            out.extend_from_slice(row(i));
         } else {
-            let above = &data[(y - 1) * row_bytes..y * row_bytes];
-            out.extend(row.iter().zip(above).map(|(&a, &b)| a.wrapping_sub(b)));
+            out.extend(
+                row(i)
+                    .iter()
+                    .zip(row(i - 1))
+                    .map(|(&a, &b)| a.wrapping_sub(b)),
+            );
         }
     }
 }

@@ -681,3 +681,28 @@ fn radiance_repeat_marker_chains_are_bounded() {
         }
     }
 }
+
+/// A Radiance file large enough to be read by several threads at once (8 MiB and more)
+/// decodes to the image crate's values.
+#[test]
+fn large_radiance_files_read_in_pieces_as_the_image_crate_reads_them() {
+    let (w, h) = (1700u32, 1400u32);
+    // Noise, so the run-length encoding keeps nearly 4 bytes per pixel (about 9.5 MB).
+    let px: Vec<Rgb<f32>> = (0..w * h)
+        .map(|i| {
+            let k = u64::from(i).wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40;
+            let v = (k % 1000) as f32 * 0.37 + 1e-3;
+            Rgb([v, v * 0.5 + (k % 7) as f32, (k % 13) as f32 * 100.0])
+        })
+        .collect();
+    let mut file = Vec::new();
+    image::codecs::hdr::HdrEncoder::new(&mut file)
+        .encode(&px, w as usize, h as usize)
+        .unwrap();
+    assert!(file.len() > 8 << 20, "{} bytes", file.len());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("big.hdr");
+    std::fs::write(&path, &file).unwrap();
+    let ours = read_hdr_image(&path).unwrap();
+    assert_eq!(ours.as_raw(), image_crate_hdr(&file).as_raw());
+}

@@ -242,7 +242,7 @@ pub fn run(args: Args) -> Result<()> {
         max_bytes: crate::limits::budget().bytes(),
         ..io::Limits::default()
     };
-    let hdr = io::read_hdr_image_with(&args.input, &limits)
+    let source = io::read_hdr_source_with(&args.input, &limits)
         .map_err(|e| match e {
             blueshift_tonemap::Error::Memory {
                 width,
@@ -256,85 +256,35 @@ pub fn run(args: Args) -> Result<()> {
         })
         .with_context(|| "cannot read the input image".to_string())?;
     let read_ms = t0.elapsed().as_secs_f64() * 1e3;
-    // One cleaning pass (dirty-input rule + luminance + range) shared by the dynamic-range
-    // report and the operator.
-    let clean = blueshift_tonemap::CleanImage::from_image(hdr);
-    let report = clean.report;
-    let dr = clean.dynamic_range();
-    let hdr = &clean.image;
     let mut op = operator(&args);
-    if let Operator::Linear(p) = &mut op
-        && p.white.is_none()
-    {
-        p.white = blueshift_tonemap::default_linear_white(hdr);
-    }
-    let mut outputs = Vec::new();
     let t1 = Instant::now();
-    let kind;
-    if args.pseudocolor {
-        kind = "pseudocolor";
-        if ext != "png" {
-            bail!("--pseudocolor writes a PNG: {}", args.out.display());
-        }
-        let pic = blueshift_tonemap::pseudocolour(hdr, &PseudocolourParams::default())?;
-        crate::output::write_via_temp_path(&args.out, |p| Ok(io::write_rgb8_png(p, &pic)?))?;
-        outputs.push(args.out.clone());
-    } else if let Some(n) = args.exposure_series {
-        kind = "exposure-series";
-        let mut series = ExposureSeries::spanning(hdr, n);
-        if let Some(step) = args.stops_step {
-            series.step_stops = step;
-        }
-        let images = blueshift_tonemap::exposure_series(hdr, &series)?;
-        let stem = args.out.with_extension("");
-        for (i, img) in images.iter().enumerate() {
-            let path = PathBuf::from(format!("{}-{i:02}.{ext}", stem.display()));
-            write_display(&path, img, args.depth)?;
-            outputs.push(path);
-        }
-    } else if ext == "png"
-        && args.depth != 16
-        && args.device == blueshift_gpu::DeviceChoice::Cpu
-        && (args.exposure.is_none_or(|s| s == 0.0) || matches!(args.op, Op::Linear | Op::Drago))
+    // A global operator to an 8-bit PNG on the CPU: two passes over the rows, from the
+    // file's own encoding where it is compact, straight to the sRGB codes (the same bytes as
+    // the path below, without the floating-point image and its luminance plane).
+    let streamed = if straight_to_codes(&args, &ext)
+        && !matches!(&op, Operator::Linear(p) if p.white.is_none())
     {
-        // An 8-bit PNG on the CPU: straight to the sRGB codes (the same bytes as the float
-        // display image and `write_display`; global operators skip that image).
-        kind = op.name();
-        let codes = op.apply_clean_srgb8(&clean)?;
-        let (w, h) = hdr.dimensions();
-        let pic = image::RgbImage::from_raw(w, h, codes)
-            .ok_or_else(|| anyhow::anyhow!("the display image does not match its size"))?;
-        crate::output::write_via_temp_path(&args.out, |p| Ok(io::write_rgb8_png(p, &pic)?))?;
-        outputs.push(args.out.clone());
+        op.apply_rows(&source)?
     } else {
-        kind = op.name();
-        let ran = blueshift_gpu::run_with_fallback(
-            args.device,
-            || blueshift_gpu::tonemap::supports(&op),
-            |ctx| blueshift_gpu::tonemap::tonemap(ctx, &op, hdr),
-            || -> Result<_> { Ok(op.apply_clean(&clean)?) },
-        )
-        .map_err(crate::commands::doppler::device_error)?;
-        if let Some(why) = &ran.fallback {
-            eprintln!("--device auto: {why}; tone-mapping on the CPU");
+        None
+    };
+    let (w, h) = source.dimensions();
+    let (kind, outputs, stats) = match streamed {
+        Some(rows) => {
+            crate::output::write_via_temp_path(&args.out, |p| Ok(rows.write_png(p)?))?;
+            (op.name(), vec![args.out.clone()], rows.stats)
         }
-        let mut display = ran.value;
-        // Operators without an exposure of their own (Reinhard, Reinhard local, Durand,
-        // Fattal normalise their input's scale away): the stops scale the display, brought
-        // back into the display gamut keeping hue and luminance.
-        if let Some(stops) = args.exposure.filter(|s| *s != 0.0)
-            && !matches!(args.op, Op::Linear | Op::Drago)
-        {
-            let gain = 2f32.powf(stops);
-            for p in display.pixels_mut() {
-                p.0 = blueshift_tonemap::plane::fit_to_display(p.0.map(|c| c * gain));
-            }
+        None => {
+            // One cleaning pass (dirty-input rule + luminance + range) shared by the
+            // dynamic-range report and the operator.
+            let clean = blueshift_tonemap::CleanImage::from_image(source.into_image());
+            let (kind, outputs) = tonemap_clean(&args, &ext, &mut op, &clean)?;
+            (kind, outputs, clean.stats())
         }
-        write_display(&args.out, &display, args.depth)?;
-        outputs.push(args.out.clone());
-    }
+    };
     let op_ms = t1.elapsed().as_secs_f64() * 1e3;
-    let (w, h) = hdr.dimensions();
+    let report = stats.report;
+    let dr = stats.dynamic_range();
     if args.json {
         let summary = serde_json::json!({
             "input": args.input,
@@ -368,4 +318,97 @@ pub fn run(args: Args) -> Result<()> {
         crate::output::wrote(o);
     }
     Ok(())
+}
+
+/// Whether the output is an 8-bit PNG made on the CPU whose exposure the operator applies
+/// itself: the display codes can be made without the floating-point display image.
+fn straight_to_codes(args: &Args, ext: &str) -> bool {
+    !args.pseudocolor
+        && args.exposure_series.is_none()
+        && ext == "png"
+        && args.depth != 16
+        && args.device == blueshift_gpu::DeviceChoice::Cpu
+        && (args.exposure.is_none_or(|s| s == 0.0) || matches!(args.op, Op::Linear | Op::Drago))
+}
+
+/// Writes 8-bit sRGB codes (row-major RGB) as a PNG.
+fn write_codes_png(path: &Path, w: u32, h: u32, codes: Vec<u8>) -> Result<()> {
+    let pic = image::RgbImage::from_raw(w, h, codes)
+        .ok_or_else(|| anyhow::anyhow!("the display image does not match its size"))?;
+    crate::output::write_via_temp_path(path, |p| Ok(io::write_rgb8_png(p, &pic)?))
+}
+
+/// Tone-maps a cleaned image into the outputs `args` names: the kind of output and the
+/// files written.
+fn tonemap_clean(
+    args: &Args,
+    ext: &str,
+    op: &mut Operator,
+    clean: &blueshift_tonemap::CleanImage,
+) -> Result<(&'static str, Vec<PathBuf>)> {
+    let hdr = &clean.image;
+    if let Operator::Linear(p) = op
+        && p.white.is_none()
+    {
+        p.white = blueshift_tonemap::default_linear_white(hdr);
+    }
+    let mut outputs = Vec::new();
+    let kind;
+    if args.pseudocolor {
+        kind = "pseudocolor";
+        if ext != "png" {
+            bail!("--pseudocolor writes a PNG: {}", args.out.display());
+        }
+        let pic = blueshift_tonemap::pseudocolour(hdr, &PseudocolourParams::default())?;
+        crate::output::write_via_temp_path(&args.out, |p| Ok(io::write_rgb8_png(p, &pic)?))?;
+        outputs.push(args.out.clone());
+    } else if let Some(n) = args.exposure_series {
+        kind = "exposure-series";
+        let mut series = ExposureSeries::spanning(hdr, n);
+        if let Some(step) = args.stops_step {
+            series.step_stops = step;
+        }
+        let images = blueshift_tonemap::exposure_series(hdr, &series)?;
+        let stem = args.out.with_extension("");
+        for (i, img) in images.iter().enumerate() {
+            let path = PathBuf::from(format!("{}-{i:02}.{ext}", stem.display()));
+            write_display(&path, img, args.depth)?;
+            outputs.push(path);
+        }
+    } else if straight_to_codes(args, ext) {
+        // An 8-bit PNG on the CPU: straight to the sRGB codes (the same bytes as the float
+        // display image and `write_display`; global operators skip that image).
+        kind = op.name();
+        let codes = op.apply_clean_srgb8(clean)?;
+        let (w, h) = hdr.dimensions();
+        write_codes_png(&args.out, w, h, codes)?;
+        outputs.push(args.out.clone());
+    } else {
+        kind = op.name();
+        let ran = blueshift_gpu::run_with_fallback(
+            args.device,
+            || blueshift_gpu::tonemap::supports(op),
+            |ctx| blueshift_gpu::tonemap::tonemap(ctx, op, hdr),
+            || -> Result<_> { Ok(op.apply_clean(clean)?) },
+        )
+        .map_err(crate::commands::doppler::device_error)?;
+        if let Some(why) = &ran.fallback {
+            eprintln!("--device auto: {why}; tone-mapping on the CPU");
+        }
+        let mut display = ran.value;
+        // Operators without an exposure of their own (Reinhard, Reinhard local, Durand,
+        // Fattal normalise their input's scale away): the stops scale the display, brought
+        // back into the display gamut keeping hue and luminance.
+        if let Some(stops) = args.exposure.filter(|s| *s != 0.0)
+            && !matches!(args.op, Op::Linear | Op::Drago)
+        {
+            let gain = 2f32.powf(stops);
+            for p in display.pixels_mut() {
+                p.0 = blueshift_tonemap::plane::fit_to_display(p.0.map(|c| c * gain));
+            }
+        }
+        write_display(&args.out, &display, args.depth)?;
+        outputs.push(args.out.clone());
+    }
+    Ok((kind, outputs))
 }

@@ -4,7 +4,6 @@ use image::Rgb32FImage;
 
 use crate::error::{Error, Result};
 use crate::ops::check_finite;
-use crate::sanitize::CleanImage;
 
 /// Linear mapping: `display = hdr * 2^exposure_stops / white`, per colour channel.
 ///
@@ -43,10 +42,10 @@ impl LinearParams {
     }
 
     /// The resolved scale factor `2^stops / white` for a prepared image.
-    pub(crate) fn scale(&self, p: &CleanImage) -> f32 {
+    pub(crate) fn scale(&self, positive_range: Option<(f32, f32)>) -> f32 {
         let white = self
             .white
-            .or_else(|| p.positive_range.map(|(_, hi)| hi))
+            .or_else(|| positive_range.map(|(_, hi)| hi))
             .unwrap_or(1.0);
         self.exposure_stops.exp2() / white
     }

@@ -10,8 +10,9 @@ use image::Rgb32FImage;
 
 use crate::error::{Error, Result};
 use crate::inverse::GlobalCurve;
+use crate::io::HdrSource;
 use crate::plane::{log_average, recolour_in_gamut};
-use crate::sanitize::CleanImage;
+use crate::sanitize::{CleanImage, CleanStats};
 
 pub use drago::{DragoParams, Roi};
 pub use durand::DurandParams;
@@ -208,6 +209,54 @@ impl Operator {
         Ok(crate::io::display_to_srgb8(&self.apply_clean(clean)?))
     }
 
+    /// A global operator (linear, Drago, Reinhard) over the rows of `src`, without its
+    /// floating-point image or luminance plane: this first pass over the rows finds the
+    /// cleaning's statistics ([`CleanImage::stats`]) and the curve; the second, by
+    /// [`RowsToneMap::srgb8`] or [`RowsToneMap::write_png`], makes the display codes of
+    /// [`Operator::apply_clean_srgb8`] (the same bytes). For a compact source (a run-length
+    /// encoded Radiance file) the memory is the file's bytes.
+    ///
+    /// `Ok(None)`, having read the rows once, for the local operators, for an image with
+    /// infinite values (replacing them needs the whole image's finite maximum first) and
+    /// for one without a lit pixel: decode the image ([`HdrSource::into_image`]) and use
+    /// [`Operator::apply_clean_srgb8`].
+    ///
+    /// # Errors
+    /// As [`Operator::apply_clean`].
+    pub fn apply_rows<'a>(&self, src: &'a HdrSource) -> Result<Option<RowsToneMap<'a>>> {
+        self.validate()?;
+        let (w, h) = src.dimensions();
+        if w == 0 || h == 0 {
+            return Err(Error::EmptyImage);
+        }
+        if !self.is_global() {
+            return Ok(None);
+        }
+        let needs_log = !matches!(self, Operator::Linear(_));
+        let Some((stats, lavg)) =
+            crate::rows::clean_stats(src, self.log_average_circle(), needs_log)
+        else {
+            return Ok(None);
+        };
+        if stats.positive_range.is_none() {
+            return Ok(None);
+        }
+        let curve = self.curve_from(stats.positive_range, || lavg)?;
+        Ok(Some(RowsToneMap {
+            src,
+            codes: curve.row_codes(),
+            stats,
+        }))
+    }
+
+    /// [`Operator::apply_rows`] then [`RowsToneMap::srgb8`], with the statistics.
+    ///
+    /// # Errors
+    /// As [`Operator::apply_rows`].
+    pub fn apply_rows_srgb8(&self, src: &HdrSource) -> Result<Option<(Vec<u8>, CleanStats)>> {
+        Ok(self.apply_rows(src)?.map(|t| (t.srgb8(), t.stats)))
+    }
+
     /// The resolved global curve of this operator for `img`: the operator's parameters plus
     /// the image statistics it depends on (adaptation and maximum luminance). It maps and
     /// inverts display values (HDR VolVis Sec. 4, last paragraph).
@@ -223,23 +272,41 @@ impl Operator {
     }
 
     fn curve_of(&self, p: &CleanImage) -> Result<GlobalCurve> {
-        let max = p.positive_range.map_or(1.0, |(_, hi)| hi);
-        // Only the operators that use it pay for the log-average pass.
-        let lavg = || log_average(&p.luminance, None).unwrap_or(1.0);
+        self.curve_from(p.positive_range, || {
+            log_average(&p.luminance, self.log_average_circle())
+        })
+    }
+
+    /// The circle (centre and radius in pixels) over which the operator's log-average
+    /// luminance is taken (`None`: the whole image).
+    fn log_average_circle(&self) -> Option<(f32, f32, f32)> {
+        match self {
+            Operator::Drago(params) => params.roi.map(|r| (r.x_px, r.y_px, r.radius_px)),
+            _ => None,
+        }
+    }
+
+    /// The global curve from the image's positive luminance range and its log-average
+    /// luminance over [`Operator::log_average_circle`] (computed only for the operators
+    /// that use it; `None` where no pixel there is lit).
+    fn curve_from(
+        &self,
+        positive_range: Option<(f32, f32)>,
+        log_average: impl FnOnce() -> Option<f64>,
+    ) -> Result<GlobalCurve> {
+        let max = positive_range.map_or(1.0, |(_, hi)| hi);
         match self {
             Operator::Linear(params) => Ok(GlobalCurve::Linear {
-                scale: f64::from(params.scale(p)),
+                scale: f64::from(params.scale(positive_range)),
             }),
             Operator::Drago(params) => {
-                let circle = params.roi.map(|r| (r.x_px, r.y_px, r.radius_px));
-                let lwa = match circle {
-                    Some(c) => log_average(&p.luminance, Some(c)).ok_or_else(|| {
+                let lwa = match params.roi {
+                    Some(roi) => log_average().ok_or_else(|| {
                         Error::parameter(format!(
-                            "the region of interest {:?} contains no lit pixel",
-                            params.roi.expect("some")
+                            "the region of interest {roi:?} contains no lit pixel"
                         ))
                     })?,
-                    None => lavg(),
+                    None => log_average().unwrap_or(1.0),
                 };
                 let adaptation = lwa / f64::from(params.exposure_stops).exp2();
                 Ok(GlobalCurve::Drago {
@@ -251,7 +318,7 @@ impl Operator {
                 })
             }
             Operator::Reinhard(params) => {
-                let scale = f64::from(params.key) / lavg();
+                let scale = f64::from(params.key) / log_average().unwrap_or(1.0);
                 let white = params.white.map_or(f64::from(max) * scale, f64::from);
                 Ok(GlobalCurve::Reinhard {
                     scale,
@@ -265,5 +332,40 @@ impl Operator {
                 self.name()
             ))),
         }
+    }
+}
+
+/// A global operator resolved for the rows of an [`HdrSource`] ([`Operator::apply_rows`]).
+pub struct RowsToneMap<'a> {
+    src: &'a HdrSource,
+    codes: crate::rows::RowCodes,
+    /// The cleaning's statistics (those of [`CleanImage::stats`]).
+    pub stats: CleanStats,
+}
+
+impl std::fmt::Debug for RowsToneMap<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RowsToneMap")
+            .field("src", &self.src.dimensions())
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RowsToneMap<'_> {
+    /// The 8-bit sRGB codes (row-major RGB), rows in parallel.
+    #[must_use]
+    pub fn srgb8(&self) -> Vec<u8> {
+        crate::rows::codes(self.src, &self.codes)
+    }
+
+    /// Writes the codes as an 8-bit PNG (the bytes of [`crate::io::write_rgb8_png`] of
+    /// [`RowsToneMap::srgb8`]), each part of the file's stream compressed by the thread that
+    /// made its rows, without the whole image of codes.
+    ///
+    /// # Errors
+    /// As [`crate::io::write_rgb8_png`].
+    pub fn write_png(&self, path: &std::path::Path) -> Result<()> {
+        crate::rows::write_png(self.src, &self.codes, path)
     }
 }

@@ -1,0 +1,171 @@
+//! Global tone mapping over the rows of an [`HdrSource`], without its floating-point image:
+//! a first pass for the statistics the curve needs, a second from the rows again to the
+//! display codes. Each row goes through the same steps as the whole-image path
+//! ([`crate::CleanImage::from_image`], [`crate::plane::log_average`],
+//! [`crate::plane::recolour_with_srgb8`]), so the codes are the same bytes.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::io::HdrSource;
+use crate::plane::{log_average_of_rows, log_sum_row, recolour_row_of};
+use crate::sanitize::{
+    CleanStats, SanitizeReport, clean_row, fill_luminance, merge_luminance_rows, merge_rows,
+};
+
+/// One thread's buffers for one row.
+pub(crate) struct RowBuffers {
+    scratch: Vec<u8>,
+    rgb: Vec<f32>,
+    lum: Vec<f32>,
+    /// Logarithms (first pass) or output luminances (second pass).
+    work: Vec<f32>,
+}
+
+impl RowBuffers {
+    fn new(w: usize) -> Self {
+        Self {
+            scratch: Vec::new(),
+            rgb: vec![0.0; 3 * w],
+            lum: vec![0.0; w],
+            work: vec![0.0; w],
+        }
+    }
+
+    /// Row `y` of `src`, cleaned, with its luminance: the row's report, largest finite
+    /// value per channel and luminance statistics.
+    fn clean(
+        &mut self,
+        src: &HdrSource,
+        y: usize,
+    ) -> ((SanitizeReport, [f32; 3]), (f32, f32, u64)) {
+        src.decode_row(y, &mut self.scratch, &mut self.rgb);
+        // RGBE values are finite and not negative: the rule has nothing to do.
+        let cleaned = if src.is_compact() {
+            (SanitizeReport::default(), [0.0; 3])
+        } else {
+            clean_row(&mut self.rgb)
+        };
+        (cleaned, fill_luminance(&self.rgb, &mut self.lum))
+    }
+}
+
+/// The first pass: the cleaning's statistics and, if `log_average`, the log-average
+/// luminance over `circle`. `None` when the image has infinite values (their replacement
+/// changes the luminances this pass saw).
+pub(crate) fn clean_stats(
+    src: &HdrSource,
+    circle: Option<(f32, f32, f32)>,
+    log_average: bool,
+) -> Option<(CleanStats, Option<f64>)> {
+    let (w, h) = src.dimensions();
+    let w = w as usize;
+    let rows: Vec<_> = (0..h as usize)
+        .into_par_iter()
+        .map_init(
+            || RowBuffers::new(w),
+            |b, y| {
+                let (cleaned, lum) = b.clean(src, y);
+                let logs = if log_average {
+                    log_sum_row(&b.lum, y, circle, &mut b.work)
+                } else {
+                    (0.0, 0)
+                };
+                (cleaned, lum, logs)
+            },
+        )
+        .collect();
+    let cleaned: Vec<_> = rows.iter().map(|r| r.0).collect();
+    let (report, _) = merge_rows(&cleaned);
+    if report.positive_infinite > 0 {
+        return None;
+    }
+    let (positive_range, zero_pixels) = merge_luminance_rows(rows.iter().map(|r| r.1));
+    let lavg = if log_average {
+        let logs: Vec<_> = rows.iter().map(|r| r.2).collect();
+        log_average_of_rows(&logs)
+    } else {
+        None
+    };
+    let stats = CleanStats {
+        report,
+        positive_range,
+        zero_pixels,
+    };
+    Some((stats, lavg))
+}
+
+/// How the second pass makes a row's display codes from the thread's buffers (the row
+/// cleaned, with its luminance), the row's index and a display row buffer.
+pub(crate) type RowCodes = Box<dyn Fn(&mut RowBuffers, usize, &mut [f32], &mut [u8]) + Sync>;
+
+/// The second pass of a luminance curve ([`crate::plane::recolour_with_srgb8`] row by row).
+pub(crate) fn recolour_codes(
+    saturation: f32,
+    curve: impl Fn(f32) -> f32 + Sync + 'static,
+) -> RowCodes {
+    let curve = crate::plane::curve_rows(curve);
+    Box::new(move |b, y, orow, codes| {
+        let w = b.lum.len();
+        recolour_row_of(&b.rgb, &b.lum, y * w, saturation, &curve, &mut b.work, orow);
+        crate::io::srgb8_row(orow, codes);
+    })
+}
+
+/// The second pass of the linear operator (each channel times `scale`).
+pub(crate) fn scale_codes(scale: f32) -> RowCodes {
+    Box::new(move |b, _, orow, codes| {
+        for (o, v) in orow.iter_mut().zip(&b.rgb) {
+            *o = v * scale;
+        }
+        crate::io::srgb8_row(orow, codes);
+    })
+}
+
+/// Every row of `src` cleaned into a thread's buffers, then its codes, rows in parallel.
+pub(crate) fn codes(src: &HdrSource, codes_of: &RowCodes) -> Vec<u8> {
+    let (w, h) = src.dimensions();
+    let w = w as usize;
+    let mut out = vec![0u8; 3 * w * h as usize];
+    out.par_chunks_mut(3 * w).enumerate().for_each_init(
+        || (RowBuffers::new(w), vec![0.0f32; 3 * w]),
+        |(b, orow), (y, codes)| {
+            b.clean(src, y);
+            codes_of(b, y, orow, codes);
+        },
+    );
+    out
+}
+
+/// The codes of rows of a source as a PNG compressor asks for them.
+struct PngCodeRows<'a> {
+    src: &'a HdrSource,
+    codes_of: &'a RowCodes,
+}
+
+impl crate::zlib::PngRows for PngCodeRows<'_> {
+    type State = (RowBuffers, Vec<f32>, Vec<u8>);
+    fn state(&self) -> Self::State {
+        let w = self.src.dimensions().0 as usize;
+        (RowBuffers::new(w), vec![0.0; 3 * w], Vec::new())
+    }
+    fn rows<'s>(&'s self, state: &'s mut Self::State, from: usize, to: usize) -> &'s [u8] {
+        let (b, orow, codes) = state;
+        let n = orow.len();
+        codes.resize((to - from) * n, 0);
+        for (y, row) in (from..to).zip(codes.chunks_exact_mut(n)) {
+            b.clean(self.src, y);
+            (self.codes_of)(b, y, orow, row);
+        }
+        codes
+    }
+}
+
+/// The codes of every row of `src` written as an 8-bit PNG, each part of the file's stream
+/// compressed by the thread that made its rows.
+pub(crate) fn write_png(src: &HdrSource, codes_of: &RowCodes, path: &Path) -> Result<()> {
+    let (w, h) = src.dimensions();
+    crate::io::write_rgb8_png_rows(path, w, h, &PngCodeRows { src, codes_of })
+}
