@@ -705,6 +705,20 @@ impl HdrSource {
         }
     }
 
+    /// Row `y`'s luminance ([`crate::luminance`] of [`HdrSource::decode_row`]'s values,
+    /// bit for bit) into `out` (`width` values), for a compact source; `false` (nothing
+    /// written) for a decoded image, whose values must be cleaned first.
+    pub(crate) fn luminance_row(&self, y: usize, scratch: &mut Vec<u8>, out: &mut [f32]) -> bool {
+        match &self.inner {
+            Source::Rgbe { data, starts } => {
+                scratch.resize(4 * self.width as usize, 0);
+                rgbe_luminance_row(data, starts[y], scratch, out);
+                true
+            }
+            Source::Image(_) => false,
+        }
+    }
+
     /// The decoded image (rows in parallel for a compact source).
     #[must_use]
     pub fn into_image(self) -> Rgb32FImage {
@@ -947,12 +961,26 @@ fn rle_row_starts(data: &[u8], w: u32, h: u32) -> Option<Vec<usize>> {
     Some(starts)
 }
 
-/// One run-length encoded scan line starting at `at` (checked by [`rle_row_starts`]) into
-/// `row` (RGB), as the image crate's `to_hdr` gives it: `c * 2^(e - 136)`, `e = 0` black.
-/// `planes` holds the four components of one line.
-fn decode_rgbe_row(data: &[u8], at: usize, planes: &mut [u8], row: &mut [f32]) {
+/// The scale of each RGBE exponent as the image crate's `to_hdr` applies it:
+/// `2^(e - 136)` (`2^(e - 128)` per unit of a mantissa byte over 256), `e = 0` black.
+const RGBE_SCALE: [f32; 256] = {
+    let mut t = [0.0f32; 256];
+    let mut e = 1;
+    while e < 256 {
+        t[e] = f32::from_bits(if e > 1 {
+            ((e - 1) as u32) << 23
+        } else {
+            (e as u32) << 22
+        }) * 0.003_906_25;
+        e += 1;
+    }
+    t
+};
+
+/// The run-length encoded scan line starting at `at` (checked by [`rle_row_starts`]) into
+/// `planes`, which holds its four components (R, G, B, E) one after the other.
+fn expand_rgbe_row(data: &[u8], at: usize, planes: &mut [u8]) {
     let wu = planes.len() / 4;
-    // The four components one after the other.
     let mut pos = at;
     for plane in planes.chunks_exact_mut(wu) {
         let mut x = 0usize;
@@ -971,18 +999,52 @@ fn decode_rgbe_row(data: &[u8], at: usize, planes: &mut [u8], row: &mut [f32]) {
             }
         }
     }
-    let (rgb, e) = planes.split_at(3 * wu);
-    for (i, (px, &e)) in row.chunks_exact_mut(3).zip(e).enumerate() {
-        let scale = f32::from_bits(if e > 1 {
-            u32::from(e - 1) << 23
-        } else {
-            u32::from(e) << 22
-        }) * 0.003_906_25;
-        px[0] = scale * f32::from(rgb[i]);
-        px[1] = scale * f32::from(rgb[wu + i]);
-        px[2] = scale * f32::from(rgb[2 * wu + i]);
+}
+
+/// The four components of an expanded scan line.
+fn rgbe_planes(planes: &[u8]) -> [&[u8]; 4] {
+    let wu = planes.len() / 4;
+    std::array::from_fn(|i| &planes[i * wu..(i + 1) * wu])
+}
+
+/// One run-length encoded scan line starting at `at` (checked by [`rle_row_starts`]) into
+/// `row` (RGB), as the image crate's `to_hdr` gives it: `c * 2^(e - 136)`, `e = 0` black.
+/// `planes` holds the four components of one line.
+fn decode_rgbe_row(data: &[u8], at: usize, planes: &mut [u8], row: &mut [f32]) {
+    expand_rgbe_row(data, at, planes);
+    let [r, g, b, e] = rgbe_planes(planes);
+    for ((((px, &r), &g), &b), &e) in row.chunks_exact_mut(3).zip(r).zip(g).zip(b).zip(e) {
+        let scale = RGBE_SCALE[usize::from(e)];
+        px[0] = scale * f32::from(r);
+        px[1] = scale * f32::from(g);
+        px[2] = scale * f32::from(b);
     }
 }
+
+/// The luminance ([`crate::luminance`]) of each pixel of the run-length encoded scan line
+/// at `at` into `out`, bit for bit that of [`decode_rgbe_row`]'s values, without them: for
+/// exponents from [`RGBE_DIRECT_EXPONENT`] on, the weighted sum of the mantissa bytes times
+/// the exponent's scale (a power of two, which commutes with every rounding of the sum while
+/// the values stay normal); below it, from the decoded values.
+fn rgbe_luminance_row(data: &[u8], at: usize, planes: &mut [u8], out: &mut [f32]) {
+    expand_rgbe_row(data, at, planes);
+    let [r, g, b, e] = rgbe_planes(planes);
+    let [wr, wg, wb] = crate::LUMINANCE_WEIGHTS;
+    for ((((o, &r), &g), &b), &e) in out.iter_mut().zip(r).zip(g).zip(b).zip(e) {
+        let scale = RGBE_SCALE[usize::from(e)];
+        let (r, g, b) = (f32::from(r), f32::from(g), f32::from(b));
+        *o = if e >= RGBE_DIRECT_EXPONENT {
+            (wr * r + wg * g + wb * b) * scale
+        } else {
+            crate::luminance([scale * r, scale * g, scale * b])
+        };
+    }
+}
+
+/// The smallest exponent whose luminance [`rgbe_luminance_row`] computes from the mantissa
+/// bytes: each weighted byte (at least `0.0722`) times `2^(e - 136)` is then a normal
+/// `f32` (at least 2^-126), and the largest (`255 * 2^119`) is finite.
+const RGBE_DIRECT_EXPONENT: u8 = 14;
 
 /// Reads a PFM file (`PF` colour or `Pf` grey, either byte order, bottom row first).
 ///
@@ -2087,5 +2149,40 @@ mod tests {
         let theirs = image::DynamicImage::from_decoder(d).unwrap().into_rgb32f();
         assert_eq!(ours.as_raw(), theirs.as_raw());
         assert_eq!(&by_rows, theirs.as_raw());
+    }
+
+    /// The luminance straight from the RGBE bytes is that of the decoded values, bit for
+    /// bit, for every exponent (both sides of the direct formula's threshold, the subnormal
+    /// scales included) and mantissas across their range.
+    #[test]
+    fn rgbe_luminance_is_that_of_the_decoded_values() {
+        let mantissas: Vec<u8> = (0..=255u8).step_by(3).chain([1, 2, 127, 128, 254]).collect();
+        for e in 0..=255u8 {
+            let mut px = Vec::new();
+            for &r in &mantissas {
+                for &g in &mantissas {
+                    px.push([r, g, mantissas[(usize::from(r) + 3 * usize::from(g)) % 91]]);
+                }
+            }
+            let w = px.len();
+            // One scan line: each component as literal runs of at most 128 bytes.
+            let mut line = Vec::new();
+            for c in 0..4 {
+                let plane: Vec<u8> = px.iter().map(|p| if c < 3 { p[c] } else { e }).collect();
+                for run in plane.chunks(128) {
+                    line.push(run.len() as u8);
+                    line.extend_from_slice(run);
+                }
+            }
+            let mut planes = vec![0u8; 4 * w];
+            let mut rgb = vec![0.0f32; 3 * w];
+            decode_rgbe_row(&line, 0, &mut planes, &mut rgb);
+            let mut lum = vec![0.0f32; w];
+            rgbe_luminance_row(&line, 0, &mut planes, &mut lum);
+            for (i, (l, p)) in lum.iter().zip(rgb.chunks_exact(3)).enumerate() {
+                let want = crate::luminance([p[0], p[1], p[2]]);
+                assert_eq!(l.to_bits(), want.to_bits(), "e {e}, pixel {:?}", px[i]);
+            }
+        }
     }
 }

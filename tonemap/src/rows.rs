@@ -12,7 +12,8 @@ use crate::error::Result;
 use crate::io::HdrSource;
 use crate::plane::{log_average_of_rows, log_sum_row, recolour_row_of};
 use crate::sanitize::{
-    CleanStats, SanitizeReport, clean_row, fill_luminance, merge_luminance_rows, merge_rows,
+    CleanStats, SanitizeReport, clean_row, fill_luminance, luminance_row_stats,
+    merge_luminance_rows, merge_rows,
 };
 
 /// One thread's buffers for one row.
@@ -32,6 +33,20 @@ impl RowBuffers {
             lum: vec![0.0; w],
             work: vec![0.0; w],
         }
+    }
+
+    /// Row `y`'s luminance only, where the source gives it without its values (a compact
+    /// source, whose values need no cleaning), else as [`RowBuffers::clean`].
+    fn luminance(
+        &mut self,
+        src: &HdrSource,
+        y: usize,
+    ) -> ((SanitizeReport, [f32; 3]), (f32, f32, u64)) {
+        if src.luminance_row(y, &mut self.scratch, &mut self.lum) {
+            let clean = (SanitizeReport::default(), [0.0; 3]);
+            return (clean, luminance_row_stats(&self.lum));
+        }
+        self.clean(src, y)
     }
 
     /// Row `y` of `src`, cleaned, with its luminance: the row's report, largest finite
@@ -67,7 +82,7 @@ pub(crate) fn clean_stats(
         .map_init(
             || RowBuffers::new(w),
             |b, y| {
-                let (cleaned, lum) = b.clean(src, y);
+                let (cleaned, lum) = b.luminance(src, y);
                 let logs = if log_average {
                     log_sum_row(&b.lum, y, circle, &mut b.work)
                 } else {

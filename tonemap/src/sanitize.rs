@@ -252,10 +252,17 @@ impl CleanStats {
 /// Fills `out` with the luminance of `rgb_row` and returns its smallest positive value
 /// (infinite if none), its largest value (from 0) and how many are not positive.
 pub(crate) fn fill_luminance(rgb_row: &[f32], out: &mut [f32]) -> (f32, f32, u64) {
-    let (mut lo, mut hi, mut zeros) = (f32::INFINITY, 0.0f32, 0u64);
     for (o, px) in out.iter_mut().zip(rgb_row.chunks_exact(3)) {
-        let v = crate::plane::luminance([px[0], px[1], px[2]]);
-        *o = v;
+        *o = crate::plane::luminance([px[0], px[1], px[2]]);
+    }
+    luminance_row_stats(out)
+}
+
+/// The smallest positive value of a row of luminances (infinite if none), its largest
+/// value (from 0) and how many are not positive.
+pub(crate) fn luminance_row_stats(lum: &[f32]) -> (f32, f32, u64) {
+    let (mut lo, mut hi, mut zeros) = (f32::INFINITY, 0.0f32, 0u64);
+    for &v in lum {
         lo = if v > 0.0 && v < lo { v } else { lo };
         hi = if v > hi { v } else { hi };
         zeros += u64::from(v <= 0.0);
