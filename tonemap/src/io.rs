@@ -170,6 +170,13 @@ fn exr_error(e: exr::error::Error, path: &Path) -> Error {
 /// As [`read_hdr_image_with`]; [`Error::Unsupported`] for deep data or files without
 /// R, G, B or Y channels.
 pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
+    Ok(read_exr_source(path, limits)?.into_image())
+}
+
+/// [`read_exr`] as an [`HdrSource`]: a single-part flat image with R, G, B (or Y) channels
+/// keeps its blocks' decompressed samples (half floats stay half: half the memory of the
+/// `f32` image), every other file is decoded by the exr crate's image reader.
+fn read_exr_source(path: &Path, limits: &Limits) -> Result<HdrSource> {
     use exr::prelude::{FlatSamples, ReadChannels, ReadLayers, read};
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(e, path))?;
     let file_len = std::fs::metadata(path)
@@ -182,8 +189,12 @@ pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
         limits.check_decode(size.width() as u64, size.height() as u64, samples)?;
         exr_fits_in_file(header, file_len, path)?;
     }
-    if let Some(img) = read_exr_blocks(path)? {
-        return Ok(img);
+    if let Some(bands) = read_exr_blocks(path)? {
+        return Ok(HdrSource {
+            width: bands.layout.w as u32,
+            height: bands.h as u32,
+            inner: Source::Exr(bands),
+        });
     }
     // The other layouts, and files the block reader found irregular: the exr crate's image
     // reader on this thread, so that a panic of its decompressors on damaged data (which on
@@ -259,6 +270,7 @@ pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
         });
     }
     Rgb32FImage::from_raw(w as u32, h as u32, data)
+        .map(HdrSource::from_image)
         .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))
 }
 
@@ -336,7 +348,7 @@ fn exr_fits_in_file(header: &exr::meta::header::Header, file_len: u64, path: &Pa
 /// `Ok(None)` for every other layout (several parts, deep data, sub-sampled channels, no
 /// R, G, B or Y, blocks missing or repeated), left to the exr crate's image reader and its
 /// messages. Damaged blocks are errors.
-fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
+fn read_exr_blocks(path: &Path) -> Result<Option<ExrBands>> {
     use exr::block::chunk::{Chunk, CompressedBlock};
     use exr::meta::BlockDescription;
     let file = File::open(path).map_err(|e| Error::io("cannot read", path, e))?;
@@ -378,15 +390,14 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
         types: list.iter().map(|c| c.sample_type).collect(),
         piz: header.compression == exr::compression::Compression::PIZ,
     };
-    // Each band is decoded into its rows as soon as its blocks are read: the reading
-    // overlaps the decoding. A block missing or given twice leaves the file to the exr
-    // crate.
-    let mut data = vec![0.0f32; 3 * w * h];
-    let mut slots: Vec<Option<&mut [f32]>> = data.chunks_mut(3 * w * band).map(Some).collect();
+    // Each band's blocks are decompressed as soon as they are read: the reading overlaps
+    // the decompression. A block missing or given twice leaves the file to the exr crate.
+    let bands = h.div_ceil(band);
+    let mut done: Vec<Vec<ExrBlock>> = (0..bands).map(|_| Vec::new()).collect();
+    let mut slots: Vec<Option<&mut Vec<ExrBlock>>> = done.iter_mut().map(Some).collect();
     // Each band's blocks read so far: (chunk number in the file, column, chunk).
-    let mut pending: Vec<Vec<(usize, usize, Chunk)>> =
-        (0..slots.len()).map(|_| Vec::new()).collect();
-    let mut open = slots.len();
+    let mut pending: Vec<Vec<(usize, usize, Chunk)>> = (0..bands).map(|_| Vec::new()).collect();
+    let mut open = bands;
     // The error of the first chunk in file order that failed (whichever thread saw it
     // first), so that a damaged file always gives the same message.
     let failed: std::sync::Mutex<Option<(usize, Error)>> = std::sync::Mutex::new(None);
@@ -437,18 +448,21 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
             if blocks.len() < across {
                 continue;
             }
-            let Some(rows) = slots[at].take() else {
+            let Some(out) = slots[at].take() else {
                 irregular = true;
                 return;
             };
-            let blocks = std::mem::take(blocks);
+            let mut blocks = std::mem::take(blocks);
+            let lines = band.min(h - at * band);
             let (layout, meta, fail) = (&layout, &meta, &fail);
             scope.spawn(move |_| {
+                blocks.sort_by_key(|b| b.1);
                 for (i, column, chunk) in blocks {
                     let x0 = column * tile_w;
                     let cols = tile_w.min(w - x0);
-                    if let Err(e) = layout.decode(meta, chunk, rows, x0, cols, path) {
-                        return fail(i, e);
+                    match layout.decompress(meta, chunk, x0, cols, lines, path) {
+                        Ok(b) => out.push(b),
+                        Err(e) => return fail(i, e),
                     }
                 }
             });
@@ -469,13 +483,64 @@ fn read_exr_blocks(path: &Path) -> Result<Option<Rgb32FImage>> {
     if irregular || slots.iter().any(Option::is_some) {
         return Ok(None);
     }
-    Ok(Some(
-        Rgb32FImage::from_raw(w as u32, h as u32, data)
-            .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))?,
-    ))
+    if u32::try_from(w).is_err() || u32::try_from(h).is_err() {
+        return Err(Error::invalid("OpenEXR", "image size overflows", path));
+    }
+    Ok(Some(ExrBands {
+        layout,
+        band,
+        h,
+        bands: done,
+    }))
+}
+
+/// The decompressed blocks of an OpenEXR image ([`read_exr_blocks`]), band by band.
+#[derive(Debug)]
+struct ExrBands {
+    layout: Layout,
+    /// Lines per band (the last may have fewer).
+    band: usize,
+    /// Image height.
+    h: usize,
+    /// Each band's blocks, from left to right.
+    bands: Vec<Vec<ExrBlock>>,
+}
+
+impl ExrBands {
+    /// Row `y` into `row` (RGB, the whole width).
+    fn row(&self, y: usize, planes: &mut [Vec<f32>; 3], row: &mut [f32]) {
+        for b in &self.bands[y / self.band] {
+            self.layout.line(b, y % self.band, planes, row);
+        }
+    }
+}
+
+/// One decompressed block: the columns `x0..x0 + cols` of `lines` lines.
+#[derive(Debug)]
+struct ExrBlock {
+    x0: usize,
+    cols: usize,
+    lines: usize,
+    samples: BlockSamples,
+}
+
+/// A block's samples as decompressed.
+#[derive(Debug)]
+enum BlockSamples {
+    /// Line after line, each channel's native-endian samples one after the other.
+    Lines(Vec<u8>),
+    /// The PIZ decoder's planes of indices into its values; half values already as f32
+    /// (with 0 for indices past them, which only damaged data has); where each channel's
+    /// plane starts.
+    Piz {
+        d: crate::piz::Decoded,
+        halves: Vec<f32>,
+        first: Vec<usize>,
+    },
 }
 
 /// What [`read_exr_blocks`] needs to decode a block.
+#[derive(Debug)]
 struct Layout {
     /// Image width.
     w: usize,
@@ -488,31 +553,26 @@ struct Layout {
 }
 
 impl Layout {
-    /// Decodes `chunk`, the block of columns `x0..x0 + cols` of the band `rows`.
-    fn decode(
+    /// Decompresses `chunk`, the block of columns `x0..x0 + cols` of a band of `lines`.
+    fn decompress(
         &self,
         meta: &exr::meta::MetaData,
         chunk: exr::block::chunk::Chunk,
-        rows: &mut [f32],
         x0: usize,
         cols: usize,
+        lines: usize,
         path: &Path,
-    ) -> Result<()> {
+    ) -> Result<ExrBlock> {
         use exr::block::UncompressedBlock;
         use exr::block::chunk::CompressedBlock;
-        use exr::meta::attribute::SampleType;
         use half::slice::HalfFloatSliceExt;
-        let row_len = 3 * self.w;
-        let lines = rows.len() / row_len;
-        let sizes: Vec<usize> = self.types.iter().map(|t| t.bytes_per_sample()).collect();
-        let line_bytes = cols * sizes.iter().sum::<usize>();
-        let mut planes = [vec![0.0f32; cols], vec![0.0f32; cols], vec![0.0f32; cols]];
-        let interleave = |row: &mut [f32], planes: &[Vec<f32>; 3]| {
-            let [r, g, b] = planes;
-            let out = &mut row[3 * x0..3 * (x0 + cols)];
-            for (((o, r), g), b) in out.as_chunks_mut::<3>().0.iter_mut().zip(r).zip(g).zip(b) {
-                *o = [*r, *g, *b];
-            }
+        let sizes = self.types.iter().map(|t| t.bytes_per_sample());
+        let line_bytes = cols * sizes.sum::<usize>();
+        let block = |samples| ExrBlock {
+            x0,
+            cols,
+            lines,
+            samples,
         };
         let pixels = match &chunk.compressed_block {
             CompressedBlock::ScanLine(b) => &b.compressed_pixels_le,
@@ -522,7 +582,11 @@ impl Layout {
         // PIZ through `piz` (a block stored raw, when compressing did not shrink it, goes
         // the general way).
         if self.piz && pixels.len() != lines * line_bytes {
-            let words: Vec<usize> = sizes.iter().map(|s| s / 2).collect();
+            let words: Vec<usize> = self
+                .types
+                .iter()
+                .map(|t| t.bytes_per_sample() / 2)
+                .collect();
             let d = crate::piz::decompress(pixels, &words, cols, lines)
                 .map_err(|e| Error::invalid("OpenEXR", e, path))?;
             let mut first = Vec::with_capacity(words.len());
@@ -532,7 +596,7 @@ impl Layout {
                 at += k * cols * lines;
             }
             // Half samples: each index looked up straight as f32 (the values that occur,
-            // converted once, and 0 for indices past them, which only damaged data has).
+            // converted once).
             let halves: Vec<f32> = if self.picked.iter().any(|&c| words[c] == 1) {
                 let mut v = vec![0.0f32; d.count + 1];
                 bytemuck::cast_slice::<u16, exr::prelude::f16>(&d.values[..d.count])
@@ -541,9 +605,37 @@ impl Layout {
             } else {
                 Vec::new()
             };
-            for (y, row) in rows.chunks_exact_mut(row_len).enumerate() {
+            return Ok(block(BlockSamples::Piz { d, halves, first }));
+        }
+        // The exr crate's decompressors can panic on damaged data (B44's arithmetic
+        // overflows where overflow is checked): a panic is the block's error.
+        let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            UncompressedBlock::decompress_chunk(chunk, meta, false)
+        }))
+        .map_err(|_| Error::invalid("OpenEXR", "a damaged block failed to decompress", path))?
+        .map_err(|e| exr_error(e, path))?;
+        if decoded.data.len() != lines * line_bytes {
+            return Err(Error::invalid(
+                "OpenEXR",
+                "a block's data does not match its size",
+                path,
+            ));
+        }
+        Ok(block(BlockSamples::Lines(decoded.data)))
+    }
+
+    /// Line `y` of block `b` into its columns of `row` (RGB, the whole width); `planes`:
+    /// three buffers of at least the block's width.
+    fn line(&self, b: &ExrBlock, y: usize, planes: &mut [Vec<f32>; 3], row: &mut [f32]) {
+        use exr::meta::attribute::SampleType;
+        let cols = b.cols;
+        for p in planes.iter_mut() {
+            p.resize(cols, 0.0);
+        }
+        match &b.samples {
+            BlockSamples::Piz { d, halves, first } => {
                 for (plane, &c) in planes.iter_mut().zip(&self.picked) {
-                    let k = words[c];
+                    let k = self.types[c].bytes_per_sample() / 2;
                     let line = &d.planes[first[c] + y * k * cols..first[c] + (y + 1) * k * cols];
                     if k == 1 {
                         let last = d.count;
@@ -565,42 +657,26 @@ impl Layout {
                         }
                     }
                 }
-                interleave(row, &planes);
             }
-            return Ok(());
-        }
-        // The exr crate's decompressors can panic on damaged data (B44's arithmetic
-        // overflows where overflow is checked): a panic is the block's error.
-        let block = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            UncompressedBlock::decompress_chunk(chunk, meta, false)
-        }))
-        .map_err(|_| Error::invalid("OpenEXR", "a damaged block failed to decompress", path))?
-        .map_err(|e| exr_error(e, path))?;
-        if block.data.len() != lines * line_bytes {
-            return Err(Error::invalid(
-                "OpenEXR",
-                "a block's data does not match its size",
-                path,
-            ));
-        }
-        // Where each channel's samples start within a line's bytes.
-        let mut starts = Vec::with_capacity(sizes.len());
-        let mut at = 0;
-        for s in &sizes {
-            starts.push(at);
-            at += cols * s;
-        }
-        for (row, line) in rows
-            .chunks_exact_mut(row_len)
-            .zip(block.data.chunks_exact(line_bytes))
-        {
-            for (plane, &c) in planes.iter_mut().zip(&self.picked) {
-                let src = &line[starts[c]..starts[c] + cols * sizes[c]];
-                samples_to_f32(self.types[c], src, plane);
+            BlockSamples::Lines(data) => {
+                let line_bytes = data.len() / b.lines;
+                let line = &data[y * line_bytes..(y + 1) * line_bytes];
+                for (plane, &c) in planes.iter_mut().zip(&self.picked) {
+                    // Where the channel's samples start within the line.
+                    let at: usize = self.types[..c]
+                        .iter()
+                        .map(|t| cols * t.bytes_per_sample())
+                        .sum();
+                    let n = cols * self.types[c].bytes_per_sample();
+                    samples_to_f32(self.types[c], &line[at..at + n], plane);
+                }
             }
-            interleave(row, &planes);
         }
-        Ok(())
+        let [r, g, bl] = &*planes;
+        let out = &mut row[3 * b.x0..3 * (b.x0 + cols)];
+        for (((o, r), g), bl) in out.as_chunks_mut::<3>().0.iter_mut().zip(r).zip(g).zip(bl) {
+            *o = [*r, *g, *bl];
+        }
     }
 }
 
@@ -643,10 +719,11 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
 
 /// An HDR image as compact as its file allows, decoded one row at a time: a Radiance file
 /// whose scan lines are run-length encoded (what current writers produce) keeps its own
-/// bytes (about a sixth of the `f32` image for typical files), every other file is the
-/// decoded image. A global tone-mapping curve runs over it in two passes of rows (the
-/// statistics, then the display codes) without the `f32` image or its luminance plane:
-/// [`crate::Operator::apply_rows_srgb8`].
+/// bytes (about a sixth of the `f32` image for typical files); an OpenEXR file the block
+/// reader takes keeps its blocks decompressed (half floats stay half, PIZ blocks their
+/// indices); every other file is the decoded image. A global tone-mapping curve runs over
+/// it in two passes of rows (the statistics, then the display codes) without the `f32`
+/// image or its luminance plane: [`crate::Operator::apply_rows`].
 #[derive(Debug)]
 pub struct HdrSource {
     width: u32,
@@ -656,12 +733,21 @@ pub struct HdrSource {
 
 #[derive(Debug)]
 enum Source {
-    /// The file's bytes from the first scan line on, and where each scan line's data starts.
+    /// The file's bytes, and where each scan line's data starts.
     Rgbe {
         data: Vec<u8>,
         starts: Vec<usize>,
     },
+    /// OpenEXR blocks decompressed, samples as the file stores them.
+    Exr(ExrBands),
     Image(Rgb32FImage),
+}
+
+/// One thread's buffers for [`HdrSource::decode_row`].
+#[derive(Clone, Debug, Default)]
+pub struct RowScratch {
+    bytes: Vec<u8>,
+    planes: [Vec<f32>; 3],
 }
 
 impl HdrSource {
@@ -684,6 +770,11 @@ impl HdrSource {
     /// Whether the pixels are held as the file's compact encoding (not as `f32`).
     #[must_use]
     pub fn is_compact(&self) -> bool {
+        !matches!(self.inner, Source::Image(_))
+    }
+
+    /// Whether every value is finite and not negative by the file's encoding (RGBE).
+    pub(crate) fn is_clean_by_encoding(&self) -> bool {
         matches!(self.inner, Source::Rgbe { .. })
     }
 
@@ -693,29 +784,35 @@ impl HdrSource {
     ///
     /// # Panics
     /// If `y` is not a row of the image or `out` is not one row long.
-    pub fn decode_row(&self, y: usize, scratch: &mut Vec<u8>, out: &mut [f32]) {
+    pub fn decode_row(&self, y: usize, scratch: &mut RowScratch, out: &mut [f32]) {
         let row = 3 * self.width as usize;
         assert_eq!(out.len(), row, "one row of RGB values");
         match &self.inner {
             Source::Rgbe { data, starts } => {
-                scratch.resize(4 * self.width as usize, 0);
-                decode_rgbe_row(data, starts[y], scratch, out);
+                scratch.bytes.resize(4 * self.width as usize, 0);
+                decode_rgbe_row(data, starts[y], &mut scratch.bytes, out);
             }
+            Source::Exr(bands) => bands.row(y, &mut scratch.planes, out),
             Source::Image(img) => out.copy_from_slice(&img.as_raw()[y * row..(y + 1) * row]),
         }
     }
 
     /// Row `y`'s luminance ([`crate::luminance`] of [`HdrSource::decode_row`]'s values,
-    /// bit for bit) into `out` (`width` values), for a compact source; `false` (nothing
-    /// written) for a decoded image, whose values must be cleaned first.
-    pub(crate) fn luminance_row(&self, y: usize, scratch: &mut Vec<u8>, out: &mut [f32]) -> bool {
+    /// bit for bit) into `out` (`width` values), for an RGBE source; `false` (nothing
+    /// written) for the others, whose values must be cleaned first.
+    pub(crate) fn luminance_row(
+        &self,
+        y: usize,
+        scratch: &mut RowScratch,
+        out: &mut [f32],
+    ) -> bool {
         match &self.inner {
             Source::Rgbe { data, starts } => {
-                scratch.resize(4 * self.width as usize, 0);
-                rgbe_luminance_row(data, starts[y], scratch, out);
+                scratch.bytes.resize(4 * self.width as usize, 0);
+                rgbe_luminance_row(data, starts[y], &mut scratch.bytes, out);
                 true
             }
-            Source::Image(_) => false,
+            Source::Exr(_) | Source::Image(_) => false,
         }
     }
 
@@ -737,12 +834,30 @@ impl HdrSource {
                 Rgb32FImage::from_raw(self.width, self.height, out)
                     .expect("buffer size matches dimensions")
             }
+            Source::Exr(bands) => {
+                let w = self.width as usize;
+                let mut out = vec![0.0f32; 3 * w * self.height as usize];
+                let (layout, band) = (&bands.layout, bands.band);
+                // Band by band, each band's blocks freed once converted.
+                out.par_chunks_mut(3 * w * band)
+                    .zip(bands.bands.into_par_iter())
+                    .for_each_init(<[Vec<f32>; 3]>::default, |planes, (rows, blocks)| {
+                        for (y, row) in rows.chunks_exact_mut(3 * w).enumerate() {
+                            for b in &blocks {
+                                layout.line(b, y, planes, row);
+                            }
+                        }
+                    });
+                Rgb32FImage::from_raw(self.width, self.height, out)
+                    .expect("buffer size matches dimensions")
+            }
         }
     }
 }
 
-/// Reads an HDR image as an [`HdrSource`]: compact for run-length encoded Radiance files,
-/// decoded otherwise (as [`read_hdr_image_with`]).
+/// Reads an HDR image as an [`HdrSource`]: compact for run-length encoded Radiance files
+/// and for OpenEXR files the block reader takes (one flat part with R, G, B or Y), decoded
+/// otherwise (as [`read_hdr_image_with`]).
 ///
 /// # Errors
 /// As [`read_hdr_image_with`].
@@ -750,7 +865,8 @@ pub fn read_hdr_source_with(path: impl AsRef<Path>, limits: &Limits) -> Result<H
     let path = path.as_ref();
     match detect_format(path)? {
         HdrFormat::Radiance => read_radiance_source(path, limits),
-        _ => read_hdr_image_with(path, limits).map(HdrSource::from_image),
+        HdrFormat::Exr => read_exr_source(path, limits),
+        HdrFormat::Pfm => read_pfm(path, limits).map(HdrSource::from_image),
     }
 }
 
@@ -1763,6 +1879,31 @@ pub fn list_exr_sequence(dir: impl AsRef<Path>, prefix: &str) -> Result<Vec<Path
 mod tests {
     use super::*;
 
+    /// The image the block reader's bands hold, decoded row by row (the tone-mapping
+    /// passes) and whole (the image readers), which must agree.
+    fn blocks_image(path: &Path) -> Rgb32FImage {
+        let bands = read_exr_blocks(path).unwrap().expect("read by blocks");
+        let source = HdrSource {
+            width: bands.layout.w as u32,
+            height: bands.h as u32,
+            inner: Source::Exr(bands),
+        };
+        let (w, h) = source.dimensions();
+        let mut by_rows = vec![0.0f32; 3 * (w * h) as usize];
+        let mut scratch = RowScratch::default();
+        for (y, row) in by_rows.chunks_exact_mut(3 * w as usize).enumerate() {
+            source.decode_row(y, &mut scratch, row);
+        }
+        let whole = source.into_image();
+        let same = whole
+            .as_raw()
+            .iter()
+            .zip(&by_rows)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "rows and image differ: {}", path.display());
+        whole
+    }
+
     /// Writes an OpenEXR file with the exr crate: channels `names` of type `ty`, filled from
     /// a pattern with every kind of value (negative, zero, tiny, huge), in `encoding`.
     fn exr_file(
@@ -1894,7 +2035,7 @@ mod tests {
                     let position = if k == 1 { (-5, 17) } else { (0, 0) };
                     exr_file(&path, size, names, ty, encoding, position);
                     let (w, h, want) = exr_crate_reference(&path);
-                    let got = read_exr_blocks(&path).unwrap().expect("read by blocks");
+                    let got = blocks_image(&path);
                     read_by_blocks += 1;
                     assert_eq!((got.width(), got.height()), (w, h));
                     let what = format!(
@@ -1949,7 +2090,7 @@ mod tests {
             AnyChannels::sort(channels.into()),
         );
         Image::from_layer(layer).write().to_file(&path).unwrap();
-        let got = read_exr_blocks(&path).unwrap().expect("read by blocks");
+        let got = blocks_image(&path);
         let FlatSamples::F16(full) = level(0) else {
             unreachable!()
         };
@@ -2140,7 +2281,7 @@ mod tests {
         };
         // Row by row (the tone-mapping passes) and whole (the image readers).
         let mut by_rows = vec![0.0f32; (3 * w * h) as usize];
-        let mut scratch = Vec::new();
+        let mut scratch = RowScratch::default();
         for (y, row) in by_rows.chunks_exact_mut(3 * w as usize).enumerate() {
             source.decode_row(y, &mut scratch, row);
         }
@@ -2156,7 +2297,10 @@ mod tests {
     /// scales included) and mantissas across their range.
     #[test]
     fn rgbe_luminance_is_that_of_the_decoded_values() {
-        let mantissas: Vec<u8> = (0..=255u8).step_by(3).chain([1, 2, 127, 128, 254]).collect();
+        let mantissas: Vec<u8> = (0..=255u8)
+            .step_by(3)
+            .chain([1, 2, 127, 128, 254])
+            .collect();
         for e in 0..=255u8 {
             let mut px = Vec::new();
             for &r in &mantissas {

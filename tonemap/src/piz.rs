@@ -86,6 +86,7 @@ pub(crate) fn decompress(
 
 /// A decoded block: the planes hold indices into `values`, the 16-bit values that occur
 /// (`count` of them, zeros after).
+#[derive(Debug)]
 pub(crate) struct Decoded {
     pub(crate) planes: Vec<u16>,
     pub(crate) values: Vec<u16>,

@@ -9,7 +9,7 @@ use std::path::Path;
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::io::HdrSource;
+use crate::io::{HdrSource, RowScratch};
 use crate::plane::{log_average_of_rows, log_sum_row, recolour_row_of};
 use crate::sanitize::{
     CleanStats, SanitizeReport, clean_row, fill_luminance, luminance_row_stats,
@@ -18,7 +18,7 @@ use crate::sanitize::{
 
 /// One thread's buffers for one row.
 pub(crate) struct RowBuffers {
-    scratch: Vec<u8>,
+    scratch: RowScratch,
     rgb: Vec<f32>,
     lum: Vec<f32>,
     /// Logarithms (first pass) or output luminances (second pass).
@@ -28,7 +28,7 @@ pub(crate) struct RowBuffers {
 impl RowBuffers {
     fn new(w: usize) -> Self {
         Self {
-            scratch: Vec::new(),
+            scratch: RowScratch::default(),
             rgb: vec![0.0; 3 * w],
             lum: vec![0.0; w],
             work: vec![0.0; w],
@@ -58,7 +58,7 @@ impl RowBuffers {
     ) -> ((SanitizeReport, [f32; 3]), (f32, f32, u64)) {
         src.decode_row(y, &mut self.scratch, &mut self.rgb);
         // RGBE values are finite and not negative: the rule has nothing to do.
-        let cleaned = if src.is_compact() {
+        let cleaned = if src.is_clean_by_encoding() {
             (SanitizeReport::default(), [0.0; 3])
         } else {
             clean_row(&mut self.rgb)
