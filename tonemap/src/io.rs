@@ -170,13 +170,16 @@ fn exr_error(e: exr::error::Error, path: &Path) -> Error {
 /// As [`read_hdr_image_with`]; [`Error::Unsupported`] for deep data or files without
 /// R, G, B or Y channels.
 pub fn read_exr(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
-    Ok(read_exr_source(path, limits)?.into_image())
+    Ok(read_exr_source(path, limits, false)?.into_image())
 }
 
 /// [`read_exr`] as an [`HdrSource`]: a single-part flat image with R, G, B (or Y) channels
 /// keeps its blocks' decompressed samples (half floats stay half: half the memory of the
 /// `f32` image), every other file is decoded by the exr crate's image reader.
-fn read_exr_source(path: &Path, limits: &Limits) -> Result<HdrSource> {
+///
+/// With `compact` false, the block reader converts each band into the image as soon as it is
+/// decompressed (the image readers: no blocks held).
+fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSource> {
     use exr::prelude::{FlatSamples, ReadChannels, ReadLayers, read};
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(e, path))?;
     let file_len = std::fs::metadata(path)
@@ -189,12 +192,16 @@ fn read_exr_source(path: &Path, limits: &Limits) -> Result<HdrSource> {
         limits.check_decode(size.width() as u64, size.height() as u64, samples)?;
         exr_fits_in_file(header, file_len, path)?;
     }
-    if let Some(bands) = read_exr_blocks(path)? {
-        return Ok(HdrSource {
-            width: bands.layout.w as u32,
-            height: bands.h as u32,
-            inner: Source::Exr(bands),
-        });
+    match read_exr_blocks(path, compact)? {
+        Some(ExrRead::Bands(bands)) => {
+            return Ok(HdrSource {
+                width: bands.layout.w as u32,
+                height: bands.h as u32,
+                inner: Source::Exr(bands),
+            });
+        }
+        Some(ExrRead::Image(img)) => return Ok(HdrSource::from_image(img)),
+        None => {}
     }
     // The other layouts, and files the block reader found irregular: the exr crate's image
     // reader on this thread, so that a panic of its decompressors on damaged data (which on
@@ -348,7 +355,7 @@ fn exr_fits_in_file(header: &exr::meta::header::Header, file_len: u64, path: &Pa
 /// `Ok(None)` for every other layout (several parts, deep data, sub-sampled channels, no
 /// R, G, B or Y, blocks missing or repeated), left to the exr crate's image reader and its
 /// messages. Damaged blocks are errors.
-fn read_exr_blocks(path: &Path) -> Result<Option<ExrBands>> {
+fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
     use exr::block::chunk::{Chunk, CompressedBlock};
     use exr::meta::BlockDescription;
     let file = File::open(path).map_err(|e| Error::io("cannot read", path, e))?;
@@ -390,11 +397,23 @@ fn read_exr_blocks(path: &Path) -> Result<Option<ExrBands>> {
         types: list.iter().map(|c| c.sample_type).collect(),
         piz: header.compression == exr::compression::Compression::PIZ,
     };
-    // Each band's blocks are decompressed as soon as they are read: the reading overlaps
-    // the decompression. A block missing or given twice leaves the file to the exr crate.
+    // Each band's blocks are decompressed (and converted into the image's rows, unless
+    // `compact`) as soon as they are read: the reading overlaps the decoding. A block
+    // missing or given twice leaves the file to the exr crate.
     let bands = h.div_ceil(band);
     let mut done: Vec<Vec<ExrBlock>> = (0..bands).map(|_| Vec::new()).collect();
-    let mut slots: Vec<Option<&mut Vec<ExrBlock>>> = done.iter_mut().map(Some).collect();
+    let mut data = if compact {
+        Vec::new()
+    } else {
+        vec![0.0f32; 3 * w * h]
+    };
+    let mut slots: Vec<Option<BandSlot>> = if compact {
+        done.iter_mut().map(|b| Some(BandSlot::Blocks(b))).collect()
+    } else {
+        data.chunks_mut(3 * w * band)
+            .map(|r| Some(BandSlot::Rows(r)))
+            .collect()
+    };
     // Each band's blocks read so far: (chunk number in the file, column, chunk).
     let mut pending: Vec<Vec<(usize, usize, Chunk)>> = (0..bands).map(|_| Vec::new()).collect();
     let mut open = bands;
@@ -448,7 +467,7 @@ fn read_exr_blocks(path: &Path) -> Result<Option<ExrBands>> {
             if blocks.len() < across {
                 continue;
             }
-            let Some(out) = slots[at].take() else {
+            let Some(slot) = slots[at].take() else {
                 irregular = true;
                 return;
             };
@@ -457,13 +476,28 @@ fn read_exr_blocks(path: &Path) -> Result<Option<ExrBands>> {
             let (layout, meta, fail) = (&layout, &meta, &fail);
             scope.spawn(move |_| {
                 blocks.sort_by_key(|b| b.1);
+                let mut slot = slot;
+                let mut kept = Vec::new();
+                let mut planes = <[Vec<f32>; 3]>::default();
                 for (i, column, chunk) in blocks {
                     let x0 = column * tile_w;
                     let cols = tile_w.min(w - x0);
-                    match layout.decompress(meta, chunk, x0, cols, lines, path) {
-                        Ok(b) => out.push(b),
+                    let b = match layout.decompress(meta, chunk, x0, cols, lines, path) {
+                        Ok(b) => b,
                         Err(e) => return fail(i, e),
+                    };
+                    match &mut slot {
+                        // Converted while the block is in the cache.
+                        BandSlot::Rows(rows) => {
+                            for (y, row) in rows.chunks_exact_mut(3 * w).enumerate() {
+                                layout.line(&b, y, &mut planes, row);
+                            }
+                        }
+                        BandSlot::Blocks(_) => kept.push(b),
                     }
+                }
+                if let BandSlot::Blocks(out) = slot {
+                    *out = kept;
                 }
             });
             // Every band taken: the rest of the file holds smaller mip levels only, which
@@ -486,12 +520,32 @@ fn read_exr_blocks(path: &Path) -> Result<Option<ExrBands>> {
     if u32::try_from(w).is_err() || u32::try_from(h).is_err() {
         return Err(Error::invalid("OpenEXR", "image size overflows", path));
     }
-    Ok(Some(ExrBands {
+    if !compact {
+        return Ok(Some(ExrRead::Image(
+            Rgb32FImage::from_raw(w as u32, h as u32, data)
+                .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))?,
+        )));
+    }
+    Ok(Some(ExrRead::Bands(ExrBands {
         layout,
         band,
         h,
         bands: done,
-    }))
+    })))
+}
+
+/// Where a band's decoded blocks go.
+enum BandSlot<'a> {
+    /// Kept.
+    Blocks(&'a mut Vec<ExrBlock>),
+    /// Converted into the image's rows of the band.
+    Rows(&'a mut [f32]),
+}
+
+/// What [`read_exr_blocks`] read.
+enum ExrRead {
+    Image(Rgb32FImage),
+    Bands(ExrBands),
 }
 
 /// The decompressed blocks of an OpenEXR image ([`read_exr_blocks`]), band by band.
@@ -865,7 +919,7 @@ pub fn read_hdr_source_with(path: impl AsRef<Path>, limits: &Limits) -> Result<H
     let path = path.as_ref();
     match detect_format(path)? {
         HdrFormat::Radiance => read_radiance_source(path, limits),
-        HdrFormat::Exr => read_exr_source(path, limits),
+        HdrFormat::Exr => read_exr_source(path, limits, true),
         HdrFormat::Pfm => read_pfm(path, limits).map(HdrSource::from_image),
     }
 }
@@ -1882,7 +1936,12 @@ mod tests {
     /// The image the block reader's bands hold, decoded row by row (the tone-mapping
     /// passes) and whole (the image readers), which must agree.
     fn blocks_image(path: &Path) -> Rgb32FImage {
-        let bands = read_exr_blocks(path).unwrap().expect("read by blocks");
+        let Some(ExrRead::Bands(bands)) = read_exr_blocks(path, true).unwrap() else {
+            panic!("read by blocks");
+        };
+        let Some(ExrRead::Image(direct)) = read_exr_blocks(path, false).unwrap() else {
+            panic!("read by blocks");
+        };
         let source = HdrSource {
             width: bands.layout.w as u32,
             height: bands.h as u32,
@@ -1901,6 +1960,15 @@ mod tests {
             .zip(&by_rows)
             .all(|(a, b)| a.to_bits() == b.to_bits());
         assert!(same, "rows and image differ: {}", path.display());
+        assert!(
+            whole
+                .as_raw()
+                .iter()
+                .zip(direct.as_raw())
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "bands and direct differ: {}",
+            path.display()
+        );
         whole
     }
 

@@ -23,15 +23,20 @@ pub(crate) struct RowBuffers {
     lum: Vec<f32>,
     /// Logarithms (first pass) or output luminances (second pass).
     work: Vec<f32>,
+    /// Whether the dirty-input rule may change a value (not after a first pass that found
+    /// nothing to change, nor for RGBE values).
+    rule: bool,
 }
 
 impl RowBuffers {
-    fn new(w: usize) -> Self {
+    fn new(src: &HdrSource, rule: bool) -> Self {
+        let w = src.dimensions().0 as usize;
         Self {
             scratch: RowScratch::default(),
             rgb: vec![0.0; 3 * w],
             lum: vec![0.0; w],
             work: vec![0.0; w],
+            rule: rule && !src.is_clean_by_encoding(),
         }
     }
 
@@ -57,8 +62,7 @@ impl RowBuffers {
         y: usize,
     ) -> ((SanitizeReport, [f32; 3]), (f32, f32, u64)) {
         src.decode_row(y, &mut self.scratch, &mut self.rgb);
-        // RGBE values are finite and not negative: the rule has nothing to do.
-        let cleaned = if src.is_clean_by_encoding() {
+        let cleaned = if !self.rule {
             (SanitizeReport::default(), [0.0; 3])
         } else {
             clean_row(&mut self.rgb)
@@ -75,12 +79,11 @@ pub(crate) fn clean_stats(
     circle: Option<(f32, f32, f32)>,
     log_average: bool,
 ) -> Option<(CleanStats, Option<f64>)> {
-    let (w, h) = src.dimensions();
-    let w = w as usize;
-    let rows: Vec<_> = (0..h as usize)
+    let h = src.dimensions().1 as usize;
+    let rows: Vec<_> = (0..h)
         .into_par_iter()
         .map_init(
-            || RowBuffers::new(w),
+            || RowBuffers::new(src, true),
             |b, y| {
                 let (cleaned, lum) = b.luminance(src, y);
                 let logs = if log_average {
@@ -139,13 +142,14 @@ pub(crate) fn scale_codes(scale: f32) -> RowCodes {
     })
 }
 
-/// Every row of `src` cleaned into a thread's buffers, then its codes, rows in parallel.
-pub(crate) fn codes(src: &HdrSource, codes_of: &RowCodes) -> Vec<u8> {
+/// Every row of `src` cleaned into a thread's buffers, then its codes, rows in parallel;
+/// `rule`: whether the first pass found values the dirty-input rule changes.
+pub(crate) fn codes(src: &HdrSource, codes_of: &RowCodes, rule: bool) -> Vec<u8> {
     let (w, h) = src.dimensions();
     let w = w as usize;
     let mut out = vec![0u8; 3 * w * h as usize];
     out.par_chunks_mut(3 * w).enumerate().for_each_init(
-        || (RowBuffers::new(w), vec![0.0f32; 3 * w]),
+        || (RowBuffers::new(src, rule), vec![0.0f32; 3 * w]),
         |(b, orow), (y, codes)| {
             b.clean(src, y);
             codes_of(b, y, orow, codes);
@@ -158,13 +162,18 @@ pub(crate) fn codes(src: &HdrSource, codes_of: &RowCodes) -> Vec<u8> {
 struct PngCodeRows<'a> {
     src: &'a HdrSource,
     codes_of: &'a RowCodes,
+    rule: bool,
 }
 
 impl crate::zlib::PngRows for PngCodeRows<'_> {
     type State = (RowBuffers, Vec<f32>, Vec<u8>);
     fn state(&self) -> Self::State {
         let w = self.src.dimensions().0 as usize;
-        (RowBuffers::new(w), vec![0.0; 3 * w], Vec::new())
+        (
+            RowBuffers::new(self.src, self.rule),
+            vec![0.0; 3 * w],
+            Vec::new(),
+        )
     }
     fn rows<'s>(&'s self, state: &'s mut Self::State, from: usize, to: usize) -> &'s [u8] {
         let (b, orow, codes) = state;
@@ -180,7 +189,17 @@ impl crate::zlib::PngRows for PngCodeRows<'_> {
 
 /// The codes of every row of `src` written as an 8-bit PNG, each part of the file's stream
 /// compressed by the thread that made its rows.
-pub(crate) fn write_png(src: &HdrSource, codes_of: &RowCodes, path: &Path) -> Result<()> {
+pub(crate) fn write_png(
+    src: &HdrSource,
+    codes_of: &RowCodes,
+    rule: bool,
+    path: &Path,
+) -> Result<()> {
     let (w, h) = src.dimensions();
-    crate::io::write_rgb8_png_rows(path, w, h, &PngCodeRows { src, codes_of })
+    let rows = PngCodeRows {
+        src,
+        codes_of,
+        rule,
+    };
+    crate::io::write_rgb8_png_rows(path, w, h, &rows)
 }

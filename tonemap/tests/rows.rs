@@ -89,6 +89,22 @@ fn a_radiance_file_is_tone_mapped_from_its_own_bytes_as_from_its_image() {
     let src = source(&path);
     assert!(src.is_compact());
     rows_equal_whole_image(&src, &read_hdr_image(&path).unwrap(), "wide");
+    // As a half-float EXR within half's range, clean (its second pass skips the
+    // dirty-input rule). Beyond the range, values become +Inf: the rows decline.
+    let path = dir.path().join("wide.exr");
+    let half = |img: &Rgb32FImage| {
+        blueshift_tonemap::io::write_exr(&path, img, blueshift_tonemap::io::ExrPrecision::Half)
+            .unwrap();
+    };
+    half(&img);
+    let drago = Operator::Drago(DragoParams::default());
+    assert!(drago.apply_rows(&source(&path)).unwrap().is_none());
+    let mut img = img;
+    img.pixels_mut().for_each(|p| p.0 = p.0.map(|c| c.min(6e4)));
+    half(&img);
+    let src = source(&path);
+    assert!(src.is_compact());
+    rows_equal_whole_image(&src, &read_hdr_image(&path).unwrap(), "wide EXR");
 }
 
 #[test]
@@ -193,8 +209,13 @@ fn the_rows_png_is_the_png_of_the_codes() {
     });
     let path = dir.path().join("in.hdr");
     blueshift_tonemap::io::write_radiance_hdr(&path, &img).unwrap();
+    // The same as a half-float EXR (clean: the second pass skips the dirty-input rule).
+    let exr = dir.path().join("in.exr");
+    blueshift_tonemap::io::write_exr(&exr, &img, blueshift_tonemap::io::ExrPrecision::Half)
+        .unwrap();
     for file in [
         path,
+        exr,
         crop("memorial_crop_64x96.hdr"),
         crop("desk_crop_64x64.exr"),
     ] {

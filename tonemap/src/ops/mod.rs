@@ -356,7 +356,7 @@ impl RowsToneMap<'_> {
     /// The 8-bit sRGB codes (row-major RGB), rows in parallel.
     #[must_use]
     pub fn srgb8(&self) -> Vec<u8> {
-        crate::rows::codes(self.src, &self.codes)
+        crate::rows::codes(self.src, &self.codes, self.stats.report.total() > 0)
     }
 
     /// Writes the codes as an 8-bit PNG (the bytes of [`crate::io::write_rgb8_png`] of
@@ -366,6 +366,6 @@ impl RowsToneMap<'_> {
     /// # Errors
     /// As [`crate::io::write_rgb8_png`].
     pub fn write_png(&self, path: &std::path::Path) -> Result<()> {
-        crate::rows::write_png(self.src, &self.codes, path)
+        crate::rows::write_png(self.src, &self.codes, self.stats.report.total() > 0, path)
     }
 }
