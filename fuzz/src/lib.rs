@@ -264,26 +264,46 @@ pub fn bsv(data: &[u8]) -> bool {
     })
 }
 
-/// OpenEXR through the tonemap reader.
+/// OpenEXR through the tonemap reader, and through the CLI's rows path (the compact
+/// source, Drago's two passes over its rows), which must give the image's codes.
 pub fn exr(data: &[u8]) -> bool {
     with_file(data, "exr", |p| {
-        std::hint::black_box(blueshift_tonemap::io::read_exr(
-            p,
-            &blueshift_tonemap::io::Limits::default(),
-        ))
-        .is_ok()
+        let img = blueshift_tonemap::io::read_exr(p, &blueshift_tonemap::io::Limits::default());
+        rows_match_image(p, img.as_ref().ok());
+        img.is_ok()
     })
 }
 
-/// Radiance `.hdr` through the tonemap reader.
+/// Radiance `.hdr` through the tonemap reader, and through the rows path as [`exr`].
 pub fn radiance(data: &[u8]) -> bool {
     with_file(data, "hdr", |p| {
-        std::hint::black_box(blueshift_tonemap::io::read_radiance(
-            p,
-            &blueshift_tonemap::io::Limits::default(),
-        ))
-        .is_ok()
+        let img =
+            blueshift_tonemap::io::read_radiance(p, &blueshift_tonemap::io::Limits::default());
+        rows_match_image(p, img.as_ref().ok());
+        img.is_ok()
     })
+}
+
+/// Reads `p` as the CLI's 8-bit PNG path does (a compact `HdrSource`) and tone-maps it
+/// with Drago over its rows. Where the file also read as `image`, the codes must be those
+/// of the whole image (a difference panics: a finding).
+fn rows_match_image(p: &Path, image: Option<&image::Rgb32FImage>) {
+    use blueshift_tonemap::{CleanImage, DragoParams, Operator};
+    let limits = blueshift_tonemap::io::Limits::default();
+    let Ok(src) = blueshift_tonemap::io::read_hdr_source_with(p, &limits) else {
+        return;
+    };
+    let drago = Operator::Drago(DragoParams::default());
+    let Ok(Some((codes, _))) = std::hint::black_box(drago.apply_rows_srgb8(&src)) else {
+        return;
+    };
+    if let Some(img) = image {
+        let whole = drago.apply_clean_srgb8(&CleanImage::new(img));
+        assert!(
+            whole.is_ok_and(|w| w == codes),
+            "the rows path's codes differ from the whole image's"
+        );
+    }
 }
 
 /// Portable float map through the tonemap reader.
