@@ -269,7 +269,7 @@ pub fn bsv(data: &[u8]) -> bool {
 pub fn exr(data: &[u8]) -> bool {
     with_file(data, "exr", |p| {
         let img = blueshift_tonemap::io::read_exr(p, &blueshift_tonemap::io::Limits::default());
-        rows_match_image(p, img.as_ref().ok());
+        rows_match_image(p);
         img.is_ok()
     })
 }
@@ -279,15 +279,17 @@ pub fn radiance(data: &[u8]) -> bool {
     with_file(data, "hdr", |p| {
         let img =
             blueshift_tonemap::io::read_radiance(p, &blueshift_tonemap::io::Limits::default());
-        rows_match_image(p, img.as_ref().ok());
+        rows_match_image(p);
         img.is_ok()
     })
 }
 
-/// Reads `p` as the CLI's 8-bit PNG path does (a compact `HdrSource`) and tone-maps it
-/// with Drago over its rows. Where the file also read as `image`, the codes must be those
-/// of the whole image (a difference panics: a finding).
-fn rows_match_image(p: &Path, image: Option<&image::Rgb32FImage>) {
+/// Reads `p` as the CLI's 8-bit PNG path does (a compact `HdrSource`, the format found from
+/// the content) and tone-maps it with Drago over its rows. Where the file also reads as an
+/// image (the same detection), the codes must be those of the whole image (a difference
+/// panics: a finding). The format-specific readers above may read another format's file
+/// differently (a Radiance header inside an OpenEXR file's bytes).
+fn rows_match_image(p: &Path) {
     use blueshift_tonemap::{CleanImage, DragoParams, Operator};
     let limits = blueshift_tonemap::io::Limits::default();
     let Ok(src) = blueshift_tonemap::io::read_hdr_source_with(p, &limits) else {
@@ -297,8 +299,8 @@ fn rows_match_image(p: &Path, image: Option<&image::Rgb32FImage>) {
     let Ok(Some((codes, _))) = std::hint::black_box(drago.apply_rows_srgb8(&src)) else {
         return;
     };
-    if let Some(img) = image {
-        let whole = drago.apply_clean_srgb8(&CleanImage::new(img));
+    if let Ok(img) = blueshift_tonemap::io::read_hdr_image_with(p, &limits) {
+        let whole = drago.apply_clean_srgb8(&CleanImage::new(&img));
         assert!(
             whole.is_ok_and(|w| w == codes),
             "the rows path's codes differ from the whole image's"
