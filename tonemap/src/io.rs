@@ -583,12 +583,11 @@ struct ExrBlock {
 enum BlockSamples {
     /// Line after line, each channel's native-endian samples one after the other.
     Lines(Vec<u8>),
-    /// The PIZ decoder's planes of indices into its values; half values already as f32
-    /// (with 0 for indices past them, which only damaged data has); where each channel's
-    /// plane starts.
+    /// The PIZ decoder's planes of indices into its values, except the picked half-float
+    /// channels' planes, which hold the half values themselves (0 for indices past the
+    /// values, which only damaged data has); where each channel's plane starts.
     Piz {
         d: crate::piz::Decoded,
-        halves: Vec<f32>,
         first: Vec<usize>,
     },
 }
@@ -619,7 +618,6 @@ impl Layout {
     ) -> Result<ExrBlock> {
         use exr::block::UncompressedBlock;
         use exr::block::chunk::CompressedBlock;
-        use half::slice::HalfFloatSliceExt;
         let sizes = self.types.iter().map(|t| t.bytes_per_sample());
         let line_bytes = cols * sizes.sum::<usize>();
         let block = |samples| ExrBlock {
@@ -641,7 +639,7 @@ impl Layout {
                 .iter()
                 .map(|t| t.bytes_per_sample() / 2)
                 .collect();
-            let d = crate::piz::decompress(pixels, &words, cols, lines)
+            let mut d = crate::piz::decompress(pixels, &words, cols, lines)
                 .map_err(|e| Error::invalid("OpenEXR", e, path))?;
             let mut first = Vec::with_capacity(words.len());
             let mut at = 0;
@@ -649,17 +647,21 @@ impl Layout {
                 first.push(at);
                 at += k * cols * lines;
             }
-            // Half samples: each index looked up straight as f32 (the values that occur,
-            // converted once).
-            let halves: Vec<f32> = if self.picked.iter().any(|&c| words[c] == 1) {
-                let mut v = vec![0.0f32; d.count + 1];
-                bytemuck::cast_slice::<u16, exr::prelude::f16>(&d.values[..d.count])
-                    .convert_to_f32_slice(&mut v[..d.count]);
-                v
-            } else {
-                Vec::new()
-            };
-            return Ok(block(BlockSamples::Piz { d, halves, first }));
+            // Half samples: each index replaced by its value once, so that every conversion
+            // of a line to f32 is a vector one (F16C) rather than a lookup per sample.
+            let mut table = d.values[..d.count].to_vec();
+            table.push(0);
+            let mut mapped = Vec::with_capacity(3);
+            for &c in &self.picked {
+                if words[c] == 1 && !mapped.contains(&c) {
+                    let plane = &mut d.planes[first[c]..first[c] + cols * lines];
+                    for i in plane {
+                        *i = table[usize::from(*i).min(d.count)];
+                    }
+                    mapped.push(c);
+                }
+            }
+            return Ok(block(BlockSamples::Piz { d, first }));
         }
         // The exr crate's decompressors can panic on damaged data (B44's arithmetic
         // overflows where overflow is checked): a panic is the block's error.
@@ -682,20 +684,19 @@ impl Layout {
     /// three buffers of at least the block's width.
     fn line(&self, b: &ExrBlock, y: usize, planes: &mut [Vec<f32>; 3], row: &mut [f32]) {
         use exr::meta::attribute::SampleType;
+        use half::slice::HalfFloatSliceExt;
         let cols = b.cols;
         for p in planes.iter_mut() {
             p.resize(cols, 0.0);
         }
         match &b.samples {
-            BlockSamples::Piz { d, halves, first } => {
+            BlockSamples::Piz { d, first } => {
                 for (plane, &c) in planes.iter_mut().zip(&self.picked) {
                     let k = self.types[c].bytes_per_sample() / 2;
                     let line = &d.planes[first[c] + y * k * cols..first[c] + (y + 1) * k * cols];
                     if k == 1 {
-                        let last = d.count;
-                        for (o, &i) in plane.iter_mut().zip(line) {
-                            *o = halves[usize::from(i).min(last)];
-                        }
+                        bytemuck::cast_slice::<u16, exr::prelude::f16>(line)
+                            .convert_to_f32_slice(plane);
                     } else {
                         let value = |i: u16| u32::from(d.values[usize::from(i)]);
                         let pairs = line.as_chunks::<2>().0.iter();
