@@ -775,8 +775,8 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
 /// An HDR image as compact as its file allows, decoded one row at a time: a Radiance file
 /// whose scan lines are run-length encoded (what current writers produce) keeps its own
 /// bytes (about a sixth of the `f32` image for typical files); an OpenEXR file the block
-/// reader takes keeps its blocks decompressed (half floats stay half, PIZ blocks their
-/// indices); every other file is the decoded image. A global tone-mapping curve runs over
+/// reader takes keeps its blocks decompressed (half floats stay half); every other file is
+/// the decoded image. A global tone-mapping curve runs over
 /// it in two passes of rows (the statistics, then the display codes) without the `f32`
 /// image or its luminance plane: [`crate::Operator::apply_rows`].
 #[derive(Debug)]
