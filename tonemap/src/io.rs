@@ -193,13 +193,7 @@ fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSou
         exr_fits_in_file(header, file_len, path)?;
     }
     match read_exr_blocks(path, compact)? {
-        Some(ExrRead::Bands(bands)) => {
-            return Ok(HdrSource {
-                width: bands.layout.w as u32,
-                height: bands.h as u32,
-                inner: Source::Exr(bands),
-            });
-        }
+        Some(ExrRead::Bands(bands)) => return Ok(HdrSource::from_bands(bands)),
         Some(ExrRead::Image(img)) => return Ok(HdrSource::from_image(img)),
         None => {}
     }
@@ -488,11 +482,7 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
                     };
                     match &mut slot {
                         // Converted while the block is in the cache.
-                        BandSlot::Rows(rows) => {
-                            for (y, row) in rows.chunks_exact_mut(3 * w).enumerate() {
-                                layout.line(&b, y, &mut planes, row);
-                            }
-                        }
+                        BandSlot::Rows(rows) => layout.block_into(&b, rows, &mut planes),
                         BandSlot::Blocks(_) => kept.push(b),
                     }
                 }
@@ -680,6 +670,13 @@ impl Layout {
         Ok(block(BlockSamples::Lines(decoded.data)))
     }
 
+    /// Every line of block `b` into its columns of its band's `rows` (RGB, the whole width).
+    fn block_into(&self, b: &ExrBlock, rows: &mut [f32], planes: &mut [Vec<f32>; 3]) {
+        for (y, row) in rows.chunks_exact_mut(3 * self.w).enumerate() {
+            self.line(b, y, planes, row);
+        }
+    }
+
     /// Line `y` of block `b` into its columns of `row` (RGB, the whole width); `planes`:
     /// three buffers of at least the block's width.
     fn line(&self, b: &ExrBlock, y: usize, planes: &mut [Vec<f32>; 3], row: &mut [f32]) {
@@ -776,9 +773,9 @@ pub fn read_radiance(path: &Path, limits: &Limits) -> Result<Rgb32FImage> {
 /// whose scan lines are run-length encoded (what current writers produce) keeps its own
 /// bytes (about a sixth of the `f32` image for typical files); an OpenEXR file the block
 /// reader takes keeps its blocks decompressed (half floats stay half); every other file is
-/// the decoded image. A global tone-mapping curve runs over
-/// it in two passes of rows (the statistics, then the display codes) without the `f32`
-/// image or its luminance plane: [`crate::Operator::apply_rows`].
+/// the decoded image. A global tone-mapping curve runs over it in two passes of rows (the
+/// statistics, then the display codes) without the `f32` image or its luminance plane:
+/// [`crate::Operator::apply_rows`].
 #[derive(Debug)]
 pub struct HdrSource {
     width: u32,
@@ -816,6 +813,15 @@ impl HdrSource {
         }
     }
 
+    /// An OpenEXR image's decompressed blocks (sizes checked by [`read_exr_blocks`]).
+    fn from_bands(bands: ExrBands) -> Self {
+        Self {
+            width: bands.layout.w as u32,
+            height: bands.h as u32,
+            inner: Source::Exr(bands),
+        }
+    }
+
     /// Width and height in pixels.
     #[must_use]
     pub fn dimensions(&self) -> (u32, u32) {
@@ -833,7 +839,7 @@ impl HdrSource {
         matches!(self.inner, Source::Rgbe { .. })
     }
 
-    /// Row `y` as RGB `f32` into `out` (`3 * width` values); `scratch` is a buffer the
+    /// Row `y` as RGB `f32` into `out` (`3 * width` values); `scratch` holds buffers the
     /// caller keeps between calls (one per thread). The values are those of
     /// [`HdrSource::into_image`], bit for bit.
     ///
@@ -897,10 +903,8 @@ impl HdrSource {
                 out.par_chunks_mut(3 * w * band)
                     .zip(bands.bands.into_par_iter())
                     .for_each_init(<[Vec<f32>; 3]>::default, |planes, (rows, blocks)| {
-                        for (y, row) in rows.chunks_exact_mut(3 * w).enumerate() {
-                            for b in &blocks {
-                                layout.line(b, y, planes, row);
-                            }
+                        for b in &blocks {
+                            layout.block_into(b, rows, planes);
                         }
                     });
                 Rgb32FImage::from_raw(self.width, self.height, out)
@@ -936,8 +940,9 @@ fn read_whole_file(path: &Path) -> std::io::Result<Vec<u8>> {
         use std::os::unix::fs::FileExt;
         const PIECE: usize = 4 << 20;
         let file = File::open(path)?;
-        let len = usize::try_from(file.metadata()?.len()).unwrap_or(usize::MAX);
-        if len >= 2 * PIECE && file.metadata()?.is_file() {
+        let meta = file.metadata()?;
+        let len = usize::try_from(meta.len()).unwrap_or(usize::MAX);
+        if len >= 2 * PIECE && meta.is_file() {
             // Refused as `std::fs::read` refuses it when the memory is not there; then
             // zeroed pages from the system (no pass of zeroes before the reads).
             Vec::<u8>::new()
@@ -1105,10 +1110,11 @@ fn radiance_data_start(bytes: &[u8], start: usize) -> Option<usize> {
     next_line(at + 1)
 }
 
-/// Where each scan line's run-length data starts (after its marker) in Radiance pixel data whose every
-/// scanline uses the per-component run-length encoding (the run headers only); `None` when
-/// a scanline is encoded another way or the data does not add up (the caller then uses the
-/// image crate's decoder). [`decode_rgbe_row`] gives the image crate's values bit for bit.
+/// Where each scan line's run-length data starts (after its marker) in Radiance pixel data
+/// whose every scanline uses the per-component run-length encoding (the run headers only);
+/// `None` when a scanline is encoded another way or the data does not add up (the caller
+/// then uses the image crate's decoder). [`decode_rgbe_row`] gives the image crate's values
+/// bit for bit.
 fn rle_row_starts(data: &[u8], w: u32, h: u32) -> Option<Vec<usize>> {
     let (wu, hu) = (w as usize, h as usize);
     if wu == 0 || hu == 0 {
@@ -1762,18 +1768,8 @@ pub fn write_rgb8_png_rows(
     }
     let parts = crate::zlib::png_zlib_parts_of(rows, 3 * width as usize, height as usize);
     write_atomic(path, |wr| {
-        write_png_parts(
-            wr,
-            width,
-            height,
-            png::ColorType::Rgb,
-            png::BitDepth::Eight,
-            &parts,
-        )
-        .map_err(|e| match e {
-            Error::Invalid { message, .. } => Error::invalid("PNG", message, path),
-            e => e,
-        })
+        let (color, depth) = (png::ColorType::Rgb, png::BitDepth::Eight);
+        write_png_parts(wr, width, height, color, depth, &parts).map_err(png_error_in(path))
     })
 }
 
@@ -1839,11 +1835,16 @@ pub fn write_rgb8_png(path: impl AsRef<Path>, img: &RgbImage) -> Result<()> {
 
 fn write_png_samples(path: &Path, w: u32, h: u32, depth: png::BitDepth, data: &[u8]) -> Result<()> {
     write_atomic(path, |wr| {
-        encode_png(wr, w, h, png::ColorType::Rgb, depth, data).map_err(|e| match e {
-            Error::Invalid { message, .. } => Error::invalid("PNG", message, path),
-            e => e,
-        })
+        encode_png(wr, w, h, png::ColorType::Rgb, depth, data).map_err(png_error_in(path))
     })
+}
+
+/// The PNG writer's errors naming the file written (they name none).
+fn png_error_in(path: &Path) -> impl Fn(Error) -> Error + '_ {
+    move |e| match e {
+        Error::Invalid { message, .. } => Error::invalid("PNG", message, path),
+        e => e,
+    }
 }
 
 /// Writes a numbered OpenEXR sequence (`<prefix>0000.exr`, `<prefix>0001.exr`, ...): the
@@ -1943,11 +1944,7 @@ mod tests {
         let Some(ExrRead::Image(direct)) = read_exr_blocks(path, false).unwrap() else {
             panic!("read by blocks");
         };
-        let source = HdrSource {
-            width: bands.layout.w as u32,
-            height: bands.h as u32,
-            inner: Source::Exr(bands),
-        };
+        let source = HdrSource::from_bands(bands);
         let (w, h) = source.dimensions();
         let mut by_rows = vec![0.0f32; 3 * (w * h) as usize];
         let mut scratch = RowScratch::default();

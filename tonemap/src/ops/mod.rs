@@ -214,7 +214,7 @@ impl Operator {
     /// cleaning's statistics ([`CleanImage::stats`]) and the curve; the second, by
     /// [`RowsToneMap::srgb8`] or [`RowsToneMap::write_png`], makes the display codes of
     /// [`Operator::apply_clean_srgb8`] (the same bytes). For a compact source (a run-length
-    /// encoded Radiance file) the memory is the file's bytes.
+    /// encoded Radiance file, OpenEXR blocks) the memory is about the file's samples.
     ///
     /// `Ok(None)`, having read the rows once, for the local operators, for an image with
     /// infinite values (replacing them needs the whole image's finite maximum first) and
