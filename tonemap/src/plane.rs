@@ -480,7 +480,7 @@ pub fn log_average(lum: &Plane, circle: Option<(f32, f32, f32)>) -> Option<f64> 
 
 /// The sum of the logarithms of row `y`'s positive values inside `circle` and their number
 /// (`logs`: a buffer of one row). In f32 (the data's precision) over the whole row first (a
-/// loop that vectorises), then summed in f64 in order.
+/// loop that vectorises), then summed in f64 ([`sum_logs`]).
 pub(crate) fn log_sum_row(
     row: &[f32],
     y: usize,
@@ -490,22 +490,30 @@ pub(crate) fn log_sum_row(
     for (l, &v) in logs.iter_mut().zip(row) {
         *l = crate::fastmath::ln(v);
     }
-    let mut s = 0.0f64;
-    let mut n = 0u64;
-    for (x, (&v, &l)) in row.iter().zip(logs.iter()).enumerate() {
-        if let Some((cx, cy, r)) = circle {
+    match circle {
+        None => sum_logs(row, logs, |_| true),
+        Some((cx, cy, r)) => sum_logs(row, logs, |x| {
             let dx = x as f32 + 0.5 - cx;
             let dy = y as f32 + 0.5 - cy;
-            if dx * dx + dy * dy > r * r {
-                continue;
-            }
-        }
-        if v > 0.0 {
-            s += f64::from(l);
-            n += 1;
+            !(dx * dx + dy * dy > r * r)
+        }),
+    }
+}
+
+/// The sum of `logs[x]` over the pixels `x` whose `row[x]` is positive and `inside(x)`, and
+/// their number: four partial sums (pixel `x` into sum `x % 4`) added at the end (one chain
+/// of f64 additions was a third of [`log_sum_row`]'s time).
+fn sum_logs(row: &[f32], logs: &[f32], inside: impl Fn(usize) -> bool) -> (f64, u64) {
+    let mut s = [0.0f64; 4];
+    let mut n = [0u64; 4];
+    for (k, (v, l)) in row.chunks(4).zip(logs.chunks(4)).enumerate() {
+        for (i, (&v, &l)) in v.iter().zip(l).enumerate() {
+            let keep = v > 0.0 && inside(4 * k + i);
+            s[i] += if keep { f64::from(l) } else { 0.0 };
+            n[i] += u64::from(keep);
         }
     }
-    (s, n)
+    ((s[0] + s[1]) + (s[2] + s[3]), n.iter().sum())
 }
 
 /// [`log_average`] from the rows' [`log_sum_row`] results, summed in row order.
