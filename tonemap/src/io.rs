@@ -390,6 +390,10 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
         picked,
         types: list.iter().map(|c| c.sample_type).collect(),
         piz: header.compression == exr::compression::Compression::PIZ,
+        zip: matches!(
+            header.compression,
+            exr::compression::Compression::ZIP1 | exr::compression::Compression::ZIP16
+        ),
     };
     // Each band's blocks are decompressed (and converted into the image's rows, unless
     // `compact`) as soon as they are read: the reading overlaps the decoding. A block
@@ -593,6 +597,8 @@ struct Layout {
     types: Vec<exr::meta::attribute::SampleType>,
     /// Whether the blocks are PIZ-compressed.
     piz: bool,
+    /// Whether they are ZIP-compressed (one line or sixteen per block).
+    zip: bool,
 }
 
 impl Layout {
@@ -600,7 +606,7 @@ impl Layout {
     fn decompress(
         &self,
         meta: &exr::meta::MetaData,
-        chunk: exr::block::chunk::Chunk,
+        mut chunk: exr::block::chunk::Chunk,
         x0: usize,
         cols: usize,
         lines: usize,
@@ -616,14 +622,27 @@ impl Layout {
             lines,
             samples,
         };
-        let pixels = match &chunk.compressed_block {
-            CompressedBlock::ScanLine(b) => &b.compressed_pixels_le,
-            CompressedBlock::Tile(t) => &t.compressed_pixels_le,
+        let pixels = match &mut chunk.compressed_block {
+            CompressedBlock::ScanLine(b) => &mut b.compressed_pixels_le,
+            CompressedBlock::Tile(t) => &mut t.compressed_pixels_le,
             _ => return Err(Error::invalid("OpenEXR", "deep data in a flat image", path)),
         };
+        let expected = lines * line_bytes;
+        if cfg!(target_endian = "little") {
+            // A block of the block's size holds its samples as they are (uncompressed, or
+            // not smaller compressed: the exr crate's rule), little-endian like this machine.
+            if pixels.len() == expected {
+                return Ok(block(BlockSamples::Lines(std::mem::take(pixels))));
+            }
+            if self.zip {
+                let data = crate::exr_zip::decompress(pixels, expected)
+                    .map_err(|e| Error::invalid("OpenEXR", e, path))?;
+                return Ok(block(BlockSamples::Lines(data)));
+            }
+        }
         // PIZ through `piz` (a block stored raw, when compressing did not shrink it, goes
         // the general way).
-        if self.piz && pixels.len() != lines * line_bytes {
+        if self.piz && pixels.len() != expected {
             let words: Vec<usize> = self
                 .types
                 .iter()
@@ -660,7 +679,7 @@ impl Layout {
         }))
         .map_err(|_| Error::invalid("OpenEXR", "a damaged block failed to decompress", path))?
         .map_err(|e| exr_error(e, path))?;
-        if decoded.data.len() != lines * line_bytes {
+        if decoded.data.len() != expected {
             return Err(Error::invalid(
                 "OpenEXR",
                 "a block's data does not match its size",
