@@ -506,10 +506,18 @@ pub(crate) fn log_sum_row(
 fn sum_logs(row: &[f32], logs: &[f32], inside: impl Fn(usize) -> bool) -> (f64, u64) {
     let mut s = [0.0f64; 4];
     let mut n = [0u64; 4];
-    for (k, (v, l)) in row.chunks(4).zip(logs.chunks(4)).enumerate() {
-        for (i, (&v, &l)) in v.iter().zip(l).enumerate() {
-            let keep = v > 0.0 && inside(4 * k + i);
-            s[i] += if keep { f64::from(l) } else { 0.0 };
+    let (vs, v_rest) = row.as_chunks::<4>();
+    let (ls, l_rest) = logs[..row.len()].as_chunks::<4>();
+    // The rest in a last chunk padded with zeros (not positive: not counted).
+    let (mut last_v, mut last_l) = ([0.0f32; 4], [0.0f32; 4]);
+    last_v[..v_rest.len()].copy_from_slice(v_rest);
+    last_l[..l_rest.len()].copy_from_slice(l_rest);
+    let chunks = vs.iter().zip(ls).chain([(&last_v, &last_l)]);
+    for (k, (v, l)) in chunks.enumerate() {
+        for i in 0..4 {
+            // `&`, not `&&`: no branch.
+            let keep = (v[i] > 0.0) & inside(4 * k + i);
+            s[i] += if keep { f64::from(l[i]) } else { 0.0 };
             n[i] += u64::from(keep);
         }
     }

@@ -12,7 +12,7 @@ use crate::error::Result;
 use crate::io::{HdrSource, RowScratch};
 use crate::plane::{log_average_of_rows, log_sum_row, recolour_row_of};
 use crate::sanitize::{
-    CleanStats, SanitizeReport, clean_row, fill_luminance, luminance_row_stats,
+    CleanStats, SanitizeReport, clean_row, luminance_into, luminance_row_stats,
     merge_luminance_rows, merge_rows,
 };
 
@@ -61,13 +61,21 @@ impl RowBuffers {
         src: &HdrSource,
         y: usize,
     ) -> ((SanitizeReport, [f32; 3]), (f32, f32, u64)) {
+        let cleaned = self.load(src, y);
+        (cleaned, luminance_row_stats(&self.lum))
+    }
+
+    /// Row `y` of `src`, cleaned, with its luminance (the second pass, which needs no
+    /// statistics): the row's report and largest finite value per channel.
+    fn load(&mut self, src: &HdrSource, y: usize) -> (SanitizeReport, [f32; 3]) {
         src.decode_row(y, &mut self.scratch, &mut self.rgb);
         let cleaned = if !self.rule {
             (SanitizeReport::default(), [0.0; 3])
         } else {
             clean_row(&mut self.rgb)
         };
-        (cleaned, fill_luminance(&self.rgb, &mut self.lum))
+        luminance_into(&self.rgb, &mut self.lum);
+        cleaned
     }
 }
 
@@ -151,7 +159,7 @@ pub(crate) fn codes(src: &HdrSource, codes_of: &RowCodes, rule: bool) -> Vec<u8>
     out.par_chunks_mut(3 * w).enumerate().for_each_init(
         || (RowBuffers::new(src, rule), vec![0.0f32; 3 * w]),
         |(b, orow), (y, codes)| {
-            b.clean(src, y);
+            b.load(src, y);
             codes_of(b, y, orow, codes);
         },
     );
@@ -180,7 +188,7 @@ impl crate::zlib::PngRows for PngCodeRows<'_> {
         let n = orow.len();
         codes.resize((to - from) * n, 0);
         for (y, row) in (from..to).zip(codes.chunks_exact_mut(n)) {
-            b.clean(self.src, y);
+            b.load(self.src, y);
             (self.codes_of)(b, y, orow, row);
         }
         codes
