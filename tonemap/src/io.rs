@@ -658,14 +658,19 @@ impl Layout {
             }
             // Half samples: each index replaced by its value once, so that every conversion
             // of a line to f32 is a vector one (F16C) rather than a lookup per sample.
-            let mut table = d.values[..d.count].to_vec();
-            table.push(0);
+            // The values are a table of every 16-bit index (0 past the values that occur),
+            // so the lookup needs no bounds check.
+            let table: &[u16; 1 << 16] = d
+                .values
+                .as_slice()
+                .try_into()
+                .map_err(|_| Error::invalid("OpenEXR", "PIZ value table size", path))?;
             let mut mapped = Vec::with_capacity(3);
             for &c in &self.picked {
                 if words[c] == 1 && !mapped.contains(&c) {
                     let plane = &mut d.planes[first[c]..first[c] + cols * lines];
                     for i in plane {
-                        *i = table[usize::from(*i).min(d.count)];
+                        *i = table[usize::from(*i)];
                     }
                     mapped.push(c);
                 }
@@ -1744,10 +1749,16 @@ fn srgb8_tables() -> &'static Srgb8Tables {
             *th = f32::from_bits(lo);
         }
         let entries = (1.0f32.to_bits() >> SRGB8_SHIFT) as usize + 1;
+        // The number of thresholds at or below each entry's first value (they rise, as
+        // the entries do: one walk along both).
+        let mut code = 0usize;
         let start = (0..entries)
             .map(|i| {
                 let v = f32::from_bits((i as u32) << SRGB8_SHIFT);
-                thresholds.iter().filter(|&&t| t <= v).count() as u8
+                while code < 255 && thresholds[code] <= v {
+                    code += 1;
+                }
+                code as u8
             })
             .collect::<Vec<u8>>();
         let lanes_first = thresholds[0].to_bits() >> SRGB8_SHIFT;
