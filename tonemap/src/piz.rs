@@ -80,17 +80,15 @@ pub(crate) fn decompress(
     Ok(Decoded {
         planes,
         values: lut,
-        count,
     })
 }
 
-/// A decoded block: the planes hold indices into `values`, the 16-bit values that occur
-/// (`count` of them, zeros after).
+/// A decoded block: the planes hold indices into `values`, the 16-bit values that occur in
+/// order, then zeros (one entry for every 16-bit index).
 #[derive(Debug)]
 pub(crate) struct Decoded {
     pub(crate) planes: Vec<u16>,
     pub(crate) values: Vec<u16>,
-    pub(crate) count: usize,
 }
 
 fn take<const N: usize>(rest: &mut &[u8]) -> Result<[u8; N], PizError> {

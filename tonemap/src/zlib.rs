@@ -416,9 +416,15 @@ impl Tokens for Encoder<'_, '_> {
     fn literals(&mut self, bytes: &[u8]) {
         let mut quads = bytes.chunks_exact(4);
         for q in &mut quads {
-            for &b in q {
-                self.put_literal(b);
-            }
+            // The four codes joined pairwise (independent steps) before one put: the
+            // accumulator's chain of shifts is one step per four literals.
+            let e = [q[0], q[1], q[2], q[3]].map(|b| self.lit[usize::from(b)]);
+            let code = |e: u32| u64::from(e & 0xffff);
+            let (l0, l2) = (e[0] >> 16, e[2] >> 16);
+            let (l01, l23) = (l0 + (e[1] >> 16), l2 + (e[3] >> 16));
+            let c01 = code(e[0]) | code(e[1]) << l0;
+            let c23 = code(e[2]) | code(e[3]) << l2;
+            self.bits.put(c01 | c23 << l01, l01 + l23);
             self.bits.flush();
         }
         for &b in quads.remainder() {
