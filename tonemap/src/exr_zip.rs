@@ -94,7 +94,11 @@ mod sse2 {
     /// sums after them.
     #[target_feature(enable = "sse2")]
     pub(super) fn pairs(a: &[u8], b: &[u8], ca: u8, cb: u8, out: &mut [u8]) -> (usize, u8, u8) {
-        let (a16, b16, o32) = (a.as_chunks::<16>().0, b.as_chunks::<16>().0, out.as_chunks_mut::<32>().0);
+        let (a16, b16, o32) = (
+            a.as_chunks::<16>().0,
+            b.as_chunks::<16>().0,
+            out.as_chunks_mut::<32>().0,
+        );
         let mut ca = _mm_set1_epi8(ca as i8);
         let mut cb = _mm_set1_epi8(cb as i8);
         let mut done = 0;
@@ -127,7 +131,11 @@ mod tests {
         let half = t.len().div_ceil(2);
         let mut out = vec![0u8; t.len()];
         for (i, o) in out.iter_mut().enumerate() {
-            *o = if i % 2 == 0 { t[i / 2] } else { t[half + i / 2] };
+            *o = if i % 2 == 0 {
+                t[i / 2]
+            } else {
+                t[half + i / 2]
+            };
         }
         out
     }
@@ -159,7 +167,10 @@ mod tests {
         assert_eq!(decompress(&good, 100).unwrap().len(), 100);
         assert!(decompress(&good, 99).is_err(), "longer than the block");
         assert!(decompress(&good, 101).is_err(), "shorter than the block");
-        assert!(decompress(&good[..good.len() / 2], 100).is_err(), "truncated");
+        assert!(
+            decompress(&good[..good.len() / 2], 100).is_err(),
+            "truncated"
+        );
         let mut bad = good.clone();
         let last = bad.len() - 1;
         bad[last] ^= 1;

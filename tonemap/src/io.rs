@@ -1645,12 +1645,12 @@ pub(crate) fn srgb8_row(values: &[f32], out: &mut [u8]) {
 #[allow(unsafe_code)]
 fn srgb8_lanes_avx2(t: &Srgb8Tables, values: &[f32], out: &mut [u8]) -> usize {
     use std::arch::x86_64::{
-        _CMP_GE_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _mm_cvtsi128_si64, _mm_unpacklo_epi32,
-        _mm256_and_ps, _mm256_castps_si256, _mm256_castsi256_si128, _mm256_cmp_ps,
-        _mm256_extracti128_si256, _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_loadu_ps,
-        _mm256_max_epi32, _mm256_min_epi32, _mm256_min_ps, _mm256_packus_epi16,
-        _mm256_packus_epi32, _mm256_set1_epi32, _mm256_set1_ps, _mm256_setzero_ps,
-        _mm256_setzero_si256, _mm256_srli_epi32, _mm256_sub_epi32,
+        _CMP_GE_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _mm_cvtsi128_si64, _mm_unpacklo_epi32, _mm256_and_ps,
+        _mm256_castps_si256, _mm256_castsi256_si128, _mm256_cmp_ps, _mm256_extracti128_si256,
+        _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_loadu_ps, _mm256_max_epi32,
+        _mm256_min_epi32, _mm256_min_ps, _mm256_packus_epi16, _mm256_packus_epi32,
+        _mm256_set1_epi32, _mm256_set1_ps, _mm256_setzero_ps, _mm256_setzero_si256,
+        _mm256_srli_epi32, _mm256_sub_epi32,
     };
     let n = values.len().min(out.len()) / 8 * 8;
     let zero = _mm256_setzero_ps();

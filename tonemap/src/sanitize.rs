@@ -340,7 +340,9 @@ mod tests {
             1e-3,
             -f32::NAN,
         ];
-        let row: Vec<f32> = (0..40).map(|i| values[(i * 7 + i / 5) % values.len()]).collect();
+        let row: Vec<f32> = (0..40)
+            .map(|i| values[(i * 7 + i / 5) % values.len()])
+            .collect();
         for start in 0..row.len() {
             let part = &row[start..];
             let (mut lo, mut hi, mut zeros) = (f32::INFINITY, 0.0f32, 0u64);
