@@ -561,6 +561,11 @@ impl ExrBands {
             self.layout.line(b, y % self.band, planes, row);
         }
     }
+
+    /// Whether row `y`'s values are all finite and not negative ([`ExrBlock::clean`]).
+    fn row_is_clean(&self, y: usize) -> bool {
+        self.bands[y / self.band].iter().all(|b| b.clean)
+    }
 }
 
 /// One decompressed block: the columns `x0..x0 + cols` of `lines` lines.
@@ -570,6 +575,10 @@ struct ExrBlock {
     cols: usize,
     lines: usize,
     samples: BlockSamples,
+    /// Whether every picked sample is finite and not negative (-0 allowed), by its bits:
+    /// the dirty-input rule then changes nothing in the block's rows. `false` where not
+    /// looked at (32-bit samples of PIZ blocks).
+    clean: bool,
 }
 
 /// A block's samples as decompressed.
@@ -620,6 +629,7 @@ impl Layout {
             x0,
             cols,
             lines,
+            clean: self.is_clean(&samples, cols, lines),
             samples,
         };
         let pixels = match &mut chunk.compressed_block {
@@ -692,6 +702,50 @@ impl Layout {
             ));
         }
         Ok(block(BlockSamples::Lines(decoded.data)))
+    }
+
+    /// Whether every picked sample of `samples` (a block of `cols` by `lines`) is finite and
+    /// not negative, by its bits ([`ExrBlock::clean`]).
+    fn is_clean(&self, samples: &BlockSamples, cols: usize, lines: usize) -> bool {
+        use exr::meta::attribute::SampleType;
+        // A half or a float that is NaN, infinite or below -0. (`&` folds, which
+        // vectorise, rather than `all`, which stops early.)
+        let half = |h: u16| (h & 0x7fff) < 0x7c00 && h <= 0x8000;
+        let float = |f: u32| (f & 0x7fff_ffff) < 0x7f80_0000 && f <= 0x8000_0000;
+        match samples {
+            BlockSamples::Piz { d, first } => self.picked.iter().all(|&c| {
+                self.types[c] == SampleType::F16
+                    && d.planes[first[c]..first[c] + cols * lines]
+                        .iter()
+                        .fold(true, |ok, &h| ok & half(h))
+            }),
+            BlockSamples::Lines(data) => {
+                let line_bytes: usize =
+                    self.types.iter().map(|t| cols * t.bytes_per_sample()).sum();
+                data.chunks_exact(line_bytes.max(1)).all(|line| {
+                    self.picked.iter().all(|&c| {
+                        let at: usize = self.types[..c]
+                            .iter()
+                            .map(|t| cols * t.bytes_per_sample())
+                            .sum();
+                        let bytes = &line[at..at + cols * self.types[c].bytes_per_sample()];
+                        match self.types[c] {
+                            SampleType::F16 => bytes
+                                .as_chunks::<2>()
+                                .0
+                                .iter()
+                                .fold(true, |ok, b| ok & half(u16::from_ne_bytes(*b))),
+                            SampleType::F32 => bytes
+                                .as_chunks::<4>()
+                                .0
+                                .iter()
+                                .fold(true, |ok, b| ok & float(u32::from_ne_bytes(*b))),
+                            SampleType::U32 => true,
+                        }
+                    })
+                })
+            }
+        }
     }
 
     /// Every line of block `b` into its columns of its band's `rows` (RGB, the whole width).
@@ -858,11 +912,6 @@ impl HdrSource {
         !matches!(self.inner, Source::Image(_))
     }
 
-    /// Whether every value is finite and not negative by the file's encoding (RGBE).
-    pub(crate) fn is_clean_by_encoding(&self) -> bool {
-        matches!(self.inner, Source::Rgbe { .. })
-    }
-
     /// Row `y` as RGB `f32` into `out` (`3 * width` values); `scratch` holds buffers the
     /// caller keeps between calls (one per thread). The values are those of
     /// [`HdrSource::into_image`], bit for bit.
@@ -898,6 +947,17 @@ impl HdrSource {
                 true
             }
             Source::Exr(_) | Source::Image(_) => false,
+        }
+    }
+
+    /// Whether row `y`'s values are known to be finite and not negative (RGBE values
+    /// always; OpenEXR blocks checked as decompressed), so the dirty-input rule would
+    /// change nothing.
+    pub(crate) fn row_is_clean(&self, y: usize) -> bool {
+        match &self.inner {
+            Source::Rgbe { .. } => true,
+            Source::Exr(bands) => bands.row_is_clean(y),
+            Source::Image(_) => false,
         }
     }
 

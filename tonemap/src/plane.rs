@@ -494,7 +494,8 @@ pub(crate) fn log_sum_row(
         move |x: usize| {
             let dx = x as f32 + 0.5 - cx;
             let dy = y as f32 + 0.5 - cy;
-            !(dx * dx + dy * dy > r * r)
+            // Outside only where the distance is larger (not where it is NaN).
+            (dx * dx + dy * dy).partial_cmp(&(r * r)) != Some(std::cmp::Ordering::Greater)
         }
     });
     sum_logs(row, logs, inside)

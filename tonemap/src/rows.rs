@@ -24,7 +24,8 @@ pub(crate) struct RowBuffers {
     /// Logarithms (first pass) or output luminances (second pass).
     work: Vec<f32>,
     /// Whether the dirty-input rule may change a value (not after a first pass that found
-    /// nothing to change, nor for RGBE values).
+    /// nothing to change; nor in rows the source knows to be clean,
+    /// [`HdrSource::row_is_clean`]).
     rule: bool,
 }
 
@@ -36,7 +37,7 @@ impl RowBuffers {
             rgb: vec![0.0; 3 * w],
             lum: vec![0.0; w],
             work: vec![0.0; w],
-            rule: rule && !src.is_clean_by_encoding(),
+            rule,
         }
     }
 
@@ -69,7 +70,7 @@ impl RowBuffers {
     /// statistics): the row's report and largest finite value per channel.
     fn load(&mut self, src: &HdrSource, y: usize) -> (SanitizeReport, [f32; 3]) {
         src.decode_row(y, &mut self.scratch, &mut self.rgb);
-        let cleaned = if !self.rule {
+        let cleaned = if !self.rule || src.row_is_clean(y) {
             (SanitizeReport::default(), [0.0; 3])
         } else {
             clean_row(&mut self.rgb)

@@ -136,6 +136,72 @@ fn dirty_images_are_cleaned_per_row_as_the_whole_image_is() {
     );
 }
 
+/// OpenEXR files whose dirty values sit in a few rows only (the other blocks known clean
+/// by their bits, which skip the dirty-input rule): the rows match the whole image in every
+/// compression, half and float, scan lines and tiles; one +Inf anywhere still sends the
+/// image to the whole-image path.
+#[test]
+fn exr_blocks_known_clean_skip_only_what_the_rule_would_not_change() {
+    use exr::prelude::*;
+    let (w, h) = (37usize, 45usize);
+    let dirty = Rgb32FImage::from_fn(w as u32, h as u32, |x, y| {
+        let v = 0.02 * (1 + x + 3 * y) as f32;
+        match (x, y) {
+            (5, 3) => Rgb([f32::NAN, v, v]),
+            (36, 20) => Rgb([v, -v, v]),
+            (0, 44) => Rgb([v, v, -1e-3]),
+            (9, 30) => Rgb([-0.0, v, v]),
+            _ => Rgb([v, 2.0 * v, 0.5 * v]),
+        }
+    });
+    let mut inf = dirty.clone();
+    inf.put_pixel(17, 33, Rgb([1.0, f32::INFINITY, 1.0]));
+    let dir = tempfile::tempdir().unwrap();
+    let drago = Operator::Drago(DragoParams::default());
+    for compression in [
+        Compression::Uncompressed,
+        Compression::ZIP1,
+        Compression::ZIP16,
+        Compression::PIZ,
+        Compression::RLE,
+    ] {
+        for blocks in [Blocks::ScanLines, Blocks::Tiles(Vec2(16, 8))] {
+            for half in [true, false] {
+                let what = format!("{compression:?} {blocks:?} half {half}");
+                for (img, name) in [(&dirty, "dirty"), (&inf, "inf")] {
+                    let path = dir.path().join(format!("{name}.exr"));
+                    let pixel = |p: Vec2<usize>| img.get_pixel(p.x() as u32, p.y() as u32).0;
+                    let encoding = Encoding {
+                        compression,
+                        blocks,
+                        line_order: LineOrder::Increasing,
+                    };
+                    let attributes = LayerAttributes::default();
+                    if half {
+                        let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
+                            pixel(p).map(f16::from_f32).into()
+                        });
+                        let layer = Layer::new((w, h), attributes, encoding, channels);
+                        Image::from_layer(layer).write().to_file(&path).unwrap();
+                    } else {
+                        let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
+                            <(f32, f32, f32)>::from(pixel(p))
+                        });
+                        let layer = Layer::new((w, h), attributes, encoding, channels);
+                        Image::from_layer(layer).write().to_file(&path).unwrap();
+                    }
+                    let src = source(&path);
+                    if name == "dirty" {
+                        rows_equal_whole_image(&src, &read_hdr_image(&path).unwrap(), &what);
+                    } else {
+                        assert!(drago.apply_rows_srgb8(&src).unwrap().is_none(), "{what}");
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn the_rows_decline_what_needs_the_whole_image() {
     let img = Rgb32FImage::from_fn(8, 4, |x, _| Rgb([x as f32; 3]));
