@@ -427,12 +427,56 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
         }
     };
     let mut irregular = false;
+    // Complete bands not yet given to the pool, and their lines.
+    let mut batch = Vec::new();
+    let mut batch_lines = 0;
+    const BATCH_LINES: usize = 16;
     let chunks = reader.all_chunks(false).map_err(|e| exr_error(e, path))?;
     rayon::scope(|scope| {
+        let (layout, meta, fail) = (&layout, &meta, &fail);
+        // Decodes a batch of complete bands on the pool.
+        let flush = |batch: Vec<_>| {
+            scope.spawn(move |_| {
+                let mut planes = <[Vec<f32>; 3]>::default();
+                for (slot, blocks, lines) in batch {
+                    let mut blocks: Vec<(usize, usize, Chunk)> = blocks;
+                    blocks.sort_by_key(|b| b.1);
+                    let mut slot = slot;
+                    let mut kept = Vec::new();
+                    for (i, column, chunk) in blocks {
+                        let x0 = column * tile_w;
+                        let cols = tile_w.min(w - x0);
+                        let b = match layout.decompress(meta, chunk, x0, cols, lines, path) {
+                            Ok(b) => b,
+                            // The band's other blocks are not needed; the batch's other
+                            // bands are decoded still, so that the first failing block in
+                            // file order is always found.
+                            Err(e) => {
+                                fail(i, e);
+                                break;
+                            }
+                        };
+                        match &mut slot {
+                            // Converted while the block is in the cache.
+                            BandSlot::Rows(rows) => layout.block_into(&b, rows, &mut planes),
+                            BandSlot::Blocks(_) => kept.push(b),
+                        }
+                    }
+                    if let BandSlot::Blocks(out) = slot {
+                        *out = kept;
+                    }
+                }
+            });
+        };
         for (i, chunk) in chunks.enumerate() {
             let chunk = match chunk {
                 Ok(c) => c,
-                Err(e) => return fail(i, exr_error(e, path)),
+                // The bands complete before it are decoded still (their errors may come
+                // first in the file).
+                Err(e) => {
+                    flush(std::mem::take(&mut batch));
+                    return fail(i, exr_error(e, path));
+                }
             };
             // The band and the block's column in it; blocks of smaller mip levels are
             // skipped.
@@ -445,7 +489,10 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
                 }
                 _ => match header.get_block_data_indices(&chunk.compressed_block) {
                     Ok(t) => (t.tile_index.y(), 0),
-                    Err(e) => return fail(i, exr_error(e, path)),
+                    Err(e) => {
+                        flush(std::mem::take(&mut batch));
+                        return fail(i, exr_error(e, path));
+                    }
                 },
             };
             let Some(blocks) = pending.get_mut(at) else {
@@ -469,34 +516,20 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
                 irregular = true;
                 return;
             };
-            let mut blocks = std::mem::take(blocks);
             let lines = band.min(h - at * band);
-            let (layout, meta, fail) = (&layout, &meta, &fail);
-            scope.spawn(move |_| {
-                blocks.sort_by_key(|b| b.1);
-                let mut slot = slot;
-                let mut kept = Vec::new();
-                let mut planes = <[Vec<f32>; 3]>::default();
-                for (i, column, chunk) in blocks {
-                    let x0 = column * tile_w;
-                    let cols = tile_w.min(w - x0);
-                    let b = match layout.decompress(meta, chunk, x0, cols, lines, path) {
-                        Ok(b) => b,
-                        Err(e) => return fail(i, e),
-                    };
-                    match &mut slot {
-                        // Converted while the block is in the cache.
-                        BandSlot::Rows(rows) => layout.block_into(&b, rows, &mut planes),
-                        BandSlot::Blocks(_) => kept.push(b),
-                    }
-                }
-                if let BandSlot::Blocks(out) = slot {
-                    *out = kept;
-                }
-            });
+            batch.push((slot, std::mem::take(blocks), lines));
+            batch_lines += lines;
+            open -= 1;
+            // Bands go to the pool in batches of at least `BATCH_LINES` lines (single-line
+            // blocks one task each kept the other threads waking for a few microseconds
+            // of work).
+            if batch_lines < BATCH_LINES && open > 0 {
+                continue;
+            }
+            batch_lines = 0;
+            flush(std::mem::take(&mut batch));
             // Every band taken: the rest of the file holds smaller mip levels only, which
             // need not be read (nor be intact).
-            open -= 1;
             if open == 0 {
                 return;
             }
