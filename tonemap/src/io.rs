@@ -621,7 +621,8 @@ enum BlockSamples {
     Lines(Vec<u8>),
     /// The PIZ decoder's planes of indices into its values, except the picked half-float
     /// channels' planes, which hold the half values themselves (0 for indices past the
-    /// values, which only damaged data has); where each channel's plane starts.
+    /// values, which only damaged data has); where each channel's plane starts. The values
+    /// are kept only where a picked channel is 32-bit.
     Piz {
         d: crate::piz::Decoded,
         first: Vec<usize>,
@@ -717,6 +718,11 @@ impl Layout {
                     }
                     mapped.push(c);
                 }
+            }
+            // Every picked channel holds its values now: the table (128 KiB a block, which
+            // small tiles would keep by the thousand) is not kept.
+            if self.picked.iter().all(|&c| words[c] == 1) {
+                d.values = Vec::new();
             }
             return Ok(block(BlockSamples::Piz { d, first }));
         }
