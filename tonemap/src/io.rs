@@ -799,6 +799,32 @@ impl Layout {
     fn line(&self, b: &ExrBlock, y: usize, planes: &mut [Vec<f32>; 3], row: &mut [f32]) {
         use exr::meta::attribute::SampleType;
         let cols = b.cols;
+        let out = &mut row[3 * b.x0..3 * (b.x0 + cols)];
+        // Three half-float channels: converted and interleaved in one step.
+        if self
+            .picked
+            .iter()
+            .all(|&c| self.types[c] == SampleType::F16)
+        {
+            let channel = |c: usize| -> &[u8] {
+                match &b.samples {
+                    BlockSamples::Piz { d, first } => {
+                        bytemuck::cast_slice(&d.planes[first[c] + y * cols..][..cols])
+                    }
+                    BlockSamples::Lines(data) => {
+                        let line_bytes = data.len() / b.lines;
+                        let at: usize = self.types[..c]
+                            .iter()
+                            .map(|t| cols * t.bytes_per_sample())
+                            .sum();
+                        &data[y * line_bytes + at..][..2 * cols]
+                    }
+                }
+            };
+            let [r, g, bl] = self.picked;
+            halves_to_rgb(channel(r), channel(g), channel(bl), out);
+            return;
+        }
         for p in planes.iter_mut() {
             p.resize(cols, 0.0);
         }
@@ -840,7 +866,6 @@ impl Layout {
             }
         }
         let [r, g, bl] = &*planes;
-        let out = &mut row[3 * b.x0..3 * (b.x0 + cols)];
         for (((o, r), g), bl) in out.as_chunks_mut::<3>().0.iter_mut().zip(r).zip(g).zip(bl) {
             *o = [*r, *g, *bl];
         }
@@ -885,6 +910,56 @@ fn halves_to_f32(src: &[u8], out: &mut [f32]) {
     {
         *o = half::f16::from_bits(u16::from_ne_bytes(*b)).to_f32();
     }
+}
+
+/// Three channels of half floats (native-endian, two bytes each, the same count) to
+/// interleaved RGB f32 in `out`: [`halves_to_f32`]'s conversion, eight pixels at a time with
+/// F16C where the CPU has it.
+fn halves_to_rgb(r: &[u8], g: &[u8], b: &[u8], out: &mut [f32]) {
+    let mut done = 0;
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("f16c") && std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: F16C and AVX detected just above.
+        #[allow(unsafe_code)]
+        unsafe {
+            done = halves_to_rgb_f16c(r, g, b, out);
+        }
+    }
+    let half =
+        |s: &[u8], i: usize| half::f16::from_bits(u16::from_ne_bytes([s[2 * i], s[2 * i + 1]]));
+    for (i, o) in out.as_chunks_mut::<3>().0.iter_mut().enumerate().skip(done) {
+        *o = [
+            half(r, i).to_f32(),
+            half(g, i).to_f32(),
+            half(b, i).to_f32(),
+        ];
+    }
+}
+
+/// [`halves_to_rgb`]'s whole groups of eight pixels; how many pixels it did.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,f16c")]
+fn halves_to_rgb_f16c(r: &[u8], g: &[u8], b: &[u8], out: &mut [f32]) -> usize {
+    use std::arch::x86_64::{__m128i, _mm256_cvtph_ps};
+    let eight = |s: &[u8; 16]| -> [f32; 8] {
+        bytemuck::cast(_mm256_cvtph_ps(bytemuck::cast::<[u8; 16], __m128i>(*s)))
+    };
+    let (r8, g8, b8) = (
+        r.as_chunks::<16>().0,
+        g.as_chunks::<16>().0,
+        b.as_chunks::<16>().0,
+    );
+    let o24 = out.as_chunks_mut::<24>().0;
+    let n = r8.len().min(g8.len()).min(b8.len()).min(o24.len());
+    for (((r, g), b), o) in r8.iter().zip(g8).zip(b8).zip(o24.iter_mut()) {
+        let (r, g, b) = (eight(r), eight(g), eight(b));
+        for j in 0..8 {
+            o[3 * j] = r[j];
+            o[3 * j + 1] = g[j];
+            o[3 * j + 2] = b[j];
+        }
+    }
+    8 * n
 }
 
 /// [`halves_to_f32`]'s whole groups of eight; how many values it did.
@@ -2190,6 +2265,36 @@ mod tests {
                     assert!(f.is_nan(), "{h:#06x}");
                 } else {
                     assert_eq!(f.to_bits(), want.to_bits(), "{h:#06x}");
+                }
+            }
+        }
+    }
+
+    /// Three channels of halves interleave as each converts alone, in rows of every length
+    /// up to 40 pixels (random bit patterns; NaN to NaN).
+    #[test]
+    fn half_channels_interleave_as_each_converts() {
+        let mut state = 0x1234_5678_9abc_def1u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state as u16
+        };
+        for n in 0..=40usize {
+            let chans: Vec<Vec<u8>> = (0..3)
+                .map(|_| (0..n).flat_map(|_| next().to_ne_bytes()).collect())
+                .collect();
+            let mut out = vec![0.0f32; 3 * n];
+            halves_to_rgb(&chans[0], &chans[1], &chans[2], &mut out);
+            for (i, o) in out.iter().enumerate() {
+                let c = &chans[i % 3];
+                let h = u16::from_ne_bytes([c[2 * (i / 3)], c[2 * (i / 3) + 1]]);
+                let want = half::f16::from_bits(h).to_f32();
+                if want.is_nan() {
+                    assert!(o.is_nan(), "{n}: {i}");
+                } else {
+                    assert_eq!(o.to_bits(), want.to_bits(), "{n}: {i}");
                 }
             }
         }
