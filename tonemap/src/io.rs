@@ -2260,13 +2260,18 @@ mod tests {
             let mut out = vec![0.0f32; all.len() - skip];
             halves_to_f32(&src, &mut out);
             for (&h, &f) in all[skip..].iter().zip(&out) {
-                let want = half::f16::from_bits(h).to_f32();
-                if want.is_nan() {
-                    assert!(f.is_nan(), "{h:#06x}");
-                } else {
-                    assert_eq!(f.to_bits(), want.to_bits(), "{h:#06x}");
-                }
+                assert_is_half(f, h);
             }
+        }
+    }
+
+    /// `got` is the `half` crate's f32 of the half bit pattern `h` (NaN for NaN).
+    fn assert_is_half(got: f32, h: u16) {
+        let want = half::f16::from_bits(h).to_f32();
+        if want.is_nan() {
+            assert!(got.is_nan(), "{h:#06x}");
+        } else {
+            assert_eq!(got.to_bits(), want.to_bits(), "{h:#06x}");
         }
     }
 
@@ -2274,13 +2279,8 @@ mod tests {
     /// up to 40 pixels (random bit patterns; NaN to NaN).
     #[test]
     fn half_channels_interleave_as_each_converts() {
-        let mut state = 0x1234_5678_9abc_def1u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state as u16
-        };
+        let mut rng = crate::xorshift(0x1234_5678_9abc_def1);
+        let mut next = || rng() as u16;
         for n in 0..=40usize {
             let chans: Vec<Vec<u8>> = (0..3)
                 .map(|_| (0..n).flat_map(|_| next().to_ne_bytes()).collect())
@@ -2289,13 +2289,7 @@ mod tests {
             halves_to_rgb(&chans[0], &chans[1], &chans[2], &mut out);
             for (i, o) in out.iter().enumerate() {
                 let c = &chans[i % 3];
-                let h = u16::from_ne_bytes([c[2 * (i / 3)], c[2 * (i / 3) + 1]]);
-                let want = half::f16::from_bits(h).to_f32();
-                if want.is_nan() {
-                    assert!(o.is_nan(), "{n}: {i}");
-                } else {
-                    assert_eq!(o.to_bits(), want.to_bits(), "{n}: {i}");
-                }
+                assert_is_half(*o, u16::from_ne_bytes([c[2 * (i / 3)], c[2 * (i / 3) + 1]]));
             }
         }
     }

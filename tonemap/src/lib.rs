@@ -82,3 +82,14 @@ pub use sanitize::{
     sanitize_in_place,
 };
 pub use session::TonemapSession;
+
+/// A fixed-seed xorshift generator for the unit tests' random inputs.
+#[cfg(test)]
+pub(crate) fn xorshift(mut state: u64) -> impl FnMut() -> u64 {
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    }
+}

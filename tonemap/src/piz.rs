@@ -663,13 +663,8 @@ mod tests {
     /// every width up to 40 and 1 to 5 lines.
     #[test]
     fn the_finest_level_is_the_2x2_step() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state as u16
-        };
+        let mut rng = crate::xorshift(0x2545_f491_4f6c_dd1d);
+        let mut next = || rng() as u16;
         for small in [true, false] {
             let pair: fn(u16, u16) -> (u16, u16) = if small { pair_14 } else { pair_16 };
             for width in 1..=40 {

@@ -615,13 +615,7 @@ mod tests {
     /// length up to 41 with zeros, negatives, NaN and values over many octaves.
     #[test]
     fn log_sums_are_the_partial_sums_pixel_by_pixel() {
-        let mut state = 0x853c_49e6_748f_ea9bu64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut next = crate::xorshift(0x853c_49e6_748f_ea9b);
         for len in 0..=41 {
             let row: Vec<f32> = (0..len)
                 .map(|_| match next() % 8 {
