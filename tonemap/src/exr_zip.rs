@@ -106,10 +106,7 @@ mod sse2 {
             let (sa, la) = running(bytemuck::cast(*x), ca);
             let (sb, lb) = running(bytemuck::cast(*y), cb);
             (ca, cb) = (la, lb);
-            let lo: [u8; 16] = bytemuck::cast(_mm_unpacklo_epi8(sa, sb));
-            let hi: [u8; 16] = bytemuck::cast(_mm_unpackhi_epi8(sa, sb));
-            o[..16].copy_from_slice(&lo);
-            o[16..].copy_from_slice(&hi);
+            *o = bytemuck::cast([_mm_unpacklo_epi8(sa, sb), _mm_unpackhi_epi8(sa, sb)]);
             done += 16;
         }
         let first = |v: __m128i| bytemuck::cast::<__m128i, [u8; 16]>(v)[0];

@@ -338,9 +338,11 @@ fn exr_fits_in_file(header: &exr::meta::header::Header, file_len: u64, path: &Pa
 /// full-resolution level of mip-mapped files), every channel sampled at every pixel, R, G,
 /// B (or Y) found as [`read_exr`] finds them. The compressed blocks are read in file order;
 /// as soon as a band of the image is complete (a scan-line block, or a row of tiles), its
-/// blocks are decompressed (by the exr crate, every compression it reads; PIZ by
-/// [`crate::piz`]) and converted straight into the band's rows of the interleaved f32
-/// image, bands in parallel on the caller's thread pool while the next blocks are read. The
+/// blocks are decompressed (PIZ by [`crate::piz`], ZIP by [`crate::exr_zip`], blocks stored
+/// raw taken as they are, the other compressions by the exr crate) and converted straight
+/// into the band's rows of the interleaved f32 image, or kept if `compact`: bands in
+/// batches of at least 16 lines, in parallel on the caller's thread pool while the next
+/// blocks are read. The
 /// exr crate's image reader, which [`read_exr`] uses otherwise, decompresses in parallel
 /// too, but on a thread pool it builds per file (none at all for uncompressed files) and
 /// converts each sample through a per-line callback, which cost more than the
@@ -446,7 +448,7 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
                     for (i, column, chunk) in blocks {
                         let x0 = column * tile_w;
                         let cols = tile_w.min(w - x0);
-                        let b = match layout.decompress(meta, chunk, x0, cols, lines, path) {
+                        let mut b = match layout.decompress(meta, chunk, x0, cols, lines, path) {
                             Ok(b) => b,
                             // The band's other blocks are not needed; the batch's other
                             // bands are decoded still, so that the first failing block in
@@ -459,7 +461,11 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
                         match &mut slot {
                             // Converted while the block is in the cache.
                             BandSlot::Rows(rows) => layout.block_into(&b, rows, &mut planes),
-                            BandSlot::Blocks(_) => kept.push(b),
+                            // Kept: whether its rows need the dirty-input rule.
+                            BandSlot::Blocks(_) => {
+                                b.clean = layout.is_clean(&b.samples, b.cols, b.lines);
+                                kept.push(b);
+                            }
                         }
                     }
                     if let BandSlot::Blocks(out) = slot {
@@ -471,11 +477,9 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
         for (i, chunk) in chunks.enumerate() {
             let chunk = match chunk {
                 Ok(c) => c,
-                // The bands complete before it are decoded still (their errors may come
-                // first in the file).
                 Err(e) => {
-                    flush(std::mem::take(&mut batch));
-                    return fail(i, exr_error(e, path));
+                    fail(i, exr_error(e, path));
+                    break;
                 }
             };
             // The band and the block's column in it; blocks of smaller mip levels are
@@ -490,14 +494,14 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
                 _ => match header.get_block_data_indices(&chunk.compressed_block) {
                     Ok(t) => (t.tile_index.y(), 0),
                     Err(e) => {
-                        flush(std::mem::take(&mut batch));
-                        return fail(i, exr_error(e, path));
+                        fail(i, exr_error(e, path));
+                        break;
                     }
                 },
             };
             let Some(blocks) = pending.get_mut(at) else {
                 irregular = true;
-                return;
+                break;
             };
             // A block of a band already decoded is a repeat too.
             if chunk.layer_index != 0
@@ -506,7 +510,7 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
                 || blocks.iter().any(|b| b.1 == column)
             {
                 irregular = true;
-                return;
+                break;
             }
             blocks.push((i, column, chunk));
             if blocks.len() < across {
@@ -514,7 +518,7 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
             }
             let Some(slot) = slots[at].take() else {
                 irregular = true;
-                return;
+                break;
             };
             let lines = band.min(h - at * band);
             batch.push((slot, std::mem::take(blocks), lines));
@@ -531,8 +535,13 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
             // Every band taken: the rest of the file holds smaller mip levels only, which
             // need not be read (nor be intact).
             if open == 0 {
-                return;
+                break;
             }
+        }
+        // The bands complete when the loop stopped are decoded still (their errors may
+        // come first in the file).
+        if !batch.is_empty() {
+            flush(std::mem::take(&mut batch));
         }
     });
     if let Some((_, e)) = failed
@@ -609,8 +618,9 @@ struct ExrBlock {
     lines: usize,
     samples: BlockSamples,
     /// Whether every picked sample is finite and not negative (-0 allowed), by its bits:
-    /// the dirty-input rule then changes nothing in the block's rows. `false` where not
-    /// looked at (32-bit samples of PIZ blocks).
+    /// the dirty-input rule then changes nothing in the block's rows. Looked at only for
+    /// the blocks a compact source keeps; `false` where not looked at (and for 32-bit
+    /// samples of PIZ blocks).
     clean: bool,
 }
 
@@ -663,7 +673,7 @@ impl Layout {
             x0,
             cols,
             lines,
-            clean: self.is_clean(&samples, cols, lines),
+            clean: false,
             samples,
         };
         let pixels = match &mut chunk.compressed_block {
@@ -763,11 +773,7 @@ impl Layout {
                     self.types.iter().map(|t| cols * t.bytes_per_sample()).sum();
                 data.chunks_exact(line_bytes.max(1)).all(|line| {
                     self.picked.iter().all(|&c| {
-                        let at: usize = self.types[..c]
-                            .iter()
-                            .map(|t| cols * t.bytes_per_sample())
-                            .sum();
-                        let bytes = &line[at..at + cols * self.types[c].bytes_per_sample()];
+                        let bytes = &line[self.channel_in_line(c, cols)];
                         match self.types[c] {
                             SampleType::F16 => bytes
                                 .as_chunks::<2>()
@@ -785,6 +791,16 @@ impl Layout {
                 })
             }
         }
+    }
+
+    /// Where channel `c`'s samples lie within a line of a block `cols` wide (each channel's
+    /// samples one after the other, in the file's order).
+    fn channel_in_line(&self, c: usize, cols: usize) -> std::ops::Range<usize> {
+        let at: usize = self.types[..c]
+            .iter()
+            .map(|t| cols * t.bytes_per_sample())
+            .sum();
+        at..at + cols * self.types[c].bytes_per_sample()
     }
 
     /// Every line of block `b` into its columns of its band's `rows` (RGB, the whole width).
@@ -813,11 +829,7 @@ impl Layout {
                     }
                     BlockSamples::Lines(data) => {
                         let line_bytes = data.len() / b.lines;
-                        let at: usize = self.types[..c]
-                            .iter()
-                            .map(|t| cols * t.bytes_per_sample())
-                            .sum();
-                        &data[y * line_bytes + at..][..2 * cols]
+                        &data[y * line_bytes..][self.channel_in_line(c, cols)]
                     }
                 }
             };
@@ -855,13 +867,7 @@ impl Layout {
                 let line_bytes = data.len() / b.lines;
                 let line = &data[y * line_bytes..(y + 1) * line_bytes];
                 for (plane, &c) in planes.iter_mut().zip(&self.picked) {
-                    // Where the channel's samples start within the line.
-                    let at: usize = self.types[..c]
-                        .iter()
-                        .map(|t| cols * t.bytes_per_sample())
-                        .sum();
-                    let n = cols * self.types[c].bytes_per_sample();
-                    samples_to_f32(self.types[c], &line[at..at + n], plane);
+                    samples_to_f32(self.types[c], &line[self.channel_in_line(c, cols)], plane);
                 }
             }
         }
@@ -2250,8 +2256,7 @@ mod tests {
     use super::*;
 
     /// Every half-float bit pattern converts as the `half` crate converts it (NaN to NaN),
-    /// at every offset of an eight-value group and in a row whose length is not a multiple
-    /// of eight.
+    /// at two offsets, in rows whose lengths are not multiples of eight.
     #[test]
     fn halves_convert_as_the_half_crate_does() {
         let all: Vec<u16> = (0..=u16::MAX).collect();

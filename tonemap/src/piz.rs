@@ -427,10 +427,16 @@ fn undo_wavelet(
     small: bool,
 ) {
     if small {
-        undo_wavelet_with(plane, half, words, width, lines, small, pair_14);
+        undo_wavelet_with::<true>(plane, half, words, width, lines);
     } else {
-        undo_wavelet_with(plane, half, words, width, lines, small, pair_16);
+        undo_wavelet_with::<false>(plane, half, words, width, lines);
     }
+}
+
+/// [`pair_14`] (`SMALL`: every value below 2^14) or [`pair_16`].
+#[inline(always)]
+fn pair<const SMALL: bool>(l: u16, h: u16) -> (u16, u16) {
+    if SMALL { pair_14(l, h) } else { pair_16(l, h) }
 }
 
 #[inline(always)]
@@ -453,16 +459,12 @@ fn pair_16(l: u16, h: u16) -> (u16, u16) {
 /// samples: each 2x2 square's columns, then its rows; a last odd column's pairs vertically,
 /// a last odd row's horizontally.
 #[inline(always)]
-fn finest_level(
-    plane: &mut [u16],
-    width: usize,
-    small: bool,
-    pair: &impl Fn(u16, u16) -> (u16, u16),
-) {
+fn finest_level<const SMALL: bool>(plane: &mut [u16], width: usize) {
+    let pair = pair::<SMALL>;
     let mut rows = plane.chunks_exact_mut(2 * width);
     for two in &mut rows {
         let (top, bottom) = two.split_at_mut(width);
-        let done = rows_sse2(top, bottom, small);
+        let done = rows_sse2::<SMALL>(top, bottom);
         let (t2, t_odd) = top[done..].as_chunks_mut::<2>();
         let (b2, b_odd) = bottom[done..].as_chunks_mut::<2>();
         for (t, b) in t2.iter_mut().zip(b2.iter_mut()) {
@@ -488,22 +490,18 @@ fn finest_level(
 
 /// The leading multiple of 16 samples of two rows of [`finest_level`], eight lanes at a time
 /// (SSE2, on every x86-64 CPU); how many it did.
-fn rows_sse2(top: &mut [u16], bottom: &mut [u16], small: bool) -> usize {
+fn rows_sse2<const SMALL: bool>(top: &mut [u16], bottom: &mut [u16]) -> usize {
     #[cfg(all(target_arch = "x86_64", target_feature = "sse2"))]
     {
         // SAFETY: SSE2 is enabled for the whole build (as on every x86-64 target).
         #[allow(unsafe_code)]
         unsafe {
-            if small {
-                sse2::rows::<true>(top, bottom)
-            } else {
-                sse2::rows::<false>(top, bottom)
-            }
+            sse2::rows::<SMALL>(top, bottom)
         }
     }
     #[cfg(not(all(target_arch = "x86_64", target_feature = "sse2")))]
     {
-        let _ = (top, bottom, small);
+        let _ = (top, bottom);
         0
     }
 }
@@ -555,13 +553,8 @@ mod sse2 {
         let (b16, _) = bottom.as_chunks_mut::<16>();
         let mut done = 0;
         for (t, b) in t16.iter_mut().zip(b16.iter_mut()) {
-            let halves = |v: &[u16; 16]| -> (__m128i, __m128i) {
-                let (lo, hi) = v.split_at(8);
-                let lo: [u16; 8] = lo.try_into().unwrap_or_default();
-                let hi: [u16; 8] = hi.try_into().unwrap_or_default();
-                (bytemuck::cast(lo), bytemuck::cast(hi))
-            };
-            let ((t0, t1), (b0, b1)) = (halves(t), halves(b));
+            let [t0, t1]: [__m128i; 2] = bytemuck::cast(*t);
+            let [b0, b1]: [__m128i; 2] = bytemuck::cast(*b);
             // Each column's pair, then each row's pair of columns.
             let (c0, u0) = pair::<SMALL>(t0, b0);
             let (c1, u1) = pair::<SMALL>(t1, b1);
@@ -569,14 +562,7 @@ mod sse2 {
             let (ue, uo) = split(u0, u1);
             let (ce, co) = pair::<SMALL>(ce, co);
             let (ue, uo) = pair::<SMALL>(ue, uo);
-            let join = |e, o| -> [u16; 16] {
-                let lo: [u16; 8] = bytemuck::cast(_mm_unpacklo_epi16(e, o));
-                let hi: [u16; 8] = bytemuck::cast(_mm_unpackhi_epi16(e, o));
-                let mut out = [0u16; 16];
-                out[..8].copy_from_slice(&lo);
-                out[8..].copy_from_slice(&hi);
-                out
-            };
+            let join = |e, o| bytemuck::cast([_mm_unpacklo_epi16(e, o), _mm_unpackhi_epi16(e, o)]);
             *t = join(ce, co);
             *b = join(ue, uo);
             done += 16;
@@ -586,15 +572,14 @@ mod sse2 {
 }
 
 #[inline(always)]
-fn undo_wavelet_with(
+fn undo_wavelet_with<const SMALL: bool>(
     plane: &mut [u16],
     half: usize,
     words: usize,
     width: usize,
     lines: usize,
-    small: bool,
-    pair: impl Fn(u16, u16) -> (u16, u16),
 ) {
+    let pair = pair::<SMALL>;
     let (ox, oy) = (words, words * width);
     let n = width.min(lines);
     if n < 2 {
@@ -606,8 +591,8 @@ fn undo_wavelet_with(
     while p >= 1 {
         if p == 1 && words == 1 {
             // The finest level of a plane of one word per sample (three quarters of the
-            // work): rows in pairs, pixels in pairs, a loop the compiler vectorises.
-            finest_level(&mut plane[..width * lines], width, small, &pair);
+            // work): rows in pairs, pixels in pairs, sixteen samples at a time with SSE2.
+            finest_level::<SMALL>(&mut plane[..width * lines], width);
             break;
         }
         let (x1, y1, x2, y2) = (ox * p, oy * p, ox * p2, oy * p2);
@@ -699,7 +684,11 @@ mod tests {
                         }
                     }
                     let mut got = plane;
-                    finest_level(&mut got, width, small, &pair);
+                    if small {
+                        finest_level::<true>(&mut got, width);
+                    } else {
+                        finest_level::<false>(&mut got, width);
+                    }
                     assert_eq!(got, want, "small {small}, {width} x {lines}");
                 }
             }

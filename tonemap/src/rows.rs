@@ -63,20 +63,19 @@ impl RowBuffers {
         y: usize,
     ) -> ((SanitizeReport, [f32; 3]), (f32, f32, u64)) {
         let cleaned = self.load(src, y);
+        luminance_into(&self.rgb, &mut self.lum);
         (cleaned, luminance_row_stats(&self.lum))
     }
 
-    /// Row `y` of `src`, cleaned, with its luminance (the second pass, which needs no
-    /// statistics): the row's report and largest finite value per channel.
+    /// Row `y` of `src`, cleaned (the second pass, whose codes may not need the
+    /// luminance): the row's report and largest finite value per channel.
     fn load(&mut self, src: &HdrSource, y: usize) -> (SanitizeReport, [f32; 3]) {
         src.decode_row(y, &mut self.scratch, &mut self.rgb);
-        let cleaned = if !self.rule || src.row_is_clean(y) {
+        if !self.rule || src.row_is_clean(y) {
             (SanitizeReport::default(), [0.0; 3])
         } else {
             clean_row(&mut self.rgb)
-        };
-        luminance_into(&self.rgb, &mut self.lum);
-        cleaned
+        }
     }
 }
 
@@ -125,7 +124,7 @@ pub(crate) fn clean_stats(
 }
 
 /// How the second pass makes a row's display codes from the thread's buffers (the row
-/// cleaned, with its luminance), the row's index and a display row buffer.
+/// cleaned), the row's index and a display row buffer.
 pub(crate) type RowCodes = Box<dyn Fn(&mut RowBuffers, usize, &mut [f32], &mut [u8]) + Sync>;
 
 /// The second pass of a luminance curve ([`crate::plane::recolour_with_srgb8`] row by row).
@@ -135,6 +134,7 @@ pub(crate) fn recolour_codes(
 ) -> RowCodes {
     let curve = crate::plane::curve_rows(curve);
     Box::new(move |b, y, orow, codes| {
+        luminance_into(&b.rgb, &mut b.lum);
         let w = b.lum.len();
         recolour_row_of(&b.rgb, &b.lum, y * w, saturation, &curve, &mut b.work, orow);
         crate::io::srgb8_row(orow, codes);
