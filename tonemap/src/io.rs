@@ -352,6 +352,13 @@ fn exr_fits_in_file(header: &exr::meta::header::Header, file_len: u64, path: &Pa
 /// R, G, B or Y, blocks missing or repeated), left to the exr crate's image reader and its
 /// messages. Damaged blocks are errors.
 fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
+    read_exr_blocks_by(path, compact, true)
+}
+
+/// [`read_exr_blocks`]; `at_offsets`: whether a regular file's blocks are read at the
+/// offsets of its table ([`read_blocks_at_offsets`]) rather than in file order (the readers
+/// do; the tests compare the two).
+fn read_exr_blocks_by(path: &Path, compact: bool, at_offsets: bool) -> Result<Option<ExrRead>> {
     use exr::block::chunk::{Chunk, CompressedBlock};
     use exr::meta::BlockDescription;
     let file = File::open(path).map_err(|e| Error::io("cannot read", path, e))?;
@@ -387,6 +394,10 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
     if w == 0 || h == 0 || band == 0 || tile_w == 0 {
         return Ok(None);
     }
+    let too_large = || Error::invalid("OpenEXR", "image size overflows", path);
+    if u32::try_from(w).is_err() || u32::try_from(h).is_err() {
+        return Err(too_large());
+    }
     let layout = Layout {
         w,
         picked,
@@ -397,10 +408,34 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
             exr::compression::Compression::ZIP1 | exr::compression::Compression::ZIP16
         ),
     };
-    // Each band's blocks are decompressed (and converted into the image's rows, unless
-    // `compact`) as soon as they are read: the reading overlaps the decoding. A block
-    // missing or given twice leaves the file to the exr crate.
     let bands = h.div_ceil(band);
+    // Files whose offset table and blocks are regular: every block read at its offset by
+    // the pool's threads.
+    if at_offsets
+        && let Some(read) = read_blocks_at_offsets(
+            path,
+            header,
+            &meta,
+            &layout,
+            compact,
+            (band, across, tile_w),
+        )
+    {
+        return Ok(Some(match read {
+            OffsetRead::Image(data) => ExrRead::Image(
+                Rgb32FImage::from_raw(w as u32, h as u32, data).ok_or_else(too_large)?,
+            ),
+            OffsetRead::Bands(bands) => ExrRead::Bands(ExrBands {
+                layout,
+                band,
+                h,
+                bands,
+            }),
+        }));
+    }
+    // Otherwise each band's blocks are decompressed (and converted into the image's rows,
+    // unless `compact`) as soon as they are read in file order: the reading overlaps the
+    // decoding. A block missing or given twice leaves the file to the exr crate.
     let mut done: Vec<Vec<ExrBlock>> = (0..bands).map(|_| Vec::new()).collect();
     let mut data = if compact {
         Vec::new()
@@ -553,13 +588,9 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
     if irregular || slots.iter().any(Option::is_some) {
         return Ok(None);
     }
-    if u32::try_from(w).is_err() || u32::try_from(h).is_err() {
-        return Err(Error::invalid("OpenEXR", "image size overflows", path));
-    }
     if !compact {
         return Ok(Some(ExrRead::Image(
-            Rgb32FImage::from_raw(w as u32, h as u32, data)
-                .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))?,
+            Rgb32FImage::from_raw(w as u32, h as u32, data).ok_or_else(too_large)?,
         )));
     }
     Ok(Some(ExrRead::Bands(ExrBands {
@@ -568,6 +599,184 @@ fn read_exr_blocks(path: &Path, compact: bool) -> Result<Option<ExrRead>> {
         h,
         bands: done,
     })))
+}
+
+/// What [`read_blocks_at_offsets`] read.
+enum OffsetRead {
+    /// The image's samples (RGB).
+    Image(Vec<f32>),
+    /// Each band's blocks, from left to right.
+    Bands(Vec<Vec<ExrBlock>>),
+}
+
+/// The full-resolution blocks of a single-part file (scan lines, or tiles `tile_w` wide,
+/// `across` to a band) read at the offsets its table gives, each by a positioned read on
+/// one of the pool's threads, and decompressed there (then converted into the image's rows,
+/// unless `compact`). The file-order reader reads every block on one thread: an
+/// uncompressed 8-megapixel float image, whose blocks need no decoding, spent half its
+/// `tonemap` run reading. `None` for anything irregular (an offset table or a block that is
+/// not where, or what, the header says, a block that fails to decompress, a failed read):
+/// the file-order reader then reads the file and finds the first error in file order, as
+/// it always has.
+#[cfg(unix)]
+fn read_blocks_at_offsets(
+    path: &Path,
+    header: &exr::meta::header::Header,
+    meta: &exr::meta::MetaData,
+    layout: &Layout,
+    compact: bool,
+    (band, across, tile_w): (usize, usize, usize),
+) -> Option<OffsetRead> {
+    use exr::block::chunk::{
+        Chunk, CompressedBlock, CompressedScanLineBlock, CompressedTileBlock, TileCoordinates,
+    };
+    use exr::math::Vec2;
+    use rayon::prelude::*;
+    use std::os::unix::fs::FileExt;
+    let tiled = matches!(header.blocks, exr::meta::BlockDescription::Tiles(_));
+    let file = File::open(path).ok()?;
+    let len = file.metadata().ok()?.len();
+    let (w, h) = (layout.w, header.layer_size.height());
+    let bands = h.div_ceil(band);
+    // The full-resolution blocks come first in the table (smaller mip levels after them).
+    let blocks = bands.checked_mul(across)?;
+    if header.chunk_count < blocks || (!tiled && header.chunk_count != blocks) {
+        return None;
+    }
+    let mut table = vec![0u8; blocks.checked_mul(8)?];
+    file.read_exact_at(&mut table, exr_header_end(&file, len, tiled)?)
+        .ok()?;
+    let offsets: Vec<u64> = table
+        .chunks_exact(8)
+        .map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
+        .collect();
+    let y0 = i64::from(header.own_attributes.layer_position.y());
+    // Block `column` of band `at`.
+    let read_block = |at: usize, column: usize| -> Option<ExrBlock> {
+        let offset = offsets[at * across + column];
+        // A scan-line block's first line and size; a tile's column, row, level (x, y) and
+        // size.
+        let mut head = [0u8; 20];
+        let head = &mut head[..if tiled { 20 } else { 8 }];
+        file.read_exact_at(head, offset).ok()?;
+        let fields: Vec<i32> = head
+            .chunks_exact(4)
+            .map(|b| i32::from_le_bytes(b.try_into().unwrap_or_default()))
+            .collect();
+        let (&size, place) = fields.split_last()?;
+        let size = u64::try_from(size).ok()?;
+        let expected: [i64; 4] = [column as i64, at as i64, 0, 0];
+        let here = if tiled {
+            place.iter().map(|&v| i64::from(v)).eq(expected)
+        } else {
+            i64::from(place[0]) == y0 + (at * band) as i64
+        };
+        // The block where the table says, its data inside the file (so never more memory
+        // than the file's length).
+        let start = offset.checked_add(head.len() as u64)?;
+        if !here || start.checked_add(size)? > len {
+            return None;
+        }
+        let mut data = vec![0u8; usize::try_from(size).ok()?];
+        file.read_exact_at(&mut data, start).ok()?;
+        let compressed_block = if tiled {
+            CompressedBlock::Tile(CompressedTileBlock {
+                coordinates: TileCoordinates {
+                    tile_index: Vec2(column, at),
+                    level_index: Vec2(0, 0),
+                },
+                compressed_pixels_le: data,
+            })
+        } else {
+            CompressedBlock::ScanLine(CompressedScanLineBlock {
+                y_coordinate: place[0],
+                compressed_pixels_le: data,
+            })
+        };
+        let chunk = Chunk {
+            layer_index: 0,
+            compressed_block,
+        };
+        let x0 = column * tile_w;
+        let cols = tile_w.min(w - x0);
+        let lines = band.min(h - at * band);
+        layout.decompress(meta, chunk, x0, cols, lines, path).ok()
+    };
+    // Tasks of at least 16 lines (the file-order reader's batches).
+    let per_task = 16usize.div_ceil(band);
+    if compact {
+        let mut out: Vec<Vec<ExrBlock>> = (0..bands).map(|_| Vec::new()).collect();
+        out.par_iter_mut()
+            .enumerate()
+            .with_min_len(per_task)
+            .try_for_each(|(at, kept)| {
+                for column in 0..across {
+                    let mut b = read_block(at, column)?;
+                    b.clean = layout.is_clean(&b.samples, b.cols, b.lines);
+                    kept.push(b);
+                }
+                Some(())
+            })?;
+        #[cfg(test)]
+        tests::READ_AT_OFFSETS.set(tests::READ_AT_OFFSETS.get() + 1);
+        return Some(OffsetRead::Bands(out));
+    }
+    let mut data = vec![0.0f32; 3 * w * h];
+    data.par_chunks_mut(3 * w * band)
+        .enumerate()
+        .with_min_len(per_task)
+        .try_for_each_init(<[Vec<f32>; 3]>::default, |planes, (at, rows)| {
+            for column in 0..across {
+                layout.block_into(&read_block(at, column)?, rows, planes);
+            }
+            Some(())
+        })?;
+    #[cfg(test)]
+    tests::READ_AT_OFFSETS.set(tests::READ_AT_OFFSETS.get() + 1);
+    Some(OffsetRead::Image(data))
+}
+
+#[cfg(not(unix))]
+fn read_blocks_at_offsets(
+    _: &Path,
+    _: &exr::meta::header::Header,
+    _: &exr::meta::MetaData,
+    _: &Layout,
+    _: bool,
+    _: (usize, usize, usize),
+) -> Option<OffsetRead> {
+    None
+}
+
+/// Where the offset table of a single-part OpenEXR file starts: after its magic number,
+/// its version field and its header's attributes (each a name, a type name, a 4-byte size
+/// and that many bytes), which end with an empty name. `None` for deep and multi-part
+/// files, for a file whose version field says it is tiled, or not, where `tiled` says
+/// otherwise, and for a header longer than 1 MiB.
+#[cfg(unix)]
+fn exr_header_end(file: &File, len: u64, tiled: bool) -> Option<u64> {
+    use std::os::unix::fs::FileExt;
+    let mut buf = vec![0u8; usize::try_from(len.min(1 << 20)).ok()?];
+    file.read_exact_at(&mut buf, 0).ok()?;
+    let version = u32::from_le_bytes(buf.get(4..8)?.try_into().ok()?);
+    // Bits 9, 11 and 12: single-part tiled, deep ("non-image") and multi-part files.
+    if buf.get(..4)? != [0x76, 0x2f, 0x31, 0x01]
+        || version & 0x1800 != 0
+        || (version & 0x200 != 0) != tiled
+    {
+        return None;
+    }
+    let string_end = |at: usize| buf.get(at..)?.iter().position(|&b| b == 0).map(|n| at + n);
+    let mut at = 8;
+    loop {
+        let name_end = string_end(at)?;
+        if name_end == at {
+            return Some(at as u64 + 1);
+        }
+        let type_end = string_end(name_end + 1)?;
+        let size = u32::from_le_bytes(buf.get(type_end + 1..type_end + 5)?.try_into().ok()?);
+        at = (type_end + 5).checked_add(usize::try_from(size).ok()?)?;
+    }
 }
 
 /// Where a band's decoded blocks go.
@@ -2339,10 +2548,35 @@ mod tests {
     /// The image the block reader's bands hold, decoded row by row (the tone-mapping
     /// passes) and whole (the image readers), which must agree.
     fn blocks_image(path: &Path) -> Rgb32FImage {
-        let Some(ExrRead::Bands(bands)) = read_exr_blocks(path, true).unwrap() else {
+        let image = blocks_image_by(path, false);
+        let by_offsets = blocks_image_by(path, true);
+        assert_eq!(image.dimensions(), by_offsets.dimensions());
+        assert!(
+            image
+                .as_raw()
+                .iter()
+                .zip(by_offsets.as_raw())
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "file order and offsets differ: {}",
+            path.display()
+        );
+        image
+    }
+
+    thread_local! {
+        /// Reads that [`read_blocks_at_offsets`] completed on this thread.
+        pub(super) static READ_AT_OFFSETS: std::cell::Cell<usize> =
+            const { std::cell::Cell::new(0) };
+    }
+
+    /// [`blocks_image`] with the blocks read in file order or at their offsets.
+    fn blocks_image_by(path: &Path, at_offsets: bool) -> Rgb32FImage {
+        let Some(ExrRead::Bands(bands)) = read_exr_blocks_by(path, true, at_offsets).unwrap()
+        else {
             panic!("read by blocks");
         };
-        let Some(ExrRead::Image(direct)) = read_exr_blocks(path, false).unwrap() else {
+        let Some(ExrRead::Image(direct)) = read_exr_blocks_by(path, false, at_offsets).unwrap()
+        else {
             panic!("read by blocks");
         };
         let source = HdrSource::from_bands(bands);
@@ -2477,6 +2711,7 @@ mod tests {
             &["Z", "diffuse.B", "diffuse.G", "diffuse.R"],
         ];
         let mut read_by_blocks = 0;
+        let at_offsets = READ_AT_OFFSETS.get();
         for (i, &compression) in compressions.iter().enumerate() {
             for (j, ty) in [SampleType::F16, SampleType::F32, SampleType::U32]
                 .into_iter()
@@ -2520,6 +2755,9 @@ mod tests {
             }
         }
         assert_eq!(read_by_blocks, 72);
+        // Every file was read at its offsets too (compact and whole by `blocks_image`, whole
+        // by `read_hdr_image`).
+        assert_eq!(READ_AT_OFFSETS.get() - at_offsets, 3 * 72);
         // A mip-mapped tiled file: its full-resolution level (the smaller ones are skipped).
         let (w, h) = (45, 30);
         let level = |l: usize| {
@@ -2557,13 +2795,117 @@ mod tests {
             AnyChannels::sort(channels.into()),
         );
         Image::from_layer(layer).write().to_file(&path).unwrap();
+        let before = READ_AT_OFFSETS.get();
         let got = blocks_image(&path);
+        assert_eq!(
+            READ_AT_OFFSETS.get() - before,
+            2,
+            "mip levels read at offsets"
+        );
         let FlatSamples::F16(full) = level(0) else {
             unreachable!()
         };
         for (i, p) in got.as_raw().chunks_exact(3).enumerate() {
             assert_eq!(p, [full[i].to_f32(); 3], "pixel {i}");
         }
+    }
+
+    /// Files whose offset table does not say where each block is (entries swapped, an entry
+    /// past the end) are read in file order, as the exr crate reads them; a header with
+    /// long attributes is found whole (its table read where the file's first block's offset
+    /// says it ends).
+    #[test]
+    fn irregular_offset_tables_are_read_in_file_order() {
+        use exr::meta::attribute::{LineOrder, SampleType, Text};
+        use exr::prelude::*;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.exr");
+        for (compression, blocks) in [
+            (Compression::Uncompressed, Blocks::ScanLines),
+            (Compression::ZIP16, Blocks::ScanLines),
+            (Compression::PIZ, Blocks::Tiles(Vec2(16, 8))),
+        ] {
+            let encoding = Encoding {
+                compression,
+                blocks,
+                line_order: LineOrder::Increasing,
+            };
+            exr_file(
+                &path,
+                (40, 50),
+                &["R", "G", "B"],
+                SampleType::F16,
+                encoding,
+                (0, 0),
+            );
+            let (_, _, want) = exr_crate_reference(&path);
+            let bytes = std::fs::read(&path).unwrap();
+            let meta = exr::meta::MetaData::read_from_file(&path, false).unwrap();
+            let count = meta.headers[0].chunk_count;
+            let table = exr_header_end(
+                &File::open(&path).unwrap(),
+                bytes.len() as u64,
+                matches!(blocks, Blocks::Tiles(_)),
+            )
+            .unwrap() as usize;
+            let offset = |i: usize| {
+                u64::from_le_bytes(bytes[table + 8 * i..table + 8 * i + 8].try_into().unwrap())
+            };
+            // The blocks follow the table, the first one straight after it.
+            assert_eq!(
+                (0..count).map(offset).min(),
+                Some((table + 8 * count) as u64)
+            );
+            let swapped = {
+                let mut b = bytes.clone();
+                b.copy_within(table..table + 8, table + 8);
+                b[table..table + 8].copy_from_slice(&bytes[table + 8..table + 16]);
+                b
+            };
+            let past_end = {
+                let mut b = bytes.clone();
+                let last = table + 8 * (count - 1);
+                b[last..last + 8].copy_from_slice(&(bytes.len() as u64 + 4).to_le_bytes());
+                b
+            };
+            for (what, b) in [("swapped", swapped), ("past the end", past_end)] {
+                std::fs::write(&path, b).unwrap();
+                let before = READ_AT_OFFSETS.get();
+                let got = read_hdr_image(&path).unwrap();
+                assert_eq!(READ_AT_OFFSETS.get(), before, "{compression:?} {what}");
+                for (a, b) in got.as_raw().iter().zip(&want) {
+                    assert_eq!(a.to_bits(), b.to_bits(), "{compression:?} {what}");
+                }
+            }
+        }
+        // A header of 300 KB (a long comment): its end found, the file read at its offsets.
+        let encoding = Encoding {
+            compression: Compression::ZIP1,
+            blocks: Blocks::ScanLines,
+            line_order: LineOrder::Decreasing,
+        };
+        exr_file(
+            &path,
+            (40, 50),
+            &["R", "G", "B"],
+            SampleType::F32,
+            encoding,
+            (3, -7),
+        );
+        let mut image = read_all_flat_layers_from_file(&path).unwrap();
+        image.layer_data[0].attributes.comments = Some(Text::from("x".repeat(300_000).as_str()));
+        std::fs::remove_file(&path).unwrap();
+        image.write().to_file(&path).unwrap();
+        let before = READ_AT_OFFSETS.get();
+        let got = read_hdr_image(&path).unwrap();
+        assert_eq!(READ_AT_OFFSETS.get(), before + 1);
+        let (_, _, want) = exr_crate_reference(&path);
+        assert!(
+            got.as_raw()
+                .iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
     }
 
     /// `bytes` with one to four bits flipped in their last three quarters (where the pixel
