@@ -2810,6 +2810,55 @@ mod tests {
         }
     }
 
+    /// PIZ blocks of float samples whose low halves are noise: Huffman codes of 13 to 24
+    /// bits, alone or among short ones (the decoder's unchecked loop takes both), read as
+    /// the exr crate reads them.
+    #[test]
+    fn piz_blocks_of_long_codes_read_as_the_exr_crate_reads_them() {
+        use exr::prelude::*;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.exr");
+        // Blocks of 32 lines of 1024 pixels: large enough that the Huffman table (up to
+        // 65,536 codes) is a small part of the block, which PIZ then compresses.
+        let (w, h) = (1024, 40);
+        let mut next = crate::xorshift(0x2545_f491_4f6c_dd1d);
+        for noisy in [1u64, 3, 20] {
+            // One sample in `noisy` any float from 1 to 2, the others one of eight.
+            let mut channel = |name: &str| {
+                let v = (0..w * h)
+                    .map(|_| {
+                        let r = next();
+                        if r % noisy == 0 {
+                            f32::from_bits(0x3f80_0000 + (r >> 8) as u32 % 0x0080_0000)
+                        } else {
+                            (r >> 40) as f32 % 8.0 * 0.5
+                        }
+                    })
+                    .collect();
+                AnyChannel::new(name, FlatSamples::F32(v))
+            };
+            let channels: Vec<_> = ["B", "G", "R"].iter().map(|n| channel(n)).collect();
+            let layer = Layer::new(
+                (w, h),
+                LayerAttributes::default(),
+                Encoding {
+                    compression: Compression::PIZ,
+                    blocks: Blocks::ScanLines,
+                    line_order: exr::meta::attribute::LineOrder::Increasing,
+                },
+                AnyChannels::sort(channels.into()),
+            );
+            Image::from_layer(layer).write().to_file(&path).unwrap();
+            let len = std::fs::metadata(&path).unwrap().len() as usize;
+            assert!(len < w * h * 12, "PIZ compressed the samples ({noisy})");
+            let (_, _, want) = exr_crate_reference(&path);
+            let got = blocks_image(&path);
+            for (a, b) in got.as_raw().iter().zip(&want) {
+                assert_eq!(a.to_bits(), b.to_bits(), "one in {noisy}");
+            }
+        }
+    }
+
     /// Files whose offset table does not say where each block is (entries swapped, an entry
     /// past the end) are read in file order, as the exr crate reads them; a header with
     /// long attributes is found whole (its table read where the file's first block's offset

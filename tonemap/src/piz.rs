@@ -300,7 +300,9 @@ impl Table {
         while base + (used as usize) < nbits {
             // Away from the ends: a bit buffer refilled without branches (its bits past the
             // valid count are the next byte's, so OR-ing the reload over them is exact),
-            // then four table lookups, each one or two codes of at most 12 bits together.
+            // then up to four table lookups, each one or two codes of at most 12 bits
+            // together, or one code of 13 to 24 bits through the second level (then the
+            // buffer is refilled: the long codes of noisy float samples' low halves).
             let pos = base + used as usize;
             if pos < safe_bits && k + 8 <= n {
                 let load = |p: usize| -> u64 {
@@ -319,16 +321,40 @@ impl Table {
                     p += ((63 - have) >> 3) as usize;
                     have |= 56;
                     for _ in 0..4 {
-                        let e = self.fast[(bits >> (64 - FIRST_BITS)) as usize];
-                        if e >> 48 != 0 {
+                        let top = (bits >> (64 - FIRST_BITS)) as usize;
+                        let e = self.fast[top];
+                        if e >> 48 == 0 {
+                            out[k] = e as u16;
+                            out[k + 1] = (e >> 16) as u16;
+                            k += ((e >> 40) & 3) as usize;
+                            let len = ((e >> 32) & 0xff) as u32;
+                            bits <<= len;
+                            have -= len;
+                            continue;
+                        }
+                        // A code of 13 to 24 bits (not the run code): its second-level
+                        // entry, with the 24 bits it may need in the buffer.
+                        if have < TWO_LEVEL_BITS {
+                            continue 'fast;
+                        }
+                        let f = self.first[top];
+                        if f & 0x80 == 0 {
                             break 'fast;
                         }
-                        out[k] = e as u16;
-                        out[k + 1] = (e >> 16) as u16;
-                        k += ((e >> 40) & 3) as usize;
-                        let len = ((e >> 32) & 0xff) as u32;
+                        let at = (f >> 8) as usize
+                            + ((bits << FIRST_BITS) >> (64 - (f & 0x7f))) as usize;
+                        let e = self.second[at];
+                        let len = e & 0xff;
+                        if len == 0 || len == SCAN || e >> 8 == rlc {
+                            break 'fast;
+                        }
+                        out[k] = (e >> 8) as u16;
+                        k += 1;
                         bits <<= len;
                         have -= len;
+                        // Refilled before the next code (at most 36 bits of short codes
+                        // and this one's 24 were in the buffer's 56).
+                        continue 'fast;
                     }
                 }
                 base = p * 8 - have as usize;
