@@ -2828,7 +2828,7 @@ mod tests {
                 let v = (0..w * h)
                     .map(|_| {
                         let r = next();
-                        if r % noisy == 0 {
+                        if r.is_multiple_of(noisy) {
                             f32::from_bits(0x3f80_0000 + (r >> 8) as u32 % 0x0080_0000)
                         } else {
                             (r >> 40) as f32 % 8.0 * 0.5
