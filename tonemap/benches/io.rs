@@ -85,15 +85,38 @@ fn png_after(display: &Rgb32FImage) -> Vec<u8> {
 
 fn write_half(path: &std::path::Path, img: &Rgb32FImage, compression: exr::prelude::Compression) {
     use exr::prelude::*;
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
-        let q = img.get_pixel(p.x() as u32, p.y() as u32).0;
+    let owned = img.clone();
+    let channels = SpecificChannels::rgb(move |p: Vec2<usize>| {
+        let q = owned.get_pixel(p.x() as u32, p.y() as u32).0;
         (
             f16::from_f32(q[0]),
             f16::from_f32(q[1]),
             f16::from_f32(q[2]),
         )
     });
+    write_exr(path, img, compression, channels);
+}
+
+fn write_float(path: &std::path::Path, img: &Rgb32FImage, compression: exr::prelude::Compression) {
+    use exr::prelude::*;
+    let owned = img.clone();
+    let channels = SpecificChannels::rgb(move |p: Vec2<usize>| {
+        let q = owned.get_pixel(p.x() as u32, p.y() as u32).0;
+        (q[0], q[1], q[2])
+    });
+    write_exr(path, img, compression, channels);
+}
+
+fn write_exr<C>(
+    path: &std::path::Path,
+    img: &Rgb32FImage,
+    compression: exr::prelude::Compression,
+    channels: C,
+) where
+    C: for<'a> exr::image::write::channels::WritableChannels<'a> + 'static,
+{
+    use exr::prelude::*;
+    let (w, h) = (img.width() as usize, img.height() as usize);
     let layer = Layer::new(
         (w, h),
         LayerAttributes::default(),
@@ -191,6 +214,12 @@ fn bench(c: &mut Criterion) {
     let zip_path = dir.path().join("scene_zip.exr");
     write_half(&zip_path, &hdr, exr::prelude::Compression::ZIP16);
     io::write_radiance_hdr(&hdr_path, &hdr).expect("hdr");
+    // Float samples, uncompressed (the blocks read at their offsets by the pool's threads)
+    // and PIZ (long Huffman codes for the mantissas' low halves).
+    let none32_path = dir.path().join("scene_none32.exr");
+    write_float(&none32_path, &hdr, exr::prelude::Compression::Uncompressed);
+    let piz32_path = dir.path().join("scene_piz32.exr");
+    write_float(&piz32_path, &hdr, exr::prelude::Compression::PIZ);
     let mut g = c.benchmark_group("read_8mp");
     g.sample_size(10);
     g.bench_function("exr_piz_half", |b| {
@@ -204,6 +233,18 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("exr_zip_half_exr_crate", |b| {
         b.iter(|| read_exr_crate(&zip_path, true));
+    });
+    g.bench_function("exr_none_float", |b| {
+        b.iter(|| io::read_hdr_image(&none32_path).expect("exr"));
+    });
+    g.bench_function("exr_none_float_exr_crate", |b| {
+        b.iter(|| read_exr_crate(&none32_path, true));
+    });
+    g.bench_function("exr_piz_float", |b| {
+        b.iter(|| io::read_hdr_image(&piz32_path).expect("exr"));
+    });
+    g.bench_function("exr_piz_float_exr_crate", |b| {
+        b.iter(|| read_exr_crate(&piz32_path, true));
     });
     g.bench_function("exr_piz_half_decode_one_thread", |b| {
         b.iter(|| read_exr_crate(&exr_path, false));
@@ -262,6 +303,12 @@ fn bench(c: &mut Criterion) {
     g.bench_function("exr_rows_drago_png", |b| b.iter(|| rows(&exr_path)));
     g.bench_function("exr_zip_rows_drago_png", |b| b.iter(|| rows(&zip_path)));
     g.bench_function("rgbe_rows_drago_png", |b| b.iter(|| rows(&hdr_path)));
+    g.bench_function("exr_none_float_rows_drago_png", |b| {
+        b.iter(|| rows(&none32_path))
+    });
+    g.bench_function("exr_piz_float_rows_drago_png", |b| {
+        b.iter(|| rows(&piz32_path))
+    });
     g.finish();
 }
 
