@@ -2551,16 +2551,15 @@ mod tests {
         let image = blocks_image_by(path, false);
         let by_offsets = blocks_image_by(path, true);
         assert_eq!(image.dimensions(), by_offsets.dimensions());
-        assert!(
-            image
-                .as_raw()
-                .iter()
-                .zip(by_offsets.as_raw())
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
-            "file order and offsets differ: {}",
-            path.display()
-        );
+        assert_same_bits(&image, &by_offsets, "file order and offsets", path);
         image
+    }
+
+    /// `a` and `b` hold the same values, bit for bit.
+    fn assert_same_bits(a: &[f32], b: &[f32], what: &str, path: &Path) {
+        assert_eq!(a.len(), b.len(), "{what}: {}", path.display());
+        let same = a.iter().zip(b).all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "{what} differ: {}", path.display());
     }
 
     thread_local! {
@@ -2587,21 +2586,8 @@ mod tests {
             source.decode_row(y, &mut scratch, row);
         }
         let whole = source.into_image();
-        let same = whole
-            .as_raw()
-            .iter()
-            .zip(&by_rows)
-            .all(|(a, b)| a.to_bits() == b.to_bits());
-        assert!(same, "rows and image differ: {}", path.display());
-        assert!(
-            whole
-                .as_raw()
-                .iter()
-                .zip(direct.as_raw())
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
-            "bands and direct differ: {}",
-            path.display()
-        );
+        assert_same_bits(&whole, &by_rows, "rows and image", path);
+        assert_same_bits(&whole, &direct, "bands and direct", path);
         whole
     }
 
