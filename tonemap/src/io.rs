@@ -651,6 +651,7 @@ fn read_blocks_at_offsets(
         .map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
         .collect();
     let y0 = i64::from(header.own_attributes.layer_position.y());
+    let max_block = header.max_block_byte_size() as u64;
     // Block `column` of band `at`.
     let read_block = |at: usize, column: usize| -> Option<ExrBlock> {
         let offset = offsets[at * across + column];
@@ -671,10 +672,11 @@ fn read_blocks_at_offsets(
         } else {
             i64::from(place[0]) == y0 + (at * band) as i64
         };
-        // The block where the table says, its data inside the file (so never more memory
-        // than the file's length).
+        // The block where the table says, its data inside the file and no larger than the
+        // block's samples uncompressed (the exr crate's bound: blocks whose sizes ran to the
+        // end of the file, overlapping the next ones, would each be read whole).
         let start = offset.checked_add(head.len() as u64)?;
-        if !here || start.checked_add(size)? > len {
+        if !here || start.checked_add(size)? > len || size > max_block {
             return None;
         }
         let mut data = vec![0u8; usize::try_from(size).ok()?];
@@ -2903,6 +2905,25 @@ mod tests {
                 b[last..last + 8].copy_from_slice(&(bytes.len() as u64 + 4).to_le_bytes());
                 b
             };
+            // The first block's size one past the largest a block may have (the file made
+            // long enough to hold it): refused, as the exr crate refuses it.
+            let oversized = {
+                let max = meta.headers[0].max_block_byte_size();
+                let first = offset(0) as usize
+                    + if matches!(blocks, Blocks::Tiles(_)) {
+                        16
+                    } else {
+                        4
+                    };
+                let mut b = bytes.clone();
+                b[first..first + 4].copy_from_slice(&(max as i32 + 1).to_le_bytes());
+                b.resize(b.len() + max + 1, 0);
+                b
+            };
+            std::fs::write(&path, oversized).unwrap();
+            let before = READ_AT_OFFSETS.get();
+            assert!(read_hdr_image(&path).is_err(), "{compression:?} oversized");
+            assert_eq!(READ_AT_OFFSETS.get(), before, "{compression:?} oversized");
             for (what, b) in [("swapped", swapped), ("past the end", past_end)] {
                 std::fs::write(&path, b).unwrap();
                 let before = READ_AT_OFFSETS.get();
