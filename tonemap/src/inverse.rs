@@ -10,10 +10,11 @@ use crate::ops::reinhard::{reinhard_curve, reinhard_curve_inverse};
 use crate::plane::{Plane, luminance};
 
 /// Where [`GlobalCurve::luminance_curve`] sends the recoloured image (generic over the
-/// curve, so each curve's loop is compiled on its own and vectorises).
+/// curve, so each curve's loop is compiled on its own and vectorises). The curve maps a
+/// row's luminances at once: `curve(first pixel, input row, output row)`.
 trait CurveOutput {
     type Out;
-    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> Self::Out;
+    fn run<F: Fn(usize, &[f32], &mut [f32]) + Sync + 'static>(self, curve: F) -> Self::Out;
 }
 
 /// The floating-point display image ([`crate::plane::recolour_with`]).
@@ -21,8 +22,8 @@ struct ToImage<'a>(&'a Rgb32FImage, &'a Plane, f32);
 
 impl CurveOutput for ToImage<'_> {
     type Out = Rgb32FImage;
-    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> Rgb32FImage {
-        crate::plane::recolour_with(self.0, self.1, self.2, curve)
+    fn run<F: Fn(usize, &[f32], &mut [f32]) + Sync + 'static>(self, curve: F) -> Rgb32FImage {
+        crate::plane::recolour_by(self.0, self.1, self.2, curve)
     }
 }
 
@@ -31,8 +32,8 @@ struct ToSrgb8<'a>(&'a Rgb32FImage, &'a Plane, f32);
 
 impl CurveOutput for ToSrgb8<'_> {
     type Out = Vec<u8>;
-    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> Vec<u8> {
-        crate::plane::recolour_with_srgb8(self.0, self.1, self.2, curve)
+    fn run<F: Fn(usize, &[f32], &mut [f32]) + Sync + 'static>(self, curve: F) -> Vec<u8> {
+        crate::plane::recolour_by_srgb8(self.0, self.1, self.2, curve)
     }
 }
 
@@ -42,7 +43,10 @@ struct RowCodesOut(f32);
 
 impl CurveOutput for RowCodesOut {
     type Out = crate::rows::RowCodes;
-    fn run<F: Fn(f32) -> f32 + Sync + 'static>(self, curve: F) -> crate::rows::RowCodes {
+    fn run<F: Fn(usize, &[f32], &mut [f32]) + Sync + 'static>(
+        self,
+        curve: F,
+    ) -> crate::rows::RowCodes {
         crate::rows::recolour_codes(self.0, curve)
     }
 }
@@ -102,6 +106,79 @@ impl CurveTable {
             base: first << Self::SHIFT,
             values,
         }
+    }
+
+    /// [`CurveTable::eval`] of every value of `lin` into `out` (the same length): eight
+    /// at a time with AVX2 gathers where the CPU has them and all eight lie in the table,
+    /// the same values.
+    fn eval_row(&self, lin: &[f32], out: &mut [f32], f: &impl Fn(f32) -> f32) {
+        let mut done = 0;
+        #[cfg(target_arch = "x86_64")]
+        if self.values.len() >= 2 && std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 detected just above.
+            #[allow(unsafe_code)]
+            unsafe {
+                done = self.eval_lanes_avx2(lin, out, f);
+            }
+        }
+        for (o, &l) in out[done..].iter_mut().zip(&lin[done..]) {
+            *o = self.eval(l, f);
+        }
+    }
+
+    /// [`CurveTable::eval_row`]'s leading multiple of eight values: the same steps in
+    /// eight lanes (the subtraction and the product rounded on their own, as `eval` does);
+    /// eight values of which one is outside the table go through `eval`. Returns how many
+    /// values it did.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    fn eval_lanes_avx2(&self, lin: &[f32], out: &mut [f32], f: &impl Fn(f32) -> f32) -> usize {
+        use std::arch::x86_64::{
+            _mm256_add_epi32, _mm256_add_ps, _mm256_and_si256, _mm256_castps_si256,
+            _mm256_cmpgt_epi32, _mm256_cvtepi32_ps, _mm256_i32gather_ps, _mm256_loadu_ps,
+            _mm256_movemask_epi8, _mm256_mul_ps, _mm256_or_si256, _mm256_set1_epi32,
+            _mm256_set1_ps, _mm256_srli_epi32, _mm256_storeu_ps, _mm256_sub_epi32, _mm256_sub_ps,
+            _mm256_xor_si256,
+        };
+        let n = lin.len().min(out.len()) / 8 * 8;
+        let sign = _mm256_set1_epi32(i32::MIN);
+        let base = _mm256_set1_epi32(self.base as i32);
+        // Unsigned comparisons as signed ones of values with the sign bit flipped.
+        let base_flipped = _mm256_xor_si256(base, sign);
+        let last = _mm256_set1_epi32((self.values.len() - 2) as i32);
+        let mask = _mm256_set1_epi32((1 << Self::SHIFT) - 1);
+        let scale = _mm256_set1_ps(1.0 / (1u32 << Self::SHIFT) as f32);
+        let one = _mm256_set1_epi32(1);
+        for (l, o) in lin[..n]
+            .as_chunks::<8>()
+            .0
+            .iter()
+            .zip(out[..n].as_chunks_mut::<8>().0)
+        {
+            // SAFETY: `l` and `o` are 8 floats; the gathers run only when every index and
+            // the one after it lie in `values` (`i <= len - 2`).
+            unsafe {
+                let b = _mm256_castps_si256(_mm256_loadu_ps(l.as_ptr()));
+                let off = _mm256_sub_epi32(b, base);
+                let i = _mm256_srli_epi32::<{ Self::SHIFT as i32 }>(off);
+                // Outside: `b < base` or `i > len - 2` (unsigned; `i` < 2^19 is positive).
+                let below = _mm256_cmpgt_epi32(base_flipped, _mm256_xor_si256(b, sign));
+                let past = _mm256_cmpgt_epi32(i, last);
+                if _mm256_movemask_epi8(_mm256_or_si256(below, past)) != 0 {
+                    for (o, &l) in o.iter_mut().zip(l) {
+                        *o = self.eval(l, f);
+                    }
+                    continue;
+                }
+                let frac = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_and_si256(off, mask)), scale);
+                let a = _mm256_i32gather_ps::<4>(self.values.as_ptr(), i);
+                let c = _mm256_i32gather_ps::<4>(self.values.as_ptr(), _mm256_add_epi32(i, one));
+                let v = _mm256_add_ps(a, _mm256_mul_ps(_mm256_sub_ps(c, a), frac));
+                _mm256_storeu_ps(o.as_mut_ptr(), v);
+            }
+        }
+        n
     }
 
     #[inline(always)]
@@ -329,7 +406,7 @@ impl GlobalCurve {
                 // Read from a table of the curve (three logarithms and an exponential per
                 // pixel were half of a Drago run).
                 let table = CurveTable::new(&direct, (scaled_max * adaptation) as f32);
-                out.run(move |l| table.eval(l, &direct))
+                out.run(move |_, lin, lout| table.eval_row(lin, lout, &direct))
             }
             GlobalCurve::Reinhard { scale, white, .. } => {
                 let scale = scale as f32;
@@ -338,10 +415,10 @@ impl GlobalCurve {
                 } else {
                     0.0
                 };
-                out.run(move |l| {
+                out.run(crate::plane::curve_rows(move |l| {
                     let x = l * scale;
                     x * (1.0 + x * inv_w2) / (1.0 + x)
-                })
+                }))
             }
             GlobalCurve::Linear { .. } => unreachable!("Linear maps channels: the callers"),
         }
@@ -416,6 +493,52 @@ mod tests {
         for l in [0.0f32, -1.0, f32::NAN, 1e-30, 2.0 * max as f32] {
             let (a, b) = (table.eval(l, &direct), direct(l));
             assert!(a.to_bits() == b.to_bits(), "{l}: {a} vs {b}");
+        }
+    }
+
+    /// A row through the table (eight lanes where the CPU has AVX2) gives each value's
+    /// `eval`, bit for bit: values in the table, its first and last nodes and just past
+    /// them, and any bit pattern (NaN, infinities, negatives, subnormals), in runs of eight
+    /// that are all inside, all outside or mixed, in rows whose lengths are not multiples
+    /// of eight.
+    #[test]
+    fn table_rows_equal_the_tables_values() {
+        let (adapt, max) = (0.37f64, 5.0e4f64);
+        let direct = drago_f32(adapt, max / adapt, 0.85, 100.0);
+        let table = CurveTable::new(&direct, max as f32);
+        let first = table.base;
+        let last = table.base + ((table.values.len() as u32 - 1) << CurveTable::SHIFT);
+        let mut next = crate::xorshift(0x9e37_79b9_7f4a_7c15);
+        let mut lin = Vec::new();
+        for run in 0..3000 {
+            for _ in 0..8 {
+                let r = next();
+                let inside = f32::from_bits(first + (r >> 32) as u32 % (last - first));
+                lin.push(match run % 3 {
+                    0 => inside,
+                    1 => f32::from_bits(r as u32),
+                    _ if r.is_multiple_of(5) => f32::from_bits(r as u32),
+                    _ => inside,
+                });
+            }
+        }
+        for b in [first, first + 1, last - 1, last, last + 1, first - 1] {
+            lin.push(f32::from_bits(b));
+        }
+        lin.extend([
+            0.0,
+            -0.0,
+            f32::INFINITY,
+            -f32::INFINITY,
+            f32::NAN,
+            max as f32,
+        ]);
+        for len in [lin.len(), 13, 7, 0] {
+            let mut got = vec![0.0f32; len];
+            table.eval_row(&lin[..len], &mut got, &direct);
+            for (g, &l) in got.iter().zip(&lin) {
+                assert_eq!(g.to_bits(), table.eval(l, &direct).to_bits(), "{l:e}");
+            }
         }
     }
 }

@@ -335,7 +335,7 @@ pub fn fit_to_display(rgb: [f32; 3]) -> [f32; 3] {
     rgb.map(|c| (y + t * (c - y)).clamp(0.0, 1.0))
 }
 
-fn recolour_by(
+pub(crate) fn recolour_by(
     img: &Rgb32FImage,
     lum_in: &Plane,
     saturation: f32,
@@ -366,11 +366,21 @@ pub fn recolour_with_srgb8(
     saturation: f32,
     curve: impl Fn(f32) -> f32 + Sync,
 ) -> Vec<u8> {
+    recolour_by_srgb8(img, lum_in, saturation, curve_rows(curve))
+}
+
+/// [`recolour_with_srgb8`] with the output luminances of whole rows at once (`lum_out(first
+/// pixel, input row, output row)`).
+pub(crate) fn recolour_by_srgb8(
+    img: &Rgb32FImage,
+    lum_in: &Plane,
+    saturation: f32,
+    curve: impl Fn(usize, &[f32], &mut [f32]) + Sync,
+) -> Vec<u8> {
     let src = img.as_raw();
     let mut out = vec![0u8; src.len()];
     let wu = img.width() as usize;
     if wu > 0 {
-        let curve = curve_rows(curve);
         out.par_chunks_mut(wu * 3).enumerate().for_each_init(
             || (vec![0.0f32; wu], vec![0.0f32; 3 * wu]),
             |(louts, orow), (y, codes)| {

@@ -128,11 +128,11 @@ pub(crate) fn clean_stats(
 pub(crate) type RowCodes = Box<dyn Fn(&mut RowBuffers, usize, &mut [f32], &mut [u8]) + Sync>;
 
 /// The second pass of a luminance curve ([`crate::plane::recolour_with_srgb8`] row by row).
+/// `curve(first pixel, input luminances, output luminances)` gives a row's output luminances.
 pub(crate) fn recolour_codes(
     saturation: f32,
-    curve: impl Fn(f32) -> f32 + Sync + 'static,
+    curve: impl Fn(usize, &[f32], &mut [f32]) + Sync + 'static,
 ) -> RowCodes {
-    let curve = crate::plane::curve_rows(curve);
     Box::new(move |b, y, orow, codes| {
         luminance_into(&b.rgb, &mut b.lum);
         let w = b.lum.len();
