@@ -335,6 +335,8 @@ pub fn fit_to_display(rgb: [f32; 3]) -> [f32; 3] {
     rgb.map(|c| (y + t * (c - y)).clamp(0.0, 1.0))
 }
 
+/// [`recolour_with`] with the output luminances of whole rows at once (`lum_out(first
+/// pixel, input row, output row)`).
 pub(crate) fn recolour_by(
     img: &Rgb32FImage,
     lum_in: &Plane,
