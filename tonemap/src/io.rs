@@ -660,11 +660,11 @@ fn read_blocks_at_offsets(
         let mut head = [0u8; 20];
         let head = &mut head[..if tiled { 20 } else { 8 }];
         file.read_exact_at(head, offset).ok()?;
-        let fields: Vec<i32> = head
-            .chunks_exact(4)
-            .map(|b| i32::from_le_bytes(b.try_into().unwrap_or_default()))
-            .collect();
-        let (&size, place) = fields.split_last()?;
+        let mut fields = [0i32; 5];
+        for (f, b) in fields.iter_mut().zip(head.as_chunks::<4>().0) {
+            *f = i32::from_le_bytes(*b);
+        }
+        let (&size, place) = fields[..head.len() / 4].split_last()?;
         let size = u64::try_from(size).ok()?;
         let expected: [i64; 4] = [column as i64, at as i64, 0, 0];
         let here = if tiled {
@@ -2841,9 +2841,7 @@ mod tests {
             assert!(len < w * h * 12, "PIZ compressed the samples ({noisy})");
             let (_, _, want) = exr_crate_reference(&path);
             let got = blocks_image(&path);
-            for (a, b) in got.as_raw().iter().zip(&want) {
-                assert_eq!(a.to_bits(), b.to_bits(), "one in {noisy}");
-            }
+            assert_same_bits(&got, &want, &format!("one in {noisy}"), &path);
         }
     }
 
@@ -2929,9 +2927,7 @@ mod tests {
                 let before = READ_AT_OFFSETS.get();
                 let got = read_hdr_image(&path).unwrap();
                 assert_eq!(READ_AT_OFFSETS.get(), before, "{compression:?} {what}");
-                for (a, b) in got.as_raw().iter().zip(&want) {
-                    assert_eq!(a.to_bits(), b.to_bits(), "{compression:?} {what}");
-                }
+                assert_same_bits(&got, &want, &format!("{compression:?} {what}"), &path);
             }
         }
         // A header of 300 KB (a long comment): its end found, the file read at its offsets.
@@ -2956,12 +2952,7 @@ mod tests {
         let got = read_hdr_image(&path).unwrap();
         assert_eq!(READ_AT_OFFSETS.get(), before + 1);
         let (_, _, want) = exr_crate_reference(&path);
-        assert!(
-            got.as_raw()
-                .iter()
-                .zip(&want)
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
+        assert_same_bits(&got, &want, "a long header", &path);
     }
 
     /// `bytes` with one to four bits flipped in their last three quarters (where the pixel
