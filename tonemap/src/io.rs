@@ -712,6 +712,24 @@ fn read_blocks_at_offsets(
             .enumerate()
             .with_min_len(per_task)
             .try_for_each(|(at, kept)| {
+                // A band of tiles of half floats, joined.
+                if across > 1 && layout.picks_halves() {
+                    let lines = band.min(h - at * band);
+                    let mut joined = vec![0u16; 3 * w * lines];
+                    for column in 0..across {
+                        layout.join_halves(&read_block(at, column)?, &mut joined);
+                    }
+                    let samples = BlockSamples::Halves(joined);
+                    let clean = layout.is_clean(&samples, w, lines);
+                    kept.push(ExrBlock {
+                        x0: 0,
+                        cols: w,
+                        lines,
+                        samples,
+                        clean,
+                    });
+                    return Some(());
+                }
                 for column in 0..across {
                     let mut b = read_block(at, column)?;
                     b.clean = layout.is_clean(&b.samples, b.cols, b.lines);
@@ -848,6 +866,10 @@ enum BlockSamples {
         d: crate::piz::Decoded,
         first: Vec<usize>,
     },
+    /// The picked channels' half floats, line after line, each line the R, G and B samples
+    /// of the block's columns one channel after the other: a band of tiles joined
+    /// ([`Layout::join_halves`]).
+    Halves(Vec<u16>),
 }
 
 /// What [`read_exr_blocks`] needs to decode a block.
@@ -943,7 +965,7 @@ impl Layout {
             // Every picked channel holds its values now: the table (128 KiB a block, which
             // small tiles would keep by the thousand) is not kept.
             if self.picked.iter().all(|&c| words[c] == 1) {
-                d.values = Vec::new();
+                d.recycle_values();
             }
             return Ok(block(BlockSamples::Piz { d, first }));
         }
@@ -973,6 +995,7 @@ impl Layout {
         let half = |h: u16| (h & 0x7fff) < 0x7c00 && h <= 0x8000;
         let float = |f: u32| (f & 0x7fff_ffff) < 0x7f80_0000 && f <= 0x8000_0000;
         match samples {
+            BlockSamples::Halves(h) => h.iter().fold(true, |ok, &v| ok & half(v)),
             BlockSamples::Piz { d, first } => self.picked.iter().all(|&c| {
                 self.types[c] == SampleType::F16
                     && d.planes[first[c]..first[c] + cols * lines]
@@ -1021,6 +1044,56 @@ impl Layout {
         }
     }
 
+    /// Whether every picked channel holds half floats.
+    fn picks_halves(&self) -> bool {
+        use exr::meta::attribute::SampleType;
+        self.picked
+            .iter()
+            .all(|&c| self.types[c] == SampleType::F16)
+    }
+
+    /// Line `y` of block `b` as the picked channels' half floats (native-endian bytes, R,
+    /// G and B), where every picked channel is half.
+    fn half_lines<'b>(&self, b: &'b ExrBlock, y: usize) -> Option<[&'b [u8]; 3]> {
+        let cols = b.cols;
+        match &b.samples {
+            BlockSamples::Halves(h) => {
+                let line = &h[3 * y * cols..3 * (y + 1) * cols];
+                let (r, gb) = line.split_at(cols);
+                let (g, bl) = gb.split_at(cols);
+                Some([r, g, bl].map(bytemuck::cast_slice))
+            }
+            _ if !self.picks_halves() => None,
+            BlockSamples::Piz { d, first } => Some(
+                self.picked
+                    .map(|c| bytemuck::cast_slice(&d.planes[first[c] + y * cols..][..cols])),
+            ),
+            BlockSamples::Lines(data) => {
+                let line_bytes = data.len() / b.lines;
+                let line = &data[y * line_bytes..(y + 1) * line_bytes];
+                Some(self.picked.map(|c| &line[self.channel_in_line(c, cols)]))
+            }
+        }
+    }
+
+    /// Block `b`'s picked half floats copied into their columns of `joined`, the lines of
+    /// its band as [`BlockSamples::Halves`] holds them (the image's width), where every
+    /// picked channel is half. Tiles joined so are read as one block: a row of the image is
+    /// then three runs of samples, not three short ones per tile (the two passes of a
+    /// tone-mapping curve over an 8-megapixel image of 64 x 64 tiles spent a tenth of their
+    /// time gathering them).
+    fn join_halves(&self, b: &ExrBlock, joined: &mut [u16]) {
+        let w = self.w;
+        for (y, line) in joined.chunks_exact_mut(3 * w).take(b.lines).enumerate() {
+            if let Some(src) = self.half_lines(b, y) {
+                for (c, s) in src.iter().enumerate() {
+                    let to = &mut line[c * w + b.x0..][..b.cols];
+                    bytemuck::cast_slice_mut::<u16, u8>(to).copy_from_slice(s);
+                }
+            }
+        }
+    }
+
     /// Line `y` of block `b` into its columns of `row` (RGB, the whole width); `planes`:
     /// three buffers of at least the block's width.
     fn line(&self, b: &ExrBlock, y: usize, planes: &mut [Vec<f32>; 3], row: &mut [f32]) {
@@ -1028,24 +1101,8 @@ impl Layout {
         let cols = b.cols;
         let out = &mut row[3 * b.x0..3 * (b.x0 + cols)];
         // Three half-float channels: converted and interleaved in one step.
-        if self
-            .picked
-            .iter()
-            .all(|&c| self.types[c] == SampleType::F16)
-        {
-            let channel = |c: usize| -> &[u8] {
-                match &b.samples {
-                    BlockSamples::Piz { d, first } => {
-                        bytemuck::cast_slice(&d.planes[first[c] + y * cols..][..cols])
-                    }
-                    BlockSamples::Lines(data) => {
-                        let line_bytes = data.len() / b.lines;
-                        &data[y * line_bytes..][self.channel_in_line(c, cols)]
-                    }
-                }
-            };
-            let [r, g, bl] = self.picked;
-            halves_to_rgb(channel(r), channel(g), channel(bl), out);
+        if let Some([r, g, bl]) = self.half_lines(b, y) {
+            halves_to_rgb(r, g, bl, out);
             return;
         }
         for p in planes.iter_mut() {
@@ -1081,6 +1138,8 @@ impl Layout {
                     samples_to_f32(self.types[c], &line[self.channel_in_line(c, cols)], plane);
                 }
             }
+            // Converted above.
+            BlockSamples::Halves(_) => return,
         }
         let [r, g, bl] = &*planes;
         for (((o, r), g), bl) in out.as_chunks_mut::<3>().0.iter_mut().zip(r).zip(g).zip(bl) {

@@ -53,7 +53,10 @@ pub(crate) fn decompress(
         rest = &rest[n..];
     }
     // The values that occur, in order (0 always): decoded values index this list.
-    let mut lut = vec![0u16; 1 << 16];
+    let mut lut = SPARE_VALUES.take();
+    if lut.len() != 1 << 16 {
+        lut = vec![0u16; 1 << 16];
+    }
     let mut count = 1usize;
     bitmap[0] &= !1;
     for (i, &byte) in bitmap.iter().enumerate().skip(min_nz) {
@@ -80,6 +83,7 @@ pub(crate) fn decompress(
     Ok(Decoded {
         planes,
         values: lut,
+        count,
     })
 }
 
@@ -89,6 +93,27 @@ pub(crate) fn decompress(
 pub(crate) struct Decoded {
     pub(crate) planes: Vec<u16>,
     pub(crate) values: Vec<u16>,
+    /// How many of `values` are the values that occur (the rest are 0).
+    count: usize,
+}
+
+thread_local! {
+    /// A value table that a block decoded on this thread gave back, zero again: the next
+    /// block's (a table is 128 KiB, and an 8-megapixel image of 64 x 64 tiles has 2,040
+    /// blocks).
+    static SPARE_VALUES: std::cell::Cell<Vec<u16>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+impl Decoded {
+    /// Gives `values` back for the next block decoded on this thread (when the caller has
+    /// looked up every index it needs).
+    pub(crate) fn recycle_values(&mut self) {
+        let mut values = std::mem::take(&mut self.values);
+        if values.len() == 1 << 16 {
+            values[..self.count].fill(0);
+            SPARE_VALUES.set(values);
+        }
+    }
 }
 
 fn take<const N: usize>(rest: &mut &[u8]) -> Result<[u8; N], PizError> {
@@ -193,6 +218,8 @@ impl Table {
         // Each symbol's code, and for each first-level prefix the longest code under it.
         let mut codes = Vec::with_capacity(coded.len());
         let mut longest = [0u8; 1 << FIRST_BITS];
+        // The prefixes of long codes (few: most blocks have none).
+        let mut prefixes = Vec::new();
         for &(s, l) in coded {
             let l32 = u32::from(l);
             let code = next[usize::from(l)];
@@ -202,28 +229,36 @@ impl Table {
             }
             if l32 > FIRST_BITS {
                 let prefix = (code >> (l32 - FIRST_BITS)) as usize;
+                if longest[prefix] == 0 {
+                    prefixes.push(prefix);
+                }
                 longest[prefix] = longest[prefix].max(l);
             }
             codes.push((code, l32, s));
         }
         let mut first = vec![0u32; 1 << FIRST_BITS];
         let mut second = Vec::new();
-        for (prefix, &l) in longest.iter().enumerate() {
-            if l > 0 {
-                let bits = u32::from(l).min(TWO_LEVEL_BITS) - FIRST_BITS;
-                first[prefix] = ((second.len() as u32) << 8) | 0x80 | bits;
-                second.resize(second.len() + (1 << bits), 0);
-            }
+        prefixes.sort_unstable();
+        for prefix in prefixes {
+            let bits = u32::from(longest[prefix]).min(TWO_LEVEL_BITS) - FIRST_BITS;
+            first[prefix] = ((second.len() as u32) << 8) | 0x80 | bits;
+            second.resize(second.len() + (1 << bits), 0);
         }
         let mut scan = Vec::new();
+        // The `fast` entries of single codes as the codes are placed (the table is built for
+        // every block, and small tiles decode few values with it).
+        let mut fast = vec![SLOW; 1 << FIRST_BITS];
         for &(code, l, s) in &codes {
             if l <= FIRST_BITS {
                 let at = (code << (FIRST_BITS - l)) as usize;
-                for e in &mut first[at..at + (1 << (FIRST_BITS - l))] {
-                    if *e & 0x80 != 0 {
-                        return Err("PIZ Huffman code table invalid");
-                    }
-                    *e = (s << 8) | l;
+                let span = at..at + (1 << (FIRST_BITS - l));
+                // (A fold, which vectorises, rather than a check per entry.)
+                if first[span.clone()].iter().fold(0, |a, e| a | e) & 0x80 != 0 {
+                    return Err("PIZ Huffman code table invalid");
+                }
+                first[span.clone()].fill((s << 8) | l);
+                if s != rlc {
+                    fast[span].fill(u64::from(s) | u64::from(l) << 32 | 1 << 40);
                 }
                 continue;
             }
@@ -240,26 +275,24 @@ impl Table {
                 scan.push((code, l, s));
             }
         }
-        let short = |e: u32| e & 0x80 == 0 && e & 0xff != 0 && e >> 8 != rlc;
-        let fast = (0..1usize << FIRST_BITS)
-            .map(|i| {
+        if pairs {
+            let short = |e: u32| e & 0x80 == 0 && e & 0xff != 0 && e >> 8 != rlc;
+            for (i, f) in fast.iter_mut().enumerate() {
                 let a = first[i];
-                if !short(a) {
-                    return SLOW;
-                }
                 let la = a & 0xff;
-                let one = u64::from(a >> 8) | u64::from(la) << 32 | 1 << 40;
-                if !pairs || la >= FIRST_BITS {
-                    return one;
+                if !short(a) || la >= FIRST_BITS {
+                    continue;
                 }
                 let b = first[(i << la) & ((1 << FIRST_BITS) - 1)];
                 let lb = b & 0xff;
-                if !short(b) || la + lb > FIRST_BITS {
-                    return one;
+                if short(b) && la + lb <= FIRST_BITS {
+                    *f = u64::from(a >> 8)
+                        | u64::from(b >> 8) << 16
+                        | u64::from(la + lb) << 32
+                        | 2 << 40;
                 }
-                u64::from(a >> 8) | u64::from(b >> 8) << 16 | u64::from(la + lb) << 32 | 2 << 40
-            })
-            .collect();
+            }
+        }
         Ok(Table {
             first,
             second,
