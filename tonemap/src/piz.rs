@@ -59,7 +59,9 @@ pub(crate) fn decompress(
     }
     let mut count = 1usize;
     bitmap[0] &= !1;
-    for (i, &byte) in bitmap.iter().enumerate().skip(min_nz) {
+    // (Up to the last byte that may be set: small tiles' values fill a few bytes.)
+    let last = if min_nz <= max_nz { max_nz + 1 } else { 0 };
+    for (i, &byte) in bitmap.iter().enumerate().take(last).skip(min_nz) {
         let mut bits = byte;
         while bits != 0 {
             lut[count] = (i * 8 + bits.trailing_zeros() as usize) as u16;
