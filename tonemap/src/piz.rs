@@ -22,7 +22,7 @@ const SYMBOLS: usize = (1 << 16) + 1;
 const SHORT_ZERO_RUN: u64 = 59;
 const LONG_ZERO_RUN: u64 = 63;
 /// Blocks of at least this many values get pairs of codes in the `fast` table.
-const PAIRS_FROM: usize = 1 << 15;
+const PAIRS_FROM: usize = 1 << 12;
 const SHORTEST_LONG_RUN: usize = 2 + (LONG_ZERO_RUN - SHORT_ZERO_RUN) as usize;
 
 /// Decodes one PIZ block of `lines` lines of `width` pixels whose channels take
@@ -259,7 +259,8 @@ impl Table {
                     return Err("PIZ Huffman code table invalid");
                 }
                 first[span.clone()].fill((s << 8) | l);
-                if s != rlc {
+                // (Pairs are placed below, over the same entries.)
+                if s != rlc && !pairs {
                     fast[span].fill(u64::from(s) | u64::from(l) << 32 | 1 << 40);
                 }
                 continue;
@@ -278,20 +279,30 @@ impl Table {
             }
         }
         if pairs {
-            let short = |e: u32| e & 0x80 == 0 && e & 0xff != 0 && e >> 8 != rlc;
-            for (i, f) in fast.iter_mut().enumerate() {
-                let a = first[i];
-                let la = a & 0xff;
-                if !short(a) || la >= FIRST_BITS {
+            // Code by code, in the order they were placed (a damaged table's overlapping codes
+            // then leave `fast` as they leave `first`), each entry of the code's span paired
+            // with the code its remaining bits start: without branches, as the table is built
+            // for every block.
+            let short = |e: u32| (e & 0x80 == 0) & (e & 0xff != 0) & (e >> 8 != rlc);
+            for &(code, l, s) in &codes {
+                if l > FIRST_BITS || s == rlc {
                     continue;
                 }
-                let b = first[(i << la) & ((1 << FIRST_BITS) - 1)];
-                let lb = b & 0xff;
-                if short(b) && la + lb <= FIRST_BITS {
-                    *f = u64::from(a >> 8)
-                        | u64::from(b >> 8) << 16
-                        | u64::from(la + lb) << 32
-                        | 2 << 40;
+                let at = (code << (FIRST_BITS - l)) as usize;
+                let one = u64::from(s) | u64::from(l) << 32 | 1 << 40;
+                for (rest, f) in fast[at..at + (1 << (FIRST_BITS - l))]
+                    .iter_mut()
+                    .enumerate()
+                {
+                    let b = first[(rest << l) & ((1 << FIRST_BITS) - 1)];
+                    let lb = b & 0xff;
+                    let pair =
+                        u64::from(s) | u64::from(b >> 8) << 16 | u64::from(l + lb) << 32 | 2 << 40;
+                    *f = if short(b) & (l + lb <= FIRST_BITS) {
+                        pair
+                    } else {
+                        one
+                    };
                 }
             }
         }
