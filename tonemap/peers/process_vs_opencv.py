@@ -8,12 +8,14 @@ Needs the `blueshift` binary (cargo build --release -p blueshift-cli) and PyPI
 modulations): a Radiance file with `cv2.imwrite` (`--formats hdr`, the default), or a
 half-float OpenEXR file with OpenEXR's own writer in PIZ, ZIP (16 lines), ZIPS (1 line) or
 no compression (`exr-piz`, `exr-zip`, `exr-zips`, `exr-none`), or a float32 one (the same
-names ending in `32`: `exr-zip32`, ...). Then runs both interleaved,
+names ending in `32`: `exr-zip32`, ...), scan lines or, with `-tiled` after the name
+(`exr-piz-tiled`, `exr-piz32-tiled`), 64x64 tiles. Then runs both interleaved,
 `--rounds` times each, 2 threads for both, and prints the medians and their ratio. OpenCV
 runs on the same pixels (as float32, BGR). Usage:
 
     python3 tonemap/peers/process_vs_opencv.py [--blueshift target/release/blueshift]
-        [--rounds 9] [--ops drago,reinhard] [--formats hdr,exr-piz,exr-zip,exr-zips,exr-none,exr-zip32,exr-piz32]
+        [--rounds 9] [--ops drago,reinhard]
+        [--formats hdr,exr-piz,exr-zip,exr-zips,exr-none,exr-zip32,exr-piz32,exr-piz-tiled]
 """
 import argparse, os, statistics, subprocess, tempfile, time
 
@@ -49,14 +51,21 @@ def main():
             if fmt.startswith("exr-"):
                 import OpenEXR
 
-                f32 = fmt.endswith("32")
-                kind = fmt[4:-2] if f32 else fmt[4:]
+                tiled = fmt.endswith("-tiled")
+                name = fmt.removesuffix("-tiled")
+                f32 = name.endswith("32")
+                kind = name[4:-2] if f32 else name[4:]
                 comp = {"piz": "PIZ", "zip": "ZIP", "zips": "ZIPS", "none": "NO"}[kind]
                 p = os.path.join(d, f"big_{fmt}.exr")
                 header = {
                     "compression": getattr(OpenEXR, comp + "_COMPRESSION"),
-                    "type": OpenEXR.scanlineimage,
+                    "type": OpenEXR.tiledimage if tiled else OpenEXR.scanlineimage,
                 }
+                if tiled:
+                    tiles = OpenEXR.TileDescription()
+                    tiles.xSize, tiles.ySize = 64, 64
+                    tiles.mode, tiles.roundingMode = OpenEXR.ONE_LEVEL, OpenEXR.ROUND_DOWN
+                    header["tiles"] = tiles
                 ty = np.float32 if f32 else np.float16
                 planes = {n: img[:, :, i].astype(ty).copy() for i, n in enumerate("RGB")}
                 with OpenEXR.File(header, planes) as f:
@@ -74,7 +83,7 @@ def main():
         for fmt in a.formats.split(","):
             if fmt == "hdr":
                 pixels = im
-            elif fmt.endswith("32"):
+            elif fmt.removesuffix("-tiled").endswith("32"):
                 pixels = img[:, :, ::-1].copy()
             else:
                 pixels = im_half
