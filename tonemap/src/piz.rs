@@ -259,9 +259,15 @@ impl Table {
                     return Err("PIZ Huffman code table invalid");
                 }
                 first[span.clone()].fill((s << 8) | l);
-                // (Pairs are placed below, over the same entries.)
-                if s != rlc && !pairs {
-                    fast[span].fill(u64::from(s) | u64::from(l) << 32 | 1 << 40);
+                // (Pairs are placed below, over the same entries.) The run code's entries are
+                // left to the checked step, here too: a damaged table's run code may overlap
+                // a code placed before it.
+                if !pairs {
+                    fast[span].fill(if s == rlc {
+                        SLOW
+                    } else {
+                        u64::from(s) | u64::from(l) << 32 | 1 << 40
+                    });
                 }
                 continue;
             }
@@ -306,11 +312,15 @@ impl Table {
             // Code by code, in the order they were placed (a damaged table's overlapping codes
             // then leave `fast` as they leave `first`).
             for &(code, l, s) in &codes {
-                if l > FIRST_BITS || s == rlc {
+                if l > FIRST_BITS {
                     continue;
                 }
                 let at = (code << (FIRST_BITS - l)) as usize;
                 let span = 1 << (FIRST_BITS - l);
+                if s == rlc {
+                    fast[at..at + span].fill(SLOW);
+                    continue;
+                }
                 let from = &template[starts[l as usize]..][..span];
                 for (f, t) in fast[at..at + span].iter_mut().zip(from) {
                     *f = t | u64::from(s);
@@ -724,6 +734,115 @@ fn undo_wavelet_with<const SMALL: bool>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The `fast` table as the first level says it should be, entry by entry (the table's
+    /// definition): `SLOW` unless the entry's code is short and not the run code; then that
+    /// code, paired (in `pairs` tables) with the short code that its remaining bits start
+    /// where both fit in the 12 bits.
+    fn fast_from_first(first: &[u32], rlc: u32, pairs: bool) -> Vec<u64> {
+        let short = |e: u32| e & 0x80 == 0 && e & 0xff != 0 && e >> 8 != rlc;
+        (0..first.len())
+            .map(|i| {
+                let a = first[i];
+                if !short(a) {
+                    return SLOW;
+                }
+                let la = a & 0xff;
+                let one = u64::from(a >> 8) | u64::from(la) << 32 | 1 << 40;
+                let b = first[(i << la) & (first.len() - 1)];
+                let lb = b & 0xff;
+                if !pairs || la >= FIRST_BITS || !short(b) || la + lb > FIRST_BITS {
+                    return one;
+                }
+                u64::from(a >> 8) | u64::from(b >> 8) << 16 | u64::from(la + lb) << 32 | 2 << 40
+            })
+            .collect()
+    }
+
+    /// The `fast` table built code by code equals the one its definition gives from the
+    /// first level, for complete code tables and for damaged ones (lengths drawn at random,
+    /// so that codes overlap, the run code among them), with and without pairs.
+    #[test]
+    fn fast_entries_follow_the_first_level() {
+        let mut rng = crate::xorshift(0x9e37_79b9_7f4a_7c15);
+        let mut built = [0usize; 2];
+        for round in 0..3000 {
+            let symbols = 2 + (rng() % 300) as usize;
+            let max_len = 1 + rng() % if round % 3 == 0 { 12 } else { 20 };
+            // Complete tables in a third of the rounds: a Huffman code of random weights.
+            let lengths: Vec<u8> = if round % 3 == 1 {
+                let mut w: Vec<u64> = (0..symbols).map(|_| 1 + rng() % 1000).collect();
+                huffman_lengths(&mut w)
+            } else {
+                (0..symbols)
+                    .map(|_| {
+                        if rng().is_multiple_of(4) {
+                            0
+                        } else {
+                            1 + (rng() % max_len) as u8
+                        }
+                    })
+                    .collect()
+            };
+            let coded: Vec<(u32, u8)> = lengths
+                .iter()
+                .enumerate()
+                .filter(|&(_, &l)| l > 0)
+                .map(|(s, &l)| (s as u32, l))
+                .collect();
+            let mut per_length = [0u64; 59];
+            for &(_, l) in &coded {
+                per_length[usize::from(l)] += 1;
+            }
+            let rlc = (rng() % symbols as u64) as u32;
+            for pairs in [false, true] {
+                if let Ok(t) = Table::new(&coded, &per_length, rlc, pairs) {
+                    built[usize::from(pairs)] += 1;
+                    assert_eq!(
+                        t.fast,
+                        fast_from_first(&t.first, rlc, pairs),
+                        "round {round}, pairs {pairs}, lengths {lengths:?}, rlc {rlc}"
+                    );
+                }
+            }
+        }
+        // Over a third of the tables were built (the complete ones, and damaged ones whose
+        // codes fit their lengths), with and without pairs.
+        assert!(built.iter().all(|&n| n > 1000), "{built:?}");
+    }
+
+    /// Code lengths of a Huffman code for `weights` (at most 58 bits for any weights here).
+    fn huffman_lengths(weights: &mut [u64]) -> Vec<u8> {
+        use std::cmp::Reverse;
+        use std::collections::BinaryHeap;
+        let n = weights.len();
+        let mut parent = vec![usize::MAX; 2 * n];
+        let mut heap: BinaryHeap<_> = weights
+            .iter()
+            .enumerate()
+            .map(|(i, &w)| Reverse((w, i)))
+            .collect();
+        let mut next = n;
+        while heap.len() > 1 {
+            let (Some(Reverse((wa, a))), Some(Reverse((wb, b)))) = (heap.pop(), heap.pop()) else {
+                break;
+            };
+            parent[a] = next;
+            parent[b] = next;
+            heap.push(Reverse((wa + wb, next)));
+            next += 1;
+        }
+        (0..n)
+            .map(|mut i| {
+                let mut depth = 0u8;
+                while parent[i] != usize::MAX {
+                    i = parent[i];
+                    depth += 1;
+                }
+                depth
+            })
+            .collect()
+    }
 
     /// The finest level (sixteen samples at a time where the CPU allows) equals the
     /// transform's 2x2 step written one square at a time (columns, then rows, as
