@@ -425,11 +425,12 @@ fn read_exr_blocks_by(path: &Path, compact: bool, at_offsets: bool) -> Result<Op
             OffsetRead::Image(data) => ExrRead::Image(
                 Rgb32FImage::from_raw(w as u32, h as u32, data).ok_or_else(too_large)?,
             ),
-            OffsetRead::Bands(bands) => ExrRead::Bands(ExrBands {
+            OffsetRead::Bands(bands, row_stats) => ExrRead::Bands(ExrBands {
                 layout,
                 band,
                 h,
                 bands,
+                row_stats,
             }),
         }));
     }
@@ -598,6 +599,7 @@ fn read_exr_blocks_by(path: &Path, compact: bool, at_offsets: bool) -> Result<Op
         band,
         h,
         bands: done,
+        row_stats: Vec::new(),
     })))
 }
 
@@ -605,8 +607,8 @@ fn read_exr_blocks_by(path: &Path, compact: bool, at_offsets: bool) -> Result<Op
 enum OffsetRead {
     /// The image's samples (RGB).
     Image(Vec<f32>),
-    /// Each band's blocks, from left to right.
-    Bands(Vec<Vec<ExrBlock>>),
+    /// Each band's blocks, from left to right, and every row's first-pass statistics.
+    Bands(Vec<Vec<ExrBlock>>, Vec<crate::rows::RowStats>),
 }
 
 /// The full-resolution blocks of a single-part file (scan lines, or tiles `tile_w` wide,
@@ -706,40 +708,62 @@ fn read_blocks_at_offsets(
     };
     // Tasks of at least 16 lines (the file-order reader's batches).
     let per_task = 16usize.div_ceil(band);
+    // Band `at`'s blocks into `kept` (a band of tiles of half floats joined).
+    let read_band = |at: usize, kept: &mut Vec<ExrBlock>| -> Option<()> {
+        // A band of tiles of half floats, joined.
+        if across > 1 && layout.picks_halves() {
+            let lines = band.min(h - at * band);
+            let mut joined = vec![0u16; 3 * w * lines];
+            for column in 0..across {
+                layout.join_halves(&read_block(at, column)?, &mut joined);
+            }
+            let samples = BlockSamples::Halves(joined);
+            let clean = layout.is_clean(&samples, w, lines);
+            kept.push(ExrBlock {
+                x0: 0,
+                cols: w,
+                lines,
+                samples,
+                clean,
+            });
+            return Some(());
+        }
+        for column in 0..across {
+            let mut b = read_block(at, column)?;
+            b.clean = layout.is_clean(&b.samples, b.cols, b.lines);
+            kept.push(b);
+        }
+        Some(())
+    };
     if compact {
         let mut out: Vec<Vec<ExrBlock>> = (0..bands).map(|_| Vec::new()).collect();
+        let mut stats: Vec<Vec<crate::rows::RowStats>> = (0..bands).map(|_| Vec::new()).collect();
         out.par_iter_mut()
+            .zip(stats.par_iter_mut())
             .enumerate()
             .with_min_len(per_task)
-            .try_for_each(|(at, kept)| {
-                // A band of tiles of half floats, joined.
-                if across > 1 && layout.picks_halves() {
+            .try_for_each_init(
+                crate::rows::BandStats::default,
+                |scratch, (at, (kept, st))| {
                     let lines = band.min(h - at * band);
-                    let mut joined = vec![0u16; 3 * w * lines];
-                    for column in 0..across {
-                        layout.join_halves(&read_block(at, column)?, &mut joined);
-                    }
-                    let samples = BlockSamples::Halves(joined);
-                    let clean = layout.is_clean(&samples, w, lines);
-                    kept.push(ExrBlock {
-                        x0: 0,
-                        cols: w,
+                    read_band(at, kept)?;
+                    *st = scratch.rows(
+                        w,
+                        at * band,
                         lines,
-                        samples,
-                        clean,
-                    });
-                    return Some(());
-                }
-                for column in 0..across {
-                    let mut b = read_block(at, column)?;
-                    b.clean = layout.is_clean(&b.samples, b.cols, b.lines);
-                    kept.push(b);
-                }
-                Some(())
-            })?;
+                        kept.iter().all(|b| b.clean),
+                        |y, planes, row| {
+                            for b in kept.iter() {
+                                layout.line(b, y, planes, row);
+                            }
+                        },
+                    );
+                    Some(())
+                },
+            )?;
         #[cfg(test)]
         tests::READ_AT_OFFSETS.set(tests::READ_AT_OFFSETS.get() + 1);
-        return Some(OffsetRead::Bands(out));
+        return Some(OffsetRead::Bands(out, stats.concat()));
     }
     let mut data = vec![0.0f32; 3 * w * h];
     data.par_chunks_mut(3 * w * band)
@@ -823,6 +847,9 @@ struct ExrBands {
     h: usize,
     /// Each band's blocks, from left to right.
     bands: Vec<Vec<ExrBlock>>,
+    /// Every row's statistics of the first tone-mapping pass, computed as each band was
+    /// decoded (while its samples were in the cache); empty where not computed.
+    row_stats: Vec<crate::rows::RowStats>,
 }
 
 impl ExrBands {
@@ -1317,6 +1344,15 @@ impl HdrSource {
     #[must_use]
     pub fn dimensions(&self) -> (u32, u32) {
         (self.width, self.height)
+    }
+
+    /// Every row's first-pass statistics, where they were computed as the source was
+    /// decoded (OpenEXR blocks read at their offsets).
+    pub(crate) fn row_stats(&self) -> Option<&[crate::rows::RowStats]> {
+        match &self.inner {
+            Source::Exr(bands) if !bands.row_stats.is_empty() => Some(&bands.row_stats),
+            _ => None,
+        }
     }
 
     /// Whether the pixels are held as the file's compact encoding (not as `f32`).
@@ -2902,6 +2938,62 @@ mod tests {
             let got = blocks_image(&path);
             assert_same_bits(&got, &want, &format!("one in {noisy}"), &path);
         }
+    }
+
+    /// The first tone-mapping pass's statistics computed as the bands are decoded
+    /// ([`ExrBands::row_stats`]) give what the pass gives over the decoded rows: the
+    /// cleaning's report, the luminance range and the log-average, for scan lines and
+    /// tiles, PIZ, ZIP and uncompressed blocks, half, float and uint samples, RGB, RGBA and
+    /// Y, dirty values (negative) and clean ones (uint).
+    #[test]
+    fn row_statistics_of_the_read_equal_the_first_pass() {
+        use exr::meta::attribute::{LineOrder, SampleType};
+        use exr::prelude::*;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.exr");
+        let (mut dirty, mut lit) = (0, 0);
+        for compression in [
+            Compression::PIZ,
+            Compression::ZIP16,
+            Compression::Uncompressed,
+        ] {
+            for blocks in [Blocks::ScanLines, Blocks::Tiles(Vec2(16, 8))] {
+                for ty in [SampleType::F16, SampleType::F32, SampleType::U32] {
+                    for names in [&["R", "G", "B"][..], &["A", "B", "G", "R"], &["Y"]] {
+                        let what = format!("{compression:?} {blocks:?} {ty:?} {names:?}");
+                        let encoding = Encoding {
+                            compression,
+                            blocks,
+                            line_order: LineOrder::Increasing,
+                        };
+                        exr_file(&path, (45, 37), names, ty, encoding, (0, 0));
+                        let Some(ExrRead::Bands(mut bands)) =
+                            read_exr_blocks_by(&path, true, true).unwrap()
+                        else {
+                            panic!("read by blocks: {what}");
+                        };
+                        let pre = std::mem::take(&mut bands.row_stats);
+                        assert_eq!(pre.len(), 37, "{what}");
+                        let mut src = HdrSource::from_bands(bands);
+                        let want =
+                            [false, true].map(|log| crate::rows::clean_stats(&src, None, log));
+                        if let Source::Exr(b) = &mut src.inner {
+                            b.row_stats = pre;
+                        }
+                        assert!(src.row_stats().is_some(), "{what}");
+                        let got =
+                            [false, true].map(|log| crate::rows::clean_stats(&src, None, log));
+                        assert_eq!(got, want, "{what}");
+                        let (stats, lavg) = got[1].unwrap();
+                        dirty += usize::from(stats.report.total() > 0);
+                        lit += usize::from(lavg.is_some());
+                    }
+                }
+            }
+        }
+        // Both kinds of rows were met, and the log-averages were defined.
+        assert!(dirty > 10 && dirty < 54, "{dirty} dirty files of 54");
+        assert_eq!(lit, 54);
     }
 
     /// Files whose offset table does not say where each block is (entries swapped, an entry

@@ -79,6 +79,54 @@ impl RowBuffers {
     }
 }
 
+/// One row's statistics of the first pass: the cleaning's report and largest finite value
+/// per channel, the luminance's smallest positive value, largest value and zero count, and
+/// the sum of the logarithms of the positive luminances with their count (over the whole
+/// row).
+pub(crate) type RowStats = ((SanitizeReport, [f32; 3]), (f32, f32, u64), (f64, u64));
+
+/// One thread's buffers for the first pass's statistics of the rows of a band as it is
+/// decoded ([`BandStats::rows`]).
+#[derive(Default)]
+pub(crate) struct BandStats {
+    planes: [Vec<f32>; 3],
+    rgb: Vec<f32>,
+    lum: Vec<f32>,
+    logs: Vec<f32>,
+}
+
+impl BandStats {
+    /// The statistics of rows `first..first + lines` of an image `w` pixels wide, row `y`
+    /// of the band (from 0) written as RGB by `line(y, planes, row)`; `clean`: whether the
+    /// band's values are known to be clean. The steps and values of [`clean_stats`]'s pass
+    /// (without a circle), so that it can take these instead.
+    pub(crate) fn rows(
+        &mut self,
+        w: usize,
+        first: usize,
+        lines: usize,
+        clean: bool,
+        line: impl Fn(usize, &mut [Vec<f32>; 3], &mut [f32]),
+    ) -> Vec<RowStats> {
+        self.rgb.resize(3 * w, 0.0);
+        self.lum.resize(w, 0.0);
+        self.logs.resize(w, 0.0);
+        (0..lines)
+            .map(|y| {
+                line(y, &mut self.planes, &mut self.rgb);
+                let cleaned = if clean {
+                    (SanitizeReport::default(), [0.0; 3])
+                } else {
+                    clean_row(&mut self.rgb)
+                };
+                luminance_into(&self.rgb, &mut self.lum);
+                let logs = log_sum_row(&self.lum, first + y, None, &mut self.logs);
+                (cleaned, luminance_row_stats(&self.lum), logs)
+            })
+            .collect()
+    }
+}
+
 /// The first pass: the cleaning's statistics and, if `log_average`, the log-average
 /// luminance over `circle`. `None` when the image has infinite values (their replacement
 /// changes the luminances this pass saw).
@@ -88,21 +136,26 @@ pub(crate) fn clean_stats(
     log_average: bool,
 ) -> Option<(CleanStats, Option<f64>)> {
     let h = src.dimensions().1 as usize;
-    let rows: Vec<_> = (0..h)
-        .into_par_iter()
-        .map_init(
-            || RowBuffers::new(src, true),
-            |b, y| {
-                let (cleaned, lum) = b.luminance(src, y);
-                let logs = if log_average {
-                    log_sum_row(&b.lum, y, circle, &mut b.work)
-                } else {
-                    (0.0, 0)
-                };
-                (cleaned, lum, logs)
-            },
-        )
-        .collect();
+    // Computed as the source was decoded (the same steps), where the log-average is over the
+    // whole image.
+    let rows: Vec<RowStats> = match src.row_stats().filter(|r| circle.is_none() && r.len() == h) {
+        Some(pre) => pre.to_vec(),
+        None => (0..h)
+            .into_par_iter()
+            .map_init(
+                || RowBuffers::new(src, true),
+                |b, y| {
+                    let (cleaned, lum) = b.luminance(src, y);
+                    let logs = if log_average {
+                        log_sum_row(&b.lum, y, circle, &mut b.work)
+                    } else {
+                        (0.0, 0)
+                    };
+                    (cleaned, lum, logs)
+                },
+            )
+            .collect(),
+    };
     let cleaned: Vec<_> = rows.iter().map(|r| r.0).collect();
     let (report, _) = merge_rows(&cleaned);
     if report.positive_infinite > 0 {
