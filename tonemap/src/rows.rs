@@ -4,6 +4,7 @@
 //! ([`crate::CleanImage::from_image`], [`crate::plane::log_average`],
 //! [`crate::plane::recolour_with_srgb8`]), so the codes are the same bytes.
 
+use std::borrow::Cow;
 use std::path::Path;
 
 use rayon::prelude::*;
@@ -63,20 +64,31 @@ impl RowBuffers {
         y: usize,
     ) -> ((SanitizeReport, [f32; 3]), (f32, f32, u64)) {
         let cleaned = self.load(src, y);
-        luminance_into(&self.rgb, &mut self.lum);
-        (cleaned, luminance_row_stats(&self.lum))
+        (cleaned, luminance_stats(&self.rgb, &mut self.lum))
     }
 
     /// Row `y` of `src`, cleaned (the second pass, whose codes may not need the
     /// luminance): the row's report and largest finite value per channel.
     fn load(&mut self, src: &HdrSource, y: usize) -> (SanitizeReport, [f32; 3]) {
         src.decode_row(y, &mut self.scratch, &mut self.rgb);
-        if !self.rule || src.row_is_clean(y) {
-            (SanitizeReport::default(), [0.0; 3])
-        } else {
-            clean_row(&mut self.rgb)
-        }
+        clean_unless(&mut self.rgb, !self.rule || src.row_is_clean(y))
     }
+}
+
+/// A decoded RGB row under the dirty-input rule, unless `clean` (nothing to change): the
+/// row's report and largest finite value per channel.
+fn clean_unless(rgb: &mut [f32], clean: bool) -> (SanitizeReport, [f32; 3]) {
+    if clean {
+        (SanitizeReport::default(), [0.0; 3])
+    } else {
+        clean_row(rgb)
+    }
+}
+
+/// A cleaned RGB row's luminance into `lum`, and its statistics.
+fn luminance_stats(rgb: &[f32], lum: &mut [f32]) -> (f32, f32, u64) {
+    luminance_into(rgb, lum);
+    luminance_row_stats(lum)
 }
 
 /// One row's statistics of the first pass: the cleaning's report and largest finite value
@@ -114,14 +126,13 @@ impl BandStats {
         (0..lines)
             .map(|y| {
                 line(y, &mut self.planes, &mut self.rgb);
-                let cleaned = if clean {
-                    (SanitizeReport::default(), [0.0; 3])
-                } else {
-                    clean_row(&mut self.rgb)
-                };
-                luminance_into(&self.rgb, &mut self.lum);
-                let logs = log_sum_row(&self.lum, first + y, None, &mut self.logs);
-                (cleaned, luminance_row_stats(&self.lum), logs)
+                let cleaned = clean_unless(&mut self.rgb, clean);
+                let lum = luminance_stats(&self.rgb, &mut self.lum);
+                (
+                    cleaned,
+                    lum,
+                    log_sum_row(&self.lum, first + y, None, &mut self.logs),
+                )
             })
             .collect()
     }
@@ -138,23 +149,25 @@ pub(crate) fn clean_stats(
     let h = src.dimensions().1 as usize;
     // Computed as the source was decoded (the same steps), where the log-average is over the
     // whole image.
-    let rows: Vec<RowStats> = match src.row_stats().filter(|r| circle.is_none() && r.len() == h) {
-        Some(pre) => pre.to_vec(),
-        None => (0..h)
-            .into_par_iter()
-            .map_init(
-                || RowBuffers::new(src, true),
-                |b, y| {
-                    let (cleaned, lum) = b.luminance(src, y);
-                    let logs = if log_average {
-                        log_sum_row(&b.lum, y, circle, &mut b.work)
-                    } else {
-                        (0.0, 0)
-                    };
-                    (cleaned, lum, logs)
-                },
-            )
-            .collect(),
+    let rows: Cow<[RowStats]> = match src.row_stats().filter(|r| circle.is_none() && r.len() == h) {
+        Some(pre) => Cow::Borrowed(pre),
+        None => Cow::Owned(
+            (0..h)
+                .into_par_iter()
+                .map_init(
+                    || RowBuffers::new(src, true),
+                    |b, y| {
+                        let (cleaned, lum) = b.luminance(src, y);
+                        let logs = if log_average {
+                            log_sum_row(&b.lum, y, circle, &mut b.work)
+                        } else {
+                            (0.0, 0)
+                        };
+                        (cleaned, lum, logs)
+                    },
+                )
+                .collect(),
+        ),
     };
     let cleaned: Vec<_> = rows.iter().map(|r| r.0).collect();
     let (report, _) = merge_rows(&cleaned);
