@@ -710,7 +710,6 @@ fn read_blocks_at_offsets(
     let per_task = 16usize.div_ceil(band);
     // Band `at`'s blocks into `kept` (a band of tiles of half floats joined).
     let read_band = |at: usize, kept: &mut Vec<ExrBlock>| -> Option<()> {
-        // A band of tiles of half floats, joined.
         if across > 1 && layout.picks_halves() {
             let lines = band.min(h - at * band);
             let mut joined = vec![0u16; 3 * w * lines];

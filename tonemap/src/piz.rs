@@ -771,8 +771,8 @@ mod tests {
             let max_len = 1 + rng() % if round % 3 == 0 { 12 } else { 20 };
             // Complete tables in a third of the rounds: a Huffman code of random weights.
             let lengths: Vec<u8> = if round % 3 == 1 {
-                let mut w: Vec<u64> = (0..symbols).map(|_| 1 + rng() % 1000).collect();
-                huffman_lengths(&mut w)
+                let w: Vec<u64> = (0..symbols).map(|_| 1 + rng() % 1000).collect();
+                huffman_lengths(&w)
             } else {
                 (0..symbols)
                     .map(|_| {
@@ -812,7 +812,7 @@ mod tests {
     }
 
     /// Code lengths of a Huffman code for `weights` (at most 58 bits for any weights here).
-    fn huffman_lengths(weights: &mut [u64]) -> Vec<u8> {
+    fn huffman_lengths(weights: &[u64]) -> Vec<u8> {
         use std::cmp::Reverse;
         use std::collections::BinaryHeap;
         let n = weights.len();
