@@ -192,6 +192,48 @@ fn bad_output_extension_and_bad_input_fail_cleanly_without_output() {
     );
 }
 
+/// A long thin volume in bricks of its length: one brick of 1002^3 floats (4.0 GB) for
+/// 4,000 voxels. Refused up front within `--max-memory` (it aborted on a failed
+/// allocation before, leaving a 4 GB temporary file), converted with smaller bricks.
+#[test]
+fn a_conversion_that_would_exceed_max_memory_is_refused_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("thin_1000x2x2_float32.raw");
+    let vals: Vec<u8> = (0..4000u32)
+        .flat_map(|i| (i as f32).to_le_bytes())
+        .collect();
+    std::fs::write(&input, &vals).unwrap();
+    let out = dir.path().join("thin.bsv");
+    let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(["--max-memory", "1G", "convert"])
+        .arg(&input)
+        .arg(&out)
+        .args(["--brick", "1000"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("needs") && err.contains("--max-memory") && err.contains("brick"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(left.len(), 1, "only the input: {left:?}");
+    run(&[
+        "--max-memory".as_ref(),
+        "1G".as_ref(),
+        "convert".as_ref(),
+        input.as_os_str(),
+        out.as_os_str(),
+        "--brick".as_ref(),
+        "8".as_ref(),
+    ]);
+    let back = level0(&out);
+    let want: Vec<f32> = (0..4000).map(|i| i as f32).collect();
+    assert_eq!(back, want);
+}
+
 fn level0(path: &Path) -> Vec<f32> {
     let f = BrickedFile::open(path, 8).unwrap();
     let g = f

@@ -58,7 +58,7 @@ use crate::grid::{Geometry, Grid, ScalarType, Voxel};
 use crate::io::{DiskType, Endian};
 use crate::lod::{downsample_row, level_geometries};
 use crate::macrocell::{DEFAULT_K, Macrocells, layer_min_max};
-use crate::{AnyGrid, Error, Limits, Result};
+use crate::{AnyGrid, Error, Limits, MemoryBudget, Result};
 
 /// First bytes of a bricked file.
 pub const MAGIC: &[u8] = b"BSBRICK1";
@@ -932,8 +932,9 @@ impl<'a> Writer<'a> {
                 let first = ((by + nb[1] * bz) * nb[0]) as u64;
                 let at = lw.offset + first * brick_bytes as u64;
                 let sink = sink.ok_or_else(writer_gone)?;
-                let mut bufs: Vec<Vec<u8>> =
-                    (0..nb[0]).map(|_| take_exact(pool, brick_bytes)).collect();
+                let mut bufs: Vec<Vec<u8>> = (0..nb[0])
+                    .map(|_| take_exact(pool, brick_bytes))
+                    .collect::<Result<_>>()?;
                 // Plane by plane, row by row, every brick of the row in turn: the source is
                 // read in order (a brick at a time, its short runs missed the cache), and
                 // each plane is checksummed while it is in the cache.
@@ -1065,11 +1066,39 @@ struct Block {
 /// A pooled buffer of exactly `len` bytes, or a new one: a level-0 brick of uint8 or uint16
 /// is shorter than the f32 bricks of the coarser levels, and growing a buffer of the other
 /// length would copy and zero it.
-fn take_exact(pool: &Mutex<Vec<Vec<u8>>>, len: usize) -> Vec<u8> {
+fn take_exact(pool: &Mutex<Vec<Vec<u8>>>, len: usize) -> Result<Vec<u8>> {
     let mut p = lock(pool);
     match p.iter().rposition(|b| b.len() == len) {
-        Some(i) => p.swap_remove(i),
-        None => vec![0; len],
+        Some(i) => Ok(p.swap_remove(i)),
+        None => {
+            drop(p);
+            zeroed_bytes(len).ok_or_else(|| {
+                Error::Budget(crate::budget::BudgetError {
+                    what: "a brick of the conversion".into(),
+                    needed: len as u64,
+                    budget: 0,
+                    setting: "the allocator refused".into(),
+                })
+            })
+        }
+    }
+}
+
+/// `len` zero bytes, or `None` where the allocator refuses them (an error then, not an
+/// abort). Zeroed by the allocator (`calloc`): fresh pages from the system are not written
+/// twice, as `try_reserve_exact` and a fill would write them.
+fn zeroed_bytes(len: usize) -> Option<Vec<u8>> {
+    if len == 0 {
+        return Some(Vec::new());
+    }
+    let layout = std::alloc::Layout::array::<u8>(len).ok()?;
+    // SAFETY: `layout` has a non-zero size. A non-null pointer from `alloc_zeroed` is `len`
+    // initialised (zero) bytes allocated by the global allocator with the layout of a
+    // `Vec<u8>` of capacity `len` (alignment 1), which is what `from_raw_parts` requires.
+    #[allow(unsafe_code)]
+    unsafe {
+        let ptr = std::alloc::alloc_zeroed(layout);
+        (!ptr.is_null()).then(|| Vec::from_raw_parts(ptr, len, len))
     }
 }
 
@@ -1250,12 +1279,89 @@ pub fn convert(
     layout: BrickLayout,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<()> {
-    convert_many(
+    convert_within(
+        source,
+        out,
+        channel_name,
+        layout,
+        &MemoryBudget::machine_default(),
+        progress,
+    )
+}
+
+/// [`convert`] within `budget`: [`conversion_bytes`] of the volume is checked against it
+/// before anything is allocated or created.
+///
+/// # Errors
+/// As [`convert`]; [`Error::Budget`] when the conversion's memory does not fit `budget`.
+pub fn convert_within(
+    source: &mut (dyn SlabSource + Send),
+    out: &Path,
+    channel_name: &str,
+    layout: BrickLayout,
+    budget: &MemoryBudget,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<()> {
+    convert_many_within(
         &mut OneChannel(source),
         &[(out, channel_name)],
         layout,
+        budget,
         progress,
     )
+}
+
+/// The bytes [`convert_many`] holds at most while converting a volume of `dims` whose
+/// channels' level 0 are stored as `types` (one per channel) with `layout` (fitted to
+/// `dims` first, as the converter does), on this thread pool:
+/// - every level's window of slices (f32): the stored edge plus four slices of the level
+///   (at most the level's slices plus two), and four level-0 slices per channel on their
+///   way from the reader;
+/// - the bricks in flight, per brick size: a row of bricks per pool thread at work (at most
+///   the level's rows, for the level and channel that need most) while the writer's queue
+///   of eight and the brick it writes may still hold bricks of a finer or coarser level, at
+///   most every brick of that size;
+/// - the checksum of every brick.
+///
+/// A long thin volume with a large brick edge needs whole bricks for few voxels: 1000 x 2 x
+/// 2 in bricks of 1000 holds a 4 GB brick.
+#[must_use]
+pub fn conversion_bytes(dims: [usize; 3], layout: BrickLayout, types: &[ScalarType]) -> u64 {
+    let layout = layout.fitted(dims);
+    let threads = rayon::current_num_threads().max(1) as u64;
+    let s = layout.stored_edge() as u64;
+    let mut total = 0u64;
+    // Per brick size in bytes: the most bricks one slab's rows hold, and all bricks.
+    let mut sizes: Vec<(u64, u64, u64)> = Vec::new();
+    for &t in types {
+        let t0 = match t {
+            t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
+            _ => ScalarType::F32,
+        };
+        let geoms = level_geometries(Geometry::unit(dims), layout.brick);
+        let slice0 = (dims[0] as u64).saturating_mul(dims[1] as u64);
+        total = total.saturating_add(slice0.saturating_mul(16));
+        for (g, ty) in geoms.iter().zip(level_types(geoms.len(), t0)) {
+            let slice = (g.dims[0] as u64).saturating_mul(g.dims[1] as u64);
+            let window = (s + 4).min(g.dims[2] as u64 + 2);
+            total = total.saturating_add(slice.saturating_mul(4).saturating_mul(window));
+            let nb = layout.bricks(g.dims).map(|n| n as u64);
+            let bricks = nb[0].saturating_mul(nb[1]).saturating_mul(nb[2]);
+            total = total.saturating_add(bricks.saturating_mul(8));
+            let rows = threads.min(nb[1]).saturating_mul(nb[0]);
+            let bytes = s.saturating_pow(3).saturating_mul(ty.size_bytes() as u64);
+            match sizes.iter_mut().find(|(b, _, _)| *b == bytes) {
+                Some((_, r, n)) => {
+                    *r = (*r).max(rows);
+                    *n = n.saturating_add(bricks);
+                }
+                None => sizes.push((bytes, rows, bricks)),
+            }
+        }
+    }
+    sizes.iter().fold(total, |t, &(bytes, rows, bricks)| {
+        t.saturating_add(bytes.saturating_mul(rows.saturating_add(9).min(bricks)))
+    })
 }
 
 /// A source of z-slices of several scalar channels at once, such as a synthetic dataset
@@ -1316,10 +1422,30 @@ pub fn convert_many(
     layout: BrickLayout,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<()> {
+    convert_many_within(
+        source,
+        outs,
+        layout,
+        &MemoryBudget::machine_default(),
+        progress,
+    )
+}
+
+/// [`convert_many`] within `budget` ([`convert_within`]).
+///
+/// # Errors
+/// As [`convert_many`]; [`Error::Budget`] when the conversion's memory does not fit
+/// `budget`.
+pub fn convert_many_within(
+    source: &mut (dyn MultiSlabSource + Send),
+    outs: &[(&Path, &str)],
+    layout: BrickLayout,
+    budget: &MemoryBudget,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<()> {
     layout.validate()?;
     let g0 = source.geometry();
     g0.validate()?;
-    let layout = layout.fitted(g0.dims);
     if outs.len() != source.channels() || outs.is_empty() {
         return Err(Error::parameter(format!(
             "{} outputs for {} channels",
@@ -1327,6 +1453,18 @@ pub fn convert_many(
             source.channels()
         )));
     }
+    let types: Vec<ScalarType> = (0..outs.len()).map(|c| source.scalar_type(c)).collect();
+    let [nx, ny, nz] = g0.dims;
+    let fitted = layout.fitted(g0.dims);
+    budget.check(
+        format_args!(
+            "converting this {nx}x{ny}x{nz} volume into bricks of edge {} (a smaller brick \
+             edge needs less)",
+            fitted.brick
+        ),
+        conversion_bytes(g0.dims, layout, &types),
+    )?;
+    let layout = fitted;
     let mut plans = Vec::with_capacity(outs.len());
     let mut tmps = Vec::with_capacity(outs.len());
     for (c, (out, name)) in outs.iter().enumerate() {

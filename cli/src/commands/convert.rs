@@ -419,10 +419,17 @@ fn brick(
     }
     let pb = progress_bar(src.geometry().dims[2] as u64);
     output::write_via_temp_path(&args.output, |tmp| {
-        ooc::convert(src, tmp, name, layout, &mut |done, total| {
-            pb.set_length(total);
-            pb.set_position(done);
-        })
+        ooc::convert_within(
+            src,
+            tmp,
+            name,
+            layout,
+            crate::limits::budget(),
+            &mut |done, total| {
+                pb.set_length(total);
+                pb.set_position(done);
+            },
+        )
         .with_context(|| format!("cannot convert {}", args.input.display()))
     })?;
     pb.finish();

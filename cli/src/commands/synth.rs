@@ -106,10 +106,16 @@ fn run_bricked(args: &Args) -> Result<()> {
         "synth",
         "slices",
     );
-    ooc::convert_many(&mut stream, &outs, layout, &mut |done, total| {
-        pb.set_length(total);
-        pb.set_position(done);
-    })
+    ooc::convert_many_within(
+        &mut stream,
+        &outs,
+        layout,
+        crate::limits::budget(),
+        &mut |done, total| {
+            pb.set_length(total);
+            pb.set_position(done);
+        },
+    )
     .with_context(cannot)?;
     pb.finish();
     for p in &paths {
