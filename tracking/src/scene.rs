@@ -125,9 +125,9 @@ impl Scene {
             }
             if *grid.geometry() != geometry {
                 return Err(Error::scene(format!(
-                    "channels[{i}] ('{name}'): geometry {:?} differs from channel 0's {:?}",
-                    grid.geometry(),
-                    geometry
+                    "channels[{i}] ('{name}'): geometry {} differs from channel 0's {}",
+                    describe(grid.geometry()),
+                    describe(&geometry)
                 )));
             }
             let macrocells = grid.macrocells(k)?;
@@ -234,20 +234,23 @@ impl Scene {
         self.frame
     }
 
-    /// The level every channel samples and the number of levels, when all channels are
-    /// levels of bricked sources with the same level geometries (`None` in core).
+    /// The level every channel samples and the number of levels every channel has alike,
+    /// when all channels are the same level of bricked sources (`None` in core). Files of
+    /// the same volume in different brick edges share their finer levels (a pyramid stops
+    /// at one brick, so smaller bricks go further): those count.
     #[must_use]
     pub fn lod(&self) -> Option<(usize, usize)> {
         let first = self.channels.first()?.grid.as_bricked()?;
         let geoms = first.source().geometries();
-        self.channels
-            .iter()
-            .all(|c| {
-                c.grid
-                    .as_bricked()
-                    .is_some_and(|b| b.level() == first.level() && b.source().geometries() == geoms)
-            })
-            .then_some((first.level(), geoms.len()))
+        let mut count = geoms.len();
+        for c in &self.channels {
+            let b = c.grid.as_bricked()?;
+            if b.level() != first.level() {
+                return None;
+            }
+            count = count.min(common_levels(b.source().geometries(), geoms));
+        }
+        (first.level() < count).then_some((first.level(), count))
     }
 
     /// The same scene (transfer functions, density scale, light, shading, background, the
@@ -454,4 +457,19 @@ fn check_optical_depth(total: &MajorantGrid, g: &Geometry) -> Result<()> {
 fn total(chs: &[SceneChannel]) -> MajorantGrid {
     let grids: Vec<&MajorantGrid> = chs.iter().map(|c| &c.majorant).collect();
     MajorantGrid::combined(&grids, |a, b| a + b)
+}
+
+/// How many levels, from the finest, two pyramids have alike.
+#[must_use]
+pub fn common_levels(a: &[Geometry], b: &[Geometry]) -> usize {
+    a.iter().zip(b).take_while(|(x, y)| x == y).count()
+}
+
+/// A geometry for a message: `16x16x16 voxels, spacing [1, 1, 1], origin [0, 0, 0]`.
+fn describe(g: &Geometry) -> String {
+    let [x, y, z] = g.dims;
+    format!(
+        "{x}x{y}x{z} voxels, spacing {}, origin {}",
+        g.spacing, g.origin
+    )
 }

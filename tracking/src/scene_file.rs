@@ -894,7 +894,14 @@ impl RenderSceneFile {
         let Some(first) = loaded.first().and_then(|(_, f)| f.as_bricked()) else {
             return Ok(());
         };
-        let geoms = first.source().geometries().to_vec();
+        // The levels every channel has alike: files in smaller bricks have more levels.
+        let mut geoms = first.source().geometries().to_vec();
+        for (_, f) in loaded.iter() {
+            if let Some(b) = f.as_bricked() {
+                let n = crate::scene::common_levels(b.source().geometries(), &geoms);
+                geoms.truncate(n.max(1));
+            }
+        }
         let (lo, hi) = geoms[0].world_bounds();
         let width = self.width.unwrap_or(512);
         let height = self.height.unwrap_or(512);
@@ -905,12 +912,11 @@ impl RenderSceneFile {
             if let Some(b) = f.as_bricked() {
                 let moved = if lod == Lod::Brick {
                     // Each brick its own level: the footprint where the brick is nearest.
-                    let g = b.source().geometries().to_vec();
                     b.per_region(|blo, bhi| {
-                        blueshift_volume::lod_level(&g, cam.pixel_footprint(blo, bhi, height))
+                        blueshift_volume::lod_level(&geoms, cam.pixel_footprint(blo, bhi, height))
                     })
                 } else {
-                    b.at_level(level.min(b.levels() - 1))
+                    b.at_level(level)
                 };
                 *f = moved
                     .map_err(|e| Error::field_from(format!("channels[{i}].volume"), None, e))?

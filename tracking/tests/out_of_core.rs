@@ -385,3 +385,70 @@ fn brick_steps(s: &Scene, st: &RenderSettings, cache: &std::sync::Arc<BrickCache
             .all(|&(_, at, regions)| at < regions && regions == all)
     );
 }
+
+/// The same volume in bricks of 8 (levels 64^3 .. 8^3, four) and of 16 (64^3 .. 16^3, three):
+/// a level of detail is one both files have, whichever channel comes first, and
+/// progressive refinement runs over the three levels they share.
+#[test]
+fn channels_in_different_brick_edges_share_their_common_levels() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = Grid::from_fn(blueshift_volume::Geometry::unit([64, 64, 64]), |x, y, z| {
+        ((x * 7 + y * 3 + z) % 17) as f32 / 17.0
+    })
+    .unwrap();
+    let mut paths = Vec::new();
+    for brick in [8, 16] {
+        let p = dir.path().join(format!("b{brick}.bsv"));
+        ooc::convert(
+            &mut GridSource(&g),
+            &p,
+            "v",
+            BrickLayout { brick, apron: 1 },
+            &mut |_, _| {},
+        )
+        .unwrap();
+        assert_eq!(
+            BrickedFile::open(&p, 4).unwrap().levels(),
+            if brick == 8 { 4 } else { 3 }
+        );
+        paths.push(p);
+    }
+    let file = |order: [usize; 2], lod: &str| RenderSceneFile {
+        channels: order
+            .iter()
+            .map(|&i| ChannelSpec {
+                volume: Some(paths[i].clone()),
+                tf: "builtin:viridis".into(),
+                ..ChannelSpec::default()
+            })
+            .collect(),
+        method: Some("marcher".parse().unwrap()),
+        width: Some(12),
+        height: Some(12),
+        density_scale: Some(0.05),
+        lod: Some(lod.into()),
+        ..RenderSceneFile::default()
+    };
+    for lod in ["3", "2", "auto"] {
+        let mut images = Vec::new();
+        for order in [[0, 1], [1, 0]] {
+            let (scene, m, s) = file(order, lod).build().unwrap();
+            let levels: Vec<usize> = scene
+                .channels()
+                .iter()
+                .map(|c| c.grid().as_bricked().unwrap().level())
+                .collect();
+            assert_eq!(levels[0], levels[1], "--lod {lod}, order {order:?}");
+            assert!(levels[0] <= 2, "a level both files have: {levels:?}");
+            if lod != "auto" {
+                assert_eq!(
+                    levels[0], 2,
+                    "--lod {lod}: level 2, the coarsest both files have"
+                );
+            }
+            assert_eq!(scene.lod(), Some((levels[0], 3)));
+            images.push(render(&scene, &m, &s).unwrap());
+        }
+        assert_eq!(images[0].as_raw(), images[1].as_raw(), "--lod {lod}");
+    }
+}
