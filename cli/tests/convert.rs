@@ -245,8 +245,8 @@ fn level0(path: &Path) -> Vec<f32> {
 
 /// `.bsv` output: a vector field becomes three files of its components; `--type uint8`
 /// stores what NRRD output with `--type uint8` stores; `--gzip` and types a `.bsv` cannot
-/// hold are refused with one line and no file; a whole-volume read over `--max-memory` is
-/// refused naming the setting.
+/// hold are refused with one line and no file; `info` over `--max-memory` describes a coarser
+/// level.
 #[test]
 fn bricked_output_takes_vectors_and_types_and_refuses_what_it_cannot_do() {
     let dir = tempfile::tempdir().unwrap();
@@ -319,7 +319,63 @@ fn bricked_output_takes_vectors_and_types_and_refuses_what_it_cannot_do() {
         .arg(&u8_bsv)
         .output()
         .unwrap();
+    // Level 0 does not fit: a coarser level's statistics, said so.
     let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(err.contains("--max-memory"), "{err}");
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("the finest level within --max-memory"),
+        "{text}"
+    );
+}
+
+/// `info` on a `.bsv` whose level 0 exceeds `--max-memory` gives the statistics of the finest
+/// level that fits, says which, and keeps the file's own dimensions and type. The levels
+/// average 2 x 2 x 2 blocks, so for even dimensions their mean is level 0's.
+#[test]
+fn info_of_a_bricked_file_over_max_memory_describes_a_coarser_level() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("ramp_64x64x64_uint8.raw");
+    let vals: Vec<u8> = (0..64 * 64 * 64u32)
+        .map(|i| ((i % 64) * 3 + (i / 4096)) as u8)
+        .collect();
+    std::fs::write(&input, &vals).unwrap();
+    let bsv = dir.path().join("ramp.bsv");
+    run(&[
+        "convert".as_ref(),
+        input.as_os_str(),
+        bsv.as_os_str(),
+        "--brick".as_ref(),
+        "16".as_ref(),
+    ]);
+    let info = |budget: &str| {
+        let o = run(&[
+            "--max-memory".as_ref(),
+            budget.as_ref(),
+            "info".as_ref(),
+            bsv.as_os_str(),
+            "--json".as_ref(),
+        ]);
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()
+    };
+    let whole = info("1G");
+    assert!(whole.get("statistics_level").is_none(), "{whole}");
+    // Level 0 in f32 and its sorted copy: 2 MiB; level 1: 256 KiB.
+    let part = info("600K");
+    assert_eq!(part["statistics_level"], 1, "{part}");
+    assert_eq!(part["dims"], serde_json::json!([64, 64, 64]));
+    assert_eq!(part["channels"][0]["type"], "uint8");
+    assert_eq!(part["channels"][0]["finite_count"], 32 * 32 * 32);
+    let mean = |v: &serde_json::Value| v["channels"][0]["mean"].as_f64().unwrap();
+    let want = vals.iter().map(|&v| f64::from(v)).sum::<f64>() / vals.len() as f64;
+    assert!((mean(&whole) - want).abs() < 1e-9, "{}", mean(&whole));
+    assert!((mean(&part) - want).abs() < 1e-4, "{}", mean(&part));
+    // Nothing fits: the read's error, naming the setting.
+    let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(["--max-memory", "1K", "info"])
+        .arg(&bsv)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--max-memory"));
 }

@@ -195,11 +195,11 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         detect_format(&args.file).map_err(|e| anyhow::anyhow!("{e}: {}", args.file.display()))?
     };
-    let vol = args.input.read(&args.file)?;
-    let g = *vol.geometry();
+    let bricked = format == blueshift_volume::io::Format::Bricked;
+    let (vol, sampled) = read_volume(&args, bricked)?;
     let bins = args.bins as usize;
     // Bricked files also list their levels of detail.
-    let lod = if format == blueshift_volume::io::Format::Bricked {
+    let lod = if bricked {
         let f = blueshift_volume::ooc::BrickedFile::open(&args.file, 1)
             .map_err(|e| super::volume_common::with_path(&e, &args.file))?;
         Some(
@@ -210,6 +210,22 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         None
     };
+    // The file's own geometry (level 0), whichever level the statistics come from.
+    let g = lod
+        .as_ref()
+        .and_then(|l| l.first().copied())
+        .unwrap_or(*vol.geometry());
+    let sampled_note = sampled.map(|(level, need)| {
+        let d = vol.geometry().dims;
+        format!(
+            "statistics of level {level} ({}x{}x{}), the finest level within --max-memory \
+             (level 0 needs {})",
+            d[0],
+            d[1],
+            d[2],
+            blueshift_volume::budget::format_bytes(need)
+        )
+    });
     let per: Vec<_> = vol.channels().iter().map(|c| (c, stats(c, bins))).collect();
     if args.json {
         let chans: Vec<_> = per
@@ -257,6 +273,9 @@ pub fn run(args: Args) -> Result<()> {
         if let Some(levels) = &lod {
             out["levels"] = json!(levels.iter().map(|g| g.dims).collect::<Vec<_>>());
         }
+        if let Some((level, _)) = sampled {
+            out["statistics_level"] = json!(level);
+        }
         return emit(&format!("{out}\n"));
     }
     let mut t = String::new();
@@ -282,6 +301,9 @@ pub fn run(args: Args) -> Result<()> {
             .map(|g| format!("{}x{}x{}", g.dims[0], g.dims[1], g.dims[2]))
             .collect();
         writeln!(t, "levels of detail: {}", d.join(", "))?;
+    }
+    if let Some(note) = &sampled_note {
+        writeln!(t, "{note}")?;
     }
     for (c, s) in &per {
         writeln!(
@@ -326,6 +348,54 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     emit(&t)
+}
+
+/// The volume whose statistics `info` gives: the file read whole within `--max-memory`;
+/// for a `.bsv` file whose level 0 does not fit, the finest coarser level that does (with
+/// the copy the statistics sort), and that level with the bytes level 0 needs.
+fn read_volume(
+    args: &Args,
+    bricked: bool,
+) -> Result<(blueshift_volume::Volume, Option<(usize, u64)>)> {
+    use blueshift_volume::budget::grid_bytes;
+    let opts = args.input.read_options()?;
+    let err = match blueshift_volume::read_with(&args.file, &opts) {
+        Ok(v) => return Ok((v, None)),
+        Err(e) => e,
+    };
+    if bricked && matches!(err, blueshift_volume::Error::Limits(_)) {
+        let with_path =
+            |e: &blueshift_volume::Error| super::volume_common::with_path(e, &args.file);
+        let f =
+            blueshift_volume::ooc::BrickedFile::open(&args.file, 1).map_err(|e| with_path(&e))?;
+        let budget = crate::limits::budget().bytes();
+        for level in 1..f.levels() {
+            let Some(g) = f.level_geometry(level) else {
+                break;
+            };
+            if grid_bytes(g.dims, 4, 2) > budget {
+                continue;
+            }
+            let grid = f
+                .load_level(level, &opts.limits)
+                .map_err(|e| with_path(&e))?;
+            let stored_as = match f.level0_type() {
+                blueshift_volume::ScalarType::U8 => blueshift_volume::DiskType::U8,
+                blueshift_volume::ScalarType::U16 => blueshift_volume::DiskType::U16,
+                _ => blueshift_volume::DiskType::F32,
+            };
+            let mut v = blueshift_volume::Volume::new(g).map_err(|e| with_path(&e))?;
+            v.push_channel(Channel {
+                name: f.channel_name().to_owned(),
+                grid,
+                stored_as: Some(stored_as),
+            })
+            .map_err(|e| with_path(&e))?;
+            let need = grid_bytes(f.geometries()[0].dims, 4, 2);
+            return Ok((v, Some((level, need))));
+        }
+    }
+    Err(super::volume_common::read_error(&err, &args.file))
 }
 
 /// Writes to stdout; a closed pipe (`blueshift info f | head`) is not an error.

@@ -284,13 +284,19 @@ impl InputArgs {
 
     /// Reads `path` with these options; errors end with the path.
     pub fn read(&self, path: &Path) -> Result<Volume> {
-        blueshift_volume::read_with(path, &self.read_options()?).map_err(|e| match e {
-            blueshift_volume::Error::Limits(_) => anyhow::anyhow!(
-                "{} (--max-memory; a .bsv file renders within --cache-mb)",
-                with_path(&e, path)
-            ),
-            e => with_path(&e, path),
-        })
+        blueshift_volume::read_with(path, &self.read_options()?).map_err(|e| read_error(&e, path))
+    }
+}
+
+/// A read's error for the user: the path last, and the setting to change where the volume
+/// does not fit `--max-memory`.
+pub fn read_error(e: &blueshift_volume::Error, path: &Path) -> anyhow::Error {
+    match e {
+        blueshift_volume::Error::Limits(_) => anyhow::anyhow!(
+            "{} (--max-memory; a .bsv file renders within --cache-mb)",
+            with_path(e, path)
+        ),
+        e => with_path(e, path),
     }
 }
 
