@@ -204,7 +204,10 @@ fn a_corrupt_brick_is_an_error_at_render_time_not_a_panic() {
     // A file truncated under the open scene: a read error, again no panic.
     std::fs::write(&p, &bytes[..5000]).unwrap();
     let e = render(&sc, &m, &s).unwrap_err().to_string();
-    assert!(e.contains("brick"), "{e}");
+    assert!(
+        e.contains("truncated") && e.contains("brick") && e.contains("c0.bsv"),
+        "names the file: {e}"
+    );
 }
 
 #[test]

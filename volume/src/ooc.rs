@@ -1767,15 +1767,32 @@ impl BrickSource for FileBricks {
                 self.path.display()
             ))
         };
+        // A read that fails (a file truncated or gone bad under an open scene) names the
+        // file and the brick: a scene may sample several files.
+        let read = |buf: &mut [u8]| {
+            self.file.read_exact_at(buf, at).map_err(|e| {
+                let what = format!("bricked file '{}': brick {idx} of level {level}", self.name);
+                match Error::from(e) {
+                    Error::Io(e) => Error::Io(std::io::Error::new(
+                        e.kind(),
+                        format!("{what}: {e}: {}", self.path.display()),
+                    )),
+                    Error::Invalid(m) => {
+                        Error::invalid(format!("{what}: {m}: {}", self.path.display()))
+                    }
+                    e => Error::invalid(format!("{what}: {e}: {}", self.path.display())),
+                }
+            })
+        };
         if t == ScalarType::F32 && cfg!(target_endian = "little") {
-            self.file.read_exact_at(bytemuck::cast_slice_mut(out), at)?;
+            read(bytemuck::cast_slice_mut(out))?;
             if checksum(bytemuck::cast_slice(out)) != want {
                 return Err(bad());
             }
             return Ok(());
         }
         let mut buf = vec![0u8; bytes_per];
-        self.file.read_exact_at(&mut buf, at)?;
+        read(&mut buf)?;
         if checksum(&buf) != want {
             return Err(bad());
         }
