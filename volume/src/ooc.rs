@@ -1311,6 +1311,14 @@ pub fn convert_within(
     )
 }
 
+/// The type a `.bsv` level 0 stores a source's values of type `t` in.
+fn stored_level0(t: ScalarType) -> ScalarType {
+    match t {
+        t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
+        _ => ScalarType::F32,
+    }
+}
+
 /// The bytes [`convert_many`] holds at most while converting a volume of `dims` whose
 /// channels' level 0 are stored as `types` (one per channel) with `layout` (fitted to
 /// `dims` first, as the converter does), on this thread pool:
@@ -1334,10 +1342,7 @@ pub fn conversion_bytes(dims: [usize; 3], layout: BrickLayout, types: &[ScalarTy
     // Per brick size in bytes: the most bricks one slab's rows hold, and all bricks.
     let mut sizes: Vec<(u64, u64, u64)> = Vec::new();
     for &t in types {
-        let t0 = match t {
-            t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
-            _ => ScalarType::F32,
-        };
+        let t0 = stored_level0(t);
         let geoms = level_geometries(Geometry::unit(dims), layout.brick);
         let slice0 = (dims[0] as u64).saturating_mul(dims[1] as u64);
         total = total.saturating_add(slice0.saturating_mul(16));
@@ -1468,10 +1473,7 @@ pub fn convert_many_within(
     let mut plans = Vec::with_capacity(outs.len());
     let mut tmps = Vec::with_capacity(outs.len());
     for (c, (out, name)) in outs.iter().enumerate() {
-        let t0 = match source.scalar_type(c) {
-            t @ (ScalarType::U8 | ScalarType::U16 | ScalarType::F16) => t,
-            _ => ScalarType::F32,
-        };
+        let t0 = stored_level0(source.scalar_type(c));
         plans.push(Plan::new(g0, &layout, t0, stored_k(&layout))?);
         if name.len() > 255 {
             return Err(Error::parameter("channel name longer than 255 bytes"));
