@@ -379,3 +379,52 @@ fn info_of_a_bricked_file_over_max_memory_describes_a_coarser_level() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--max-memory"));
 }
+
+/// Cubic bricks pad a thin volume: `convert` says so after writing, with the file's real
+/// size and a brick edge that writes a smaller file (checked by converting with it).
+#[test]
+fn a_thin_volume_gets_a_note_on_its_padding_with_a_smaller_brick() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("slice_512x512x1_uint8.raw");
+    let vals: Vec<u8> = (0..512 * 512u32).map(|i| (i % 253) as u8).collect();
+    std::fs::write(&input, &vals).unwrap();
+    let out = dir.path().join("slice.bsv");
+    let o = run(&["convert".as_ref(), input.as_os_str(), out.as_os_str()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    let note = err
+        .lines()
+        .find(|l| l.starts_with("note: bricks are cubes"))
+        .unwrap_or_else(|| panic!("no note: {err}"));
+    let len = std::fs::metadata(&out).unwrap().len();
+    let fmt = blueshift_volume::budget::format_bytes;
+    assert!(
+        note.contains(&format!("to {},", fmt(len))),
+        "{note} ({len} bytes)"
+    );
+    let (_, tail) = note.split_once("--brick ").expect("a smaller brick named");
+    let brick: String = tail.chars().take_while(char::is_ascii_digit).collect();
+    let smaller = dir.path().join("smaller.bsv");
+    run(&[
+        "convert".as_ref(),
+        input.as_os_str(),
+        smaller.as_os_str(),
+        "--brick".as_ref(),
+        brick.as_ref(),
+    ]);
+    let small_len = std::fs::metadata(&smaller).unwrap().len();
+    assert!(small_len < len / 4, "{small_len} vs {len}");
+    assert!(
+        note.ends_with(&format!("writes {}", fmt(small_len))),
+        "{note}"
+    );
+    assert_eq!(level0(&smaller), level0(&out));
+    // A cube-shaped volume gets no note.
+    let cube = dir.path().join("c_64x64x64_uint8.raw");
+    std::fs::write(&cube, vec![7u8; 64 * 64 * 64]).unwrap();
+    let o = run(&[
+        "convert".as_ref(),
+        cube.as_os_str(),
+        dir.path().join("c.bsv").as_os_str(),
+    ]);
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("note:"));
+}

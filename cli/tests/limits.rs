@@ -363,3 +363,47 @@ fn a_long_line_list_is_not_quadratic() {
     );
     assert!(out.status.success(), "{}", stderr(&out));
 }
+
+/// A `.bsv` whose one brick exceeds `--max-memory` is refused by `render` (the brick cache
+/// holds at least one brick whatever `--cache-mb` says): 64^3 in bricks of 64 is one brick
+/// of 66^3 floats, 1.15 MB.
+#[test]
+fn a_brick_larger_than_max_memory_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let vals: Vec<u8> = (0..64 * 64 * 64u32).map(|i| (i % 251) as u8).collect();
+    std::fs::write(dir.path().join("v_64x64x64_uint8.raw"), &vals).unwrap();
+    let ok = blueshift(
+        dir.path(),
+        &["convert", "v_64x64x64_uint8.raw", "v.bsv", "--brick", "64"],
+    );
+    assert!(ok.status.success(), "{}", stderr(&ok));
+    let render = |budget: &str| {
+        blueshift(
+            dir.path(),
+            &[
+                "--max-memory",
+                budget,
+                "render",
+                "--volume",
+                "v.bsv",
+                "--tf",
+                "builtin:viridis",
+                "--width",
+                "8",
+                "--height",
+                "8",
+                "--spp",
+                "1",
+                "--out",
+                "o.exr",
+            ],
+        )
+    };
+    refused(
+        &render("1M"),
+        &["one brick of edge 64", "1.1 MB", "--max-memory", "--brick"],
+    );
+    assert!(!dir.path().join("o.exr").exists());
+    let ok = render("64M");
+    assert!(ok.status.success(), "{}", stderr(&ok));
+}

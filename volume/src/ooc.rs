@@ -1311,6 +1311,20 @@ pub fn convert_within(
     )
 }
 
+/// The bytes of the `.bsv` file [`convert`] writes for a volume of `dims` whose values are
+/// of type `t`, with `layout` (fitted to `dims` first): every level's bricks with their
+/// aprons, the macrocells, the checksums and the header.
+///
+/// # Errors
+/// An invalid layout or dims; a size that overflows.
+pub fn bricked_file_bytes(dims: [usize; 3], layout: BrickLayout, t: ScalarType) -> Result<u64> {
+    layout.validate()?;
+    let g = Geometry::unit(dims);
+    g.validate()?;
+    let layout = layout.fitted(dims);
+    Ok(Plan::new(g, &layout, stored_level0(t), stored_k(&layout))?.total)
+}
+
 /// The type a `.bsv` level 0 stores a source's values of type `t` in.
 fn stored_level0(t: ScalarType) -> ScalarType {
     match t {

@@ -398,6 +398,39 @@ impl SlabSource for AsType<'_> {
     }
 }
 
+/// A note on stderr, after a conversion, when cubic bricks padded a thin volume to more than
+/// eight times its voxels (4096 x 4096 x 1 in bricks of 64 is 2.8 GB for 17 MB), naming the
+/// brick edge that writes the smallest file.
+fn padding_note(dims: [usize; 3], layout: BrickLayout, t: blueshift_volume::ScalarType) {
+    let size = |brick| {
+        ooc::bricked_file_bytes(dims, BrickLayout { brick, ..layout }, t).unwrap_or(u64::MAX)
+    };
+    let voxels = (dims[0] as u64) * (dims[1] as u64) * (dims[2] as u64);
+    let data = voxels.saturating_mul(t.size_bytes() as u64);
+    let bytes = size(layout.brick);
+    if bytes / 8 <= data.max(1 << 20) {
+        return;
+    }
+    let best = [8, 16, 32, 64, 128]
+        .into_iter()
+        .filter(|&b| b != layout.brick)
+        .min_by_key(|&b| size(b));
+    let fmt = blueshift_volume::budget::format_bytes;
+    let [x, y, z] = dims;
+    let mut note = format!(
+        "note: bricks are cubes: bricks of edge {} padded this {x}x{y}x{z} volume to {}, {} \
+         times its {} of voxels",
+        layout.brick,
+        fmt(bytes),
+        bytes / data.max(1),
+        fmt(data)
+    );
+    if let Some(b) = best.filter(|&b| size(b) < bytes) {
+        note.push_str(&format!("; --brick {b} writes {}", fmt(size(b))));
+    }
+    eprintln!("{note}");
+}
+
 fn brick(
     src: &mut (dyn SlabSource + Send),
     args: &Args,
@@ -417,6 +450,7 @@ fn brick(
             layout,
         );
     }
+    let (dims, ty) = (src.geometry().dims, src.scalar_type());
     let pb = progress_bar(src.geometry().dims[2] as u64);
     output::write_via_temp_path(&args.output, |tmp| {
         ooc::convert_within(
@@ -434,5 +468,6 @@ fn brick(
     })?;
     pb.finish();
     output::wrote(&args.output);
+    padding_note(dims, layout, ty);
     Ok(())
 }

@@ -280,6 +280,7 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
         } else {
             load()?
         };
+        super::render::check_brick_sizes(scene.fields())?;
         // AMR scenes default to the level the view needs (their finest level, 2048^3 for
         // the Enzo snapshot, is finer than any image); other scenes to the finest level.
         let default_lod = if file.has_amr() { "auto" } else { "exact" };

@@ -526,6 +526,27 @@ pub(crate) fn brick_cache(
     Ok(blueshift_volume::BrickCache::new(bytes))
 }
 
+/// Refuses bricked fields one of whose bricks alone exceeds `--max-memory`: the brick cache
+/// holds at least one brick whatever `--cache-mb` says (a 256^3 volume converted with
+/// `--brick 1024` is one brick of 258^3 floats, 69 MB).
+pub(crate) fn check_brick_sizes<'a>(
+    fields: impl IntoIterator<Item = &'a blueshift_volume::Field>,
+) -> Result<()> {
+    for f in fields {
+        if let Some(b) = f.as_bricked() {
+            let l = b.source().layout();
+            let s = l.stored_edge() as u64;
+            crate::limits::budget()
+                .check(
+                    format_args!("one brick of edge {} (with its apron, in f32)", l.brick),
+                    s.saturating_pow(3).saturating_mul(4),
+                )
+                .map_err(|e| anyhow::anyhow!("{e}: convert with a smaller --brick"))?;
+        }
+    }
+    Ok(())
+}
+
 /// One line on stderr about the out-of-core reads of a render (nothing for in-core scenes).
 pub(crate) fn report_cache(cache: &blueshift_volume::BrickCache, level: Option<usize>) {
     let s = cache.stats();
@@ -585,6 +606,7 @@ fn run_inner(args: &Args) -> Result<()> {
     } else {
         f.build_with(&memory)?
     };
+    check_brick_sizes(scene.channels().iter().map(|c| c.grid()))?;
     settings.camera = args.view.orbited(settings.camera)?;
     let view = (settings.camera.target - settings.camera.eye).normalize_or_zero();
     let searchlight = args.searchlight || f.searchlight.unwrap_or(false);
