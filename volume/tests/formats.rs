@@ -365,6 +365,23 @@ fn invalid_files_error_without_panic() {
     assert!(n >= 25, "only {n} invalid files tested");
 }
 
+/// A MetaImage header without its `ElementDataFile` line runs into the binary data: the
+/// error says what the header lacks.
+#[test]
+fn a_metaimage_header_without_its_data_line_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("noedf.mha");
+    let mut bytes =
+        b"ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_FLOAT\n".to_vec();
+    bytes.extend([0xff, 0xfe, 0x80, 0x81, 0x00, 0x12, 0x9f, 0xc3]);
+    std::fs::write(&p, &bytes).unwrap();
+    let msg = read(&p).unwrap_err().to_string();
+    assert!(
+        msg.contains("ElementDataFile") && !msg.contains('\n'),
+        "{msg}"
+    );
+}
+
 mod mutated_headers {
     //! Property tests: any truncation or byte change in a valid file's header gives Ok or Err,
     //! never a panic, and never a huge allocation (the default limits stay in force).

@@ -70,7 +70,14 @@ fn parse_header(path: &Path) -> Result<Header> {
     let mut header_size: i64 = 0;
     let mut data_file = None;
     for _ in 0..4096 {
-        let Some(line) = read_line(&mut r, &mut pos)? else {
+        // Binary data before any `ElementDataFile` line reads as a line that is not text.
+        let Some(line) = read_line(&mut r, &mut pos).map_err(|e| match e {
+            Error::Invalid(m) if data_file.is_none() => Error::invalid(format!(
+                "MetaImage: {m} (the header must end with its ElementDataFile line)"
+            )),
+            e => e,
+        })?
+        else {
             break;
         };
         let line = line.trim();
