@@ -40,6 +40,19 @@ pub struct BudgetError {
     pub setting: String,
 }
 
+impl BudgetError {
+    /// The allocator refused `needed` bytes for `what` (a budget of 0 bytes available).
+    #[must_use]
+    pub fn refused(what: impl Into<String>, needed: u64) -> Self {
+        BudgetError {
+            what: what.into(),
+            needed,
+            budget: 0,
+            setting: "the allocator refused".to_owned(),
+        }
+    }
+}
+
 /// A number of bytes large allocations must fit in, with the name of the setting that
 /// changes it (for the error message).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -173,11 +186,11 @@ pub fn image_bytes(width: u64, height: u64, bytes_per_pixel: u64) -> u64 {
 /// When the allocator refuses the reservation.
 pub fn try_filled_vec<T: Clone>(n: usize, value: T, what: &str) -> Result<Vec<T>, BudgetError> {
     let mut v = Vec::new();
-    v.try_reserve_exact(n).map_err(|_| BudgetError {
-        what: what.to_owned(),
-        needed: (n as u64).saturating_mul(std::mem::size_of::<T>() as u64),
-        budget: 0,
-        setting: "the allocator refused".to_owned(),
+    v.try_reserve_exact(n).map_err(|_| {
+        BudgetError::refused(
+            what,
+            (n as u64).saturating_mul(std::mem::size_of::<T>() as u64),
+        )
     })?;
     v.resize(n, value);
     Ok(v)

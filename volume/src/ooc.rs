@@ -1073,12 +1073,10 @@ fn take_exact(pool: &Mutex<Vec<Vec<u8>>>, len: usize) -> Result<Vec<u8>> {
         None => {
             drop(p);
             zeroed_bytes(len).ok_or_else(|| {
-                Error::Budget(crate::budget::BudgetError {
-                    what: "a brick of the conversion".into(),
-                    needed: len as u64,
-                    budget: 0,
-                    setting: "the allocator refused".into(),
-                })
+                Error::Budget(crate::budget::BudgetError::refused(
+                    "a brick of the conversion",
+                    len as u64,
+                ))
             })
         }
     }
@@ -1355,9 +1353,9 @@ pub fn conversion_bytes(dims: [usize; 3], layout: BrickLayout, types: &[ScalarTy
     let mut total = 0u64;
     // Per brick size in bytes: the most bricks one slab's rows hold, and all bricks.
     let mut sizes: Vec<(u64, u64, u64)> = Vec::new();
+    let geoms = level_geometries(Geometry::unit(dims), layout.brick);
     for &t in types {
         let t0 = stored_level0(t);
-        let geoms = level_geometries(Geometry::unit(dims), layout.brick);
         let slice0 = (dims[0] as u64).saturating_mul(dims[1] as u64);
         total = total.saturating_add(slice0.saturating_mul(16));
         for (g, ty) in geoms.iter().zip(level_types(geoms.len(), t0)) {

@@ -414,7 +414,8 @@ fn padding_note(dims: [usize; 3], layout: BrickLayout, t: blueshift_volume::Scal
     let best = [8, 16, 32, 64, 128]
         .into_iter()
         .filter(|&b| b != layout.brick)
-        .min_by_key(|&b| size(b));
+        .map(|b| (b, size(b)))
+        .min_by_key(|&(_, s)| s);
     let fmt = blueshift_volume::budget::format_bytes;
     let [x, y, z] = dims;
     let mut note = format!(
@@ -425,8 +426,8 @@ fn padding_note(dims: [usize; 3], layout: BrickLayout, t: blueshift_volume::Scal
         bytes / data.max(1),
         fmt(data)
     );
-    if let Some(b) = best.filter(|&b| size(b) < bytes) {
-        note.push_str(&format!("; --brick {b} writes {}", fmt(size(b))));
+    if let Some((b, s)) = best.filter(|&(_, s)| s < bytes) {
+        note.push_str(&format!("; --brick {b} writes {}", fmt(s)));
     }
     eprintln!("{note}");
 }

@@ -379,11 +379,7 @@ fn read_volume(
             let grid = f
                 .load_level(level, &opts.limits)
                 .map_err(|e| with_path(&e))?;
-            let stored_as = match f.level0_type() {
-                blueshift_volume::ScalarType::U8 => blueshift_volume::DiskType::U8,
-                blueshift_volume::ScalarType::U16 => blueshift_volume::DiskType::U16,
-                _ => blueshift_volume::DiskType::F32,
-            };
+            let stored_as = blueshift_volume::DiskType::natural(f.level0_type());
             let mut v = blueshift_volume::Volume::new(g).map_err(|e| with_path(&e))?;
             v.push_channel(Channel {
                 name: f.channel_name().to_owned(),

@@ -57,6 +57,17 @@ pub enum DiskType {
 }
 
 impl DiskType {
+    /// The file type that holds values of the in-memory type `t` as they are: uint8, uint16,
+    /// else float32.
+    #[must_use]
+    pub fn natural(t: crate::ScalarType) -> Self {
+        match t {
+            crate::ScalarType::U8 => DiskType::U8,
+            crate::ScalarType::U16 => DiskType::U16,
+            _ => DiskType::F32,
+        }
+    }
+
     /// Bytes per component.
     #[must_use]
     pub fn size_bytes(self) -> usize {
@@ -489,11 +500,7 @@ pub fn read_with(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Volume> {
 /// converts exactly, else the natural type of the in-memory grid.
 #[must_use]
 pub fn output_type(channel: &Channel) -> DiskType {
-    let natural = match channel.grid.scalar_type() {
-        crate::ScalarType::U8 => DiskType::U8,
-        crate::ScalarType::U16 => DiskType::U16,
-        _ => DiskType::F32,
-    };
+    let natural = DiskType::natural(channel.grid.scalar_type());
     match channel.stored_as {
         Some(d) if d != natural && !channel.grid.is_vector() => {
             let n = channel.grid.geometry().voxel_count();
