@@ -207,6 +207,12 @@ fn bad_input_gets_one_line_errors_naming_the_field() {
             &[],
             "weights",
         ),
+        (
+            // A level of detail for a volume in memory (which has its finest level only).
+            r#"{ "channels": [ { "volume": "slab.nrrd", "tf": "tf.json" } ] }"#,
+            &["--lod", "2"],
+            "levels of detail need every channel",
+        ),
     ];
     for (i, (json, extra, needle)) in cases.iter().enumerate() {
         let f = format!("bad{i}.json");

@@ -203,7 +203,8 @@ impl DopplerScene {
                 })?)
             }
             (Field::Bricked(d), Field::Bricked(t)) => {
-                blueshift_volume::field::CombinedSource::new(d, t, emission)?
+                blueshift_volume::field::CombinedSource::new(d, t, emission)
+                    .map_err(|e| Error::scene(format!("black body: density and temperature: {e}")))?
                     .field()?
                     .into()
             }

@@ -1537,9 +1537,16 @@ impl CombinedSource {
         b: &BrickedField,
         f: impl Fn(f32, f32) -> f32 + Send + Sync + 'static,
     ) -> Result<Arc<Self>> {
-        if a.layout != b.layout || a.source.geometries() != b.source.geometries() {
+        if a.layout != b.layout {
+            return Err(Error::parameter(format!(
+                "combined bricked fields must share their brick layout: bricks of {} (apron {}) \
+                 and of {} (apron {}); convert both with the same --brick",
+                a.layout.brick, a.layout.apron, b.layout.brick, b.layout.apron
+            )));
+        }
+        if a.source.geometries() != b.source.geometries() {
             return Err(Error::parameter(
-                "combined bricked fields must share their brick layout and geometry",
+                "combined bricked fields must share their geometry (dims, origin, spacing)",
             ));
         }
         Ok(Arc::new(CombinedSource {

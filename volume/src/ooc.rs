@@ -263,7 +263,9 @@ impl RawFileSource {
                 if n.components != 1 {
                     return Ok(None);
                 }
-                Self::new(path, 0, n.disk, Endian::Little, Geometry::unit(n.dims)).map(Some)
+                crate::io::check_regular_file(path)?;
+                n.check_len(std::fs::metadata(path)?.len(), path)?;
+                Self::new(path, 0, n.disk, n.endian, Geometry::unit(n.dims)).map(Some)
             }
             Format::MetaImage => match crate::io::mhd::raw_payload(path, &Limits::no_limits())? {
                 Some((p, off, layout, geom)) if layout.components == 1 => {
@@ -1957,6 +1959,16 @@ impl FileBricks {
         if len < plan.total {
             return Err(Error::invalid(format!(
                 "truncated bricked file: {len} bytes, {} expected: {}",
+                plan.total,
+                path.display()
+            )));
+        }
+        if len > plan.total {
+            // The header records the file's length: more bytes are another file's data
+            // appended, or a header that does not belong to these bricks.
+            return Err(Error::invalid(format!(
+                "bricked file has {} bytes after its end ({len} bytes, its header records {}): {}",
+                len - plan.total,
                 plan.total,
                 path.display()
             )));

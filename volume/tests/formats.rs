@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use blueshift_volume::io::{self, nrrd};
+use blueshift_volume::io::{self, Endian, nrrd};
 use blueshift_volume::{AnyGrid, DiskType, Error, ReadOptions, Volume, read, read_with};
 use glam::Vec3;
 
@@ -477,7 +477,9 @@ fn scivis_names_parse_as_documented() {
         ([64, 64, 64], DiskType::F32, 3)
     );
     let n = parse_scivis_name(Path::new("ct_512x512x100_int16.raw")).unwrap();
-    assert_eq!(n.disk, DiskType::I16);
+    assert_eq!((n.disk, n.endian), (DiskType::I16, Endian::Little));
+    let n = parse_scivis_name(Path::new("ct_512x512x100_int16be.raw")).unwrap();
+    assert_eq!((n.disk, n.endian), (DiskType::I16, Endian::Big));
     for bad in [
         "skull.raw",
         "a_256x256_uint8.raw",

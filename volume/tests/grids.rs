@@ -495,6 +495,45 @@ fn uncompressed_nrrd_and_metaimage_stream_without_loading() {
     }
 }
 
+/// A big-endian Open SciVis file (`..._int16be.raw`) streams with its bytes swapped, as the
+/// in-core reader reads it; a file longer than its name says is refused by both readers.
+#[test]
+fn scivis_raw_streams_in_the_byte_order_its_name_gives_and_at_its_size_only() {
+    let valid = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/valid");
+    let little = std::fs::read(valid.join("headsq_crop_16x16x8_int16.raw")).unwrap();
+    let reference = blueshift_volume::read(valid.join("headsq_crop_16x16x8_int16.raw")).unwrap();
+    let AnyGrid::F32(want) = &reference.channels()[0].grid else {
+        unreachable!()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let big = dir.path().join("headsq_16x16x8_int16be.raw");
+    let swapped: Vec<u8> = little.chunks_exact(2).flat_map(|b| [b[1], b[0]]).collect();
+    std::fs::write(&big, &swapped).unwrap();
+    let in_core = blueshift_volume::read(&big).unwrap();
+    assert_eq!(in_core.channels()[0].grid, AnyGrid::F32(want.clone()));
+    let mut src = RawFileSource::probe(&big).unwrap().unwrap();
+    let mut slice = vec![0f32; 256];
+    for z in 0..8 {
+        ooc::SlabSource::read_slice(&mut src, z, &mut slice).unwrap();
+        assert_eq!(
+            &slice[..],
+            &want.data()[z * 256..(z + 1) * 256],
+            "slice {z}"
+        );
+    }
+    // One byte more than 16 x 16 x 8 int16 values: misnamed, for both readers.
+    let long = dir.path().join("headsq_16x16x8_int16.raw");
+    let mut bytes = little.clone();
+    bytes.push(0);
+    std::fs::write(&long, &bytes).unwrap();
+    let said = |e: blueshift_volume::Error| {
+        let m = e.to_string();
+        assert!(m.contains("4096 bytes") && m.contains("4097"), "{m}");
+    };
+    said(blueshift_volume::read(&long).unwrap_err());
+    said(RawFileSource::probe(&long).unwrap_err());
+}
+
 #[test]
 fn a_bricked_header_cut_inside_the_channel_name_is_refused() {
     let g = noisy_grid([4, 4, 4], 2);
@@ -513,6 +552,14 @@ fn a_bricked_header_cut_inside_the_channel_name_is_refused() {
         std::fs::write(&path, &b[..cut]).unwrap();
         assert!(BrickedFile::open(&path, 1).is_err(), "cut at {cut}");
     }
+    // Bytes after the end the header records: another file's data, refused the same way.
+    std::fs::write(&path, &b).unwrap();
+    assert!(BrickedFile::open(&path, 1).is_ok());
+    let mut longer = b.clone();
+    longer.extend_from_slice(&[0; 3]);
+    std::fs::write(&path, &longer).unwrap();
+    let e = BrickedFile::open(&path, 1).unwrap_err().to_string();
+    assert!(e.contains("3 bytes after its end"), "{e}");
 }
 
 #[test]

@@ -616,6 +616,20 @@ fn run_inner(args: &Args) -> Result<()> {
         bail!("--searchlight needs a moving observer (--observer-velocity, --beta or --ramp)");
     }
     let lod = f.lod()?;
+    // As doppler: a level of detail asked for where a channel is in memory (which has its
+    // finest level only) is refused rather than ignored.
+    if f.lod.is_some()
+        && !matches!(
+            lod,
+            blueshift_volume::Lod::Exact | blueshift_volume::Lod::Level(0)
+        )
+        && scene
+            .channels()
+            .iter()
+            .any(|c| c.grid().as_bricked().is_none())
+    {
+        bail!("--lod {lod}: levels of detail need every channel of the scene in .bsv files");
+    }
     let level = scene
         .channels()
         .iter()

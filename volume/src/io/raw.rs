@@ -21,6 +21,8 @@ pub struct SciVisName {
     pub disk: DiskType,
     /// Components per voxel (`name_XxYxZx3_float32.raw` gives 3, otherwise 1).
     pub components: usize,
+    /// Byte order: big-endian where the type ends in `be` (`int16be`), little otherwise.
+    pub endian: Endian,
 }
 
 /// Parses `name_XxYxZ_dtype.raw` (also `name_XxYxZx3_dtype.raw` for interleaved vectors, and
@@ -36,6 +38,11 @@ pub fn parse_scivis_name(path: &Path) -> Option<SciVisName> {
     let dtype = parts.next()?;
     let size = parts.next()?;
     let _name = parts.next()?;
+    let endian = if dtype.ends_with("be") {
+        Endian::Big
+    } else {
+        Endian::Little
+    };
     let dtype = dtype.trim_end_matches("le").trim_end_matches("be");
     let disk = DiskType::from_scivis_name(dtype)?;
     let nums: Vec<usize> = size
@@ -54,7 +61,41 @@ pub fn parse_scivis_name(path: &Path) -> Option<SciVisName> {
         dims,
         disk,
         components,
+        endian,
     })
+}
+
+impl SciVisName {
+    /// Bytes of voxels the name describes (`None` if that overflows).
+    #[must_use]
+    pub fn byte_len(&self) -> Option<u64> {
+        self.dims
+            .iter()
+            .try_fold(self.components as u64, |n, &d| n.checked_mul(d as u64))?
+            .checked_mul(self.disk.size_bytes() as u64)
+    }
+
+    /// Refuses a file of `file_len` bytes that is not exactly the size its name gives: the
+    /// name is the file's only description, so a longer file was misnamed (or appended to)
+    /// and reading it by the name would silently drop or misplace voxels.
+    ///
+    /// # Errors
+    /// [`Error::Invalid`] naming both sizes and the file.
+    pub fn check_len(&self, file_len: u64, path: &Path) -> Result<()> {
+        match self.byte_len() {
+            Some(want) if want == file_len => Ok(()),
+            want => Err(Error::invalid(format!(
+                "raw: its Open SciVis name says {}x{}x{}{} {} = {} bytes, the file holds {file_len}: {}",
+                self.dims[0],
+                self.dims[1],
+                self.dims[2],
+                if self.components == 3 { "x3" } else { "" },
+                self.disk.scivis_name(),
+                want.map_or_else(|| "too many".to_string(), |w| w.to_string()),
+                path.display()
+            ))),
+        }
+    }
 }
 
 /// The Open SciVis file name for a volume: `{name}_{X}x{Y}x{Z}_{dtype}.raw`.
@@ -78,16 +119,8 @@ pub fn read_scivis(path: &Path, opts: &ReadOptions) -> Result<Volume> {
             path.display()
         ))
     })?;
-    let fname = path
-        .file_name()
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_default();
-    let endian = if fname.trim_end_matches(".raw").ends_with("be") {
-        Endian::Big
-    } else {
-        Endian::Little
-    };
-    read_raw(path, n.dims, n.disk, endian, n.components, 0, opts)
+    n.check_len(open(path)?.1, path)?;
+    read_raw(path, n.dims, n.disk, n.endian, n.components, 0, opts)
 }
 
 /// Reads `dims` voxels of `disk` type from `path`, starting `offset` bytes in. The file must
