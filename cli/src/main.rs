@@ -8,6 +8,22 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+/// `println!` for the command's results on stdout: a closed pipe (`blueshift tonemap ... |
+/// head -0`) is not an error (std's `println!` panics on it); any other write error is
+/// one line on stderr.
+macro_rules! outln {
+    ($($arg:tt)*) => {
+        $crate::stdout_text(&format!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+/// `print!` counterpart of [`outln!`].
+macro_rules! out {
+    ($($arg:tt)*) => {
+        $crate::stdout_text(&format!($($arg)*))
+    };
+}
+
 mod commands;
 mod dist;
 mod figure;
@@ -167,5 +183,17 @@ fn main() -> ExitCode {
             let internal = err.downcast_ref::<output::InternalError>().is_some();
             ExitCode::from(if internal { 2 } else { 1 })
         }
+    }
+}
+
+/// Writes `text` to stdout for [`outln!`] and [`out!`].
+fn stdout_text(text: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+            eprintln!("blueshift: cannot write to stdout: {e}");
+        }
+        _ => {}
     }
 }

@@ -229,6 +229,12 @@ fn fifos_are_refused_not_waited_on() {
     .unwrap();
     let out = blueshift(d, &["info", "v.nhdr"]);
     refused(&out, &["not a regular file", "FIFO"]);
+    // The file named on the command line itself a FIFO, of each kind info sniffs.
+    for name in ["f_8x8x8_uint8.raw", "f.nrrd", "f.fits"] {
+        mkfifo(&d.join(name));
+        let out = blueshift(d, &["info", name]);
+        refused(&out, &["not a regular file", "FIFO"]);
+    }
     // A render scene naming it, and a scene file that is itself a FIFO.
     std::fs::write(
         d.join("s.json"),

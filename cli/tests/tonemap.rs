@@ -323,3 +323,26 @@ fn exposure_stops_brighten_every_operator() {
         assert!(m1 > m0 * 1.1, "{op}: +1 stop gave mean {m1} against {m0}");
     }
 }
+
+/// With stdout a pipe its reader has closed (`blueshift tonemap ... | head -0`), the image is
+/// still written and the process exits 0 without a panic (std's `println!` panics there).
+#[test]
+fn a_closed_stdout_pipe_is_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.pfm");
+    write_pfm(&input, 256, 256, |x, y| 0.01 + (x * y) as f32 / 100.0);
+    let out = dir.path().join("o.png");
+    let mut child = blueshift()
+        .args(["tonemap", input.to_str().unwrap(), "--op", "fattal"])
+        .args(["--json", "--out", out.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader closes before the tone mapping (tens of milliseconds) prints anything.
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && !err.contains("panicked"), "{err}");
+    assert_eq!(image::open(&out).unwrap().width(), 256);
+}

@@ -434,6 +434,12 @@ impl SlabSource for GzipFileSource {
             }
         })?;
         self.next += 1;
+        if self.next == nz {
+            crate::io::check_stream_end(&mut self.reader).map_err(|e| match e {
+                Error::Invalid(m) => Error::invalid(format!("{m}: {}", self.path.display())),
+                other => other,
+            })?;
+        }
         values_from_bytes(&self.buf, self.disk, self.endian == Endian::Big, out);
         Ok(())
     }

@@ -553,3 +553,44 @@ fn detached_header_refuses_a_data_file_it_was_not_written_with() {
     std::fs::write(&path, plain).unwrap();
     assert!(read(&path).is_ok());
 }
+
+/// A gzip NRRD whose CRC-32 does not match its data, or whose stream holds more than its
+/// sizes declare, is refused by the in-core reader and by the streaming converter's source
+/// (gzip verifies its CRC only at the end of the stream, after the last voxel is read).
+#[test]
+fn gzip_nrrd_with_a_wrong_crc_or_extra_data_is_refused() {
+    use std::io::Write;
+    let good = std::fs::read(data("valid/headsq_crop_gzip.nrrd")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let check = |name: &str, bytes: &[u8], needle: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let e = read(&p).unwrap_err().to_string();
+        assert!(e.contains(needle), "{name}: {e}");
+        let mut src = blueshift_volume::ooc::GzipFileSource::probe(&p)
+            .unwrap()
+            .unwrap();
+        let [nx, ny, nz] = blueshift_volume::ooc::SlabSource::geometry(&src).dims;
+        let mut slice = vec![0f32; nx * ny];
+        let got: Result<Vec<()>, _> = (0..nz)
+            .map(|z| blueshift_volume::ooc::SlabSource::read_slice(&mut src, z, &mut slice))
+            .collect();
+        let e = got.unwrap_err().to_string();
+        assert!(e.contains(needle), "{name} streamed: {e}");
+    };
+    // The gzip trailer is the CRC-32 of the data, then its length: change the CRC.
+    let mut bad_crc = good.clone();
+    let at = bad_crc.len() - 8;
+    bad_crc[at] ^= 0x5a;
+    check("crc.nrrd", &bad_crc, "corrupt");
+    // A second gzip member after the first: more data than 16 x 16 x 8 int16 values.
+    let mut more = good.clone();
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    enc.write_all(&[7u8; 64]).unwrap();
+    more.extend(enc.finish().unwrap());
+    check("more.nrrd", &more, "more bytes than the header");
+    // The file unchanged reads, in core and streamed.
+    let p = dir.path().join("good.nrrd");
+    std::fs::write(&p, &good).unwrap();
+    read(&p).unwrap();
+}

@@ -58,12 +58,12 @@ pub fn run(args: Args) -> Result<()> {
         if let Some(all) = &all {
             v["adapters"] = serde_json::to_value(all)?;
         }
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        outln!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    println!("adapter:     {}", report.name);
-    println!("backend:     {}", report.backend);
-    println!(
+    outln!("adapter:     {}", report.name);
+    outln!("backend:     {}", report.backend);
+    outln!(
         "type:        {} ({})",
         report.device_type,
         if report.hardware {
@@ -72,25 +72,27 @@ pub fn run(args: Args) -> Result<()> {
             "software"
         }
     );
-    println!("choice:      {choice}");
-    println!("driver:      {} {}", report.driver, report.driver_info);
-    println!("vendor/dev:  {:#06x}/{:#06x}", report.vendor, report.device);
-    println!(
+    outln!("choice:      {choice}");
+    outln!("driver:      {} {}", report.driver, report.driver_info);
+    outln!("vendor/dev:  {:#06x}/{:#06x}", report.vendor, report.device);
+    outln!(
         "shader f16:  {}   shader f64: {}   timestamps: {}",
-        report.shader_f16, report.shader_f64, report.timestamp_query
+        report.shader_f16,
+        report.shader_f64,
+        report.timestamp_query
     );
-    println!("features:    {}", report.features.join(", "));
-    println!("limits:");
+    outln!("features:    {}", report.features.join(", "));
+    outln!("limits:");
     for (k, n) in &report.limits {
-        println!("  {k:<40} {n}");
+        outln!("  {k:<40} {n}");
     }
     if check.is_some() {
-        println!("check:       ok (a*x+b on 4096 values equals the CPU)");
+        outln!("check:       ok (a*x+b on 4096 values equals the CPU)");
     }
     if let Some(all) = all {
-        println!("all adapters:");
+        outln!("all adapters:");
         for a in all {
-            println!("  {} ({}, {})", a.name, a.backend, a.device_type);
+            outln!("  {} ({}, {})", a.name, a.backend, a.device_type);
         }
     }
     Ok(())

@@ -184,6 +184,11 @@ fn run_fits(args: &Args) -> Result<()> {
 
 /// Runs `blueshift info`.
 pub fn run(args: Args) -> Result<()> {
+    // A FIFO or device would block the format sniffing below forever (an AMR output may be
+    // a folder).
+    if !args.file.is_dir() {
+        blueshift_volume::io::check_regular_file(&args.file)?;
+    }
     if args.input.raw_dims.is_none() && is_fits(&args.file) {
         return run_fits(&args);
     }
@@ -408,7 +413,7 @@ fn run_amr(args: &Args) -> Result<()> {
     let h = blueshift_volume::amr::Hierarchy::open(&args.file)
         .map_err(|e| super::volume_common::with_path(&e, &args.file))?;
     if !args.json {
-        print!("{}", blueshift_volume::amr::describe(&h));
+        out!("{}", blueshift_volume::amr::describe(&h));
         return Ok(());
     }
     let levels: Vec<_> = (0..=h.max_level())
@@ -442,6 +447,6 @@ fn run_amr(args: &Args) -> Result<()> {
         "length_unit_cm": h.length_unit_cm,
         "fields": fields,
     });
-    println!("{}", serde_json::to_string_pretty(&out)?);
+    outln!("{}", serde_json::to_string_pretty(&out)?);
     Ok(())
 }

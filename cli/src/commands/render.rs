@@ -874,7 +874,7 @@ fn run_inner(args: &Args) -> Result<()> {
         if let Some(a) = &adapter {
             summary["adapter"] = serde_json::json!(a);
         }
-        println!("{summary}");
+        outln!("{summary}");
     }
     let on = adapter.map(|a| format!(" on {a}")).unwrap_or_default();
     // One sample has no noise estimate: say nothing rather than "noise inf".

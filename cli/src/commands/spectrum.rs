@@ -302,15 +302,15 @@ pub fn run(args: Args) -> Result<()> {
             "blackbody_temperature_k": args.blackbody,
             "observed_blackbody_temperature_k": observed_t.filter(|t| t.is_finite()),
         });
-        println!("{out}");
+        outln!("{out}");
     } else {
-        println!("pieces        {}", observed.piece_count());
-        println!("shift s       {s:.9} (D = {:.9})", shift.recip().value());
+        outln!("pieces        {}", observed.piece_count());
+        outln!("shift s       {s:.9} (D = {:.9})", shift.recip().value());
         if let Some(t) = observed_t.filter(|t| t.is_finite()) {
-            println!("observed T    {t:.3} K (black body at T / s)");
+            outln!("observed T    {t:.3} K (black body at T / s)");
         }
-        println!("integral      {integral:.6e} W sr^-1 m^-2 over [{lo}, {hi}] nm");
-        println!(
+        outln!("integral      {integral:.6e} W sr^-1 m^-2 over [{lo}, {hi}] nm");
+        outln!(
             "XYZ           {:.6e} {:.6e} {:.6e} ({})",
             xyz.x,
             xyz.y,
@@ -318,16 +318,20 @@ pub fn run(args: Args) -> Result<()> {
             cmf.name()
         );
         match xy {
-            Some([x, y]) => println!("xy            {x:.5} {y:.5}"),
-            None => println!("xy            undefined (no light in range)"),
+            Some([x, y]) => outln!("xy            {x:.5} {y:.5}"),
+            None => outln!("xy            undefined (no light in range)"),
         }
-        println!(
+        outln!(
             "linear sRGB   {:.6e} {:.6e} {:.6e}",
-            srgb_linear[0], srgb_linear[1], srgb_linear[2]
+            srgb_linear[0],
+            srgb_linear[1],
+            srgb_linear[2]
         );
-        println!(
+        outln!(
             "display sRGB  {:.3} {:.3} {:.3} (Y normalised to 1, clipped, encoded)",
-            display[0], display[1], display[2]
+            display[0],
+            display[1],
+            display[2]
         );
     }
     Ok(())

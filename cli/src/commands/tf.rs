@@ -223,7 +223,7 @@ fn emit(out: Option<&Path>, text: &str) -> Result<()> {
             Ok(())
         }
         None => {
-            print!("{text}");
+            out!("{text}");
             Ok(())
         }
     }

@@ -298,19 +298,25 @@ pub fn run(args: Args) -> Result<()> {
             "read_ms": read_ms,
             "tonemap_and_write_ms": op_ms,
         });
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+        outln!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
         match dr {
-            Some(d) => println!(
+            Some(d) => outln!(
                 "dynamic range: {:.3e}:1 ({:.2} orders of magnitude; luminance {:.3e} .. {:.3e}, {} black pixels)",
-                d.ratio, d.orders_of_magnitude, d.min_positive, d.max, d.zero_pixels
+                d.ratio,
+                d.orders_of_magnitude,
+                d.min_positive,
+                d.max,
+                d.zero_pixels
             ),
-            None => println!("dynamic range: undefined (no pixel has positive luminance)"),
+            None => outln!("dynamic range: undefined (no pixel has positive luminance)"),
         }
         if report.total() > 0 {
-            println!(
+            outln!(
                 "dirty input: {} NaN, {} negative, {} +Inf channel values replaced",
-                report.nan, report.negative, report.positive_infinite
+                report.nan,
+                report.negative,
+                report.positive_infinite
             );
         }
     }

@@ -310,7 +310,7 @@ pub fn run(args: Args) -> Result<()> {
             token: None,
         },
     )?;
-    println!("blueshift view: {}", server.url());
+    outln!("blueshift view: {}", server.url());
     use std::io::Write as _;
     let _ = std::io::stdout().flush();
     server.run()?;

@@ -211,12 +211,22 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
     let mut out = Vec::new();
     let got = match encoding {
         Encoding::Raw => r.take(len as u64).read_to_end(&mut out)?,
-        Encoding::Gzip => flate2::read::MultiGzDecoder::new(r)
-            .take(len as u64)
-            .read_to_end(&mut out)?,
-        Encoding::Zlib => flate2::read::ZlibDecoder::new(r)
-            .take(len as u64)
-            .read_to_end(&mut out)?,
+        Encoding::Gzip => {
+            let mut d = flate2::read::MultiGzDecoder::new(r);
+            let got = d.by_ref().take(len as u64).read_to_end(&mut out)?;
+            if got == len {
+                check_stream_end(&mut d)?;
+            }
+            got
+        }
+        Encoding::Zlib => {
+            let mut d = flate2::read::ZlibDecoder::new(r);
+            let got = d.by_ref().take(len as u64).read_to_end(&mut out)?;
+            if got == len {
+                check_stream_end(&mut d)?;
+            }
+            got
+        }
         Encoding::Ascii => {
             return Err(Error::invalid(
                 "internal: ASCII data goes through read_ascii",
@@ -229,6 +239,27 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
         )));
     }
     Ok(out)
+}
+
+/// Checks that a decompressing reader whose voxels have all been read ends here: its
+/// checksum (gzip's CRC-32, zlib's Adler-32), which the decoder verifies at the end of the
+/// stream, matches, and it holds no more data than the header's sizes declare. At most one
+/// byte more is decompressed, so a stream of any length costs nothing more.
+///
+/// # Errors
+/// [`Error::Invalid`]: a checksum mismatch or other corruption, or data past the voxels.
+pub(crate) fn check_stream_end(mut r: impl Read) -> Result<()> {
+    let mut one = [0u8; 1];
+    loop {
+        return match r.read(&mut one) {
+            Ok(0) => Ok(()),
+            Ok(_) => Err(Error::invalid(
+                "the compressed data holds more bytes than the header's sizes declare",
+            )),
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => Err(Error::invalid(format!("corrupt compressed data: {e}"))),
+        };
+    }
 }
 
 /// Refuses an input that is not a regular file (a FIFO, device, socket or folder) before it
