@@ -346,3 +346,56 @@ fn a_closed_stdout_pipe_is_not_a_panic() {
     assert!(o.status.success() && !err.contains("panicked"), "{err}");
     assert_eq!(image::open(&out).unwrap().width(), 256);
 }
+
+/// `--out -` writes the PNG to standard output (the summary then goes to stderr), `--format`
+/// picks another format; a zero exposure step and an exposure series to stdout are refused.
+#[test]
+fn standard_output_takes_the_image_and_the_format_flag() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.pfm");
+    write_pfm(&input, 16, 8, |x, _| 0.1 + x as f32);
+    let run = |extra: &[&str]| {
+        blueshift()
+            .args(["tonemap", input.to_str().unwrap()])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run(&["--out", "-"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let img = image::load_from_memory_with_format(&o.stdout, image::ImageFormat::Png).unwrap();
+    assert_eq!((img.width(), img.height()), (16, 8));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("dynamic range"));
+    let o = run(&["--out", "-", "--format", "exr"]);
+    assert!(o.status.success());
+    assert!(
+        o.stdout.starts_with(&[0x76, 0x2f, 0x31, 0x01]),
+        "OpenEXR magic"
+    );
+    for (extra, needle) in [
+        (
+            &["--out", "-", "--exposure-series", "2"][..],
+            "one file per image",
+        ),
+        (
+            &[
+                "--out",
+                "s.png",
+                "--exposure-series",
+                "3",
+                "--stops-step",
+                "0",
+            ][..],
+            "step of 0 stops",
+        ),
+    ] {
+        let o = run(extra);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(needle) && err.trim().lines().count() == 1,
+            "{err}"
+        );
+    }
+    assert!(!dir.path().join("s-00.png").exists());
+}

@@ -4,6 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use std::fmt::Write as _;
+
 use anyhow::{Context, Result, bail};
 use blueshift_tonemap::io::{self, PngDepth};
 use blueshift_tonemap::{
@@ -107,9 +109,14 @@ pub struct Args {
     /// Write a pseudocolour picture of log luminance with a colour bar instead.
     #[arg(long, alias = "pseudocolour")]
     pub pseudocolor: bool,
-    /// Print a JSON summary on stdout instead of text.
+    /// Print a JSON summary on stdout instead of text (on stderr when the image goes to
+    /// standard output).
     #[arg(long)]
     pub json: bool,
+    /// Output format, for an --out whose name does not tell (`-` for standard output, a
+    /// device or FIFO: PNG unless given) or to override its extension.
+    #[arg(long, value_parser = ["png", "exr", "hdr", "pfm"])]
+    pub format: Option<String>,
 }
 
 fn parse_depth(s: &str) -> std::result::Result<u8, String> {
@@ -199,12 +206,31 @@ fn extension(path: &Path) -> String {
         .unwrap_or_default()
 }
 
-fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
+/// The output's format: `--format`, else --out's extension, else PNG for an output that is
+/// not a file name (`-`, `/dev/stdout`, a FIFO).
+fn output_format(args: &Args) -> Result<String> {
+    if let Some(f) = &args.format {
+        return Ok(f.clone());
+    }
+    let ext = extension(&args.out);
+    if ["png", "exr", "hdr", "pfm"].contains(&ext.as_str()) {
+        return Ok(ext);
+    }
+    if crate::output::direct_target(&args.out).is_some() {
+        return Ok("png".into());
+    }
+    bail!(
+        "unknown output extension {ext:?} (use .png, .exr, .hdr or .pfm, or --format): {}",
+        args.out.display()
+    )
+}
+
+fn write_display(path: &Path, format: &str, img: &Rgb32FImage, depth: u8) -> Result<()> {
     // The library writers go through the CLI's temporary naming and non-regular handling.
     let via = |write: &dyn Fn(&Path) -> blueshift_tonemap::Result<()>| {
         crate::output::write_via_temp_path(path, |p| Ok(write(p)?))
     };
-    match extension(path).as_str() {
+    match format {
         "png" => via(&|p| {
             io::write_png(
                 p,
@@ -230,10 +256,11 @@ fn write_display(path: &Path, img: &Rgb32FImage, depth: u8) -> Result<()> {
 /// Runs `blueshift tonemap`.
 pub fn run(args: Args) -> Result<()> {
     crate::output::check_outputs(&[args.out.as_path()], &[args.input.as_path()])?;
-    let ext = extension(&args.out);
-    if !["png", "exr", "hdr", "pfm"].contains(&ext.as_str()) {
+    let ext = output_format(&args)?;
+    if args.exposure_series.is_some() && crate::output::direct_target(&args.out).is_some() {
         bail!(
-            "unknown output extension {ext:?} (use .png, .exr, .hdr or .pfm): {}",
+            "--exposure-series writes one file per image (OUT-00.png, ...): give --out a file \
+             name, not {}",
             args.out.display()
         );
     }
@@ -285,6 +312,8 @@ pub fn run(args: Args) -> Result<()> {
     let op_ms = t1.elapsed().as_secs_f64() * 1e3;
     let report = stats.report;
     let dr = stats.dynamic_range();
+    // The summary goes to stderr when the image itself goes to standard output.
+    let mut text = String::new();
     if args.json {
         let summary = serde_json::json!({
             "input": args.input,
@@ -298,27 +327,33 @@ pub fn run(args: Args) -> Result<()> {
             "read_ms": read_ms,
             "tonemap_and_write_ms": op_ms,
         });
-        outln!("{}", serde_json::to_string_pretty(&summary)?);
+        let _ = writeln!(text, "{}", serde_json::to_string_pretty(&summary)?);
     } else {
-        match dr {
-            Some(d) => outln!(
+        let _ = match dr {
+            Some(d) => writeln!(
+                text,
                 "dynamic range: {:.3e}:1 ({:.2} orders of magnitude; luminance {:.3e} .. {:.3e}, {} black pixels)",
-                d.ratio,
-                d.orders_of_magnitude,
-                d.min_positive,
-                d.max,
-                d.zero_pixels
+                d.ratio, d.orders_of_magnitude, d.min_positive, d.max, d.zero_pixels
             ),
-            None => outln!("dynamic range: undefined (no pixel has positive luminance)"),
-        }
+            None => writeln!(
+                text,
+                "dynamic range: undefined (no pixel has positive luminance)"
+            ),
+        };
         if report.total() > 0 {
-            outln!(
+            let _ = writeln!(
+                text,
                 "dirty input: {} NaN, {} negative, {} +Inf channel values replaced",
-                report.nan,
-                report.negative,
-                report.positive_infinite
+                report.nan, report.negative, report.positive_infinite
             );
         }
+    }
+    if crate::output::direct_target(&args.out) == Some("standard output")
+        || args.out == Path::new("/dev/stdout")
+    {
+        eprint!("{text}");
+    } else {
+        out!("{text}");
     }
     for o in &outputs {
         crate::output::wrote(o);
@@ -378,7 +413,7 @@ fn tonemap_clean(
         let stem = args.out.with_extension("");
         for (i, img) in images.iter().enumerate() {
             let path = PathBuf::from(format!("{}-{i:02}.{ext}", stem.display()));
-            write_display(&path, img, args.depth)?;
+            write_display(&path, ext, img, args.depth)?;
             outputs.push(path);
         }
     } else if straight_to_codes(args, ext) {
@@ -413,7 +448,7 @@ fn tonemap_clean(
                 p.0 = blueshift_tonemap::plane::fit_to_display(p.0.map(|c| c * gain));
             }
         }
-        write_display(&args.out, &display, args.depth)?;
+        write_display(&args.out, ext, &display, args.depth)?;
         outputs.push(args.out.clone());
     }
     Ok((kind, outputs))

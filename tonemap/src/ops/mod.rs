@@ -303,7 +303,8 @@ impl Operator {
                 let lwa = match params.roi {
                     Some(roi) => log_average().ok_or_else(|| {
                         Error::parameter(format!(
-                            "the region of interest {roi:?} contains no lit pixel"
+                            "the region of interest (x {}, y {}, radius {} px) contains no lit pixel",
+                            roi.x_px, roi.y_px, roi.radius_px
                         ))
                     })?,
                     None => log_average().unwrap_or(1.0),
