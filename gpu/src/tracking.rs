@@ -136,6 +136,10 @@ struct Params {
     channel: u32,
     probe_n: u32,
     pad1: u32,
+    frame_lo: [f32; 3],
+    framed: u32,
+    frame_hi: [f32; 3],
+    open_sides: u32,
 }
 
 #[repr(C)]
@@ -164,7 +168,8 @@ pub(crate) fn pod_layouts() -> Vec<crate::layout::PodLayout> {
             dims, k, cdims, n_cells, origin, density_scale, spacing, projection, eye, cam_h, fwd,
             jitter, right, kind, up, dda, background, blend, light_dir, has_light,
             light_radiance, ambient, bounds_lo, step, bounds_hi, early_termination,
-            precision as "prec_mode", channel, probe_n, pad1 as "_pad1",
+            precision as "prec_mode", channel, probe_n, pad1 as "_pad1", frame_lo, framed,
+            frame_hi, open_sides,
         }));
         out.push(
             pod_layout!(MajorantParams => "MajorantParams", shader, &src, {
@@ -1063,6 +1068,22 @@ impl<'c> GpuScene<'c> {
         }
         p.bounds_lo = v3(lo);
         p.bounds_hi = v3(hi);
+        // A coarser level: rays clipped to the finest level's box (CellLayout::frame).
+        let [flo, fhi] = l.frame;
+        let top = Vec3::new(
+            (g.dims[0] - 1) as f32,
+            (g.dims[1] - 1) as f32,
+            (g.dims[2] - 1) as f32,
+        );
+        if flo != Vec3::ZERO || fhi != top {
+            p.framed = 1;
+            p.frame_lo = v3(flo);
+            p.frame_hi = v3(fhi);
+            for a in 0..3 {
+                p.open_sides |= u32::from(flo[a] < 0.0) << a;
+                p.open_sides |= u32::from(fhi[a] > top[a]) << (a + 3);
+            }
+        }
         p.early_termination = 1.0;
         p.step = 1.0;
         p.probe_n = PROBE_N;

@@ -676,3 +676,48 @@ fn channels_with_different_regions_share_the_coarsest_level_per_region() {
         );
     }
 }
+
+/// Every level of detail covers the finest level's box on the device too: Woodcock and N-DDA
+/// through the pool at coarser levels of a constant medium give the level-0 CPU marcher's
+/// alpha (Beer-Lambert along each ray) within the Monte Carlo error. Rays clipped to a
+/// coarse level's own voxel box, or walks that stop at its faces, lose a rim of
+/// (2^L - 1) / 2 fine voxels.
+#[test]
+fn every_level_of_a_constant_medium_covers_the_finest_box_on_the_device() {
+    let Some(ctx) = own_context() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let g = Grid::from_fn(Geometry::unit([64, 45, 40]), |_, _, _| 0.5).unwrap();
+    let f = bricked(dir.path(), "c", &g, 1 << 24);
+    let s = scene_of(vec![Field::from(f.field(0).unwrap())]);
+    let mut set = RenderSettings::default_for(&s, 24, 20, true);
+    set.jitter_pixels = false;
+    let alpha = |img: &image::Rgba32FImage| -> Vec<f64> {
+        img.pixels().map(|p| f64::from(p.0[3])).collect()
+    };
+    let a0 = alpha(&render(&s, &Integrator::Marcher(RayMarcher::default()), &set).unwrap());
+    let want: f64 = a0.iter().sum();
+    assert!(want > 50.0, "a trivial image: {want}");
+    let t = GpuTracker::new(&ctx).unwrap();
+    for level in 1..f.levels().min(3) {
+        let view = s.at_level(level).unwrap();
+        assert_eq!(view.bounds(), s.bounds());
+        let gs = t.upload(view).unwrap();
+        for m in [
+            Integrator::Woodcock { channel: 0 },
+            Integrator::Mdwt {
+                dda: blueshift_tracking::DdaMode::NDda,
+                blend: blueshift_tracking::Blend::Density,
+            },
+        ] {
+            let mut st = set.clone();
+            st.spp = 64;
+            st.seed = 5;
+            let got: f64 = alpha(&t.render(&gs, &m, &st).unwrap()).iter().sum();
+            let se = a0.iter().map(|v| v * (1.0 - v) / 64.0).sum::<f64>().sqrt();
+            assert!(
+                (got - want).abs() < 5.0 * se,
+                "{m:?} level {level}: {got} vs {want} (se {se})"
+            );
+        }
+    }
+}

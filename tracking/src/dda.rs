@@ -23,17 +23,39 @@ pub struct CellLayout {
     pub k: usize,
     /// Macrocells along x, y, z.
     pub dims: [usize; 3],
+    /// The box rays are clipped to, in voxel-index coordinates of `geometry`: the voxel
+    /// box `[0, dims - 1]`, or for a coarser level of a bricked file the finest level's box
+    /// (every level covers the same world box; past the coarse voxel centres, at most half
+    /// a coarse voxel, the edge cells extend and samples clamp to the edge voxels).
+    pub frame: [Vec3; 2],
 }
 
 impl CellLayout {
     /// The layout of macrocells.
     #[must_use]
     pub fn of(m: &blueshift_volume::Macrocells) -> Self {
+        let g = *m.geometry();
         CellLayout {
-            geometry: *m.geometry(),
+            geometry: g,
             k: m.k(),
             dims: m.dims(),
+            frame: [Vec3::ZERO, voxel_box_top(&g)],
         }
+    }
+
+    /// The same layout with rays clipped to the world box `lo..hi` (the finest level's
+    /// voxel-centre box) instead of the voxel box; the voxel box where `finest` is this
+    /// layout's own geometry, so level 0 walks exactly as before.
+    #[must_use]
+    pub fn framed(mut self, finest: &blueshift_volume::Geometry) -> Self {
+        if *finest != self.geometry {
+            let (lo, hi) = finest.world_bounds();
+            self.frame = [
+                self.geometry.world_to_index(lo),
+                self.geometry.world_to_index(hi),
+            ];
+        }
+        self
     }
 
     /// Number of cells.
@@ -81,6 +103,19 @@ pub struct Dda {
     t_end: f32,
     budget: usize,
     done: bool,
+    /// Per axis, whether the frame reaches past the voxel box below / above: the edge cell
+    /// then extends to the frame (its outer face is never crossed; the walk ends at `t_end`).
+    open_lo: [bool; 3],
+    open_hi: [bool; 3],
+}
+
+/// The voxel-centre box's upper corner in index coordinates: `dims - 1`.
+fn voxel_box_top(g: &blueshift_volume::Geometry) -> Vec3 {
+    Vec3::new(
+        (g.dims[0] - 1) as f32,
+        (g.dims[1] - 1) as f32,
+        (g.dims[2] - 1) as f32,
+    )
 }
 
 impl Dda {
@@ -91,11 +126,9 @@ impl Dda {
         let kf = layout.k as f32;
         let o = g.world_to_index(ray.origin) / kf;
         let d = ray.dir / g.spacing / kf;
-        let n = Vec3::new(
-            (g.dims[0] - 1) as f32,
-            (g.dims[1] - 1) as f32,
-            (g.dims[2] - 1) as f32,
-        ) / kf;
+        let top = voxel_box_top(g);
+        let n = top / kf;
+        let [flo, fhi] = layout.frame;
         let mut dda = Dda {
             layout_dims: layout.dims,
             cell: [0; 3],
@@ -106,6 +139,8 @@ impl Dda {
             t_end: 0.0,
             budget: layout.dims.iter().sum::<usize>() + 4,
             done: true,
+            open_lo: [flo.x < 0.0, flo.y < 0.0, flo.z < 0.0],
+            open_hi: [fhi.x > top.x, fhi.y > top.y, fhi.z > top.z],
         };
         let Some(local) = Ray::new(o, d) else {
             return dda;
@@ -115,7 +150,7 @@ impl Dda {
             origin: local.origin,
             dir: d,
         };
-        let Some((t0, t1)) = clip_unnormalised(&local, Vec3::ZERO, n) else {
+        let Some((t0, t1)) = clip_unnormalised(&local, flo / kf, fhi / kf) else {
             return dda;
         };
         let t1 = t1.min(t_max);
@@ -146,6 +181,11 @@ impl Dda {
     fn next_crossing(&self, a: usize) -> f32 {
         match self.step[a] {
             0 => f32::INFINITY,
+            s if (s < 0 && self.cell[a] == 0 && self.open_lo[a])
+                || (s > 0 && self.cell[a] == self.layout_dims[a] as i64 - 1 && self.open_hi[a]) =>
+            {
+                f32::INFINITY
+            }
             s => {
                 let boundary = (self.cell[a] + i64::from(s > 0)) as f32;
                 (boundary - self.o[a]) * self.inv_d[a]

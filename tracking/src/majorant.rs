@@ -62,6 +62,13 @@ impl MajorantGrid {
         MajorantGrid { layout, values }
     }
 
+    /// The same grid with rays clipped to the finest level's box ([`CellLayout::framed`]).
+    #[must_use]
+    pub(crate) fn framed(mut self, finest: &blueshift_volume::Geometry) -> Self {
+        self.layout = self.layout.framed(finest);
+        self
+    }
+
     /// The cell layout.
     #[must_use]
     pub fn layout(&self) -> &CellLayout {

@@ -73,8 +73,11 @@ pub struct DirectionalLight {
 #[derive(Clone, Debug)]
 pub struct Scene {
     channels: Vec<SceneChannel>,
-    /// World bounds of the finest level (what cameras frame).
+    /// World bounds of the finest level (what cameras frame and rays are clipped to at
+    /// every level).
     frame: (Vec3, Vec3),
+    /// The finest level's geometry (the scene's own in core).
+    finest: Geometry,
     layout: CellLayout,
     total_majorant: MajorantGrid,
     density_scale: f32,
@@ -114,7 +117,8 @@ impl Scene {
             .map(|(n, g, t)| (n, g.into(), t))
             .collect();
         let geometry = *channels[0].1.geometry();
-        let frame = channels[0].1.finest_geometry().world_bounds();
+        let finest = *channels[0].1.finest_geometry();
+        let frame = finest.world_bounds();
         geometry.validate()?;
         let mut out = Vec::with_capacity(channels.len());
         for (i, (name, grid, tf)) in channels.into_iter().enumerate() {
@@ -131,7 +135,7 @@ impl Scene {
                 )));
             }
             let macrocells = grid.macrocells(k)?;
-            let majorant = MajorantGrid::build(&macrocells, &tf, density_scale);
+            let majorant = MajorantGrid::build(&macrocells, &tf, density_scale).framed(&finest);
             out.push(SceneChannel {
                 name,
                 grid,
@@ -140,12 +144,13 @@ impl Scene {
                 majorant,
             });
         }
-        let layout = CellLayout::of(&out[0].macrocells);
+        let layout = CellLayout::of(&out[0].macrocells).framed(&finest);
         let total_majorant = total(&out);
         check_optical_depth(&total_majorant, &geometry)?;
         Ok(Scene {
             channels: out,
             frame,
+            finest,
             layout,
             total_majorant,
             density_scale,
@@ -186,7 +191,8 @@ impl Scene {
             .channels
             .get_mut(i)
             .ok_or_else(|| Error::parameter(format!("channel {i} out of range (0..{n})")))?;
-        ch.majorant = MajorantGrid::build(&ch.macrocells, &tf, self.density_scale);
+        ch.majorant =
+            MajorantGrid::build(&ch.macrocells, &tf, self.density_scale).framed(&self.finest);
         ch.tf = tf;
         self.total_majorant = total(&self.channels);
         Ok(())
@@ -197,7 +203,8 @@ impl Scene {
         check_density_scale(density_scale)?;
         self.density_scale = density_scale;
         for ch in &mut self.channels {
-            ch.majorant = MajorantGrid::build(&ch.macrocells, &ch.tf, density_scale);
+            ch.majorant =
+                MajorantGrid::build(&ch.macrocells, &ch.tf, density_scale).framed(&self.finest);
         }
         self.total_majorant = total(&self.channels);
         check_optical_depth(&self.total_majorant, &self.layout.geometry)
@@ -284,7 +291,7 @@ impl Scene {
             chans.push((c.name.clone(), field(b)?, c.tf.clone()));
         }
         let mut s = Scene::new(chans, self.density_scale, k)?;
-        s.frame = self.frame;
+        debug_assert_eq!(s.frame, self.frame, "every level frames the finest box");
         s.background = self.background;
         s.light = self.light;
         s.shading = self.shading.clone();
@@ -370,10 +377,13 @@ impl Scene {
         Ok(())
     }
 
-    /// World bounds `(min, max)` of the voxel centres.
+    /// World bounds `(min, max)` rays are clipped to: the voxel centres' box of the finest
+    /// level ([`Scene::frame_bounds`]), so every level of detail covers the same box (a
+    /// coarser level's own voxel centres lie up to half a coarse voxel inside it; samples
+    /// there clamp to the edge voxels).
     #[must_use]
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        self.layout.geometry.world_bounds()
+        self.frame
     }
 
     /// The density scale: extinction per unit world length = opacity x density scale.

@@ -455,3 +455,91 @@ fn channels_in_different_brick_edges_share_their_common_levels() {
         assert_eq!(images[0].as_raw(), images[1].as_raw(), "--lod {lod}");
     }
 }
+
+/// Every level of detail covers the finest level's box: a coarse level's voxel centres lie
+/// up to half a coarse voxel inside it, and rays still cross the whole box (samples there
+/// clamp to the edge voxels). A constant medium is the same at every level, so every
+/// method's image of it must be the same at levels 1-3 as at level 0 (Beer-Lambert along
+/// each ray: exact for the marcher, within the Monte Carlo error for the trackers). Clipped
+/// to a coarse level's own voxel box, rays were (2^L - 1) / 2 fine voxels shorter at each
+/// face and the box's rim went transparent.
+#[test]
+fn every_level_of_a_constant_medium_covers_the_finest_box() {
+    let dir = tempfile::tempdir().unwrap();
+    // Odd and even dims: a level's top face lies inside or outside the finest box.
+    let g = Grid::from_fn(blueshift_volume::Geometry::unit([32, 29, 24]), |_, _, _| {
+        1.0
+    })
+    .unwrap();
+    let p = dir.path().join("c.bsv");
+    ooc::convert(
+        &mut GridSource(&g),
+        &p,
+        "c",
+        BrickLayout { brick: 8, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let f = BrickedFile::open(&p, 64).unwrap();
+    let t = tf([1.0, 0.8, 0.6], &[(0.0, 0.5), (1.0, 0.5)]);
+    let fine = Scene::new(
+        vec![("c".to_string(), Field::from(f.field(0).unwrap()), t)],
+        0.08,
+        4,
+    )
+    .unwrap();
+    // One view for every level: the finest scene's, seen from a corner so rays leave
+    // through low and high faces alike.
+    for ortho in [true, false] {
+        let mut st = RenderSettings::default_for(&fine, 24, 20, ortho);
+        st.jitter_pixels = false;
+        let marcher = Integrator::Marcher(RayMarcher::default());
+        let exact = render(&fine, &marcher, &st).unwrap();
+        let alpha =
+            |img: &image::Rgba32FImage| -> Vec<f32> { img.pixels().map(|p| p.0[3]).collect() };
+        let a0 = alpha(&exact);
+        let lit = a0.iter().filter(|a| **a > 0.01).count();
+        assert!(
+            lit > 100 && lit < a0.len(),
+            "the box fills part of the view: {lit}"
+        );
+        for level in 1..f.levels().min(4) {
+            let coarse = fine.at_level(level).unwrap();
+            assert_eq!(coarse.bounds(), fine.bounds(), "level {level}");
+            let al = alpha(&render(&coarse, &marcher, &st).unwrap());
+            let worst = a0
+                .iter()
+                .zip(&al)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(worst < 2e-3, "marcher level {level} ortho {ortho}: {worst}");
+            // Woodcock and N-DDA: the image's total alpha within 5 standard errors.
+            for m in [
+                Integrator::Woodcock { channel: 0 },
+                Integrator::Mdwt {
+                    dda: DdaMode::NDda,
+                    blend: Blend::Density,
+                },
+            ] {
+                let mut s = st.clone();
+                s.spp = 64;
+                s.seed = 11;
+                let got: f64 = alpha(&render(&coarse, &m, &s).unwrap())
+                    .iter()
+                    .map(|&v| f64::from(v))
+                    .sum();
+                let want: f64 = a0.iter().map(|&v| f64::from(v)).sum();
+                // Each pixel's alpha is a mean of 64 Bernoulli draws.
+                let se: f64 = a0
+                    .iter()
+                    .map(|&v| f64::from(v) * (1.0 - f64::from(v)) / 64.0)
+                    .sum::<f64>()
+                    .sqrt();
+                assert!(
+                    (got - want).abs() < 5.0 * se,
+                    "{m:?} level {level} ortho {ortho}: {got} vs {want} (se {se})"
+                );
+            }
+        }
+    }
+}

@@ -46,6 +46,14 @@ struct Params {
     channel: u32, // Woodcock's channel
     probe_n: u32, // 2: the trip count of `limiter_exhausted`'s loop (a runtime value)
     _pad1: u32,
+    // A coarser level of a bricked file: the finest level's box in this level's voxel
+    // index coordinates, which rays are clipped to (framed 1), and the sides where it
+    // reaches past the voxel box (bits 0-2 below on x, y, z; bits 3-5 above), whose edge
+    // cells extend to it (CellLayout::frame in the tracking crate).
+    frame_lo: vec3<f32>,
+    framed: u32,
+    frame_hi: vec3<f32>,
+    open_sides: u32,
 }
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -407,7 +415,13 @@ fn dda_new(ray: Ray, t_max: f32) -> Dda {
     if all(d == vec3<f32>(0.0)) {
         return dda;
     }
-    let c = clip(o, d, vec3<f32>(0.0), n, false);
+    var lo = vec3<f32>(0.0);
+    var hi = n;
+    if P.framed != 0u {
+        lo = P.frame_lo / kf;
+        hi = P.frame_hi / kf;
+    }
+    let c = clip(o, d, lo, hi, false);
     if c.z == 0.0 {
         return dda;
     }
@@ -445,6 +459,13 @@ fn dda_new(ray: Ray, t_max: f32) -> Dda {
 fn next_crossing(dda: ptr<function, Dda>, a: i32) -> f32 {
     let s = (*dda).step[a];
     if s == 0 {
+        return BIG;
+    }
+    // An edge cell whose side the frame reaches past is never left through that side.
+    let cell = (*dda).cell[a];
+    let below = s < 0 && cell == 0 && (P.open_sides & (1u << u32(a))) != 0u;
+    let above = s > 0 && cell == i32(P.cdims[a]) - 1 && (P.open_sides & (8u << u32(a))) != 0u;
+    if below || above {
         return BIG;
     }
     let boundary = f32((*dda).cell[a] + select(0, 1, s > 0));
