@@ -314,11 +314,7 @@ pub fn los_camera(
         .try_normalize()
         .filter(|n| n.is_finite())
         .ok_or_else(|| Error::parameter(format!("view normal {normal} must be non-zero")))?;
-    let (mut lo, mut hi) = scene.geometry.world_bounds();
-    if cell_domain {
-        lo -= 0.5 * scene.geometry.spacing;
-        hi += 0.5 * scene.geometry.spacing;
-    }
+    let (lo, hi) = scene.frame_bounds(cell_domain);
     let mut camera = Camera::framing(
         lo,
         hi,

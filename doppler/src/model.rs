@@ -83,6 +83,9 @@ pub struct Species {
 #[derive(Clone, Debug)]
 pub struct DopplerScene {
     pub(crate) geometry: Geometry,
+    /// The finest level's geometry (the scene's own at level 0): rays are clipped to its
+    /// box and default views frame it at every level of detail.
+    pub(crate) frame: Geometry,
     pub(crate) species: Vec<Species>,
     pub(crate) blackbody: Option<(Field, Field)>,
     /// Black-body density times the Planck factor `1 / (exp(c2 / (lambda_ref T)) - 1)` per
@@ -117,6 +120,7 @@ impl DopplerScene {
         geometry.validate()?;
         Ok(Self {
             geometry,
+            frame: geometry,
             species: Vec::new(),
             blackbody: None,
             rho_t: None,
@@ -140,6 +144,27 @@ impl DopplerScene {
     #[must_use]
     pub fn geometry(&self) -> &Geometry {
         &self.geometry
+    }
+
+    /// The finest level's geometry: the scene's own at level 0, the same at every level of
+    /// detail ([`DopplerScene::at_level`]).
+    #[must_use]
+    pub fn frame_geometry(&self) -> &Geometry {
+        &self.frame
+    }
+
+    /// The world box rays are clipped to and default views frame, at every level of detail:
+    /// the finest level's voxel centres, or its cells with `cell_domain` (half a finest
+    /// voxel more on each side). A coarser level's own voxel centres lie up to half a
+    /// coarse voxel inside it; samples there clamp to the edge voxels.
+    #[must_use]
+    pub fn frame_bounds(&self, cell_domain: bool) -> (Vec3, Vec3) {
+        let (mut lo, mut hi) = self.frame.world_bounds();
+        if cell_domain {
+            lo -= 0.5 * self.frame.spacing;
+            hi += 0.5 * self.frame.spacing;
+        }
+        (lo, hi)
     }
 
     /// The species.

@@ -85,12 +85,7 @@ impl RaySpan {
         step: f32,
         ray: &Ray,
     ) -> Option<Self> {
-        let g = &scene.geometry;
-        let (mut lo, mut hi) = g.world_bounds();
-        if settings.cell_domain {
-            lo -= 0.5 * g.spacing;
-            hi += 0.5 * g.spacing;
-        }
+        let (lo, hi) = scene.frame_bounds(settings.cell_domain);
         let (t0, t1) = ray.clip_box(lo, hi)?;
         let len = t1 - t0;
         if len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {

@@ -142,7 +142,7 @@ impl DopplerSettings {
     /// budget 4096 pieces.
     #[must_use]
     pub fn default_for(scene: &DopplerScene, width: u32, height: u32) -> Self {
-        let (lo, hi) = scene.geometry.world_bounds();
+        let (lo, hi) = scene.frame_bounds(false);
         let aspect = width as f32 / height.max(1) as f32;
         Self {
             width,
@@ -197,7 +197,7 @@ impl DopplerSettings {
                 "inclination {degrees} degrees must lie in [-90, 90]"
             )));
         }
-        let (lo, hi) = scene.geometry.world_bounds();
+        let (lo, hi) = scene.frame_bounds(false);
         let (si, ci) = degrees.to_radians().sin_cos();
         let normal = Vec3::new(0.0, si, ci);
         let up = Vec3::new(0.0, ci, -si);
@@ -263,7 +263,7 @@ impl DopplerSettings {
                 "step {step} must be finite and > 0"
             )));
         }
-        let (lo, hi) = scene.geometry.world_bounds();
+        let (lo, hi) = scene.frame_bounds(false);
         let diag = (hi - lo).length();
         if diag / step > 1.0e6 {
             return Err(Error::parameter(format!(

@@ -189,3 +189,75 @@ fn progressive_levels_run_coarse_to_fine_and_end_on_the_exact_image() {
     }
     assert!(render_doppler_lod(&scene, &st, levels, &blueshift_camera::Silent).is_err());
 }
+
+/// Every level of detail covers the finest level's box: the emission of a constant medium
+/// (no absorption, no motion) is its path length through the box, the same at every level,
+/// and the line-of-sight camera of a cube (its WCS) is the same. Clipped to a coarse
+/// level's own voxel box, paths were (2^L - 1) / 2 fine voxels shorter at each face.
+#[test]
+fn every_level_of_a_constant_medium_covers_the_finest_box() {
+    let g = blueshift_volume::Geometry::unit([32, 29, 24]);
+    let grid = Grid::from_fn(g, |_, _, _| 1.0).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("n.bsv");
+    ooc::convert(
+        &mut GridSource(&grid),
+        &p,
+        "n",
+        BrickLayout { brick: 8, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let f = BrickedFile::open(&p, 256).unwrap();
+    let mut scene = DopplerScene::new(g).unwrap();
+    scene
+        .add_species(Species {
+            name: "H".into(),
+            density: f.field(0).unwrap().into(),
+            emission_lines: Catalogue::HydrogenBalmer.lines(),
+            absorption_lines: Vec::new(),
+        })
+        .unwrap();
+    let st = DopplerSettings::default_for(&scene, 20, 16);
+    let y = |s: &DopplerScene| -> Vec<f64> {
+        render_doppler(s, &st, &|| {})
+            .unwrap()
+            .xyz
+            .iter()
+            .map(|p| p[1])
+            .collect()
+    };
+    let y0 = y(&scene);
+    let lit = y0.iter().filter(|v| **v > 0.0).count();
+    assert!(
+        lit > 50 && lit < y0.len(),
+        "the box fills part of the view: {lit}"
+    );
+    let peak = y0.iter().copied().fold(0.0, f64::max);
+    let normal = glam::Vec3::new(0.3, -0.5, 1.0);
+    for level in 1..f.levels().min(4) {
+        let coarse = scene.at_level(level).unwrap();
+        assert_eq!(
+            coarse.frame_bounds(false),
+            scene.frame_bounds(false),
+            "level {level}"
+        );
+        assert_eq!(
+            DopplerSettings::default_for(&coarse, 20, 16).camera,
+            st.camera
+        );
+        for cells in [false, true] {
+            assert_eq!(
+                blueshift_doppler::los_camera(&coarse, normal, 1.25, cells).unwrap(),
+                blueshift_doppler::los_camera(&scene, normal, 1.25, cells).unwrap(),
+                "level {level} cell domain {cells}"
+            );
+        }
+        let worst = y0
+            .iter()
+            .zip(y(&coarse))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-4 * peak, "level {level}: {worst} of {peak}");
+    }
+}

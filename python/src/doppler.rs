@@ -125,7 +125,7 @@ impl Opts {
                 .map_err(Fail::err)?;
         }
         if let Some(fov) = self.fov {
-            let (lo, hi) = scene.geometry().world_bounds();
+            let (lo, hi) = scene.frame_bounds(false);
             let back = st.camera.eye - st.camera.target;
             st.camera = Camera::framing(lo, hi, back, st.camera.up, aspect, false, fov)
                 .map_err(|e| Fail::msg(format!("fov: {e}")))?;

@@ -404,8 +404,8 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
     Ok((scene, st, level0, bricks))
 }
 
-/// `st` with the camera the flags give for `scene` (another level of detail: the default
-/// views frame each level's own bounds), as `--lod` of that level would render it.
+/// `st` with the camera the flags give for `scene` (another level of detail), as `--lod` of
+/// that level would render it (every level frames the finest level's box).
 fn reframe(args: &Args, scene: &DopplerScene, st: &DopplerSettings) -> Result<DopplerSettings> {
     let mut t = st.clone();
     t.camera = DopplerSettings::default_for(scene, st.width, st.height).camera;
@@ -432,7 +432,7 @@ pub(crate) fn apply_camera(
         st.camera = blueshift_doppler::los_camera(scene, view.normal(), aspect, st.cell_domain)?;
     }
     if let Some(fov) = args.fov {
-        let (lo, hi) = scene.geometry().world_bounds();
+        let (lo, hi) = scene.frame_bounds(false);
         let back = st.camera.eye - st.camera.target;
         st.camera =
             blueshift_camera::Camera::framing(lo, hi, back, st.camera.up, aspect, false, fov)

@@ -188,7 +188,7 @@ impl<'a> DopplerMode<'a> {
             blueshift_camera::Projection::Perspective { fov_y_deg } => ("perspective", fov_y_deg),
             blueshift_camera::Projection::Orthographic { .. } => ("orthographic", 0.0),
         };
-        let (lo, hi) = self.session.scene().geometry().world_bounds();
+        let (lo, hi) = self.session.scene().frame_bounds(false);
         json!({
             "type": "camera",
             "eye": c.eye.to_array(), "target": c.target.to_array(), "up": c.up.to_array(),
