@@ -2,7 +2,8 @@
 //!
 //! One [`BrickCache`] is shared by every channel of a scene: its budget is in bytes of decoded
 //! (f32) bricks, whatever the number of channels. Bricks are loaded on demand (the sampling
-//! thread reads the brick outside the cache's lock, so threads wait on the disk in parallel)
+//! thread reads the brick outside the cache's lock, so threads wait on the disk in parallel;
+//! a thread that needs a brick another thread is reading waits for that read)
 //! and, when asked, ahead of need by one I/O thread ([`BrickCache::prefetch`]) in the order
 //! the renderer expects to meet them. The least recently used brick is evicted first.
 //!
@@ -10,11 +11,11 @@
 //! budget). On top of it each sampling thread keeps its most recent brick per field (see
 //! [`crate::field`]), so the peak is `budget + threads x fields x brick bytes`.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::fmt;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc;
-use std::sync::{Arc, Mutex, Weak};
+use std::sync::{Arc, Condvar, Mutex, Weak};
 
 use crate::grid::Geometry;
 use crate::macrocell::Macrocells;
@@ -100,6 +101,22 @@ struct Inner {
     peak: usize,
     tick: u64,
     error: Option<String>,
+    /// Bricks a thread is reading now: others wait for it instead of reading them again.
+    loading: HashSet<Key>,
+}
+
+/// A brick marked as being read (in [`Inner::loading`]) until dropped, when the threads
+/// waiting for it are woken, whether the read succeeded, failed or panicked.
+struct Loading<'a> {
+    cache: &'a BrickCache,
+    key: Key,
+}
+
+impl Drop for Loading<'_> {
+    fn drop(&mut self) {
+        self.cache.lock().loading.remove(&self.key);
+        self.cache.loaded.notify_all();
+    }
 }
 
 impl Inner {
@@ -173,6 +190,8 @@ struct Job {
 pub struct BrickCache {
     budget: usize,
     inner: Mutex<Inner>,
+    /// Signalled when a brick being read is done ([`Loading`]).
+    loaded: Condvar,
     reads: [AtomicU64; MAX_LEVELS],
     prefetched: AtomicU64,
     hits: AtomicU64,
@@ -212,6 +231,7 @@ impl BrickCache {
         Arc::new(BrickCache {
             budget: budget_bytes,
             inner: Mutex::new(Inner::default()),
+            loaded: Condvar::new(),
             reads: std::array::from_fn(|_| AtomicU64::new(0)),
             prefetched: AtomicU64::new(0),
             hits: AtomicU64::new(0),
@@ -237,18 +257,28 @@ impl BrickCache {
     /// Brick `idx` of `level` of `source`, from the cache or read now.
     pub fn get(&self, source: &dyn BrickSource, level: usize, idx: u64) -> Result<Arc<[f32]>> {
         let key = (source.uid(), level as u32, idx);
-        if let Some(b) = self.lock().touch(key) {
-            self.hits.fetch_add(1, Ordering::Relaxed);
-            return Ok(b);
+        let mut inner = self.lock();
+        loop {
+            if let Some(b) = inner.touch(key) {
+                self.hits.fetch_add(1, Ordering::Relaxed);
+                return Ok(b);
+            }
+            if !inner.loading.contains(&key) {
+                break;
+            }
+            // Another thread is reading this brick: wait for it rather than read it twice.
+            inner = self
+                .loaded
+                .wait(inner)
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
         }
+        inner.loading.insert(key);
+        drop(inner);
+        let _loading = Loading { cache: self, key };
         // Read outside the lock: other threads keep sampling (and reading) meanwhile.
         let data = self.read_new(source, level, idx)?;
         self.reads[level.min(MAX_LEVELS - 1)].fetch_add(1, Ordering::Relaxed);
-        let mut inner = self.lock();
-        if let Some(b) = inner.touch(key) {
-            return Ok(b); // another thread read it meanwhile
-        }
-        inner.insert(key, data.clone(), self.budget);
+        self.lock().insert(key, data.clone(), self.budget);
         Ok(data)
     }
 
@@ -388,15 +418,17 @@ fn io_thread(cache: &Weak<BrickCache>, rx: &mpsc::Receiver<Job>) {
             }
             let key = (source.uid(), level as u32, idx);
             {
-                let inner = c.lock();
-                if inner.map.contains_key(&key) {
+                let mut inner = c.lock();
+                if inner.map.contains_key(&key) || inner.loading.contains(&key) {
                     continue;
                 }
                 let s = source.layout().stored_edge();
                 if inner.used + s * s * s * 4 > c.budget {
                     break;
                 }
+                inner.loading.insert(key);
             }
+            let _loading = Loading { cache: &c, key };
             match c.read_new(source.as_ref(), level, idx) {
                 Ok(data) => {
                     c.reads[level.min(MAX_LEVELS - 1)].fetch_add(1, Ordering::Relaxed);

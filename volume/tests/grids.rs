@@ -880,3 +880,48 @@ fn a_gzip_stream_that_ends_early_is_an_error_and_leaves_no_file() {
     std::fs::write(&skip, f).unwrap();
     assert!(ooc::GzipFileSource::probe(&skip).unwrap().is_none());
 }
+
+/// Threads that miss on the same brick at once read it once: the others wait for that read
+/// (each brick of a view was read 1-1.1 times by a multi-threaded render).
+#[test]
+fn concurrent_misses_on_one_brick_read_it_once() {
+    let g = noisy_grid([32, 32, 16], 4);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("v.bsv");
+    ooc::convert(
+        &mut GridSource(&g),
+        &path,
+        "v",
+        BrickLayout { brick: 8, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let cache = blueshift_volume::BrickCache::new(64 << 20);
+    let file = BrickedFile::open_with_cache(&path, cache.clone()).unwrap();
+    let source = file.source();
+    let bricks = 4 * 4 * 2;
+    let threads = 8;
+    let barrier = std::sync::Barrier::new(threads);
+    let firsts: Vec<Vec<f32>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|_| {
+                s.spawn(|| {
+                    let mut first = Vec::new();
+                    for idx in 0..bricks {
+                        barrier.wait();
+                        first.push(cache.get(source.as_ref(), 0, idx).unwrap()[0]);
+                    }
+                    first
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert!(
+        firsts.windows(2).all(|w| w[0] == w[1]),
+        "every thread saw the same bricks"
+    );
+    let st = cache.stats();
+    assert_eq!(st.reads, vec![bricks], "{st:?}");
+    assert_eq!(st.hits, (threads as u64 - 1) * bricks, "{st:?}");
+}
