@@ -325,7 +325,7 @@ fn exr_fits_in_file(header: &exr::meta::header::Header, file_len: u64, path: &Pa
             "OpenEXR",
             format!(
                 "the header's {w}x{h} pixels are {bytes} bytes of samples, more than a file of \
-                 {file_len} bytes holds with {} compression (truncated file or damaged header)",
+                 {file_len} bytes holds ({}; truncated file or damaged header)",
                 header.compression
             ),
             path,
