@@ -165,6 +165,9 @@ fn main() -> ExitCode {
     // Every rank of an MPI job finalises (nothing when MPI was not used).
     dist::finalize();
     match result {
+        // A command's results that could not all be written to stdout (a full disk under a
+        // redirect) fail the run; its one line was printed when the write failed.
+        Ok(()) if STDOUT_FAILED.load(std::sync::atomic::Ordering::Relaxed) => ExitCode::from(1),
         Ok(()) => ExitCode::SUCCESS,
         // Another rank failed and said why: exit 1 without a second message.
         Err(err) if err.downcast_ref::<dist::Quiet>().is_some() || dist::peer_failed() => {
@@ -186,14 +189,17 @@ fn main() -> ExitCode {
     }
 }
 
+/// Set when a write to stdout failed other than on a closed pipe: the run then exits 1.
+static STDOUT_FAILED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 /// Writes `text` to stdout for [`outln!`] and [`out!`].
 fn stdout_text(text: &str) {
     use std::io::Write;
     let mut out = std::io::stdout().lock();
-    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
-            eprintln!("blueshift: cannot write to stdout: {e}");
-        }
-        _ => {}
+    if let Err(e) = out.write_all(text.as_bytes()).and_then(|()| out.flush())
+        && e.kind() != std::io::ErrorKind::BrokenPipe
+        && !STDOUT_FAILED.swap(true, std::sync::atomic::Ordering::Relaxed)
+    {
+        eprintln!("blueshift: cannot write to stdout: {e}");
     }
 }

@@ -232,6 +232,22 @@ fn outputs_equal_to_inputs_are_refused() {
         "Open SciVis name says 8x8x8 int16",
     );
     assert!(!d.join("v_8x8x8_int16.raw").exists());
+    // A big-endian name: the writer writes little-endian, which a reader of the name would
+    // take byte-swapped.
+    refused(
+        &blueshift(
+            &[
+                "convert",
+                "v.nrrd",
+                "v_8x8x8_int16be.raw",
+                "--type",
+                "int16",
+            ],
+            d,
+        ),
+        "says big-endian",
+    );
+    assert!(!d.join("v_8x8x8_int16be.raw").exists());
     let o = blueshift(
         &["convert", "v.nrrd", "v_8x8x8_int16.raw", "--type", "int16"],
         d,

@@ -345,6 +345,22 @@ fn a_closed_stdout_pipe_is_not_a_panic() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success() && !err.contains("panicked"), "{err}");
     assert_eq!(image::open(&out).unwrap().width(), 256);
+    // A stdout that fails otherwise (a full disk) fails the run, in one line.
+    if let Ok(full) = std::fs::OpenOptions::new().write(true).open("/dev/full") {
+        let o = blueshift()
+            .args([
+                "tonemap",
+                input.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .stdout(full)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains("cannot write to stdout"), "{err}");
+    }
 }
 
 /// `--out -` writes the PNG to standard output (the summary then goes to stderr), `--format`
@@ -386,7 +402,7 @@ fn standard_output_takes_the_image_and_the_format_flag() {
                 "--stops-step",
                 "0",
             ][..],
-            "step of 0 stops",
+            "--stops-step 0",
         ),
     ] {
         let o = run(extra);
@@ -398,4 +414,15 @@ fn standard_output_takes_the_image_and_the_format_flag() {
         );
     }
     assert!(!dir.path().join("s-00.png").exists());
+    // A flat image spans no stops: its series (a zero step the tool chose) is still written.
+    let flat = dir.path().join("flat.pfm");
+    write_pfm(&flat, 4, 4, |_, _| 2.0);
+    let series = dir.path().join("f.png");
+    let o = blueshift()
+        .args(["tonemap", flat.to_str().unwrap(), "--exposure-series", "3"])
+        .args(["--out", series.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(dir.path().join("f-02.png").exists());
 }

@@ -885,7 +885,8 @@ impl RenderSceneFile {
     }
 
     /// Moves every bricked channel to the level `lod` picks (all channels must be bricked
-    /// with the same levels for a coarser one; mixed with dense channels they stay exact).
+    /// with the same levels for a coarser one; mixed with dense channels they stay exact, and
+    /// the CLI refuses a level asked for there).
     fn choose_level(&self, loaded: &mut [(String, Field)]) -> Result<()> {
         let lod = self.lod()?;
         if lod == Lod::Exact || loaded.iter().any(|(_, f)| f.as_bricked().is_none()) {

@@ -348,7 +348,7 @@ fn values_from_bytes(bytes: &[u8], disk: DiskType, big: bool, out: &mut [f32]) {
 /// slice in order as [`convert`] asks for them: a compressed volume converts holding one
 /// slice of it, at the speed of decompression.
 pub struct GzipFileSource {
-    reader: flate2::read::MultiGzDecoder<std::io::BufReader<File>>,
+    reader: crate::io::GzMembers<std::io::BufReader<File>>,
     disk: DiskType,
     endian: Endian,
     geometry: Geometry,
@@ -389,7 +389,7 @@ impl GzipFileSource {
         let mut file = File::open(&data)?;
         std::io::Seek::seek(&mut file, std::io::SeekFrom::Start(start))?;
         Ok(Some(Self {
-            reader: flate2::read::MultiGzDecoder::new(std::io::BufReader::new(file)),
+            reader: crate::io::GzMembers::new(std::io::BufReader::new(file)),
             disk: layout.disk,
             endian: layout.endian,
             geometry,

@@ -480,6 +480,15 @@ fn scivis_names_parse_as_documented() {
     assert_eq!((n.disk, n.endian), (DiskType::I16, Endian::Little));
     let n = parse_scivis_name(Path::new("ct_512x512x100_int16be.raw")).unwrap();
     assert_eq!((n.disk, n.endian), (DiskType::I16, Endian::Big));
+    // `double` ends in "le" but is a type, not `doub` little-endian.
+    for (name, endian) in [
+        ("d_2x2x2_double.raw", Endian::Little),
+        ("d_2x2x2_doublele.raw", Endian::Little),
+        ("d_2x2x2_doublebe.raw", Endian::Big),
+    ] {
+        let n = parse_scivis_name(Path::new(name)).unwrap();
+        assert_eq!((n.disk, n.endian), (DiskType::F64, endian), "{name}");
+    }
     for bad in [
         "skull.raw",
         "a_256x256_uint8.raw",
@@ -589,8 +598,19 @@ fn gzip_nrrd_with_a_wrong_crc_or_extra_data_is_refused() {
     enc.write_all(&[7u8; 64]).unwrap();
     more.extend(enc.finish().unwrap());
     check("more.nrrd", &more, "more bytes than the header");
-    // The file unchanged reads, in core and streamed.
+    // The file unchanged reads, and so does it with bytes after its gzip stream that are
+    // not another member (padding, a newline), which gzip ignores: the same voxels.
     let p = dir.path().join("good.nrrd");
     std::fs::write(&p, &good).unwrap();
-    read(&p).unwrap();
+    let want = read(&p).unwrap();
+    for tail in [&b"\n"[..], &[0u8; 4][..]] {
+        let mut padded = good.clone();
+        padded.extend_from_slice(tail);
+        std::fs::write(&p, &padded).unwrap();
+        assert_eq!(
+            scalars(&read(&p).unwrap(), 0),
+            scalars(&want, 0),
+            "{tail:?}"
+        );
+    }
 }

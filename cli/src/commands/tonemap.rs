@@ -257,6 +257,11 @@ fn write_display(path: &Path, format: &str, img: &Rgb32FImage, depth: u8) -> Res
 pub fn run(args: Args) -> Result<()> {
     crate::output::check_outputs(&[args.out.as_path()], &[args.input.as_path()])?;
     let ext = output_format(&args)?;
+    if args.stops_step == Some(0.0) && args.exposure_series.is_some_and(|n| n > 1) {
+        bail!(
+            "--stops-step 0 makes every image of the exposure series the same: give a non-zero step"
+        );
+    }
     if args.exposure_series.is_some() && crate::output::direct_target(&args.out).is_some() {
         bail!(
             "--exposure-series writes one file per image (OUT-00.png, ...): give --out a file \
@@ -348,9 +353,7 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
-    if crate::output::direct_target(&args.out) == Some("standard output")
-        || args.out == Path::new("/dev/stdout")
-    {
+    if crate::output::direct_target(&args.out).is_some() {
         eprint!("{text}");
     } else {
         out!("{text}");

@@ -78,6 +78,13 @@ fn check_scivis_name(path: &Path, channel: &Channel, disk: DiskType) -> Result<(
     let Some(n) = raw::parse_scivis_name(path) else {
         return Ok(());
     };
+    if n.endian == blueshift_volume::io::Endian::Big {
+        anyhow::bail!(
+            "cannot write {}: its Open SciVis name says big-endian but raw files are written \
+             little-endian (drop the type's 'be', or name it 'le')",
+            path.display()
+        );
+    }
     let dims = channel.grid.geometry().dims;
     let components = if channel.grid.is_vector() { 3 } else { 1 };
     if n.disk != disk || n.dims != dims || n.components != components {

@@ -103,11 +103,6 @@ pub fn exposure_series(img: &Rgb32FImage, series: &ExposureSeries) -> Result<Vec
     }
     check_finite("first_stops", series.first_stops)?;
     check_finite("step_stops", series.step_stops)?;
-    if series.count > 1 && series.step_stops == 0.0 {
-        return Err(Error::parameter(
-            "exposure series: a step of 0 stops makes every image the same; give a non-zero step",
-        ));
-    }
     (0..series.count)
         .map(|i| {
             crate::Operator::Linear(LinearParams {

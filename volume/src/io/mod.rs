@@ -212,7 +212,7 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
     let got = match encoding {
         Encoding::Raw => r.take(len as u64).read_to_end(&mut out)?,
         Encoding::Gzip => {
-            let mut d = flate2::read::MultiGzDecoder::new(r);
+            let mut d = GzMembers::new(std::io::BufReader::new(r));
             let got = d.by_ref().take(len as u64).read_to_end(&mut out)?;
             if got == len {
                 check_stream_end(&mut d)?;
@@ -239,6 +239,43 @@ pub(crate) fn read_payload(r: impl Read, encoding: Encoding, len: usize) -> Resu
         )));
     }
     Ok(out)
+}
+
+/// The decompressed bytes of the gzip members of `r`, one after another (as
+/// `flate2::read::MultiGzDecoder`), each member's CRC-32 and length checked at its end. The
+/// stream ends at the end of the input or where what follows a member is not another member
+/// (trailing bytes: padding, a newline), which gzip itself ignores with a warning, rather
+/// than failing on them as a gzip header.
+pub(crate) struct GzMembers<R: std::io::BufRead> {
+    member: Option<flate2::bufread::GzDecoder<R>>,
+}
+
+impl<R: std::io::BufRead> GzMembers<R> {
+    pub(crate) fn new(r: R) -> Self {
+        GzMembers {
+            member: Some(flate2::bufread::GzDecoder::new(r)),
+        }
+    }
+}
+
+impl<R: std::io::BufRead> Read for GzMembers<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        loop {
+            let Some(member) = self.member.as_mut() else {
+                return Ok(0);
+            };
+            let n = member.read(buf)?;
+            if n > 0 || buf.is_empty() {
+                return Ok(n);
+            }
+            // This member ended, its trailer checked: another one follows only where gzip's
+            // magic byte does.
+            let mut rest = self.member.take().expect("a member").into_inner();
+            if rest.fill_buf()?.first() == Some(&0x1f) {
+                self.member = Some(flate2::bufread::GzDecoder::new(rest));
+            }
+        }
+    }
 }
 
 /// Checks that a decompressing reader whose voxels have all been read ends here: its

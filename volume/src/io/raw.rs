@@ -43,7 +43,11 @@ pub fn parse_scivis_name(path: &Path) -> Option<SciVisName> {
     } else {
         Endian::Little
     };
-    let dtype = dtype.trim_end_matches("le").trim_end_matches("be");
+    let dtype = dtype
+        .strip_suffix("le")
+        .or_else(|| dtype.strip_suffix("be"))
+        .filter(|t| DiskType::from_scivis_name(t).is_some())
+        .unwrap_or(dtype);
     let disk = DiskType::from_scivis_name(dtype)?;
     let nums: Vec<usize> = size
         .split('x')
