@@ -614,3 +614,19 @@ fn gzip_nrrd_with_a_wrong_crc_or_extra_data_is_refused() {
         );
     }
 }
+
+/// A `.raw` file whose name does not give its volume (a size of 0, no type) says what the
+/// name must hold, not that the format is unknown.
+#[test]
+fn a_raw_file_misnamed_says_what_its_name_must_hold() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["a_0x32x32_float32.raw", "b_4x4x4.raw", "c.RAW"] {
+        let p = dir.path().join(name);
+        std::fs::write(&p, [0u8; 64]).unwrap();
+        let e = read(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("name_XxYxZ_type.raw") && e.contains("--raw-dims"),
+            "{name}: {e}"
+        );
+    }
+}

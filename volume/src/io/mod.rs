@@ -522,6 +522,15 @@ pub fn detect_format(path: &Path) -> Result<Format> {
         Ok(Format::MetaImage)
     } else if raw::parse_scivis_name(path).is_some() {
         Ok(Format::Raw)
+    } else if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("raw"))
+    {
+        Err(Error::invalid(
+            "a raw file's name gives its volume: name_XxYxZ_type.raw with sizes of at least 1 \
+             and a type such as uint8, int16, uint16, float32 or float64 (or give --raw-dims \
+             and --raw-type)",
+        ))
     } else {
         Err(Error::unsupported(
             "cannot tell the file format (expected .raw with an Open SciVis name such as \
