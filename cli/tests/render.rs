@@ -226,6 +226,22 @@ fn bad_input_gets_one_line_errors_naming_the_field() {
         assert_eq!(err.trim().lines().count(), 1, "case {i}: {err}");
         assert!(!dir.path().join("bad.exr").exists());
     }
+    // An image format's name for the EXR that --out writes.
+    let out = blueshift(
+        &[
+            "--volume",
+            "slab.nrrd",
+            "--tf",
+            "tf.json",
+            "--out",
+            "bad.png",
+        ],
+        dir.path(),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("--out writes OpenEXR"), "{err}");
+    assert!(!dir.path().join("bad.png").exists());
 }
 
 #[test]

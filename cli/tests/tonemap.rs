@@ -414,6 +414,24 @@ fn standard_output_takes_the_image_and_the_format_flag() {
         );
     }
     assert!(!dir.path().join("s-00.png").exists());
+    // An exposure series whose second image would be the input itself is refused, and the
+    // input is left as it was.
+    let named = dir.path().join("in-01.pfm");
+    std::fs::copy(&input, &named).unwrap();
+    let before = std::fs::read(&named).unwrap();
+    let o = blueshift()
+        .args(["tonemap", named.to_str().unwrap(), "--exposure-series", "3"])
+        .args(["--out", dir.path().join("in.pfm").to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert_eq!(std::fs::read(&named).unwrap(), before);
+    assert!(!dir.path().join("in-00.pfm").exists());
     // A flat image spans no stops: its series (a zero step the tool chose) is still written.
     let flat = dir.path().join("flat.pfm");
     write_pfm(&flat, 4, 4, |_, _| 2.0);

@@ -164,7 +164,7 @@ pub struct Args {
     #[arg(long, default_value = "exposure")]
     pub tonemap: String,
     /// Exposure of the PNG preview in stops.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub exposure: f32,
     /// Worker threads (default: all cores); the image does not depend on it.
     #[arg(long)]
@@ -403,6 +403,19 @@ pub(crate) fn merge(args: &Args) -> Result<RenderSceneFile> {
 
 /// Runs `blueshift render`.
 pub fn run(args: Args) -> Result<()> {
+    // --out is always OpenEXR: another image format's name would hold EXR bytes.
+    if let Some(ext) = args
+        .out
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        && ["png", "jpg", "jpeg", "hdr", "pfm", "tif", "tiff"].contains(&ext.as_str())
+    {
+        bail!(
+            "--out writes OpenEXR, not .{ext}: name it .exr (--png OUT.png adds a tone-mapped \
+             PNG): {}",
+            args.out.display()
+        );
+    }
     let mode = crate::dist::mode(args.distributed.as_deref())?;
     use blueshift_dist::Mode;
     crate::dist::check_mode(

@@ -54,7 +54,7 @@ pub struct Args {
     pub depth: u8,
     /// Exposure in stops: each stop doubles the display values (linear and drago before
     /// their curve; the other operators on their display output, gamut-mapped).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub exposure: Option<f32>,
     /// Drago bias b (0.85).
     #[arg(long)]
@@ -104,7 +104,7 @@ pub struct Args {
     #[arg(long)]
     pub exposure_series: Option<usize>,
     /// Exposure step between series images in stops (default: span the dynamic range).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub stops_step: Option<f32>,
     /// Write a pseudocolour picture of log luminance with a colour bar instead.
     #[arg(long, alias = "pseudocolour")]
@@ -206,6 +206,11 @@ fn extension(path: &Path) -> String {
         .unwrap_or_default()
 }
 
+/// Image `i` of an exposure series written for `--out out`: `OUT-0i.EXT`.
+fn series_path(out: &Path, i: usize, ext: &str) -> PathBuf {
+    PathBuf::from(format!("{}-{i:02}.{ext}", out.with_extension("").display()))
+}
+
 /// The output's format: `--format`, else --out's extension, else PNG for an output that is
 /// not a file name (`-`, `/dev/stdout`, a FIFO).
 fn output_format(args: &Args) -> Result<String> {
@@ -255,8 +260,18 @@ fn write_display(path: &Path, format: &str, img: &Rgb32FImage, depth: u8) -> Res
 
 /// Runs `blueshift tonemap`.
 pub fn run(args: Args) -> Result<()> {
-    crate::output::check_outputs(&[args.out.as_path()], &[args.input.as_path()])?;
     let ext = output_format(&args)?;
+    // Every file the run writes is checked against the input (an exposure series' names
+    // too: `in-01.exr` may be the input).
+    let outs = match args.exposure_series {
+        Some(n) => (0..n).map(|i| series_path(&args.out, i, &ext)).collect(),
+        None => vec![args.out.clone()],
+    };
+    let out_refs: Vec<&Path> = outs.iter().map(PathBuf::as_path).collect();
+    crate::output::check_outputs(&out_refs, &[args.input.as_path()])?;
+    if args.stops_step.is_some() && args.exposure_series.is_none() {
+        bail!("--stops-step applies to --exposure-series only");
+    }
     if args.stops_step == Some(0.0) && args.exposure_series.is_some_and(|n| n > 1) {
         bail!(
             "--stops-step 0 makes every image of the exposure series the same: give a non-zero step"
@@ -413,9 +428,8 @@ fn tonemap_clean(
             series.step_stops = step;
         }
         let images = blueshift_tonemap::exposure_series(hdr, &series)?;
-        let stem = args.out.with_extension("");
         for (i, img) in images.iter().enumerate() {
-            let path = PathBuf::from(format!("{}-{i:02}.{ext}", stem.display()));
+            let path = series_path(&args.out, i, ext);
             write_display(&path, ext, img, args.depth)?;
             outputs.push(path);
         }
