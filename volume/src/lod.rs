@@ -2,7 +2,9 @@
 //!
 //! Coarse voxel `i` along an axis is the mean of fine voxels `2i` and `2i + 1` (the last one
 //! clamped to the edge for odd sizes), so level `l + 1` has `ceil(n / 2)` voxels, twice the
-//! spacing, and its origin half a fine voxel further in ([`Geometry::downsampled`]).
+//! spacing, and its origin half a fine voxel further in ([`Geometry::downsampled`]). NaN
+//! voxels (no data) are left out of the mean; a coarse voxel is NaN only where all eight are,
+//! so a missing voxel does not blank its whole region at the coarse levels.
 
 use rayon::prelude::*;
 
@@ -61,10 +63,34 @@ pub(crate) fn downsample_row(
     for (x, out) in row.iter_mut().enumerate() {
         let x0 = 2 * x;
         let x1 = (2 * x + 1).min(n[0] - 1);
-        let s = ((fine(x0, y0, z0) + fine(x1, y0, z0)) + (fine(x0, y1, z0) + fine(x1, y1, z0)))
-            + ((fine(x0, y0, z1) + fine(x1, y0, z1)) + (fine(x0, y1, z1) + fine(x1, y1, z1)));
-        *out = s * 0.125;
+        let v = [
+            fine(x0, y0, z0),
+            fine(x1, y0, z0),
+            fine(x0, y1, z0),
+            fine(x1, y1, z0),
+            fine(x0, y0, z1),
+            fine(x1, y0, z1),
+            fine(x0, y1, z1),
+            fine(x1, y1, z1),
+        ];
+        let s = ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]));
+        *out = mean_of_eight(s, v);
     }
+}
+
+/// The mean of eight fine voxels whose sum, in [`downsample_row`]'s order, is `s`: `s / 8`,
+/// or, where the sum is NaN because some voxels are, the mean of the others (NaN where
+/// none is a number). Both down-samplers call it, so they give the same bits.
+#[inline]
+pub(crate) fn mean_of_eight(s: f32, v: [f32; 8]) -> f32 {
+    if !s.is_nan() {
+        return s * 0.125;
+    }
+    let (sum, n) = v
+        .iter()
+        .filter(|x| !x.is_nan())
+        .fold((0.0f32, 0u32), |(s, n), &x| (s + x, n + 1));
+    if n == 0 { f32::NAN } else { sum / n as f32 }
 }
 
 /// A level-of-detail pyramid of f32 grids; level 0 is the full resolution.

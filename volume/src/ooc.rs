@@ -56,7 +56,7 @@ use crate::cache::{BrickCache, BrickSource, next_uid};
 use crate::field::BrickedField;
 use crate::grid::{Geometry, Grid, ScalarType, Voxel};
 use crate::io::{DiskType, Endian};
-use crate::lod::{downsample_row, level_geometries};
+use crate::lod::{downsample_row, level_geometries, mean_of_eight};
 use crate::macrocell::{DEFAULT_K, Macrocells, layer_min_max};
 use crate::{AnyGrid, Error, Limits, MemoryBudget, Result};
 
@@ -641,12 +641,18 @@ fn downsample_rows(rows: [&[f32]; 4], out: &mut [f32]) {
     for (x, o) in out[..pairs].iter_mut().enumerate() {
         let s = ((p[0][x][0] + p[0][x][1]) + (p[1][x][0] + p[1][x][1]))
             + ((p[2][x][0] + p[2][x][1]) + (p[3][x][0] + p[3][x][1]));
-        *o = s * 0.125;
+        *o = if s.is_nan() {
+            let v = [p[0][x], p[1][x], p[2][x], p[3][x]];
+            mean_of_eight(s, *v.as_flattened().as_array().expect("eight voxels"))
+        } else {
+            s * 0.125
+        };
     }
     // An odd row's last coarse voxel has one fine voxel per row, counted twice.
     for (x, o) in out.iter_mut().enumerate().skip(pairs) {
-        let f = |r: &[f32]| r[(2 * x).min(nx - 1)] + r[(2 * x + 1).min(nx - 1)];
-        *o = ((f(rows[0]) + f(rows[1])) + (f(rows[2]) + f(rows[3]))) * 0.125;
+        let v: [f32; 8] = std::array::from_fn(|i| rows[i / 2][(2 * x + i % 2).min(nx - 1)]);
+        let s = ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]));
+        *o = mean_of_eight(s, v);
     }
 }
 

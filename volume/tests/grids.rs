@@ -925,3 +925,77 @@ fn concurrent_misses_on_one_brick_read_it_once() {
     assert_eq!(st.reads, vec![bricks], "{st:?}");
     assert_eq!(st.hits, (threads as u64 - 1) * bricks, "{st:?}");
 }
+
+/// NaN voxels (no data) are left out of a coarse voxel's mean: it is the mean of the fine
+/// voxels that are numbers (computed here in f64), NaN only where all eight are NaN. The
+/// in-core pyramid and the `.bsv` file's level 1 hold the same bits. Before, one NaN made
+/// its whole coarse voxel NaN, and the region rendered transparent at coarse levels.
+#[test]
+fn coarse_levels_average_the_voxels_that_are_numbers() {
+    let dims = [9, 8, 7];
+    let mut g = noisy_grid(dims, 12);
+    let mut rng = Lcg(3);
+    for v in g.data_mut().iter_mut() {
+        if rng.next_f32() < 0.15 {
+            *v = f32::NAN;
+        }
+    }
+    // One coarse voxel with no number at all.
+    for (x, y, z) in (0..8).map(|i| (2 + (i & 1), 4 + ((i >> 1) & 1), 2 + (i >> 2))) {
+        let at = g.geometry().index(x, y, z);
+        g.data_mut()[at] = f32::NAN;
+    }
+    let coarse = lod::downsample(&g).unwrap();
+    let [cx, cy, cz] = coarse.dims();
+    let mut checked = 0;
+    for z in 0..cz {
+        for y in 0..cy {
+            for x in 0..cx {
+                let (mut sum, mut n) = (0.0f64, 0u32);
+                for i in 0..8 {
+                    let f = |c: usize, b: usize, d: usize| (2 * c + b).min(d - 1);
+                    let v = g
+                        .get(
+                            f(x, i & 1, dims[0]),
+                            f(y, (i >> 1) & 1, dims[1]),
+                            f(z, i >> 2, dims[2]),
+                        )
+                        .unwrap();
+                    if !v.is_nan() {
+                        sum += f64::from(v);
+                        n += 1;
+                    }
+                }
+                let got = coarse.get(x, y, z).unwrap();
+                if n == 0 {
+                    assert!(got.is_nan(), "[{x}, {y}, {z}]");
+                } else {
+                    let want = sum / f64::from(n);
+                    assert!(
+                        (f64::from(got) - want).abs() <= 1e-5 * want.abs().max(1.0),
+                        "[{x}, {y}, {z}]: {got} vs {want}"
+                    );
+                    checked += usize::from(n < 8);
+                }
+            }
+        }
+    }
+    assert!(checked > 20, "coarse voxels with some NaN: {checked}");
+    assert!(coarse.get(1, 2, 1).unwrap().is_nan());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nan.bsv");
+    ooc::convert(
+        &mut GridSource(&g),
+        &path,
+        "nan",
+        BrickLayout { brick: 4, apron: 1 },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let f = BrickedFile::open(&path, 64).unwrap();
+    let AnyGrid::F32(level1) = f.load_level(1, &Default::default()).unwrap() else {
+        panic!("f32 level")
+    };
+    let bits = |g: &Grid<f32>| g.data().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&level1), bits(&coarse));
+}
