@@ -304,6 +304,9 @@ impl SlabSource for RawFileSource {
         }
         self.buf.resize(bytes, 0);
         self.file.read_exact_at(&mut self.buf, at)?;
+        if self.disk == DiskType::F64 {
+            crate::io::check_f64_range(&self.buf, big)?;
+        }
         values_from_bytes(&self.buf, self.disk, big, out);
         Ok(())
     }
@@ -439,6 +442,9 @@ impl SlabSource for GzipFileSource {
                 Error::Invalid(m) => Error::invalid(format!("{m}: {}", self.path.display())),
                 other => other,
             })?;
+        }
+        if self.disk == DiskType::F64 {
+            crate::io::check_f64_range(&self.buf, self.endian == Endian::Big)?;
         }
         values_from_bytes(&self.buf, self.disk, self.endian == Endian::Big, out);
         Ok(())

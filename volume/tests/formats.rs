@@ -630,3 +630,39 @@ fn a_raw_file_misnamed_says_what_its_name_must_hold() {
         );
     }
 }
+
+/// A float64 voxel beyond f32's range is refused in one line by the in-core reader and the
+/// streaming converter's source, instead of becoming an infinity the file does not hold.
+#[test]
+fn float64_values_beyond_f32_are_refused_not_made_infinite() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("big_5x1x1_double.raw");
+    let vals = [1.0f64, 0.1, 1e300, -1e-300, 3.0];
+    std::fs::write(
+        &p,
+        vals.iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect::<Vec<_>>(),
+    )
+    .unwrap();
+    let e = read(&p).unwrap_err().to_string();
+    assert!(e.contains("1e300") && e.contains("beyond the range"), "{e}");
+    let mut src = blueshift_volume::ooc::RawFileSource::probe(&p)
+        .unwrap()
+        .unwrap();
+    let mut slice = vec![0f32; 5];
+    let e = blueshift_volume::ooc::SlabSource::read_slice(&mut src, 0, &mut slice)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("beyond the range"), "{e}");
+    // In range, the values are read (rounded to f32; -1e-300 underflows to -0).
+    let q = dir.path().join("ok_5x1x1_double.raw");
+    let ok = [1.0f64, 0.1, 1e30, -1e-300, 3.0];
+    std::fs::write(
+        &q,
+        ok.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<_>>(),
+    )
+    .unwrap();
+    let want: Vec<f32> = ok.iter().map(|&v| v as f32).collect();
+    assert_eq!(scalars(&read(&q).unwrap(), 0), want);
+}

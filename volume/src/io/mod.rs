@@ -365,6 +365,9 @@ pub(crate) fn decode(bytes: &[u8], layout: &Layout, geometry: Geometry) -> Resul
     if bytes.len() < n * size {
         return Err(Error::invalid("truncated data"));
     }
+    if layout.disk == DiskType::F64 {
+        check_f64_range(&bytes[..n * size], big)?;
+    }
     let comp = |i: usize| -> f32 { component(&bytes[i * size..i * size + size], layout.disk, big) };
     if layout.components == 3 {
         let data = (0..n / 3)
@@ -395,6 +398,30 @@ pub(crate) fn decode(bytes: &[u8], layout: &Layout, geometry: Geometry) -> Resul
         }
         _ => Grid::from_vec(geometry, (0..n).map(comp).collect())?.into(),
     })
+}
+
+/// Refuses float64 voxels beyond the range of the f32 values blueshift holds voxels in, which
+/// would otherwise become infinities (and be reported as non-finite data the file does not
+/// hold). Values too small for f32 become 0 or subnormal, as rounding does.
+///
+/// # Errors
+/// [`Error::Invalid`] naming the first such value.
+pub(crate) fn check_f64_range(bytes: &[u8], big: bool) -> Result<()> {
+    for c in bytes.chunks_exact(8) {
+        let a: [u8; 8] = c.try_into().expect("8 bytes");
+        let v = if big {
+            f64::from_be_bytes(a)
+        } else {
+            f64::from_le_bytes(a)
+        };
+        if v.is_finite() && v.abs() > f64::from(f32::MAX) {
+            return Err(Error::invalid(format!(
+                "float64 value {v:e} is beyond the range of the 32-bit floats voxels are held \
+                 in (about ±3.4e38): rescale the data"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// One on-disk component as f32 (the module's conversion table).
