@@ -101,6 +101,17 @@ fn vtk_with_vectors_writes_one_nrrd_per_channel() {
         read(&out).unwrap().geometry().origin,
         Vec3::new(130.0, 100.0, 21.0)
     );
+    // A .bsv holds one channel: the one converted and the others are named on stderr.
+    let o = run(&[
+        "convert".as_ref(),
+        data("valid/carotid_crop_binary.vtk").as_os_str(),
+        dir.path().join("car.bsv").as_os_str(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("a .bsv file holds one") && err.contains("--channel"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -163,6 +163,16 @@ pub fn run(args: Args) -> Result<()> {
                 .ok_or_else(|| anyhow::anyhow!("{} has no channel", args.input.display()))?,
         };
         let name = ch.name.clone();
+        if args.channel.is_none() && vol.channels().len() > 1 {
+            let all: Vec<&str> = vol.channels().iter().map(|c| c.name.as_str()).collect();
+            eprintln!(
+                "note: {} has {} channels ({}); a .bsv file holds one: converting '{name}' \
+                 (--channel NAME converts another)",
+                args.input.display(),
+                all.len(),
+                all.join(", ")
+            );
+        }
         return match &ch.grid {
             AnyGrid::U8(g) => brick(&mut GridSource(g), &args, &name, layout),
             AnyGrid::U16(g) => brick(&mut GridSource(g), &args, &name, layout),
