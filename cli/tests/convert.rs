@@ -325,6 +325,20 @@ fn bricked_output_takes_vectors_and_types_and_refuses_what_it_cannot_do() {
     };
     refused(&["--gzip"], "--gzip");
     refused(&["--type", "int16"], "--type int16");
+    // A .raw output is not compressed either.
+    let raw = dir.path().join("no_8x8x8_uint8.raw");
+    let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args([
+            "convert".as_ref(),
+            input.as_os_str(),
+            raw.as_os_str(),
+            "--gzip".as_ref(),
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("a .raw file is stored raw"));
+    assert!(!raw.exists());
     let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
         .args(["--max-memory", "1K", "info"])
         .arg(&u8_bsv)

@@ -90,6 +90,9 @@ fn progress_bar(total: u64) -> crate::progress::Progress {
 pub fn run(args: Args) -> Result<()> {
     output::check_outputs(&[args.output.as_path()], &[args.input.as_path()])?;
     let fmt = out_format(&args.output)?;
+    if args.gzip && fmt == OutFormat::Raw {
+        anyhow::bail!("--gzip: only NRRD output is compressed; a .raw file is stored raw");
+    }
     if blueshift_volume::amr::is_amr(&args.input) {
         return run_amr(&args, fmt);
     }
