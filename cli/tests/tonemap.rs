@@ -443,4 +443,21 @@ fn standard_output_takes_the_image_and_the_format_flag() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(dir.path().join("f-02.png").exists());
+    // Fattal's display stretch has no range on a flat grey image: white, as Drago gives,
+    // not black.
+    for op in ["fattal", "drago"] {
+        let png = dir.path().join(format!("flat_{op}.png"));
+        let o = blueshift()
+            .args(["tonemap", flat.to_str().unwrap(), "--op", op])
+            .args(["--out", png.to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let img = image::open(&png).unwrap().to_rgb8();
+        assert!(
+            img.pixels().all(|p| p.0[1] > 240),
+            "{op}: {:?}",
+            img.get_pixel(0, 0)
+        );
+    }
 }

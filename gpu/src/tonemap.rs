@@ -370,18 +370,8 @@ impl<'a> GpuTonemapper<'a> {
                 let i = self.fattal_solve(&h_log, &phi)?;
                 // The display scaling and recolouring of Operator::apply, on the host.
                 let l_out = i.map(f32::exp);
-                let lit: Vec<f32> = l_out
-                    .data
-                    .iter()
-                    .zip(&clean.luminance.data)
-                    .filter(|(_, l)| **l > 0.0)
-                    .map(|(v, _)| *v)
-                    .collect();
-                let pct = blueshift_tonemap::ops::fattal::percentile;
-                let lo = pct(&lit, p.black_clip_percent);
-                let hi = pct(&lit, 100.0 - p.white_clip_percent);
-                let span = (hi - lo).max(f32::MIN_POSITIVE);
-                let lum_out = l_out.map(|v| ((v - lo) / span).max(0.0));
+                let lum_out =
+                    blueshift_tonemap::ops::fattal::display_stretch(&l_out, &clean.luminance, p);
                 return Ok(blueshift_tonemap::plane::recolour_in_gamut(
                     &clean.image,
                     &clean.luminance,

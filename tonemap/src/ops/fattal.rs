@@ -188,6 +188,30 @@ pub fn compressed_log_luminance(h: &Plane, params: &FattalParams) -> Result<Plan
     })
 }
 
+/// The display luminance of Fattal's compressed luminance `l_out`: the lit pixels' (those
+/// whose input `luminance` is positive) `black_clip_percent` percentile maps to 0 and their
+/// `100 - white_clip_percent` percentile to 1, clipped below at 0. Where the two are equal
+/// (a flat image: nothing to stretch) every pixel is 1, white as Drago and the linear
+/// operator show it, rather than the stretch's 0 / 0. Shared by the CPU and GPU paths.
+#[must_use]
+pub fn display_stretch(l_out: &Plane, luminance: &Plane, params: &FattalParams) -> Plane {
+    let lit: Vec<f32> = l_out
+        .data
+        .iter()
+        .zip(&luminance.data)
+        .filter(|(_, l)| **l > 0.0)
+        .map(|(v, _)| *v)
+        .collect();
+    let lo = percentile(&lit, params.black_clip_percent);
+    let hi = percentile(&lit, 100.0 - params.white_clip_percent);
+    if hi > lo {
+        let span = (hi - lo).max(f32::MIN_POSITIVE);
+        l_out.map(|v| ((v - lo) / span).max(0.0))
+    } else {
+        l_out.map(|_| 1.0)
+    }
+}
+
 /// The value below which `percent` % of `values` lie (nearest rank on a sorted copy).
 #[must_use]
 pub fn percentile(values: &[f32], percent: f32) -> f32 {

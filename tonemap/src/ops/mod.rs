@@ -169,17 +169,10 @@ impl Operator {
                 let i = fattal::compressed_log_luminance(&h_log, params)?;
                 let l_out = i.map(f32::exp);
                 // Scale to the display, clipping the given percentages (lit pixels only).
-                let lit: Vec<f32> = l_out
-                    .data
-                    .iter()
-                    .zip(&p.luminance.data)
-                    .filter(|(_, l)| **l > 0.0)
-                    .map(|(v, _)| *v)
-                    .collect();
-                let lo = fattal::percentile(&lit, params.black_clip_percent);
-                let hi = fattal::percentile(&lit, 100.0 - params.white_clip_percent);
-                let span = (hi - lo).max(f32::MIN_POSITIVE);
-                (l_out.map(|v| ((v - lo) / span).max(0.0)), params.saturation)
+                (
+                    fattal::display_stretch(&l_out, &p.luminance, params),
+                    params.saturation,
+                )
             }
             _ => unreachable!("global operators handled above"),
         };
