@@ -666,3 +666,57 @@ fn float64_values_beyond_f32_are_refused_not_made_infinite() {
     let want: Vec<f32> = ok.iter().map(|&v| v as f32).collect();
     assert_eq!(scalars(&read(&q).unwrap(), 0), want);
 }
+
+/// ASCII values their declared type cannot hold are refused in one line (they were rounded
+/// or clamped: `300` in a `uchar` NRRD read as 255); values it holds read as written.
+#[test]
+fn ascii_values_outside_their_type_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let nrrd = |ty: &str, vals: &str| {
+        let p = dir.path().join("a.nrrd");
+        std::fs::write(
+            &p,
+            format!(
+                "NRRD0004\ntype: {ty}\ndimension: 3\nsizes: 2 1 1\nencoding: ascii\n\n{vals}\n"
+            ),
+        )
+        .unwrap();
+        read(&p)
+    };
+    let vtk = |ty: &str, vals: &str| {
+        let p = dir.path().join("a.vtk");
+        std::fs::write(
+            &p,
+            format!(
+                "# vtk DataFile Version 3.0\nt\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 2 1 1\n\
+                 SPACING 1 1 1\nORIGIN 0 0 0\nPOINT_DATA 2\nSCALARS s {ty} 1\nLOOKUP_TABLE default\n{vals}\n"
+            ),
+        )
+        .unwrap();
+        read(&p)
+    };
+    for (ty, vals) in [
+        ("uchar", "3 300"),
+        ("signed char", "-200 3"),
+        ("short", "1 2.5"),
+    ] {
+        let e = nrrd(ty, vals).unwrap_err().to_string();
+        assert!(e.contains("is not a"), "{ty} {vals}: {e}");
+    }
+    let e = nrrd("float", "1 1e39").unwrap_err().to_string();
+    assert!(e.contains("'1e39'"), "{e}");
+    assert_eq!(
+        scalars(&nrrd("uchar", "3 255").unwrap(), 0),
+        vec![3.0, 255.0]
+    );
+    assert_eq!(
+        scalars(&nrrd("short", "-7 2.0").unwrap(), 0),
+        vec![-7.0, 2.0]
+    );
+    let e = vtk("unsigned_char", "1 999").unwrap_err().to_string();
+    assert!(e.contains("VTK") && e.contains("'999'"), "{e}");
+    assert_eq!(
+        scalars(&vtk("unsigned_char", "1 200").unwrap(), 0),
+        vec![1.0, 200.0]
+    );
+}

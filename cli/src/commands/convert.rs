@@ -39,7 +39,8 @@ pub struct Args {
     pub gzip: bool,
     /// Voxel type to write (uint8, int8, uint16, int16, uint32, int32, float32, float64;
     /// .bsv: uint8, uint16, float32); integers round to nearest and saturate. Default: keep
-    /// the input's type.
+    /// the input's type. Voxels are held as 32-bit floats in between: an (u)int32 volume with
+    /// values beyond 2^24 is written as float32, and float64 values keep float32 precision.
     #[arg(long = "type", value_parser = parse_disk_type)]
     pub disk_type: Option<DiskType>,
     /// Override the spacing, as "sx,sy,sz".

@@ -692,6 +692,7 @@ pub(crate) fn read_ascii(r: impl Read, disk: DiskType, count: usize) -> Result<V
         let v: f64 = t
             .parse()
             .map_err(|_| Error::invalid(format!("ASCII data: '{t}' is not a number")))?;
+        check_ascii_value(v, t, disk).map_err(Error::Invalid)?;
         put_le(&mut out, disk, v);
         n += 1;
     }
@@ -699,6 +700,38 @@ pub(crate) fn read_ascii(r: impl Read, disk: DiskType, count: usize) -> Result<V
 }
 
 /// Appends `v` as a little-endian `disk` value (integers round to nearest and saturate).
+/// Refuses an ASCII value its declared type cannot hold, which would otherwise be rounded or
+/// clamped without a word (`300` in a `uchar` file): an integer type takes whole numbers in
+/// its range, `float` finite values in f32's range (NaN and infinities as written).
+pub(crate) fn check_ascii_value(
+    v: f64,
+    text: &str,
+    disk: DiskType,
+) -> std::result::Result<(), String> {
+    let range = match disk {
+        DiskType::U8 => Some((0.0, f64::from(u8::MAX))),
+        DiskType::I8 => Some((f64::from(i8::MIN), f64::from(i8::MAX))),
+        DiskType::U16 => Some((0.0, f64::from(u16::MAX))),
+        DiskType::I16 => Some((f64::from(i16::MIN), f64::from(i16::MAX))),
+        DiskType::U32 => Some((0.0, f64::from(u32::MAX))),
+        DiskType::I32 => Some((f64::from(i32::MIN), f64::from(i32::MAX))),
+        DiskType::F32 | DiskType::F64 => None,
+    };
+    let fits = match range {
+        Some((lo, hi)) => v.fract() == 0.0 && (lo..=hi).contains(&v),
+        None if disk == DiskType::F32 => !v.is_finite() || v.abs() <= f64::from(f32::MAX),
+        None => true,
+    };
+    if fits {
+        Ok(())
+    } else {
+        Err(format!(
+            "ASCII data: '{text}' is not a {} value",
+            disk.scivis_name()
+        ))
+    }
+}
+
 pub(crate) fn put_le(b: &mut Vec<u8>, disk: DiskType, v: f64) {
     match disk {
         DiskType::U8 => b.push(v.round() as u8),

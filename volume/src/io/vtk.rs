@@ -222,6 +222,8 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                         let v: f64 = t
                             .parse()
                             .map_err(|_| Error::invalid(format!("VTK: '{t}' is not a number")))?;
+                        super::check_ascii_value(v, &t, disk)
+                            .map_err(|m| Error::invalid(format!("VTK: {m}")))?;
                         put_be(&mut b, disk, v);
                     }
                     b
