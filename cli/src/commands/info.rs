@@ -134,7 +134,8 @@ fn run_fits(args: &Args) -> Result<()> {
             "min": h.data_range.map(|r| r.0),
             "max": h.data_range.map(|r| r.1),
         });
-        return emit(&format!("{out}\n"));
+        outln!("{out}");
+        return Ok(());
     }
     let mut t = String::new();
     writeln!(t, "file: {}", path.display())?;
@@ -179,7 +180,8 @@ fn run_fits(args: &Args) -> Result<()> {
     if let Some((lo, hi)) = h.data_range {
         writeln!(t, "data: min {lo:.6e}  max {hi:.6e}")?;
     }
-    emit(&t)
+    out!("{t}");
+    Ok(())
 }
 
 /// Runs `blueshift info`.
@@ -281,7 +283,8 @@ pub fn run(args: Args) -> Result<()> {
         if let Some((level, _)) = sampled {
             out["statistics_level"] = json!(level);
         }
-        return emit(&format!("{out}\n"));
+        outln!("{out}");
+        return Ok(());
     }
     let mut t = String::new();
     writeln!(t, "file: {}", args.file.display())?;
@@ -352,7 +355,8 @@ pub fn run(args: Args) -> Result<()> {
             }
         }
     }
-    emit(&t)
+    out!("{t}");
+    Ok(())
 }
 
 /// The volume whose statistics `info` gives: the file read whole within `--max-memory`;
@@ -397,15 +401,6 @@ fn read_volume(
         }
     }
     Err(super::volume_common::read_error(&err, &args.file))
-}
-
-/// Writes to stdout; a closed pipe (`blueshift info f | head`) is not an error.
-fn emit(text: &str) -> Result<()> {
-    use std::io::Write;
-    match std::io::stdout().lock().write_all(text.as_bytes()) {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e.into()),
-        _ => Ok(()),
-    }
 }
 
 /// AMR output (an Enzo parameter file, an Athena++ `.athdf`): levels, blocks, fields, units.

@@ -699,7 +699,6 @@ pub(crate) fn read_ascii(r: impl Read, disk: DiskType, count: usize) -> Result<V
     Ok(out)
 }
 
-/// Appends `v` as a little-endian `disk` value (integers round to nearest and saturate).
 /// Refuses an ASCII value its declared type cannot hold, which would otherwise be rounded or
 /// clamped without a word (`300` in a `uchar` file): an integer type takes whole numbers in
 /// its range, `float` finite values in f32's range (NaN and infinities as written).
@@ -732,6 +731,7 @@ pub(crate) fn check_ascii_value(
     }
 }
 
+/// Appends `v` as a little-endian `disk` value (integers round to nearest and saturate).
 pub(crate) fn put_le(b: &mut Vec<u8>, disk: DiskType, v: f64) {
     match disk {
         DiskType::U8 => b.push(v.round() as u8),
