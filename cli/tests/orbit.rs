@@ -154,3 +154,69 @@ fn render_orbit_frames_and_bad_paths() {
             .all(|e| { !e.unwrap().file_name().to_string_lossy().starts_with("bad") })
     );
 }
+
+/// An output of a later frame that is the input stops the run before frame 0 is written:
+/// no partial sequence, the input untouched.
+#[test]
+fn an_orbit_whose_later_frame_is_the_input_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&blueshift(
+        d,
+        &["synth", "marschner-lobb", "--res", "10", "r_0001.nrrd"],
+    ));
+    let before = std::fs::read(d.join("r_0001.nrrd")).unwrap();
+    let o = blueshift(
+        d,
+        &[
+            "render",
+            "--volume",
+            "r_0001.nrrd",
+            "--tf",
+            "builtin:viridis",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--spp",
+            "1",
+            "--device",
+            "cpu",
+            "--orbit",
+            "3",
+            "--out",
+            "r.nrrd",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("r_0001.nrrd") && err.contains("input"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(d.join("r_0001.nrrd")).unwrap(), before);
+    assert!(!d.join("r_0000.nrrd").exists() && !d.join("r_0002.nrrd").exists());
+    // A series whose frame 0 output would be its second snapshot.
+    let o = blueshift(
+        d,
+        &[
+            "render",
+            "--series",
+            "r_0001.nrrd",
+            "r_0001.nrrd",
+            "--tf",
+            "builtin:viridis",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--device",
+            "cpu",
+            "--out",
+            "r.nrrd",
+        ],
+    );
+    assert!(!o.status.success());
+    assert_eq!(std::fs::read(d.join("r_0001.nrrd")).unwrap(), before);
+    assert!(!d.join("r_0000.nrrd").exists());
+}

@@ -159,3 +159,34 @@ fn bricked_output_streams_every_component_and_matches_the_nrrd_voxels() {
     let bad = synth(&["galaxy", "z.bsv", "--gzip"], dir.path());
     assert!(!bad.status.success());
 }
+
+/// Every channel written beside an Open SciVis raw name gets such a name, with its own
+/// size, components and type, so each reads back by its name alone and holds the voxels the
+/// NRRD output holds.
+#[test]
+fn extra_raw_channels_get_open_scivis_names_that_read_back() {
+    let dir = tempfile::tempdir().unwrap();
+    for out in ["g.nrrd", "g_8x8x4_float32.raw"] {
+        let o = synth(&["galaxy", out, "--res", "8"], dir.path());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    for (nrrd, raw) in [
+        ("g.nrrd", "g_8x8x4_float32.raw"),
+        ("g_he_density.nrrd", "g_he_density_8x8x4_float32.raw"),
+        ("g_temperature_k.nrrd", "g_temperature_k_8x8x4_float32.raw"),
+        (
+            "g_velocity_m_per_s.nrrd",
+            "g_velocity_m_per_s_8x8x4x3_float32.raw",
+        ),
+    ] {
+        let want = read(dir.path().join(nrrd)).unwrap().channels()[0]
+            .grid
+            .clone();
+        let mut got = read(dir.path().join(raw)).unwrap().channels()[0]
+            .grid
+            .clone();
+        // A raw file holds no geometry: compare the voxels.
+        got.set_geometry(*want.geometry()).unwrap();
+        assert_eq!(got, want, "{raw}");
+    }
+}

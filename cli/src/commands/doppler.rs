@@ -753,6 +753,7 @@ pub fn run(args: Args) -> Result<()> {
         |a| &mut a.view,
         |a| &mut a.observer,
         outputs,
+        check_frame_outputs,
         frame,
         keep,
     )? {
@@ -780,9 +781,11 @@ fn observer_for(
     }
 }
 
-fn run_frame(args: Args) -> Result<()> {
-    // Refuse an output that cannot be written before loading or rendering anything.
-    let inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
+/// Checks the outputs of one frame (the image or cube and every file beside it) against its
+/// scene file and `more` inputs.
+fn check_frame_outputs(args: &Args, more: &[&Path]) -> Result<()> {
+    let mut inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
+    inputs.extend_from_slice(more);
     match &args.cube.cube {
         Some(cube) => {
             let outs = super::doppler_cube::cube_outputs(&args.cube, cube);
@@ -808,6 +811,12 @@ fn run_frame(args: Args) -> Result<()> {
             crate::output::check_outputs(&outs, &inputs)?;
         }
     }
+    Ok(())
+}
+
+fn run_frame(args: Args) -> Result<()> {
+    // Refuse an output that cannot be written before loading or rendering anything.
+    check_frame_outputs(&args, &[])?;
     let (scene, mut st, level0, bricks) = build_levels(&args)?;
     if let Some(mode) = args.progressive.as_deref()
         && mode != "levels"

@@ -113,13 +113,18 @@ enum FrameValue {
 /// an error): `frame` once per frame on a copy of `args` whose outputs `outputs` renames
 /// for frame `k` ([`frame_path`]) and whose input is that snapshot, or view turned, or
 /// observer sped up, to that frame's value. Frames that `keep` declines (another rank's,
-/// under `--distributed frames`) are skipped.
+/// under `--distributed frames`) are skipped. Before the first frame renders, `check` is
+/// given every frame's arguments and the inputs of the whole sequence (the `--series`
+/// snapshots), so an output that cannot be written, or that is any frame's input, stops
+/// the run before a partial sequence is written.
+#[allow(clippy::too_many_arguments)]
 pub fn run_frames<A: Clone>(
     args: &A,
     series: &Series<'_, A>,
     view: impl Fn(&mut A) -> &mut super::view_args::ViewArgs,
     observer: impl Fn(&mut A) -> &mut ObserverArgs,
     outputs: impl Fn(&mut A, usize),
+    check: impl Fn(&A, &[&Path]) -> Result<()>,
     mut frame: impl FnMut(A) -> Result<()>,
     keep: impl Fn(usize) -> Result<bool>,
 ) -> Result<bool> {
@@ -151,30 +156,39 @@ pub fn run_frames<A: Clone>(
     } else {
         return Ok(false);
     };
+    let mut frames = Vec::new();
     for (k, v) in values.into_iter().enumerate() {
         if !keep(k)? {
             continue;
         }
         let mut a = args.clone();
         outputs(&mut a, k);
-        match v {
+        let said = match v {
             FrameValue::Orbit(v) => {
                 let w = view(&mut a);
                 w.orbit = None;
                 w.orbit_deg = Some(v as f32);
-                eprintln!("frame {k}: orbit {v:.3} degrees");
+                format!("frame {k}: orbit {v:.3} degrees")
             }
             FrameValue::Beta(v) => {
                 let o = observer(&mut a);
                 o.ramp = None;
                 o.beta = Some(v);
-                eprintln!("frame {k}: beta {v:.4}");
+                format!("frame {k}: beta {v:.4}")
             }
             FrameValue::Snapshot(p) => {
                 (series.input)(&mut a, &p)?;
-                eprintln!("frame {k}: {}", p.display());
+                format!("frame {k}: {}", p.display())
             }
-        }
+        };
+        frames.push((said, a));
+    }
+    let snapshots: Vec<&Path> = series.paths.iter().map(PathBuf::as_path).collect();
+    for (_, a) in &frames {
+        check(a, &snapshots)?;
+    }
+    for (said, a) in frames {
+        eprintln!("{said}");
         frame(a)?;
     }
     Ok(true)

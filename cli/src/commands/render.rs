@@ -463,6 +463,7 @@ pub fn run(args: Args) -> Result<()> {
         |a| &mut a.view,
         |a| &mut a.observer,
         outputs,
+        check_frame_outputs,
         frame,
         keep,
     )? {
@@ -472,6 +473,21 @@ pub fn run(args: Args) -> Result<()> {
         bail!("--distributed frames: spreads the frames of --series, --orbit or --ramp; give one");
     }
     run_frame(args)
+}
+
+/// Checks the outputs of one frame (the image, its PNG and heat maps) against its inputs
+/// (volumes, scene and transfer function files) and `more` inputs.
+fn check_frame_outputs(args: &Args, more: &[&Path]) -> Result<()> {
+    let heat = crate::commands::render_heat::heat_outputs(&args.out, &args.heatmaps);
+    let mut outputs = vec![args.out.as_path()];
+    outputs.extend(args.png.as_deref());
+    outputs.extend(heat.iter().map(PathBuf::as_path));
+    let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
+    inputs.extend(args.scene.as_deref());
+    // Transfer function files (not `builtin:` / `log:` names, which name no file).
+    inputs.extend(args.tfs.iter().map(Path::new).filter(|p| p.is_file()));
+    inputs.extend_from_slice(more);
+    crate::output::check_outputs(&outputs, &inputs)
 }
 
 fn run_frame(args: Args) -> Result<()> {
@@ -490,15 +506,7 @@ fn run_frame(args: Args) -> Result<()> {
         );
     }
     // Refuse an output that cannot be written before loading or rendering anything.
-    let heat = crate::commands::render_heat::heat_outputs(&args.out, &args.heatmaps);
-    let mut outputs = vec![args.out.as_path()];
-    outputs.extend(args.png.as_deref());
-    outputs.extend(heat.iter().map(PathBuf::as_path));
-    let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
-    inputs.extend(args.scene.as_deref());
-    // Transfer function files (not `builtin:` / `log:` names, which name no file).
-    inputs.extend(args.tfs.iter().map(Path::new).filter(|p| p.is_file()));
-    crate::output::check_outputs(&outputs, &inputs)?;
+    check_frame_outputs(&args, &[])?;
     match crate::limits::thread_pool(args.threads)? {
         Some(pool) => pool.install(|| run_inner(&args)),
         None => run_inner(&args),

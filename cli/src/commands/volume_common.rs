@@ -58,8 +58,12 @@ pub fn sibling(path: &Path, suffix: &str) -> PathBuf {
         .extension()
         .map(|e| format!(".{}", e.to_string_lossy()))
         .unwrap_or_default();
-    let safe: String = suffix
-        .chars()
+    path.with_file_name(format!("{stem}_{}{ext}", file_safe(suffix)))
+}
+
+/// `s` with every character but ASCII letters, digits and `-` made `_`.
+fn file_safe(s: &str) -> String {
+    s.chars()
         .map(|c| {
             if c.is_ascii_alphanumeric() || c == '-' {
                 c
@@ -67,8 +71,37 @@ pub fn sibling(path: &Path, suffix: &str) -> PathBuf {
                 '_'
             }
         })
-        .collect();
-    path.with_file_name(format!("{stem}_{safe}{ext}"))
+        .collect()
+}
+
+/// The file of channel `i` of those written to `path`: `path` itself for the first, a
+/// [`sibling`] named after the channel for the others. Beside a raw file with an Open
+/// SciVis name, the sibling gets one too, with this channel's size, components and type last
+/// (`name_channel_XxYxZ[x3]_dtype.raw`), so it reads back by its name as the first does.
+fn channel_path(path: &Path, i: usize, c: &Channel, opts: &nrrd::WriteOptions) -> PathBuf {
+    if i == 0 {
+        return path.to_path_buf();
+    }
+    let scivis =
+        matches!(out_format(path), Ok(OutFormat::Raw)) && raw::parse_scivis_name(path).is_some();
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
+    // The name before `_XxYxZ_dtype`.
+    if let Some(name) = stem.rsplitn(3, '_').nth(2).filter(|_| scivis) {
+        let [x, y, z] = c.grid.geometry().dims;
+        let vector = if c.grid.is_vector() { "x3" } else { "" };
+        let disk = opts
+            .disk
+            .unwrap_or_else(|| blueshift_volume::io::output_type(c));
+        return path.with_file_name(format!(
+            "{name}_{}_{x}x{y}x{z}{vector}_{}.raw",
+            file_safe(&c.name),
+            disk.scivis_name()
+        ));
+    }
+    sibling(path, &c.name)
 }
 
 /// Refuses to write `channel` as `disk` into a raw file whose Open SciVis name
@@ -179,11 +212,7 @@ pub fn volume_outputs(
     let fmt = out_format(path)?;
     let mut files = Vec::new();
     for (i, c) in channels_to_write(vol, only)?.iter().enumerate() {
-        let p = if i == 0 {
-            path.to_path_buf()
-        } else {
-            sibling(path, &c.name)
-        };
+        let p = channel_path(path, i, c, opts);
         if fmt == OutFormat::Nhdr {
             // The detached data file beside the header is an output too.
             files.push(nhdr_data_path(&p, opts.gzip));
@@ -206,11 +235,7 @@ pub fn write_volume(
     let chans = channels_to_write(vol, only)?;
     let mut set = output::OutputSet::new();
     for (i, c) in chans.iter().enumerate() {
-        let p = if i == 0 {
-            path.to_path_buf()
-        } else {
-            sibling(path, &c.name)
-        };
+        let p = channel_path(path, i, c, opts);
         stage_channel(&mut set, &p, c, fmt, opts)?;
     }
     set.commit()?;
