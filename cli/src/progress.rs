@@ -46,8 +46,8 @@ impl Progress {
             let every = std::env::var("BLUESHIFT_PROGRESS_SECS")
                 .ok()
                 .and_then(|v| v.trim().parse::<f64>().ok())
-                .filter(|s| s.is_finite() && *s >= 0.0)
-                .map_or(PLAIN_INTERVAL, Duration::from_secs_f64);
+                .and_then(|s| Duration::try_from_secs_f64(s).ok())
+                .unwrap_or(PLAIN_INTERVAL);
             let now = Instant::now();
             Plain {
                 what: what.to_owned(),

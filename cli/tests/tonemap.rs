@@ -404,6 +404,11 @@ fn standard_output_takes_the_image_and_the_format_flag() {
             ][..],
             "--stops-step 0",
         ),
+        // Refused before any output name is made (4 billion of them would not fit).
+        (
+            &["--out", "s.png", "--exposure-series", "4294967295"][..],
+            "1 to 64 images",
+        ),
     ] {
         let o = run(extra);
         let err = String::from_utf8_lossy(&o.stderr);

@@ -335,13 +335,14 @@ pub fn read_fits(bytes: &[u8]) -> Result<FitsHeader> {
     let data_len = values
         .checked_mul(size)
         .ok_or_else(|| bad("the data size overflows".into()))?;
-    if bytes.len() < data_start + data_len {
+    let data_end = data_start.saturating_add(data_len);
+    if bytes.len() < data_end {
         return Err(bad(format!(
             "the header announces {data_len} bytes of data, the file holds {}",
             bytes.len().saturating_sub(data_start)
         )));
     }
-    let data = &bytes[data_start..data_start + data_len];
+    let data = &bytes[data_start..data_end];
     let range = |it: &mut dyn Iterator<Item = f64>| {
         it.filter(|v| v.is_finite())
             .fold(None, |r: Option<(f64, f64)>, v| {
@@ -429,6 +430,27 @@ mod tests {
             data: (0..24).map(|i| i as f32 - 3.0).collect(),
             pixel_world: (0.5, 0.25),
         }
+    }
+
+    /// A header whose data size wraps past the end of memory when added to the header's
+    /// is refused in one message, not sliced.
+    #[test]
+    fn a_data_size_at_the_end_of_memory_is_refused() {
+        let card = |s: String| format!("{s:<80}");
+        let mut h: String = [
+            "SIMPLE  =                    T".to_string(),
+            "BITPIX  =                    8".to_string(),
+            "NAXIS   =                    2".to_string(),
+            "NAXIS1  =                    3".to_string(),
+            format!("NAXIS2  = {:>20}", (u64::MAX / 3)),
+            "END".to_string(),
+        ]
+        .into_iter()
+        .map(card)
+        .collect();
+        h.push_str(&" ".repeat(2880 - h.len()));
+        let e = read_fits(h.as_bytes()).unwrap_err().to_string();
+        assert!(e.contains("announces"), "{e}");
     }
 
     #[test]

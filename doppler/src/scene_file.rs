@@ -393,6 +393,11 @@ impl SceneFile {
             memory,
             cache: OnceLock::new(),
             read: std::sync::Mutex::default(),
+            bricked: std::sync::Mutex::default(),
+            limits: blueshift_volume::Limits {
+                max_alloc_bytes: budget.bytes(),
+                ..blueshift_volume::Limits::default()
+            },
         };
         if let Some(c) = cache {
             let _ = loader.cache.set(c);
@@ -572,6 +577,11 @@ struct Loader<'a> {
     cache: OnceLock<Arc<BrickCache>>,
     /// Volumes read from files, by canonical path: a file named by many fields is read once.
     read: std::sync::Mutex<std::collections::HashMap<PathBuf, Arc<Volume>>>,
+    /// Bricked files opened, by canonical path: a file named by many fields is opened once,
+    /// so its bricks are read and cached once.
+    bricked: std::sync::Mutex<std::collections::HashMap<PathBuf, BrickedFile>>,
+    /// What a reader may allocate: the scene's memory budget.
+    limits: blueshift_volume::Limits,
 }
 
 impl Loader<'_> {
@@ -589,13 +599,9 @@ impl Loader<'_> {
                 .cache
                 .get_or_init(|| BrickCache::new(blueshift_volume::cache::default_budget()))
                 .clone();
-            let (_, b) = blueshift_volume::amr::open_field(
-                &path,
-                f.channel.as_deref(),
-                cache,
-                &blueshift_volume::Limits::default(),
-            )
-            .map_err(|e| file_err(&path, e.to_string()))?;
+            let (_, b) =
+                blueshift_volume::amr::open_field(&path, f.channel.as_deref(), cache, &self.limits)
+                    .map_err(|e| file_err(&path, e.to_string()))?;
             self.check_dims(b.geometry(), &path)?;
             return Ok((b.into(), path));
         }
@@ -607,8 +613,21 @@ impl Loader<'_> {
                 .cache
                 .get_or_init(|| BrickCache::new(blueshift_volume::cache::default_budget()))
                 .clone();
-            let file = BrickedFile::open_with_cache(&path, cache)
-                .map_err(|e| file_err(&path, e.to_string()))?;
+            let key = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
+            let mut opened = self
+                .bricked
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let file = match opened.get(&key) {
+                Some(f) => f.clone(),
+                None => {
+                    let f = BrickedFile::open_with_cache(&path, cache)
+                        .map_err(|e| file_err(&path, e.to_string()))?;
+                    opened.insert(key, f.clone());
+                    f
+                }
+            };
+            drop(opened);
             if let Some(name) = &f.channel
                 && name != file.channel_name()
             {
@@ -633,8 +652,12 @@ impl Loader<'_> {
                 read = match cached {
                     Some(v) => v,
                     None => {
+                        let opts = blueshift_volume::ReadOptions {
+                            limits: self.limits,
+                            ..blueshift_volume::ReadOptions::default()
+                        };
                         let v = Arc::new(
-                            blueshift_volume::read(&path)
+                            blueshift_volume::read_with(&path, &opts)
                                 .map_err(|e| file_err(&path, e.to_string()))?,
                         );
                         self.read

@@ -70,7 +70,7 @@ pub mod zlib;
 
 pub use error::{Error, Result};
 pub use inverse::GlobalCurve;
-pub use ops::linear::{LINEAR_WHITE_PERCENTILE, default_linear_white};
+pub use ops::linear::{LINEAR_WHITE_PERCENTILE, MAX_EXPOSURE_SERIES, default_linear_white};
 pub use ops::{
     DragoParams, DurandParams, ExposureSeries, FattalParams, LinearParams, Operator,
     ReinhardLocalParams, ReinhardParams, Roi, RowsToneMap, exposure_series,

@@ -399,19 +399,19 @@ impl ChannelSpec {
                     .cache
                     .clone()
                     .unwrap_or_else(|| BrickCache::new(blueshift_volume::cache::default_budget()));
-                let (name, f) = blueshift_volume::amr::open_field(
-                    &p,
-                    self.channel.as_deref(),
-                    cache,
-                    &blueshift_volume::Limits::default(),
-                )
-                .map_err(|e| {
-                    Error::field_from(
-                        format!("channels[{i}].volume"),
-                        Some(format!("cannot read {}", p.display())),
-                        e,
-                    )
-                })?;
+                let limits = blueshift_volume::Limits {
+                    max_alloc_bytes: memory.budget().bytes(),
+                    ..blueshift_volume::Limits::default()
+                };
+                let (name, f) =
+                    blueshift_volume::amr::open_field(&p, self.channel.as_deref(), cache, &limits)
+                        .map_err(|e| {
+                            Error::field_from(
+                                format!("channels[{i}].volume"),
+                                Some(format!("cannot read {}", p.display())),
+                                e,
+                            )
+                        })?;
                 return Ok((name, f.into()));
             }
             let bricked = p.extension().is_some_and(|e| e == "bsv")

@@ -720,3 +720,27 @@ fn ascii_values_outside_their_type_are_refused() {
         vec![1.0, 200.0]
     );
 }
+
+/// Data arrays of one name get suffixes `_2`, `_3`, ... in order (in time linear in their
+/// number), and a file with more arrays than the reader takes is refused.
+#[test]
+fn vtk_repeated_array_names_get_numbered_and_their_count_is_capped() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = |n: usize| {
+        let mut s = String::from(
+            "# vtk DataFile Version 3.0\nx\nASCII\nDATASET STRUCTURED_POINTS\nDIMENSIONS 1 1 1\n\
+             ORIGIN 0 0 0\nSPACING 1 1 1\nPOINT_DATA 1\n",
+        );
+        for k in 0..n {
+            s.push_str(&format!("SCALARS a float\nLOOKUP_TABLE default\n{k}\n"));
+        }
+        let p = dir.path().join(format!("m{n}.vtk"));
+        std::fs::write(&p, s).unwrap();
+        p
+    };
+    let v = blueshift_volume::read(file(4)).unwrap();
+    let names: Vec<&str> = v.channels().iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["a", "a_2", "a_3", "a_4"]);
+    let e = blueshift_volume::read(file(4097)).unwrap_err();
+    assert!(matches!(e, blueshift_volume::Error::Limits(_)), "{e}");
+}

@@ -45,7 +45,8 @@ pub fn run(args: Args) -> Result<()> {
             args.older_than
         );
     }
-    let max_age = Duration::from_secs_f64(args.older_than * 3600.0);
+    // Ages beyond what a Duration holds (about 5e15 hours) mean "never".
+    let max_age = Duration::try_from_secs_f64(args.older_than * 3600.0).unwrap_or(Duration::MAX);
     let entries = std::fs::read_dir(&args.dir)
         .with_context(|| format!("cannot list {}", args.dir.display()))?;
     let mut found = 0usize;

@@ -263,6 +263,14 @@ pub fn run(args: Args) -> Result<()> {
     let ext = output_format(&args)?;
     // Every file the run writes is checked against the input (an exposure series' names
     // too: `in-01.exr` may be the input).
+    if let Some(n) = args.exposure_series
+        && !(1..=blueshift_tonemap::MAX_EXPOSURE_SERIES).contains(&n)
+    {
+        bail!(
+            "--exposure-series {n}: 1 to {} images",
+            blueshift_tonemap::MAX_EXPOSURE_SERIES
+        );
+    }
     let outs = match args.exposure_series {
         Some(n) => (0..n).map(|i| series_path(&args.out, i, &ext)).collect(),
         None => vec![args.out.clone()],

@@ -95,9 +95,9 @@ impl ExposureSeries {
 /// [`Error::Parameter`] when `count` is 0 or above 64, or a stop value is not finite;
 /// [`Error::EmptyImage`] for an empty image.
 pub fn exposure_series(img: &Rgb32FImage, series: &ExposureSeries) -> Result<Vec<Rgb32FImage>> {
-    if series.count == 0 || series.count > 64 {
+    if series.count == 0 || series.count > MAX_EXPOSURE_SERIES {
         return Err(Error::parameter(format!(
-            "exposure series needs 1 to 64 images, got {}",
+            "exposure series needs 1 to {MAX_EXPOSURE_SERIES} images, got {}",
             series.count
         )));
     }
@@ -117,6 +117,9 @@ pub fn exposure_series(img: &Rgb32FImage, series: &ExposureSeries) -> Result<Vec
 /// The percentile of the lit pixels' luminance that the linear operator maps to display 1
 /// by default (`blueshift tonemap --op linear`, `render --tonemap linear`, the viewer).
 pub const LINEAR_WHITE_PERCENTILE: f64 = 99.0;
+
+/// The most images an exposure series may have.
+pub const MAX_EXPOSURE_SERIES: usize = 64;
 
 /// The default white of the linear operator: the [`LINEAR_WHITE_PERCENTILE`]-th percentile
 /// of the luminance of the lit (positive, finite) pixels, so the brightest 1 % clip and a

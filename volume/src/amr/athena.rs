@@ -155,7 +155,11 @@ pub(super) fn open(path: &Path) -> Result<Hierarchy> {
     let names = attr_strings(&file, "DatasetNames", path)?;
     let counts = attr_f64s(&file, "NumVariables", path)?;
     let vars = attr_strings(&file, "VariableNames", path)?;
-    if names.len() != counts.len() || counts.iter().sum::<f64>() as usize != vars.len() {
+    let whole = |c: &f64| c.is_finite() && *c >= 0.0 && c.fract() == 0.0;
+    if names.len() != counts.len()
+        || !counts.iter().all(whole)
+        || counts.iter().sum::<f64>() != vars.len() as f64
+    {
         return Err(Error::invalid(format!(
             "{}: DatasetNames {names:?}, NumVariables {counts:?} and {} VariableNames disagree",
             path.display(),

@@ -63,6 +63,10 @@ pub const MAX_BLOCKS: usize = 1 << 22;
 /// The most levels a hierarchy may have.
 pub const MAX_LEVELS: u32 = 24;
 
+/// Bytes a render keeps per brick of an AMR field's finest level (the level each brick's
+/// region is sampled at, computed and then held), for [`Hierarchy::field_within`]'s check.
+const BRICK_TABLE_BYTES: u64 = 2;
+
 /// One block of a hierarchy: an integer box of cells at a level.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Block {
@@ -229,6 +233,16 @@ impl Hierarchy {
         if self.root_dims.contains(&0) || self.root_dims.iter().any(|&d| d > 1 << 20) {
             return Err(Error::invalid(format!("root grid {:?}", self.root_dims)));
         }
+        let finest = self.max_level().min(MAX_LEVELS);
+        let f = (self.ratio as usize).checked_pow(finest);
+        if f.is_none_or(|f| self.root_dims.iter().any(|d| d.checked_mul(f).is_none())) {
+            return Err(Error::Limits(format!(
+                "{}: level {finest} of a {:?} root grid refined by {} overflows the cell count",
+                self.path.display(),
+                self.root_dims,
+                self.ratio
+            )));
+        }
         for (i, b) in self.blocks.iter().enumerate() {
             if b.level > MAX_LEVELS {
                 return Err(Error::Limits(format!(
@@ -256,6 +270,36 @@ impl Hierarchy {
     #[must_use]
     pub fn max_level(&self) -> u32 {
         self.blocks.iter().map(|b| b.level).max().unwrap_or(0)
+    }
+
+    /// Refuses a hierarchy whose finest level, as a grid of bricks, needs per-brick tables
+    /// ([`BRICK_TABLE_BYTES`] a brick) beyond `limits`: a few deep blocks in a small file
+    /// can make that grid astronomically large.
+    fn check_brick_tables(&self, limits: &Limits) -> Result<()> {
+        let level = self.max_level();
+        let dims = self.level_dims(level);
+        let nb = AmrField::layout().bricks(dims);
+        let bytes = nb
+            .iter()
+            .try_fold(1u64, |n, &b| n.checked_mul(b as u64))
+            .and_then(|n| n.checked_mul(BRICK_TABLE_BYTES));
+        match bytes {
+            Some(b) if b <= limits.max_alloc_bytes => Ok(()),
+            _ => Err(Error::Limits(format!(
+                "{}: the finest level ({level}) spans {}x{}x{} cells, {}x{}x{} bricks of \
+                 {AMR_BRICK}^3, whose tables need {} bytes, more than the allocation limit \
+                 of {} bytes",
+                self.path.display(),
+                dims[0],
+                dims[1],
+                dims[2],
+                nb[0],
+                nb[1],
+                nb[2],
+                bytes.map_or_else(|| "more than 2^64".to_string(), |b| b.to_string()),
+                limits.max_alloc_bytes
+            ))),
+        }
     }
 
     /// Cells per axis of the whole domain at `level`.
@@ -380,6 +424,7 @@ impl Hierarchy {
             .map(|(b, _)| b.cells() as u64)
             .sum();
         limits.check([usize::try_from(cells).unwrap_or(usize::MAX), 1, 1], 4)?;
+        self.check_brick_tables(limits)?;
         let mut values = match &self.reader {
             Reader::Enzo(f) => enzo::read_field(f, self, &info.name, &needed)?,
             Reader::Athena(f) => guarded(&self.path, || {
@@ -506,6 +551,8 @@ pub struct AmrField {
     leaf: Vec<Vec<bool>>,
     /// Present block indices per level: the blocks the reconstruction evaluates.
     present_by_level: Vec<Vec<u32>>,
+    /// `present_by_level` indexed by place, per level.
+    present_index: Vec<LevelIndex>,
     uid: u64,
     geometries: Vec<Geometry>,
     stats: AmrStats,
@@ -585,30 +632,40 @@ impl AmrField {
         }
         let r = i64::from(h.ratio);
         let mut leaf: Vec<Vec<bool>> = h.blocks.iter().map(|b| vec![true; b.cells()]).collect();
-        for (i, b) in h.blocks.iter().enumerate() {
-            let Some(children) = by_level.get(b.level as usize + 1) else {
+        // Each child block clears the parent cells it covers: the parents found by place
+        // (a scan of every parent per child is quadratic in the block count).
+        let mut parents = Vec::new();
+        for (level, ids) in by_level.iter().enumerate() {
+            let Some(children) = by_level.get(level + 1) else {
                 continue;
             };
+            let index = LevelIndex::new(&h.blocks, ids);
             for &c in children {
                 let c = h.blocks[c as usize];
                 // Parent cells whose r^3 children lie inside the child block.
-                let lo = [0, 1, 2].map(|a| (c.lo[a] + r - 1).div_euclid(r).max(b.lo[a]));
-                let hi = [0, 1, 2].map(|a| c.hi()[a].div_euclid(r).min(b.hi()[a]));
-                if (0..3).any(|a| lo[a] >= hi[a]) {
-                    continue;
-                }
-                for z in lo[2]..hi[2] {
-                    for y in lo[1]..hi[1] {
-                        for x in lo[0]..hi[0] {
-                            let l = local(b, [x, y, z]);
-                            leaf[i][l] = false;
+                let lo = [0, 1, 2].map(|a| (c.lo[a] + r - 1).div_euclid(r));
+                let hi = [0, 1, 2].map(|a| c.hi()[a].div_euclid(r));
+                index.query(&h.blocks, lo, hi, &mut parents);
+                for &i in &parents {
+                    let (i, b) = (i as usize, &h.blocks[i as usize]);
+                    let lo = [0, 1, 2].map(|a| lo[a].max(b.lo[a]));
+                    let hi = [0, 1, 2].map(|a| hi[a].min(b.hi()[a]));
+                    if (0..3).any(|a| lo[a] >= hi[a]) {
+                        continue;
+                    }
+                    for z in lo[2]..hi[2] {
+                        for y in lo[1]..hi[1] {
+                            for x in lo[0]..hi[0] {
+                                let l = local(b, [x, y, z]);
+                                leaf[i][l] = false;
+                            }
                         }
                     }
                 }
             }
         }
         let stats = AmrStats::of(values.iter().flatten());
-        let present_by_level = by_level
+        let present_by_level: Vec<Vec<u32>> = by_level
             .into_iter()
             .map(|ids| {
                 ids.iter()
@@ -616,6 +673,10 @@ impl AmrField {
                     .filter(|&i| present[i as usize])
                     .collect()
             })
+            .collect();
+        let present_index = present_by_level
+            .iter()
+            .map(|ids| LevelIndex::new(&h.blocks, ids))
             .collect();
         let geometries = (0..=max_level).rev().map(|l| h.level_geometry(l)).collect();
         Ok(AmrField {
@@ -630,6 +691,7 @@ impl AmrField {
             present,
             leaf,
             present_by_level,
+            present_index,
             uid: next_uid(),
             geometries,
             stats,
@@ -698,7 +760,7 @@ impl AmrField {
 
     fn level_dims(&self, level: u32) -> [usize; 3] {
         let f = (self.ratio as usize).saturating_pow(level);
-        self.root_dims.map(|d| d * f)
+        self.root_dims.map(|d| d.saturating_mul(f))
     }
 
     fn cell_size(&self, level: u32) -> DVec3 {
@@ -753,12 +815,20 @@ impl AmrField {
 
     /// Present blocks per level whose cells' tents reach the world box `lo..hi`.
     fn candidates(&self, lo: DVec3, hi: DVec3) -> Vec<Vec<u32>> {
-        self.present_by_level
+        let mut near = Vec::new();
+        self.present_index
             .iter()
             .enumerate()
-            .map(|(level, ids)| {
+            .map(|(level, index)| {
                 let h = self.cell_size(level as u32);
-                ids.iter()
+                // The cells whose tents can reach lo..hi, with a cell to spare; the exact
+                // test below decides.
+                let cell_lo = [0, 1, 2]
+                    .map(|a| ((lo[a] - self.domain_lo[a]) / h[a] - 0.5).floor() as i64 - 1);
+                let cell_hi =
+                    [0, 1, 2].map(|a| ((hi[a] - self.domain_lo[a]) / h[a] + 0.5).ceil() as i64 + 2);
+                index.query(&self.blocks, cell_lo, cell_hi, &mut near);
+                near.iter()
                     .copied()
                     .filter(|&i| {
                         let b = &self.blocks[i as usize];
@@ -1049,6 +1119,104 @@ fn guarded<T>(path: &Path, f: impl FnOnce() -> Result<T>) -> Result<T> {
     })
 }
 
+/// The blocks of one level found by place: a grid of buckets (of `edge` cells per axis),
+/// each listing the blocks that overlap it. The edge starts at the level's thinnest block
+/// extent per axis, so a bucket meets at most two blocks per axis of a level whose blocks do
+/// not overlap, and doubles while the buckets a level's blocks cover would number more than
+/// a few per block.
+#[derive(Clone, Debug, Default)]
+struct LevelIndex {
+    edge: [i64; 3],
+    buckets: std::collections::HashMap<[i64; 3], Vec<u32>>,
+}
+
+impl LevelIndex {
+    /// The index of blocks `ids` (all of one level).
+    fn new(blocks: &[Block], ids: &[u32]) -> LevelIndex {
+        let Some(&first) = ids.first() else {
+            return LevelIndex::default();
+        };
+        let mut edge = [0, 1, 2].map(|a| blocks[first as usize].dims[a]);
+        for &i in ids {
+            let d = blocks[i as usize].dims;
+            edge = [0, 1, 2].map(|a| edge[a].min(d[a]));
+        }
+        let mut edge = edge.map(|e| i64::try_from(e.max(1)).unwrap_or(i64::MAX));
+        let budget = (ids.len() as u64).saturating_mul(8).max(1 << 16);
+        loop {
+            let covered = ids.iter().try_fold(0u64, |n, &i| {
+                let span = Self::span(&edge, blocks[i as usize].lo, blocks[i as usize].hi());
+                let k = (0..3).fold(1u64, |k, a| {
+                    k.saturating_mul((span.1[a] - span.0[a] + 1).max(0) as u64)
+                });
+                Some(n.saturating_add(k)).filter(|&n| n <= budget)
+            });
+            if covered.is_some() || edge.iter().all(|&e| e >= 1 << 40) {
+                break;
+            }
+            edge = edge.map(|e| e.saturating_mul(2));
+        }
+        let mut buckets: std::collections::HashMap<[i64; 3], Vec<u32>> =
+            std::collections::HashMap::new();
+        for &i in ids {
+            let b = &blocks[i as usize];
+            let (s0, s1) = Self::span(&edge, b.lo, b.hi());
+            for z in s0[2]..=s1[2] {
+                for y in s0[1]..=s1[1] {
+                    for x in s0[0]..=s1[0] {
+                        buckets.entry([x, y, z]).or_default().push(i);
+                    }
+                }
+            }
+        }
+        LevelIndex { edge, buckets }
+    }
+
+    /// The first and last bucket per axis of the cells `lo..hi` (empty where `lo >= hi`).
+    fn span(edge: &[i64; 3], lo: [i64; 3], hi: [i64; 3]) -> ([i64; 3], [i64; 3]) {
+        let first = [0, 1, 2].map(|a| lo[a].div_euclid(edge[a]));
+        let last = [0, 1, 2].map(|a| hi[a].saturating_sub(1).div_euclid(edge[a]));
+        (first, last)
+    }
+
+    /// The blocks that may overlap cells `lo..hi` (a superset: whole buckets), in `out`,
+    /// ascending and each once.
+    fn query(&self, blocks: &[Block], lo: [i64; 3], hi: [i64; 3], out: &mut Vec<u32>) {
+        out.clear();
+        if self.buckets.is_empty() || (0..3).any(|a| lo[a] >= hi[a]) {
+            return;
+        }
+        let (s0, s1) = Self::span(&self.edge, lo, hi);
+        let k = (0..3).fold(1u64, |k, a| {
+            k.saturating_mul((s1[a] - s0[a] + 1).max(0) as u64)
+        });
+        if k > self.buckets.len() as u64 {
+            // A box wider than the occupied buckets: test the occupied ones.
+            for (key, ids) in &self.buckets {
+                if (0..3).all(|a| (s0[a]..=s1[a]).contains(&key[a])) {
+                    out.extend_from_slice(ids);
+                }
+            }
+        } else {
+            for z in s0[2]..=s1[2] {
+                for y in s0[1]..=s1[1] {
+                    for x in s0[0]..=s1[0] {
+                        if let Some(ids) = self.buckets.get(&[x, y, z]) {
+                            out.extend_from_slice(ids);
+                        }
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out.retain(|&i| {
+            let b = &blocks[i as usize];
+            (0..3).all(|a| b.lo[a] < hi[a] && b.hi()[a] > lo[a])
+        });
+    }
+}
+
 /// Cell `cell` (in cells of the block's level) of block `b`, x fastest.
 #[inline]
 fn local(b: &Block, cell: [i64; 3]) -> usize {
@@ -1335,4 +1503,147 @@ fn open_region(
     let field = Arc::new(field.with_stats(stats));
     let bricked = crate::BrickedField::new(field.source(), cache, 0)?;
     Ok((name, bricked, blocks))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one_deep_block(root: [usize; 3], ratio: u32, level: u32) -> Result<Hierarchy> {
+        Hierarchy::new(
+            DVec3::ZERO,
+            DVec3::ONE,
+            root,
+            ratio,
+            vec![
+                Block {
+                    level: 0,
+                    lo: [0, 0, 0],
+                    dims: root,
+                },
+                Block {
+                    level,
+                    lo: [0, 0, 0],
+                    dims: [8, 8, 8],
+                },
+            ],
+        )
+    }
+
+    /// A small file with one deep block: a finest level whose cell count overflows is
+    /// refused when the hierarchy is read, and one whose brick tables exceed the
+    /// allocation limit when a field is read (before anything is allocated).
+    #[test]
+    fn deep_levels_are_refused_before_their_brick_tables_are_made() {
+        // 8 * 16^16 = 2^67 cells per axis.
+        let e = one_deep_block([8, 8, 8], 16, 16).unwrap_err();
+        assert!(matches!(e, Error::Limits(_)), "{e}");
+        assert!(e.to_string().contains("overflows"), "{e}");
+        let limits = Limits {
+            max_alloc_bytes: 1 << 30,
+            ..Limits::default()
+        };
+        // Level 14 of 8^3: 131072^3 cells, 4096^3 bricks of 32^3, 2 bytes each: 128 GiB.
+        let h = one_deep_block([8, 8, 8], 2, 14).unwrap();
+        let e = h.check_brick_tables(&limits).unwrap_err();
+        assert!(matches!(e, Error::Limits(_)), "{e}");
+        assert!(e.to_string().contains("4096x4096x4096 bricks"), "{e}");
+        // Level 10: 256^3 bricks, 32 MiB of tables.
+        let h = one_deep_block([8, 8, 8], 2, 10).unwrap();
+        h.check_brick_tables(&limits).unwrap();
+    }
+
+    /// A hierarchy of blocks of many sizes (1 to 5 cells per axis) on three levels, each
+    /// level's blocks disjoint, placed by a fixed-seed generator: leaf flags and
+    /// candidate blocks found by place ([`LevelIndex`]) equal those of a scan of every
+    /// block.
+    #[test]
+    fn blocks_found_by_place_equal_a_scan_of_every_block() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = |n: u64| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed % n
+        };
+        let root = [12usize, 10, 9];
+        let mut blocks = vec![Block {
+            level: 0,
+            lo: [0, 0, 0],
+            dims: root,
+        }];
+        for level in 1..=2u32 {
+            let n = root.map(|d| d * (1 << level));
+            // Disjoint blocks: each in its own cell of a lattice of 6-cell cells.
+            for z in 0..n[2] / 6 {
+                for y in 0..n[1] / 6 {
+                    for x in 0..n[0] / 6 {
+                        if next(3) == 0 {
+                            continue;
+                        }
+                        let dims = [0, 1, 2].map(|_| 1 + next(5) as usize);
+                        let lo = [x, y, z].map(|c| 6 * c as i64).map(|c| c + next(2) as i64);
+                        blocks.push(Block { level, lo, dims });
+                    }
+                }
+            }
+        }
+        let h = Hierarchy::new(DVec3::ZERO, DVec3::new(1.2, 1.0, 0.9), root, 2, blocks).unwrap();
+        let values = h.blocks.iter().map(|b| vec![1.0; b.cells()]).collect();
+        let info = FieldInfo {
+            name: "g".into(),
+            unit: "code".into(),
+            to_unit: 1.0,
+        };
+        let f = AmrField::new(&h, info, values).unwrap();
+        // Leaf flags: a cell is covered when a block of the next level holds all its
+        // children.
+        for (i, b) in h.blocks.iter().enumerate() {
+            for z in 0..b.dims[2] {
+                for y in 0..b.dims[1] {
+                    for x in 0..b.dims[0] {
+                        let c = [x, y, z].map(|v| v as i64);
+                        let cell = [0, 1, 2].map(|a| b.lo[a] + c[a]);
+                        let covered = h.blocks.iter().any(|k| {
+                            k.level == b.level + 1
+                                && (0..3)
+                                    .all(|a| k.lo[a] <= 2 * cell[a] && 2 * cell[a] + 2 <= k.hi()[a])
+                        });
+                        let l = local(b, cell);
+                        assert_eq!(f.is_leaf(i, l), !covered, "block {i} cell {cell:?}");
+                    }
+                }
+            }
+        }
+        assert!(
+            f.leaf.iter().flatten().any(|l| !l),
+            "some cells are covered"
+        );
+        // Candidates of boxes of many sizes and places, some outside the domain.
+        for _ in 0..300 {
+            let lo = DVec3::new(
+                next(1400) as f64 / 1000.0 - 0.1,
+                next(1200) as f64 / 1000.0 - 0.1,
+                next(1100) as f64 / 1000.0 - 0.1,
+            );
+            let hi = lo + DVec3::new(1.0, 1.0, 1.0) * (next(400) as f64 / 1000.0);
+            let got = f.candidates(lo, hi);
+            for (level, ids) in f.present_by_level.iter().enumerate() {
+                let h = f.cell_size(level as u32);
+                let want: Vec<u32> = ids
+                    .iter()
+                    .copied()
+                    .filter(|&i| {
+                        let b = &f.blocks[i as usize];
+                        (0..3).all(|a| {
+                            let b0 = f.domain_lo[a] + (b.lo[a] as f64 - 0.5) * h[a];
+                            let b1 = f.domain_lo[a] + (b.hi()[a] as f64 + 0.5) * h[a];
+                            b1 >= lo[a] && b0 <= hi[a]
+                        })
+                    })
+                    .collect();
+                assert_eq!(got[level], want, "level {level}, box {lo}..{hi}");
+            }
+        }
+    }
 }

@@ -16,6 +16,9 @@ use crate::grid::Geometry;
 use crate::volume::{Channel, Volume};
 use crate::{Error, Result};
 
+/// The most data arrays (channels) a VTK file may hold.
+const MAX_ARRAYS: usize = 4096;
+
 struct Lexer<R> {
     r: R,
     pos: u64,
@@ -122,6 +125,7 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     let mut origin = Vec3::ZERO;
     let mut npoints: Option<usize> = None;
     let mut volume: Option<Volume> = None;
+    let mut suffixes: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
     let vec3 = |lx: &mut Lexer<_>, what: &str| -> Result<Vec3> {
         let mut v = [0f32; 3];
         for c in &mut v {
@@ -236,11 +240,18 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                     Some(v) => v,
                     None => volume.insert(Volume::new(geometry)?),
                 };
+                if v.channels().len() >= MAX_ARRAYS {
+                    return Err(Error::Limits(format!(
+                        "VTK: more than {MAX_ARRAYS} data arrays"
+                    )));
+                }
+                // A repeated name gets the next free suffix (`name_2`, `name_3`, ...),
+                // found from the last one given to that name, not by trying from 2.
                 let mut cname = name.clone();
-                let mut k = 2;
+                let k = suffixes.entry(name.clone()).or_insert(2);
                 while v.channel(&cname).is_some() {
                     cname = format!("{name}_{k}");
-                    k += 1;
+                    *k += 1;
                 }
                 v.push_channel(Channel {
                     name: cname,
