@@ -256,6 +256,9 @@ class Scene:
                     raise ValueError(f"{k} {v}: every component must be finite")
             elif isinstance(v, float) and not np.isfinite(v):
                 raise ValueError(f"{k} = {v}: must be finite")
+            if k == "exposure_scale" and isinstance(v, (int, float, np.number)):
+                # A number, as blueshift doppler --exposure-scale takes it.
+                v = repr(float(v))
             o[k] = v
         return json.dumps(o)
 

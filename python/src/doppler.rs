@@ -698,21 +698,52 @@ impl PyCube {
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same folder (readers never
-/// see half a file); an existing `path` is kept unless `overwrite`.
+/// see half a file), named `.blueshift-<pid>-<random>.partial` as the CLI's (so `blueshift
+/// clean` finds one a killed process left) and with the mode a new file gets (0666 less the
+/// umask); an existing `path` is kept unless `overwrite`. An existing non-regular file (a
+/// FIFO, `/dev/null`) is written into with `overwrite`, never replaced.
 pub(crate) fn write_new(path: &Path, bytes: &[u8], overwrite: bool) -> Result<(), Fail> {
     use std::io::Write as _;
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    if !overwrite && path.exists() {
+    let shown = path.display();
+    let err = |e: std::io::Error| Fail::msg(format!("cannot write {shown}: {e}"));
+    if path.is_dir() {
         return Err(Fail::msg(format!(
-            "{} exists (pass overwrite=True to replace it)",
-            path.display()
+            "cannot write {shown}: it is a folder (give a file name)"
         )));
     }
-    let err = |e: std::io::Error| Fail::msg(format!("cannot write {}: {e}", path.display()));
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(err)?;
+    if let Ok(m) = std::fs::metadata(path) {
+        if !overwrite {
+            return Err(Fail::msg(format!(
+                "{shown} exists (pass overwrite=True to replace it)"
+            )));
+        }
+        if !m.is_file() {
+            let mut f = std::fs::OpenOptions::new()
+                .write(true)
+                .open(path)
+                .map_err(err)?;
+            return f.write_all(bytes).and_then(|()| f.flush()).map_err(err);
+        }
+    }
+    if !dir.is_dir() {
+        return Err(Fail::msg(format!(
+            "cannot write {shown}: the folder {} does not exist",
+            dir.display()
+        )));
+    }
+    let prefix = format!(".blueshift-{}-", std::process::id());
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(&prefix).suffix(".partial");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = builder.tempfile_in(dir).map_err(err)?;
     tmp.write_all(bytes).map_err(err)?;
     tmp.flush().map_err(err)?;
     if overwrite {

@@ -26,10 +26,7 @@ fn rgb_image(name: &str, a: &PyReadonlyArray3<'_, f32>) -> PyResult<Rgb32FImage>
             "{name}: shape {s:?}; expected [height, width, 3] with at least one pixel"
         )));
     }
-    let data = a
-        .as_slice()
-        .map_err(|_| err(format!("{name}: not contiguous")))?
-        .to_vec();
+    let data = crate::c_order(name, a)?.to_vec();
     Rgb32FImage::from_raw(s[1] as u32, s[0] as u32, data)
         .ok_or_else(|| err(format!("{name}: {}x{} is too large", s[1], s[0])))
 }
@@ -52,9 +49,17 @@ fn tonemap<'py>(
     op.validate().map_err(err)?;
     let img = rgb_image("image", &image)?;
     let out = run_cancellable(py, |_| {
-        TonemapSession::new(img, op)
-            .and_then(|s| s.run())
-            .map_err(Fail::err)
+        let mut s = TonemapSession::new(img, op).map_err(Fail::err)?;
+        // `linear` without a white maps the 99th percentile of the lit luminance to 1, as
+        // `blueshift tonemap --op linear` does.
+        if let Operator::Linear(p) = s.operator()
+            && p.white.is_none()
+        {
+            let mut p = p.clone();
+            p.white = blueshift_tonemap::default_linear_white(&s.clean().image);
+            s.set_operator(Operator::Linear(p)).map_err(Fail::err)?;
+        }
+        s.run().map_err(Fail::err)
     })?;
     image_array(py, out)
 }
@@ -76,9 +81,7 @@ fn encode_srgb8<'py>(
     display: PyReadonlyArray3<'_, f32>,
 ) -> PyResult<Bound<'py, PyArray3<u8>>> {
     let s = display.shape().to_vec();
-    let v: Vec<u8> = display
-        .as_slice()
-        .map_err(|_| err("display: not contiguous"))?
+    let v: Vec<u8> = crate::c_order("display", &display)?
         .iter()
         .map(|&c| (blueshift_tonemap::io::srgb_encode(c) * 255.0).round() as u8)
         .collect();
@@ -97,10 +100,7 @@ fn png_bytes<'py>(
             "rgb8: shape {s:?}; expected [height, width, 3]"
         )));
     }
-    let data = rgb8
-        .as_slice()
-        .map_err(|_| err("rgb8: not contiguous"))?
-        .to_vec();
+    let data = crate::c_order("rgb8", &rgb8)?.to_vec();
     let img = image::RgbImage::from_raw(s[1] as u32, s[0] as u32, data)
         .ok_or_else(|| err("rgb8: bad size"))?;
     let b = blueshift_view::display::png_bytes(&img).map_err(err)?;

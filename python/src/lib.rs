@@ -177,3 +177,22 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     viewer::register(m)?;
     Ok(())
 }
+
+/// The values of `a` in C order (last axis fastest), as the native functions read them; a
+/// Fortran-ordered or strided array is refused (the Python layer passes
+/// `numpy.ascontiguousarray`), never read in its memory order.
+pub(crate) fn c_order<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
+    name: &str,
+    a: &'a numpy::PyReadonlyArray<'_, T, D>,
+) -> PyResult<&'a [T]> {
+    use numpy::PyUntypedArrayMethods as _;
+    let refused = || {
+        BlueshiftError::new_err(format!(
+            "{name}: not a C-ordered contiguous array (pass numpy.ascontiguousarray({name}))"
+        ))
+    };
+    if !a.is_c_contiguous() {
+        return Err(refused());
+    }
+    a.as_slice().map_err(|_| refused())
+}

@@ -46,11 +46,7 @@ fn grid_from_array(
             )));
         }
     };
-    let data = a.as_slice().map_err(|_| {
-        BlueshiftError::new_err(format!(
-            "array '{name}': not contiguous (the Python layer converts; this is a bug)"
-        ))
-    })?;
+    let data = crate::c_order(&format!("array '{name}'"), &a)?;
     let geometry = Geometry {
         dims: [shape[2], shape[1], shape[0]],
         spacing,

@@ -158,7 +158,7 @@ def test_tonemap_checks_its_arguments_and_keeps_the_shape():
 def test_tonemap_of_a_file_equals_the_cli(cli, tmp_path):
     cli("relativity", "--synth", "checker", "--beta", 0.8, "--width", 48, "--height", 24, "--out", tmp_path / "in.exr")
     src = blueshift.read_hdr(tmp_path / "in.exr")
-    for op in ("drago", "reinhard", "fattal"):
+    for op in ("drago", "reinhard", "fattal", "linear"):
         cli("tonemap", tmp_path / "in.exr", "--op", op, "--out", tmp_path / f"{op}.png")
         ours = blueshift.tonemap(src, op=op).to_srgb8()
         np.testing.assert_array_equal(ours, read_png(tmp_path / f"{op}.png"), err_msg=op)
@@ -340,3 +340,24 @@ def test_gpu_render_equals_the_clis_gpu_render(cli, tmp_path):
     assert abs(float(np.mean(cpu[..., :3])) - float(np.mean(gpu[..., :3]))) < 6 * sigma
     with pytest.raises(blueshift.BlueshiftError, match="device"):
         blueshift.render(volume=d, device="tpu")
+
+
+def test_linear_maps_the_99th_percentile_to_white_as_the_cli_does():
+    # One hot pixel in a flat grey field: the 99th percentile of the lit luminance is the
+    # grey, which maps to 1 (the maximum, 1e4, would make the field 5e-5).
+    hdr = np.full((32, 32, 3), 0.5, np.float32)
+    hdr[3, 4] = 1e4
+    d = np.asarray(blueshift.tonemap(hdr, op="linear"))
+    assert d[0, 0] == pytest.approx([1.0, 1.0, 1.0], rel=1e-6)
+
+
+def test_native_functions_refuse_fortran_ordered_arrays():
+    u = (np.arange(5 * 7 * 3) % 251).astype(np.uint8).reshape(5, 7, 3)
+    with pytest.raises(blueshift.BlueshiftError, match="C-ordered"):
+        blueshift._native.png_bytes(np.asfortranarray(u))
+    x = np.linspace(0, 1, 5 * 7 * 3, dtype=np.float32).reshape(5, 7, 3)
+    with pytest.raises(blueshift.BlueshiftError, match="C-ordered"):
+        blueshift._native.encode_srgb8(np.asfortranarray(x))
+    # The Python layer passes C order: the same pixels either way.
+    np.testing.assert_array_equal(blueshift.tonemap(np.asfortranarray(x), op="drago"),
+                                  blueshift.tonemap(x, op="drago"))

@@ -2,6 +2,9 @@
 
 import json
 import math
+import os
+import stat
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -233,6 +236,23 @@ def test_from_yt_cube_equals_the_cli_cube_on_exported_files(cli, tmp_path, which
     assert (tmp_path / "mine.fits").read_bytes() == (tmp_path / "c.fits").read_bytes()
     with pytest.raises(blueshift.BlueshiftError, match="exists"):
         cube.to_fits(tmp_path / "mine.fits")
+    # A new file's mode is 0666 less the umask, as the CLI's; a FIFO is written into, never
+    # replaced by a regular file.
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert stat.S_IMODE(os.stat(tmp_path / "mine.fits").st_mode) == 0o666 & ~umask
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()))
+    reader.start()
+    cube.to_fits(fifo, overwrite=True)
+    reader.join(10)
+    assert got == [cube.fits_bytes()]
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    with pytest.raises(blueshift.BlueshiftError, match="folder"):
+        cube.to_fits(tmp_path / "missing" / "c.fits")
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
 def test_scene_save_names_files_safely_and_leaves_nothing_half_written(tmp_path):
@@ -474,3 +494,12 @@ def test_a_moving_observer_sees_the_doppler_factor_of_its_direction():
     np.testing.assert_array_equal(a.xyz, z.xyz)
     with pytest.raises(Exception, match="beta"):
         scene.render(width=16, height=16, beta=1.0)
+
+
+def test_exposure_scale_takes_a_number_as_the_cli_does():
+    s = doppler.Scene(species={"H": np.ones((8, 8, 8), np.float32)})
+    a = s.render(16, 16, exposure_scale=1.5)
+    b = s.render(16, 16, exposure_scale="1.5")
+    np.testing.assert_array_equal(np.asarray(a.rgb), np.asarray(b.rgb))
+    c = s.render(16, 16, exposure_scale=3)
+    assert not np.array_equal(np.asarray(a.rgb), np.asarray(c.rgb))
