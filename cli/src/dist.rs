@@ -358,7 +358,7 @@ pub fn load_scoped<T>(
                     let v = c.recv(r).map_err(e)?;
                     all.push(v.first().map_or(0, |&x| x as usize).to_string());
                 }
-                eprintln!("AMR blocks read per rank (of {total}): {}", all.join(" "));
+                errln!("AMR blocks read per rank (of {total}): {}", all.join(" "));
             } else {
                 c.send(0, &[read as f64]).map_err(e)?;
             }

@@ -24,6 +24,23 @@ macro_rules! out {
     };
 }
 
+/// `eprintln!` that ignores a failed write (stderr a closed pipe, `2>&1 | head -1`), where
+/// std's panics: messages and progress are best effort, the exit code says the outcome.
+macro_rules! errln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+
+/// `eprint!` counterpart of [`errln!`].
+macro_rules! errout {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stderr(), $($arg)*);
+    }};
+}
+
 mod commands;
 mod dist;
 mod figure;
@@ -139,7 +156,7 @@ fn main() -> ExitCode {
                 let _ = err.print();
                 return ExitCode::SUCCESS;
             }
-            eprintln!("blueshift: {}", usage_error_line(&err.render().to_string()));
+            errln!("blueshift: {}", usage_error_line(&err.render().to_string()));
             return ExitCode::from(1);
         }
     };
@@ -182,7 +199,7 @@ fn main() -> ExitCode {
         Err(_) if signals::cancelled() => signals::wait_for_exit(),
         Err(err) => {
             // One line: the chain of contexts joined by ": ".
-            eprintln!("blueshift: {err:#}");
+            errln!("blueshift: {err:#}");
             let internal = err.downcast_ref::<output::InternalError>().is_some();
             ExitCode::from(if internal { 2 } else { 1 })
         }
@@ -200,6 +217,6 @@ fn stdout_text(text: &str) {
         && e.kind() != std::io::ErrorKind::BrokenPipe
         && !STDOUT_FAILED.swap(true, std::sync::atomic::Ordering::Relaxed)
     {
-        eprintln!("blueshift: cannot write to stdout: {e}");
+        errln!("blueshift: cannot write to stdout: {e}");
     }
 }

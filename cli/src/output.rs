@@ -296,12 +296,12 @@ pub fn check_output(path: &Path) -> Result<()> {
 
 /// The one line every verb prints on stderr per output written: `wrote PATH`.
 pub fn wrote(path: &Path) {
-    eprintln!("wrote {}", path.display());
+    errln!("wrote {}", path.display());
 }
 
 /// `wrote PATH (DETAIL)`, for the main output of a verb with something to say about it.
 pub fn wrote_with(path: &Path, detail: &str) {
-    eprintln!("wrote {} ({detail})", path.display());
+    errln!("wrote {} ({detail})", path.display());
 }
 
 /// The folder an output goes to (`.` for a bare file name).

@@ -137,7 +137,7 @@ impl Plain {
         } else {
             format!(", {}", s.1)
         };
-        eprintln!(
+        errln!(
             "{}: {pos}/{len} {}{pct}{msg}, {:.1} s",
             self.what,
             self.unit,

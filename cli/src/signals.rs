@@ -95,12 +95,12 @@ fn watch() {
     }
     if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         // Past the progress bar and the echoed ^C.
-        eprintln!();
+        errln!();
     }
     // A rank of an MPI job that knows another rank failed is being ended by mpirun because
     // of that failure, which the failing rank has said in its one line: no second line.
     if !crate::dist::peer_failed() {
-        eprintln!("blueshift: interrupted");
+        errln!("blueshift: interrupted");
     }
     std::process::exit(128 + sig);
 }

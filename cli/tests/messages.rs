@@ -568,3 +568,21 @@ fn the_vulkan_loader_says_nothing_about_xdg_runtime_dir() {
     let err = stderr(&o);
     assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
 }
+
+/// A closed stderr (`2>&1 | head -1` after its line) does not turn a finished job into a
+/// panic (exit 101): messages are best effort, the exit code says the outcome.
+#[test]
+fn a_closed_stderr_is_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(["synth", "marschner-lobb", "--res", "8", "m.nrrd"])
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stderr.take());
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(0));
+    assert!(dir.path().join("m.nrrd").is_file());
+}

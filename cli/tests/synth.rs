@@ -190,3 +190,48 @@ fn extra_raw_channels_get_open_scivis_names_that_read_back() {
         assert_eq!(got, want, "{raw}");
     }
 }
+
+/// A vector channel picked alone streams to OUT-stem_x/_y/_z.bsv, the files `convert`
+/// writes from the same channel's NRRD, and no component lands at OUT itself.
+#[test]
+fn a_vector_channel_alone_streams_to_the_files_convert_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |o: std::process::Output| {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    let v = [
+        "--res",
+        "8",
+        "--channel",
+        "velocity_m_per_s",
+        "--brick",
+        "4",
+    ];
+    let mut a = vec!["galaxy", "s.bsv"];
+    a.extend(v);
+    ok(synth(&a, d));
+    let mut a = vec!["galaxy", "v.nrrd"];
+    a.extend(&v[..4]);
+    ok(synth(&a, d));
+    ok(std::process::Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args(["convert", "v.nrrd", "c.bsv", "--brick", "4"])
+        .current_dir(d)
+        .output()
+        .unwrap());
+    assert!(!d.join("s.bsv").exists());
+    for axis in ["x", "y", "z"] {
+        let s = std::fs::read(d.join(format!("s_{axis}.bsv"))).unwrap();
+        let c = std::fs::read(d.join(format!("c_{axis}.bsv"))).unwrap();
+        assert_eq!(s.len(), c.len(), "{axis}");
+        let load = |name: String| {
+            let f = blueshift_volume::ooc::BrickedFile::open(&d.join(name), 8).unwrap();
+            f.load_level(0, &Default::default()).unwrap()
+        };
+        assert_eq!(
+            load(format!("s_{axis}.bsv")),
+            load(format!("c_{axis}.bsv")),
+            "{axis}"
+        );
+    }
+}

@@ -75,15 +75,15 @@ pub fn run(args: Args) -> Result<()> {
         let path = e.path();
         found += 1;
         if args.dry_run {
-            eprintln!("stale {} ({why}, {} bytes)", path.display(), meta.len());
+            errln!("stale {} ({why}, {} bytes)", path.display(), meta.len());
         } else {
             std::fs::remove_file(&path)
                 .with_context(|| format!("cannot remove {}", path.display()))?;
-            eprintln!("removed {} ({why}, {} bytes)", path.display(), meta.len());
+            errln!("removed {} ({why}, {} bytes)", path.display(), meta.len());
         }
     }
     if found == 0 {
-        eprintln!(
+        errln!(
             "no stale blueshift temporary files in {}",
             args.dir.display()
         );

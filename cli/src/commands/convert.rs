@@ -169,7 +169,7 @@ pub fn run(args: Args) -> Result<()> {
         let name = ch.name.clone();
         if args.channel.is_none() && vol.channels().len() > 1 {
             let all: Vec<&str> = vol.channels().iter().map(|c| c.name.as_str()).collect();
-            eprintln!(
+            errln!(
                 "note: {} has {} channels ({}); a .bsv file holds one: converting '{name}' \
                  (--channel NAME converts another)",
                 args.input.display(),
@@ -264,7 +264,7 @@ fn run_amr(args: &Args, fmt: OutFormat) -> Result<()> {
         .field_info(&name)
         .map(|f| f.unit.clone())
         .unwrap_or_default();
-    eprintln!(
+    errln!(
         "{}: {} AMR field {name} [{unit}] at level {level} ({}x{}x{}, {})",
         args.input.display(),
         h.code,
@@ -443,7 +443,7 @@ fn padding_note(dims: [usize; 3], layout: BrickLayout, t: blueshift_volume::Scal
     if let Some((b, s)) = best.filter(|&(_, s)| s < bytes) {
         note.push_str(&format!("; --brick {b} writes {}", fmt(s)));
     }
-    eprintln!("{note}");
+    errln!("{note}");
 }
 
 fn brick(

@@ -270,7 +270,7 @@ fn build_levels(args: &Args) -> Result<(DopplerScene, DopplerSettings, Option<Le
         let data =
             crate::dist::mode(args.distributed.as_deref())? == Some(blueshift_dist::Mode::Data);
         if data && whole.is_none() && file.has_amr() {
-            eprintln!(
+            errln!(
                 "note: the mean velocity is subtracted from a velocity that is not named by \
                  AMR channels: every rank reads the whole AMR fields"
             );
@@ -950,7 +950,7 @@ fn run_frame(args: Args) -> Result<()> {
                         Ok((img, stats)) => {
                             super::render::report_pool(&stats, bricked, asked, level);
                             if regions_coarser > 0 {
-                                eprintln!(
+                                errln!(
                                     "--lod brick: every brick {regions_coarser} level(s) coarser \
                                      than the rule asks, to fit the GPU brick pool"
                                 );
@@ -1009,7 +1009,7 @@ fn run_frame(args: Args) -> Result<()> {
         .map_err(device_error)?
     };
     if let Some(why) = &ran.fallback {
-        eprintln!("--device auto: {why}; rendering on the CPU");
+        errln!("--device auto: {why}; rendering on the CPU");
     }
     if ran.device == blueshift_camera::DeviceKind::Cpu {
         on = "cpu";

@@ -188,7 +188,7 @@ pub fn run_frames<A: Clone>(
         check(a, &snapshots)?;
     }
     for (said, a) in frames {
-        eprintln!("{said}");
+        errln!("{said}");
         frame(a)?;
     }
     Ok(true)

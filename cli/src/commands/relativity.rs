@@ -271,7 +271,7 @@ pub fn run(args: Args) -> Result<()> {
         )
         .map_err(crate::commands::doppler::device_error)?;
         if let Some(why) = &ran.fallback {
-            eprintln!("--device auto: {why}; rendering on the CPU");
+            errln!("--device auto: {why}; rendering on the CPU");
         }
         Ok(ran.value)
     };
@@ -279,7 +279,7 @@ pub fn run(args: Args) -> Result<()> {
     let out_of_map =
         |v: Velocity| blueshift_relativity::out_of_map_fraction(&cam, v, effects, None);
     let warn = |fraction: f64, which: &str| {
-        eprintln!(
+        errln!(
             "note: {:.1}% of the pixels{which} are black: their Doppler factor shifts the \
              visible window outside the 380-780 nm an RGB map's spectrum holds",
             100.0 * fraction
@@ -315,7 +315,7 @@ pub fn run(args: Args) -> Result<()> {
                 }
                 let img = render(&env, &cam, v, effects)?;
                 let path = PathBuf::from(format!("{stem}_{k:04}.{ext}"));
-                eprintln!("frame {k}: beta {b:.4}");
+                errln!("frame {k}: beta {b:.4}");
                 write_image(&path, &img, args.exposure)?;
             }
             if let Some((k, f)) = worst {

@@ -250,7 +250,7 @@ pub(crate) fn report_pool(
             (_, Some(g)) => format!(" at level {g}"),
             _ => String::new(),
         };
-        eprintln!("{stats}{level}");
+        errln!("{stats}{level}");
     }
 }
 
@@ -587,7 +587,7 @@ pub(crate) fn report_cache(cache: &blueshift_volume::BrickCache, level: Option<u
             b as f64 / f64::from(1u32 << 20)
         )
     });
-    eprintln!(
+    errln!(
         "out-of-core: level {} sampled; bricks read: {} ({} prefetched); cache peak {:.1} MiB of {:.1} MiB{rss}",
         level.map_or_else(|| "-".to_owned(), |l| l.to_string()),
         if reads.is_empty() {
@@ -777,7 +777,7 @@ fn run_inner(args: &Args) -> Result<()> {
                     // A pool too small for the per-brick view: every region coarser.
                     let (gs, k) = tracker.upload_fitting_regions(scene)?;
                     if k > 0 {
-                        eprintln!(
+                        errln!(
                             "--lod brick: every brick {k} level(s) coarser than the rule asks, \
                              to fit the GPU brick pool"
                         );
@@ -816,7 +816,7 @@ fn run_inner(args: &Args) -> Result<()> {
     };
     bar.finish();
     if let Some(why) = &ran.fallback {
-        eprintln!("--device auto: {why}; rendering on the CPU");
+        errln!("--device auto: {why}; rendering on the CPU");
     }
     let seconds = start.elapsed().as_secs_f64();
     report_cache(&cache, level);
@@ -944,7 +944,7 @@ fn warn_tf_domains(scene: &Scene) {
         } else {
             "does not contain".to_owned()
         };
-        eprintln!(
+        errln!(
             "warning: channel {i} ({}): the transfer function's domain [{tlo}, {thi}] {how} the data range [{lo}, {hi}]; use --tf-range data to stretch it over the data (built-in maps are already stretched)",
             c.name()
         );
@@ -993,7 +993,7 @@ pub(crate) fn progressive_line(
     start: Instant,
 ) {
     let d = dims.get(level).copied().unwrap_or_default();
-    eprintln!(
+    errln!(
         "progressive: pass {pass}, level {level} ({}x{}x{}){what}: {:.2} s ({:.2} s since the start)",
         d[0],
         d[1],

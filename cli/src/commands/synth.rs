@@ -78,15 +78,19 @@ fn run_bricked(args: &Args) -> Result<()> {
         stream.select(c).with_context(cannot)?;
     }
     let names = stream.selected_names();
+    // The first channel goes to OUT; when it is a vector (`--channel velocity`), its
+    // components go to OUT-stem_x, _y, _z, as `convert` writes a vector volume.
+    let first_is_vector = stream
+        .channels()
+        .iter()
+        .any(|(n, c)| *c == 3 && names.first() == Some(&format!("{n}_x")));
     let paths: Vec<PathBuf> = names
         .iter()
         .enumerate()
-        .map(|(i, n)| {
-            if i == 0 {
-                args.output.clone()
-            } else {
-                sibling(&args.output, n)
-            }
+        .map(|(i, n)| match i {
+            0..3 if first_is_vector => sibling(&args.output, ["x", "y", "z"][i]),
+            0 => args.output.clone(),
+            _ => sibling(&args.output, n),
         })
         .collect();
     let refs: Vec<&std::path::Path> = paths.iter().map(PathBuf::as_path).collect();

@@ -377,7 +377,7 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     if crate::output::direct_target(&args.out).is_some() {
-        eprint!("{text}");
+        errout!("{text}");
     } else {
         out!("{text}");
     }
@@ -459,7 +459,7 @@ fn tonemap_clean(
         )
         .map_err(crate::commands::doppler::device_error)?;
         if let Some(why) = &ran.fallback {
-            eprintln!("--device auto: {why}; tone-mapping on the CPU");
+            errln!("--device auto: {why}; tone-mapping on the CPU");
         }
         let mut display = ran.value;
         // Operators without an exposure of their own (Reinhard, Reinhard local, Durand,

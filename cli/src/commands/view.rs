@@ -297,7 +297,7 @@ pub fn run(args: Args) -> Result<()> {
         .bind
         .unwrap_or(IpAddr::V4(std::net::Ipv4Addr::LOCALHOST));
     if !address.is_loopback() {
-        eprintln!(
+        errln!(
             "warning: --bind {address}: the viewer is reachable from other machines (anyone with the URL's token can use it)"
         );
     }
