@@ -651,3 +651,62 @@ fn progressive_render_previews_each_coarser_level_then_renders_the_exact_image()
     assert!(err.contains("levels or bricks"), "{err}");
     assert!(!d.join("d.exr").exists());
 }
+
+/// `--lod brick` on a zoomed-out view where every brick's footprint picks level 1: the
+/// prefetcher queues the level-1 bricks the render samples, so no finest-level brick is
+/// read at all (it used to queue each region's level-0 brick too).
+#[test]
+fn lod_brick_prefetches_the_level_each_region_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = Command::new(env!("CARGO_BIN_EXE_blueshift"))
+        .args([
+            "synth",
+            "marschner-lobb",
+            "m.bsv",
+            "--res",
+            "64",
+            "--brick",
+            "8",
+        ])
+        .current_dir(d)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let reads = |lod: &str| {
+        let o = blueshift(
+            &[
+                "--volume",
+                "m.bsv",
+                "--tf",
+                "builtin:viridis",
+                "--method",
+                "marcher",
+                "--camera",
+                "ortho",
+                "--zoom",
+                "0.5",
+                "--width",
+                "32",
+                "--height",
+                "32",
+                "--cache-mb",
+                "1000",
+                "--lod",
+                lod,
+                "--out",
+                &format!("{lod}.exr"),
+            ],
+            d,
+        );
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{err}");
+        err.lines()
+            .find_map(|l| l.split_once("bricks read: ").map(|(_, r)| r.to_owned()))
+            .unwrap_or_else(|| panic!("{err}"))
+    };
+    let brick = reads("brick");
+    assert!(brick.starts_with("64 at level 1 ("), "{brick}");
+    assert!(!brick.contains("level 0"), "{brick}");
+    assert!(reads("exact").starts_with("512 at level 0 ("));
+}

@@ -1274,9 +1274,11 @@ impl BrickedField {
                         groups.len() - 1
                     }
                 };
-                for &b in &along {
-                    if seen.insert((f.source.uid(), f.level, b)) {
-                        groups[at].1.push((f.source.clone(), f.level, b));
+                for &r in &along {
+                    // The brick the render reads for region `r`: at the region's own level.
+                    let (g, b) = f.region_brick(r);
+                    if seen.insert((g.source.uid(), g.level, b)) {
+                        groups[at].1.push((g.source.clone(), g.level, b));
                     }
                 }
             }
@@ -1284,6 +1286,39 @@ impl BrickedField {
         for (cache, items) in groups {
             cache.prefetch_items(items);
         }
+    }
+
+    /// The field and brick that region `r` (brick `r` of this level) is sampled from: brick
+    /// `r` itself, or, where the region samples a coarser level ([`LevelMap`]), the brick of
+    /// that level holding the region's centre.
+    fn region_brick(&self, r: u64) -> (&BrickedField, u64) {
+        let Some(m) = &self.regions else {
+            return (self, r);
+        };
+        let l = m.levels.get(r as usize).copied().unwrap_or(0);
+        let Some(coarse) = m.fields.get(usize::from(l)).filter(|_| l != 0) else {
+            return (self, r);
+        };
+        let i = r as usize;
+        let ri = [
+            i % m.dims[0],
+            (i / m.dims[0]) % m.dims[1],
+            i / (m.dims[0] * m.dims[1]),
+        ];
+        let n = self.geometry.dims;
+        let centre =
+            Vec3::from_array([0, 1, 2].map(|a| (ri[a] * m.edge + m.edge / 2).min(n[a] - 1) as f32));
+        let w = self.geometry.index_to_world(centre);
+        let c = coarse.geometry.world_to_index(w) / coarse.layout.brick as f32;
+        let nb = coarse.bricks;
+        let c = [0, 1, 2].map(|a| {
+            if c[a].is_nan() {
+                0
+            } else {
+                (c[a].max(0.0) as usize).min(nb[a] - 1)
+            }
+        });
+        (coarse, (c[0] + nb[0] * (c[1] + nb[1] * c[2])) as u64)
     }
 
     /// The bricks a ray crosses at this level, in the order it meets them (a 3D DDA over the
