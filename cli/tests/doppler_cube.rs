@@ -259,3 +259,62 @@ fn scene_file_cube_units_label_the_fits() {
     let h = header(&["--bunit", "K km s-1"]);
     assert_eq!(cards(&h, "BUNIT"), "'K km s-1'");
 }
+
+/// An image or a cube beyond `--max-memory` is refused in one line, before the scene is
+/// loaded, and nothing is written (a 512x512x1000 cube is 1 GB of f32, 3 GB with its FITS
+/// and NRRD copies).
+#[test]
+fn images_and_cubes_beyond_the_memory_budget_are_refused_before_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cube = d.join("big.fits");
+    let image = d.join("big.exr");
+    for (args, needle) in [
+        (
+            vec![
+                "--max-memory",
+                "300M",
+                "doppler",
+                "--res",
+                "16",
+                "--width",
+                "512",
+                "--height",
+                "512",
+                "--line",
+                "H-alpha",
+                "--velocity-bins",
+                "-100:100:1000",
+                "--cube",
+                cube.to_str().unwrap(),
+            ],
+            "this cube (512x512x1000 channels",
+        ),
+        (
+            vec![
+                "--max-memory",
+                "50M",
+                "doppler",
+                "--res",
+                "16",
+                "--width",
+                "4096",
+                "--height",
+                "4096",
+                "--out",
+                image.to_str().unwrap(),
+            ],
+            "this image (4096x4096",
+        ),
+    ] {
+        let o = blueshift(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(needle) && err.contains("--max-memory"),
+            "{err}"
+        );
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+    }
+    assert_eq!(std::fs::read_dir(d).unwrap().count(), 0);
+}

@@ -397,6 +397,10 @@ impl PyDopplerScene {
             .parse()
             .map_err(|e| BlueshiftError::new_err(format!("gpu_precision: {e}")))?;
         let (img, rgb, ran_on, fallback) = run_cancellable(py, |token| {
+            let (w, h) = (o.width.unwrap_or(256), o.height.unwrap_or(256));
+            crate::budget()?
+                .check(format_args!("this image ({w}x{h})"), image_bytes(w, h))
+                .map_err(Fail::err)?;
             let s = self.session(&o)?;
             let (scene, st) = (s.scene(), s.settings());
             // A precision the adapter lacks is the caller's error, as in the CLI.
@@ -480,6 +484,19 @@ impl PyDopplerScene {
         let c: CubeOpts = options("cube", cube_json)?;
         let (cube, meta) = run_cancellable(py, |token| {
             let spec = c.spec()?;
+            // The cube (f32) and its FITS bytes, with the image's own memory.
+            let (w, h) = (o.width.unwrap_or(256), o.height.unwrap_or(256));
+            let values = blueshift_volume::budget::image_bytes(
+                w.into(),
+                h.into(),
+                (spec.channels as u64).saturating_mul(8),
+            );
+            crate::budget()?
+                .check(
+                    format_args!("this cube ({w}x{h}x{} channels)", spec.channels),
+                    values.saturating_add(image_bytes(w, h)),
+                )
+                .map_err(Fail::err)?;
             let session = self.session(&o)?;
             spec.validate(session.settings().range_nm)
                 .map_err(Fail::err)?;
@@ -490,6 +507,12 @@ impl PyDopplerScene {
         })?;
         Ok(PyCube { cube, meta })
     }
+}
+
+/// Bytes a `w` x `h` Doppler image holds: its XYZ (f64), display RGB (f32) and sRGB bytes,
+/// rounded up (the CLI's estimate).
+fn image_bytes(w: u32, h: u32) -> u64 {
+    blueshift_volume::budget::image_bytes(w.into(), h.into(), 64)
 }
 
 /// The cube's channels and labels.

@@ -196,3 +196,18 @@ pub(crate) fn c_order<'a, T: numpy::Element, D: numpy::ndarray::Dimension>(
     }
     a.as_slice().map_err(|_| refused())
 }
+
+/// The memory budget of this process's renders: `BLUESHIFT_MAX_MEMORY` (as the CLI reads
+/// it) when set, else 3/4 of physical memory. A result beyond it is refused with a
+/// `BlueshiftError` before any work, as the CLI refuses it.
+pub(crate) fn budget() -> Result<blueshift_volume::MemoryBudget, Fail> {
+    use blueshift_volume::MemoryBudget;
+    use blueshift_volume::budget::ENV_VAR;
+    match std::env::var(ENV_VAR) {
+        Ok(s) if !s.trim().is_empty() => Ok(MemoryBudget::new(
+            MemoryBudget::parse_size(&s).map_err(|e| Fail::msg(format!("{ENV_VAR} {e}")))?,
+            ENV_VAR,
+        )),
+        _ => Ok(MemoryBudget::machine_default()),
+    }
+}

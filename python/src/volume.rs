@@ -46,7 +46,7 @@ fn grid_from_array(
             )));
         }
     };
-    let data = crate::c_order(&format!("array '{name}'"), &a)?;
+    let data = crate::c_order(&format!("array '{name}'"), a)?;
     let geometry = Geometry {
         dims: [shape[2], shape[1], shape[0]],
         spacing,

@@ -503,3 +503,14 @@ def test_exposure_scale_takes_a_number_as_the_cli_does():
     np.testing.assert_array_equal(np.asarray(a.rgb), np.asarray(b.rgb))
     c = s.render(16, 16, exposure_scale=3)
     assert not np.array_equal(np.asarray(a.rgb), np.asarray(c.rgb))
+
+
+def test_results_beyond_the_memory_budget_are_refused_before_work(monkeypatch):
+    s = doppler.Scene(species={"H": np.ones((4, 4, 4), np.float32)})
+    monkeypatch.setenv("BLUESHIFT_MAX_MEMORY", "300M")
+    with pytest.raises(blueshift.BlueshiftError, match="memory budget"):
+        s.cube(velocity_bins=(-100, 100, 1000), width=512, height=512)
+    monkeypatch.setenv("BLUESHIFT_MAX_MEMORY", "50M")
+    with pytest.raises(blueshift.BlueshiftError, match="memory budget"):
+        s.render(4096, 4096)
+    assert s.render(8, 8).rgb.shape == (8, 8, 3)

@@ -814,9 +814,37 @@ fn check_frame_outputs(args: &Args, more: &[&Path]) -> Result<()> {
     Ok(())
 }
 
+/// Bytes per pixel a Doppler image holds: its XYZ (f64), the display RGB (f32), the EXR
+/// written (f32) and the 8-bit PNG, rounded up.
+const DOPPLER_BYTES_PER_PIXEL: u64 = 64;
+/// Bytes per value of a spectral cube: the cube (f32), its FITS bytes and the NRRD beside
+/// it.
+const CUBE_BYTES_PER_VALUE: u64 = 12;
+
+/// Checks the image's (or the cube's) memory against the budget (`--max-memory`) before
+/// the scene is loaded.
+fn check_memory(args: &Args) -> Result<()> {
+    let (w, h) = (u64::from(args.width), u64::from(args.height));
+    let image = blueshift_volume::budget::image_bytes(w, h, DOPPLER_BYTES_PER_PIXEL);
+    if args.cube.cube.is_none() {
+        return crate::limits::check(
+            format_args!("this image ({w}x{h}, {DOPPLER_BYTES_PER_PIXEL} bytes per pixel)"),
+            image,
+        );
+    }
+    let n = super::doppler_cube::cube_spec(&args.cube)?.channels as u64;
+    let cube = blueshift_volume::budget::image_bytes(w, h, n.saturating_mul(CUBE_BYTES_PER_VALUE));
+    crate::limits::check(
+        format_args!("this cube ({w}x{h}x{n} channels, {CUBE_BYTES_PER_VALUE} bytes per value)"),
+        cube.saturating_add(image),
+    )
+}
+
 fn run_frame(args: Args) -> Result<()> {
-    // Refuse an output that cannot be written before loading or rendering anything.
+    // Refuse an output that cannot be written, or a result beyond the memory budget, before
+    // loading or rendering anything.
     check_frame_outputs(&args, &[])?;
+    check_memory(&args)?;
     let (scene, mut st, level0, bricks) = build_levels(&args)?;
     if let Some(mode) = args.progressive.as_deref()
         && mode != "levels"
