@@ -841,7 +841,7 @@ impl Observer<DopplerImage> for RowCallback<'_> {
 }
 
 /// [`render_cube`] under an observer: progress once per finished row, cancel polled before
-/// each row ([`Error::Cancelled`]).
+/// each pixel ([`Error::Cancelled`]).
 pub(crate) fn render_cube_with(
     scene: &DopplerScene,
     settings: &DopplerSettings,
@@ -945,6 +945,10 @@ impl<'a> CubePlan<'a> {
                 let mut bins = LineBins::new(&edges, spec, lines.iter().map(Vec::len).sum());
                 let mut row = vec![0.0; w * spec.channels];
                 for (x, acc) in row.chunks_exact_mut(spec.channels).enumerate() {
+                    // Per pixel too: an absorbing, broadened row can take seconds.
+                    if observer.cancelled() {
+                        return Err(Error::Cancelled);
+                    }
                     let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
                     let f = front.map_or(&[][..], |f| &f[y * w + x][..]);
                     ray_channels(&ctx, &lines, &ray, &edges, f, &mut bins, acc)?;

@@ -330,6 +330,14 @@ impl Environment {
     /// single `.exr`, `.hdr` or `.png` file is read by its aspect ratio ([`MapLayout`]):
     /// 2:1 equirectangular, a cube strip or cross as a cube map, anything else refused.
     pub fn load(path: &Path) -> Result<Self> {
+        let image_ext = path.extension().is_some_and(|e| {
+            ["exr", "hdr", "pic", "png", "pfm"]
+                .iter()
+                .any(|x| e.eq_ignore_ascii_case(x))
+        });
+        if image_ext && !path.exists() {
+            return Err(Error::map(path, "no such file"));
+        }
         if path.is_file() {
             let img = read_linear(path)?;
             check_image(path, &img)?;
@@ -587,6 +595,38 @@ impl EquirectMap {
     }
 }
 
+/// A Radiance `.hdr` file whose `#?RADIANCE` (or `#?RGBE`) signature follows other header
+/// lines (`VIEW=` first, as in Debevec's `memorial.hdr`), from its signature on: the image
+/// crate's decoder wants the signature first, Radiance's own tools do not. `None` for any
+/// other file (read as it is).
+fn radiance_after_preamble(path: &Path) -> std::io::Result<Option<Vec<u8>>> {
+    use std::io::Read as _;
+    if !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("hdr") || e.eq_ignore_ascii_case("pic"))
+    {
+        return Ok(None);
+    }
+    let mut f = std::fs::File::open(path)?;
+    let mut head = Vec::new();
+    (&mut f).take(4096).read_to_end(&mut head)?;
+    if head.starts_with(b"#?") {
+        return Ok(None);
+    }
+    let Some(at) = head.windows(3).position(|w| w == b"\n#?").map(|i| i + 1) else {
+        return Ok(None);
+    };
+    let len = f.metadata()?.len();
+    if len > MAX_MAP_BYTES {
+        return Err(std::io::Error::other(format!(
+            "{len} bytes, more than the {MAX_MAP_BYTES} an environment map may have"
+        )));
+    }
+    let mut bytes = head.split_off(at);
+    f.read_to_end(&mut bytes)?;
+    Ok(Some(bytes))
+}
+
 /// Reads an image as linear RGB: float formats (EXR, `.hdr`) as they are, 8/16-bit formats
 /// (PNG) through the sRGB decoding curve. Dimensions and memory are limited before decoding.
 pub fn read_linear(path: &Path) -> Result<Rgb32FImage> {
@@ -594,16 +634,27 @@ pub fn read_linear(path: &Path) -> Result<Rgb32FImage> {
         path: path.to_path_buf(),
         source,
     };
-    let mut reader = ImageReader::open(path)
-        .map_err(|e| ierr(image::ImageError::IoError(e)))?
-        .with_guessed_format()
-        .map_err(|e| ierr(image::ImageError::IoError(e)))?;
     let mut limits = Limits::default();
     limits.max_image_width = Some(MAX_MAP_SIDE);
     limits.max_image_height = Some(MAX_MAP_SIDE);
     limits.max_alloc = Some(MAX_MAP_BYTES);
-    reader.limits(limits);
-    let img = reader.decode().map_err(ierr)?;
+    let img =
+        match radiance_after_preamble(path).map_err(|e| ierr(image::ImageError::IoError(e)))? {
+            Some(bytes) => {
+                let mut reader =
+                    ImageReader::with_format(std::io::Cursor::new(bytes), image::ImageFormat::Hdr);
+                reader.limits(limits);
+                reader.decode().map_err(ierr)?
+            }
+            None => {
+                let mut reader = ImageReader::open(path)
+                    .map_err(|e| ierr(image::ImageError::IoError(e)))?
+                    .with_guessed_format()
+                    .map_err(|e| ierr(image::ImageError::IoError(e)))?;
+                reader.limits(limits);
+                reader.decode().map_err(ierr)?
+            }
+        };
     let float = matches!(
         img,
         image::DynamicImage::ImageRgb32F(_) | image::DynamicImage::ImageRgba32F(_)

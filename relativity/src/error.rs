@@ -30,6 +30,12 @@ pub enum Error {
         /// Why it was refused.
         reason: &'static str,
     },
+    /// A name in an effect list that is not an effect.
+    #[error("unknown effect '{name}' (expected aberration, doppler, searchlight, all or none)")]
+    Effect {
+        /// The word given.
+        name: String,
+    },
     /// An environment map that cannot be used (wrong face sizes, empty, too large, missing faces).
     #[error("malformed environment map {path}: {reason}")]
     MalformedMap {

@@ -78,11 +78,9 @@ impl Effects {
                 "all" => e = Self::ALL,
                 "none" => {}
                 _ => {
-                    return Err(Error::param(
-                        "effect (aberration, doppler, searchlight, all, none)",
-                        f64::NAN,
-                        "unknown effect name",
-                    ));
+                    return Err(Error::Effect {
+                        name: item.to_owned(),
+                    });
                 }
             }
         }

@@ -325,3 +325,35 @@ fn other_aspect_ratios_are_refused() {
         "{e}"
     );
 }
+
+/// A Radiance file whose signature follows a `VIEW=` line (as Debevec's `memorial.hdr`
+/// has it) reads as the same file without that line: Radiance's tools and `blueshift
+/// tonemap` accept it. The pixels are flat RGBE, (128, 64, 32, 129) = (1, 0.5, 0.25).
+#[test]
+fn a_radiance_header_with_lines_before_its_signature_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let body = |preamble: &str| {
+        let mut b =
+            format!("{preamble}#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 8\n").into_bytes();
+        for _ in 0..32 {
+            b.extend_from_slice(&[128, 64, 32, 129]);
+        }
+        b
+    };
+    let plain = dir.path().join("plain.hdr");
+    let view = dir.path().join("view.hdr");
+    std::fs::write(&plain, body("")).unwrap();
+    std::fs::write(&view, body("VIEW= -vtv -vh 90 -vv 150\n")).unwrap();
+    let a = blueshift_relativity::read_linear(&plain).unwrap();
+    let b = blueshift_relativity::read_linear(&view).unwrap();
+    assert_eq!(a, b);
+    assert_eq!((b.width(), b.height()), (8, 4));
+    assert_eq!(b.get_pixel(3, 2).0, [1.0, 0.5, 0.25]);
+    assert!(matches!(
+        Environment::load(&view).unwrap(),
+        Environment::Equirect(_)
+    ));
+    // A missing file is named as missing, not as a cube map without faces.
+    let e = Environment::load(&dir.path().join("none.exr")).unwrap_err();
+    assert!(e.to_string().contains("no such file"), "{e}");
+}

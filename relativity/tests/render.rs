@@ -281,3 +281,15 @@ fn out_of_map_fraction_counts_the_black_disc() {
     let rest = Velocity::along(DVec3::Z, 0.0).unwrap();
     assert_eq!(out_of_map_fraction(&cam, rest, fx, None).unwrap(), 0.0);
 }
+
+/// A misspelt effect is named in the error, with the words that are effects.
+#[test]
+fn an_unknown_effect_is_named() {
+    let e = blueshift_relativity::Effects::parse("aberration, abberation").unwrap_err();
+    let m = e.to_string();
+    assert!(
+        m.contains("'abberation'") && m.contains("searchlight"),
+        "{m}"
+    );
+    assert!(!m.contains("NaN"), "{m}");
+}
