@@ -390,6 +390,7 @@ impl SceneFile {
         let mut loader = Loader {
             base: &self.base,
             geometry: None,
+            geometry_from: None,
             memory,
             cache: OnceLock::new(),
             read: std::sync::Mutex::default(),
@@ -432,7 +433,9 @@ impl SceneFile {
         }
         files.extend(self.species.iter().map(|s| &s.density));
         if let Some(f) = files.iter().find(|f| f.file.is_some()) {
-            loader.geometry = Some(*loader.volume(f)?.0.geometry());
+            let (field, path) = loader.volume(f)?;
+            loader.geometry = Some(*field.geometry());
+            loader.geometry_from = Some(path);
         }
         let geometry = loader.geometry.ok_or_else(|| {
             Error::scene("the scene names no file, so it has no grid (give at least one \"file\")")
@@ -573,6 +576,8 @@ pub type MemoryVolumes = std::collections::BTreeMap<String, Volume>;
 struct Loader<'a> {
     base: &'a Path,
     geometry: Option<Geometry>,
+    /// The file the scene's grid was taken from (named when another field differs).
+    geometry_from: Option<PathBuf>,
     memory: &'a MemoryVolumes,
     cache: OnceLock<Arc<BrickCache>>,
     /// Volumes read from files, by canonical path: a file named by many fields is read once.
@@ -692,8 +697,13 @@ impl Loader<'_> {
             return Err(file_err(
                 path,
                 format!(
-                    "dims {:?} differ from the scene's {:?} (all fields share one grid)",
-                    have.dims, g.dims
+                    "dims {:?} differ from the scene's {:?}{} (all fields share one grid)",
+                    have.dims,
+                    g.dims,
+                    self.geometry_from
+                        .as_ref()
+                        .map(|p| format!(", taken from {}", p.display()))
+                        .unwrap_or_default()
                 ),
             ));
         }

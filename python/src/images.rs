@@ -37,7 +37,8 @@ fn image_array<'py>(py: Python<'py>, img: Rgb32FImage) -> PyResult<Bound<'py, Py
 }
 
 /// Tone-maps a linear HDR image with an operator given as its serde JSON
-/// (`{"Drago": {...}}`): the display-linear result in [0, 1], float32 `[h, w, 3]`.
+/// (`{"Drago": {...}}`): the display-linear result, float32 `[h, w, 3]` (1 the display's
+/// white; brighter values clip when encoded).
 #[pyfunction]
 fn tonemap<'py>(
     py: Python<'py>,

@@ -2088,14 +2088,11 @@ pub enum PngDepth {
     Sixteen,
 }
 
-/// The sRGB transfer function (IEC 61966-2-1) of a display-linear value in [0, 1].
+/// The sRGB transfer function (IEC 61966-2-1) of a display-linear value in [0, 1]; beyond
+/// it clipped (+Inf is white, -Inf black), NaN black.
 #[must_use]
 pub fn srgb_encode(v: f32) -> f32 {
-    let v = if v.is_finite() {
-        v.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
+    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
     if v <= 0.003_130_8 {
         12.92 * v
     } else {
@@ -2153,7 +2150,7 @@ pub(crate) fn srgb8_row(values: &[f32], out: &mut [u8]) {
 #[allow(unsafe_code)]
 fn srgb8_lanes_avx2(t: &Srgb8Tables, values: &[f32], out: &mut [u8]) -> usize {
     use std::arch::x86_64::{
-        _CMP_GE_OQ, _CMP_GT_OQ, _CMP_LT_OQ, _mm_cvtsi128_si64, _mm_unpacklo_epi32, _mm256_and_ps,
+        _CMP_GE_OQ, _CMP_GT_OQ, _mm_cvtsi128_si64, _mm_unpacklo_epi32, _mm256_and_ps,
         _mm256_castps_si256, _mm256_castsi256_si128, _mm256_cmp_ps, _mm256_extracti128_si256,
         _mm256_i32gather_epi32, _mm256_i32gather_ps, _mm256_loadu_ps, _mm256_max_epi32,
         _mm256_min_epi32, _mm256_min_ps, _mm256_packus_epi16, _mm256_packus_epi32,
@@ -2163,7 +2160,6 @@ fn srgb8_lanes_avx2(t: &Srgb8Tables, values: &[f32], out: &mut [u8]) -> usize {
     let n = values.len().min(out.len()) / 8 * 8;
     let zero = _mm256_setzero_ps();
     let one = _mm256_set1_ps(1.0);
-    let inf = _mm256_set1_ps(f32::INFINITY);
     let first = _mm256_set1_epi32(t.lanes_first as i32);
     let last = _mm256_set1_epi32(t.lanes.len() as i32 - 1);
     for (v, o) in values[..n]
@@ -2176,10 +2172,8 @@ fn srgb8_lanes_avx2(t: &Srgb8Tables, values: &[f32], out: &mut [u8]) -> usize {
         // is clamped to `lanes`, the codes it holds are below 256, `thresholds`' length).
         let codes = unsafe {
             let v = _mm256_loadu_ps(v.as_ptr());
-            let ok = _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GT_OQ>(v, zero),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(v, inf),
-            );
+            // Positive (ordered: NaN fails) values, +inf included, clipped to 1.
+            let ok = _mm256_cmp_ps::<_CMP_GT_OQ>(v, zero);
             let x = _mm256_and_ps(_mm256_min_ps(v, one), ok);
             let bits = _mm256_srli_epi32::<{ SRGB8_SHIFT as i32 }>(_mm256_castps_si256(x));
             let entry = _mm256_min_epi32(
@@ -2209,13 +2203,9 @@ fn srgb8_lanes_avx2(t: &Srgb8Tables, values: &[f32], out: &mut [u8]) -> usize {
 
 #[inline]
 fn srgb8_with(t: &Srgb8Tables, v: f32) -> u8 {
-    // Branch-free: NaN, negatives and +inf to 0, values from 1 on to 1 (code 255: 1.0's
-    // entry starts at 255 and `thresholds[255]` is infinite).
-    let x = if v > 0.0 && v < f32::INFINITY {
-        v.min(1.0)
-    } else {
-        0.0
-    };
+    // Branch-free: NaN and negatives to 0, values from 1 on (+inf too) to 1 (code 255:
+    // 1.0's entry starts at 255 and `thresholds[255]` is infinite).
+    let x = if v > 0.0 { v.min(1.0) } else { 0.0 };
     let i = ((x.to_bits() >> SRGB8_SHIFT) as usize).min(t.start.len() - 1);
     let code = t.start[i];
     code + u8::from(x >= t.thresholds[code as usize])
@@ -2639,6 +2629,14 @@ mod tests {
                 assert_eq!(*g, srgb8(x), "v = {x:e}");
             }
         }
+        // Clipped: +inf is white and -inf black, as the formula clips; NaN is black.
+        let mut row = [0u8; 16];
+        let special = [f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 2.0].repeat(4);
+        srgb8_row(&special, &mut row);
+        assert_eq!(row[..4], [255, 0, 0, 255]);
+        assert_eq!(row[12..], [255, 0, 0, 255]);
+        assert_eq!(srgb8(f32::INFINITY), 255);
+        assert_eq!((srgb_encode(f32::INFINITY) * 255.0).round() as u8, 255);
     }
 
     /// The image the block reader's bands hold, decoded row by row (the tone-mapping
