@@ -120,18 +120,64 @@ fn resolved(path: &Path) -> Option<PathBuf> {
 
 /// Whether `a` and `b` are the same file: the same canonical path, or (both existing) the
 /// same device and inode, so hard links and symlinks count.
+#[cfg(test)]
 pub fn same_file(a: &Path, b: &Path) -> bool {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        if let (Ok(ma), Ok(mb)) = (std::fs::metadata(a), std::fs::metadata(b))
-            && ma.dev() == mb.dev()
-            && ma.ino() == mb.ino()
-        {
-            return true;
+    FileKeys::of(a).meets(&FileKeys::of(b))
+}
+
+/// What identifies a file for [`same_file`]: its device and inode when it exists, and its
+/// [`resolved`] path. Two paths are one file when either key is equal.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+struct FileKeys {
+    inode: Option<(u64, u64)>,
+    path: Option<PathBuf>,
+}
+
+impl FileKeys {
+    fn of(p: &Path) -> FileKeys {
+        #[cfg(unix)]
+        let inode = {
+            use std::os::unix::fs::MetadataExt;
+            std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()))
+        };
+        #[cfg(not(unix))]
+        let inode = None;
+        FileKeys {
+            inode,
+            path: resolved(p),
         }
     }
-    matches!((resolved(a), resolved(b)), (Some(x), Some(y)) if x == y)
+
+    #[cfg(test)]
+    fn meets(&self, other: &FileKeys) -> bool {
+        (self.inode.is_some() && self.inode == other.inode)
+            || (self.path.is_some() && self.path == other.path)
+    }
+}
+
+/// Files by their [`FileKeys`], so that "is this one of them" costs two lookups.
+#[derive(Default)]
+struct FileSet<'a> {
+    by_inode: std::collections::HashMap<(u64, u64), &'a Path>,
+    by_path: std::collections::HashMap<PathBuf, &'a Path>,
+}
+
+impl<'a> FileSet<'a> {
+    fn insert(&mut self, keys: FileKeys, p: &'a Path) {
+        if let Some(i) = keys.inode {
+            self.by_inode.entry(i).or_insert(p);
+        }
+        if let Some(r) = keys.path {
+            self.by_path.entry(r).or_insert(p);
+        }
+    }
+
+    fn find(&self, keys: &FileKeys) -> Option<&'a Path> {
+        keys.inode
+            .and_then(|i| self.by_inode.get(&i))
+            .or_else(|| keys.path.as_ref().and_then(|r| self.by_path.get(r)))
+            .copied()
+    }
 }
 
 /// The largest scene or header file [`input_closure`] reads for the file names in it.
@@ -143,9 +189,10 @@ const MAX_NAMING_FILE: u64 = 16 << 20;
 /// Over-inclusive on purpose: an output that is any of these is refused.
 pub fn input_closure(inputs: &[&Path]) -> Vec<PathBuf> {
     let mut out: Vec<PathBuf> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
     let mut queue: Vec<(PathBuf, u32)> = inputs.iter().map(|p| (p.to_path_buf(), 0)).collect();
     while let Some((p, depth)) = queue.pop() {
-        if out.contains(&p) {
+        if !seen.insert(p.clone()) {
             continue;
         }
         out.push(p.clone());
@@ -238,8 +285,13 @@ fn collect_strings(v: &serde_json::Value, out: &mut Vec<String>) {
 /// error, exit code 1), so a missing folder fails at once instead of after the render.
 pub fn check_outputs(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
     let inputs = input_closure(inputs);
-    let mut dirs_checked: Vec<PathBuf> = Vec::new();
-    for (i, out) in outputs.iter().enumerate() {
+    let mut input_set = FileSet::default();
+    for p in &inputs {
+        input_set.insert(FileKeys::of(p), p);
+    }
+    let mut written = FileSet::default();
+    let mut dirs_checked: std::collections::HashSet<PathBuf> = std::collections::HashSet::new();
+    for out in outputs {
         let shown = out.display();
         if out.as_os_str().is_empty() {
             anyhow::bail!("an output path is empty");
@@ -247,21 +299,24 @@ pub fn check_outputs(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
         if out.is_dir() {
             anyhow::bail!("cannot write {shown}: it is a folder (give a file name)");
         }
-        if let Some(input) = inputs.iter().find(|input| same_file(out, input)) {
+        let keys = FileKeys::of(out);
+        if let Some(input) = input_set.find(&keys) {
             anyhow::bail!(
                 "cannot write {shown}: it is the input file {} (choose another output path)",
                 input.display()
             );
         }
         let direct = direct_target(out);
-        if direct.is_none() && outputs[..i].iter().any(|o| o == out || same_file(o, out)) {
-            anyhow::bail!("cannot write {shown} twice (two outputs are the same file)");
-        }
         if direct.is_some() {
             continue;
         }
+        if written.find(&keys).is_some() || written.by_path.contains_key(*out) {
+            anyhow::bail!("cannot write {shown} twice (two outputs are the same file)");
+        }
+        written.insert(keys, out);
+        written.by_path.entry(out.to_path_buf()).or_insert(out);
         let dir = folder_of(out);
-        if dirs_checked.iter().any(|d| d == dir) {
+        if !dirs_checked.insert(dir.to_path_buf()) {
             continue;
         }
         match std::fs::metadata(dir) {
@@ -284,7 +339,6 @@ pub fn check_outputs(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
                 dir.display()
             )
         })?;
-        dirs_checked.push(dir.to_path_buf());
     }
     Ok(())
 }

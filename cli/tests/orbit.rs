@@ -196,7 +196,7 @@ fn an_orbit_whose_later_frame_is_the_input_writes_nothing() {
     );
     assert_eq!(std::fs::read(d.join("r_0001.nrrd")).unwrap(), before);
     assert!(!d.join("r_0000.nrrd").exists() && !d.join("r_0002.nrrd").exists());
-    // A series whose frame 0 output would be its second snapshot.
+    // A series whose frame 1 output (r_0001.nrrd) is a snapshot: refused before frame 0.
     let o = blueshift(
         d,
         &[
@@ -216,7 +216,9 @@ fn an_orbit_whose_later_frame_is_the_input_writes_nothing() {
             "r.nrrd",
         ],
     );
-    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("it is the input file"), "{err}");
     assert_eq!(std::fs::read(d.join("r_0001.nrrd")).unwrap(), before);
     assert!(!d.join("r_0000.nrrd").exists());
 }

@@ -353,3 +353,42 @@ fn odd_aspect_environment_is_refused() {
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("2:1") && err.contains("cube"), "{err}");
 }
+
+/// A ramp whose frame file would be the environment map is refused before any frame is
+/// written: the map is never overwritten.
+#[test]
+fn a_ramp_frame_that_is_the_map_is_refused_before_any_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let map = d.join("env_0001.exr");
+    let o = blueshift()
+        .args([
+            "relativity",
+            "--synth",
+            "checker",
+            "--width",
+            "32",
+            "--height",
+            "16",
+        ])
+        .arg("--out")
+        .arg(&map)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let before = std::fs::read(&map).unwrap();
+    let o = blueshift()
+        .arg("relativity")
+        .arg(&map)
+        .args([
+            "--ramp", "0:0.5:2", "--width", "16", "--height", "8", "--out",
+        ])
+        .arg(d.join("env.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("it is the input file"), "{err}");
+    assert_eq!(std::fs::read(&map).unwrap(), before);
+    assert!(!d.join("env_0000.exr").exists());
+}

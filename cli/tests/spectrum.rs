@@ -264,3 +264,26 @@ fn csv_round_trips_through_the_library_reader() {
     let integral = v["integral"].as_f64().unwrap();
     assert!((s.total() - integral).abs() <= 1e-9 * integral);
 }
+
+/// Intensities near f64's end overflow the integral and the colour: one line and exit 1
+/// (it printed `integral inf`, `linear sRGB NaN NaN NaN` and exited 0).
+#[test]
+fn a_spectrum_that_overflows_f64_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let list = dir.path().join("huge.csv");
+    std::fs::write(
+        &list,
+        "wavelength_nm,relative_intensity\n500,1e308\n600,1e308\n",
+    )
+    .unwrap();
+    let out = blueshift()
+        .arg("spectrum")
+        .arg("--line-list")
+        .arg(&list)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("overflows f64"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+}

@@ -593,6 +593,29 @@ fn save_never_replaces_an_input_or_a_foreign_file() {
         std::fs::read(saved_dir.join("mine.png")).unwrap(),
         b"not the viewer's"
     );
+    // A dangling symbolic link is a file this viewer did not write either: kept.
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(v.dir.path().join("gone.exr"), saved_dir.join("link.exr"))
+            .unwrap();
+        tab.send(&json!({"type": "save", "name": "link"}));
+        let e = tab.expect("error");
+        assert!(
+            e["message"]
+                .as_str()
+                .unwrap()
+                .contains("choose another name"),
+            "{e}"
+        );
+        assert!(
+            saved_dir
+                .join("link.exr")
+                .symlink_metadata()
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+    }
     for bad in ["../escape", "/etc/passwd", "a/b"] {
         tab.send(&json!({"type": "save", "name": bad}));
         tab.expect("error");

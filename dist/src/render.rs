@@ -450,7 +450,11 @@ impl Phases {
                 .iter()
                 .map(|(p, t, c)| format!("{p} {t:.3} s (cpu {c:.2} s)"))
                 .collect();
-            eprintln!("rank {}: {}", self.rank, m.join(", "));
+            // Best effort: a closed stderr is not a failure of the render.
+            let _ = std::io::Write::write_fmt(
+                &mut std::io::stderr(),
+                format_args!("rank {}: {}\n", self.rank, m.join(", ")),
+            );
         }
     }
 }

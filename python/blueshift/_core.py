@@ -18,8 +18,8 @@ class Image(np.ndarray):
     """A numpy array that knows what it holds, and shows itself in Jupyter.
 
     ``kind`` is ``"linear-rgba"`` (a render's mean: linear RGB and alpha), ``"linear-rgb"``
-    (HDR RGB: relativity, an input to tone mapping), ``"display"`` (display-linear RGB in
-    [0, 1], a tone mapper's output), ``"xyz"`` (CIE 1931 XYZ) or ``"srgb8"`` (8-bit sRGB).
+    (HDR RGB: relativity, an input to tone mapping), ``"display"`` (display-linear RGB, 1
+    the display's white, brighter values clipped when encoded: a tone mapper's output), ``"xyz"`` (CIE 1931 XYZ) or ``"srgb8"`` (8-bit sRGB).
     ``meta`` holds what the engine reported (noise, samples per pixel, heat maps...).
     ``_repr_png_`` shows linear images with a plain exposure (clipped), display images
     sRGB-encoded, XYZ images through the display mapping the render made.

@@ -745,6 +745,29 @@ pub(crate) fn write_new(path: &Path, bytes: &[u8], overwrite: bool) -> Result<()
             )));
         }
         if !m.is_file() {
+            // A FIFO without a reader would block the open (and Ctrl-C) forever: probe it
+            // without blocking first (ENXIO: no reader), then write through a plain open.
+            // The probe stays open until the plain open is made, so a reader never sees
+            // the end of the stream in between.
+            #[cfg(target_os = "linux")]
+            let _probe = {
+                use std::os::unix::fs::OpenOptionsExt as _;
+                const O_NONBLOCK: i32 = 0o4000;
+                const ENXIO: i32 = 6;
+                match std::fs::OpenOptions::new()
+                    .write(true)
+                    .custom_flags(O_NONBLOCK)
+                    .open(path)
+                {
+                    Err(e) if e.raw_os_error() == Some(ENXIO) => {
+                        return Err(Fail::msg(format!(
+                            "cannot write {shown}: it is a FIFO that no one reads"
+                        )));
+                    }
+                    Err(e) => return Err(err(e)),
+                    Ok(f) => f,
+                }
+            };
             let mut f = std::fs::OpenOptions::new()
                 .write(true)
                 .open(path)

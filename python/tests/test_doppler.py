@@ -4,7 +4,6 @@ import json
 import math
 import os
 import stat
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -243,12 +242,19 @@ def test_from_yt_cube_equals_the_cli_cube_on_exported_files(cli, tmp_path, which
     assert stat.S_IMODE(os.stat(tmp_path / "mine.fits").st_mode) == 0o666 & ~umask
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)
-    got = []
-    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()))
-    reader.start()
-    cube.to_fits(fifo, overwrite=True)
-    reader.join(10)
-    assert got == [cube.fits_bytes()]
+    # Without a reader: refused at once (an open would block, Ctrl-C included).
+    with pytest.raises(blueshift.BlueshiftError, match="no one reads"):
+        cube.to_fits(fifo, overwrite=True)
+    # With one (whose open does not wait): written into. The cube's FITS fits the pipe's
+    # buffer, so the write completes before anything is read.
+    fd = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        cube.to_fits(fifo, overwrite=True)
+        os.set_blocking(fd, True)
+        got = b"".join(iter(lambda: os.read(fd, 1 << 16), b""))
+    finally:
+        os.close(fd)
+    assert got == cube.fits_bytes() and len(got) < 1 << 16
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
     with pytest.raises(blueshift.BlueshiftError, match="folder"):
         cube.to_fits(tmp_path / "missing" / "c.fits")

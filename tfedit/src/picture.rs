@@ -182,9 +182,14 @@ fn nice_ticks(lo: f64, hi: f64, count: usize) -> Vec<f64> {
         .map(|m| m * mag)
         .find(|s| *s >= raw)
         .unwrap_or(10.0 * mag);
-    let first = (lo / step).ceil() as i64;
-    let last = (hi / step).floor() as i64;
-    (first..=last).map(|k| k as f64 * step).collect()
+    // Beyond 1e6 ticks the step lost its meaning (a width at the end of f64's range).
+    let (first, last) = ((lo / step).ceil(), (hi / step).floor());
+    if !step.is_normal() || !(last - first).is_finite() || last - first > 1e6 {
+        return vec![lo, hi];
+    }
+    (first as i64..=last as i64)
+        .map(|k| k as f64 * step)
+        .collect()
 }
 
 fn format_tick(v: f64) -> String {
@@ -473,5 +478,8 @@ mod tests {
         let t = nice_ticks(13.0, 97.0, 8);
         assert!(t.iter().all(|v| (13.0..=97.0).contains(v)), "{t:?}");
         assert_eq!(t[0], 20.0);
+        // A subnormal width gives a zero step: the ends, not 2^63 ticks.
+        assert_eq!(nice_ticks(0.0, 5e-324, 8), vec![0.0, 5e-324]);
+        assert_eq!(nice_ticks(-1e308, 1e308, 8).len(), 2);
     }
 }

@@ -241,6 +241,13 @@ impl TransferFunction {
                 "domain [{lo}, {hi}] must be finite with min < max"
             )));
         }
+        // Its width divides every lookup: neither infinite ([-1e308, 1e308]) nor subnormal.
+        if !(hi - lo).is_normal() {
+            return Err(Error::invalid(format!(
+                "domain [{lo}, {hi}]: its width {} is not a normal finite number",
+                hi - lo
+            )));
+        }
         let log = self.data_axis == DataAxis::Log;
         if log && lo <= 0.0 {
             return Err(Error::invalid(format!(

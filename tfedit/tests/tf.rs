@@ -363,3 +363,21 @@ fn lut_is_identical_on_one_and_four_threads() {
             .all(|(a, b)| a.to_bits() == b.to_bits())
     );
 }
+
+/// A domain whose width overflows ([-1e308, 1e308]: lookups would divide by infinity) or is
+/// subnormal ([0, 5e-324]: a zero tick step) is refused with the domain named.
+#[test]
+fn domains_of_infinite_or_subnormal_width_are_refused() {
+    for d in [[-1e308, 1e308], [0.0, 5e-324]] {
+        let e = TransferFunction::new(
+            d,
+            vec![ck(d[0], [0.0; 3])],
+            vec![OpacityKnot::new(d[0], 0.0)],
+        )
+        .unwrap_err();
+        assert!(
+            matches!(e, Error::Invalid(_)) && e.to_string().contains("width"),
+            "{e}"
+        );
+    }
+}

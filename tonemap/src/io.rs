@@ -539,13 +539,22 @@ fn read_exr_blocks_by(path: &Path, compact: bool, at_offsets: bool) -> Result<Op
                 irregular = true;
                 break;
             };
-            // A block of a band already decoded is a repeat too.
-            if chunk.layer_index != 0
-                || column >= across
-                || slots[at].is_none()
-                || blocks.iter().any(|b| b.1 == column)
-            {
+            if chunk.layer_index != 0 || column >= across {
                 irregular = true;
+                break;
+            }
+            // A block of a band already decoded is a repeat too: damaged (OpenEXR's library
+            // refuses it), not a layout for the exr crate, which would leave zeros where
+            // the block that is missing belongs.
+            if slots[at].is_none() || blocks.iter().any(|b| b.1 == column) {
+                fail(
+                    i,
+                    Error::invalid(
+                        "OpenEXR",
+                        format!("block {i} repeats the block of band {at}, column {column}"),
+                        path,
+                    ),
+                );
                 break;
             }
             blocks.push((i, column, chunk));
@@ -2111,7 +2120,7 @@ pub fn srgb_decode(v: f32) -> f32 {
 }
 
 /// The 8-bit sRGB code of a display-linear value: `round(255 srgb_encode(v))` (values
-/// clamped to [0, 1], NaN and infinities as 0), bit for bit, without `powf`: the code is
+/// clamped to [0, 1], +inf as 255, NaN and -inf as 0), bit for bit, without `powf`: the code is
 /// the number of the 255 thresholds (the smallest `f32` reaching each code, found once by
 /// bisection over `f32` bit patterns of [`srgb_encode`] itself) at or below `v`. A table
 /// indexed by the top bits of `v` (one entry per 2^15 bit patterns, a 1/256 step in

@@ -706,3 +706,36 @@ fn large_radiance_files_read_in_pieces_as_the_image_crate_reads_them() {
     let ours = read_hdr_image(&path).unwrap();
     assert_eq!(ours.as_raw(), image_crate_hdr(&file).as_raw());
 }
+
+/// An uncompressed scan-line file whose second block claims the first block's line (one
+/// flipped y): the first line is given twice and the second is missing. OpenEXR's
+/// library refuses it; so does blueshift, instead of a band of zeros.
+#[test]
+fn an_exr_block_given_twice_is_refused() {
+    use exr::prelude::*;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("dup.exr");
+    let channel = |n: &str, v: f32| AnyChannel::new(n, FlatSamples::F32(vec![v; 12]));
+    let layer = Layer::new(
+        (4, 3),
+        LayerAttributes::default(),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(vec![channel("R", 1.0), channel("G", 0.5), channel("B", 0.25)].into()),
+    );
+    Image::from_layer(layer).write().to_file(&p).unwrap();
+    assert_eq!(
+        read_hdr_image(&p).unwrap().get_pixel(1, 1).0,
+        [1.0, 0.5, 0.25]
+    );
+    // Block 1's leader: line 1, 48 bytes (4 pixels x 3 channels x f32).
+    let mut bytes = std::fs::read(&p).unwrap();
+    let leader = [1i32.to_le_bytes(), 48i32.to_le_bytes()].concat();
+    let at: Vec<usize> = (0..bytes.len() - 8)
+        .filter(|&i| bytes[i..i + 8] == leader[..])
+        .collect();
+    assert_eq!(at.len(), 1, "one block of line 1");
+    bytes[at[0]..at[0] + 4].copy_from_slice(&0i32.to_le_bytes());
+    std::fs::write(&p, &bytes).unwrap();
+    let e = read_hdr_image(&p).unwrap_err().to_string();
+    assert!(e.contains("repeats"), "{e}");
+}

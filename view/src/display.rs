@@ -46,13 +46,9 @@ pub fn operator(name: &str, exposure_stops: f32) -> Result<Option<Operator>> {
     })
 }
 
-/// Linear values in [0, 1] to 8-bit sRGB (non-finite: 0).
+/// Linear values in [0, 1] to 8-bit sRGB (clipped: +inf white; NaN black), as every
+/// blueshift PNG encodes them.
 pub fn encode_srgb8(v: f32) -> u8 {
-    let v = if v.is_finite() {
-        v.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
     (blueshift_tonemap::io::srgb_encode(v) * 255.0).round() as u8
 }
 

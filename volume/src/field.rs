@@ -916,17 +916,19 @@ impl BrickedField {
             .count()
     }
 
-    /// Whether every brick of this level that `rays` cross (as [`BrickedField::bricks_along`]
-    /// finds them) is in the cache now.
+    /// Whether every brick that `rays` need is in the cache now: for each region they cross
+    /// (as [`BrickedField::bricks_along`] finds them), the brick of the level that region
+    /// samples, as [`BrickedField::prefetch_along`] queues them.
     #[must_use]
     pub fn resident_along(&self, rays: &[(Vec3, Vec3)]) -> bool {
         let mut along = Vec::new();
         rays.iter().all(|&(o, d)| {
             along.clear();
             self.bricks_along(o, d, &mut along);
-            along
-                .iter()
-                .all(|&b| self.cache.contains(&*self.source, self.level, b))
+            along.iter().all(|&r| {
+                let (f, b) = self.region_brick(r);
+                f.cache.contains(&*f.source, f.level, b)
+            })
         })
     }
 

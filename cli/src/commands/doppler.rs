@@ -781,37 +781,36 @@ fn observer_for(
     }
 }
 
-/// Checks the outputs of one frame (the image or cube and every file beside it) against its
-/// scene file and `more` inputs.
-fn check_frame_outputs(args: &Args, more: &[&Path]) -> Result<()> {
-    let mut inputs: Vec<&Path> = args.scene.iter().map(PathBuf::as_path).collect();
-    inputs.extend_from_slice(more);
-    match &args.cube.cube {
-        Some(cube) => {
-            let outs = super::doppler_cube::cube_outputs(&args.cube, cube);
-            let refs: Vec<&Path> = outs.iter().map(PathBuf::as_path).collect();
-            crate::output::check_outputs(&refs, &inputs)?;
-        }
-        None => {
-            // The image, its PNG, the figure and every pick and trace file.
-            let mut all = vec![args.out.clone(), args.out.with_extension("png")];
-            all.extend(args.figure.clone());
-            for &(x, y) in &args.pick {
-                all.push(sibling(&args.out, &format!("_pick_{x}_{y}.csv")));
-            }
-            if !args.pick.is_empty() {
-                all.push(sibling(&args.out, "_picks.png"));
-            }
-            if let Some((x, y)) = args.trace {
-                for ext in ["csv", "png", "gif"] {
-                    all.push(sibling(&args.out, &format!("_trace_{x}_{y}.{ext}")));
+/// Checks the outputs of frames (each one's image or cube and every file beside it) against
+/// all their scene files and `more` inputs, in one pass.
+fn check_frame_outputs(frames: &[&Args], more: &[&Path]) -> Result<()> {
+    let mut all: Vec<PathBuf> = Vec::new();
+    let mut inputs: Vec<&Path> = more.to_vec();
+    for args in frames {
+        inputs.extend(args.scene.as_deref());
+        match &args.cube.cube {
+            Some(cube) => all.extend(super::doppler_cube::cube_outputs(&args.cube, cube)),
+            None => {
+                // The image, its PNG, the figure and every pick and trace file.
+                all.push(args.out.clone());
+                all.push(args.out.with_extension("png"));
+                all.extend(args.figure.clone());
+                for &(x, y) in &args.pick {
+                    all.push(sibling(&args.out, &format!("_pick_{x}_{y}.csv")));
+                }
+                if !args.pick.is_empty() {
+                    all.push(sibling(&args.out, "_picks.png"));
+                }
+                if let Some((x, y)) = args.trace {
+                    for ext in ["csv", "png", "gif"] {
+                        all.push(sibling(&args.out, &format!("_trace_{x}_{y}.{ext}")));
+                    }
                 }
             }
-            let outs: Vec<&Path> = all.iter().map(PathBuf::as_path).collect();
-            crate::output::check_outputs(&outs, &inputs)?;
         }
     }
-    Ok(())
+    let outs: Vec<&Path> = all.iter().map(PathBuf::as_path).collect();
+    crate::output::check_outputs(&outs, &inputs)
 }
 
 /// Bytes per pixel a Doppler image holds: its XYZ (f64), the display RGB (f32), the EXR
@@ -843,7 +842,7 @@ fn check_memory(args: &Args) -> Result<()> {
 fn run_frame(args: Args) -> Result<()> {
     // Refuse an output that cannot be written, or a result beyond the memory budget, before
     // loading or rendering anything.
-    check_frame_outputs(&args, &[])?;
+    check_frame_outputs(&[&args], &[])?;
     check_memory(&args)?;
     let (scene, mut st, level0, bricks) = build_levels(&args)?;
     if let Some(mode) = args.progressive.as_deref()

@@ -115,8 +115,8 @@ enum FrameValue {
 /// observer sped up, to that frame's value. Frames that `keep` declines (another rank's,
 /// under `--distributed frames`) are skipped. Before the first frame renders, `check` is
 /// given every frame's arguments and the inputs of the whole sequence (the `--series`
-/// snapshots), so an output that cannot be written, or that is any frame's input, stops
-/// the run before a partial sequence is written.
+/// snapshots), once, so an output that cannot be written, or that is any frame's input,
+/// stops the run before a partial sequence is written.
 #[allow(clippy::too_many_arguments)]
 pub fn run_frames<A: Clone>(
     args: &A,
@@ -124,7 +124,7 @@ pub fn run_frames<A: Clone>(
     view: impl Fn(&mut A) -> &mut super::view_args::ViewArgs,
     observer: impl Fn(&mut A) -> &mut ObserverArgs,
     outputs: impl Fn(&mut A, usize),
-    check: impl Fn(&A, &[&Path]) -> Result<()>,
+    check: impl Fn(&[&A], &[&Path]) -> Result<()>,
     mut frame: impl FnMut(A) -> Result<()>,
     keep: impl Fn(usize) -> Result<bool>,
 ) -> Result<bool> {
@@ -184,9 +184,8 @@ pub fn run_frames<A: Clone>(
         frames.push((said, a));
     }
     let snapshots: Vec<&Path> = series.paths.iter().map(PathBuf::as_path).collect();
-    for (_, a) in &frames {
-        check(a, &snapshots)?;
-    }
+    let all: Vec<&A> = frames.iter().map(|(_, a)| a).collect();
+    check(&all, &snapshots)?;
     for (said, a) in frames {
         errln!("{said}");
         frame(a)?;

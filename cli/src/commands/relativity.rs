@@ -242,6 +242,17 @@ pub fn run(args: Args) -> Result<()> {
             None
         }
     };
+    if let Some(speeds) = &speeds {
+        // Every frame's file, checked before the first is written (one may be the map).
+        let frames: Vec<PathBuf> = (0..speeds.len())
+            .map(|k| ramp_frame_path(&args.out, k))
+            .collect();
+        let refs: Vec<&Path> = frames.iter().map(PathBuf::as_path).collect();
+        crate::output::check_outputs(
+            &refs,
+            &args.env.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
+        )?;
+    }
     let env = match (&args.synth, &args.env) {
         (Some(Synth::Checker), _) => Environment::Checker(Checker::default()),
         (None, Some(p)) => Environment::load(p)?,
@@ -299,13 +310,6 @@ pub fn run(args: Args) -> Result<()> {
             }
         }
         Some(speeds) => {
-            let stem = args.out.with_extension("");
-            let ext = args
-                .out
-                .extension()
-                .map(|e| e.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let stem = stem.to_string_lossy().into_owned();
             let mut worst: Option<(usize, f64)> = None;
             for (k, &b) in speeds.iter().enumerate() {
                 let v = Velocity::along(direction, b)?;
@@ -314,7 +318,7 @@ pub fn run(args: Args) -> Result<()> {
                     worst = Some((k, f));
                 }
                 let img = render(&env, &cam, v, effects)?;
-                let path = PathBuf::from(format!("{stem}_{k:04}.{ext}"));
+                let path = ramp_frame_path(&args.out, k);
                 errln!("frame {k}: beta {b:.4}");
                 write_image(&path, &img, args.exposure)?;
             }
@@ -324,4 +328,14 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Frame `k`'s file of a `--ramp` writing `out`: `STEM_kkkk.EXT`.
+fn ramp_frame_path(out: &Path, k: usize) -> PathBuf {
+    let stem = out.with_extension("").to_string_lossy().into_owned();
+    let ext = out
+        .extension()
+        .map(|e| e.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    PathBuf::from(format!("{stem}_{k:04}.{ext}"))
 }

@@ -475,18 +475,24 @@ pub fn run(args: Args) -> Result<()> {
     run_frame(args)
 }
 
-/// Checks the outputs of one frame (the image, its PNG and heat maps) against its inputs
-/// (volumes, scene and transfer function files) and `more` inputs.
-fn check_frame_outputs(args: &Args, more: &[&Path]) -> Result<()> {
-    let heat = crate::commands::render_heat::heat_outputs(&args.out, &args.heatmaps);
-    let mut outputs = vec![args.out.as_path()];
-    outputs.extend(args.png.as_deref());
-    outputs.extend(heat.iter().map(PathBuf::as_path));
-    let mut inputs: Vec<&Path> = args.volumes.iter().map(PathBuf::as_path).collect();
-    inputs.extend(args.scene.as_deref());
-    // Transfer function files (not `builtin:` / `log:` names, which name no file).
-    inputs.extend(args.tfs.iter().map(Path::new).filter(|p| p.is_file()));
-    inputs.extend_from_slice(more);
+/// Checks the outputs of frames (each one's image, PNG and heat maps) against all their
+/// inputs (volumes, scene and transfer function files) and `more` inputs, in one pass.
+fn check_frame_outputs(frames: &[&Args], more: &[&Path]) -> Result<()> {
+    let heat: Vec<Vec<PathBuf>> = frames
+        .iter()
+        .map(|a| crate::commands::render_heat::heat_outputs(&a.out, &a.heatmaps))
+        .collect();
+    let mut outputs: Vec<&Path> = Vec::new();
+    let mut inputs: Vec<&Path> = more.to_vec();
+    for (args, heat) in frames.iter().zip(&heat) {
+        outputs.push(args.out.as_path());
+        outputs.extend(args.png.as_deref());
+        outputs.extend(heat.iter().map(PathBuf::as_path));
+        inputs.extend(args.volumes.iter().map(PathBuf::as_path));
+        inputs.extend(args.scene.as_deref());
+        // Transfer function files (not `builtin:` / `log:` names, which name no file).
+        inputs.extend(args.tfs.iter().map(Path::new).filter(|p| p.is_file()));
+    }
     crate::output::check_outputs(&outputs, &inputs)
 }
 
@@ -506,7 +512,7 @@ fn run_frame(args: Args) -> Result<()> {
         );
     }
     // Refuse an output that cannot be written before loading or rendering anything.
-    check_frame_outputs(&args, &[])?;
+    check_frame_outputs(&[&args], &[])?;
     match crate::limits::thread_pool(args.threads)? {
         Some(pool) => pool.install(|| run_inner(&args)),
         None => run_inner(&args),

@@ -230,6 +230,14 @@ pub fn run(args: Args) -> Result<()> {
         [0.0; 3]
     };
     let integral = observed.integrate(lo, hi)?;
+    // Values near f64's end (a line list of 1e308) overflow the integral and the colour:
+    // refused, as a black body whose radiance overflows is, not printed as inf and NaN.
+    if !(integral.is_finite() && xyz.x.is_finite() && xyz.y.is_finite() && xyz.z.is_finite()) {
+        bail!(
+            "the spectrum's integral ({integral:e}) or colour overflows f64: scale its \
+             intensities down"
+        );
+    }
 
     if let Some(path) = &args.csv {
         let pts = polyline(&observed, lo, hi);

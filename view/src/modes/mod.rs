@@ -165,7 +165,8 @@ impl<'a> SaveSet<'a> {
                         p.display()
                     )));
                 }
-                if p.exists() && !(replace_own && written.contains(&p)) {
+                // `symlink_metadata`: a dangling link is a file this viewer did not write.
+                if p.symlink_metadata().is_ok() && !(replace_own && written.contains(&p)) {
                     return Ok(false);
                 }
             }

@@ -1553,6 +1553,49 @@ mod tests {
         h.check_brick_tables(&limits).unwrap();
     }
 
+    /// A level of one wide block and many one-cell blocks: the thinnest extent (1) would
+    /// make the wide block cover more buckets than the level has blocks, so the edge
+    /// doubles until it does not; queries still give exactly the overlapping blocks.
+    #[test]
+    fn a_wide_block_among_small_ones_widens_the_buckets_and_queries_stay_exact() {
+        let mut blocks = vec![Block {
+            level: 0,
+            lo: [0, 0, 0],
+            dims: [512, 512, 64],
+        }];
+        for i in 0..100i64 {
+            blocks.push(Block {
+                level: 0,
+                lo: [600 + 2 * i, 3 * i, i % 7],
+                dims: [1, 1, 1],
+            });
+        }
+        let ids: Vec<u32> = (0..blocks.len() as u32).collect();
+        let index = LevelIndex::new(&blocks, &ids);
+        assert!(index.edge.iter().all(|&e| e > 1), "{:?}", index.edge);
+        let total: usize = index.buckets.values().map(Vec::len).sum();
+        assert!(total <= (1 << 16) + 8 * blocks.len(), "{total}");
+        let mut got = Vec::new();
+        for (lo, hi) in [
+            ([0, 0, 0], [1, 1, 1]),
+            ([500, 0, 0], [700, 400, 8]),
+            ([601, 0, 0], [602, 400, 64]),
+            ([-5, -5, -5], [1000, 1000, 1000]),
+            ([900, 900, 0], [901, 901, 1]),
+        ] {
+            index.query(&blocks, lo, hi, &mut got);
+            let want: Vec<u32> = ids
+                .iter()
+                .copied()
+                .filter(|&i| {
+                    let b = &blocks[i as usize];
+                    (0..3).all(|a| b.lo[a] < hi[a] && b.hi()[a] > lo[a])
+                })
+                .collect();
+            assert_eq!(got, want, "{lo:?}..{hi:?}");
+        }
+    }
+
     /// A hierarchy of blocks of many sizes (1 to 5 cells per axis) on three levels, each
     /// level's blocks disjoint, placed by a fixed-seed generator: leaf flags and
     /// candidate blocks found by place ([`LevelIndex`]) equal those of a scan of every
