@@ -67,15 +67,14 @@ impl EmissionLine {
         let c = self.centre_nm;
         match profile {
             LineProfile::Box { width_nm } => {
-                positive("line width (nm)", width_nm)?;
-                let h = width_nm / 2.0;
-                spectrum.add_box(c - h, c + h, area / width_nm)
+                let (a, b) = line_edges(c, width_nm / 2.0, "line width (nm)", width_nm)?;
+                spectrum.add_box(a, b, area / (b - a))
             }
             LineProfile::Triangle { fwhm_nm } => {
-                positive("line FWHM (nm)", fwhm_nm)?;
-                let peak = area / fwhm_nm;
-                spectrum.add_trapezoid(c - fwhm_nm, c, 0.0, peak)?;
-                spectrum.add_trapezoid(c, c + fwhm_nm, peak, 0.0)
+                let (a, b) = line_edges(c, fwhm_nm, "line FWHM (nm)", fwhm_nm)?;
+                let peak = 2.0 * area / (b - a);
+                spectrum.add_trapezoid(a, c, 0.0, peak)?;
+                spectrum.add_trapezoid(c, b, peak, 0.0)
             }
             LineProfile::Gaussian { sigma_nm } => {
                 crate::profiles::PwlGaussian::default().add_to(spectrum, c, sigma_nm, area)
@@ -242,26 +241,42 @@ pub fn add_lines(
         let c = l.centre_nm;
         match profile {
             LineProfile::Box { width_nm } => {
-                positive("line width (nm)", width_nm)?;
-                let h = width_nm / 2.0;
-                let v = area / width_nm;
+                let (a, b) = line_edges(c, width_nm / 2.0, "line width (nm)", width_nm)?;
+                let v = area / (b - a);
                 non_negative("trapezoid start value", v)?;
-                crate::error::range("trapezoid", c - h, c + h)?;
-                traps.push((c - h, c + h, v, v));
+                crate::error::range("trapezoid", a, b)?;
+                traps.push((a, b, v, v));
             }
             LineProfile::Triangle { fwhm_nm } => {
-                positive("line FWHM (nm)", fwhm_nm)?;
-                let peak = area / fwhm_nm;
+                let (a, b) = line_edges(c, fwhm_nm, "line FWHM (nm)", fwhm_nm)?;
+                let peak = 2.0 * area / (b - a);
                 non_negative("trapezoid end value", peak)?;
-                crate::error::range("trapezoid", c - fwhm_nm, c)?;
-                crate::error::range("trapezoid", c, c + fwhm_nm)?;
-                traps.push((c - fwhm_nm, c, 0.0, peak));
-                traps.push((c, c + fwhm_nm, peak, 0.0));
+                crate::error::range("trapezoid", a, c)?;
+                crate::error::range("trapezoid", c, b)?;
+                traps.push((a, c, 0.0, peak));
+                traps.push((c, b, peak, 0.0));
             }
             LineProfile::Gaussian { .. } => l.add_to(spectrum, profile, weight)?,
         }
     }
     spectrum.add_trapezoids(&traps)
+}
+
+/// The ends `c - half` and `c + half` of a line's profile as f64 rounds them, after `width`
+/// (named `what`) is checked positive: the profile's height is taken from these ends, so its
+/// area is the line's strength however few ulps wide it is. A width that rounds to nothing
+/// at `c` (or to a one-sided profile) is refused.
+fn line_edges(c: f64, half: f64, what: &'static str, width: f64) -> Result<(f64, f64)> {
+    positive(what, width)?;
+    let (a, b) = (c - half, c + half);
+    if !(a < c && c < b) {
+        return Err(crate::Error::Parameter {
+            name: what,
+            value: width,
+            reason: "narrower than f64 resolves at the line's centre",
+        });
+    }
+    Ok((a, b))
 }
 
 /// Reads a user line list from a file (see [`parse_line_list`]).
