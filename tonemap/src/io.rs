@@ -163,8 +163,8 @@ fn exr_error(e: exr::error::Error, path: &Path) -> Error {
     }
 }
 
-/// Reads the first valid layer of an OpenEXR file: R, G, B (A ignored) or Y alone, in
-/// half, float or uint samples. Channel names may carry a layer prefix (`diffuse.R`).
+/// Reads the first part of an OpenEXR file with R, G, B (A ignored) or Y alone, in half,
+/// float or uint samples. Channel names may carry a layer prefix (`diffuse.R`).
 ///
 /// # Errors
 /// As [`read_hdr_image_with`]; [`Error::Unsupported`] for deep data or files without
@@ -197,22 +197,77 @@ fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSou
         Some(ExrRead::Image(img)) => return Ok(HdrSource::from_image(img)),
         None => {}
     }
+    // The part read: the first with R, G, B or Y channels (a renderer may put depth or
+    // other outputs first); the first part when none has them (its error names it).
+    let colour_part = meta
+        .headers
+        .iter()
+        .position(|h| {
+            let has = |n: &str| {
+                h.channels
+                    .list
+                    .iter()
+                    .any(|c| c.name.to_string().rsplit('.').next() == Some(n))
+            };
+            (has("R") && has("G") && has("B")) || has("Y")
+        })
+        .unwrap_or(0);
     // The other layouts, and files the block reader found irregular: the exr crate's image
     // reader on this thread, so that a panic of its decompressors on damaged data (which on
     // its own thread pool would abort the process) is an error.
-    let image = std::panic::catch_unwind(|| {
-        read()
-            .no_deep_data()
-            .largest_resolution_level()
-            .all_channels()
-            .first_valid_layer()
-            .all_attributes()
-            .non_parallel()
-            .from_file(path)
-    })
-    .map_err(|_| Error::invalid("OpenEXR", "damaged data failed to decompress", path))?
-    .map_err(|e| exr_error(e, path))?;
-    let layer = image.layer_data;
+    let damaged = |_| Error::invalid("OpenEXR", "damaged data failed to decompress", path);
+    let layer = if colour_part == 0 {
+        std::panic::catch_unwind(|| {
+            read()
+                .no_deep_data()
+                .largest_resolution_level()
+                .all_channels()
+                .first_valid_layer()
+                .all_attributes()
+                .non_parallel()
+                .from_file(path)
+        })
+        .map_err(damaged)?
+        .map_err(|e| exr_error(e, path))?
+        .layer_data
+    } else {
+        // Every part is decoded to reach a later one: their samples together must fit.
+        let all: u64 = meta
+            .headers
+            .iter()
+            .map(|h| {
+                let px = (h.layer_size.width() as u64).saturating_mul(h.layer_size.height() as u64);
+                px.saturating_mul(4 * h.channels.list.len() as u64)
+            })
+            .fold(0, u64::saturating_add);
+        let size = meta.headers[colour_part].layer_size;
+        let (w, h) = (size.width() as u64, size.height() as u64);
+        let needed = all.saturating_add(w.saturating_mul(h).saturating_mul(DECODE_BYTES_PER_PIXEL));
+        if needed > limits.max_bytes {
+            return Err(Error::Memory {
+                width: w,
+                height: h,
+                needed,
+                max_bytes: limits.max_bytes,
+            });
+        }
+        std::panic::catch_unwind(|| {
+            read()
+                .no_deep_data()
+                .largest_resolution_level()
+                .all_channels()
+                .all_layers()
+                .all_attributes()
+                .non_parallel()
+                .from_file(path)
+        })
+        .map_err(damaged)?
+        .map_err(|e| exr_error(e, path))?
+        .layer_data
+        .into_iter()
+        .nth(colour_part)
+        .ok_or_else(|| Error::invalid("OpenEXR", "a part the header lists is missing", path))?
+    };
     let (w, h) = (layer.size.width(), layer.size.height());
     let n = w * h;
     let find_channel = |name: &str| {
@@ -228,7 +283,7 @@ fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSou
             None => {
                 return Err(Error::Unsupported {
                     format: "OpenEXR",
-                    message: "no R, G, B or Y channel in the first layer".into(),
+                    message: "no R, G, B or Y channel in any part".into(),
                     path: path.into(),
                 });
             }

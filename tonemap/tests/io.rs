@@ -739,3 +739,42 @@ fn an_exr_block_given_twice_is_refused() {
     let e = read_hdr_image(&p).unwrap_err().to_string();
     assert!(e.contains("repeats"), "{e}");
 }
+
+/// A two-part file whose first part is depth (as renderers write AOVs first) reads its
+/// second, colour part; a file with no colour part at all names that.
+#[test]
+fn a_multi_part_exr_reads_its_first_colour_part() {
+    use exr::prelude::*;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("parts.exr");
+    let flat = |n: &str, v: f32| AnyChannel::new(n, FlatSamples::F32(vec![v; 12]));
+    let part = |name: &str, channels: Vec<AnyChannel<FlatSamples>>| {
+        Layer::new(
+            (4, 3),
+            LayerAttributes::named(name),
+            Encoding::FAST_LOSSLESS,
+            AnyChannels::sort(channels.into()),
+        )
+    };
+    let depth = part("depth", vec![flat("Z", 7.0)]);
+    let colour = part(
+        "beauty",
+        vec![flat("R", 1.0), flat("G", 0.5), flat("B", 0.25)],
+    );
+    Image::from_layers(
+        ImageAttributes::new(IntegerBounds::from_dimensions((4, 3))),
+        vec![depth.clone(), colour],
+    )
+    .write()
+    .to_file(&p)
+    .unwrap();
+    let img = read_hdr_image(&p).unwrap();
+    assert_eq!(img.get_pixel(2, 1).0, [1.0, 0.5, 0.25]);
+    let only_depth = dir.path().join("depth.exr");
+    Image::from_layer(depth)
+        .write()
+        .to_file(&only_depth)
+        .unwrap();
+    let e = read_hdr_image(&only_depth).unwrap_err().to_string();
+    assert!(e.contains("no R, G, B or Y channel"), "{e}");
+}
