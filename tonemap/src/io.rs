@@ -215,20 +215,20 @@ fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSou
     // The other layouts, and files the block reader found irregular: the exr crate's image
     // reader on this thread, so that a panic of its decompressors on damaged data (which on
     // its own thread pool would abort the process) is an error.
-    let damaged = |_| Error::invalid("OpenEXR", "damaged data failed to decompress", path);
+    let channels = || {
+        read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .all_channels()
+    };
     let layer = if colour_part == 0 {
-        std::panic::catch_unwind(|| {
-            read()
-                .no_deep_data()
-                .largest_resolution_level()
-                .all_channels()
+        exr_guarded(path, || {
+            channels()
                 .first_valid_layer()
                 .all_attributes()
                 .non_parallel()
                 .from_file(path)
-        })
-        .map_err(damaged)?
-        .map_err(|e| exr_error(e, path))?
+        })?
         .layer_data
     } else {
         // Every part is decoded to reach a later one: their samples together must fit.
@@ -251,18 +251,13 @@ fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSou
                 max_bytes: limits.max_bytes,
             });
         }
-        std::panic::catch_unwind(|| {
-            read()
-                .no_deep_data()
-                .largest_resolution_level()
-                .all_channels()
+        exr_guarded(path, || {
+            channels()
                 .all_layers()
                 .all_attributes()
                 .non_parallel()
                 .from_file(path)
-        })
-        .map_err(damaged)?
-        .map_err(|e| exr_error(e, path))?
+        })?
         .layer_data
         .into_iter()
         .nth(colour_part)
@@ -328,6 +323,14 @@ fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSou
     Rgb32FImage::from_raw(w as u32, h as u32, data)
         .map(HdrSource::from_image)
         .ok_or_else(|| Error::invalid("OpenEXR", "image size overflows", path))
+}
+
+/// `read` (an exr crate image reader on this thread) with a panic of its decompressors on
+/// damaged data made an error, as its errors are.
+fn exr_guarded<T>(path: &Path, read: impl FnOnce() -> exr::error::Result<T>) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(read))
+        .map_err(|_| Error::invalid("OpenEXR", "damaged data failed to decompress", path))?
+        .map_err(|e| exr_error(e, path))
 }
 
 /// Refuses an OpenEXR header whose image a file of `file_len` bytes cannot hold, before the

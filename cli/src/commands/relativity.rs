@@ -245,7 +245,7 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(speeds) = &speeds {
         // Every frame's file, checked before the first is written (one may be the map).
         let frames: Vec<PathBuf> = (0..speeds.len())
-            .map(|k| ramp_frame_path(&args.out, k))
+            .map(|k| super::observer_args::frame_path(&args.out, k))
             .collect();
         let refs: Vec<&Path> = frames.iter().map(PathBuf::as_path).collect();
         crate::output::check_outputs(
@@ -318,7 +318,7 @@ pub fn run(args: Args) -> Result<()> {
                     worst = Some((k, f));
                 }
                 let img = render(&env, &cam, v, effects)?;
-                let path = ramp_frame_path(&args.out, k);
+                let path = super::observer_args::frame_path(&args.out, k);
                 errln!("frame {k}: beta {b:.4}");
                 write_image(&path, &img, args.exposure)?;
             }
@@ -328,14 +328,4 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Frame `k`'s file of a `--ramp` writing `out`: `STEM_kkkk.EXT`.
-fn ramp_frame_path(out: &Path, k: usize) -> PathBuf {
-    let stem = out.with_extension("").to_string_lossy().into_owned();
-    let ext = out
-        .extension()
-        .map(|e| e.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    PathBuf::from(format!("{stem}_{k:04}.{ext}"))
 }
