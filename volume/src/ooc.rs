@@ -212,6 +212,8 @@ pub struct RawFileSource {
     endian: Endian,
     geometry: Geometry,
     buf: Vec<u8>,
+    /// Axes the file stores reversed (a negative spacing in its header).
+    flip: [bool; 3],
 }
 
 impl RawFileSource {
@@ -242,12 +244,19 @@ impl RawFileSource {
             endian,
             geometry,
             buf: Vec::new(),
+            flip: [false; 3],
         })
     }
 
     /// Replaces origin and spacing (the dims must stay the same).
     pub fn set_geometry(&mut self, geometry: Geometry) -> Result<()> {
         replace_geometry(&mut self.geometry, geometry)
+    }
+
+    /// Reads the axes `flip` names reversed, as a header with a negative spacing asks.
+    fn flipped(mut self, flip: [bool; 3]) -> Self {
+        self.flip = flip;
+        self
     }
 
     /// Opens any file whose voxels can be streamed without decompression: an Open SciVis raw
@@ -269,13 +278,15 @@ impl RawFileSource {
             }
             Format::MetaImage => match crate::io::mhd::raw_payload(path, &Limits::no_limits())? {
                 Some((p, off, layout, geom)) if layout.components == 1 => {
-                    Self::new(&p, off, layout.disk, layout.endian, geom).map(Some)
+                    Self::new(&p, off, layout.disk, layout.endian, geom)
+                        .map(|s| Some(s.flipped(layout.flip)))
                 }
                 _ => Ok(None),
             },
             Format::Nrrd => match crate::io::nrrd::raw_payload(path, &Limits::no_limits())? {
                 Some((p, off, layout, geom)) if layout.components == 1 => {
-                    Self::new(&p, off, layout.disk, layout.endian, geom).map(Some)
+                    Self::new(&p, off, layout.disk, layout.endian, geom)
+                        .map(|s| Some(s.flipped(layout.flip)))
                 }
                 _ => Ok(None),
             },
@@ -294,21 +305,43 @@ impl SlabSource for RawFileSource {
     fn read_slice(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let [nx, ny, _] = self.geometry.dims;
         let bytes = nx * ny * self.disk.size_bytes();
-        let at = self.offset + (z * bytes) as u64;
+        let zf = if self.flip[2] {
+            self.geometry.dims[2] - 1 - z
+        } else {
+            z
+        };
+        let at = self.offset + (zf * bytes) as u64;
         let big = self.endian == Endian::Big;
         if self.disk == DiskType::F32 && big == cfg!(target_endian = "big") {
             // Native f32: read straight into the slice.
             self.file
                 .read_exact_at(bytemuck::cast_slice_mut(&mut out[..nx * ny]), at)?;
-            return Ok(());
+        } else {
+            self.buf.resize(bytes, 0);
+            self.file.read_exact_at(&mut self.buf, at)?;
+            if self.disk == DiskType::F64 {
+                crate::io::check_f64_range(&self.buf, big)?;
+            }
+            values_from_bytes(&self.buf, self.disk, big, out);
         }
-        self.buf.resize(bytes, 0);
-        self.file.read_exact_at(&mut self.buf, at)?;
-        if self.disk == DiskType::F64 {
-            crate::io::check_f64_range(&self.buf, big)?;
-        }
-        values_from_bytes(&self.buf, self.disk, big, out);
+        flip_slice(&mut out[..nx * ny], nx, self.flip);
         Ok(())
+    }
+}
+
+/// Reverses a slice's rows (`flip[1]`) and each row (`flip[0]`): `nx` values a row.
+fn flip_slice(slice: &mut [f32], nx: usize, flip: [bool; 3]) {
+    if flip[1] {
+        let ny = slice.len() / nx;
+        for y in 0..ny / 2 {
+            let (lo, hi) = slice.split_at_mut((ny - 1 - y) * nx);
+            lo[y * nx..(y + 1) * nx].swap_with_slice(&mut hi[..nx]);
+        }
+    }
+    if flip[0] {
+        for row in slice.chunks_exact_mut(nx) {
+            row.reverse();
+        }
     }
 }
 
@@ -359,6 +392,8 @@ pub struct GzipFileSource {
     next: usize,
     buf: Vec<u8>,
     path: std::path::PathBuf,
+    /// Reversed x and y axes (a negative spacing in the header).
+    flip: [bool; 3],
 }
 
 impl std::fmt::Debug for GzipFileSource {
@@ -384,7 +419,8 @@ impl GzipFileSource {
         else {
             return Ok(None);
         };
-        if layout.components != 1 {
+        // A reversed z axis would need the stream's slices last to first.
+        if layout.components != 1 || layout.flip[2] {
             return Ok(None);
         }
         geometry.validate()?;
@@ -399,6 +435,7 @@ impl GzipFileSource {
             next: 0,
             buf: Vec::new(),
             path: data,
+            flip: layout.flip,
         }))
     }
 }
@@ -447,6 +484,7 @@ impl SlabSource for GzipFileSource {
             crate::io::check_f64_range(&self.buf, self.endian == Endian::Big)?;
         }
         values_from_bytes(&self.buf, self.disk, self.endian == Endian::Big, out);
+        flip_slice(&mut out[..nx * ny], nx, self.flip);
         Ok(())
     }
 }

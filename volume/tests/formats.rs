@@ -744,3 +744,173 @@ fn vtk_repeated_array_names_get_numbered_and_their_count_is_capped() {
     let e = blueshift_volume::read(file(4097)).unwrap_err();
     assert!(matches!(e, blueshift_volume::Error::Limits(_)), "{e}");
 }
+
+/// A header whose spacing or direction along an axis is negative stores that axis from high
+/// to low coordinate. Every reader, in core and streamed for the converter, must give each
+/// voxel the value the file holds for its world position (here an analytic function of the
+/// position the header assigns to each stored voxel), so the volume is not mirrored.
+#[test]
+fn negative_axis_directions_keep_every_voxel_at_its_world_position() {
+    use blueshift_volume::ooc::{GzipFileSource, RawFileSource, SlabSource};
+    use std::io::Write;
+    let dims = [5usize, 4, 3];
+    let f = |p: Vec3| 100.0 * p.x + 10.0 * p.y + p.z;
+    // The stored values, file order, for voxel 0 at `origin` and `signed` spacing per axis.
+    let stored = |origin: Vec3, signed: Vec3| -> Vec<f32> {
+        let mut v = Vec::new();
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    v.push(f(origin + Vec3::new(i as f32, j as f32, k as f32) * signed));
+                }
+            }
+        }
+        v
+    };
+    let le = |v: &[f32]| -> Vec<u8> { v.iter().flat_map(|x| x.to_le_bytes()).collect() };
+    let gz = |b: &[u8]| {
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        e.write_all(b).unwrap();
+        e.finish().unwrap()
+    };
+    // Checks a loaded grid's values (x fastest, as loaded) against f at each voxel's world
+    // position, and that its spacing is positive with the volume where the file put it.
+    let check = |g: &Geometry, values: &[f32], what: &str| {
+        assert!(g.spacing.min_element() > 0.0, "{what}: {g:?}");
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let p = g.origin + Vec3::new(i as f32, j as f32, k as f32) * g.spacing;
+                    let got = values[i + dims[0] * (j + dims[1] * k)];
+                    assert!(
+                        (got - f(p)).abs() < 1e-3,
+                        "{what}: voxel {i},{j},{k} at {p} holds {got}, the file says {}",
+                        f(p)
+                    );
+                }
+            }
+        }
+    };
+    use blueshift_volume::Geometry;
+    let dir = tempfile::tempdir().unwrap();
+    let o = Vec3::new(1.0, -2.0, 0.5);
+    // (name, header, voxel bytes, origin, signed spacing)
+    let nrrd = |dirs: &str, origin: &str, enc: &str| {
+        format!(
+            "NRRD0004\ntype: float\ndimension: 3\nsizes: 5 4 3\nendian: little\n\
+             encoding: {enc}\n{dirs}\n{origin}\n"
+        )
+        .replace("\n\n", "\n")
+            + "\n"
+    };
+    let cases: Vec<(&str, String, bool, Vec3, Vec3)> = vec![
+        (
+            "dirs.nrrd",
+            nrrd(
+                "space directions: (-0.5,0,0) (0,2,0) (0,0,-1)",
+                "space origin: (1,-2,0.5)",
+                "raw",
+            ),
+            false,
+            o,
+            Vec3::new(-0.5, 2.0, -1.0),
+        ),
+        (
+            "spacings.nrrd",
+            nrrd("spacings: 0.5 -2 1", "", "raw"),
+            false,
+            Vec3::ZERO,
+            Vec3::new(0.5, -2.0, 1.0),
+        ),
+        (
+            "xy.nrrd",
+            nrrd(
+                "space directions: (-0.5,0,0) (0,-2,0) (0,0,1)",
+                "space origin: (1,-2,0.5)",
+                "gzip",
+            ),
+            true,
+            o,
+            Vec3::new(-0.5, -2.0, 1.0),
+        ),
+        (
+            "z.nrrd",
+            nrrd(
+                "space directions: (0.5,0,0) (0,2,0) (0,0,-1)",
+                "space origin: (1,-2,0.5)",
+                "gzip",
+            ),
+            true,
+            o,
+            Vec3::new(0.5, 2.0, -1.0),
+        ),
+        (
+            "flip.mha",
+            "ObjectType = Image\nNDims = 3\nDimSize = 5 4 3\nElementType = MET_FLOAT\n\
+             ElementSpacing = 0.5 2 1\nOffset = 1 -2 0.5\n\
+             TransformMatrix = -1 0 0 0 1 0 0 0 -1\nElementDataFile = LOCAL\n"
+                .to_string(),
+            false,
+            o,
+            Vec3::new(-0.5, 2.0, -1.0),
+        ),
+    ];
+    for (name, header, gzip, origin, signed) in &cases {
+        let values = stored(*origin, *signed);
+        let payload = if *gzip { gz(&le(&values)) } else { le(&values) };
+        let p = dir.path().join(name);
+        std::fs::write(&p, [header.as_bytes(), &payload].concat()).unwrap();
+        let v = read(&p).unwrap();
+        let g = *v.geometry();
+        check(&g, &scalars(&v, 0), name);
+        // The converter's streamed sources give the same slices.
+        let raw = RawFileSource::probe(&p).unwrap();
+        let streamed: Option<Box<dyn SlabSource>> = match raw {
+            Some(s) => Some(Box::new(s)),
+            None => GzipFileSource::probe(&p)
+                .unwrap()
+                .map(|s| Box::new(s) as Box<dyn SlabSource>),
+        };
+        match streamed {
+            Some(mut s) => {
+                assert_eq!(s.geometry(), g, "{name}");
+                let mut all = vec![0f32; dims[0] * dims[1] * dims[2]];
+                for (z, out) in all.chunks_exact_mut(dims[0] * dims[1]).enumerate() {
+                    s.read_slice(z, out).unwrap();
+                }
+                check(&g, &all, &format!("{name} streamed"));
+            }
+            // A reversed z axis in a gzip stream is read in core.
+            None => assert!(*name == "z.nrrd", "{name} did not stream"),
+        }
+    }
+    // VTK (big-endian binary) with a negative SPACING, scalars and vectors.
+    let signed = Vec3::new(-0.5, 2.0, -1.0);
+    let values = stored(o, signed);
+    let mut vtk = b"# vtk DataFile Version 3.0\nflip\nBINARY\nDATASET STRUCTURED_POINTS\n\
+        DIMENSIONS 5 4 3\nSPACING -0.5 2 -1\nORIGIN 1 -2 0.5\nPOINT_DATA 60\n\
+        SCALARS s float 1\nLOOKUP_TABLE default\n"
+        .to_vec();
+    vtk.extend(values.iter().flat_map(|x| x.to_be_bytes()));
+    vtk.extend(b"\nVECTORS v float\n");
+    vtk.extend(
+        values
+            .iter()
+            .flat_map(|x| [*x, 2.0 * x, -x])
+            .flat_map(|x| x.to_be_bytes()),
+    );
+    vtk.push(b'\n');
+    let p = dir.path().join("flip.vtk");
+    std::fs::write(&p, vtk).unwrap();
+    let v = read(&p).unwrap();
+    let g = *v.geometry();
+    check(&g, &scalars(&v, 0), "vtk scalars");
+    // A vector's components are world components: reordering voxels leaves them as they are.
+    let vecs = vectors(&v, "v");
+    for c in 0..3 {
+        let comp: Vec<f32> = vecs.iter().skip(c).step_by(3).copied().collect();
+        let scale = [1.0, 2.0, -1.0][c];
+        let unscaled: Vec<f32> = comp.iter().map(|x| x / scale).collect();
+        check(&g, &unscaled, &format!("vtk vector component {c}"));
+    }
+}

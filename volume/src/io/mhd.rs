@@ -3,8 +3,9 @@
 //! `ElementSpacing` (or `ElementSize`), `Offset`/`Origin`/`Position`,
 //! `ElementByteOrderMSB`/`BinaryDataByteOrderMSB`, `CompressedData` (zlib),
 //! `ElementNumberOfChannels` (1, or 3 for a vector field), `HeaderSize` and
-//! `ElementDataFile`. A `TransformMatrix` must be axis-aligned (its sign is dropped as for
-//! NRRD); rotations are refused.
+//! `ElementDataFile`. A `TransformMatrix` must be axis-aligned; a negative entry (or a
+//! negative spacing) reverses that axis as for NRRD, so voxels keep their world positions.
+//! Rotations are refused.
 
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
@@ -69,6 +70,8 @@ fn parse_header(path: &Path) -> Result<Header> {
     let mut channels = 1usize;
     let mut header_size: i64 = 0;
     let mut data_file = None;
+    // The direction matrix's diagonal: a negative entry reverses that axis.
+    let mut diagonal = [1f32; 3];
     for _ in 0..4096 {
         // Binary data before any `ElementDataFile` line reads as a line that is not text.
         let Some(line) = read_line(&mut r, &mut pos).map_err(|e| match e {
@@ -120,13 +123,28 @@ fn parse_header(path: &Path) -> Result<Header> {
             }
             "TransformMatrix" | "Rotation" | "Orientation" => {
                 let m = floats(value, key)?;
-                if m.len() == 9 {
-                    for (i, v) in m.iter().enumerate() {
-                        if i % 4 != 0 && v.abs() > 1e-6 {
-                            return Err(Error::unsupported(
-                                "MetaImage: rotated TransformMatrix (only axis-aligned)",
-                            ));
-                        }
+                let n = match m.len() {
+                    4 => 2,
+                    9 => 3,
+                    k => {
+                        return Err(Error::invalid(format!(
+                            "MetaImage: {key} has {k} numbers (4 or 9)"
+                        )));
+                    }
+                };
+                for (i, v) in m.iter().enumerate() {
+                    if i % (n + 1) != 0 && v.abs() > 1e-6 {
+                        return Err(Error::unsupported(format!(
+                            "MetaImage: rotated {key} (only axis-aligned)"
+                        )));
+                    }
+                }
+                for (a, d) in diagonal.iter_mut().enumerate().take(n) {
+                    *d = m[a * (n + 1)];
+                    if d.abs() < 1e-6 {
+                        return Err(Error::invalid(format!(
+                            "MetaImage: {key} has a zero on its diagonal"
+                        )));
                     }
                 }
             }
@@ -165,7 +183,7 @@ fn parse_header(path: &Path) -> Result<Header> {
             ));
         }
         for a in 0..ndims {
-            sp[a] = s[a].abs();
+            sp[a] = s[a];
         }
     }
     let mut o = Vec3::ZERO;
@@ -177,6 +195,12 @@ fn parse_header(path: &Path) -> Result<Header> {
             o[a] = v[a];
         }
     }
+    for (a, d) in diagonal.iter().enumerate().take(ndims) {
+        if *d < 0.0 {
+            sp[a] = -sp[a];
+        }
+    }
+    let (o, sp, flip) = super::orient(dims, o, sp);
     let geometry = Geometry {
         dims,
         origin: o,
@@ -190,6 +214,7 @@ fn parse_header(path: &Path) -> Result<Header> {
         disk,
         endian: if msb { Endian::Big } else { Endian::Little },
         components: channels,
+        flip,
     };
     Ok(Header {
         layout,
@@ -302,8 +327,8 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
             path.display()
         )));
     }
-    let bytes = read_payload(src, encoding, len)?;
-    let grid = decode(&bytes, &layout, geometry)?;
+    let mut bytes = read_payload(src, encoding, len)?;
+    let grid = decode(&mut bytes, &layout, geometry)?;
     let name = if channels == 3 { "vectors" } else { "scalars" };
     finish(name, grid, disk, opts)
 }

@@ -186,6 +186,57 @@ pub(crate) struct Layout {
     pub endian: Endian,
     /// 1 for scalars, 3 for interleaved vectors.
     pub components: usize,
+    /// Axes the file stores from high to low world coordinate (a negative spacing or
+    /// direction): the reader reverses them, so the grid runs along +x, +y, +z as
+    /// [`Geometry`] requires and every voxel keeps its world position.
+    pub flip: [bool; 3],
+}
+
+/// Origin, spacing and reversed axes of a grid whose file gives `dims` voxels from `origin`
+/// (voxel 0's position) at `signed` spacing per axis. An axis with a negative spacing runs
+/// from high to low world coordinate: its voxels are reversed ([`Layout::flip`]) and the
+/// origin becomes its lowest voxel's position, so each voxel keeps its place in the world
+/// and the picture is not mirrored.
+pub(crate) fn orient(dims: [usize; 3], origin: Vec3, signed: Vec3) -> (Vec3, Vec3, [bool; 3]) {
+    let mut o = origin;
+    let mut flip = [false; 3];
+    for a in 0..3 {
+        if signed[a] < 0.0 {
+            flip[a] = true;
+            o[a] = (f64::from(origin[a]) + (dims[a] as f64 - 1.0) * f64::from(signed[a])) as f32;
+        }
+    }
+    (o, signed.abs(), flip)
+}
+
+/// Reverses the axes `flip` names in `bytes`: `dims` voxels of `elem` bytes each, x fastest.
+pub(crate) fn flip_axes(bytes: &mut [u8], dims: [usize; 3], elem: usize, flip: [bool; 3]) {
+    let row = dims[0] * elem;
+    let slice = row * dims[1];
+    let bytes = &mut bytes[..slice * dims[2]];
+    let swap_blocks = |b: &mut [u8], len: usize, count: usize| {
+        for i in 0..count / 2 {
+            let (lo, hi) = b.split_at_mut((count - 1 - i) * len);
+            lo[i * len..(i + 1) * len].swap_with_slice(&mut hi[..len]);
+        }
+    };
+    if flip[2] {
+        swap_blocks(bytes, slice, dims[2]);
+    }
+    if flip[1] {
+        for s in bytes.chunks_exact_mut(slice) {
+            swap_blocks(s, row, dims[1]);
+        }
+    }
+    if flip[0] {
+        for r in bytes.chunks_exact_mut(row) {
+            // Reversing the bytes reverses the voxels and each voxel's bytes: put those back.
+            r.reverse();
+            for v in r.chunks_exact_mut(elem) {
+                v.reverse();
+            }
+        }
+    }
 }
 
 impl Layout {
@@ -358,13 +409,17 @@ pub(crate) fn open(path: &Path) -> Result<(std::fs::File, u64)> {
 }
 
 /// Converts decoded bytes into a grid following the module's type mapping.
-pub(crate) fn decode(bytes: &[u8], layout: &Layout, geometry: Geometry) -> Result<AnyGrid> {
+pub(crate) fn decode(bytes: &mut [u8], layout: &Layout, geometry: Geometry) -> Result<AnyGrid> {
     let size = layout.disk.size_bytes();
     let big = layout.endian == Endian::Big;
     let n = geometry.voxel_count() * layout.components;
     if bytes.len() < n * size {
         return Err(Error::invalid("truncated data"));
     }
+    if layout.flip.contains(&true) {
+        flip_axes(bytes, geometry.dims, size * layout.components, layout.flip);
+    }
+    let bytes = &*bytes;
     if layout.disk == DiskType::F64 {
         check_f64_range(&bytes[..n * size], big)?;
     }

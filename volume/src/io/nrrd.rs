@@ -4,9 +4,11 @@
 //!
 //! A 4D file whose first axis has size 3 (`kinds: 3-vector ...`) loads as a [`glam::Vec3`]
 //! grid. `space directions` must be axis-aligned: the spacing is the length of each
-//! direction and a negative sign (a flipped axis, e.g. LPS medical data) is dropped, which
-//! keeps voxel order but mirrors the world position; rotated directions are refused with
-//! [`Error::Unsupported`].
+//! direction. A negative direction or spacing (an axis stored from high to low coordinate,
+//! as in LPS medical data) reverses that axis's voxels on reading, with the origin moved to
+//! the lowest voxel, so every voxel keeps its world position (the picture is not mirrored).
+//! The `space` name is not interpreted: coordinates are taken as given. Rotated directions
+//! are refused with [`Error::Unsupported`].
 
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
@@ -272,7 +274,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
                     "NRRD: spacing {s} on spatial axis {a}"
                 )));
             }
-            spacing[a] = s.abs();
+            spacing[a] = *s;
         }
     }
     if let Some(dirs) = &directions {
@@ -301,9 +303,10 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
                     "NRRD: rotated space direction {d:?} (only axis-aligned)"
                 )));
             }
-            spacing[a] = len;
+            spacing[a] = if d[a] < 0.0 { -len } else { len };
         }
     }
+    let (origin, spacing, flip) = super::orient(dims, origin, spacing);
     let geometry = Geometry {
         dims,
         origin,
@@ -317,6 +320,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
         disk,
         endian,
         components,
+        flip,
     };
     layout.byte_len(limits)?;
     let data_file = match &data_file {
@@ -462,7 +466,7 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     } else if encoding == Encoding::Raw && (len as u64) > remaining {
         return Err(truncated(len, remaining, path));
     }
-    let (bytes, layout) = if encoding == Encoding::Ascii {
+    let (mut bytes, layout) = if encoding == Encoding::Ascii {
         let b = super::read_ascii(src, layout.disk, geometry.voxel_count() * components)?;
         (
             b,
@@ -474,7 +478,7 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
     } else {
         (read_payload(src, encoding, len)?, layout)
     };
-    let grid = decode(&bytes, &layout, geometry)?;
+    let grid = decode(&mut bytes, &layout, geometry)?;
     let name = if components == 3 {
         "vectors"
     } else {

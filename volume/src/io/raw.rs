@@ -148,6 +148,7 @@ pub fn read_raw(
         disk,
         endian,
         components,
+        flip: [false; 3],
     };
     let len = layout.byte_len(&opts.limits)?;
     let (mut f, file_len) = open(path)?;
@@ -161,8 +162,8 @@ pub fn read_raw(
         )));
     }
     f.seek(SeekFrom::Start(offset))?;
-    let bytes = read_payload(std::io::BufReader::new(f), Encoding::Raw, len)?;
-    let grid = decode(&bytes, &layout, Geometry::unit(dims))?;
+    let mut bytes = read_payload(std::io::BufReader::new(f), Encoding::Raw, len)?;
+    let grid = decode(&mut bytes, &layout, Geometry::unit(dims))?;
     let name = if components == 3 {
         "vectors"
     } else {

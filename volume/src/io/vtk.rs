@@ -1,7 +1,8 @@
 //! Legacy VTK `DATASET STRUCTURED_POINTS`, `BINARY` (always big-endian) or `ASCII`, with
 //! `POINT_DATA` attributes `SCALARS` (one component) and `VECTORS` (three, interleaved).
 //! Each attribute becomes a channel named as in the file, so a velocity field comes in with
-//! its scalars. `SPACING` and the old `ASPECT_RATIO` both give the spacing.
+//! its scalars. `SPACING` and the old `ASPECT_RATIO` both give the spacing; a negative spacing
+//! reverses that axis on reading, so every voxel keeps its world position.
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -155,6 +156,7 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                     dims.ok_or_else(|| Error::invalid("VTK: attribute data before DIMENSIONS"))?;
                 let n = npoints
                     .ok_or_else(|| Error::invalid("VTK: attribute data before POINT_DATA"))?;
+                let (origin, spacing, flip) = super::orient(dims, origin, spacing);
                 let geometry = Geometry {
                     dims,
                     origin,
@@ -200,9 +202,10 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                     disk,
                     endian: Endian::Big,
                     components,
+                    flip,
                 };
                 let len = layout.byte_len(&opts.limits)?;
-                let bytes = if binary {
+                let mut bytes = if binary {
                     let avail = lx.len.saturating_sub(lx.pos);
                     if len as u64 > avail {
                         return Err(Error::invalid(format!(
@@ -232,7 +235,7 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                     }
                     b
                 };
-                let grid = decode(&bytes, &layout, geometry)?;
+                let grid = decode(&mut bytes, &layout, geometry)?;
                 if opts.reject_non_finite {
                     grid.reject_non_finite()?;
                 }
