@@ -914,3 +914,62 @@ fn negative_axis_directions_keep_every_voxel_at_its_world_position() {
         check(&g, &unscaled, &format!("vtk vector component {c}"));
     }
 }
+
+/// A header field given twice leaves which value was meant unknown (NRRD's format calls it
+/// an error), and an NRRD colour axis is not a vector: all are refused with one line.
+#[test]
+fn repeated_header_fields_and_colour_axes_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let voxels = vec![0u8; 2 * 2 * 2 * 3];
+    let cases: [(&str, &str, &str); 5] = [
+        (
+            "twice.nrrd",
+            "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nsizes: 4 1 2\nencoding: raw\n\n",
+            "given twice",
+        ),
+        (
+            "alias.nrrd",
+            "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nbyte skip: 0\nbyteskip: 0\n\
+             encoding: raw\n\n",
+            "given twice",
+        ),
+        (
+            "rgb.nrrd",
+            "NRRD0004\ntype: uchar\ndimension: 4\nsizes: 3 2 2 2\n\
+             kinds: RGB-color domain domain domain\nencoding: raw\n\n",
+            "colour",
+        ),
+        (
+            "twice.mha",
+            "NDims = 3\nDimSize = 2 2 2\nDimSize = 4 1 2\nElementType = MET_UCHAR\n\
+             ElementDataFile = LOCAL\n",
+            "given twice",
+        ),
+        (
+            "alias.mha",
+            "NDims = 3\nDimSize = 2 2 2\nOffset = 0 0 0\nOrigin = 1 0 0\n\
+             ElementType = MET_UCHAR\nElementDataFile = LOCAL\n",
+            "given twice",
+        ),
+    ];
+    for (name, header, want) in cases {
+        let p = dir.path().join(name);
+        std::fs::write(&p, [header.as_bytes(), &voxels].concat()).unwrap();
+        let e = read(&p).unwrap_err().to_string();
+        assert!(e.contains(want), "{name}: {e}");
+    }
+    // The same headers without the repeat read.
+    let p = dir.path().join("once.nrrd");
+    std::fs::write(
+        &p,
+        [
+            b"NRRD0004\ntype: uchar\ndimension: 4\nsizes: 3 2 2 2\n\
+              kinds: 3-vector domain domain domain\nencoding: raw\n\n"
+                .as_slice(),
+            &voxels,
+        ]
+        .concat(),
+    )
+    .unwrap();
+    read(&p).unwrap();
+}

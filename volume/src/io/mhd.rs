@@ -70,6 +70,7 @@ fn parse_header(path: &Path) -> Result<Header> {
     let mut channels = 1usize;
     let mut header_size: i64 = 0;
     let mut data_file = None;
+    let mut seen = std::collections::HashSet::new();
     // The direction matrix's diagonal: a negative entry reverses that axis.
     let mut diagonal = [1f32; 3];
     for _ in 0..4096 {
@@ -91,6 +92,16 @@ fn parse_header(path: &Path) -> Result<Header> {
             .split_once('=')
             .ok_or_else(|| Error::invalid(format!("MetaImage: header line '{line}' has no '='")))?;
         let (key, value) = (key.trim(), value.trim());
+        // A field given twice (or under two of its names) leaves which was meant unknown.
+        let canonical = match key {
+            "Origin" | "Position" => "Offset",
+            "Rotation" | "Orientation" => "TransformMatrix",
+            "BinaryDataByteOrderMSB" => "ElementByteOrderMSB",
+            k => k,
+        };
+        if !seen.insert(canonical.to_string()) {
+            return Err(Error::invalid(format!("MetaImage: {key} given twice")));
+        }
         match key {
             "NDims" => ndims = Some(parse_dim(value, "MetaImage NDims")?),
             "DimSize" => {

@@ -136,6 +136,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
     let mut endian = None;
     let mut encoding = None;
     let mut data_file: Option<String> = None;
+    let mut seen = std::collections::HashSet::new();
     let mut data_check = None;
     let mut byte_skip: i64 = 0;
     let mut line_skip: usize = 0;
@@ -160,8 +161,29 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
             .or_else(|| line.split_once(':'))
             .ok_or_else(|| Error::invalid(format!("NRRD: header line '{line}' has no ': '")))?;
         let value = value.trim();
+        // A field given twice is an error in the format (teem refuses it): which one was
+        // meant is unknown.
+        if !seen.insert(key.trim().replace(' ', "")) {
+            return Err(Error::invalid(format!(
+                "NRRD: field '{}' given twice",
+                key.trim()
+            )));
+        }
         match key.trim() {
             "type" => disk = Some(nrrd_type(value)?),
+            "kinds" => {
+                // The component axis of a 4D file is read as a vector: a colour or tensor is
+                // not one.
+                if let Some(k) = value.split_whitespace().next() {
+                    let k = k.to_ascii_lowercase();
+                    if k.contains("color") || k.contains("tensor") || k.contains("matrix") {
+                        return Err(Error::unsupported(format!(
+                            "NRRD kinds '{k}': colour and tensor volumes are not read \
+                             (scalars and 3-vectors are)"
+                        )));
+                    }
+                }
+            }
             "dimension" => dimension = Some(parse_dim(value, "NRRD dimension")?),
             "sizes" => {
                 sizes = Some(
