@@ -195,6 +195,13 @@ pub fn parse_line_list(text: &str, source_name: &str) -> Result<Vec<EmissionLine
     let mut lines = Vec::new();
     for (line_no, row) in rows {
         let fields: Vec<&str> = row.split(',').map(str::trim).collect();
+        // A row of more fields than the header names has shifted or unnamed columns.
+        if fields.len() > names.len() {
+            return Err(parse_err(
+                line_no,
+                format!("expected {} columns, found {}", names.len(), fields.len()),
+            ));
+        }
         let value = |i: usize| -> Result<f64> {
             let f = fields.get(i).ok_or_else(|| {
                 parse_err(

@@ -25,6 +25,14 @@ fn the_header_names_the_columns() {
     )
     .unwrap();
     assert_eq!(a, b);
+    // A row with a field the header does not name (a shifted or unnamed column) is refused.
+    let msg = parse_line_list("wavelength_nm,relative_intensity\n656.3,2,7\n", "e.csv")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains("e.csv") && msg.contains("expected 2 columns, found 3"),
+        "{msg}"
+    );
 }
 
 #[test]

@@ -266,15 +266,24 @@ fn convert(preset: &Map<String, Value>) -> Result<TransferFunction> {
             .with_data_axis(DataAxis::Log)
             .map_err(|e| Error::invalid(format!("ParaView preset {pname:?}: {e}")))?;
     }
-    if let Some(nan) = numbers(preset, "NanColor", 3, &pname)?
-        && nan.len() == 3
-    {
+    if let Some(nan) = numbers(preset, "NanColor", 3, &pname)? {
+        if nan.len() != 3 {
+            return Err(Error::invalid(format!(
+                "ParaView preset {pname:?}: NanColor has {} numbers, not 3 (red, green, blue)",
+                nan.len()
+            )));
+        }
         let c = [nan[0] as f32, nan[1] as f32, nan[2] as f32];
         tf = tf
             .with_nan_color(c)
             .map_err(|e| Error::invalid(format!("ParaView preset {pname:?}: {e}")))?;
     }
-    if let Some(a) = preset.get(ALPHA_G_KEY).and_then(Value::as_f64) {
+    if let Some(v) = preset.get(ALPHA_G_KEY) {
+        let a = v.as_f64().ok_or_else(|| {
+            Error::invalid(format!(
+                "ParaView preset {pname:?}: {ALPHA_G_KEY} {v} is not a number"
+            ))
+        })?;
         tf = tf
             .with_alpha_g(a as f32)
             .map_err(|e| Error::invalid(format!("ParaView preset {pname:?}: {e}")))?;

@@ -239,6 +239,14 @@ fn malformed_files_give_errors_naming_the_entry_and_never_panic() {
             "categorical",
         ),
         (
+            "[{\"Name\": \"n\", \"NanColor\": [1, 0, 0, 0, 1, 0], \"RGBPoints\": [0, 0, 0, 0, 1, 1, 1, 1]}]",
+            "NanColor has 6 numbers",
+        ),
+        (
+            "[{\"Name\": \"g\", \"BlueshiftGlobalOpacity\": \"half\", \"RGBPoints\": [0, 0, 0, 0, 1, 1, 1, 1]}]",
+            "BlueshiftGlobalOpacity \"half\" is not a number",
+        ),
+        (
             "[{\"Name\": \"l\", \"UseLogScale\": true, \"RGBPoints\": [-1, 0, 0, 0, 1, 1, 1, 1]}]",
             "positive",
         ),
