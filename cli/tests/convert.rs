@@ -418,12 +418,13 @@ fn a_thin_volume_gets_a_note_on_its_padding_with_a_smaller_brick() {
     let err = String::from_utf8_lossy(&o.stderr);
     let note = err
         .lines()
-        .find(|l| l.starts_with("note: bricks are cubes"))
+        .find(|l| l.starts_with("note: bricks of edge 64"))
         .unwrap_or_else(|| panic!("no note: {err}"));
+    assert!(note.contains("bricks are cubes"), "{note}");
     let len = std::fs::metadata(&out).unwrap().len();
     let fmt = blueshift_volume::budget::format_bytes;
     assert!(
-        note.contains(&format!("to {},", fmt(len))),
+        note.contains(&format!("volume {},", fmt(len))),
         "{note} ({len} bytes)"
     );
     let (_, tail) = note.split_once("--brick ").expect("a smaller brick named");
@@ -452,4 +453,21 @@ fn a_thin_volume_gets_a_note_on_its_padding_with_a_smaller_brick() {
         dir.path().join("c.bsv").as_os_str(),
     ]);
     assert!(!String::from_utf8_lossy(&o.stderr).contains("note:"));
+    // Tiny bricks on a cube (of more than 1 MiB, below which no note is given): their 1-voxel
+    // apron (4^3 values for 2^3 voxels) is the cause, and is named as such.
+    let cube = dir.path().join("c_104x104x104_uint8.raw");
+    std::fs::write(&cube, vec![7u8; 104 * 104 * 104]).unwrap();
+    let o = run(&[
+        "convert".as_ref(),
+        cube.as_os_str(),
+        dir.path().join("c2.bsv").as_os_str(),
+        "--brick".as_ref(),
+        "2".as_ref(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("note: bricks of edge 2")
+            && err.contains("apron around its 2^3 voxels, 4^3 values (8.0 times)"),
+        "{err}"
+    );
 }

@@ -412,9 +412,10 @@ impl SlabSource for AsType<'_> {
     }
 }
 
-/// A note on stderr, after a conversion, when cubic bricks padded a thin volume to more than
-/// eight times its voxels (4096 x 4096 x 1 in bricks of 64 is 2.8 GB for 17 MB), naming the
-/// brick edge that writes the smallest file.
+/// A note on stderr, after a conversion, when the bricked file is more than eight times the
+/// volume's voxels: cubic bricks padding a thin volume (4096 x 4096 x 1 in bricks of 64 is
+/// 2.8 GB for 17 MB) or tiny bricks' aprons (edge 2 stores 4^3 values for 8 voxels). Names
+/// the cause and the brick edge that writes the smallest file.
 fn padding_note(dims: [usize; 3], layout: BrickLayout, t: blueshift_volume::ScalarType) {
     let size = |brick| {
         ooc::bricked_file_bytes(dims, BrickLayout { brick, ..layout }, t).unwrap_or(u64::MAX)
@@ -432,10 +433,27 @@ fn padding_note(dims: [usize; 3], layout: BrickLayout, t: blueshift_volume::Scal
         .min_by_key(|&(_, s)| s);
     let fmt = blueshift_volume::budget::format_bytes;
     let [x, y, z] = dims;
+    // The two causes: whole cubic bricks padding thin axes, and each brick's apron.
+    let b = layout.brick;
+    let padded = dims
+        .iter()
+        .map(|&d| (d.div_ceil(b) * b) as f64)
+        .product::<f64>();
+    let pad = padded / voxels.max(1) as f64;
+    let stored = b + 2 * layout.apron;
+    let apron = (stored as f64 / b as f64).powi(3);
+    let cause = if pad >= apron {
+        format!("bricks are cubes, and whole bricks hold {pad:.1} times its voxels")
+    } else {
+        format!(
+            "each brick stores a {}-voxel apron around its {b}^3 voxels, {stored}^3 values \
+             ({apron:.1} times)",
+            layout.apron
+        )
+    };
     let mut note = format!(
-        "note: bricks are cubes: bricks of edge {} padded this {x}x{y}x{z} volume to {}, {} \
-         times its {} of voxels",
-        layout.brick,
+        "note: bricks of edge {b} made this {x}x{y}x{z} volume {}, {} times its {} of \
+         voxels: {cause}",
         fmt(bytes),
         bytes / data.max(1),
         fmt(data)
