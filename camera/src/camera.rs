@@ -18,12 +18,24 @@ pub struct Ray {
     pub dir: Vec3,
 }
 
+/// `v` scaled to unit length; `None` if it is zero or not finite. Scaled by its largest
+/// component first, so vectors whose squared length overflows f32 (world distances above
+/// about 1.8e19, as in volumes measured in centimetres) or underflows it still normalise.
+#[must_use]
+pub fn unit(v: Vec3) -> Option<Vec3> {
+    let m = v.abs().max_element();
+    if !(m > 0.0 && m.is_finite()) {
+        return None;
+    }
+    (v / m).try_normalize()
+}
+
 impl Ray {
     /// A ray from `origin` along `dir` (normalised here); `None` if `dir` is zero or not
     /// finite, or `origin` is not finite.
     #[must_use]
     pub fn new(origin: Vec3, dir: Vec3) -> Option<Self> {
-        let dir = dir.try_normalize()?;
+        let dir = unit(dir)?;
         origin.is_finite().then_some(Ray { origin, dir })
     }
 
@@ -102,8 +114,7 @@ impl Camera {
                 "camera: eye, target and up must be finite",
             ));
         }
-        let f = (self.target - self.eye)
-            .try_normalize()
+        let f = unit(self.target - self.eye)
             .ok_or_else(|| Error::parameter("camera: eye and target coincide"))?;
         if f.cross(self.up).length_squared() < 1e-12 {
             return Err(Error::parameter(
@@ -213,10 +224,13 @@ impl Camera {
         } else {
             1.0
         };
-        let half_h = ey.max(ex / aspect).max(1e-6);
+        // Every distance scales with the box, so a volume in any units (1e-30 or 1e30 per
+        // voxel) is framed alike; a box of no extent still gets a positive view.
+        let size = (hi - lo).abs().max_element();
+        let half_h = ey.max(ex / aspect).max(size * 1e-6).max(f32::MIN_POSITIVE);
         let camera = if orthographic {
             Camera {
-                eye: centre + n * (2.0 * ez + 1.0),
+                eye: centre + n * (2.0 * ez + half_h),
                 target: centre,
                 up: upv,
                 projection: Projection::Orthographic {
@@ -301,7 +315,7 @@ impl Camera {
     /// Every backend builds its rays from this frame.
     #[must_use]
     pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
-        let f = (self.target - self.eye).try_normalize().unwrap_or(Vec3::Z);
+        let f = unit(self.target - self.eye).unwrap_or(Vec3::Z);
         let r = f.cross(self.up).try_normalize().unwrap_or(Vec3::X);
         (f, r, r.cross(f))
     }
@@ -316,7 +330,9 @@ impl Camera {
         match self.projection {
             Projection::Orthographic { height: world } => world / h,
             Projection::Perspective { fov_y_deg } => {
-                let d = (self.eye.clamp(lo.min(hi), lo.max(hi)) - self.eye).length();
+                let d = (self.eye.clamp(lo.min(hi), lo.max(hi)) - self.eye)
+                    .as_dvec3()
+                    .length() as f32;
                 2.0 * d * (fov_y_deg.to_radians() * 0.5).tan() / h
             }
         }

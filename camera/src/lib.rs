@@ -27,7 +27,7 @@ mod error;
 mod names;
 pub mod session;
 
-pub use camera::{Camera, ClipBox, DEFAULT_FOV_Y_DEG, Projection, Ray, View, up_for};
+pub use camera::{Camera, ClipBox, DEFAULT_FOV_Y_DEG, Projection, Ray, View, unit, up_for};
 pub use error::{Error, Result};
 pub use session::{
     CancelToken, DeviceKind, Observer, OnProgress, Progress, ProgressOnly, Session, Silent,

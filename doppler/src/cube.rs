@@ -324,8 +324,12 @@ pub fn los_camera(
         true,
         blueshift_camera::DEFAULT_FOV_Y_DEG,
     )?;
-    // Rays start a bounding radius plus one from the centre (as the cube tests were recorded).
-    camera.eye = camera.target + n * (0.5 * (hi - lo).length() + 1.0);
+    // Rays start a bounding radius plus one from the centre (as the cube tests were recorded),
+    // plus the radius for a volume smaller than one unit, so every distance scales with a
+    // volume in any units (in f64: the squared diagonal of a volume in centimetres overflows
+    // f32).
+    let r = (0.5 * (hi - lo).as_dvec3().length()) as f32;
+    camera.eye = camera.target + n * (r + r.clamp(f32::MIN_POSITIVE, 1.0));
     Ok(camera)
 }
 

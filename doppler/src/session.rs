@@ -137,8 +137,8 @@ impl DopplerSession {
     fn sample_bytes(&self) -> usize {
         let g = &self.scene.geometry;
         let (lo, hi) = g.world_bounds();
-        let diag = (hi - lo + 2.0 * g.spacing).length();
-        let steps = (diag / self.prepared.step()).ceil() as usize + 2;
+        let diag = (hi - lo + 2.0 * g.spacing).as_dvec3().length();
+        let steps = (diag / f64::from(self.prepared.step())).ceil() as usize + 2;
         let per_step = 4 + 12 + 8 * (self.scene.species.len() + 3);
         let pixels = self.settings.width as usize * self.settings.height as usize;
         let per_pixel = std::mem::size_of::<RawSamples>() + steps.saturating_mul(per_step);

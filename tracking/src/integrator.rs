@@ -360,8 +360,9 @@ impl Integrator {
                     .step
                     .unwrap_or(0.5 * scene.geometry().spacing.min_element());
                 let (lo, hi) = scene.bounds();
-                let steps = (hi - lo).length() / step;
-                if steps > MAX_MARCH_STEPS {
+                // In f64: the squared diagonal of a volume in centimetres overflows f32.
+                let steps = (hi - lo).as_dvec3().length() / f64::from(step);
+                if !(steps <= f64::from(MAX_MARCH_STEPS)) {
                     return Err(Error::parameter(format!(
                         "marcher: step {step} needs {steps:.0} steps across the volume (at most {MAX_MARCH_STEPS})"
                     )));
@@ -649,7 +650,7 @@ fn shade(
                 None => (view, [1.0; 3], HEADLIGHT_AMBIENT, false),
             };
             let m = sh.material(hit.channel);
-            let normal = crate::shading::gradient(scene, hit.channel, hit.p);
+            let normal = crate::shading::normal_direction(scene, hit.channel, hit.p);
             let (amb, direct) = crate::shading::blinn_phong(&m, colour, normal, dir, view);
             let lit = direct.iter().any(|v| *v > 0.0);
             let t = if shadows && lit {

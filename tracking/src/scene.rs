@@ -451,10 +451,14 @@ pub const MAX_OPTICAL_DEPTH: f32 = 1e6;
 
 fn check_optical_depth(total: &MajorantGrid, g: &Geometry) -> Result<()> {
     let (lo, hi) = g.world_bounds();
-    let diag = (hi - lo).length().max(g.spacing.min_element());
+    // In f64: the squared diagonal of a volume in centimetres (1e21 per voxel) overflows f32.
+    let diag = (hi - lo)
+        .as_dvec3()
+        .length()
+        .max(f64::from(g.spacing.min_element()));
     let max = total.values().iter().copied().fold(0.0f32, f32::max);
-    let depth = max * diag;
-    if !depth.is_finite() || depth > MAX_OPTICAL_DEPTH {
+    let depth = f64::from(max) * diag;
+    if !depth.is_finite() || depth > f64::from(MAX_OPTICAL_DEPTH) {
         return Err(Error::scene(format!(
             "density_scale: the largest extinction {max} per unit length over the volume's \
              diagonal {diag} is an optical depth of {depth}, above {MAX_OPTICAL_DEPTH}; \

@@ -149,6 +149,25 @@ pub fn gradient(scene: &Scene, n: usize, p: Vec3) -> Vec3 {
     out
 }
 
+/// The direction of [`gradient`] (any length; zero where the gradient is), from differences
+/// scaled by the smallest spacing over each axis's: free of the units of lengths and values,
+/// where the gradient itself underflows for data in cgs units (1e-27 g/cm^3 over 1e21 cm)
+/// and overflows for tiny spacings.
+#[must_use]
+pub fn normal_direction(scene: &Scene, n: usize, p: Vec3) -> Vec3 {
+    let g = scene.geometry();
+    let grid = scene.channels()[n].grid();
+    let f = |q: Vec3| grid.sample_scalar_index(g.world_to_index(q));
+    let smallest = g.spacing.min_element();
+    let mut out = Vec3::ZERO;
+    for a in 0..3 {
+        let mut e = Vec3::ZERO;
+        e[a] = g.spacing[a];
+        out[a] = (f(p + e) - f(p - e)) * (smallest / g.spacing[a]);
+    }
+    out
+}
+
 /// Blinn-Phong reflection of `light_radiance` from `light_dir` towards `view` (unit vectors)
 /// for a surface of `normal` (any length; a zero or NaN normal faces the viewer), albedo `c`
 /// and material `m`; two-sided. Returns `(ambient reflectance x c, direct RGB per unit T)`.
@@ -160,14 +179,14 @@ pub(crate) fn blinn_phong(
     light_dir: Vec3,
     view: Vec3,
 ) -> ([f32; 3], [f32; 3]) {
-    let mut n = normal.try_normalize().unwrap_or(view);
+    let mut n = blueshift_camera::unit(normal).unwrap_or(view);
     if n.dot(view) < 0.0 {
         n = -n;
     }
     let nl = n.dot(light_dir).max(0.0);
     let (kd, ks) = m.normalised_lobes();
     let spec = if ks > 0.0 && nl > 0.0 {
-        let h = (light_dir + view).try_normalize().unwrap_or(n);
+        let h = blueshift_camera::unit(light_dir + view).unwrap_or(n);
         ks * (m.shininess + 8.0) / 8.0 * n.dot(h).max(0.0).powf(m.shininess) * nl
     } else {
         0.0
