@@ -46,7 +46,9 @@ impl Progress {
             let every = std::env::var("BLUESHIFT_PROGRESS_SECS")
                 .ok()
                 .and_then(|v| v.trim().parse::<f64>().ok())
-                .and_then(|s| Duration::try_from_secs_f64(s).ok())
+                .filter(|s| *s >= 0.0)
+                // Beyond what a Duration holds (1e30, inf): no line before the last.
+                .map(|s| Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX))
                 .unwrap_or(PLAIN_INTERVAL);
             let now = Instant::now();
             Plain {

@@ -266,7 +266,7 @@ impl DopplerSettings {
         let (lo, hi) = scene.frame_bounds(false);
         // In f64: the squared diagonal of a volume in centimetres overflows f32.
         let diag = (hi - lo).as_dvec3().length();
-        if !(diag / f64::from(step) <= 1.0e6) {
+        if diag / f64::from(step) > 1.0e6 {
             return Err(Error::parameter(format!(
                 "step {step} gives more than 1e6 steps per ray"
             )));

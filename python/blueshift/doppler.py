@@ -189,9 +189,10 @@ class Scene:
         names: Dict[str, str] = {}
         for key in self._arrays:
             stem = re.sub(r"[^A-Za-z0-9_-]", "_", key) or "field"
-            fname, k = stem + ".nhdr", 2
+            # Attached NRRD: one file a field.
+            fname, k = stem + ".nrrd", 2
             while fname in names.values():
-                fname, k = f"{stem}_{k}.nhdr", k + 1
+                fname, k = f"{stem}_{k}.nrrd", k + 1
             names[key] = fname
         targets = [os.path.join(folder, name)] + [os.path.join(folder, f) for f in names.values()]
         taken = [t for t in targets if os.path.exists(t)]
@@ -256,6 +257,10 @@ class Scene:
                     raise ValueError(f"{k} {v}: every component must be finite")
             elif isinstance(v, float) and not np.isfinite(v):
                 raise ValueError(f"{k} = {v}: must be finite")
+            if k == "exposure_scale" and isinstance(v, (bool, np.bool_)):
+                raise TypeError(
+                    f"exposure_scale = {v!r}: give a number, 'pNN' or 'per-pixel', not a bool"
+                )
             if k == "exposure_scale" and isinstance(v, (int, float, np.number)):
                 # A number, as blueshift doppler --exposure-scale takes it.
                 v = repr(float(v))

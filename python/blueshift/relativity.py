@@ -27,8 +27,10 @@ def render(
     """What an observer moving at ``beta`` (a fraction of c, |beta| < 1; a velocity quantity
     is divided by c) along ``direction`` (default ``look``) sees through a pinhole camera.
 
-    ``envmap`` is a file (equirectangular ``.exr``/``.hdr``/``.pfm``, or a cube-map
-    folder), ``"checker"``, or a float32 ``[h, w, 3]`` equirectangular array of linear RGB.
+    ``envmap`` is a file (equirectangular ``.exr``/``.hdr``/``.pfm``/``.png``, or a cube-map
+    folder), ``"checker"``, or a float32 ``[h, w, 3]`` array of linear RGB read as a file
+    is, by its aspect ratio: 2:1 equirectangular, or a cube map as a 1:6 or 6:1 strip or a
+    4:3 or 3:4 cross (any other shape is refused).
     ``effects`` lists ``aberration``, ``doppler``, ``searchlight`` (or ``all``, ``none``),
     comma-separated or as a sequence.
     Returns linear RGB float32 ``[height, width, 3]`` (``blueshift relativity``'s EXR).

@@ -2,9 +2,7 @@
 
 use std::path::PathBuf;
 
-use blueshift_relativity::{
-    Camera as RelCamera, Checker, Effects, Environment, EquirectMap, Velocity,
-};
+use blueshift_relativity::{Camera as RelCamera, Checker, Effects, Environment, Velocity};
 use blueshift_tonemap::{Operator, TonemapSession};
 use glam::DVec3;
 use image::Rgb32FImage;
@@ -169,7 +167,9 @@ fn relativity_render<'py>(
         let a: PyReadonlyArray3<'_, f32> = env.extract().map_err(|_| {
             err("env: a path, \"checker\" or a float32 [h, w, 3] equirectangular array")
         })?;
-        Environment::Equirect(EquirectMap::new(rgb_image("env", &a)?).map_err(err)?)
+        // By its aspect ratio, as a file is read: a 2:1 equirectangular map, a cube strip or
+        // cross; anything else refused rather than stretched over the sphere.
+        Environment::from_single_image(rgb_image("env", &a)?).map_err(err)?
     };
     let img = run_cancellable(py, |_| {
         blueshift_relativity::render(&environment, &cam, v, effects, None).map_err(Fail::err)

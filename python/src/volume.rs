@@ -165,15 +165,61 @@ impl PyVolume {
     fn write_nrrd(&self, py: Python<'_>, name: &str, path: PathBuf) -> PyResult<()> {
         let ch = self.channel(name)?.clone();
         run_cancellable(py, |_| {
-            if path.exists() {
-                return Err(Fail::msg(format!(
-                    "{} exists: blueshift never replaces a file",
-                    path.display()
-                )));
+            use blueshift_volume::io::nrrd;
+            // `.nhdr`: a detached header naming `<stem>.raw` beside it; anything else attached.
+            let detached = path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("nhdr"));
+            let data_path = path.with_extension("raw");
+            let targets: Vec<&PathBuf> = if detached {
+                vec![&data_path, &path]
+            } else {
+                vec![&path]
+            };
+            for t in &targets {
+                if t.symlink_metadata().is_ok() {
+                    return Err(Fail::msg(format!(
+                        "{} exists: blueshift never replaces a file",
+                        t.display()
+                    )));
+                }
             }
-            blueshift_volume::io::nrrd::write_file(&path, &ch, &Default::default())
-                .map(|_| ())
-                .map_err(|e| Fail::msg(format!("{}: {}", path.display(), crate::chain(&e))))
+            let fail = |e: &dyn std::fmt::Display| Fail::msg(format!("{}: {e}", path.display()));
+            let mut files: Vec<Vec<u8>> = Vec::new();
+            if detached {
+                let (mut header, mut data) = (Vec::new(), Vec::new());
+                let name = data_path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                nrrd::write_detached(&mut header, &mut data, &name, &ch, &Default::default())
+                    .map_err(|e| fail(&crate::chain(&e)))?;
+                files.push(data);
+                files.push(header);
+            } else {
+                let mut b = Vec::new();
+                nrrd::write(&mut b, &ch, &Default::default())
+                    .map_err(|e| fail(&crate::chain(&e)))?;
+                files.push(b);
+            }
+            // Each file complete under a temporary name first, then linked to its name only
+            // if that is still free: no half-written file, nothing replaced.
+            for (t, bytes) in targets.iter().zip(&files) {
+                let dir = t
+                    .parent()
+                    .filter(|p| !p.as_os_str().is_empty())
+                    .unwrap_or(std::path::Path::new("."));
+                let mut tmp = tempfile::Builder::new()
+                    .prefix(".blueshift-")
+                    .suffix(".partial")
+                    .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
+                    .tempfile_in(dir)
+                    .map_err(|e| fail(&e))?;
+                std::io::Write::write_all(&mut tmp, bytes).map_err(|e| fail(&e))?;
+                tmp.persist_noclobber(t)
+                    .map_err(|e| Fail::msg(format!("{}: {}", t.display(), e.error)))?;
+            }
+            Ok(())
         })
     }
 

@@ -135,6 +135,30 @@ def test_transfer_functions_and_a_scene_dict(cli, tmp_path):
     np.testing.assert_array_equal(np.asarray(a)[:, :, :3], blueshift.read_hdr(tmp_path / "s.exr"))
 
 
+def test_volume_write_nrrd_detached_or_attached_never_replacing(tmp_path):
+    a = np.random.default_rng(4).random((5, 4, 3), dtype=np.float32)
+    v = blueshift.Volume.from_arrays({"rho": a}, spacing=(0.5, 1.0, 2.0))
+    # .nhdr: a text header naming the raw voxels beside it, x fastest.
+    v.write_nrrd("rho", tmp_path / "v.nhdr")
+    header = (tmp_path / "v.nhdr").read_text()
+    assert "data file: v.raw" in header and "encoding: raw" in header
+    raw = (tmp_path / "v.raw").read_bytes()
+    assert raw == np.asfortranarray(a).tobytes(order="F")
+    # .nrrd: attached.
+    v.write_nrrd("rho", tmp_path / "v.nrrd")
+    for p in ["v.nhdr", "v.nrrd"]:
+        back = blueshift.Volume.read(tmp_path / p)
+        np.testing.assert_array_equal(back.array(), a)
+        assert back.spacing == (0.5, 1.0, 2.0)
+    # Nothing is replaced: not the header, and not the data file of a new header.
+    (tmp_path / "w.raw").write_bytes(b"keep")
+    for p in ["v.nhdr", "v.nrrd", "w.nhdr"]:
+        with pytest.raises(blueshift.BlueshiftError, match="exists"):
+            v.write_nrrd("rho", tmp_path / p)
+    assert (tmp_path / "w.raw").read_bytes() == b"keep" and not (tmp_path / "w.nhdr").exists()
+    assert not list(tmp_path.glob(".blueshift-*"))
+
+
 def test_tonemap_checks_its_arguments_and_keeps_the_shape():
     rng = np.random.default_rng(1)
     hdr = (10 ** rng.uniform(-2, 3, size=(20, 30, 1)) * rng.uniform(0.2, 1, size=(20, 30, 3))).astype(np.float32)
@@ -171,6 +195,21 @@ def test_relativity_equals_the_cli(cli, tmp_path):
     np.testing.assert_array_equal(img, blueshift.read_hdr(tmp_path / "r.exr"))
     with pytest.raises(ValueError, match="below 1"):
         blueshift.relativity.render("checker", beta=1.0)
+
+
+def test_an_envmap_array_reads_as_the_same_image_in_a_file_would(cli, tmp_path):
+    # 2:1 equirectangular and a 6:1 strip of cube faces, as files (views of the checker)
+    # and as the arrays those files hold.
+    for w, h in [(32, 16), (48, 8)]:
+        path = tmp_path / f"e{w}.exr"
+        cli("relativity", "--synth", "checker", "--beta", 0.3, "--width", w, "--height", h, "--out", path)
+        a = np.asarray(blueshift.read_hdr(path), dtype=np.float32)
+        kw = dict(beta=0.5, width=24, height=12)
+        got = blueshift.relativity.render(a, **kw)
+        np.testing.assert_array_equal(got, blueshift.relativity.render(path, **kw))
+    # Any other shape is refused, as a file of that shape is.
+    with pytest.raises(blueshift.BlueshiftError, match="neither a 2:1"):
+        blueshift.relativity.render(np.ones((10, 10, 3), dtype=np.float32), beta=0.5)
 
 
 def test_bad_input_raises_with_the_library_message(tmp_path):

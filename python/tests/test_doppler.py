@@ -509,6 +509,9 @@ def test_exposure_scale_takes_a_number_as_the_cli_does():
     np.testing.assert_array_equal(np.asarray(a.rgb), np.asarray(b.rgb))
     c = s.render(16, 16, exposure_scale=3)
     assert not np.array_equal(np.asarray(a.rgb), np.asarray(c.rgb))
+    # A bool is no exposure (True once passed as 1.0).
+    with pytest.raises(TypeError, match="not a bool"):
+        s.render(16, 16, exposure_scale=True)
 
 
 def test_results_beyond_the_memory_budget_are_refused_before_work(monkeypatch):

@@ -327,7 +327,7 @@ impl Environment {
 
     /// Loads an environment: a folder holding `px, nx, py, ny, pz, nz` with any supported
     /// extension is a cube map; so is a path prefix `P` with files `Ppx.*` ... `Pnz.*`; a
-    /// single `.exr`, `.hdr` or `.png` file is read by its aspect ratio ([`MapLayout`]):
+    /// single `.exr`, `.hdr`, `.pfm` or `.png` file is read by its aspect ratio ([`MapLayout`]):
     /// 2:1 equirectangular, a cube strip or cross as a cube map, anything else refused.
     pub fn load(path: &Path) -> Result<Self> {
         let image_ext = path.extension().is_some_and(|e| {
@@ -627,13 +627,28 @@ fn radiance_after_preamble(path: &Path) -> std::io::Result<Option<Vec<u8>>> {
     Ok(Some(bytes))
 }
 
-/// Reads an image as linear RGB: float formats (EXR, `.hdr`) as they are, 8/16-bit formats
-/// (PNG) through the sRGB decoding curve. Dimensions and memory are limited before decoding.
+/// Reads an image as linear RGB: float formats (EXR, `.hdr`, `.pfm`) as they are, 8/16-bit
+/// formats (PNG) through the sRGB decoding curve. Dimensions and memory are limited before decoding.
 pub fn read_linear(path: &Path) -> Result<Rgb32FImage> {
     let ierr = |source| Error::Image {
         path: path.to_path_buf(),
         source,
     };
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
+    {
+        let side = u64::from(MAX_MAP_SIDE);
+        let limits = blueshift_tonemap::io::Limits {
+            max_pixels: side * side,
+            max_bytes: MAX_MAP_BYTES,
+        };
+        return blueshift_tonemap::io::read_pfm(path, &limits).map_err(|e| {
+            ierr(image::ImageError::IoError(std::io::Error::other(
+                e.to_string(),
+            )))
+        });
+    }
     let mut limits = Limits::default();
     limits.max_image_width = Some(MAX_MAP_SIDE);
     limits.max_image_height = Some(MAX_MAP_SIDE);

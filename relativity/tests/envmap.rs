@@ -192,6 +192,38 @@ fn png_is_srgb_decoded_and_prefix_cube_loads() {
     assert!((cube.sample(DVec3::Z)[0] - 4.5).abs() < 1e-6);
 }
 
+/// A PFM environment (little-endian, bottom row first, as the format stores it) reads with
+/// its texels where an EXR of the same image has them, as `load` lists `.pfm` among the
+/// single-file maps.
+#[test]
+fn a_pfm_map_reads_as_the_same_image_in_exr_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (16u32, 8u32);
+    // Written by hand: PF header, scale -1 (little endian), rows from the bottom up.
+    let texel = |x: u32, y: u32| [x as f32 + 0.25, y as f32 * 2.0, (x * y) as f32 + 0.5];
+    let mut bytes = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
+    for y in (0..h).rev() {
+        for x in 0..w {
+            for c in texel(x, y) {
+                bytes.extend(c.to_le_bytes());
+            }
+        }
+    }
+    let pfm = dir.path().join("env.pfm");
+    std::fs::write(&pfm, bytes).unwrap();
+    let exr = dir.path().join("env.exr");
+    image::DynamicImage::ImageRgb32F(Rgb32FImage::from_fn(w, h, |x, y| image::Rgb(texel(x, y))))
+        .save(&exr)
+        .unwrap();
+    let (a, b) = (
+        Environment::load(&pfm).unwrap(),
+        Environment::load(&exr).unwrap(),
+    );
+    for d in dirs() {
+        assert_eq!(a.sample(d), b.sample(d), "{d}");
+    }
+}
+
 /// An image of `cells` (column, row) face cells of `n` pixels, cell `k` filled with colour
 /// `[k + 1, 10 (k + 1), 0]`, other texels black.
 fn layout_image(cols: u32, rows: u32, n: u32, cells: &[(u32, u32)]) -> Rgb32FImage {

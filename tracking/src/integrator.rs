@@ -362,7 +362,7 @@ impl Integrator {
                 let (lo, hi) = scene.bounds();
                 // In f64: the squared diagonal of a volume in centimetres overflows f32.
                 let steps = (hi - lo).as_dvec3().length() / f64::from(step);
-                if !(steps <= f64::from(MAX_MARCH_STEPS)) {
+                if steps > f64::from(MAX_MARCH_STEPS) {
                     return Err(Error::parameter(format!(
                         "marcher: step {step} needs {steps:.0} steps across the volume (at most {MAX_MARCH_STEPS})"
                     )));
