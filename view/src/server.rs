@@ -304,25 +304,36 @@ fn router(app: Arc<App>) -> Router {
 
 /// Refuses a foreign `Host` (DNS rebinding) or `Origin` before anything else runs.
 async fn guard(State(app): State<Arc<App>>, req: Request, next: Next) -> Response {
-    let headers = req.headers();
-    let host = headers
-        .get(header::HOST)
-        .and_then(|h| h.to_str().ok())
-        .unwrap_or("");
-    if !allowed_host(host, app.bound) {
-        return (StatusCode::FORBIDDEN, "forbidden: unknown Host\n").into_response();
+    if let Err(why) = headers_allowed(req.headers(), app.bound) {
+        return (StatusCode::FORBIDDEN, why).into_response();
     }
-    if let Some(origin) = headers.get(header::ORIGIN) {
+    next.run(req).await
+}
+
+/// `Ok` for exactly one `Host` naming this server and at most one `Origin`, also this
+/// server's; else the reason. A repeated header is refused: which one a proxy or the browser
+/// acted on is unknown, and only the first was checked.
+fn headers_allowed(
+    headers: &axum::http::HeaderMap,
+    bound: SocketAddr,
+) -> std::result::Result<(), &'static str> {
+    let mut hosts = headers.get_all(header::HOST).iter();
+    let host = hosts.next().and_then(|h| h.to_str().ok()).unwrap_or("");
+    if hosts.next().is_some() || !allowed_host(host, bound) {
+        return Err("forbidden: unknown Host\n");
+    }
+    let mut origins = headers.get_all(header::ORIGIN).iter();
+    if let Some(origin) = origins.next() {
         let ok = origin
             .to_str()
             .ok()
             .and_then(|o| o.strip_prefix("http://"))
-            .is_some_and(|h| allowed_host(h, app.bound));
-        if !ok {
-            return (StatusCode::FORBIDDEN, "forbidden: foreign Origin\n").into_response();
+            .is_some_and(|h| allowed_host(h, bound));
+        if !ok || origins.next().is_some() {
+            return Err("forbidden: foreign Origin\n");
         }
     }
-    next.run(req).await
+    Ok(())
 }
 
 /// Compares tokens in time independent of where they differ.
@@ -497,6 +508,44 @@ mod tests {
             "192.168.1.5:1",
         ] {
             assert!(!allowed_host(bad, any), "{bad}");
+        }
+    }
+
+    #[test]
+    fn one_host_and_at_most_one_origin_of_this_server() {
+        use axum::http::{HeaderMap, HeaderValue};
+        let lo: SocketAddr = "127.0.0.1:8765".parse().unwrap();
+        let map = |pairs: &[(header::HeaderName, &'static str)]| {
+            let mut m = HeaderMap::new();
+            for (k, v) in pairs {
+                m.append(k.clone(), HeaderValue::from_static(v));
+            }
+            m
+        };
+        let (h, o) = (header::HOST, header::ORIGIN);
+        let good = "127.0.0.1:8765";
+        assert!(headers_allowed(&map(&[(h.clone(), good)]), lo).is_ok());
+        assert!(
+            headers_allowed(
+                &map(&[(h.clone(), good), (o.clone(), "http://localhost:8765")]),
+                lo
+            )
+            .is_ok()
+        );
+        for bad in [
+            vec![],
+            vec![(h.clone(), "evil.example:8765")],
+            // The first Host is this server's, the second another's.
+            vec![(h.clone(), good), (h.clone(), "evil.example:8765")],
+            vec![(h.clone(), good), (h.clone(), good)],
+            vec![(h.clone(), good), (o.clone(), "http://evil.example")],
+            vec![
+                (h.clone(), good),
+                (o.clone(), "http://127.0.0.1:8765"),
+                (o.clone(), "http://evil.example"),
+            ],
+        ] {
+            assert!(headers_allowed(&map(&bad), lo).is_err(), "{bad:?}");
         }
     }
 
