@@ -28,7 +28,7 @@ pub(crate) fn decompress(data: &[u8], expected: usize) -> Result<Vec<u8>, &'stat
 }
 
 /// The predictor and the reordering of `d` undone into `out` (of the same length).
-fn undo_predictor(d: &[u8], out: &mut [u8]) {
+pub(crate) fn undo_predictor(d: &[u8], out: &mut [u8]) {
     let n = d.len();
     if n == 0 {
         return;

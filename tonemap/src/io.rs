@@ -47,7 +47,7 @@ impl Limits {
     /// Checks the pixel count, then the bytes of decoding `width` x `height` pixels with
     /// `sample_bytes` per pixel of decoded file samples on top of
     /// [`DECODE_BYTES_PER_PIXEL`].
-    fn check_decode(&self, width: u64, height: u64, sample_bytes: u64) -> Result<()> {
+    pub(crate) fn check_decode(&self, width: u64, height: u64, sample_bytes: u64) -> Result<()> {
         let pixels = match width.checked_mul(height) {
             Some(n) if n <= self.max_pixels => n,
             _ => {
@@ -191,6 +191,14 @@ fn read_exr_source(path: &Path, limits: &Limits, compact: bool) -> Result<HdrSou
         let samples = 4 * header.channels.list.len() as u64;
         limits.check_decode(size.width() as u64, size.height() as u64, samples)?;
         exr_fits_in_file(header, file_len, path)?;
+    }
+    // Luminance/chroma (`Y`, `RY`, `BY`): the exr crate reads no sub-sampled channels.
+    if let [header] = meta.headers.as_slice()
+        && crate::exr_yc::is_yc(header)
+    {
+        return Ok(HdrSource::from_image(crate::exr_yc::read(
+            path, &meta, limits,
+        )?));
     }
     match read_exr_blocks(path, compact)? {
         Some(ExrRead::Bands(bands)) => return Ok(HdrSource::from_bands(bands)),
@@ -864,7 +872,7 @@ fn read_blocks_at_offsets(
 /// files, for a file whose version field says it is tiled, or not, where `tiled` says
 /// otherwise, and for a header longer than 1 MiB.
 #[cfg(unix)]
-fn exr_header_end(file: &File, len: u64, tiled: bool) -> Option<u64> {
+pub(crate) fn exr_header_end(file: &File, len: u64, tiled: bool) -> Option<u64> {
     use std::os::unix::fs::FileExt;
     let mut buf = vec![0u8; usize::try_from(len.min(1 << 20)).ok()?];
     file.read_exact_at(&mut buf, 0).ok()?;

@@ -54,6 +54,7 @@
 //! - `serde`: derive `Serialize`/`Deserialize` on parameter structs and [`GlobalCurve`].
 
 pub mod error;
+mod exr_yc;
 mod exr_zip;
 pub mod fastmath;
 pub mod inverse;
