@@ -261,7 +261,6 @@ pub(crate) fn integrate(
     let mut spec = PiecewiseLinear::new();
     let mut xyz = Xyz::ZERO;
     let mut out = RayOut::default();
-    let mut tol_scale = 1.0f64;
     let mut half_tau = PiecewiseLinear::new();
     let mut lines = Vec::new();
     let segments = (n - 1) as f64;
@@ -323,16 +322,21 @@ pub(crate) fn integrate(
             // so the sup error of the final spectrum stays below `tol` x the largest maximum.
             if absorbing && st.merge_tolerance > 0.0 && spec.piece_count() > 64 {
                 spec = spec
-                    .merged(st.merge_tolerance * tol_scale * spec.max_value() / segments)
+                    .merged(st.merge_tolerance * spec.max_value() / segments)
                     .map_err(spectrum_err)?;
             }
-            // Budget fallback: coarser merges until the spectrum fits (the preview strategy).
-            // (At most 40 tries per segment, the scale capped so it never overflows.)
+            // Budget fallback: coarser merges until the spectrum fits, from 4x this segment's
+            // share of the tolerance up, for this segment only. (It once started at the
+            // whole ray's tolerance and kept its scale for the rest of the ray, each segment
+            // raising it 4x again: the error compounded, and the continuum beside strong,
+            // broadened lines came out many times too bright.) At most 40 tries, the scale
+            // capped so it never overflows.
+            let mut tol_scale = 1.0f64;
             let mut guard = 0;
             while spec.piece_count() > st.piece_budget && guard < 40 {
                 tol_scale = (tol_scale * 4.0).min(1e30);
-                let tol =
-                    (st.merge_tolerance.max(1e-6) * tol_scale * spec.max_value()).min(f64::MAX);
+                let tol = (st.merge_tolerance.max(1e-6) * tol_scale * spec.max_value() / segments)
+                    .min(f64::MAX);
                 spec = spec.merged(tol).map_err(spectrum_err)?;
                 out.fallback = true;
                 guard += 1;
