@@ -274,9 +274,14 @@ impl Camera {
         match up {
             Some(u) => self.up = u,
             None => {
-                let back = self.eye - self.target;
-                if back.cross(self.up).length_squared() < 1e-12 * back.length_squared().max(1e-30) {
-                    self.up = up_for(back);
+                // Directions only, normalised first: the squares of world lengths over- or
+                // underflow f32 for volumes in centimetres or at 1e-30 per voxel.
+                let parallel = match (unit(self.eye - self.target), unit(self.up)) {
+                    (Some(b), Some(u)) => b.cross(u).length_squared() < 1e-12,
+                    _ => true,
+                };
+                if parallel {
+                    self.up = up_for(self.eye - self.target);
                 }
             }
         }
@@ -389,7 +394,7 @@ impl Camera {
 /// behind); any other normal gets +z as up (+y when the normal is within 8 degrees of z).
 #[must_use]
 pub fn up_for(normal: Vec3) -> Vec3 {
-    let n = normal.try_normalize().unwrap_or(Vec3::Z);
+    let n = unit(normal).unwrap_or(Vec3::Z);
     let a = n.abs();
     if a.abs_diff_eq(Vec3::Z, 1e-6) {
         Vec3::Y

@@ -134,3 +134,46 @@ fn zoom_magnifies_about_the_centre() {
     assert!((ratio - 2.0).abs() < 1e-5, "{ratio}");
     assert!(cam.zoomed(0.0).is_err() && cam.zoomed(f32::NAN).is_err());
 }
+
+/// Views set by eye and target choose the same up, and give the same rays up to scale, in
+/// any unit of length: directions are normalised before their squares are taken (at 1e21
+/// or 1e-30 per unit the squares over- or underflow f32, and an up that is not parallel
+/// was replaced, or a valid view refused as "up is parallel").
+#[test]
+fn overrides_choose_the_same_up_in_any_unit_of_length() {
+    use blueshift_camera::Camera;
+    use glam::Vec3;
+    let view = |s: f32| {
+        Camera::default_view(Vec3::ZERO, Vec3::splat(8.0 * s), 1.0, false).with_overrides(
+            Some(Vec3::new(4.0, 40.0, 4.0) * s),
+            Some(Vec3::splat(4.0 * s)),
+            None,
+        )
+    };
+    let reference = view(1.0);
+    reference.validate().unwrap();
+    for s in [1e-30f32, 1e-12, 1e21, 1e30] {
+        let c = view(s);
+        c.validate().unwrap_or_else(|e| panic!("{s}: {e}"));
+        assert!(
+            c.up.abs_diff_eq(reference.up, 1e-6),
+            "{s}: up {} vs {}",
+            c.up,
+            reference.up
+        );
+        let (a, b) = (c.basis(), reference.basis());
+        assert!(
+            a.0.abs_diff_eq(b.0, 1e-6) && a.1.abs_diff_eq(b.1, 1e-6),
+            "{s}"
+        );
+    }
+    // Looking along an axis at any scale takes yt's up for that axis.
+    for s in [1e-30f32, 1.0, 1e30] {
+        let c = Camera::default_view(Vec3::ZERO, Vec3::splat(s), 1.0, false).with_overrides(
+            Some(Vec3::new(0.5, 0.5, 10.0) * s),
+            Some(Vec3::splat(0.5 * s)),
+            None,
+        );
+        assert_eq!(c.up, blueshift_camera::up_for(Vec3::Z), "{s}");
+    }
+}

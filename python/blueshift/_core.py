@@ -131,8 +131,9 @@ class Volume:
         return a.transpose(2, 1, 0, 3) if a.ndim == 4 else a.T
 
     def write_nrrd(self, name: str, path: PathLike) -> None:
-        """Writes channel ``name`` as NRRD (``.nhdr`` + ``.raw``, or ``.nrrd``); never
-        replaces a file."""
+        """Writes channel ``name`` as NRRD: ``.nhdr`` (a header naming ``.raw`` voxels
+        beside it) or ``.nrrd`` (attached); any other extension is refused. Never replaces
+        a file, and leaves none half-written."""
         self._native.write_nrrd(name, os.fspath(path))
 
     def __repr__(self) -> str:

@@ -166,10 +166,20 @@ impl PyVolume {
         let ch = self.channel(name)?.clone();
         run_cancellable(py, |_| {
             use blueshift_volume::io::nrrd;
-            // `.nhdr`: a detached header naming `<stem>.raw` beside it; anything else attached.
-            let detached = path
+            // `.nhdr`: a detached header naming `<stem>.raw` beside it; `.nrrd` attached.
+            let ext = path
                 .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("nhdr"));
+                .map(|e| e.to_string_lossy().to_ascii_lowercase());
+            let detached = match ext.as_deref() {
+                Some("nhdr") => true,
+                Some("nrrd") => false,
+                _ => {
+                    return Err(Fail::msg(format!(
+                        "{}: write_nrrd writes .nrrd (attached) or .nhdr (with its .raw)",
+                        path.display()
+                    )));
+                }
+            };
             let data_path = path.with_extension("raw");
             let targets: Vec<&PathBuf> = if detached {
                 vec![&data_path, &path]
@@ -202,22 +212,33 @@ impl PyVolume {
                     .map_err(|e| fail(&crate::chain(&e)))?;
                 files.push(b);
             }
-            // Each file complete under a temporary name first, then linked to its name only
-            // if that is still free: no half-written file, nothing replaced.
+            // Each file complete under a temporary name first (named as the CLI names its
+            // temporaries, so `blueshift clean` knows a killed run's), then linked to its
+            // name only if that is still free: no half-written file, nothing replaced. A
+            // header that cannot take its name takes its data file with it.
+            let mut done: Vec<&PathBuf> = Vec::new();
             for (t, bytes) in targets.iter().zip(&files) {
                 let dir = t
                     .parent()
                     .filter(|p| !p.as_os_str().is_empty())
                     .unwrap_or(std::path::Path::new("."));
-                let mut tmp = tempfile::Builder::new()
-                    .prefix(".blueshift-")
-                    .suffix(".partial")
-                    .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
-                    .tempfile_in(dir)
-                    .map_err(|e| fail(&e))?;
-                std::io::Write::write_all(&mut tmp, bytes).map_err(|e| fail(&e))?;
-                tmp.persist_noclobber(t)
-                    .map_err(|e| Fail::msg(format!("{}: {}", t.display(), e.error)))?;
+                let put = || -> std::io::Result<()> {
+                    let mut b = tempfile::Builder::new();
+                    let prefix = format!(".blueshift-{}-", std::process::id());
+                    b.prefix(&prefix).suffix(".partial");
+                    #[cfg(unix)]
+                    b.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+                    let mut tmp = b.tempfile_in(dir)?;
+                    std::io::Write::write_all(&mut tmp, bytes)?;
+                    tmp.persist_noclobber(t).map(|_| ()).map_err(|e| e.error)
+                };
+                if let Err(e) = put() {
+                    for d in &done {
+                        let _ = std::fs::remove_file(d);
+                    }
+                    return Err(Fail::msg(format!("{}: {e}", t.display())));
+                }
+                done.push(t);
             }
             Ok(())
         })

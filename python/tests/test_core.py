@@ -156,6 +156,8 @@ def test_volume_write_nrrd_detached_or_attached_never_replacing(tmp_path):
         with pytest.raises(blueshift.BlueshiftError, match="exists"):
             v.write_nrrd("rho", tmp_path / p)
     assert (tmp_path / "w.raw").read_bytes() == b"keep" and not (tmp_path / "w.nhdr").exists()
+    with pytest.raises(blueshift.BlueshiftError, match=".nrrd"):
+        v.write_nrrd("rho", tmp_path / "v.raw")
     assert not list(tmp_path.glob(".blueshift-*"))
 
 

@@ -314,6 +314,9 @@ pub enum Environment {
     Checker(Checker),
 }
 
+/// The extensions of the image files an environment is read from (single maps and faces).
+const IMAGE_EXTENSIONS: [&str; 5] = ["exr", "hdr", "pic", "png", "pfm"];
+
 impl Environment {
     /// Linear RGB radiance in unit direction `d` (scene frame).
     #[must_use]
@@ -330,11 +333,9 @@ impl Environment {
     /// single `.exr`, `.hdr`, `.pfm` or `.png` file is read by its aspect ratio ([`MapLayout`]):
     /// 2:1 equirectangular, a cube strip or cross as a cube map, anything else refused.
     pub fn load(path: &Path) -> Result<Self> {
-        let image_ext = path.extension().is_some_and(|e| {
-            ["exr", "hdr", "pic", "png", "pfm"]
-                .iter()
-                .any(|x| e.eq_ignore_ascii_case(x))
-        });
+        let image_ext = path
+            .extension()
+            .is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|x| e.eq_ignore_ascii_case(x)));
         if image_ext && !path.exists() {
             return Err(Error::map(path, "no such file"));
         }
@@ -368,7 +369,7 @@ impl Environment {
                 continue;
             };
             let ext = ext.to_string_lossy().to_ascii_lowercase();
-            if !["exr", "hdr", "png"].contains(&ext.as_str()) {
+            if !IMAGE_EXTENSIONS.contains(&ext.as_str()) {
                 continue;
             }
             let stem = stem.to_string_lossy();
@@ -634,20 +635,19 @@ pub fn read_linear(path: &Path) -> Result<Rgb32FImage> {
         path: path.to_path_buf(),
         source,
     };
+    // OpenEXR and PFM through blueshift's HDR reader, as `tonemap` reads them: every
+    // OpenEXR layout it reads (luminance/chroma, multi-part, PIZ...), and PFM, which the
+    // image crate does not read.
     if path
         .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("pfm"))
+        .is_some_and(|e| e.eq_ignore_ascii_case("pfm") || e.eq_ignore_ascii_case("exr"))
     {
         let side = u64::from(MAX_MAP_SIDE);
         let limits = blueshift_tonemap::io::Limits {
             max_pixels: side * side,
             max_bytes: MAX_MAP_BYTES,
         };
-        return blueshift_tonemap::io::read_pfm(path, &limits).map_err(|e| {
-            ierr(image::ImageError::IoError(std::io::Error::other(
-                e.to_string(),
-            )))
-        });
+        return Ok(blueshift_tonemap::io::read_hdr_image_with(path, &limits)?);
     }
     let mut limits = Limits::default();
     limits.max_image_width = Some(MAX_MAP_SIDE);

@@ -56,6 +56,9 @@ pub enum Error {
     /// An error from the spectrum crate (colour conversions).
     #[error(transparent)]
     Spectrum(#[from] blueshift_spectrum::Error),
+    /// An OpenEXR or PFM file that could not be read (its message names the file).
+    #[error(transparent)]
+    Hdr(#[from] blueshift_tonemap::Error),
 }
 
 /// `Result` with this crate's [`Error`].

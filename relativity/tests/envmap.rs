@@ -224,6 +224,30 @@ fn a_pfm_map_reads_as_the_same_image_in_exr_does() {
     }
 }
 
+/// OpenEXR maps read as `tonemap` reads them, so luminance/chroma files (which the image
+/// crate refuses) load, in colour: the 8x4 file OpenEXR wrote for tonemap's tests, whose
+/// reconstruction by OpenEXR's RgbaInputFile is dumped beside it.
+#[test]
+fn a_luminance_chroma_exr_map_loads_in_colour() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tonemap/tests/data/yc");
+    let env = Environment::load(&dir.join("yc_8x4_bottom_zip.exr")).unwrap();
+    let want: Vec<f32> = std::fs::read(dir.join("yc_8x4_bottom_zip.rgba.f32"))
+        .unwrap()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let Environment::Equirect(map) = env else {
+        panic!("a 2:1 map is equirectangular");
+    };
+    for (p, q) in map.image().pixels().zip(want.chunks_exact(4)) {
+        assert_eq!(p.0, [q[0], q[1], q[2]]);
+    }
+    assert!(
+        map.image().pixels().any(|p| p.0[0] != p.0[1]),
+        "read as grey"
+    );
+}
+
 /// An image of `cells` (column, row) face cells of `n` pixels, cell `k` filled with colour
 /// `[k + 1, 10 (k + 1), 0]`, other texels black.
 fn layout_image(cols: u32, rows: u32, n: u32, cells: &[(u32, u32)]) -> Rgb32FImage {

@@ -194,8 +194,12 @@ pub fn parse_line_list(text: &str, source_name: &str) -> Result<Vec<EmissionLine
     };
     let mut lines = Vec::new();
     for (line_no, row) in rows {
-        let fields: Vec<&str> = row.split(',').map(str::trim).collect();
-        // A row of more fields than the header names has shifted or unnamed columns.
+        let mut fields: Vec<&str> = row.split(',').map(str::trim).collect();
+        // Empty fields at the end (`656.28,1.0,` as spreadsheets write) are no columns; a
+        // row of more fields than the header names has shifted or unnamed columns.
+        while fields.len() > names.len() && fields.last().is_some_and(|f| f.is_empty()) {
+            fields.pop();
+        }
         if fields.len() > names.len() {
             return Err(parse_err(
                 line_no,

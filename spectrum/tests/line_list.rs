@@ -33,6 +33,9 @@ fn the_header_names_the_columns() {
         msg.contains("e.csv") && msg.contains("expected 2 columns, found 3"),
         "{msg}"
     );
+    // Empty fields at the end of a row are no columns.
+    let c = parse_line_list("wavelength_nm,relative_intensity\n656.3,2,\n", "c").unwrap();
+    assert_eq!(a, c);
 }
 
 #[test]

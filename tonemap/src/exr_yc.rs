@@ -25,19 +25,36 @@ use half::f16;
 
 use crate::error::{Error, Result};
 
-/// Whether a part holds luminance/chroma: a `RY` or `BY` channel.
+/// Whether a part holds luminance/chroma: `Y` with `RY` and `BY` sampled 2x2 under one
+/// layer prefix ([`yc_channels`]). A file whose `RY` or `BY` is something else (a full
+/// resolution output of that name) is read as any other.
 pub(crate) fn is_yc(header: &Header) -> bool {
-    header
-        .channels
-        .list
-        .iter()
-        .any(|c| matches!(suffix(c).as_str(), "RY" | "BY"))
+    yc_channels(header).is_some()
 }
 
-/// A channel's name without its layer prefix (`diffuse.RY` is `RY`).
-fn suffix(c: &exr::meta::attribute::ChannelDescription) -> String {
-    let name = c.name.to_string();
-    name.rsplit('.').next().unwrap_or_default().to_owned()
+/// The indices of `Y`, `RY` and `BY` sharing one layer prefix, with the chroma sampled 2x2:
+/// the unprefixed ones first, else the first prefix that has all three (OpenEXR's
+/// `RgbaInputFile` reads one layer's three).
+fn yc_channels(header: &Header) -> Option<[usize; 3]> {
+    let list = &header.channels.list;
+    let names: Vec<String> = list.iter().map(|c| c.name.to_string()).collect();
+    let prefix = |n: &str| n.rsplit_once('.').map_or("", |(p, _)| p).to_owned();
+    let mut prefixes: Vec<String> = names.iter().map(|n| prefix(n)).collect();
+    prefixes.sort_by_key(|p| !p.is_empty());
+    prefixes.dedup();
+    prefixes.into_iter().find_map(|p| {
+        let find = |s: &str| {
+            let want = if p.is_empty() {
+                s.to_owned()
+            } else {
+                format!("{p}.{s}")
+            };
+            names.iter().position(|n| *n == want)
+        };
+        let found = [find("Y")?, find("RY")?, find("BY")?];
+        let sampling = |i: usize| (list[i].sampling.0, list[i].sampling.1);
+        (sampling(found[1]) == (2, 2) && sampling(found[2]) == (2, 2)).then_some(found)
+    })
 }
 
 /// The interpolation filter's weights for offsets 1, 3, ..., 13 (and -1, ..., -13).
@@ -153,7 +170,7 @@ pub(crate) fn read(
         }
         other => {
             return Err(unsupported(&format!(
-                "{other} compression (NONE, RLE, ZIP and ZIPS are read)"
+                "{other:?} compression (NONE, RLE, ZIP and ZIPS are read)"
             )));
         }
     };
@@ -164,15 +181,13 @@ pub(crate) fn read(
     );
     limits.check_decode(w as u64, hgt as u64, 16)?;
     let list = &header.channels.list;
-    let find = |n: &str| list.iter().position(|c| suffix(c) == n);
-    let (Some(yi), Some(ryi), Some(byi)) = (find("Y"), find("RY"), find("BY")) else {
-        return Err(unsupported("it needs Y, RY and BY channels"));
-    };
-    let sampling = |i: usize| (list[i].sampling.0, list[i].sampling.1);
-    if sampling(yi) != (1, 1) || sampling(ryi) != (2, 2) || sampling(byi) != (2, 2) {
+    let Some([yi, ryi, byi]) = yc_channels(header) else {
         return Err(unsupported(
-            "Y must be at full resolution and RY, BY sampled 2x2",
+            "it needs Y, RY and BY channels, RY and BY sampled 2x2",
         ));
+    };
+    if (list[yi].sampling.0, list[yi].sampling.1) != (1, 1) {
+        return Err(unsupported("Y must be at full resolution"));
     }
     if w == 0 || hgt == 0 || w % 2 != 0 || hgt % 2 != 0 || x0 % 2 != 0 || y0 % 2 != 0 {
         return Err(invalid(
@@ -306,6 +321,10 @@ pub(crate) fn read(
                 }
             }
         }
+    }
+    // RgbaInputFile holds every channel as a half: float samples are rounded as it reads.
+    for v in y_plane.iter_mut().chain(ry.iter_mut()).chain(by.iter_mut()) {
+        *v = h(*v);
     }
     let yw = luminance_weights(header.shared_attributes.chromaticities.as_ref());
     Ok(to_rgb(&y_plane, &ry, &by, w, hgt, yw))

@@ -794,6 +794,7 @@ fn luminance_chroma_files_read_as_openexr_reconstructs_them() {
         ("yc_60x40_zip", 60, 40),
         ("yc_16x12_rec2020_zip", 16, 12),
         ("yc_12x8_rle", 12, 8),
+        ("yc_8x4_bottom_zip", 8, 4),
     ] {
         let img = read_hdr_image(crop(&format!("yc/{name}.exr"))).unwrap();
         assert_eq!(img.dimensions(), (w, h), "{name}");

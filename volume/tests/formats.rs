@@ -884,6 +884,26 @@ fn negative_axis_directions_keep_every_voxel_at_its_world_position() {
             None => assert!(*name == "z.nrrd", "{name} did not stream"),
         }
     }
+    // Directions in centimetres (1e21) and at 1e-25: their squares over- and underflow f32.
+    for v in ["1e21", "-1e21", "1e-25"] {
+        let p = dir.path().join("cm.nrrd");
+        let header = nrrd(
+            &format!("space directions: ({v},0,0) (0,{v},0) (0,0,{v})"),
+            "space origin: (0,0,0)",
+            "raw",
+        );
+        std::fs::write(
+            &p,
+            [header.as_bytes(), &le(&stored(Vec3::ZERO, Vec3::ONE))].concat(),
+        )
+        .unwrap();
+        let g = *read(&p).unwrap().geometry();
+        let want: f32 = v.trim_start_matches('-').parse().unwrap();
+        assert!(
+            (g.spacing - Vec3::splat(want)).abs().max_element() <= want * 1e-6,
+            "{v}: {g:?}"
+        );
+    }
     // VTK (big-endian binary) with a negative SPACING, scalars and vectors.
     let signed = Vec3::new(-0.5, 2.0, -1.0);
     let values = stored(o, signed);
@@ -921,7 +941,25 @@ fn negative_axis_directions_keep_every_voxel_at_its_world_position() {
 fn repeated_header_fields_and_colour_axes_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let voxels = vec![0u8; 2 * 2 * 2 * 3];
-    let cases: [(&str, &str, &str); 5] = [
+    let cases: [(&str, &str, &str); 8] = [
+        (
+            "both.nrrd",
+            "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nspacings: 1 1 1\n\
+             space directions: (2,0,0) (0,2,0) (0,0,2)\nencoding: raw\n\n",
+            "both 'spacings' and 'space directions'",
+        ),
+        (
+            "rgb3.nrrd",
+            "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\n\
+             kinds: domain domain RGB-color\nencoding: raw\n\n",
+            "colour",
+        ),
+        (
+            "kinds.nrrd",
+            "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nkinds: domain domain\n\
+             encoding: raw\n\n",
+            "kinds has 2 entries",
+        ),
         (
             "twice.nrrd",
             "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nsizes: 4 1 2\nencoding: raw\n\n",

@@ -22,7 +22,10 @@ use crate::plot::{FONT, blue_red, inferno, register_font, tick_formatter};
 pub struct CubeArgs {
     /// Write a spectral cube (FITS) instead of an image; an NRRD copy goes next to it.
     /// Lines without --thermal / --line-sigma get a box one channel wide (--line-width is
-    /// not used), whose exact channel integrals are yt's tent weights.
+    /// not used), whose exact channel integrals are yt's tent weights. Without absorption
+    /// the cube is continuum-subtracted (line emission only, as yt's PPV cubes); with
+    /// absorption it holds each pixel's whole spectrum, black-body continuum included, so
+    /// that absorption lines show against it.
     #[arg(long)]
     pub cube: Option<PathBuf>,
     /// The cube's line: a name (H-alpha, Halpha, H-beta, HeI-5876, ...) or a rest

@@ -137,6 +137,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
     let mut encoding = None;
     let mut data_file: Option<String> = None;
     let mut seen = std::collections::HashSet::new();
+    let mut kinds: Option<usize> = None;
     let mut data_check = None;
     let mut byte_skip: i64 = 0;
     let mut line_skip: usize = 0;
@@ -173,8 +174,8 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
             "type" => disk = Some(nrrd_type(value)?),
             "kinds" => {
                 // The component axis of a 4D file is read as a vector: a colour or tensor is
-                // not one.
-                if let Some(k) = value.split_whitespace().next() {
+                // not one (on any axis).
+                for k in value.split_whitespace() {
                     let k = k.to_ascii_lowercase();
                     if k.contains("color") || k.contains("tensor") || k.contains("matrix") {
                         return Err(Error::unsupported(format!(
@@ -183,6 +184,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
                         )));
                     }
                 }
+                kinds = Some(value.split_whitespace().count());
             }
             "dimension" => dimension = Some(parse_dim(value, "NRRD dimension")?),
             "sizes" => {
@@ -264,6 +266,18 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
         )));
     }
     let encoding = encoding.ok_or_else(|| Error::invalid("NRRD: missing 'encoding'"))?;
+    if let Some(k) = kinds.filter(|&k| k != dimension) {
+        return Err(Error::invalid(format!(
+            "NRRD: kinds has {k} entries, dimension is {dimension}"
+        )));
+    }
+    // Both give the spacing, possibly differently: the format forbids the pair (teem
+    // refuses it).
+    if spacings.is_some() && directions.is_some() {
+        return Err(Error::invalid(
+            "NRRD: both 'spacings' and 'space directions' (give one)",
+        ));
+    }
     if endian.is_none() && disk.size_bytes() > 1 && encoding != Encoding::Ascii {
         return Err(Error::invalid(
             "NRRD: missing 'endian' for a multi-byte type",
@@ -315,7 +329,12 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
                     "NRRD: space directions with other than 3 components",
                 ));
             }
-            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            // In f64: the squares of a direction in centimetres (1e21) overflow f32.
+            let len = d
+                .iter()
+                .map(|&v| f64::from(v) * f64::from(v))
+                .sum::<f64>()
+                .sqrt() as f32;
             let off = (0..3)
                 .filter(|&i| i != a)
                 .map(|i| d[i].abs())
