@@ -580,15 +580,19 @@ fn save_never_replaces_an_input_or_a_foreign_file() {
     let mut tab = v.connect();
     tab.expect("info");
     tab.until_done();
-    tab.send(&json!({"type": "save", "name": "mine"}));
-    let e = tab.expect("error");
-    assert!(
-        e["message"]
-            .as_str()
-            .unwrap()
-            .contains("choose another name"),
-        "{e}"
-    );
+    // The viewer's answer to a save under a name it must not take.
+    let refused = |tab: &mut Tab, name: &str| {
+        tab.send(&json!({"type": "save", "name": name}));
+        let e = tab.expect("error");
+        assert!(
+            e["message"]
+                .as_str()
+                .unwrap()
+                .contains("choose another name"),
+            "{e}"
+        );
+    };
+    refused(&mut tab, "mine");
     assert_eq!(
         std::fs::read(saved_dir.join("mine.png")).unwrap(),
         b"not the viewer's"
@@ -598,15 +602,7 @@ fn save_never_replaces_an_input_or_a_foreign_file() {
     {
         std::os::unix::fs::symlink(v.dir.path().join("gone.exr"), saved_dir.join("link.exr"))
             .unwrap();
-        tab.send(&json!({"type": "save", "name": "link"}));
-        let e = tab.expect("error");
-        assert!(
-            e["message"]
-                .as_str()
-                .unwrap()
-                .contains("choose another name"),
-            "{e}"
-        );
+        refused(&mut tab, "link");
         assert!(
             saved_dir
                 .join("link.exr")

@@ -212,33 +212,15 @@ impl PyVolume {
                     .map_err(|e| fail(&crate::chain(&e)))?;
                 files.push(b);
             }
-            // Each file complete under a temporary name first (named as the CLI names its
-            // temporaries, so `blueshift clean` knows a killed run's), then linked to its
-            // name only if that is still free: no half-written file, nothing replaced. A
-            // header that cannot take its name takes its data file with it.
-            let mut done: Vec<&PathBuf> = Vec::new();
-            for (t, bytes) in targets.iter().zip(&files) {
-                let dir = t
-                    .parent()
-                    .filter(|p| !p.as_os_str().is_empty())
-                    .unwrap_or(std::path::Path::new("."));
-                let put = || -> std::io::Result<()> {
-                    let mut b = tempfile::Builder::new();
-                    let prefix = format!(".blueshift-{}-", std::process::id());
-                    b.prefix(&prefix).suffix(".partial");
-                    #[cfg(unix)]
-                    b.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
-                    let mut tmp = b.tempfile_in(dir)?;
-                    std::io::Write::write_all(&mut tmp, bytes)?;
-                    tmp.persist_noclobber(t).map(|_| ()).map_err(|e| e.error)
-                };
-                if let Err(e) = put() {
-                    for d in &done {
+            // Each file complete before it takes its name, never replacing one
+            // (`write_new`); a header that cannot take its name takes its data file with it.
+            for (k, (t, bytes)) in targets.iter().zip(&files).enumerate() {
+                if let Err(e) = crate::doppler::write_new(t, bytes, false) {
+                    for d in &targets[..k] {
                         let _ = std::fs::remove_file(d);
                     }
-                    return Err(Fail::msg(format!("{}: {e}", t.display())));
+                    return Err(e);
                 }
-                done.push(t);
             }
             Ok(())
         })
