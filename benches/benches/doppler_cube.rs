@@ -4,7 +4,8 @@
 //! thermal broadening off and on, single-threaded (yt's PPVCube, timed by
 //! `benches/scripts/yt_ppv_bench.py` on the same data, runs in one process). The Enzo cases
 //! are skipped, with a printed reason, when the shared data is absent. Timings also go to
-//! `target/blueshift-benches/doppler_cube.csv`.
+//! `target/blueshift-benches/doppler_cube.csv`. Group `doppler_cube_absorbing` times
+//! absorbing cubes (black body, line absorption) with thermal broadening off and on.
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -119,6 +120,62 @@ fn threads(c: &mut Criterion) {
     g.finish();
 }
 
+/// The Enzo snapshot with H I and He I (mass fractions 0.76, 0.24) that emit and absorb,
+/// over the gas's black body: the scene of the absorbing cube measurements (issue 24.3).
+fn enzo_absorbing_scene() -> Option<DopplerScene> {
+    let dir = enzo_dir()?;
+    let density = |fraction: f64| {
+        format!(
+            r#"{{ "file": "density_gcm3_64x64x64_f32le.nhdr", "unit": "g/cm3", "mass_fraction": {fraction} }}"#
+        )
+    };
+    let text = format!(
+        r#"{{
+  "temperature": {{ "file": "temperature_K_64x64x64_f32le.nhdr", "unit": "K" }},
+  "velocity": {{ "file": "velocity_kms_64x64x64x3_f32le.nhdr", "unit": "km/s", "subtract_mean": true }},
+  "blackbody": {{ "density": {{ "file": "density_gcm3_64x64x64_f32le.nhdr", "unit": "g/cm3", "mass_fraction": 0.76, "scale": 1e9 }} }},
+  "species": [
+    {{ "name": "H I", "lines": "H", "density": {h} }},
+    {{ "name": "He I", "lines": "He", "density": {he} }}
+  ],
+  "factors": {{ "velocity": 1, "temperature": 1, "emission": 1, "absorption": 1, "blackbody": 1 }}
+}}"#,
+        h = density(0.76),
+        he = density(0.24)
+    );
+    let file = blueshift_doppler::SceneFile::parse(&text, &dir).expect("scene JSON");
+    Some(file.load().expect("enzo scene"))
+}
+
+/// Group `doppler_cube_absorbing`: 64 x 64 x 24-channel H-alpha cubes (-300..300 km/s,
+/// seen along z) of absorbing scenes, thermal broadening off and on, on the default pool
+/// (the goal: thermal within 1.5x of unbroadened). The Enzo scene is skipped without the
+/// shared data; the galaxy (64^3, absorption x5, black body x0.1) always runs.
+fn absorbing(c: &mut Criterion) {
+    let mut cases: Vec<(&str, DopplerScene)> = Vec::new();
+    if let Some(s) = enzo_absorbing_scene() {
+        cases.push(("enzo64", s));
+    }
+    let vol = synth::galaxy(64, 1).expect("galaxy");
+    let mut galaxy = DopplerScene::from_volume(&vol, &["bb", "H"]).expect("scene");
+    galaxy.factors.absorption = 5.0;
+    galaxy.factors.blackbody = 0.1;
+    cases.push(("galaxy64", galaxy));
+    let mut g = c.benchmark_group("doppler_cube_absorbing");
+    for (name, scene) in &cases {
+        for thermal in [false, true] {
+            let (mut st, mut spec) = setup(scene, Vec3::Z, -300.0, 300.0, thermal);
+            st.width = 64;
+            st.height = 64;
+            spec.channels = 24;
+            g.bench_function(format!("{name}/thermal_{thermal}"), |b| {
+                b.iter(|| render_cube(scene, &st, &spec, &|| {}).expect("cube"));
+            });
+        }
+    }
+    g.finish();
+}
+
 fn main() {
     let mut c = Criterion::default().configure_from_args().sample_size(10);
     let pool = rayon::ThreadPoolBuilder::new()
@@ -149,6 +206,7 @@ fn main() {
     }
     group.finish();
     threads(&mut c);
+    absorbing(&mut c);
     let path = out_dir().join("doppler_cube.csv");
     std::fs::write(&path, csv).expect("csv");
     println!("wrote {}", path.display());

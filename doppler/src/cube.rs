@@ -11,18 +11,18 @@
 //! Without absorption the cube path keeps no spectrum: every trapezoid a line emits over a
 //! ray segment (with its [`super::Broadening`] profile) is integrated over the channels it
 //! overlaps in closed form; the black-body continuum is left out (a continuum-subtracted
-//! line cube). With absorption the pixel's full spectrum (continuum included) is built and
-//! integrated with [`PiecewiseLinear::integrate`].
+//! line cube). With absorption each ray is marched front to back over the channels' window
+//! alone, continuum included, and its light binned straight into the channels (`cube_abs`).
 
 use blueshift_camera::{Observer, Progress};
-use blueshift_spectrum::{Piece, PiecewiseLinear, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
+use blueshift_spectrum::{Piece, PwlGaussian, SPEED_OF_LIGHT_M_PER_S};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::model::DopplerScene;
 use super::profile::Emit;
-use super::render::{Context, DopplerImage, DopplerSettings, SpectralIntegrator, Want};
+use super::render::{Context, DopplerImage, DopplerSettings, SpectralIntegrator};
 use crate::{Camera, Error, Projection, Result};
 
 /// The spectral axis of a cube; spelt `vrad`, `vopt` or `wave` (`FromStr` also reads
@@ -519,7 +519,7 @@ const MERGE_ERROR: f64 = 1.2e-3;
 /// parallel) merges only within each box, so it differs from the whole cube within this
 /// bound.
 #[derive(Clone, Copy, Debug)]
-struct GaussRun {
+pub(crate) struct GaussRun {
     /// The first Gaussian's centre (nm): the moments are taken about it.
     c0: f64,
     /// Sum of the areas, then of each area times its Gaussian's raw moments 1..=4 about
@@ -533,7 +533,7 @@ struct GaussRun {
 }
 
 impl GaussRun {
-    const EMPTY: Self = Self {
+    pub(crate) const EMPTY: Self = Self {
         c0: 0.0,
         s: [0.0; 5],
         d_lo: 0.0,
@@ -542,7 +542,7 @@ impl GaussRun {
         s_hi: 0.0,
     };
 
-    fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.s[0] == 0.0
     }
 
@@ -572,7 +572,7 @@ impl GaussRun {
 
     /// Adds the Gaussian `(c, sigma, area)` (`sigma`, `area` > 0) if the run stays within the
     /// rule; returns whether it did (an empty run always takes it).
-    fn try_add(&mut self, c: f64, sigma: f64, area: f64) -> bool {
+    pub(crate) fn try_add(&mut self, c: f64, sigma: f64, area: f64) -> bool {
         if self.is_empty() {
             *self = Self {
                 c0: c,
@@ -609,7 +609,7 @@ impl GaussRun {
     }
 
     /// The merged Gaussian `(centre, sigma, area)`, and the run emptied.
-    fn take(&mut self) -> (f64, f64, f64) {
+    pub(crate) fn take(&mut self) -> (f64, f64, f64) {
         let (e1, m2, _) = Self::shape(&self.s);
         let out = if self.s_lo == self.s_hi && self.d_lo == self.d_hi {
             // One Gaussian (or several at one place and width): exactly it.
@@ -726,37 +726,33 @@ fn reachable_lines(ctx: &Context<'_>, edges: &[f64]) -> Vec<Vec<blueshift_spectr
         .collect()
 }
 
-/// One ray's channel values into `acc`; `front`: the optical depth in front of the
-/// context's clip box (absorbing scenes; empty: none).
+/// Whether a line at rest `centre` (nm), seen through the shifts `(sa, sb)` with a velocity
+/// dispersion up to `sigma_max` (m/s) and the box `line_width` (nm), can reach the window
+/// `(lo, hi)` (nm): its shift range plus 8 sigma and the box.
+pub(crate) fn line_reaches(
+    centre: f64,
+    (sa, sb): (f64, f64),
+    sigma_max: f64,
+    line_width: f64,
+    (lo, hi): (f64, f64),
+) -> bool {
+    let (lmin, lmax) = (sa.min(sb) * centre, sa.max(sb) * centre);
+    let reach = 8.0 * sigma_max / SPEED_OF_LIGHT_M_PER_S * lmax + line_width;
+    lmax + reach >= lo && lmin - reach <= hi
+}
+
+/// One emission-only ray's channel values into `acc`.
 fn ray_channels(
     ctx: &Context<'_>,
     lines: &[Vec<blueshift_spectrum::EmissionLine>],
     ray: &crate::Ray,
     edges: &[f64],
-    front: &[Piece],
     bins: &mut LineBins<'_>,
     acc: &mut [f64],
 ) -> Result<()> {
     let scene = ctx.scene;
     let st = ctx.settings;
     let f = scene.factors;
-    let absorbing = ctx.absorbing;
-    if absorbing {
-        let out = super::render::integrate(ctx, ray, Want::Spectrum)?;
-        let mut spec = out.spectrum.unwrap_or_default();
-        if !front.is_empty() && !spec.is_empty() {
-            // The light of the box's segments crosses everything in front of the box.
-            let depth = PiecewiseLinear::from_pieces(front.iter().copied())
-                .map_err(|e| Error::parameter(format!("front depth: {e}")))?;
-            spec = spec
-                .attenuated(&depth, st.max_depth_step)
-                .map_err(|e| Error::parameter(format!("spectrum: {e}")))?;
-        }
-        for k in 0..acc.len() {
-            acc[k] = integrate_clipped(&spec, edges[k], edges[k + 1])?;
-        }
-        return Ok(());
-    }
     let s = ctx.sample_lines(ray, ctx.profiles.active)?;
     let nsp = scene.species.len();
     let (wlo, whi) = (edges[0], edges[edges.len() - 1]);
@@ -782,10 +778,13 @@ fn ray_channels(
                 (0.0, 0.0)
             };
             for (i, l) in lines[m].iter().enumerate() {
-                // Skip lines that cannot reach the window (shift range, 8 sigma and the box).
-                let (lmin, lmax) = (sa.min(sb) * l.centre_nm, sa.max(sb) * l.centre_nm);
-                let reach = 8.0 * siga.max(sigb) / SPEED_OF_LIGHT_M_PER_S * lmax + st.line_width_nm;
-                if lmax + reach < wlo || lmin - reach > whi {
+                if !line_reaches(
+                    l.centre_nm,
+                    (sa, sb),
+                    siga.max(sigb),
+                    st.line_width_nm,
+                    (wlo, whi),
+                ) {
                     continue;
                 }
                 let base = dt * l.strength * f.emission;
@@ -813,11 +812,6 @@ fn ray_channels(
     }
     bins.flush(g, acc);
     Ok(())
-}
-
-fn integrate_clipped(s: &PiecewiseLinear, a: f64, b: f64) -> Result<f64> {
-    s.integrate(a, b)
-        .map_err(|e| Error::parameter(format!("spectrum: {e}")))
 }
 
 /// Renders a spectral cube: one orthographic ray per pixel of `settings` (use
@@ -924,8 +918,8 @@ impl<'a> CubePlan<'a> {
     /// Image rows `rows` (top row 0), each `w x channels` values (x, then channel), of the
     /// segments inside `clip` (all of them for `None`). `front`, for an absorbing scene cut
     /// by `clip`: the optical depth in front of the box per pixel of the whole image
-    /// (row-major; `None` or an empty entry: nothing in front), by which each pixel's
-    /// spectrum is attenuated before it is binned.
+    /// (row-major; `None` or an empty entry: nothing in front), behind which each pixel's
+    /// light is marched.
     pub(crate) fn rows(
         &self,
         scene: &DopplerScene,
@@ -948,6 +942,11 @@ impl<'a> CubePlan<'a> {
         ctx.clip = clip.copied();
         let edges: Vec<f64> = (0..=spec.channels).map(|i| spec.edge_nm(i)).collect();
         let lines = reachable_lines(&ctx, &edges);
+        let window = if ctx.absorbing {
+            Some(super::cube_abs::Window::new(&ctx, &edges)?)
+        } else {
+            None
+        };
         let done = AtomicU64::new(0);
         let total = rows.len() as u64;
         let out: Vec<Result<Vec<f64>>> = rows
@@ -958,6 +957,7 @@ impl<'a> CubePlan<'a> {
                 }
                 let mut bins = LineBins::new(&edges, spec, lines.iter().map(Vec::len).sum());
                 let mut row = vec![0.0; w * spec.channels];
+                let mut scratch = super::cube_abs::Scratch::default();
                 for (x, acc) in row.chunks_exact_mut(spec.channels).enumerate() {
                     // Per pixel too: an absorbing, broadened row can take seconds.
                     if observer.cancelled() {
@@ -965,7 +965,12 @@ impl<'a> CubePlan<'a> {
                     }
                     let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
                     let f = front.map_or(&[][..], |f| &f[y * w + x][..]);
-                    ray_channels(&ctx, &lines, &ray, &edges, f, &mut bins, acc)?;
+                    match &window {
+                        Some(win) => {
+                            super::cube_abs::ray_channels(&ctx, win, &ray, f, acc, &mut scratch)?
+                        }
+                        None => ray_channels(&ctx, &lines, &ray, &edges, &mut bins, acc)?,
+                    }
                 }
                 observer.progress(Progress {
                     done: done.fetch_add(1, Ordering::Relaxed) + 1,

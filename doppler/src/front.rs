@@ -219,7 +219,7 @@ pub fn chord_depth(p: &[Piece], eps: f64) -> Vec<Piece> {
 
 /// `a + b` for sorted, disjoint piece lists, into `out` (cleared first). Runs of `a` that `b`
 /// does not touch are copied as they are; `b` is expected to be the short one.
-fn add_sorted(a: &[Piece], b: &[Piece], out: &mut Vec<Piece>) {
+pub(crate) fn add_sorted(a: &[Piece], b: &[Piece], out: &mut Vec<Piece>) {
     out.clear();
     // Invariant: a[..i] is out, and a[i] is out up to x.
     let mut i = 0;
@@ -269,19 +269,19 @@ fn add_sorted(a: &[Piece], b: &[Piece], out: &mut Vec<Piece>) {
 }
 
 /// A cursor over sorted, disjoint pieces, advanced monotonically.
-struct Cursor<'a> {
+pub(crate) struct Cursor<'a> {
     pieces: &'a [Piece],
     i: usize,
 }
 
 impl<'a> Cursor<'a> {
-    fn new(pieces: &'a [Piece]) -> Self {
+    pub(crate) fn new(pieces: &'a [Piece]) -> Self {
         Self { pieces, i: 0 }
     }
 
     /// The piece holding `x` (`start <= x < end`), if any; skips pieces ending at or before `x`.
     #[inline]
-    fn at(&mut self, x: f64) -> Option<Piece> {
+    pub(crate) fn at(&mut self, x: f64) -> Option<Piece> {
         if self.pieces.get(self.i).is_some_and(|p| p.end_nm <= x) {
             self.i += count_ending_by(&self.pieces[self.i..], x);
         }
@@ -290,7 +290,7 @@ impl<'a> Cursor<'a> {
 
     /// The next breakpoint after `x` given the piece `at(x)` returned.
     #[inline]
-    fn next_break(&self, current: Option<Piece>) -> f64 {
+    pub(crate) fn next_break(&self, current: Option<Piece>) -> f64 {
         match current {
             Some(p) => p.end_nm,
             None => self
@@ -346,7 +346,7 @@ fn exp_moments(s: f64, h: f64, e: f64) -> [f64; 3] {
 /// `[0, h]`, given the transmittances `tu = exp(-pu)`, `tw = exp(-pw)`; computed from the end
 /// where the depth is smaller, so nothing overflows.
 #[inline]
-fn depth_moments(pu: f64, pw: f64, tu: f64, tw: f64, h: f64) -> [f64; 3] {
+pub(crate) fn depth_moments(pu: f64, pw: f64, tu: f64, tw: f64, h: f64) -> [f64; 3] {
     if pw >= pu {
         if tu <= 0.0 {
             return [0.0; 3];
@@ -376,21 +376,21 @@ fn quad_dot(fu: f64, df: f64, gu: f64, dg: f64, j: &[f64; 3]) -> f64 {
 
 /// A depth function's transmittance at the last point asked, reused by the next sub-interval.
 #[derive(Clone, Copy)]
-struct Carry {
+pub(crate) struct Carry {
     x: f64,
     depth: f64,
     trans: f64,
 }
 
 impl Carry {
-    const NONE: Self = Self {
+    pub(crate) const NONE: Self = Self {
         x: f64::NAN,
         depth: f64::NAN,
         trans: 1.0,
     };
 
     #[inline]
-    fn trans(&mut self, x: f64, depth: f64) -> f64 {
+    pub(crate) fn trans(&mut self, x: f64, depth: f64) -> f64 {
         if x != self.x || depth != self.depth {
             self.x = x;
             self.depth = depth;

@@ -84,6 +84,7 @@
 
 mod banded;
 mod cube;
+mod cube_abs;
 mod display;
 mod error;
 mod fits;
