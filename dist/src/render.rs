@@ -721,12 +721,11 @@ pub fn render_cube_tiles(
 /// crate's cubes). Absorbing
 /// scenes compose exactly as [`render_doppler_data`] does: each rank's piece gives its
 /// optical depth per pixel, an exclusive scan in visibility order gives the depth in front
-/// of each piece, and each piece's spectrum (its own emission and absorption, the
-/// single-process back-to-front arithmetic over its segments) is attenuated by that depth
-/// before it is binned. The sum then differs from the single-process spectrum only by the
-/// attenuation's chord error (`max_depth_step`, see
-/// `PiecewiseLinear::attenuated`) and the merges (`merge_tolerance`), each bounded as in
-/// the single-process spectrum.
+/// of each piece, and each piece's rays are marched behind that depth (the single-process
+/// front-to-back march over its segments, in closed form). With the merges off
+/// (`merge_tolerance` 0) the sum is the single-process cube up to the order of the f64
+/// sums; the merges of the depth in front, and of a line's Gaussians along a ray (within
+/// each piece only), differ within their bounds.
 ///
 /// # Errors
 /// A decomposition for another rank count; as [`render_cube_tiles`].

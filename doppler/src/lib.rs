@@ -66,6 +66,9 @@
 //!   exactly at sub-piece ends (`max_depth_step`), and merged with `tol / segments` of its
 //!   maximum per merge, so merges add at most `merge_tolerance` of the maximum in total.
 //!   Tests check that both paths give the same XYZ within these bounds.
+//! - Absorbing spectral cubes march front to back over the channels' window alone and bin
+//!   the light straight into channels (module `cube_abs`: closed-form sub-interval integrals
+//!   as in the image path; `max_depth_step` is not used).
 //!
 //! ## Glossary (paper term -> type)
 //! | Paper | Here |

@@ -119,7 +119,8 @@ pub struct DopplerSettings {
     /// fallback, which gives up the bound; the rays that needed it are counted).
     pub piece_budget: usize,
     /// Largest optical-depth change inside one attenuated sub-piece of a kept spectrum (its
-    /// chord errs by at most `max_depth_step^2 / 8` of the value per attenuation).
+    /// chord errs by at most `max_depth_step^2 / 8` of the value per attenuation): picked
+    /// pixels' spectra and traces; images and cubes integrate the attenuation in closed form.
     pub max_depth_step: f64,
     /// Line profile beyond the box: thermal and/or a Gaussian width (piecewise-linear
     /// integrator and cubes, emission and absorption lines; the banded integrators refuse it).

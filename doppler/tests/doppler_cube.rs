@@ -598,7 +598,7 @@ fn image_integrator_broadens_lines_and_keeps_their_energy() {
 }
 
 /// The same cube on 1 thread and on the default pool, bit for bit; with line absorption
-/// (the pixel's full spectrum integrated over each channel) no channel brightens, and the
+/// (each ray marched over the channels' window) no channel brightens, and the
 /// absorbing path with a zero absorption factor equals the emission-only path.
 #[test]
 fn cubes_are_deterministic_and_absorption_never_brightens() {

@@ -24,7 +24,7 @@ pub struct CubeArgs {
     /// Lines without --thermal / --line-sigma get a box one channel wide (--line-width is
     /// not used), whose exact channel integrals are yt's tent weights. Without absorption
     /// the cube is continuum-subtracted (line emission only, as yt's PPV cubes); with
-    /// absorption it holds each pixel's whole spectrum, black-body continuum included, so
+    /// absorption it holds the light that reaches the eye, black-body continuum included, so
     /// that absorption lines show against it.
     #[arg(long)]
     pub cube: Option<PathBuf>,
