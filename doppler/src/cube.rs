@@ -1,6 +1,5 @@
-//! Spectral (position-position-velocity) cubes: each pixel's piecewise-linear spectrum
-//! integrated EXACTLY over velocity or wavelength channels, moment maps, and views along any
-//! direction.
+//! Spectral (position-position-velocity) cubes: each pixel's light integrated in closed form
+//! over velocity or wavelength channels, moment maps, and views along any direction.
 //!
 //! A channel's value is the integral of the pixel's spectrum over the channel's wavelength
 //! interval (value unit x nm): with strength-1 lines and the energy-conserving transform, it
@@ -499,7 +498,7 @@ const KINK_MIN_CHANNELS: f64 = 24.0;
 
 /// The largest estimated error, as a fraction of the peak, of replacing a run of a line's
 /// Gaussians by one Gaussian of the same area, mean and variance ([`GaussRun`]).
-const MERGE_ERROR: f64 = 1.2e-3;
+pub(crate) const MERGE_ERROR: f64 = 1.2e-3;
 
 /// Consecutive Gaussians of one line along a ray (a segment's sub-Gaussians and those of the
 /// next segments), replaced by one Gaussian of the same area, mean and variance while the
@@ -559,7 +558,7 @@ impl GaussRun {
     }
 
     /// Mean (about `c0`), variance, and the error estimate of the sums `s`.
-    fn shape(s: &[f64; 5]) -> (f64, f64, f64) {
+    pub(crate) fn shape(s: &[f64; 5]) -> (f64, f64, f64) {
         let inv = 1.0 / s[0];
         let (e1, e2, e3, e4) = (s[1] * inv, s[2] * inv, s[3] * inv, s[4] * inv);
         let m2 = e2 - e1 * e1;
@@ -606,6 +605,12 @@ impl GaussRun {
             s_hi,
         };
         true
+    }
+
+    /// The sums of each area times its Gaussian's raw moments 0..=4 about the first
+    /// Gaussian's centre, and that centre (zeros for an empty run).
+    pub(crate) fn sums(&self) -> ([f64; 5], f64) {
+        (self.s, self.c0)
     }
 
     /// The merged Gaussian `(centre, sigma, area)`, and the run emptied.
@@ -879,12 +884,12 @@ impl<'a> CubePlan<'a> {
                 ));
             }
         };
-        // The rays' spectra over the cube's window only: light at one wavelength never
+        // The rays' light over the cube's window only: light at one wavelength never
         // reaches another (each sample's shift is applied to its own lines), so lines,
-        // depths and continuum outside the window cannot change a channel, and an absorbing
-        // ray's spectrum holds the window's pieces, not those of 380-780 nm (a thermally
-        // broadened Enzo ray went past the piece budget there, and the budget's coarser
-        // merges raised the window's continuum: +98 % in a 32x32 H-alpha cube).
+        // depths and continuum outside the window cannot change a channel (a thermally
+        // broadened Enzo ray's whole 380-780 nm spectrum once went past the piece budget,
+        // and the budget's coarser merges raised the window's continuum: +98 % in a 32x32
+        // H-alpha cube).
         let (lo, hi) = (spec.edge_nm(0), spec.edge_nm(spec.channels));
         let line_width_nm = match spec.line_width {
             CubeLineWidth::Settings => settings.line_width_nm,
@@ -941,7 +946,12 @@ impl<'a> CubePlan<'a> {
         }
         ctx.clip = clip.copied();
         let edges: Vec<f64> = (0..=spec.channels).map(|i| spec.edge_nm(i)).collect();
-        let lines = reachable_lines(&ctx, &edges);
+        // Absorbing rays take the window's lines as they come (cube_abs).
+        let lines = if ctx.absorbing {
+            Vec::new()
+        } else {
+            reachable_lines(&ctx, &edges)
+        };
         let window = if ctx.absorbing {
             Some(super::cube_abs::Window::new(&ctx, &edges)?)
         } else {
@@ -982,6 +992,43 @@ impl<'a> CubePlan<'a> {
             .collect();
         scene.check_io()?;
         out.into_iter().collect()
+    }
+
+    /// The optical depth over the cube's window of the segments inside `clip`, per pixel
+    /// (row-major; empty entries for a scene that does not absorb): the depth in front that
+    /// the boxes behind take in [`Self::rows`].
+    pub(crate) fn optical_depths(
+        &self,
+        scene: &DopplerScene,
+        clip: &blueshift_camera::ClipBox,
+    ) -> Result<Vec<Vec<Piece>>> {
+        let settings = self.settings();
+        let mut ctx = Context::new(scene, settings)?;
+        ctx.clip = Some(*clip);
+        if !ctx.absorbing {
+            return Ok(vec![Vec::new(); self.w * self.h]);
+        }
+        let edges: Vec<f64> = (0..=self.spec.channels)
+            .map(|i| self.spec.edge_nm(i))
+            .collect();
+        let window = super::cube_abs::Window::new(&ctx, &edges)?;
+        let rows: Vec<Result<Vec<Vec<Piece>>>> = (0..self.h)
+            .into_par_iter()
+            .map(|y| {
+                (0..self.w)
+                    .map(|x| {
+                        let ray = settings.ray(x as f32 + 0.5, y as f32 + 0.5);
+                        super::cube_abs::total_depth(&ctx, &window, &ray)
+                    })
+                    .collect()
+            })
+            .collect();
+        scene.check_io()?;
+        let mut out = Vec::with_capacity(self.w * self.h);
+        for row in rows {
+            out.extend(row?);
+        }
+        Ok(out)
     }
 
     /// The cube of every image row (top row first, as [`Self::rows`] gives them).

@@ -16,14 +16,20 @@
 //!   integral_{supp d} c exp(-A) (1 - exp(-d/2))` for `c = alpha + beta (x - x_cell)`,
 //!   with `W_n(cell) = integral (x - x_cell)^n (1 - exp(-A))` kept up to date over the
 //!   support of each new depth only: O(cells) a segment and no exponential.
-//! * Runs (broadened lines): consecutive segments of the window's one line whose
-//!   Gaussians merge by the emission-only cube's rule ([`GaussRun`]) and whose merged peak
-//!   depth stays at or below `D_max = sqrt(2 tol)` are swept once, their light attenuated by
-//!   `A + f D` with `f` the light-weighted mean depth in front within the run, as a fraction
-//!   of the run's depth `D`. With `y_j` each member's depth in front within the run (in
-//!   `[0, D]`) and `exp(-y)`'s second derivative at most 1, the run's light is low by at
-//!   most `D_max^2 / 8 = tol / 4` of itself (Jensen's gap); one segment gives `f = 1/2`,
-//!   the exact march.
+//! * Runs (broadened lines): consecutive segments whose Gaussians merge by the emission-only
+//!   cube's rule ([`GaussRun`]) and whose merged peak depth `D` stays at or below
+//!   `D_max = sqrt(2 tol)` are swept once. Their light is attenuated by `A + f D`, `f` the
+//!   light-weighted depth in front within the run as a fraction of `D`: where each member's
+//!   light is proportional to its depth (a line that emits and absorbs, the only light a run
+//!   takes, and no member in front with depth but no light), the first-order loss
+//!   `sum_j e_j (D_<j + d_j / 2)` is exactly `E D / 2` = `E f D`, and what is left is
+//!   Jensen's gap: with `y_j` in `[0, D]` and `exp(-y)`'s second derivative at most 1, the
+//!   light is low by at most `D_max^2 / 8 = tol / 4` of itself. The continuum is attenuated
+//!   by `A` plus its own depth in front within the run, `sum_j c_j (D_<j + d_j / 2) / C`,
+//!   merged into one Gaussian from its moments (the same rule), exact to first order for
+//!   members of one continuum shape; members join only while their continuum slopes across
+//!   the window stay within `tol / (4 D_max)` of each other, which keeps the shape's part
+//!   within `tol / 8`. One segment alone gives the exact march.
 //! * Depth Gaussians are pieces between nodes of a dyadic lattice (`lattice_gaussian`):
 //!   Gaussians of similar width share nodes, so `A`'s breakpoints stop multiplying with the
 //!   segments. Emission keeps [`PwlGaussian`]'s pieces, the emission-only cube's model.
@@ -31,15 +37,15 @@
 //!   where it passes the piece budget.
 //!
 //! Error budget against the piecewise-linear model: the merges `tol / 32`, the runs
-//! `tol / 4` (low), [`GaussRun`]'s merge 0.12 % of a line's peak, and the lattice
-//! Gaussian's own error, at most `h^2 / (8 sigma^2) + e^-8` of its peak (0.8 %, as for
-//! [`PwlGaussian`]).
+//! `tol / 4 + tol / 8` (the tests measure 0.02 tol), [`GaussRun`]'s merge 0.12 % of a line's
+//! peak, and the lattice Gaussian's own error, at most `h^2 / (8 sigma^2) + e^-8` of its
+//! peak depth (0.8 %, as for [`PwlGaussian`]; in transmittance about `0.008 tau`).
 //!
 //! [`PwlGaussian`]: blueshift_spectrum::PwlGaussian
 
 use blueshift_spectrum::{Blackbody, Piece, merge_pieces};
 
-use super::cube::{GaussRun, line_reaches};
+use super::cube::{GaussRun, MERGE_ERROR, line_reaches};
 use super::front::{Carry, Cursor, add_sorted, depth_moments};
 use super::profile::Emit;
 use super::pwl::spectrum_err;
@@ -108,8 +114,10 @@ pub(crate) struct Scratch {
     a2: Vec<Piece>,
     d: Vec<Piece>,
     e: Vec<Piece>,
+    c: Vec<Piece>,
     dtr: Vec<Trap>,
     etr: Vec<Trap>,
+    ctr: Vec<Trap>,
     ev_e: Vec<Emit>,
     ev_d: Vec<Emit>,
     events: Vec<(f64, bool, u32)>,
@@ -126,6 +134,7 @@ struct Depth<'s> {
     a2: &'s mut Vec<Piece>,
     d: &'s mut Vec<Piece>,
     e: &'s mut Vec<Piece>,
+    c: &'s mut Vec<Piece>,
     events: &'s mut Vec<(f64, bool, u32)>,
     w: &'s mut [[f64; 2]],
     tol: f64,
@@ -136,21 +145,31 @@ struct Depth<'s> {
 }
 
 impl Depth<'_> {
-    /// Sweeps the depth `dtr` and light `etr` (trapezoids) behind `A` into `acc`, with the
-    /// continuum `cont` per cell, light attenuated by `A + f.0 d` and continuum by
-    /// `A + f.1 d`; then adds `d` to `A` (and to `W`).
+    /// Sweeps the depth `dtr` and light `etr` (trapezoids) behind `A` into `acc`, light
+    /// attenuated by `A + fe d`, with the continuum `cont` per cell attenuated by `A` plus
+    /// `ctr` (a run's continuum depth in front) or, for `None`, half of `d`; then adds `d` to
+    /// `A` (and to `W`).
+    #[allow(clippy::too_many_arguments)]
     fn sweep_add(
         &mut self,
         win: &Window,
         dtr: &[Trap],
         etr: &[Trap],
+        ctr: Option<&[Trap]>,
         cont: &[(f64, f64)],
-        f: (f64, f64),
+        fe: f64,
         acc: &mut [f64],
     ) -> Result<()> {
         sum_trapezoids(dtr, self.d, self.events);
         sum_trapezoids(etr, self.e, self.events);
-        sweep(win, self.a, self.d, self.e, cont, self.w, acc, f);
+        let cd = match ctr {
+            Some(t) => {
+                sum_trapezoids(t, self.c, self.events);
+                ContDepth::Own(self.c)
+            }
+            None => ContDepth::Scaled(0.5),
+        };
+        sweep(win, self.a, self.d, self.e, cd, cont, self.w, acc, fe);
         if self.d.is_empty() {
             return Ok(());
         }
@@ -167,8 +186,9 @@ impl Depth<'_> {
             self.merged_len = self.a.len().max(64);
         }
         // Budget fallback: coarser merges until A fits, from 4x this segment's share of the
-        // tolerance up (the transmittance moves by at most the merge's depth error); stops
-        // when a merge gains nothing, the scale capped so it never overflows.
+        // tolerance up (the transmittance moves by at most the merge's depth error), as the
+        // image march does: stops once only gaps separate the pieces, or at a scale that
+        // merges everything mergeable (never overflowing).
         let mut scale = 1.0f64;
         while self.a.len() > self.budget {
             scale = (scale * 4.0).min(1e30);
@@ -176,7 +196,8 @@ impl Depth<'_> {
             merge_pieces(self.a, t, self.a2).map_err(spectrum_err)?;
             let gained = self.a2.len() < self.a.len();
             std::mem::swap(self.a, self.a2);
-            if !gained {
+            if !gained && (scale >= 1e30 || self.a.windows(2).all(|p| p[0].end_nm < p[1].start_nm))
+            {
                 break;
             }
         }
@@ -184,9 +205,11 @@ impl Depth<'_> {
     }
 }
 
-/// An open run of consecutive segments of the window's one line (module docs): its merged
-/// emission and depth Gaussians, its depth so far `t`, and the light- and
-/// continuum-weighted depth in front within the run (`s_e`, `s_c`) with their weights.
+/// An open run of consecutive segments (module docs): its merged light and depth
+/// Gaussians, its depth so far `t`, the light-weighted depth in front within the run `s_e`
+/// with its weight, the continuum's weight `w_c` and the raw moments of its depth in front
+/// within the run `yc` (about the depth run's first centre), the continuum's slope across
+/// the window of its first lit member, and whether a member has depth but no light.
 #[derive(Clone, Copy)]
 struct Run {
     e: GaussRun,
@@ -195,8 +218,45 @@ struct Run {
     e_area: f64,
     s_e: f64,
     w_c: f64,
-    s_c: f64,
+    yc: [f64; 5],
+    slope: Option<f64>,
+    dark: bool,
     segments: u32,
+}
+
+/// One segment as a candidate run member: its light and depth events, its continuum's
+/// integral over the window and slope across it (`(hi - lo) / (hi + lo)` of its values at
+/// the window's ends).
+struct Member<'a> {
+    light: &'a [Emit],
+    depth: &'a [Emit],
+    wc: f64,
+    slope: f64,
+}
+
+/// The limits of a run: the merged peak depth `d_max`, and the spread of its members'
+/// continuum slopes.
+#[derive(Clone, Copy)]
+struct Limits {
+    d_max: f64,
+    slope_spread: f64,
+}
+
+impl Limits {
+    /// The limits for the merge tolerance `tol`: a peak depth of `sqrt(2 tol)` (Jensen's gap
+    /// `D^2 / 8` is then `tol / 4`), a slope spread whose first-order continuum error
+    /// `spread x D / 2` stays within `tol / 8`.
+    fn new(tol: f64) -> Self {
+        let d_max = (2.0 * tol).sqrt();
+        Self {
+            d_max,
+            slope_spread: if d_max > 0.0 {
+                tol / (4.0 * d_max)
+            } else {
+                0.0
+            },
+        }
+    }
 }
 
 impl Run {
@@ -207,15 +267,31 @@ impl Run {
         e_area: 0.0,
         s_e: 0.0,
         w_c: 0.0,
-        s_c: 0.0,
+        yc: [0.0; 5],
+        slope: None,
+        dark: false,
         segments: 0,
     };
 
-    /// This run with a segment of Gaussians `ev_e` (light), `ev_d` (depth) and continuum
-    /// `wc` added, if every Gaussian merges and the merged peak depth stays at or below
-    /// `d_max`.
-    fn with(&self, ev_e: &[Emit], ev_d: &[Emit], wc: f64, d_max: f64) -> Option<Self> {
+    /// This run with the member `m` added, if: every Gaussian merges ([`GaussRun`]'s rule,
+    /// also for the continuum's depth in front); the merged peak depth stays at or below
+    /// `lim.d_max`; the member's light is proportional to its depth (each light Gaussian at
+    /// the centre and width of the depth Gaussian beside it: a line that emits and absorbs)
+    /// and no member in front had depth without light, so the light's first-order loss
+    /// inside the run is exactly `E D / 2`; and the member's continuum slope is within
+    /// `lim.slope_spread` of the run's.
+    fn with(&self, m: &Member<'_>, lim: Limits) -> Option<Self> {
+        if !m.light.is_empty() && (self.dark || !proportional(m.light, m.depth)) {
+            return None;
+        }
         let mut r = *self;
+        if m.wc > 0.0 {
+            match r.slope {
+                None => r.slope = Some(m.slope),
+                Some(s) if (m.slope - s).abs() <= lim.slope_spread => {}
+                Some(_) => return None,
+            }
+        }
         let add = |run: &mut GaussRun, ev: &[Emit]| -> Option<f64> {
             let mut area = 0.0;
             for &e in ev {
@@ -226,23 +302,55 @@ impl Run {
             }
             Some(area)
         };
-        let ej = add(&mut r.e, ev_e)?;
-        let tau = add(&mut r.d, ev_d)?;
+        let (before, _) = r.d.sums();
+        let ej = add(&mut r.e, m.light)?;
+        let tau = add(&mut r.d, m.depth)?;
         if !r.d.is_empty() {
             let (_, sd, da) = { r.d }.take();
-            if da / ((2.0 * std::f64::consts::PI).sqrt() * sd) > d_max {
+            if da / ((2.0 * std::f64::consts::PI).sqrt() * sd) > lim.d_max {
                 return None;
             }
         }
-        let mid = r.t + 0.5 * tau;
-        r.s_e += ej * mid;
-        r.s_c += wc * mid;
+        // The continuum's depth in front: each member's continuum sees the run's depth in
+        // front of it plus half its own.
+        let (after, _) = r.d.sums();
+        for (y, (b, a)) in r.yc.iter_mut().zip(before.iter().zip(&after)) {
+            *y += m.wc * 0.5 * (b + a);
+        }
+        if r.yc[0] > 0.0 {
+            let (_, var, err) = GaussRun::shape(&r.yc);
+            if !(var > 0.0 && err <= MERGE_ERROR) {
+                return None;
+            }
+        }
+        r.s_e += ej * (r.t + 0.5 * tau);
         r.e_area += ej;
-        r.w_c += wc;
+        r.w_c += m.wc;
         r.t += tau;
+        r.dark |= m.light.is_empty() && !m.depth.is_empty();
         r.segments += 1;
         Some(r)
     }
+
+    /// The continuum's depth in front within the run as one Gaussian `(centre, sigma, area)`
+    /// per unit of continuum, if any.
+    fn continuum_depth(&self, c0: f64) -> Option<(f64, f64, f64)> {
+        if !(self.yc[0] > 0.0 && self.w_c > 0.0) {
+            return None;
+        }
+        let (mean, var, _) = GaussRun::shape(&self.yc);
+        Some((c0 + mean, var.max(0.0).sqrt(), self.yc[0] / self.w_c))
+    }
+}
+
+/// Whether each light Gaussian sits at the centre and width of the depth Gaussian at its
+/// place in the lists (equal lengths, Gaussians only).
+fn proportional(light: &[Emit], depth: &[Emit]) -> bool {
+    light.len() == depth.len()
+        && light.iter().zip(depth).all(|(l, d)| match (*l, *d) {
+            (Emit::Gaussian(cl, sl, _), Emit::Gaussian(cd, sd, _)) => cl == cd && sl == sd,
+            _ => false,
+        })
 }
 
 /// One absorbing ray's channel values into `acc` (overwritten); `front`: the optical depth
@@ -271,8 +379,10 @@ pub(crate) fn ray_channels(
         a2,
         d,
         e,
+        c,
         dtr,
         etr,
+        ctr,
         ev_e,
         ev_d,
         events,
@@ -296,6 +406,7 @@ pub(crate) fn ray_channels(
         a2,
         d,
         e,
+        c,
         events,
         w,
         tol,
@@ -312,11 +423,11 @@ pub(crate) fn ray_channels(
             clip_push(dtr, win, p.start_nm, p.end_nm, p.value_start, p.value_end);
         }
         etr.clear();
-        depth.sweep_add(win, dtr, etr, cont, (0.5, 0.5), acc)?;
+        depth.sweep_add(win, dtr, etr, None, cont, 0.5, acc)?;
     }
-    // Runs form only where a segment's events are Gaussians of one line (broadening), so
-    // a window with two lines, or trapezoids, is marched segment by segment.
-    let d_max = (2.0 * tol).sqrt();
+    // Runs form only where a segment's events are Gaussians that merge (broadening), so a
+    // window with two lines, or trapezoids, is marched segment by segment.
+    let limits = Limits::new(tol);
     let bb_nodes = |j: usize, out: &mut Vec<f64>| -> Result<bool> {
         out.clear();
         let (rho, temp) = (s.bb[j], s.bb_temp[j]);
@@ -338,6 +449,7 @@ pub(crate) fn ray_channels(
         let dt = f64::from(s.t[j] - s.t[j + 1]).abs();
         // This segment's continuum per cell (trapezoid rule along the ray on the grid).
         let mut wc = 0.0;
+        let (mut c_lo, mut c_hi) = (0.0, 0.0);
         let lit = has_near || has_far;
         for (ci, &(lo, hi, _)) in win.cells.iter().enumerate() {
             cont[ci] = if lit {
@@ -348,6 +460,10 @@ pub(crate) fn ray_channels(
                 let alpha = v0 + slope * (lo - lam[i]);
                 let len = hi - lo;
                 wc += alpha * len + 0.5 * slope * len * len;
+                if ci == 0 {
+                    c_lo = alpha;
+                }
+                c_hi = alpha + slope * len;
                 (alpha, slope)
             } else {
                 (0.0, 0.0)
@@ -357,9 +473,27 @@ pub(crate) fn ray_channels(
         ev_d.clear();
         window_events(ctx, &s, j, true, win, ev_e)?;
         window_events(ctx, &s, j, false, win, ev_d)?;
-        let joined = run.with(ev_e, ev_d, wc, d_max);
+        let member = Member {
+            light: ev_e,
+            depth: ev_d,
+            wc,
+            slope: if c_lo + c_hi > 0.0 {
+                (c_hi - c_lo) / (c_hi + c_lo)
+            } else {
+                0.0
+            },
+        };
+        let joined = run.with(&member, limits);
         if joined.is_none() {
-            flush(ctx, win, &mut run, run_cont, &mut depth, dtr, etr, acc)?;
+            flush(
+                ctx,
+                win,
+                &mut run,
+                run_cont,
+                &mut depth,
+                [dtr, etr, ctr],
+                acc,
+            )?;
         }
         // The continuum past everything swept so far (all in front of this segment).
         if lit {
@@ -376,35 +510,90 @@ pub(crate) fn ray_channels(
                 rc.0 += c.0;
                 rc.1 += c.1;
             }
-        } else if let Some(r) = Run::EMPTY.with(ev_e, ev_d, wc, f64::INFINITY) {
+        } else if let Some(r) = Run::EMPTY.with(
+            &member,
+            Limits {
+                d_max: f64::INFINITY,
+                ..limits
+            },
+        ) {
             // A new run (its peak may pass D_max: one segment alone is exact).
             run = r;
             run_cont.copy_from_slice(cont);
         } else {
             events_to_traps(ctx, ev_d, win, dtr, true);
             events_to_traps(ctx, ev_e, win, etr, false);
-            depth.sweep_add(win, dtr, etr, cont, (0.5, 0.5), acc)?;
+            depth.sweep_add(win, dtr, etr, None, cont, 0.5, acc)?;
         }
         std::mem::swap(near, far);
         has_near = has_far;
     }
-    flush(ctx, win, &mut run, run_cont, &mut depth, dtr, etr, acc)
+    flush(
+        ctx,
+        win,
+        &mut run,
+        run_cont,
+        &mut depth,
+        [dtr, etr, ctr],
+        acc,
+    )?;
+    // The continuum behind a saturated depth is a difference of nearly equal terms: never
+    // let its rounding go below zero.
+    acc.iter_mut().for_each(|v| *v = v.max(0.0));
+    Ok(())
 }
 
-/// Sweeps the open run (if any) with its factors and empties it.
-#[allow(clippy::too_many_arguments)]
+/// The optical depth over the window of the ray's segments (inside the context's clip box),
+/// each segment's depth as the march adds it (depth Gaussians on the lattice): what a
+/// distributed cube passes on as the depth in front of the boxes behind. Summed pairwise,
+/// as a balanced tree.
+pub(crate) fn total_depth(ctx: &Context<'_>, win: &Window, ray: &crate::Ray) -> Result<Vec<Piece>> {
+    let s = ctx.sample(ray)?;
+    let (mut ev, mut tr, mut events) = (Vec::new(), Vec::new(), Vec::new());
+    let mut level: Vec<Vec<Piece>> = Vec::new();
+    for j in 0..s.len().saturating_sub(1) {
+        ev.clear();
+        window_events(ctx, &s, j, false, win, &mut ev)?;
+        events_to_traps(ctx, &ev, win, &mut tr, true);
+        if tr.is_empty() {
+            continue;
+        }
+        let mut one = Vec::new();
+        sum_trapezoids(&tr, &mut one, &mut events);
+        level.push(one);
+    }
+    while level.len() > 1 {
+        level = level
+            .chunks(2)
+            .map(|c| match c {
+                [a, b] => super::front::add_depths(a, b),
+                [a] => a.clone(),
+                _ => unreachable!("chunks of at most two"),
+            })
+            .collect();
+    }
+    Ok(level.pop().unwrap_or_default())
+}
+
+/// Sweeps the open run (if any) and empties it: its merged light attenuated by `A + f D`
+/// (`f` its light-weighted depth in front within the run, as a fraction of `D`), its
+/// continuum by `A` plus its continuum depth in front.
 fn flush(
     ctx: &Context<'_>,
     win: &Window,
     run: &mut Run,
     run_cont: &mut [(f64, f64)],
     depth: &mut Depth<'_>,
-    dtr: &mut Vec<Trap>,
-    etr: &mut Vec<Trap>,
+    [dtr, etr, ctr]: [&mut Vec<Trap>; 3],
     acc: &mut [f64],
 ) -> Result<()> {
     if run.segments == 0 {
         return Ok(());
+    }
+    let (_, c0) = run.d.sums();
+    ctr.clear();
+    if let Some((c, sg, area)) = run.continuum_depth(c0) {
+        lattice_gaussian(c, sg, area, win, ctr);
     }
     let (ce, se, ea) = run.e.take();
     let (cd, sd, da) = run.d.take();
@@ -412,15 +601,12 @@ fn flush(
     let ev_d = (da > 0.0).then_some(Emit::Gaussian(cd, sd, da));
     events_to_traps(ctx, ev_d.as_slice(), win, dtr, true);
     events_to_traps(ctx, ev_e.as_slice(), win, etr, false);
-    let fraction = |s: f64, weight: f64| {
-        if da > 0.0 && weight > 0.0 {
-            (s / (weight * da)).clamp(0.0, 1.0)
-        } else {
-            0.5
-        }
+    let fe = if da > 0.0 && run.e_area > 0.0 {
+        (run.s_e / (run.e_area * da)).clamp(0.0, 1.0)
+    } else {
+        0.5
     };
-    let f = (fraction(run.s_e, run.e_area), fraction(run.s_c, run.w_c));
-    depth.sweep_add(win, dtr, etr, run_cont, f, acc)?;
+    depth.sweep_add(win, dtr, etr, Some(ctr), run_cont, fe, acc)?;
     run_cont.iter_mut().for_each(|c| *c = (0.0, 0.0));
     *run = Run::EMPTY;
     Ok(())
@@ -596,33 +782,29 @@ fn lattice_gaussian(c: f64, sg: f64, area: f64, win: &Window, out: &mut Vec<Trap
     }
     let h = (sg / 4.0).log2().floor().exp2();
     let (k0, k1) = ((lo / h).floor(), (hi / h).ceil());
+    // Nodes k0..=k1: at most 8 sigma / h + 2 < 66 of them; the ends are zero.
+    let nodes = ((k1 - k0) as usize + 1).min(LATTICE_NODES);
+    let mut v = [0.0f64; LATTICE_NODES];
     let inv2 = 0.5 / (sg * sg);
-    let start = out.len();
-    let (mut sum, mut prev) = (0.0, 0.0);
-    // At most 66 nodes: 8 sigma over h > sigma / 8, plus the two ends.
-    let mut k = k0;
-    while k < k1 {
-        let (x0, x1) = (k * h, (k + 1.0) * h);
-        let v1 = if k + 1.0 >= k1 {
-            0.0
-        } else {
-            (-(x1 - c) * (x1 - c) * inv2).exp()
-        };
-        sum += 0.5 * h * (prev + v1);
-        out.push((x0, x1, prev, v1));
-        prev = v1;
-        k += 1.0;
+    for (i, vi) in v.iter_mut().enumerate().take(nodes - 1).skip(1) {
+        let x = (k0 + i as f64) * h - c;
+        *vi = (-x * x * inv2).exp();
     }
+    // The trapezoid rule's area (the ends are zero).
+    let sum: f64 = v[1..nodes - 1].iter().sum::<f64>() * h;
     if sum <= 0.0 {
-        out.truncate(start);
         return;
     }
     let scale = area / sum;
-    let pieces: Vec<Trap> = out.drain(start..).collect();
-    for (x0, x1, v0, v1) in pieces {
-        clip_push(out, win, x0, x1, v0 * scale, v1 * scale);
+    for i in 0..nodes - 1 {
+        let x0 = (k0 + i as f64) * h;
+        clip_push(out, win, x0, x0 + h, v[i] * scale, v[i + 1] * scale);
     }
 }
+
+/// Most nodes of a lattice Gaussian (8 sigma over a spacing above sigma / 8, plus the two
+/// ends and rounding).
+const LATTICE_NODES: usize = 72;
 
 /// Sums trapezoids (any order, possibly overlapping) into sorted, disjoint pieces in `out`
 /// (cleared first), by one sweep over their sorted ends.
@@ -699,29 +881,48 @@ fn ends(q: Option<Piece>, u: f64, w: f64) -> (f64, f64) {
     })
 }
 
-/// One sweep over the supports of `d` and `e` behind the depth `a` (module docs): the light
-/// `e` attenuated by `a + f.0 d` into `acc`, the continuum `cont` of each cell less its
-/// loss to `f.1 d`, and `W` updated for `a + d`.
+/// The continuum's depth beyond `A` in a sweep: a fraction of the segment's depth, or a
+/// run's own.
+#[derive(Clone, Copy)]
+enum ContDepth<'a> {
+    Scaled(f64),
+    Own(&'a [Piece]),
+}
+
+/// One sweep over the supports of `d`, `e` and the continuum's depth behind the depth `a`
+/// (module docs): the light `e` attenuated by `a + fe d` into `acc`, the continuum `cont` of
+/// each cell less its loss to its depth beyond `a`, and `W` updated for `a + d`.
 #[allow(clippy::too_many_arguments)]
 fn sweep(
     win: &Window,
     a: &[Piece],
     d: &[Piece],
     e: &[Piece],
+    cd: ContDepth<'_>,
     cont: &[(f64, f64)],
     w: &mut [[f64; 2]],
     acc: &mut [f64],
-    (fe, fc): (f64, f64),
+    fe: f64,
 ) {
+    let own: &[Piece] = match cd {
+        ContDepth::Own(p) => p,
+        ContDepth::Scaled(_) => &[],
+    };
     let first = |p: &[Piece]| p.first().map_or(f64::INFINITY, |q| q.start_nm);
     let last = |p: &[Piece]| p.last().map_or(f64::NEG_INFINITY, |q| q.end_nm);
-    let (start, end) = (first(d).min(first(e)), last(d).max(last(e)));
+    let start = first(d).min(first(e)).min(first(own));
+    let end = last(d).max(last(e)).max(last(own));
     if start >= end {
         return;
     }
     let cells = &win.cells;
     let mut ci = cells.partition_point(|c| c.1 <= start);
-    let (mut ac, mut dc, mut ec) = (Cursor::new(a), Cursor::new(d), Cursor::new(e));
+    let (mut ac, mut dc, mut ec, mut oc) = (
+        Cursor::new(a),
+        Cursor::new(d),
+        Cursor::new(e),
+        Cursor::new(own),
+    );
     let (mut before, mut light, mut after, mut dim) =
         (Carry::NONE, Carry::NONE, Carry::NONE, Carry::NONE);
     let mut u = start;
@@ -732,9 +933,12 @@ fn sweep(
         if ci >= cells.len() {
             break;
         }
-        let (dp, ep) = (dc.at(u), ec.at(u));
-        if dp.is_none() && ep.is_none() {
-            u = dc.next_break(None).min(ec.next_break(None));
+        let (dp, ep, op) = (dc.at(u), ec.at(u), oc.at(u));
+        if dp.is_none() && ep.is_none() && op.is_none() {
+            u = dc
+                .next_break(None)
+                .min(ec.next_break(None))
+                .min(oc.next_break(None));
             continue;
         }
         let pp = ac.at(u);
@@ -742,6 +946,7 @@ fn sweep(
             .1
             .min(dc.next_break(dp))
             .min(ec.next_break(ep))
+            .min(oc.next_break(op))
             .min(ac.next_break(pp));
         if v <= u {
             // Never stall on a breakpoint that rounds onto u.
@@ -753,24 +958,37 @@ fn sweep(
         let (eu, ew) = ends(ep, u, v);
         let has_d = du > 0.0 || dw > 0.0;
         let (lo, _, ch) = cells[ci];
+        let off = u - lo;
         let jb = depth_moments(pu, pw, before.trans(u, pu), before.trans(v, pw), h);
-        let moments = |carry: &mut Carry, f: f64| {
-            let (xu, xw) = (pu + f * du, pw + f * dw);
+        let moments = |carry: &mut Carry, (xu, xw): (f64, f64)| {
+            let (xu, xw) = (pu + xu, pw + xw);
             depth_moments(xu, xw, carry.trans(u, xu), carry.trans(v, xw), h)
         };
-        let jl = if has_d { moments(&mut light, fe) } else { jb };
+        let jl = if has_d {
+            moments(&mut light, (fe * du, fe * dw))
+        } else {
+            jb
+        };
         if eu > 0.0 || ew > 0.0 {
             acc[ch] += eu * jl[0] + (ew - eu) / h * jl[1];
         }
         if has_d {
-            let ja = moments(&mut after, 1.0);
-            let off = u - lo;
+            let ja = moments(&mut after, (du, dw));
             let (d0, d1) = (jb[0] - ja[0], jb[1] - ja[1]);
             w[ci][0] += d0;
             w[ci][1] += off * d0 + d1;
-            let (alpha, slope) = cont[ci];
-            if alpha != 0.0 || slope != 0.0 {
-                let jc = if fc == fe { jl } else { moments(&mut dim, fc) };
+        }
+        let (alpha, slope) = cont[ci];
+        if alpha != 0.0 || slope != 0.0 {
+            let (cu, cw) = match cd {
+                ContDepth::Scaled(f) => (f * du, f * dw),
+                ContDepth::Own(_) => ends(op, u, v),
+            };
+            if cu > 0.0 || cw > 0.0 {
+                let jc = match cd {
+                    ContDepth::Scaled(f) if f == fe => jl,
+                    _ => moments(&mut dim, (cu, cw)),
+                };
                 acc[ch] -= (alpha + slope * off) * (jb[0] - jc[0]) + slope * (jb[1] - jc[1]);
             }
         }

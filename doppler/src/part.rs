@@ -353,8 +353,9 @@ pub fn render_cube_part(
         .collect())
 }
 
-/// The optical depth of the segments inside `clip` per pixel of a cube (as
-/// [`optical_depth_part`], with the settings the cube's rays use: its lines' width).
+/// The optical depth of the segments inside `clip` per pixel of a cube, over the cube's
+/// window (as [`optical_depth_part`], with the cube's settings and the depth model its rays
+/// march with).
 ///
 /// # Errors
 /// As [`crate::render_cube`].
@@ -364,8 +365,7 @@ pub fn cube_optical_depth_part(
     spec: &crate::CubeSpec,
     clip: &ClipBox,
 ) -> Result<Vec<Vec<Piece>>> {
-    let plan = crate::cube::CubePlan::new(settings, spec)?;
-    optical_depth_part(scene, plan.settings(), clip)
+    crate::cube::CubePlan::new(settings, spec)?.optical_depths(scene, clip)
 }
 
 /// The cube from the values of every image row (top row first, [`render_cube_part`]'s

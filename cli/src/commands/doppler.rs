@@ -76,9 +76,10 @@ pub struct Args {
     #[arg(long)]
     pub subtract_mean_velocity: bool,
     /// Error budget per ray: with absorption the image's XYZ stays within this fraction of
-    /// the unattenuated emission's (per channel); picked spectra within this fraction of
-    /// their maximum. Larger is faster (1e-2 ... 5e-2 are typically still more accurate than
-    /// banded:4000).
+    /// the unattenuated emission's (per channel); an absorbing cube's channels within about
+    /// half this fraction of their unattenuated values (beside the line profiles' own
+    /// error); picked spectra within this fraction of their maximum. Larger is faster
+    /// (1e-2 ... 5e-2 are typically still more accurate than banded:4000).
     #[arg(long, default_value_t = 1e-4)]
     pub merge_tol: f64,
     /// Per-ray piece budget (coarser merges beyond it).
