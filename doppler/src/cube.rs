@@ -1055,7 +1055,16 @@ impl<'a> CubePlan<'a> {
             let fy = h - 1 - y;
             for (x, acc) in row.chunks_exact(nc).enumerate() {
                 for (k, &v) in acc.iter().enumerate() {
-                    data[(k * h + fy) * w + x] = v as f32;
+                    let f = v as f32;
+                    if !f.is_finite() {
+                        // Factors or units far out of range (a temperature factor of 1e300
+                        // makes the lines' widths, and the black body, overflow).
+                        return Err(Error::parameter(format!(
+                            "cube: pixel ({x}, {y}) channel {k} is {v} (not finite in f32): the \
+                             scene's factors or units are out of range"
+                        )));
+                    }
+                    data[(k * h + fy) * w + x] = f;
                 }
             }
         }

@@ -538,8 +538,8 @@ pub(crate) fn ray_channels(
         acc,
     )?;
     // The continuum behind a saturated depth is a difference of nearly equal terms: never
-    // let its rounding go below zero.
-    acc.iter_mut().for_each(|v| *v = v.max(0.0));
+    // let its rounding go below zero (a NaN from overflowing factors stays, to be refused).
+    acc.iter_mut().filter(|v| **v < 0.0).for_each(|v| *v = 0.0);
     Ok(())
 }
 
