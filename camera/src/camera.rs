@@ -311,6 +311,22 @@ impl Camera {
                         .to_degrees(),
             },
         };
+        // A zoom far out of range overflows the view (it was reported as a bad height).
+        match self.projection {
+            Projection::Orthographic { height } if !(height > 0.0 && height.is_finite()) => {
+                return Err(Error::parameter(format!(
+                    "zoom {zoom} is out of range for this view (it leaves an orthographic \
+                     height of {height})"
+                )));
+            }
+            Projection::Perspective { fov_y_deg } if fov_y_deg <= 0.0 => {
+                return Err(Error::parameter(format!(
+                    "zoom {zoom} is out of range for this view (it leaves a field of view \
+                     of {fov_y_deg} degrees)"
+                )));
+            }
+            _ => {}
+        }
         self.validate()?;
         Ok(self)
     }

@@ -133,6 +133,12 @@ fn zoom_magnifies_about_the_centre() {
     let ratio = (f0.to_radians() / 2.0).tan() / (f1.to_radians() / 2.0).tan();
     assert!((ratio - 2.0).abs() < 1e-5, "{ratio}");
     assert!(cam.zoomed(0.0).is_err() && cam.zoomed(f32::NAN).is_err());
+    // A zoom that overflows the view names the zoom (it was reported as a bad height).
+    let e = cam.zoomed(1e-39).unwrap_err().to_string();
+    assert!(
+        e.starts_with("invalid parameter: zoom") && e.contains("out of range"),
+        "{e}"
+    );
 }
 
 /// Views set by eye and target choose the same up, and give the same rays up to scale, in

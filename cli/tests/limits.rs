@@ -413,3 +413,28 @@ fn a_brick_larger_than_max_memory_is_refused() {
     let ok = render("64M");
     assert!(ok.status.success(), "{}", stderr(&ok));
 }
+
+/// A gzip NRRD with a reversed z axis cannot be streamed (a gzip stream does not run
+/// backwards), so `convert` reads it whole; over `--max-memory` the refusal says so, where it
+/// used to leave the user to wonder why a file that streams unreversed did not.
+#[test]
+fn a_reversed_gzip_nrrd_over_the_budget_says_why_it_is_read_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let ok = |args: &[&str]| {
+        let out = blueshift(d, args);
+        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+    };
+    ok(&["synth", "turbulence", "t.nrrd", "--res", "64"]);
+    ok(&["convert", "t.nrrd", "g.nhdr", "--gzip"]);
+    assert!(d.join("g.raw.gz").exists());
+    std::fs::write(
+        d.join("r.nhdr"),
+        "NRRD0004\ntype: float\ndimension: 3\nsizes: 64 64 64\nspacings: 1 1 -1\n\
+         encoding: gzip\nendian: little\ndata file: g.raw.gz\n",
+    )
+    .unwrap();
+    let out = blueshift(d, &["convert", "r.nhdr", "o.bsv", "--max-memory", "512K"]);
+    refused(&out, &["reversed z axis", "--max-memory"]);
+    assert!(!d.join("o.bsv").exists());
+}

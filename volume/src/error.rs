@@ -49,6 +49,17 @@ impl Error {
     pub(crate) fn parameter(msg: impl Into<String>) -> Self {
         Error::Parameter(msg.into())
     }
+    /// The same error, of the same kind, with `context` before its message ("NRRD: ..."):
+    /// wrapping the whole error in another would print its kind twice.
+    pub(crate) fn context(self, context: &str) -> Self {
+        match self {
+            Error::Invalid(m) => Error::Invalid(format!("{context}: {m}")),
+            Error::Unsupported(m) => Error::Unsupported(format!("{context}: {m}")),
+            Error::Limits(m) => Error::Limits(format!("{context}: {m}")),
+            Error::Parameter(m) => Error::Parameter(format!("{context}: {m}")),
+            other => other,
+        }
+    }
 }
 
 impl From<std::io::Error> for Error {

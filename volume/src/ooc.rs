@@ -407,6 +407,19 @@ impl std::fmt::Debug for GzipFileSource {
 }
 
 impl GzipFileSource {
+    /// Whether `path` is a gzip-encoded NRRD whose z axis is stored reversed (a negative
+    /// spacing): [`Self::probe`] does not stream it, as a gzip stream cannot be read
+    /// backwards, so it is read whole.
+    #[must_use]
+    pub fn reverses_z(path: &Path) -> bool {
+        use crate::io::{Format, detect_format};
+        matches!(detect_format(path), Ok(Format::Nrrd))
+            && matches!(
+                crate::io::nrrd::gzip_payload(path, &Limits::no_limits()),
+                Ok(Some((_, _, layout, _))) if layout.flip[2]
+            )
+    }
+
     /// Opens a gzip-encoded NRRD of scalars without skips; `None` for any other file (read
     /// those in core, or stream them with [`RawFileSource::probe`]).
     pub fn probe(path: &Path) -> Result<Option<Self>> {

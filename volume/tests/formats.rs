@@ -382,6 +382,76 @@ fn a_metaimage_header_without_its_data_line_says_so() {
     );
 }
 
+/// A compressed MetaImage's `CompressedDataSize`: the exact size reads; a size past the
+/// file's end is refused by name; a size that cuts the stream short is refused as truncated
+/// (the size used to go unread, and a wrong one passed).
+#[test]
+fn metaimage_compressed_data_size_is_checked() {
+    use std::io::Write;
+    let values: Vec<f32> = (0..8).map(|i| i as f32 * 0.5).collect();
+    let raw: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let mut enc = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+    enc.write_all(&raw).unwrap();
+    let z = enc.finish().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let file = |size: usize| {
+        let p = dir.path().join(format!("z{size}.mha"));
+        let mut bytes = format!(
+            "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_FLOAT\n\
+             CompressedData = True\nCompressedDataSize = {size}\nElementDataFile = LOCAL\n"
+        )
+        .into_bytes();
+        bytes.extend(&z);
+        // Trailing bytes after the stream (its declared size ends before them).
+        bytes.extend([0u8; 7]);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    };
+    let v = read(file(z.len())).unwrap();
+    assert_eq!(v.channels()[0].grid.to_f32_vec(), values);
+    let past = read(file(z.len() + 100)).unwrap_err().to_string();
+    assert!(past.contains("CompressedDataSize"), "{past}");
+    let short = read(file(z.len() - 4)).unwrap_err().to_string();
+    assert!(!short.contains('\n'), "{short}");
+}
+
+/// A zero spacing in an NRRD, MetaImage or VTK header: one line that names the format and
+/// the spacing, and says "invalid data" once (it said it twice, the geometry's own error
+/// wrapped in the reader's).
+#[test]
+fn a_zero_spacing_is_refused_in_one_plain_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let files: [(&str, &str); 3] = [
+        (
+            "z.nrrd",
+            "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nspacings: 0 1 1\n\
+             encoding: raw\nendian: little\n\n",
+        ),
+        (
+            "z.mha",
+            "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_FLOAT\n\
+             ElementSpacing = 0 1 1\nElementDataFile = LOCAL\n",
+        ),
+        (
+            "z.vtk",
+            "# vtk DataFile Version 3.0\nz\nBINARY\nDATASET STRUCTURED_POINTS\n\
+             DIMENSIONS 2 2 2\nSPACING 0 1 1\nORIGIN 0 0 0\nPOINT_DATA 8\n\
+             SCALARS s float 1\nLOOKUP_TABLE default\n",
+        ),
+    ];
+    for (name, header) in files {
+        let p = dir.path().join(name);
+        let mut bytes = header.as_bytes().to_vec();
+        bytes.extend([0u8; 32]);
+        std::fs::write(&p, bytes).unwrap();
+        let msg = read(&p).unwrap_err().to_string();
+        assert!(
+            msg.matches("invalid data").count() == 1 && msg.contains("spacing"),
+            "{name}: {msg}"
+        );
+    }
+}
+
 mod mutated_headers {
     //! Property tests: any truncation or byte change in a valid file's header gives Ok or Err,
     //! never a panic, and never a huge allocation (the default limits stay in force).

@@ -147,7 +147,16 @@ pub fn run(args: Args) -> Result<()> {
                 None => brick(&mut *src, &args, "scalars", layout),
             };
         }
-        let mut vol = read(&args.input)?;
+        let mut vol = read(&args.input).map_err(|e| {
+            if GzipFileSource::reverses_z(&args.input) {
+                e.context(
+                    "a gzip NRRD with a reversed z axis (a negative spacing) is read whole, \
+                     as a gzip stream cannot be read backwards: store it raw to stream it",
+                )
+            } else {
+                e
+            }
+        })?;
         if let Some(s) = args.spacing {
             vol.set_geometry(Geometry {
                 spacing: s,

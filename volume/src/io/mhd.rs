@@ -67,6 +67,7 @@ fn parse_header(path: &Path) -> Result<Header> {
     let mut origin: Option<Vec<f32>> = None;
     let mut msb = false;
     let mut compressed = false;
+    let mut compressed_size: Option<u64> = None;
     let mut channels = 1usize;
     let mut header_size: i64 = 0;
     let mut data_file = None;
@@ -119,6 +120,11 @@ fn parse_header(path: &Path) -> Result<Header> {
             "Offset" | "Origin" | "Position" => origin = Some(floats(value, key)?),
             "ElementByteOrderMSB" | "BinaryDataByteOrderMSB" => msb = bool_value(value, key)?,
             "CompressedData" => compressed = bool_value(value, key)?,
+            "CompressedDataSize" => {
+                compressed_size = Some(value.parse().map_err(|_| {
+                    Error::invalid(format!("MetaImage: CompressedDataSize '{value}'"))
+                })?);
+            }
             "ElementNumberOfChannels" => {
                 channels = parse_dim(value, "MetaImage ElementNumberOfChannels")?
             }
@@ -217,9 +223,7 @@ fn parse_header(path: &Path) -> Result<Header> {
         origin: o,
         spacing: sp,
     };
-    geometry
-        .validate()
-        .map_err(|e| Error::invalid(format!("MetaImage: {e}")))?;
+    geometry.validate().map_err(|e| e.context("MetaImage"))?;
     let layout = Layout {
         dims,
         disk,
@@ -231,6 +235,7 @@ fn parse_header(path: &Path) -> Result<Header> {
         layout,
         geometry,
         compressed,
+        compressed_size,
         header_size,
         data_file,
         header_end: pos,
@@ -241,6 +246,8 @@ struct Header {
     layout: Layout,
     geometry: Geometry,
     compressed: bool,
+    /// `CompressedDataSize`: the zlib stream's length in bytes, if given.
+    compressed_size: Option<u64>,
     header_size: i64,
     data_file: String,
     header_end: u64,
@@ -281,6 +288,7 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
         layout,
         geometry,
         compressed,
+        compressed_size,
         header_size,
         data_file,
         header_end,
@@ -337,6 +345,16 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
             "MetaImage: truncated data: the header declares {len} bytes of voxels, the file holds {avail}: {}",
             path.display()
         )));
+    }
+    // A compressed stream reads no further than its declared size (as ITK reads it), and a
+    // declared size past the file's end is refused here, not as a damaged stream.
+    if let (true, Some(size)) = (compressed, compressed_size) {
+        if size > avail {
+            return Err(Error::invalid(format!(
+                "MetaImage: CompressedDataSize {size} bytes, the file holds {avail} after the header"
+            )));
+        }
+        src = Box::new(src.take(size));
     }
     let mut bytes = read_payload(src, encoding, len)?;
     let grid = decode(&mut bytes, &layout, geometry)?;

@@ -353,9 +353,7 @@ fn parse_header(path: &Path, limits: &crate::Limits) -> Result<Header> {
         origin,
         spacing,
     };
-    geometry
-        .validate()
-        .map_err(|e| Error::invalid(format!("NRRD: {e}")))?;
+    geometry.validate().map_err(|e| e.context("NRRD"))?;
     let layout = Layout {
         dims,
         disk,

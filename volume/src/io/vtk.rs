@@ -162,9 +162,7 @@ pub fn read(path: &Path, opts: &ReadOptions) -> Result<Volume> {
                     origin,
                     spacing,
                 };
-                geometry
-                    .validate()
-                    .map_err(|e| Error::invalid(format!("VTK: {e}")))?;
+                geometry.validate().map_err(|e| e.context("VTK"))?;
                 if Some(n)
                     != dims[0]
                         .checked_mul(dims[1])
