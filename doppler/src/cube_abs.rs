@@ -46,7 +46,7 @@
 use blueshift_spectrum::{Blackbody, Piece, merge_pieces};
 
 use super::cube::{GaussRun, MERGE_ERROR, line_reaches};
-use super::front::{Carry, Cursor, add_sorted, depth_moments};
+use super::front::{Carry, Cursor, add_sorted, depth_moments, ends};
 use super::profile::Emit;
 use super::pwl::spectrum_err;
 use super::render::{Context, RaySamples};
@@ -120,7 +120,7 @@ pub(crate) struct Scratch {
     ctr: Vec<Trap>,
     ev_e: Vec<Emit>,
     ev_d: Vec<Emit>,
-    events: Vec<(f64, bool, u32)>,
+    events: Vec<(f64, u8, usize)>,
     w: Vec<[f64; 2]>,
     cont: Vec<(f64, f64)>,
     run_cont: Vec<(f64, f64)>,
@@ -135,7 +135,7 @@ struct Depth<'s> {
     d: &'s mut Vec<Piece>,
     e: &'s mut Vec<Piece>,
     c: &'s mut Vec<Piece>,
-    events: &'s mut Vec<(f64, bool, u32)>,
+    events: &'s mut Vec<(f64, u8, usize)>,
     w: &'s mut [[f64; 2]],
     tol: f64,
     budget: usize,
@@ -807,78 +807,23 @@ fn lattice_gaussian(c: f64, sg: f64, area: f64, win: &Window, out: &mut Vec<Trap
 const LATTICE_NODES: usize = 72;
 
 /// Sums trapezoids (any order, possibly overlapping) into sorted, disjoint pieces in `out`
-/// (cleared first), by one sweep over their sorted ends.
-fn sum_trapezoids(tr: &[Trap], out: &mut Vec<Piece>, events: &mut Vec<(f64, bool, u32)>) {
+/// (cleared first): as they are where they are sorted and disjoint already (one Gaussian's
+/// pieces, one trapezoid), else by the spectrum crate's sweep over their sorted ends.
+fn sum_trapezoids(tr: &[Trap], out: &mut Vec<Piece>, events: &mut Vec<(f64, u8, usize)>) {
     out.clear();
+    let piece = |start_nm, end_nm, value_start, value_end| Piece {
+        start_nm,
+        end_nm,
+        value_start,
+        value_end,
+    };
     if tr.windows(2).all(|w| w[0].1 <= w[1].0) {
-        // Sorted and disjoint already (one Gaussian's pieces, one trapezoid).
-        out.extend(tr.iter().map(|&(lo, hi, h0, h1)| Piece {
-            start_nm: lo,
-            end_nm: hi,
-            value_start: h0,
-            value_end: h1,
-        }));
+        out.extend(tr.iter().map(|&(lo, hi, h0, h1)| piece(lo, hi, h0, h1)));
         return;
     }
-    // (x, starts, index): ends sort before starts at one x.
-    events.clear();
-    for (i, t) in tr.iter().enumerate() {
-        events.push((t.0, true, i as u32));
-        events.push((t.1, false, i as u32));
-    }
-    events.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    let (mut active, mut value, mut slope) = (0usize, 0.0f64, 0.0f64);
-    let mut x = f64::NEG_INFINITY;
-    let mut k = 0;
-    while k < events.len() {
-        let next = events[k].0;
-        if active > 0 && next > x {
-            let v1 = value + slope * (next - x);
-            out.push(Piece {
-                start_nm: x,
-                end_nm: next,
-                value_start: value.max(0.0),
-                value_end: v1.max(0.0),
-            });
-            value = v1;
-        }
-        x = next;
-        while k < events.len() && events[k].0 == x {
-            let (_, starts, i) = events[k];
-            let t = tr[i as usize];
-            let s = (t.3 - t.2) / (t.1 - t.0);
-            if starts {
-                active += 1;
-                value += t.2;
-                slope += s;
-            } else {
-                active -= 1;
-                value -= t.3;
-                slope -= s;
-            }
-            k += 1;
-        }
-        if active == 0 {
-            value = 0.0;
-            slope = 0.0;
-        }
-    }
-}
-
-/// A piece's values at `u` and `w` (inside it or at its end; zero for none).
-#[inline]
-fn ends(q: Option<Piece>, u: f64, w: f64) -> (f64, f64) {
-    q.map_or((0.0, 0.0), |q| {
-        let slope = (q.value_end - q.value_start) / (q.end_nm - q.start_nm);
-        let at = |x: f64| {
-            if x >= q.end_nm {
-                q.value_end
-            } else {
-                q.value_start + slope * (x - q.start_nm)
-            }
-        };
-        (at(u), at(w))
-    })
+    blueshift_spectrum::sum_trapezoids(tr, events, |a, b, v0, v1| {
+        out.push(piece(a, b, v0, v1));
+    });
 }
 
 /// The continuum's depth beyond `A` in a sweep: a fraction of the segment's depth, or a

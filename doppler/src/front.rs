@@ -268,6 +268,22 @@ pub(crate) fn add_sorted(a: &[Piece], b: &[Piece], out: &mut Vec<Piece>) {
     }
 }
 
+/// A piece's values at `u` and `w` (inside it or at its end; zero for none).
+#[inline]
+pub(crate) fn ends(q: Option<Piece>, u: f64, w: f64) -> (f64, f64) {
+    q.map_or((0.0, 0.0), |q| {
+        let slope = (q.value_end - q.value_start) / (q.end_nm - q.start_nm);
+        let at = |x: f64| {
+            if x >= q.end_nm {
+                q.value_end
+            } else {
+                q.value_start + slope * (x - q.start_nm)
+            }
+        };
+        (at(u), at(w))
+    })
+}
+
 /// A cursor over sorted, disjoint pieces, advanced monotonically.
 pub(crate) struct Cursor<'a> {
     pieces: &'a [Piece],
@@ -582,22 +598,9 @@ impl Sweep<'_> {
                 }
             }
             let h = w - u;
-            let ends = |q: Option<Piece>| {
-                q.map_or((0.0, 0.0), |q| {
-                    let slope = (q.value_end - q.value_start) / (q.end_nm - q.start_nm);
-                    let at = |x: f64| {
-                        if x >= q.end_nm {
-                            q.value_end
-                        } else {
-                            q.value_start + slope * (x - q.start_nm)
-                        }
-                    };
-                    (at(u), at(w))
-                })
-            };
-            let (pu, pw) = chord.unwrap_or_else(|| ends(pp));
-            let (du, dw) = ends(dp);
-            let (eu, ew) = ends(ep);
+            let (pu, pw) = chord.unwrap_or_else(|| ends(pp, u, w));
+            let (du, dw) = ends(dp, u, w);
+            let (eu, ew) = ends(ep, u, w);
             let has_d = du > 0.0 || dw > 0.0;
             let has_e = (eu > 0.0 || ew > 0.0) && (has_d || pu > 0.0 || pw > 0.0);
             let bb = row.filter(|_| has_d).zip(cell);

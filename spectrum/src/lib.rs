@@ -83,7 +83,7 @@ pub use lines::{
     Catalogue, EmissionLine, LINE_LIST_COLUMNS, LineProfile, add_lines, parse_line_list,
     read_line_list,
 };
-pub use piecewise::{MAX_PIECES, Piece, PiecewiseLinear, merge_pieces};
+pub use piecewise::{MAX_PIECES, Piece, PiecewiseLinear, merge_pieces, sum_trapezoids};
 pub use profiles::{
     ATOMIC_MASS_UNIT_KG, NamedLine, PwlGaussian, named_line, thermal_sigma_m_per_s,
     velocity_sigma_to_nm,

@@ -364,25 +364,11 @@ impl PiecewiseLinear {
     /// More than [`MAX_PIECES`] / 2 trapezoids, own pieces included (the spectrum is left
     /// unchanged).
     pub fn add_trapezoids(&mut self, trapezoids: &[(f64, f64, f64, f64)]) -> Result<()> {
-        // Events: (x, kind, index); kind 0 ends a trapezoid, 1 starts one, so at equal x
-        // the ending ones leave before the starting ones enter.
-        let own: Vec<(f64, f64, f64, f64)> = self
+        let list: Vec<(f64, f64, f64, f64)> = self
             .pieces()
             .map(|p| (p.start_nm, p.end_nm, p.value_start, p.value_end))
+            .chain(trapezoids.iter().copied())
             .collect();
-        let all = || {
-            own.iter()
-                .chain(trapezoids)
-                .filter(|t| t.2 != 0.0 || t.3 != 0.0)
-        };
-        let mut events: Vec<(f64, u8, usize)> =
-            Vec::with_capacity(2 * (own.len() + trapezoids.len()));
-        let list: Vec<&(f64, f64, f64, f64)> = all().collect();
-        for (i, t) in list.iter().enumerate() {
-            events.push((t.0, 1, i));
-            events.push((t.1, 0, i));
-        }
-        events.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         // n trapezoids make at most 2n - 1 pieces.
         if list.len() > MAX_PIECES / 2 {
             return Err(Error::param(
@@ -392,46 +378,9 @@ impl PiecewiseLinear {
             ));
         }
         let mut map = BTreeMap::new();
-        let (mut active, mut value, mut slope) = (0usize, 0.0f64, 0.0f64);
-        let mut x = f64::NEG_INFINITY;
-        let mut k = 0;
-        while k < events.len() {
-            let next = events[k].0;
-            if active > 0 && next > x {
-                let v1 = (value + slope * (next - x)).max(0.0);
-                map.insert(
-                    Key(x),
-                    Seg {
-                        end: next,
-                        v0: value.max(0.0),
-                        v1,
-                    },
-                );
-                value = v1;
-            }
-            x = next;
-            // Every event at this x.
-            while k < events.len() && events[k].0 == x {
-                let (_, kind, i) = events[k];
-                let t = list[i];
-                let s = (t.3 - t.2) / (t.1 - t.0);
-                if kind == 1 {
-                    active += 1;
-                    value += t.2;
-                    slope += s;
-                } else {
-                    active -= 1;
-                    value -= t.3;
-                    slope -= s;
-                }
-                k += 1;
-            }
-            if active == 0 {
-                // Exact zero between groups: no drift carried across a gap.
-                value = 0.0;
-                slope = 0.0;
-            }
-        }
+        sum_trapezoids(&list, &mut Vec::new(), |x, end, v0, v1| {
+            map.insert(Key(x), Seg { end, v0, v1 });
+        });
         self.map = map;
         Ok(())
     }
@@ -679,6 +628,61 @@ impl PiecewiseLinear {
     pub fn merged_relative(&self, relative_tolerance: f64) -> Result<Self> {
         non_negative("relative merge tolerance", relative_tolerance)?;
         self.merged(relative_tolerance * self.max_value())
+    }
+}
+
+/// The sum of trapezoids `(start_nm, end_nm, value_start, value_end)` (validated:
+/// `start < end`, values finite and >= 0; in any order, overlapping) as sorted, disjoint
+/// pieces, each given to `piece(start, end, value_start, value_end)` in order, by one sweep
+/// over their sorted ends: O(n log n) however much they overlap. Identically zero
+/// trapezoids are left out; `events` is scratch.
+pub fn sum_trapezoids(
+    trapezoids: &[(f64, f64, f64, f64)],
+    events: &mut Vec<(f64, u8, usize)>,
+    mut piece: impl FnMut(f64, f64, f64, f64),
+) {
+    // Events: (x, kind, index); kind 0 ends a trapezoid, 1 starts one, so at equal x the
+    // ending ones leave before the starting ones enter.
+    events.clear();
+    for (i, t) in trapezoids.iter().enumerate() {
+        if t.2 != 0.0 || t.3 != 0.0 {
+            events.push((t.0, 1, i));
+            events.push((t.1, 0, i));
+        }
+    }
+    events.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let (mut active, mut value, mut slope) = (0usize, 0.0f64, 0.0f64);
+    let mut x = f64::NEG_INFINITY;
+    let mut k = 0;
+    while k < events.len() {
+        let next = events[k].0;
+        if active > 0 && next > x {
+            let v1 = (value + slope * (next - x)).max(0.0);
+            piece(x, next, value.max(0.0), v1);
+            value = v1;
+        }
+        x = next;
+        // Every event at this x.
+        while k < events.len() && events[k].0 == x {
+            let (_, kind, i) = events[k];
+            let t = trapezoids[i];
+            let s = (t.3 - t.2) / (t.1 - t.0);
+            if kind == 1 {
+                active += 1;
+                value += t.2;
+                slope += s;
+            } else {
+                active -= 1;
+                value -= t.3;
+                slope -= s;
+            }
+            k += 1;
+        }
+        if active == 0 {
+            // Exact zero between groups: no drift carried across a gap.
+            value = 0.0;
+            slope = 0.0;
+        }
     }
 }
 
